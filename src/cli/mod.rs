@@ -1,0 +1,76 @@
+//! Subcommands: each file holds one command's clap arguments and its `run`, which resolves the
+//! arguments, calls the library and returns an [`Outcome`]; `main.rs` only prints it.
+
+pub mod bench;
+pub mod build;
+pub mod dump;
+pub mod ingest;
+
+use serde_json::Value;
+
+/// Flags shared by every subcommand.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct Global {
+    /// No progress bars, no summary text (errors still go to stderr).
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
+    /// Print machine-readable results as JSON on stdout.
+    #[arg(long, global = true)]
+    pub json: bool,
+    /// Treat warnings (dropped or repaired data) as errors.
+    #[arg(long, global = true)]
+    pub warnings_as_errors: bool,
+}
+
+/// What a command produced: JSON for `--json`, text for people, warnings for stderr.
+#[derive(Debug, Clone, Default)]
+pub struct Outcome {
+    pub json: Value,
+    pub text: String,
+    pub warnings: Vec<String>,
+}
+
+impl Global {
+    /// A progress bar on stderr, hidden with `--quiet`.
+    pub fn progress(&self, len: u64, message: &str) -> indicatif::ProgressBar {
+        if self.quiet {
+            return indicatif::ProgressBar::hidden();
+        }
+        let bar = indicatif::ProgressBar::new(len);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{msg:>12} [{bar:30}] {pos}/{len} {elapsed_precise}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        bar.set_message(message.to_string());
+        bar
+    }
+}
+
+/// Parses `WxH`.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("{s:?} is not WxH"))?;
+    let w = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?}: width is not a number"))?;
+    let h = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?}: height is not a number"))?;
+    Ok((w, h))
+}
+
+/// Parses `x,y,z`.
+pub fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("{s:?} is not x,y,z"))?;
+    <[f32; 3]>::try_from(v).map_err(|_| format!("{s:?} is not x,y,z"))
+}

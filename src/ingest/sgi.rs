@@ -1,0 +1,1 @@
+//! SGI image reader (in progress).

@@ -1,0 +1,12 @@
+//! `bake`: an asset-baking pipeline for interactive landscape rendering.
+//!
+//! Data flow (see ../shared/brief/BRIEF.md and docs/): [`ingest`] reads every input into the
+//! [`model`]; stages turn the model into GPU-ready data; [`pack`] stores it; [`dump`] shows it;
+//! `render` proves it with wgpu. [`pipeline`] is the orchestrator, [`cli`] the subcommands.
+pub mod cli;
+pub mod dump;
+pub mod error;
+pub mod ingest;
+pub mod model;
+pub mod pack;
+pub mod pipeline;

@@ -1,0 +1,106 @@
+//! The `bake` binary: parses arguments, calls the library, prints, maps errors to exit codes.
+
+use bake::cli::{self, Global, Outcome};
+use bake::error::{Error, exit};
+use clap::{Parser, Subcommand};
+
+/// Asset-baking pipeline for interactive landscape rendering.
+///
+/// `bake SCENE.eco` is short for `bake build SCENE.eco`.
+#[derive(Debug, Parser)]
+#[command(name = "bake", version, about, long_about = None, after_help = EXIT_CODES)]
+struct Cli {
+    #[command(flatten)]
+    global: Global,
+    #[command(subcommand)]
+    command: Command,
+}
+
+const EXIT_CODES: &str =
+    "Exit codes: 0 ok, 2 usage, 3 I/O error, 4 invalid input, 5 runtime failure.";
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Ingest a whole ECO scene into one pack (the default command).
+    Build(cli::build::BuildArgs),
+    /// Ingest any single input file into a pack.
+    Ingest(cli::ingest::IngestArgs),
+    /// Show what a pack holds.
+    Dump(cli::dump::DumpArgs),
+    /// Benchmarks (see docs/PERFORMANCE.md).
+    Bench(cli::bench::BenchArgs),
+}
+
+fn run(cli: &Cli) -> Result<Outcome, Error> {
+    let g = &cli.global;
+    match &cli.command {
+        Command::Build(a) => cli::build::run(a, g),
+        Command::Ingest(a) => cli::ingest::run(a, g),
+        Command::Dump(a) => cli::dump::run(a, g),
+        Command::Bench(a) => cli::bench::run(a, g),
+    }
+}
+
+/// `bake scene.eco ...` becomes `bake build scene.eco ...`.
+fn with_default_command(mut args: Vec<std::ffi::OsString>) -> Vec<std::ffi::OsString> {
+    let first = args
+        .iter()
+        .skip(1)
+        .find(|a| !a.to_string_lossy().starts_with('-'));
+    if let Some(first) = first {
+        let f = first.to_string_lossy().to_ascii_lowercase();
+        if f.ends_with(".eco") {
+            args.insert(1, "build".into());
+        }
+    }
+    args
+}
+
+fn main() {
+    let cli = match Cli::try_parse_from(with_default_command(std::env::args_os().collect())) {
+        Ok(c) => c,
+        Err(e) => {
+            let code = if e.use_stderr() {
+                exit::USAGE
+            } else {
+                exit::OK
+            };
+            let _ = e.print();
+            std::process::exit(code);
+        }
+    };
+    let filter = if cli.global.quiet { "error" } else { "warn" };
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("BAKE_LOG")
+                .unwrap_or_else(|_| filter.into()),
+        )
+        .with_writer(std::io::stderr)
+        .try_init();
+    match run(&cli) {
+        Ok(out) => {
+            for w in &out.warnings {
+                eprintln!("warning: {w}");
+            }
+            if cli.global.json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&out.json).unwrap_or_default()
+                );
+            } else if !cli.global.quiet {
+                print!("{}", out.text);
+            }
+            if cli.global.warnings_as_errors && !out.warnings.is_empty() {
+                eprintln!(
+                    "error: {} warning(s) and --warnings-as-errors",
+                    out.warnings.len()
+                );
+                std::process::exit(exit::INVALID_INPUT);
+            }
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::exit(e.exit_code());
+        }
+    }
+}

@@ -1,0 +1,63 @@
+//! Kind `texture`: a decoded image, RGBA8 as stored in the source file (sRGB-encoded).
+
+use crate::error::ParseError;
+use crate::model::Rgba8Image;
+use crate::pack::section::SectionView;
+use crate::pack::{ArrayFormat, Section, SectionBuilder};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+
+pub const KIND: &str = "texture";
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TextureMeta {
+    pub width: u32,
+    pub height: u32,
+    /// Texel format: `rgba8_srgb` (8-bit, display-encoded) for ingested textures.
+    pub format: String,
+    pub source: String,
+}
+
+pub fn to_section(name: &str, source: &str, img: &Rgba8Image) -> Section {
+    let meta = TextureMeta {
+        width: img.width,
+        height: img.height,
+        format: "rgba8_srgb".into(),
+        source: source.into(),
+    };
+    let mut b = SectionBuilder::new(KIND, name);
+    b.meta(&meta)
+        .array("texels", ArrayFormat::U8, 4, &img.pixels);
+    b.finish()
+}
+
+pub fn from_section(v: &SectionView) -> Result<(TextureMeta, Rgba8Image), ParseError> {
+    let meta: TextureMeta = v.meta()?;
+    let pixels: Vec<[u8; 4]> = v.array_vec("texels")?;
+    if pixels.len() as u64 != meta.width as u64 * meta.height as u64 {
+        return Err(ParseError::new(
+            "texture section",
+            "texel count does not match width × height",
+        ));
+    }
+    Ok((
+        meta.clone(),
+        Rgba8Image {
+            width: meta.width,
+            height: meta.height,
+            pixels,
+        },
+    ))
+}
+
+pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
+    let meta: TextureMeta = v.meta()?;
+    Ok(
+        json!({"width": meta.width, "height": meta.height, "format": meta.format, "source": meta.source}),
+    )
+}
+
+pub fn data(v: &SectionView) -> Result<Value, ParseError> {
+    let (_, img) = from_section(v)?;
+    Ok(json!({ "texels": img.pixels }))
+}
