@@ -6,6 +6,7 @@
 pub mod cli;
 pub mod dump;
 pub mod error;
+pub mod fixtures;
 pub mod ingest;
 pub mod model;
 pub mod pack;

@@ -27,6 +27,8 @@ enum Command {
     Ingest(cli::ingest::IngestArgs),
     /// Show what a pack holds.
     Dump(cli::dump::DumpArgs),
+    /// Write the generated fixture scene into a folder.
+    Fixtures(cli::fixtures::FixturesArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
 }
@@ -38,6 +40,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Ingest(a) => cli::ingest::run(a, g),
         Command::Dump(a) => cli::dump::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),
+        Command::Fixtures(a) => cli::fixtures::run(a, g),
     }
 }
 

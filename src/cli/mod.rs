@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod build;
 pub mod dump;
+pub mod fixtures;
 pub mod ingest;
 
 use serde_json::Value;

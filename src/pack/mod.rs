@@ -147,6 +147,17 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// Temporary files are created 0600; give the output the permissions of the file it replaces,
+/// or the usual 0644 for a new file.
+#[cfg(unix)]
+fn set_output_permissions(file: &std::fs::File, target: &Path) {
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(target).map(|m| m.permissions().mode()).unwrap_or(0o644);
+    let _ = file.set_permissions(std::fs::Permissions::from_mode(mode));
+}
+#[cfg(not(unix))]
+fn set_output_permissions(_file: &std::fs::File, _target: &Path) {}
+
 fn check_label(s: &str, max: usize, what: &str) -> Result<()> {
     if s.len() > max || s.as_bytes().contains(&0) {
         return Err(Error::runtime(format!(
