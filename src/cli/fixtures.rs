@@ -15,7 +15,12 @@ pub fn run(args: &FixturesArgs, _g: &Global) -> Result<Outcome> {
     let names = crate::fixtures::write_all(&args.dir)?;
     Ok(Outcome {
         json: serde_json::json!({"dir": args.dir, "files": names}),
-        text: format!("{}: {} files ({})\n", args.dir.display(), names.len(), names.join(", ")),
+        text: format!(
+            "{}: {} files ({})\n",
+            args.dir.display(),
+            names.len(),
+            names.join(", ")
+        ),
         warnings: Vec::new(),
     })
 }

@@ -152,7 +152,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 #[cfg(unix)]
 fn set_output_permissions(file: &std::fs::File, target: &Path) {
     use std::os::unix::fs::PermissionsExt;
-    let mode = std::fs::metadata(target).map(|m| m.permissions().mode()).unwrap_or(0o644);
+    let mode = std::fs::metadata(target)
+        .map(|m| m.permissions().mode())
+        .unwrap_or(0o644);
     let _ = file.set_permissions(std::fs::Permissions::from_mode(mode));
 }
 #[cfg(not(unix))]

@@ -1,0 +1,198 @@
+//! Black-box tests of the `bake` binary: exit codes, error messages, `dump --json` shape.
+
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn bake(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bake"))
+        .args(args)
+        .env("NODEVICE_SELECT", "1")
+        .output()
+        .expect("run bake")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn json(o: &Output) -> Value {
+    assert!(o.status.success(), "bake failed: {}", stderr(o));
+    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p.to_str().unwrap().to_string()
+}
+
+#[test]
+fn usage_errors_exit_2() {
+    assert_eq!(bake(&[]).status.code(), Some(2));
+    assert_eq!(bake(&["frobnicate"]).status.code(), Some(2));
+    let o = bake(&["ingest", "x.raw"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("needs --size"), "{}", stderr(&o));
+    let o = bake(&["ingest", "/nonexistent/x.raw", "--size", "2x2"]);
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+}
+
+#[test]
+fn missing_file_is_an_io_error_naming_the_file() {
+    let o = bake(&["dump", "/nonexistent/pack.bake"]);
+    assert_eq!(o.status.code(), Some(3));
+    assert!(
+        stderr(&o).contains("/nonexistent/pack.bake"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn garbage_pack_is_invalid_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(
+        dir.path(),
+        "x.bake",
+        b"this is not a pack, just some text that is long enough to hold a header..",
+    );
+    let o = bake(&["dump", &p]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(stderr(&o).contains("not a bake pack"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("x.bake: byte 0"), "{}", stderr(&o));
+}
+
+#[test]
+fn raw_terrain_round_trips_through_dump() {
+    let dir = tempfile::tempdir().unwrap();
+    let samples: Vec<u8> = (0..12u8).map(|v| v * 20).collect();
+    let raw = write(dir.path(), "t.raw", &samples);
+    let out = dir.path().join("t.bake");
+    let o = bake(&[
+        "ingest",
+        &raw,
+        "--size",
+        "4x3",
+        "--scale",
+        "0.5",
+        "-o",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let doc = json(&bake(&["dump", out.to_str().unwrap(), "--json", "--full"]));
+    assert_eq!(doc["version"], 1);
+    let s = &doc["sections"][0];
+    assert_eq!(s["kind"], "terrain");
+    assert_eq!(s["checksum_ok"], true);
+    assert!(s["bytes"].as_u64().unwrap() > 0);
+    let sum = &s["summary"];
+    assert_eq!(
+        (sum["width"].as_u64(), sum["height"].as_u64()),
+        (Some(4), Some(3))
+    );
+    assert_eq!(sum["min_height"].as_f64(), Some(0.0));
+    assert_eq!(sum["max_height"].as_f64(), Some(110.0));
+    for key in ["origin", "extent"] {
+        assert_eq!(sum[key].as_array().map(Vec::len), Some(2), "{key}");
+    }
+    let heights: Vec<f64> = s["data"]["heights"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let expected: Vec<f64> = samples.iter().map(|&v| v as f64 * 0.5).collect();
+    assert_eq!(heights, expected);
+    // Without --full there is no data.
+    let doc = json(&bake(&["dump", out.to_str().unwrap(), "--json"]));
+    assert!(doc["sections"][0].get("data").is_none());
+}
+
+#[test]
+fn eco_errors_name_file_and_line_and_keep_previous_output() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "t.raw", &[10u8; 16]);
+    let good = "t.raw 4 4 1 0.1\n<GEOREF> 0 0 10 10 0 0 10 10\n<ECO>\n<LAYER> 1\n";
+    let eco = write(dir.path(), "s.eco", good.as_bytes());
+    let out = dir.path().join("s.bake");
+    let o = bake(&[&eco, "--quiet"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let before = std::fs::read(&out).unwrap();
+
+    write(
+        dir.path(),
+        "s.eco",
+        format!("{good}missing_plant 0.5 0.5 1 0\n").as_bytes(),
+    );
+    let o = bake(&[&eco]);
+    assert_eq!(o.status.code(), Some(4));
+    let err = stderr(&o);
+    assert!(err.contains("s.eco: line 5"), "{err}");
+    assert!(err.contains("missing_plant.txf"), "{err}");
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        before,
+        "a failed run must not touch the previous pack"
+    );
+    let leftovers = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .starts_with(".bake-tmp")
+        })
+        .count();
+    assert_eq!(leftovers, 0);
+
+    write(
+        dir.path(),
+        "s.eco",
+        b"t.raw 4 4 1 0.1\n<GEOREF> 0 0 10 10 0 0 10 10\n<ECO>\nplant 0.5 zero 1 0\n",
+    );
+    let o = bake(&[&eco]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(
+        stderr(&o).contains("s.eco: line 4: v position"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn wrong_raw_size_is_reported_with_the_expected_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let raw = write(dir.path(), "t.raw", &[0u8; 10]);
+    let o = bake(&["ingest", &raw, "--size", "4x4"]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(
+        stderr(&o).contains("expected 16 (8-bit) or 32 (16-bit)"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn dump_of_unknown_section_is_a_usage_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let raw = write(dir.path(), "t.raw", &[0u8; 4]);
+    let out = dir.path().join("t.bake");
+    assert!(
+        bake(&["ingest", &raw, "--size", "2x2", "-o", out.to_str().unwrap()])
+            .status
+            .success()
+    );
+    let o = bake(&["dump", out.to_str().unwrap(), "--section", "nope"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = bake(&[
+        "dump",
+        out.to_str().unwrap(),
+        "--section",
+        "terrain",
+        "--json",
+    ]);
+    assert_eq!(json(&o)["sections"].as_array().unwrap().len(), 1);
+}
