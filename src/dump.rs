@@ -30,6 +30,11 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         kinds::texture::data,
     ),
     (kinds::sky::KIND, kinds::sky::summary, kinds::sky::data),
+    (
+        crate::bittree::section::KIND,
+        crate::bittree::section::summary,
+        crate::bittree::section::data,
+    ),
 ];
 
 /// Options of `bake dump`.

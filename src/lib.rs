@@ -3,6 +3,7 @@
 //! Data flow (see ../shared/brief/BRIEF.md and docs/): [`ingest`] reads every input into the
 //! [`model`]; stages turn the model into GPU-ready data; [`pack`] stores it; [`dump`] shows it;
 //! `render` proves it with wgpu. [`pipeline`] is the orchestrator, [`cli`] the subcommands.
+pub mod bittree;
 pub mod cli;
 pub mod dump;
 pub mod error;

@@ -29,6 +29,8 @@ enum Command {
     Dump(cli::dump::DumpArgs),
     /// Write the generated fixture scene into a folder.
     Fixtures(cli::fixtures::FixturesArgs),
+    /// Encode the instances of a scene pack as a BitTree.
+    Bittree(cli::bittree::BitTreeArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
 }
@@ -40,6 +42,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Ingest(a) => cli::ingest::run(a, g),
         Command::Dump(a) => cli::dump::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),
+        Command::Bittree(a) => cli::bittree::run(a, g),
         Command::Fixtures(a) => cli::fixtures::run(a, g),
     }
 }

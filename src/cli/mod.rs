@@ -2,6 +2,7 @@
 //! arguments, calls the library and returns an [`Outcome`]; `main.rs` only prints it.
 
 pub mod bench;
+pub mod bittree;
 pub mod build;
 pub mod dump;
 pub mod fixtures;
@@ -74,4 +75,26 @@ pub fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
         .collect::<Result<_, _>>()
         .map_err(|_| format!("{s:?} is not x,y,z"))?;
     <[f32; 3]>::try_from(v).map_err(|_| format!("{s:?} is not x,y,z"))
+}
+
+/// The starting point of a stage command: an existing pack (kept whole, output defaults to the
+/// pack itself) or any input file ingested first (output defaults to `<stem>.bake`).
+pub fn open_or_ingest(
+    input: &std::path::Path,
+    output: Option<std::path::PathBuf>,
+) -> crate::error::Result<(crate::pack::PackWriter, std::path::PathBuf)> {
+    let is_pack = input
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bake"));
+    if is_pack {
+        let pack = crate::pack::Pack::open(input)?;
+        Ok((
+            crate::pack::PackWriter::from_pack(&pack),
+            output.unwrap_or_else(|| input.to_path_buf()),
+        ))
+    } else {
+        let (w, _) =
+            crate::pipeline::ingest_to_pack(input, &crate::ingest::IngestOptions::default())?;
+        Ok((w, output.unwrap_or_else(|| input.with_extension("bake"))))
+    }
 }

@@ -143,6 +143,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     tmp.as_file()
         .sync_all()
         .map_err(|e| Error::io(tmp.path(), e))?;
+    set_output_permissions(tmp.as_file(), path);
     tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
     Ok(())
 }

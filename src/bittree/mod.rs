@@ -1,0 +1,436 @@
+//! BitTree (seed 000, 5.1.1): implicit instance positions.
+//!
+//! The area of interest is discretized into cells so small that no cell holds two instances. A
+//! hierarchy splits each occupied cell of a level into n = 4, 16 or 64 children (2×2, 4×4 or 8×8)
+//! and stores one bit per child (1 = holds at least one instance), refining only occupied cells.
+//! Bits are written level by level (breadth first), children of a node in row-major order
+//! (x fastest). Leaves at the last level are single cells; a decoded position is the centre of its
+//! cell, so it is within half a cell diagonal of the original. Instances come back in leaf order
+//! (breadth first), which [`encode_bittree`] returns as a permutation so per-instance attributes
+//! (scale, rotation, model, layer) can be stored beside the bits in the same order.
+
+pub mod section;
+
+use crate::model::Rect;
+
+/// Options of the BitTree encoder.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BitTreeOptions {
+    /// Children per level: 4, 16 or 64.
+    pub children: u32,
+    /// Deepest level allowed; a scene needing more (two instances closer than extent / side^max) is an error.
+    pub max_levels: u32,
+}
+
+impl Default for BitTreeOptions {
+    fn default() -> Self {
+        BitTreeOptions {
+            children: 16,
+            max_levels: 24,
+        }
+    }
+}
+
+/// An encoded BitTree.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BitTree {
+    pub area: Rect,
+    pub children: u32,
+    pub levels: u32,
+    /// Number of leaves (instances).
+    pub count: u64,
+    /// The bit stream, packed little-endian into bytes (bit k of the stream is bit k%8 of byte k/8).
+    pub bits: Vec<u8>,
+    /// Number of bits used in `bits`.
+    pub bit_len: u64,
+}
+
+impl BitTree {
+    /// Children per axis (2, 4 or 8).
+    pub fn side(&self) -> u32 {
+        side_of(self.children)
+    }
+    /// Cell size at the deepest level in x and y.
+    pub fn cell_size(&self) -> [f32; 2] {
+        let cells = (self.side() as f64).powi(self.levels as i32);
+        [
+            (self.area.extent[0] as f64 / cells) as f32,
+            (self.area.extent[1] as f64 / cells) as f32,
+        ]
+    }
+}
+
+fn side_of(children: u32) -> u32 {
+    match children {
+        4 => 2,
+        16 => 4,
+        _ => 8,
+    }
+}
+
+/// Why a BitTree could not be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BitTreeError {
+    #[error("children per level must be 4, 16 or 64, not {0}")]
+    Children(u32),
+    #[error(
+        "instances {0} and {1} fall in the same cell even at {2} levels (they are closer than the finest cell)"
+    )]
+    TooClose(usize, usize, u32),
+    #[error("the area of interest has no extent")]
+    EmptyArea,
+    #[error("bit stream ends early at bit {0}")]
+    Truncated(u64),
+    #[error("bit stream decodes to {0} leaves, expected {1}")]
+    CountMismatch(u64, u64),
+}
+
+/// Integer cell of a point at `cells` cells per axis, clamped into the area.
+fn cell_of(p: [f32; 2], area: &Rect, cells: u64) -> [u64; 2] {
+    let mut c = [0u64; 2];
+    for k in 0..2 {
+        let t = ((p[k] - area.origin[k]) as f64 / area.extent[k] as f64).clamp(0.0, 1.0);
+        c[k] = ((t * cells as f64) as u64).min(cells - 1);
+    }
+    c
+}
+
+/// Encodes positions (x, y) inside `area`. Returns the tree and the leaf order: `order[k]` is the
+/// index of the input instance decoded as the k-th position.
+pub fn encode_bittree(
+    points: &[[f32; 2]],
+    area: Rect,
+    opts: &BitTreeOptions,
+) -> Result<(BitTree, Vec<u32>), BitTreeError> {
+    if ![4, 16, 64].contains(&opts.children) {
+        return Err(BitTreeError::Children(opts.children));
+    }
+    if area.extent[0] <= 0.0 || area.extent[1] <= 0.0 {
+        return Err(BitTreeError::EmptyArea);
+    }
+    let side = side_of(opts.children) as u64;
+    let levels = choose_levels(points, &area, side, opts.max_levels)?;
+    let cells = side.pow(levels);
+    // Sort instances by their path through the tree: for breadth-first leaf order it is enough to
+    // sort by the digit sequence (most significant level first), i.e. the interleaved base-`side` key.
+    let mut keyed: Vec<(u128, u32)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (path_key(cell_of(*p, &area, cells), side, levels), i as u32))
+        .collect();
+    keyed.sort_unstable();
+    let mut bits = BitWriter::default();
+    // Nodes of the current level as ranges of `keyed` sharing the same prefix.
+    let mut nodes: Vec<(usize, usize)> = if keyed.is_empty() {
+        Vec::new()
+    } else {
+        vec![(0, keyed.len())]
+    };
+    let n = side * side;
+    for level in 0..levels {
+        let exp = levels - 1 - level; // this level's digit is the coefficient of (side²)^exp
+        let mut next = Vec::with_capacity(nodes.len() * 2);
+        for &(lo, hi) in &nodes {
+            let mut k = lo;
+            for child in 0..n {
+                let start = k;
+                while k < hi && digit(keyed[k].0, exp, side) == child as u128 {
+                    k += 1;
+                }
+                bits.push(k > start);
+                if k > start {
+                    next.push((start, k));
+                }
+            }
+        }
+        nodes = next;
+    }
+    let order = keyed.iter().map(|&(_, i)| i).collect();
+    let tree = BitTree {
+        area,
+        children: opts.children,
+        levels,
+        count: points.len() as u64,
+        bit_len: bits.len,
+        bits: bits.bytes,
+    };
+    Ok((tree, order))
+}
+
+/// The interleaved path key: per level, digit = row·side + column, most significant level first.
+fn path_key(c: [u64; 2], side: u64, levels: u32) -> u128 {
+    let mut key = 0u128;
+    for level in 0..levels {
+        let div = side.pow(levels - 1 - level);
+        let d = ((c[1] / div) % side) * side + (c[0] / div) % side;
+        key = key * (side * side) as u128 + d as u128;
+    }
+    key
+}
+
+fn digit(key: u128, exp: u32, side: u64) -> u128 {
+    let base = (side * side) as u128;
+    (key / base.pow(exp)) % base
+}
+
+/// The fewest levels at which no two points share a cell.
+fn choose_levels(
+    points: &[[f32; 2]],
+    area: &Rect,
+    side: u64,
+    max_levels: u32,
+) -> Result<u32, BitTreeError> {
+    let max_levels = max_levels
+        .min(126 / (2 * side.trailing_zeros()).max(1))
+        .max(1);
+    for levels in 1..=max_levels {
+        let cells = side.pow(levels);
+        let mut keys: Vec<([u64; 2], usize)> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (cell_of(*p, area, cells), i))
+            .collect();
+        keys.sort_unstable();
+        let clash = keys.windows(2).find(|w| w[0].0 == w[1].0);
+        match clash {
+            None => return Ok(levels),
+            Some(w) if levels == max_levels => {
+                return Err(BitTreeError::TooClose(
+                    w[0].1.min(w[1].1),
+                    w[0].1.max(w[1].1),
+                    levels,
+                ));
+            }
+            Some(_) => {}
+        }
+    }
+    Ok(max_levels)
+}
+
+/// Decodes cell-centre positions (x, y) in leaf order.
+pub fn decode_bittree(tree: &BitTree) -> Result<Vec<[f32; 2]>, BitTreeError> {
+    let side = side_of(tree.children) as u64;
+    let n = side * side;
+    let mut reader = BitReader {
+        bytes: &tree.bits,
+        pos: 0,
+        len: tree.bit_len,
+    };
+    // Cells of occupied nodes at the current level, in stream order.
+    let mut nodes: Vec<[u64; 2]> = if tree.count == 0 {
+        Vec::new()
+    } else {
+        vec![[0, 0]]
+    };
+    for _ in 0..tree.levels {
+        let mut next = Vec::with_capacity(nodes.len().min(tree.count as usize) * 2);
+        for &c in &nodes {
+            for child in 0..n {
+                if reader.next()? {
+                    next.push([c[0] * side + child % side, c[1] * side + child / side]);
+                    if next.len() as u64 > tree.count {
+                        return Err(BitTreeError::CountMismatch(next.len() as u64, tree.count));
+                    }
+                }
+            }
+        }
+        nodes = next;
+    }
+    if nodes.len() as u64 != tree.count {
+        return Err(BitTreeError::CountMismatch(nodes.len() as u64, tree.count));
+    }
+    let cell = tree.cell_size();
+    Ok(nodes
+        .iter()
+        .map(|c| {
+            [
+                tree.area.origin[0] + (c[0] as f32 + 0.5) * cell[0],
+                tree.area.origin[1] + (c[1] as f32 + 0.5) * cell[1],
+            ]
+        })
+        .collect())
+}
+
+#[derive(Default)]
+struct BitWriter {
+    bytes: Vec<u8>,
+    len: u64,
+}
+
+impl BitWriter {
+    fn push(&mut self, bit: bool) {
+        if self.len % 8 == 0 {
+            self.bytes.push(0);
+        }
+        if bit {
+            *self.bytes.last_mut().expect("pushed above") |= 1 << (self.len % 8);
+        }
+        self.len += 1;
+    }
+}
+
+struct BitReader<'a> {
+    bytes: &'a [u8],
+    pos: u64,
+    len: u64,
+}
+
+impl BitReader<'_> {
+    fn next(&mut self) -> Result<bool, BitTreeError> {
+        if self.pos >= self.len || (self.pos / 8) as usize >= self.bytes.len() {
+            return Err(BitTreeError::Truncated(self.pos));
+        }
+        let b = (self.bytes[(self.pos / 8) as usize] >> (self.pos % 8)) & 1;
+        self.pos += 1;
+        Ok(b == 1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fixtures::Rng;
+
+    fn area() -> Rect {
+        Rect {
+            origin: [10.0, -5.0],
+            extent: [100.0, 50.0],
+        }
+    }
+
+    fn random_points(n: usize, seed: u64) -> Vec<[f32; 2]> {
+        let mut rng = Rng::new(seed);
+        let a = area();
+        (0..n)
+            .map(|_| {
+                [
+                    a.origin[0] + rng.f32() * a.extent[0],
+                    a.origin[1] + rng.f32() * a.extent[1],
+                ]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn round_trip_within_the_cell_for_every_branching() {
+        for children in [4, 16, 64] {
+            let pts = random_points(2000, children as u64);
+            let (tree, order) = encode_bittree(
+                &pts,
+                area(),
+                &BitTreeOptions {
+                    children,
+                    max_levels: 24,
+                },
+            )
+            .unwrap();
+            let dec = decode_bittree(&tree).unwrap();
+            assert_eq!(dec.len(), pts.len());
+            let cell = tree.cell_size();
+            for (k, d) in dec.iter().enumerate() {
+                let p = pts[order[k] as usize];
+                assert!(
+                    (d[0] - p[0]).abs() <= 0.5 * cell[0] * 1.0001 + 1e-4,
+                    "{children}: {d:?} vs {p:?}, cell {cell:?}"
+                );
+                assert!((d[1] - p[1]).abs() <= 0.5 * cell[1] * 1.0001 + 1e-4);
+            }
+            // Order is a permutation.
+            let mut sorted = order.clone();
+            sorted.sort_unstable();
+            assert!(sorted.iter().enumerate().all(|(i, &v)| i as u32 == v));
+            // The chosen level is the smallest without clashes: one level less must clash.
+            if tree.levels > 1 {
+                let cells = (tree.side() as u64).pow(tree.levels - 1);
+                let mut keys: Vec<_> = pts.iter().map(|p| cell_of(*p, &area(), cells)).collect();
+                keys.sort_unstable();
+                assert!(keys.windows(2).any(|w| w[0] == w[1]));
+            }
+        }
+    }
+
+    #[test]
+    fn bit_count_matches_brute_force_occupancy() {
+        // Oracle: the number of bits is n × (number of occupied nodes on levels 0..L-1), counted directly.
+        let pts = random_points(500, 9);
+        let (tree, _) = encode_bittree(&pts, area(), &BitTreeOptions::default()).unwrap();
+        let side = tree.side() as u64;
+        let mut expected = 0u64;
+        for level in 0..tree.levels {
+            let cells = side.pow(level);
+            let mut occ: Vec<_> = pts
+                .iter()
+                .map(|p| {
+                    cell_of(*p, &area(), side.pow(tree.levels))
+                        .map(|c| c / side.pow(tree.levels - level))
+                })
+                .collect();
+            occ.sort_unstable();
+            occ.dedup();
+            assert!(occ.len() as u64 <= cells * cells);
+            expected += occ.len() as u64 * side * side;
+        }
+        assert_eq!(tree.bit_len, expected);
+    }
+
+    #[test]
+    fn full_grid_overhead_is_a_third_for_four_children() {
+        // 64×64 instances, one per cell: 4096 leaf bits plus 1024 + 256 + ... + 4 inner bits.
+        let a = Rect {
+            origin: [0.0, 0.0],
+            extent: [64.0, 64.0],
+        };
+        let pts: Vec<[f32; 2]> = (0..64 * 64)
+            .map(|k| [(k % 64) as f32 + 0.5, (k / 64) as f32 + 0.5])
+            .collect();
+        let (tree, _) = encode_bittree(
+            &pts,
+            a,
+            &BitTreeOptions {
+                children: 4,
+                max_levels: 24,
+            },
+        )
+        .unwrap();
+        assert_eq!(tree.levels, 6);
+        let overhead = tree.bit_len as f64 / 4096.0 - 1.0;
+        assert!((overhead - 1.0 / 3.0).abs() < 0.01, "{overhead}");
+        let dec = decode_bittree(&tree).unwrap();
+        assert_eq!(dec.len(), 4096);
+    }
+
+    #[test]
+    fn coincident_points_and_corrupt_streams_are_errors() {
+        let pts = vec![[1.0, 1.0], [1.0, 1.0]];
+        assert!(matches!(
+            encode_bittree(&pts, area(), &BitTreeOptions::default()),
+            Err(BitTreeError::TooClose(0, 1, _))
+        ));
+        let (mut tree, _) =
+            encode_bittree(&random_points(50, 3), area(), &BitTreeOptions::default()).unwrap();
+        tree.bit_len -= 5;
+        assert!(decode_bittree(&tree).is_err());
+        let (mut tree, _) =
+            encode_bittree(&random_points(50, 3), area(), &BitTreeOptions::default()).unwrap();
+        tree.count = 49;
+        assert!(decode_bittree(&tree).is_err());
+        assert!(matches!(
+            encode_bittree(
+                &pts,
+                area(),
+                &BitTreeOptions {
+                    children: 8,
+                    max_levels: 4
+                }
+            ),
+            Err(BitTreeError::Children(8))
+        ));
+    }
+
+    #[test]
+    fn empty_input() {
+        let (tree, order) = encode_bittree(&[], area(), &BitTreeOptions::default()).unwrap();
+        assert!(order.is_empty());
+        assert_eq!(decode_bittree(&tree).unwrap(), Vec::<[f32; 2]>::new());
+    }
+}
