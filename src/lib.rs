@@ -6,6 +6,7 @@
 pub mod bittree;
 pub mod cli;
 pub mod dump;
+pub mod envmap;
 pub mod error;
 pub mod fixtures;
 pub mod ingest;
