@@ -31,6 +31,8 @@ enum Command {
     Fixtures(cli::fixtures::FixturesArgs),
     /// Encode the instances of a scene pack as a BitTree.
     Bittree(cli::bittree::BitTreeArgs),
+    /// Cluster per-instance environment maps and set up multiquadric interpolation.
+    Cluster(cli::cluster::ClusterArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
 }
@@ -43,6 +45,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Dump(a) => cli::dump::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),
         Command::Bittree(a) => cli::bittree::run(a, g),
+        Command::Cluster(a) => cli::cluster::run(a, g),
         Command::Fixtures(a) => cli::fixtures::run(a, g),
     }
 }

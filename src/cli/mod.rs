@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod bittree;
 pub mod build;
+pub mod cluster;
 pub mod dump;
 pub mod fixtures;
 pub mod ingest;

@@ -2,3 +2,81 @@
 pub mod cluster;
 pub mod interp;
 pub mod kdtree;
+pub mod section;
+
+use cluster::{ClusterOptions, Clustering, cluster_envmaps};
+use interp::Interpolator;
+use rayon::prelude::*;
+use section::ClustersMeta;
+
+/// Per-instance neighbour indices and weights (k each, padded with sample 0 / weight 0).
+pub type NeighbourWeights = (Vec<u32>, Vec<f32>);
+
+/// Clusters the maps and, if asked, computes every instance's interpolation weights.
+pub fn cluster_and_weigh(positions: &[[f32; 3]], values: &[f32], dim: usize, opts: &ClusterOptions, store_weights: bool) -> (ClustersMeta, Clustering, Option<NeighbourWeights>) {
+    let c = cluster_envmaps(positions, values, dim, opts);
+    let weights = store_weights.then(|| instance_weights(positions, values, dim, &c));
+    let meta = ClustersMeta {
+        instances: positions.len() as u64,
+        clusters: c.samples.len() as u64,
+        dim: dim as u32,
+        k: c.k as u32,
+        radius: c.radius,
+        constant_term: true,
+        error_bound: opts.error,
+        rms_error_relative: c.rms_error(),
+        max_error_relative: c.max_error(),
+        ill_conditioned: c.ill_conditioned as u64,
+        weights: store_weights,
+    };
+    (meta, c, weights)
+}
+
+/// The k sample neighbours and multiquadric weights of every instance.
+pub fn instance_weights(positions: &[[f32; 3]], values: &[f32], dim: usize, c: &Clustering) -> NeighbourWeights {
+    let pts: Vec<[f32; 3]> = c.samples.iter().map(|&s| positions[s as usize]).collect();
+    let vals: Vec<f32> = c.samples.iter().flat_map(|&s| values[s as usize * dim..(s as usize + 1) * dim].iter().copied()).collect();
+    let ip = Interpolator::new(&pts, &vals, dim, c.radius, c.k);
+    let k = c.k;
+    let rows: Vec<(Vec<u32>, Vec<f32>)> = positions
+        .par_iter()
+        .map(|&x| {
+            let (mut nb, mut w) = (Vec::new(), Vec::new());
+            ip.weights(x, &mut nb, &mut w);
+            let mut idx: Vec<u32> = nb.iter().map(|&(_, i)| i).collect();
+            let mut wf: Vec<f32> = w.iter().map(|&v| v as f32).collect();
+            idx.resize(k, 0);
+            wf.resize(k, 0.0);
+            (idx, wf)
+        })
+        .collect();
+    let mut nb = Vec::with_capacity(positions.len() * k);
+    let mut w = Vec::with_capacity(positions.len() * k);
+    for (i, wr) in rows {
+        nb.extend(i);
+        w.extend(wr);
+    }
+    (nb, w)
+}
+
+/// A synthetic field of environment maps for benchmarks and tests: smooth variation over the
+/// terrain (sky visibility, sun bounce) plus a local term that depends on each instance's
+/// neighbourhood density (occlusion by nearby plants), `DIM` floats per instance.
+pub fn synthetic_envmaps(positions: &[[f32; 3]]) -> Vec<f32> {
+    let tree = kdtree::KdTree::build(positions);
+    positions
+        .par_iter()
+        .flat_map_iter(|p| {
+            let mut nb = Vec::new();
+            tree.nearest(*p, 6, &mut nb);
+            let crowd = nb.iter().map(|x| 1.0 / (1.0 + x.0)).sum::<f32>() / 6.0;
+            (0..section::DIM).map(move |c| {
+                let band = (c % 48) / 3;
+                let l = (band as f32).sqrt().floor();
+                let f = 0.01 + 0.004 * (c % 5) as f32;
+                let smooth = 1.0 + 0.4 * (p[0] * f).sin() * (p[1] * f * 0.8 + c as f32).cos() + 0.05 * p[2];
+                (smooth - 0.3 * crowd) / (1.0 + l * l)
+            })
+        })
+        .collect()
+}
