@@ -2,3 +2,4 @@
 //! projected to spherical harmonics; and a built-in analytic clear sky for scenes without one.
 
 pub mod cube;
+pub mod sun;
