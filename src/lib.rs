@@ -13,3 +13,5 @@ pub mod ingest;
 pub mod model;
 pub mod pack;
 pub mod pipeline;
+pub mod sh;
+pub mod sky;

@@ -1,0 +1,340 @@
+//! Float cube maps: the face convention, exact texel solid angles, filtered resampling from
+//! latitude/longitude images and back.
+//!
+//! # Face order and orientation
+//!
+//! Faces are stored in the order +X, −X, +Y, −Y, +Z, −Z (index 0..6), each `size × size` texels,
+//! row 0 first. The orientation is the one OpenGL, Vulkan, D3D and wgpu share (OpenGL 4.6 spec,
+//! table 8.19), applied to **world** axes (Z up), so a shader samples the cube texture with the
+//! world-space direction unchanged. With `s, t ∈ [−1, 1]` the face coordinates of a texel
+//! (s grows with the column, t with the row; texel centre `s = 2(col + ½)/size − 1`):
+//!
+//! ```text
+//!  face   direction (x, y, z)         unfolded (each face seen from the centre):
+//!  +X     ( 1, −t, −s)
+//!  −X     (−1, −t,  s)                        +----+
+//!  +Y     ( s,  1,  t)                        | +Y |
+//!  −Y     ( s, −1, −t)                   +----+----+----+----+
+//!  +Z     ( s, −t,  1)                   | −X | +Z | +X | −Z |
+//!  −Z     (−s, −t, −1)                   +----+----+----+----+
+//!                                             | −Y |
+//!                                             +----+
+//! ```
+//!
+//! Adjacent edges in the unfolding meet on the cube (e.g. the right column of +Z is the left
+//! column of +X). The sky's zenith is the centre of +Z; the horizon (z = 0) runs through the
+//! middle column of ±X and the middle row of ±Y. Cube crosses and face files read from disk are
+//! authored Y-up; see `crate::sky::load` for how they map onto these world-axis faces.
+//!
+//! # Solid angles
+//!
+//! A texel spanning `[s0, s1] × [t0, t1]` on the face plane at distance 1 covers the exact solid
+//! angle `F(s1,t1) − F(s0,t1) − F(s1,t0) + F(s0,t0)` with `F(s, t) = atan2(s·t, √(s² + t² + 1))`
+//! (the integral of `dA / (1 + s² + t²)^{3/2}`); the six faces sum to 4π.
+
+use crate::model::FloatImage;
+use rayon::prelude::*;
+
+/// One face of a cube map; the discriminant is its index in the face order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Face {
+    PosX = 0,
+    NegX = 1,
+    PosY = 2,
+    NegY = 3,
+    PosZ = 4,
+    NegZ = 5,
+}
+
+impl Face {
+    /// All faces in storage order.
+    pub const ALL: [Face; 6] = [
+        Face::PosX,
+        Face::NegX,
+        Face::PosY,
+        Face::NegY,
+        Face::PosZ,
+        Face::NegZ,
+    ];
+
+    /// Short name (`+X` ...).
+    pub fn name(self) -> &'static str {
+        ["+X", "-X", "+Y", "-Y", "+Z", "-Z"][self as usize]
+    }
+
+    /// The (unnormalized) direction through face coordinates (s, t) ∈ [−1, 1]².
+    pub fn direction(self, s: f64, t: f64) -> [f64; 3] {
+        match self {
+            Face::PosX => [1.0, -t, -s],
+            Face::NegX => [-1.0, -t, s],
+            Face::PosY => [s, 1.0, t],
+            Face::NegY => [s, -1.0, -t],
+            Face::PosZ => [s, -t, 1.0],
+            Face::NegZ => [-s, -t, -1.0],
+        }
+    }
+}
+
+/// The face a direction falls on and its face coordinates (s, t) ∈ [−1, 1]².
+///
+/// Ties between axes go to the first of x, y, z (so every direction has exactly one face).
+pub fn face_coords(d: [f64; 3]) -> (Face, f64, f64) {
+    let [x, y, z] = d;
+    let (ax, ay, az) = (x.abs(), y.abs(), z.abs());
+    if ax >= ay && ax >= az {
+        if x >= 0.0 {
+            (Face::PosX, -z / ax, -y / ax)
+        } else {
+            (Face::NegX, z / ax, -y / ax)
+        }
+    } else if ay >= az {
+        if y >= 0.0 {
+            (Face::PosY, x / ay, z / ay)
+        } else {
+            (Face::NegY, x / ay, -z / ay)
+        }
+    } else if z >= 0.0 {
+        (Face::PosZ, x / az, -y / az)
+    } else {
+        (Face::NegZ, -x / az, -y / az)
+    }
+}
+
+/// `F(s, t)`: the solid angle of the face rectangle [0, s] × [0, t] (signed).
+fn area_element(s: f64, t: f64) -> f64 {
+    (s * t).atan2((s * s + t * t + 1.0).sqrt())
+}
+
+/// Exact solid angle of texel (col, row) of a face of `size × size` texels (same on every face).
+pub fn texel_solid_angle(size: u32, col: u32, row: u32) -> f64 {
+    let n = size as f64;
+    let s0 = 2.0 * col as f64 / n - 1.0;
+    let s1 = 2.0 * (col + 1) as f64 / n - 1.0;
+    let t0 = 2.0 * row as f64 / n - 1.0;
+    let t1 = 2.0 * (row + 1) as f64 / n - 1.0;
+    area_element(s1, t1) - area_element(s0, t1) - area_element(s1, t0) + area_element(s0, t0)
+}
+
+/// The solid angles of one face's texels, row-major (every face has the same table).
+pub fn solid_angle_table(size: u32) -> Vec<f64> {
+    (0..size)
+        .flat_map(|row| (0..size).map(move |col| texel_solid_angle(size, col, row)))
+        .collect()
+}
+
+/// Normalizes a vector.
+pub fn normalize(d: [f64; 3]) -> [f64; 3] {
+    let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    [d[0] / l, d[1] / l, d[2] / l]
+}
+
+/// A float RGB cube map (linear radiance), faces in [`Face::ALL`] order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CubeMap {
+    /// Texels per face edge.
+    pub size: u32,
+    /// `6 · size²` texels: face-major, then row-major.
+    pub texels: Vec<[f32; 3]>,
+}
+
+impl CubeMap {
+    /// A cube map filled with one value.
+    pub fn filled(size: u32, value: [f32; 3]) -> Self {
+        CubeMap {
+            size,
+            texels: vec![value; 6 * (size as usize).pow(2)],
+        }
+    }
+
+    /// A cube map whose texel centres take `f(direction)` (unit direction).
+    pub fn from_fn(size: u32, f: impl Fn([f64; 3]) -> [f32; 3] + Sync) -> Self {
+        let n = size as usize;
+        let texels = (0..6 * n)
+            .into_par_iter()
+            .flat_map_iter(|fr| {
+                let (face, row) = (Face::ALL[fr / n], (fr % n) as u32);
+                let f = &f;
+                (0..size).map(move |col| f(texel_direction(size, face, col, row)))
+            })
+            .collect();
+        CubeMap { size, texels }
+    }
+
+    /// Index of texel (face, col, row).
+    pub fn index(&self, face: Face, col: u32, row: u32) -> usize {
+        let n = self.size as usize;
+        (face as usize * n + row as usize) * n + col as usize
+    }
+
+    /// The texels of one face.
+    pub fn face(&self, face: Face) -> &[[f32; 3]] {
+        let n2 = (self.size as usize).pow(2);
+        &self.texels[face as usize * n2..(face as usize + 1) * n2]
+    }
+
+    /// Bilinear lookup in direction `d` (need not be normalized). Across face edges the
+    /// neighbouring texel is found through its direction, so filtering is seamless.
+    pub fn sample(&self, d: [f64; 3]) -> [f32; 3] {
+        let (face, s, t) = face_coords(d);
+        let n = self.size as f64;
+        let x = (s + 1.0) * 0.5 * n - 0.5;
+        let y = (t + 1.0) * 0.5 * n - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let mut acc = [0.0f64; 3];
+        for (dx, dy, w) in [
+            (0.0, 0.0, (1.0 - fx) * (1.0 - fy)),
+            (1.0, 0.0, fx * (1.0 - fy)),
+            (0.0, 1.0, (1.0 - fx) * fy),
+            (1.0, 1.0, fx * fy),
+        ] {
+            if w == 0.0 {
+                continue;
+            }
+            let v = self.texel_at(face, x0 + dx, y0 + dy);
+            for k in 0..3 {
+                acc[k] += w * v[k] as f64;
+            }
+        }
+        [acc[0] as f32, acc[1] as f32, acc[2] as f32]
+    }
+
+    /// The texel at (possibly out-of-face) texel coordinates: outside the face, the texel of the
+    /// face the texel centre's direction falls on.
+    fn texel_at(&self, face: Face, x: f64, y: f64) -> [f32; 3] {
+        let n = self.size as f64;
+        let (face, col, row) = if x >= 0.0 && y >= 0.0 && x < n && y < n {
+            (face, x as u32, y as u32)
+        } else {
+            let s = (x + 0.5) / n * 2.0 - 1.0;
+            let t = (y + 0.5) / n * 2.0 - 1.0;
+            // Clamp the overshoot so a corner texel maps onto one of its two neighbours.
+            let (f2, s2, t2) = face_coords(face.direction(s, t));
+            let col = (((s2 + 1.0) * 0.5 * n).floor()).clamp(0.0, n - 1.0) as u32;
+            let row = (((t2 + 1.0) * 0.5 * n).floor()).clamp(0.0, n - 1.0) as u32;
+            (f2, col, row)
+        };
+        self.texels[self.index(face, col, row)]
+    }
+}
+
+/// Unit direction through the centre of texel (col, row) of `face`.
+pub fn texel_direction(size: u32, face: Face, col: u32, row: u32) -> [f64; 3] {
+    let n = size as f64;
+    let s = 2.0 * (col as f64 + 0.5) / n - 1.0;
+    let t = 2.0 * (row as f64 + 0.5) / n - 1.0;
+    normalize(face.direction(s, t))
+}
+
+/// Lat-long pixel coordinates (continuous, pixel centres at +0.5) of a unit direction
+/// (docs/CONVENTIONS.md: u = φ/2π, v = θ/π, row 0 at the zenith).
+pub fn latlong_coords(d: [f64; 3], width: u32, height: u32) -> (f64, f64) {
+    let theta = d[2].clamp(-1.0, 1.0).acos();
+    let mut phi = d[1].atan2(d[0]);
+    if phi < 0.0 {
+        phi += std::f64::consts::TAU;
+    }
+    (
+        phi / std::f64::consts::TAU * width as f64,
+        theta / std::f64::consts::PI * height as f64,
+    )
+}
+
+/// Unit direction of lat-long pixel coordinates (x, y) (continuous; centres at +0.5).
+pub fn latlong_direction(x: f64, y: f64, width: u32, height: u32) -> [f64; 3] {
+    let phi = x / width as f64 * std::f64::consts::TAU;
+    let theta = y / height as f64 * std::f64::consts::PI;
+    [
+        theta.sin() * phi.cos(),
+        theta.sin() * phi.sin(),
+        theta.cos(),
+    ]
+}
+
+/// Exact solid angle of lat-long row `row`: Δφ · (cos θ0 − cos θ1), the same for every column.
+pub fn latlong_row_solid_angle(row: u32, width: u32, height: u32) -> f64 {
+    let h = height as f64;
+    let t0 = row as f64 / h * std::f64::consts::PI;
+    let t1 = (row + 1) as f64 / h * std::f64::consts::PI;
+    std::f64::consts::TAU / width as f64 * (t0.cos() - t1.cos())
+}
+
+/// Bilinear lookup in a lat-long image at continuous pixel coordinates: wraps in φ, clamps in θ.
+pub fn sample_latlong(img: &FloatImage, x: f64, y: f64) -> [f32; 3] {
+    let (w, h) = (img.width as i64, img.height as i64);
+    let (xf, yf) = (x - 0.5, (y - 0.5).clamp(0.0, (h - 1) as f64));
+    let (x0, y0) = (xf.floor(), yf.floor());
+    let (fx, fy) = (xf - x0, yf - y0);
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let mut acc = [0.0f64; 3];
+    for (dx, dy, wt) in [
+        (0, 0, (1.0 - fx) * (1.0 - fy)),
+        (1, 0, fx * (1.0 - fy)),
+        (0, 1, (1.0 - fx) * fy),
+        (1, 1, fx * fy),
+    ] {
+        let col = (x0 + dx).rem_euclid(w);
+        let row = (y0 + dy).clamp(0, h - 1);
+        let p = img.pixels[(row * w + col) as usize];
+        for k in 0..3 {
+            acc[k] += wt * p[k] as f64;
+        }
+    }
+    [acc[0] as f32, acc[1] as f32, acc[2] as f32]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn solid_angles_sum_to_4pi() {
+        for size in [1, 2, 7, 64] {
+            let total: f64 = solid_angle_table(size).iter().sum::<f64>() * 6.0;
+            assert!((total - 4.0 * std::f64::consts::PI).abs() < 1e-12, "{size}");
+        }
+    }
+
+    #[test]
+    fn solid_angle_matches_brute_force_integration() {
+        // Independent oracle: integrate 1/(1+s²+t²)^{3/2} over the texel with a fine midpoint rule.
+        let size = 5;
+        for (col, row) in [(0, 0), (2, 2), (4, 1)] {
+            let n = 400;
+            let s0 = 2.0 * col as f64 / size as f64 - 1.0;
+            let t0 = 2.0 * row as f64 / size as f64 - 1.0;
+            let h = 2.0 / size as f64 / n as f64;
+            let mut sum = 0.0;
+            for i in 0..n {
+                for j in 0..n {
+                    let s = s0 + (i as f64 + 0.5) * h;
+                    let t = t0 + (j as f64 + 0.5) * h;
+                    sum += h * h / (1.0 + s * s + t * t).powf(1.5);
+                }
+            }
+            let exact = texel_solid_angle(size, col, row);
+            assert!((sum - exact).abs() < 1e-6 * exact, "{sum} vs {exact}");
+        }
+    }
+
+    #[test]
+    fn face_coords_inverts_direction() {
+        for face in Face::ALL {
+            for (s, t) in [(0.3, -0.7), (-0.99, 0.5), (0.0, 0.0)] {
+                let (f, s2, t2) = face_coords(face.direction(s, t));
+                assert_eq!(f, face);
+                assert!((s - s2).abs() < 1e-12 && (t - t2).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn faces_follow_the_gpu_table() {
+        // Spot checks against OpenGL table 8.19: the major axis and the sc/tc axes.
+        assert_eq!(face_coords([1.0, 0.0, -0.5]).0, Face::PosX);
+        assert_eq!(face_coords([1.0, 0.0, -0.5]).1, 0.5); // sc = −rz
+        assert_eq!(face_coords([0.5, 0.2, 1.0]).1, 0.5); // +Z: sc = rx
+        assert_eq!(face_coords([0.5, 0.2, 1.0]).2, -0.2); // +Z: tc = −ry
+        assert_eq!(face_coords([0.0, 1.0, 0.3]).2, 0.3); // +Y: tc = rz
+    }
+}

@@ -1,0 +1,259 @@
+//! Sun extraction (seed 000, 3.4.2, with the brief's corrections) and the sky's irradiance.
+//!
+//! The thesis takes the n brightest texels covering the sun's solid angle `a = π r²`
+//! (r = atan(0.5 d / l) = 0.00465 rad) enlarged by a factor (4.0) for scattering and blooming,
+//! replaces them by the (n+1)-th brightest value T_{n+1} so the remaining sky stays continuous, and
+//! reports `I_S = Σ_{i≤n} (T_i − T_{n+1}) / n · a` (eq. 3.2) and `I_H = Σ_m T_i / m · 2π` (3.3).
+//!
+//! What bake does better, reporting the thesis' numbers beside its own:
+//! - texels are counted by their exact solid angle until they cover `enlargement · a` (cube
+//!   texels differ by up to 5.2× between a face's centre and its corners);
+//! - the sun irradiance is the energy actually removed, `Σ (T_i − T_{n+1}) · ω_i` (the thesis'
+//!   mean × a undercounts by the enlargement factor), so sky + sun conserve the map's energy;
+//! - the direction is the energy-weighted centroid of the removed excess, not the brightest texel;
+//! - a plateau at the map's maximum (a clipped sun, common in real HDRIs) is reported;
+//! - the sky's irradiance on a horizontal surface is `∫_{z>0} L cos θ dω`.
+//!
+//! On an overcast sky the n brightest texels barely exceed T_{n+1}, so the sun is negligible.
+
+use super::cube::{self, CubeMap, Face};
+use serde::{Deserialize, Serialize};
+
+/// Angular radius of the sun seen from the earth: atan(0.5 · 1 392 000 km / 149 600 000 km).
+pub const SUN_ANGULAR_RADIUS: f64 = 0.004_652_3;
+/// The thesis' enlargement of the sun's area (3.4.2).
+pub const DEFAULT_ENLARGEMENT: f64 = 4.0;
+/// Relative distance from the maximum within which texels count as one plateau (clipping).
+const PLATEAU_TOLERANCE: f32 = 1e-3;
+/// Texels at the maximum needed to call the sun clipped (more than the 4 equal texels of a
+/// symmetric disc centred on a texel corner).
+const PLATEAU_MIN_TEXELS: u32 = 5;
+
+/// Options of [`extract_sun`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SunOptions {
+    /// Factor on the sun's solid angle `π r²` covered by the extracted texels.
+    pub enlargement: f64,
+}
+
+impl Default for SunOptions {
+    fn default() -> Self {
+        SunOptions {
+            enlargement: DEFAULT_ENLARGEMENT,
+        }
+    }
+}
+
+/// The extracted sun.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Sun {
+    /// Unit direction towards the sun: energy-weighted centroid of the removed excess.
+    pub direction: [f32; 3],
+    /// Direction of the brightest texel (the thesis' choice).
+    pub direction_brightest: [f32; 3],
+    /// Irradiance on a surface facing the sun: `Σ (T_i − T_{n+1}) ω_i` (RGB).
+    pub irradiance: [f32; 3],
+    /// The thesis' eq. 3.2: `Σ (T_i − T_{n+1}) / n · π r²` (RGB).
+    pub irradiance_thesis: [f32; 3],
+    /// Texels replaced (n).
+    pub texels: u32,
+    /// Their total solid angle (sr).
+    pub solid_angle: f64,
+    /// The replacement value T_{n+1} (RGB radiance).
+    pub replacement: [f32; 3],
+    /// Largest radiance (luminance) of the map.
+    pub peak_luminance: f32,
+    /// Texels within 0.1% of the peak.
+    pub plateau_texels: u32,
+    /// A plateau of at least 5 texels at the map's maximum: the sun was probably clipped in the
+    /// source, and its irradiance is a lower bound.
+    pub clipped: bool,
+    /// The enlargement factor used.
+    pub enlargement: f64,
+    /// The sun's angular radius assumed (rad).
+    pub angular_radius: f64,
+}
+
+/// Irradiance of the (sun-free) sky.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SkyIrradiance {
+    /// `∫_{z>0} L cos θ dω`: what a horizontal surface receives (RGB).
+    pub horizontal: [f32; 3],
+    /// The thesis' eq. 3.3: mean radiance of the upper-hemisphere texels × 2π (RGB).
+    pub thesis: [f32; 3],
+}
+
+/// Rec. 709 luminance of a linear RGB value.
+pub fn luminance(c: [f32; 3]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+/// Texel indices ordered by luminance, brightest first (ties by index, so the order is unique),
+/// enough of them to cover `area` sr plus one more.
+fn brightest_covering(cube: &CubeMap, omega: &[f64], area: f64) -> (Vec<usize>, usize) {
+    let n2 = omega.len();
+    let min_omega = omega.iter().cloned().fold(f64::INFINITY, f64::min);
+    let bound = ((area / min_omega).ceil() as usize + 2).min(cube.texels.len());
+    let lum: Vec<f32> = cube.texels.iter().map(|&t| luminance(t)).collect();
+    let mut idx: Vec<usize> = (0..cube.texels.len()).collect();
+    let order = |a: &usize, b: &usize| lum[*b].total_cmp(&lum[*a]).then(a.cmp(b));
+    if bound < idx.len() {
+        idx.select_nth_unstable_by(bound, order);
+        idx.truncate(bound);
+    }
+    idx.sort_unstable_by(order);
+    let mut covered = 0.0;
+    let mut n = 0;
+    while n + 1 < idx.len() && covered < area {
+        covered += omega[idx[n] % n2];
+        n += 1;
+    }
+    let n = n.max(1).min(idx.len().saturating_sub(1));
+    (idx, n)
+}
+
+/// Unit direction of texel `i` of the cube (face-major index).
+pub fn texel_index_direction(size: u32, i: usize) -> [f64; 3] {
+    let n2 = (size as usize).pow(2);
+    let (face, rc) = (Face::ALL[i / n2], i % n2);
+    let (col, row) = ((rc % size as usize) as u32, (rc / size as usize) as u32);
+    cube::texel_direction(size, face, col, row)
+}
+
+/// Separates the sun from the sky: returns the sun-free cube map and the sun.
+pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
+    let omega = cube::solid_angle_table(cube.size);
+    let n2 = omega.len();
+    let a = std::f64::consts::PI * SUN_ANGULAR_RADIUS * SUN_ANGULAR_RADIUS;
+    let (order, n) = brightest_covering(cube, &omega, opts.enlargement.max(0.0) * a);
+    let replacement = cube.texels[order[n]];
+    let rep_lum = luminance(replacement) as f64;
+    let mut out = cube.clone();
+    let (mut irr, mut mean_excess) = ([0.0f64; 3], [0.0f64; 3]);
+    let (mut centroid, mut solid_angle) = ([0.0f64; 3], 0.0);
+    for &i in &order[..n] {
+        let t = cube.texels[i];
+        let w = omega[i % n2];
+        for k in 0..3 {
+            let excess = (t[k] - replacement[k]) as f64;
+            irr[k] += excess * w;
+            mean_excess[k] += excess / n as f64;
+        }
+        let d = texel_index_direction(cube.size, i);
+        let e = (luminance(t) as f64 - rep_lum).max(0.0) * w;
+        for k in 0..3 {
+            centroid[k] += e * d[k];
+        }
+        solid_angle += w;
+        out.texels[i] = replacement;
+    }
+    let brightest = texel_index_direction(cube.size, order[0]);
+    let direction = if centroid.iter().any(|&c| c != 0.0) {
+        cube::normalize(centroid)
+    } else {
+        brightest
+    };
+    let peak = luminance(cube.texels[order[0]]);
+    // Over the whole map: a clipped region can be larger than the sun's enlarged area.
+    let plateau = cube
+        .texels
+        .iter()
+        .filter(|&&t| luminance(t) >= peak * (1.0 - PLATEAU_TOLERANCE))
+        .count() as u32;
+    let sun = Sun {
+        direction: direction.map(|c| c as f32),
+        direction_brightest: brightest.map(|c| c as f32),
+        irradiance: irr.map(|c| c as f32),
+        irradiance_thesis: mean_excess.map(|c| (c * a) as f32),
+        texels: n as u32,
+        solid_angle,
+        replacement,
+        peak_luminance: peak,
+        plateau_texels: plateau,
+        clipped: peak > 0.0 && plateau >= PLATEAU_MIN_TEXELS,
+        enlargement: opts.enlargement,
+        angular_radius: SUN_ANGULAR_RADIUS,
+    };
+    (out, sun)
+}
+
+/// The sky's irradiance on a horizontal surface, exact solid angles, and the thesis' estimate.
+pub fn sky_irradiance(cube: &CubeMap) -> SkyIrradiance {
+    let omega = cube::solid_angle_table(cube.size);
+    let n2 = omega.len();
+    let (mut horizontal, mut sum, mut m) = ([0.0f64; 3], [0.0f64; 3], 0usize);
+    for (i, t) in cube.texels.iter().enumerate() {
+        let d = texel_index_direction(cube.size, i);
+        if d[2] <= 0.0 {
+            continue;
+        }
+        m += 1;
+        for k in 0..3 {
+            horizontal[k] += t[k] as f64 * d[2] * omega[i % n2];
+            sum[k] += t[k] as f64;
+        }
+    }
+    let tau = std::f64::consts::TAU;
+    SkyIrradiance {
+        horizontal: horizontal.map(|c| c as f32),
+        thesis: sum.map(|c| (c / m.max(1) as f64 * tau) as f32),
+    }
+}
+
+/// Adds a sun disc of angular `radius` around unit `dir` with centre radiance `radiance` and
+/// linear limb darkening `L(μ) = L0 (1 − u (1 − μ))`. Texels near the disc are supersampled
+/// (`sub × sub` points weighted by the solid-angle Jacobian), so the added energy is the disc's
+/// to a fraction of a percent. Returns the added irradiance `Σ ΔL · ω` (RGB).
+pub fn add_sun_disc(
+    cube: &mut CubeMap,
+    dir: [f64; 3],
+    radius: f64,
+    radiance: [f32; 3],
+    limb_u: f64,
+    sub: u32,
+) -> [f64; 3] {
+    let size = cube.size;
+    let omega = cube::solid_angle_table(size);
+    let n2 = omega.len();
+    let texel_angle = 2.0 / size as f64 * 1.5;
+    let cos_reach = (radius + texel_angle).min(std::f64::consts::PI).cos();
+    let cos_r = radius.cos();
+    let mut added = [0.0f64; 3];
+    for i in 0..cube.texels.len() {
+        let c = texel_index_direction(size, i);
+        if c[0] * dir[0] + c[1] * dir[1] + c[2] * dir[2] < cos_reach {
+            continue;
+        }
+        let (face, rc) = (Face::ALL[i / n2], i % n2);
+        let (col, row) = ((rc % size as usize) as f64, (rc / size as usize) as f64);
+        let (mut acc, mut wsum) = (0.0, 0.0);
+        for a in 0..sub {
+            for b in 0..sub {
+                let s = 2.0 * (col + (a as f64 + 0.5) / sub as f64) / size as f64 - 1.0;
+                let t = 2.0 * (row + (b as f64 + 0.5) / sub as f64) / size as f64 - 1.0;
+                let jac = (1.0 + s * s + t * t).powf(-1.5);
+                let d = cube::normalize(face.direction(s, t));
+                let cosang = d[0] * dir[0] + d[1] * dir[1] + d[2] * dir[2];
+                if cosang >= cos_r {
+                    // μ = cos of the angle at the sun's surface: √(1 − (ρ/r)²).
+                    let rho = cosang.min(1.0).acos() / radius;
+                    let mu = (1.0 - rho * rho).max(0.0).sqrt();
+                    acc += jac * (1.0 - limb_u * (1.0 - mu));
+                }
+                wsum += jac;
+            }
+        }
+        let cover = acc / wsum;
+        if cover > 0.0 {
+            for k in 0..3 {
+                let dl = (radiance[k] as f64 * cover) as f32;
+                cube.texels[i][k] += dl;
+                added[k] += dl as f64 * omega[rc];
+            }
+        }
+    }
+    added
+}
+
+#[cfg(test)]
+mod tests;
