@@ -1,0 +1,160 @@
+//! Per-instance environment maps (seed 000, 4.6.3): for every instance, SH order 4 RGB of the
+//! light arriving at the instance from the sky without the sun (C_H) and from the sun (C_S), with
+//! the terrain and the other instances occluding and reflecting; the instance itself is ignored.
+//!
+//! Estimator (instead of the thesis' photon map): from a probe point at the instance (its position
+//! raised by half its model's height × scale), `samples` directions on a spherical Fibonacci set
+//! rotated by a per-instance random rotation (deterministic: seeded by the instance index) are
+//! traced into the two-level scene; each is weighted 4π/N.
+//! - A ray that escapes sees the sun-free sky: C_H += L_sky(d)·y(d)·4π/N.
+//! - A ray that hits a surface with albedo ρ and normal n (facing the ray) sees its outgoing
+//!   diffuse radiance: the sun's part ρ/π·E_sun·max(0, n·s)·V_sun(x) goes to C_S, the sky's part
+//!   ρ/π·E_sky(n) (the sky's unoccluded irradiance, one bounce) to C_H.
+//! - The sun itself: one shadow ray from the probe; if unblocked, C_S += E_sun·y(s) (a directional
+//!   light's projection). Direct sun on the plant is rendered with a shadow map and PRT evaluates
+//!   C_S only with the ≥ 1-bounce transfer, so nothing is counted twice.
+//!
+//! Both maps are finally rotated into the instance's frame (rotation about +Z, seed 000 4.7.3).
+//! Unbiased for that light model; it converges to the brute-force answer as samples grow.
+
+use crate::rt::{Ray, SceneBvh};
+use crate::sh::{self, ShIrradiance, ShRadiance};
+use glam::Vec3A;
+use rayon::prelude::*;
+
+/// Sun as a directional light.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SunLight {
+    /// Unit direction towards the sun.
+    pub direction: [f32; 3],
+    /// Irradiance on a surface facing the sun, linear RGB.
+    pub irradiance: [f32; 3],
+}
+
+/// What the estimator traces against.
+pub struct EnvmapScene<'a> {
+    /// Instances (and the terrain as one more instance, if any).
+    pub bvh: &'a SceneBvh,
+    /// Number of plant instances: BVH instances `0..count` get maps; later ones (terrain) do not.
+    pub count: usize,
+    /// Probe height above each instance's position, metres.
+    pub probe_height: Vec<f32>,
+    /// Diffuse albedo (linear RGB) of each BVH instance.
+    pub albedo: Vec<[f32; 3]>,
+    /// The sky without the sun.
+    pub sky: ShRadiance,
+    pub sun: Option<SunLight>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EnvmapOptions {
+    pub samples: u32,
+    pub seed: u64,
+}
+
+impl Default for EnvmapOptions {
+    fn default() -> Self {
+        EnvmapOptions { samples: 256, seed: 0x00e0_2005 }
+    }
+}
+
+/// Per-instance (C_H, C_S) in the instance's frame.
+pub type InstanceMaps = ([[f32; 3]; 16], [[f32; 3]; 16]);
+
+/// Bakes the maps of every instance (parallel, deterministic).
+pub fn bake_envmaps(scene: &EnvmapScene, opts: &EnvmapOptions) -> Vec<InstanceMaps> {
+    let sky_irr = scene.sky.to_irradiance();
+    (0..scene.count).into_par_iter().map(|i| bake_one(scene, &sky_irr, i, opts)).collect()
+}
+
+fn bake_one(scene: &EnvmapScene, sky_irr: &ShIrradiance, i: usize, opts: &EnvmapOptions) -> InstanceMaps {
+    let inst = scene.bvh.instances()[i];
+    let p = Vec3A::from(inst.translation) + Vec3A::Z * scene.probe_height[i];
+    let n = opts.samples.max(1);
+    let w = 4.0 * std::f64::consts::PI / n as f64;
+    let rot = random_rotation(crate::rt::mix64(opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+    let mut ch = [[0.0f64; 3]; 16];
+    let mut cs = [[0.0f64; 3]; 16];
+    for k in 0..n {
+        let d = rot * fibonacci_direction(k, n);
+        let (lh, ls) = radiance_along(scene, sky_irr, i as u32, p, d);
+        let y = sh::eval_basis16(d.to_array());
+        for c in 0..16 {
+            for ch_k in 0..3 {
+                ch[c][ch_k] += (lh[ch_k] * y[c]) as f64 * w;
+                cs[c][ch_k] += (ls[ch_k] * y[c]) as f64 * w;
+            }
+        }
+    }
+    if let Some(sun) = scene.sun {
+        let s = Vec3A::from(sun.direction);
+        if !blocked(scene.bvh, i as u32, p, s) {
+            let y = sh::eval_basis16(sun.direction);
+            for c in 0..16 {
+                for k in 0..3 {
+                    cs[c][k] += (sun.irradiance[k] * y[c]) as f64;
+                }
+            }
+        }
+    }
+    let to_f32 = |m: [[f64; 3]; 16]| m.map(|c| c.map(|v| v as f32));
+    // Into the instance's frame: C_local(d) = C_world(Rz(θ)·d).
+    let angle = -(inst.rotation_deg as f64).to_radians();
+    let h = ShRadiance { coeffs: to_f32(ch) }.rotated_z(angle);
+    let s = ShRadiance { coeffs: to_f32(cs) }.rotated_z(angle);
+    (h.coeffs, s.coeffs)
+}
+
+/// Radiance from direction d at p: (sky part, sun part).
+fn radiance_along(scene: &EnvmapScene, sky_irr: &ShIrradiance, skip: u32, p: Vec3A, d: Vec3A) -> ([f32; 3], [f32; 3]) {
+    let ray = Ray::new(p, d, 1e-4);
+    match scene.bvh.closest_hit_excluding(&ray, Some(skip)) {
+        None => (scene.sky.eval(d.to_array()).map(|v| v.max(0.0)), [0.0; 3]),
+        Some(h) => {
+            let surf = scene.bvh.surface(&h);
+            let mut n = surf.shading_normal;
+            if n.dot(d) > 0.0 {
+                n = -n;
+            }
+            let rho = scene.albedo[h.instance as usize];
+            let e_sky = sky_irr.eval(n.to_array()).map(|v| v.max(0.0));
+            let lh = [0, 1, 2].map(|k| rho[k] / std::f32::consts::PI * e_sky[k]);
+            let ls = match scene.sun {
+                Some(sun) => {
+                    let s = Vec3A::from(sun.direction);
+                    let cos = n.dot(s);
+                    if cos > 0.0 && !blocked(scene.bvh, u32::MAX, surf.position + n * 1e-3, s) {
+                        [0, 1, 2].map(|k| rho[k] / std::f32::consts::PI * sun.irradiance[k] * cos)
+                    } else {
+                        [0.0; 3]
+                    }
+                }
+                None => [0.0; 3],
+            };
+            (lh, ls)
+        }
+    }
+}
+
+fn blocked(bvh: &SceneBvh, skip: u32, p: Vec3A, d: Vec3A) -> bool {
+    bvh.closest_hit_excluding(&Ray::new(p, d, 1e-4), Some(skip)).is_some()
+}
+
+/// Point k of an N-point spherical Fibonacci set (uniform area, low discrepancy).
+pub fn fibonacci_direction(k: u32, n: u32) -> Vec3A {
+    let golden = 0.618_033_988_749_894_9f64;
+    let z = 1.0 - (2.0 * k as f64 + 1.0) / n as f64;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = 2.0 * std::f64::consts::PI * ((k as f64 * golden).fract());
+    Vec3A::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32)
+}
+
+/// A uniformly random rotation from a seed (Shoemake's quaternion method).
+fn random_rotation(seed: u64) -> glam::Mat3A {
+    let mut rng = crate::rt::Rng::new(seed);
+    let (u1, u2, u3) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
+    let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
+    let t = std::f32::consts::TAU;
+    let q = glam::Quat::from_xyzw(a * (t * u2).sin(), a * (t * u2).cos(), b * (t * u3).sin(), b * (t * u3).cos()).normalize();
+    glam::Mat3A::from_quat(q)
+}
