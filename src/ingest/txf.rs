@@ -640,7 +640,7 @@ fn read_lod_array(c: &mut Cursor, name: &str) -> Result<(), ParseError> {
             (Tok::Open("index"), _) => {
                 let n = count.unwrap_or(0) as usize;
                 let (p, at) = read_index_block(c, name, n)?;
-                if p.len() % 8 != 0 {
+                if !p.len().is_multiple_of(8) {
                     return Err(c.err(
                         at,
                         format!("{name}: {} indices do not form pairs", p.len() / 4),
@@ -689,7 +689,7 @@ fn decode_triangles(
     set: Option<i64>,
 ) -> Result<Vec<[u32; 3]>, ParseError> {
     let set_name = set.map_or("set (unnumbered)".into(), |n| format!("set {n}"));
-    if p.len() % 12 != 0 {
+    if !p.len().is_multiple_of(12) {
         return Err(c.err(
             at,
             format!(
@@ -716,12 +716,15 @@ fn decode_triangles(
 // ---------------------------------------------------------------------------------------------
 // Mesh building
 
+/// What makes a set's material distinct: material id, texture id, translucence bits.
+type MaterialKey = (Option<i64>, Option<i64>, Option<u32>);
+
 fn build_mesh(mut file: TxfFile) -> Result<Mesh, ParseError> {
     let mut mesh = Mesh {
         warnings: file.warnings.clone(),
         ..Mesh::default()
     };
-    let mut materials: HashMap<(Option<i64>, Option<i64>, Option<u32>), u32> = HashMap::new();
+    let mut materials: HashMap<MaterialKey, u32> = HashMap::new();
     let mut textures: HashMap<i64, u32> = HashMap::new();
     for mut set in std::mem::take(&mut file.sets) {
         let name = set
