@@ -150,6 +150,13 @@ fn truncations_of_the_fixture_fail_cleanly() {
             assert!(m.indices.len() < full, "cut at {n}");
         }
     }
+    for at in (0..bytes.len()).step_by(3) {
+        let mut g = bytes.clone();
+        g[at] ^= 0xa5;
+        if let Ok(m) = txf::parse(&g) {
+            assert_eq!(m.validate(), Ok(()), "flip at {at}");
+        }
+    }
     let leaf = file("leaf.rgb");
     for n in (0..leaf.len()).step_by(7) {
         assert!(sgi::decode(&leaf[..n]).is_err(), "leaf.rgb cut at {n}");
@@ -163,6 +170,22 @@ fn plant_ingests_into_a_pack_with_mesh_and_texture() {
         std::fs::write(dir.path().join(name), bytes).unwrap();
     }
     let input = dir.path().join("plant.txf");
+    // load() resolves texture names against the TXF file's folder.
+    let mesh = txf::load(&input).unwrap();
+    assert_eq!(mesh.textures[0].path, dir.path().join("leaf.rgb"));
+    let broken = dir.path().join("broken.txf");
+    std::fs::write(
+        &broken,
+        b"<?txf_version='0.91'?>\n<Set>\n<set_number> x </set_number>",
+    )
+    .unwrap();
+    let e = txf::load(&broken).unwrap_err();
+    assert_eq!(e.exit_code(), bake::error::exit::INVALID_INPUT);
+    let msg = e.to_string();
+    assert!(
+        msg.contains("broken.txf") && msg.contains("line 3"),
+        "{msg}"
+    );
     let (w, warnings) = bake::pipeline::ingest_to_pack(&input, &Default::default()).unwrap();
     assert!(warnings.is_empty(), "{warnings:?}");
     let out = dir.path().join("p.bake");
