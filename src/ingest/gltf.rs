@@ -1,13 +1,449 @@
-//! Reader (in progress).
-use crate::error::{Error, Result};
-use crate::model::Mesh;
-use std::path::Path;
+//! glTF 2.0 reader (`.gltf` with external or embedded buffers, `.glb`), through the `gltf` crate.
+//!
+//! Every node of the default scene (or the first scene; without scenes, every root node) that
+//! has a mesh contributes its primitives, transformed by the node's world matrix (the product of
+//! the local matrices down the hierarchy). A node reached twice (a cycle, or a node with two
+//! parents, both forbidden by the spec) is an error. Primitives of mode Triangles are read as
+//! they are; TriangleStrip and TriangleFan are converted to triangles; Points and Lines modes are
+//! skipped with a warning. A mirroring world matrix (negative determinant) reverses the winding
+//! so the front faces stay front faces.
+//!
+//! Axes: glTF is Y-up, bake is Z-up. Positions and normals are rotated by +90° about x:
+//! (x, y, z) → (x, −z, y). Texture coordinates are kept (glTF already has v = 0 at the top).
+//!
+//! Materials: metallic-roughness goes to [`MaterialSource::MetallicRoughness`]; the base colour
+//! factor goes to `diffuse` (linear, as glTF defines it); alpha mode Blend gives
+//! `transparency = 1 − alpha`. The base colour texture and normal texture become
+//! [`TextureRef`]s when their image is a URI (resolved against the file's folder,
+//! percent-decoded); images embedded in a buffer view or a data URI are not extracted yet, which
+//! is a warning and the material is untextured. Primitives without material get the OpenGL
+//! default material.
+//!
+//! Missing normals become face normals (the triangles' vertices are unshared); missing texture
+//! coordinates become (0, 0) with a warning. Indices past the vertex count, non-finite positions,
+//! missing buffers and unreadable accessors are errors naming the mesh, primitive and accessor.
 
-/// Reads a model file into one mesh.
+use crate::error::{Error, ParseError, Result};
+use crate::model::{Material, MaterialSource, Mesh, TextureRef};
+use glam::{Mat3, Mat4, Vec3};
+use gltf::mesh::Mode;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Reads a `.gltf` or `.glb` file; external buffers and texture URIs are resolved against the
+/// file's folder.
 pub fn load(path: &Path) -> Result<Mesh> {
-    Err(Error::invalid_at(
-        path,
-        "file",
-        "this input type is not supported yet",
-    ))
+    let bytes = crate::error::read_file(path)?;
+    let dir = path.parent().unwrap_or(Path::new(""));
+    parse_with_base(&bytes, Some(dir)).map_err(|e| Error::invalid(path, e))
+}
+
+/// Parses a glTF or GLB file held in memory; only embedded buffers (GLB blob, data URIs) can be
+/// read, and texture paths are the URIs as written.
+pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
+    parse_with_base(bytes, None)
+}
+
+fn parse_with_base(bytes: &[u8], base: Option<&Path>) -> Result<Mesh, ParseError> {
+    let mut warnings = Vec::new();
+    let (doc, blob) = read_document(bytes, &mut warnings)?;
+    let buffers = gltf::import_buffers(&doc, base, blob)
+        .map_err(|e| ParseError::new("buffers", format!("cannot load buffer data: {e}")))?;
+    let doc = &doc;
+    let mut ctx = Ctx {
+        base,
+        buffers: &buffers,
+        mesh: Mesh::default(),
+        material_map: HashMap::new(),
+        texture_map: HashMap::new(),
+        skipped_modes: 0,
+        no_uvs: 0,
+    };
+    for (node, world) in scene_nodes(doc)? {
+        if let Some(m) = node.mesh() {
+            let name = node
+                .name()
+                .map(str::to_string)
+                .unwrap_or_else(|| format!("node {}", node.index()));
+            ctx.add_mesh(&m, world)?;
+            ctx.mesh.objects.push(name);
+        }
+    }
+    ctx.mesh.warnings.splice(0..0, warnings);
+    ctx.finish()
+}
+
+/// Required extensions that only change materials or lights: ignoring them keeps the geometry
+/// right, so they are warnings. Any other required extension (Draco, meshopt, quantization)
+/// changes how geometry is stored and is an error.
+const IGNORABLE_EXTENSIONS: [&str; 4] = [
+    "KHR_materials_",
+    "KHR_texture_",
+    "KHR_technique_webgl",
+    "KHR_lights_",
+];
+
+/// Parses the JSON (and the GLB container) and validates it like the `gltf` crate does, except
+/// that POSITION accessors without min/max (required by the spec, but only a hint; assimp reads
+/// such files) and material-only required extensions are warnings.
+fn read_document(
+    bytes: &[u8],
+    warnings: &mut Vec<String>,
+) -> Result<(gltf::Document, Option<Vec<u8>>), ParseError> {
+    use gltf::json::validation::{Error as V, Validate};
+    let bad = |e: &dyn std::fmt::Display| {
+        ParseError::new("document", format!("not a valid glTF 2.0 file: {e}"))
+    };
+    let (json, blob) = if bytes.starts_with(b"glTF") {
+        let glb = gltf::binary::Glb::from_slice(bytes).map_err(|e| bad(&e))?;
+        (glb.json.into_owned(), glb.bin.map(|b| b.into_owned()))
+    } else {
+        (bytes.to_vec(), None)
+    };
+    let root = gltf::json::Root::from_slice(&json).map_err(|e| bad(&e))?;
+    let mut errors = Vec::new();
+    let mut unsupported = Vec::new();
+    let mut no_min_max = 0;
+    root.validate(&root, gltf::json::Path::new, &mut |path, error| {
+        let path = path().to_string();
+        if let (V::Unsupported, Some(ext)) = (error, extension_at(&root, &path)) {
+            if IGNORABLE_EXTENSIONS.iter().any(|p| ext.starts_with(p)) {
+                warnings.push(format!(
+                    "required extension {ext} is not supported; ignored (materials may differ)"
+                ));
+            } else {
+                unsupported.push(ext);
+            }
+        } else if matches!(error, V::Missing) && (path.ends_with(".min") || path.ends_with(".max"))
+        {
+            no_min_max += 1;
+        } else {
+            errors.push(format!("{path}: {error}"));
+        }
+    });
+    if !unsupported.is_empty() {
+        return Err(ParseError::new(
+            "extensionsRequired",
+            format!(
+                "required extension {} is not supported",
+                unsupported.join(", ")
+            ),
+        ));
+    }
+    if no_min_max > 0 {
+        warnings.push(format!(
+            "{no_min_max} accessor min/max values missing (ignored)"
+        ));
+    }
+    if !errors.is_empty() {
+        let n = errors.len();
+        errors.truncate(5);
+        return Err(bad(&format!(
+            "{n} validation errors: {}",
+            errors.join("; ")
+        )));
+    }
+    Ok((gltf::Document::from_json_without_validation(root), blob))
+}
+
+/// The extension named by a validation path like `extensionsRequired[0]` (the path may carry
+/// the value after it: `extensionsRequired[0] = "KHR_x"`).
+fn extension_at(root: &gltf::json::Root, path: &str) -> Option<String> {
+    let rest = path.strip_prefix("extensionsRequired[")?;
+    let k: usize = rest[..rest.find(']')?].parse().ok()?;
+    root.extensions_required.get(k).cloned()
+}
+
+fn hex(c: u8) -> Option<u8> {
+    (c as char).to_digit(16).map(|d| d as u8)
+}
+
+/// The nodes to draw with their world matrices (glTF axes), depth-first.
+fn scene_nodes(doc: &gltf::Document) -> Result<Vec<(gltf::Node<'_>, Mat4)>, ParseError> {
+    let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+        Some(s) => s.nodes().collect(),
+        None => {
+            let mut is_child = vec![false; doc.nodes().len()];
+            for n in doc.nodes() {
+                for c in n.children() {
+                    is_child[c.index()] = true;
+                }
+            }
+            doc.nodes().filter(|n| !is_child[n.index()]).collect()
+        }
+    };
+    let mut seen = vec![false; doc.nodes().len()];
+    let mut out = Vec::new();
+    let mut stack: Vec<(gltf::Node, Mat4)> = roots
+        .into_iter()
+        .rev()
+        .map(|n| (n, Mat4::IDENTITY))
+        .collect();
+    while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut seen[node.index()], true) {
+            return Err(ParseError::new(
+                format!("node {}", node.index()),
+                "node is reached twice in the hierarchy (recursive or shared nodes are not allowed)",
+            ));
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        let children: Vec<_> = node.children().collect();
+        for c in children.into_iter().rev() {
+            stack.push((c, world));
+        }
+        out.push((node, world));
+    }
+    Ok(out)
+}
+
+struct Ctx<'a> {
+    base: Option<&'a Path>,
+    buffers: &'a [gltf::buffer::Data],
+    mesh: Mesh,
+    /// glTF material index (None = default) → index in `mesh.materials`.
+    material_map: HashMap<Option<usize>, u32>,
+    /// glTF image index → index in `mesh.textures` (None: not extractable).
+    texture_map: HashMap<usize, Option<u32>>,
+    skipped_modes: usize,
+    no_uvs: usize,
+}
+
+/// glTF (Y-up) to bake (Z-up): (x, y, z) → (x, −z, y). Columns: x → x, y → z, z → −y.
+const Y_UP_TO_Z_UP: Mat4 = Mat4::from_cols_array(&[
+    1.0, 0.0, 0.0, 0.0, //
+    0.0, 0.0, 1.0, 0.0, //
+    0.0, -1.0, 0.0, 0.0, //
+    0.0, 0.0, 0.0, 1.0,
+]);
+
+impl Ctx<'_> {
+    fn add_mesh(&mut self, m: &gltf::Mesh, world: Mat4) -> Result<(), ParseError> {
+        for p in m.primitives() {
+            let place = format!("mesh {} primitive {}", m.index(), p.index());
+            match p.mode() {
+                Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan => {
+                    self.add_primitive(&p, world, &place)?
+                }
+                _ => self.skipped_modes += 1,
+            }
+        }
+        Ok(())
+    }
+
+    fn add_primitive(
+        &mut self,
+        p: &gltf::Primitive,
+        world: Mat4,
+        place: &str,
+    ) -> Result<(), ParseError> {
+        let reader = p.reader(|b| self.buffers.get(b.index()).map(|d| &d.0[..]));
+        let err = |what: &str| ParseError::new(place, what.to_string());
+        let positions: Vec<[f32; 3]> = reader
+            .read_positions()
+            .ok_or_else(|| err("POSITION missing or outside its buffer"))?
+            .collect();
+        if let Some(k) = positions
+            .iter()
+            .position(|v| !v.iter().all(|c| c.is_finite()))
+        {
+            return Err(err(&format!(
+                "position {k} is not finite: {:?}",
+                positions[k]
+            )));
+        }
+        let n = positions.len();
+        let raw: Vec<u32> = match (p.indices(), reader.read_indices()) {
+            (_, Some(i)) => i.into_u32().collect(),
+            (Some(a), None) => {
+                return Err(err(&format!(
+                    "indices (accessor {}) outside their buffer",
+                    a.index()
+                )));
+            }
+            (None, None) => (0..n as u32).collect(),
+        };
+        if let Some(&bad) = raw.iter().find(|&&i| i as usize >= n) {
+            return Err(err(&format!("index {bad} out of range ({n} vertices)")));
+        }
+        let mut tris = assemble(p.mode(), &raw);
+        let total = Y_UP_TO_Z_UP * world;
+        if total.determinant() < 0.0 {
+            for t in &mut tris {
+                t.swap(1, 2);
+            }
+        }
+        let normal_m = Mat3::from_mat4(total).inverse().transpose();
+        let normals: Option<Vec<[f32; 3]>> = reader.read_normals().map(|i| i.collect());
+        let uvs: Option<Vec<[f32; 2]>> = reader.read_tex_coords(0).map(|t| t.into_f32().collect());
+        let uvs = match uvs.filter(|u| u.len() == n) {
+            Some(u) => u,
+            None => {
+                self.no_uvs += 1;
+                vec![[0.0, 0.0]; n]
+            }
+        };
+        let mat = self.material(p.material());
+        let pos: Vec<[f32; 3]> = positions
+            .iter()
+            .map(|v| total.transform_point3(Vec3::from_array(*v)).to_array())
+            .collect();
+        let part = match normals.filter(|v| v.len() == n) {
+            Some(nrm) => Mesh {
+                normals: nrm
+                    .iter()
+                    .map(|v| {
+                        (normal_m * Vec3::from_array(*v))
+                            .normalize_or(Vec3::Z)
+                            .to_array()
+                    })
+                    .collect(),
+                positions: pos,
+                uvs,
+                triangle_materials: vec![mat; tris.len()],
+                indices: tris,
+                ..Mesh::default()
+            },
+            None => super::obj::flat_mesh(&pos, &uvs, &tris, mat),
+        };
+        // `append` offsets material and texture indices by the current counts: ours already
+        // index the shared lists, so append with them set aside.
+        let keep = (
+            std::mem::take(&mut self.mesh.materials),
+            std::mem::take(&mut self.mesh.textures),
+        );
+        self.mesh.append(part);
+        (self.mesh.materials, self.mesh.textures) = keep;
+        Ok(())
+    }
+
+    /// The index of a glTF material in our list, converting it on first use.
+    fn material(&mut self, m: gltf::Material) -> u32 {
+        if let Some(&i) = self.material_map.get(&m.index()) {
+            return i;
+        }
+        let pbr = m.pbr_metallic_roughness();
+        let base = pbr.base_color_factor();
+        let name = match (m.name(), m.index()) {
+            (Some(n), _) => n.to_string(),
+            (None, Some(i)) => format!("material {i}"),
+            (None, None) => "default".into(),
+        };
+        let mut out = Material {
+            name,
+            ..Material::default()
+        };
+        if m.index().is_some() {
+            out.diffuse = base;
+            out.source = MaterialSource::MetallicRoughness {
+                metallic: pbr.metallic_factor(),
+                roughness: pbr.roughness_factor(),
+            };
+            if m.alpha_mode() == gltf::material::AlphaMode::Blend {
+                out.transparency = 1.0 - base[3];
+            }
+            let e = m.emissive_factor();
+            out.emission = [e[0], e[1], e[2], 1.0];
+            out.color_map = pbr
+                .base_color_texture()
+                .and_then(|t| self.texture(t.texture()));
+            out.normal_map = m.normal_texture().and_then(|t| self.texture(t.texture()));
+        }
+        let i = self.mesh.materials.len() as u32;
+        self.mesh.materials.push(out);
+        self.material_map.insert(m.index(), i);
+        i
+    }
+
+    /// The index of a texture's image in `mesh.textures`, if it is a file URI.
+    fn texture(&mut self, t: gltf::Texture) -> Option<u32> {
+        let image = t.source();
+        if let Some(&i) = self.texture_map.get(&image.index()) {
+            return i;
+        }
+        let r = match image.source() {
+            gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
+                let name = percent_decode(uri);
+                let path = match self.base {
+                    Some(b) => b.join(&name),
+                    None => PathBuf::from(&name),
+                };
+                self.mesh.textures.push(TextureRef { name, path });
+                Some(self.mesh.textures.len() as u32 - 1)
+            }
+            _ => {
+                self.mesh.warnings.push(format!(
+                    "image {} is embedded (buffer view or data URI); not extracted, material untextured",
+                    image.index()
+                ));
+                None
+            }
+        };
+        self.texture_map.insert(image.index(), r);
+        r
+    }
+
+    fn finish(mut self) -> Result<Mesh, ParseError> {
+        if self.skipped_modes > 0 {
+            self.mesh.warnings.push(format!(
+                "{} point or line primitives skipped",
+                self.skipped_modes
+            ));
+        }
+        if self.no_uvs > 0 {
+            self.mesh.warnings.push(format!(
+                "{} primitives without TEXCOORD_0; texture coordinates set to (0, 0)",
+                self.no_uvs
+            ));
+        }
+        if self.mesh.indices.is_empty() {
+            return Err(ParseError::new(
+                "scene",
+                format!(
+                    "no triangles to read ({} point or line primitives skipped)",
+                    self.skipped_modes
+                ),
+            ));
+        }
+        Ok(self.mesh)
+    }
+}
+
+/// Triangles from an index list in the given mode (strips alternate their winding; fans share
+/// the first vertex). Degenerate strip triangles (two equal indices) are kept.
+fn assemble(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
+    match mode {
+        Mode::TriangleStrip => (2..idx.len())
+            .map(|k| {
+                if k % 2 == 0 {
+                    [idx[k - 2], idx[k - 1], idx[k]]
+                } else {
+                    [idx[k - 1], idx[k - 2], idx[k]]
+                }
+            })
+            .collect(),
+        Mode::TriangleFan => (2..idx.len())
+            .map(|k| [idx[0], idx[k - 1], idx[k]])
+            .collect(),
+        _ => idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
+    }
+}
+
+/// Decodes `%XX` escapes of a URI (invalid escapes are kept as written).
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%'
+            && i + 2 < b.len()
+            && let (Some(h), Some(l)) = (hex(b[i + 1]), hex(b[i + 2]))
+        {
+            out.push(h * 16 + l);
+            i += 3;
+            continue;
+        }
+        out.push(b[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
 }

@@ -1,13 +1,332 @@
-//! Reader (in progress).
-use crate::error::{Error, Result};
-use crate::model::Mesh;
-use std::path::Path;
+//! Wavefront OBJ reader with MTL materials, through the `tobj` crate.
+//!
+//! Polygons are triangulated (as fans, by tobj) and vertices get a single index (position,
+//! normal and texture coordinate together); points and lines are skipped. All objects and groups
+//! are merged into one mesh; their names go to `mesh.objects`. Axes are kept as written: OBJ
+//! has no up axis, and files made for bake are expected to be Z-up like TXF. Texture v is flipped
+//! (OBJ has v = 0 at the bottom of the image, the model has it at the top). UTF-16 files with a
+//! byte-order mark are converted to UTF-8 first.
+//!
+//! MTL → [`Material`]: `Kd`/`Ka`/`Ks` → diffuse/ambient/specular (alpha 1), `Ns` (0..1000) →
+//! shininess clamped to OpenGL's 0..128, `d` → transparency = 1 − d (or `Tr` directly),
+//! `map_Kd` → colour map, `map_Bump`/`bump`/`norm` → normal map (texture options such as
+//! `-bm 1` before the file name are dropped). Faces without a known material get the OpenGL
+//! default material. A missing or broken MTL file is a warning, not an error.
+//!
+//! Missing normals become face normals (vertices unshared per triangle); missing texture
+//! coordinates become (0, 0) with a warning when a textured material uses them.
 
-/// Reads a model file into one mesh.
+use crate::error::{Error, ParseError, Result};
+use crate::model::{Material, Mesh, TextureRef};
+use glam::Vec3;
+use std::io::BufRead;
+use std::path::{Path, PathBuf};
+
+/// Reads an `.obj` file and the MTL files it names (relative to the OBJ's folder).
 pub fn load(path: &Path) -> Result<Mesh> {
-    Err(Error::invalid_at(
-        path,
-        "file",
-        "this input type is not supported yet",
-    ))
+    let bytes = crate::error::read_file(path)?;
+    let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+    let loader = |mtl: &Path| {
+        let p = dir.join(mtl);
+        let f = std::fs::File::open(&p).map_err(|_| tobj::LoadError::OpenFileFailed)?;
+        tobj::load_mtl_buf(&mut std::io::BufReader::new(f))
+    };
+    let mut mesh = parse_with(&bytes, loader).map_err(|e| Error::invalid(path, e))?;
+    for t in &mut mesh.textures {
+        t.path = super::max3ds::resolve_texture(&dir, &t.name);
+    }
+    Ok(mesh)
+}
+
+/// Parses an OBJ held in memory; `mtllib` lines cannot be followed (no folder), so faces get
+/// default materials.
+pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
+    parse_with(bytes, |_| Err(tobj::LoadError::OpenFileFailed))
+}
+
+fn parse_with(
+    bytes: &[u8],
+    loader: impl Fn(&Path) -> tobj::MTLLoadResult,
+) -> Result<Mesh, ParseError> {
+    let text = to_utf8(bytes);
+    let opts = tobj::LoadOptions {
+        single_index: true,
+        triangulate: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let mut reader = LineCounter {
+        data: &text,
+        pos: 0,
+        line: 0,
+    };
+    let (models, materials) = tobj::load_obj_buf(&mut reader, &opts, loader).map_err(|e| {
+        // The failing line has been consumed; without a final newline it is not counted yet.
+        let line = reader.line + usize::from(reader.pos == 0 || text[reader.pos - 1] != b'\n');
+        ParseError::at_line(line.max(1), format!("OBJ: {e}"))
+    })?;
+    let mut mesh = Mesh::default();
+    let materials = materials.unwrap_or_else(|e| {
+        mesh.warnings
+            .push(format!("MTL not loaded ({e}); default materials used"));
+        Vec::new()
+    });
+    convert_materials(&materials, &mut mesh);
+    let default = mesh.materials.len() as u32;
+    let mut used_default = false;
+    let mut no_uvs = 0;
+    for m in &models {
+        let mat = match m.mesh.material_id {
+            Some(i) if i < materials.len() => i as u32,
+            _ => {
+                used_default = true;
+                default
+            }
+        };
+        if m.mesh.indices.is_empty() {
+            continue;
+        }
+        let textured = mesh
+            .materials
+            .get(mat as usize)
+            .is_some_and(|x| x.color_map.is_some());
+        if textured && m.mesh.texcoords.is_empty() {
+            no_uvs += 1;
+        }
+        let part = model_mesh(&m.mesh, mat)?;
+        let keep = (
+            std::mem::take(&mut mesh.materials),
+            std::mem::take(&mut mesh.textures),
+        );
+        mesh.append(part);
+        (mesh.materials, mesh.textures) = keep;
+        mesh.objects.push(m.name.clone());
+    }
+    if used_default {
+        mesh.materials.push(Material {
+            name: "default".into(),
+            ..Material::default()
+        });
+    }
+    if no_uvs > 0 {
+        mesh.warnings.push(format!(
+            "{no_uvs} objects with a textured material have no texture coordinates; set to (0, 0)"
+        ));
+    }
+    if mesh.indices.is_empty() {
+        return Err(ParseError::new(
+            "file",
+            "no faces (points and lines are skipped)",
+        ));
+    }
+    Ok(mesh)
+}
+
+/// One tobj model as a mesh (materials index into the file's list).
+fn model_mesh(m: &tobj::Mesh, mat: u32) -> Result<Mesh, ParseError> {
+    let n = m.positions.len() / 3;
+    let positions: Vec<[f32; 3]> = m
+        .positions
+        .chunks_exact(3)
+        .map(|p| [p[0], p[1], p[2]])
+        .collect();
+    let uvs: Vec<[f32; 2]> = if m.texcoords.len() / 2 == n {
+        m.texcoords
+            .chunks_exact(2)
+            .map(|t| [t[0], 1.0 - t[1]])
+            .collect()
+    } else {
+        vec![[0.0, 0.0]; n]
+    };
+    let tris: Vec<[u32; 3]> = m
+        .indices
+        .chunks_exact(3)
+        .map(|t| [t[0], t[1], t[2]])
+        .collect();
+    if let Some(bad) = tris.iter().flatten().find(|&&i| i as usize >= n) {
+        return Err(ParseError::new(
+            "faces",
+            format!("vertex index {bad} out of range ({n} vertices)"),
+        ));
+    }
+    if m.normals.len() / 3 == n {
+        let normals = m
+            .normals
+            .chunks_exact(3)
+            .map(|v| Vec3::new(v[0], v[1], v[2]).normalize_or(Vec3::Z).to_array())
+            .collect();
+        Ok(Mesh {
+            positions,
+            normals,
+            uvs,
+            triangle_materials: vec![mat; tris.len()],
+            indices: tris,
+            ..Mesh::default()
+        })
+    } else {
+        Ok(flat_mesh(&positions, &uvs, &tris, mat))
+    }
+}
+
+/// A mesh with face normals: every triangle gets its own three vertices. Degenerate triangles
+/// get (0, 0, 1). Shared by the glTF reader.
+pub(crate) fn flat_mesh(
+    positions: &[[f32; 3]],
+    uvs: &[[f32; 2]],
+    tris: &[[u32; 3]],
+    material: u32,
+) -> Mesh {
+    let mut mesh = Mesh {
+        triangle_materials: vec![material; tris.len()],
+        ..Mesh::default()
+    };
+    mesh.positions.reserve(tris.len() * 3);
+    for (k, t) in tris.iter().enumerate() {
+        let [a, b, c] = t.map(|i| Vec3::from_array(positions[i as usize]));
+        let n = (b - a).cross(c - a).normalize_or(Vec3::Z).to_array();
+        for &i in t {
+            mesh.positions.push(positions[i as usize]);
+            mesh.normals.push(n);
+            mesh.uvs.push(uvs[i as usize]);
+        }
+        let v = 3 * k as u32;
+        mesh.indices.push([v, v + 1, v + 2]);
+    }
+    mesh
+}
+
+fn convert_materials(materials: &[tobj::Material], mesh: &mut Mesh) {
+    for m in materials {
+        let d = Material::default();
+        let rgba = |c: Option<[f32; 3]>, def: [f32; 4]| c.map_or(def, |c| [c[0], c[1], c[2], 1.0]);
+        let transparency = match (m.dissolve, m.unknown_param.get("Tr")) {
+            (Some(d), _) => 1.0 - d,
+            (None, Some(tr)) => tr.trim().parse().unwrap_or(0.0),
+            _ => 0.0,
+        };
+        let normal = m
+            .normal_texture
+            .clone()
+            .or_else(|| m.unknown_param.get("norm").cloned());
+        let color_map = m.diffuse_texture.as_deref().map(|t| texture(mesh, t));
+        let normal_map = normal.as_deref().map(|t| texture(mesh, t));
+        mesh.materials.push(Material {
+            name: m.name.clone(),
+            diffuse: rgba(m.diffuse, d.diffuse),
+            ambient: rgba(m.ambient, d.ambient),
+            specular: rgba(m.specular, d.specular),
+            emission: rgba(m.emissive, d.emission),
+            shininess: m.shininess.unwrap_or(0.0).clamp(0.0, 128.0),
+            transparency: transparency.clamp(0.0, 1.0),
+            color_map,
+            normal_map,
+            ..d
+        });
+    }
+}
+
+/// The index of a texture by its MTL statement's file name (options like `-bm 1` dropped).
+fn texture(mesh: &mut Mesh, statement: &str) -> u32 {
+    let name = strip_options(statement);
+    if let Some(i) = mesh.textures.iter().position(|t| t.name == name) {
+        return i as u32;
+    }
+    mesh.textures.push(TextureRef {
+        name: name.clone(),
+        path: PathBuf::from(&name),
+    });
+    mesh.textures.len() as u32 - 1
+}
+
+/// MTL texture statements may start with options (`-bm 0.5 -clamp on file.png`): the file name
+/// is what follows the last option and its arguments.
+fn strip_options(s: &str) -> String {
+    let words: Vec<&str> = s.split_whitespace().collect();
+    if !words.first().is_some_and(|w| w.starts_with('-')) {
+        return s.trim().to_string();
+    }
+    let args = |opt: &str| match opt {
+        "-o" | "-s" | "-t" => 3,
+        "-mm" => 2,
+        _ => 1,
+    };
+    let mut k = 0;
+    while k < words.len() && words[k].starts_with('-') {
+        k += 1 + args(words[k]);
+    }
+    words.get(k..).map(|w| w.join(" ")).unwrap_or_default()
+}
+
+/// UTF-16 (with a byte-order mark) to UTF-8, invalid UTF-8 replaced (tobj needs valid lines),
+/// and lines tobj would misread turned into comments, keeping the line numbers: `l` and `p`
+/// statements (tobj reads an `l` with more than two indices as a polygon) and `usemtl` without a
+/// name (tobj rejects it; its faces keep the current material).
+fn to_utf8(bytes: &[u8]) -> Vec<u8> {
+    let utf16 = |be: bool| {
+        let units = bytes[2..].chunks_exact(2).map(|c| {
+            if be {
+                u16::from_be_bytes([c[0], c[1]])
+            } else {
+                u16::from_le_bytes([c[0], c[1]])
+            }
+        });
+        char::decode_utf16(units)
+            .map(|c| c.unwrap_or(char::REPLACEMENT_CHARACTER))
+            .collect::<String>()
+    };
+    let text = match bytes {
+        [0xFE, 0xFF, ..] => utf16(true),
+        [0xFF, 0xFE, ..] => utf16(false),
+        [0xEF, 0xBB, 0xBF, rest @ ..] => String::from_utf8_lossy(rest).into_owned(),
+        _ => String::from_utf8_lossy(bytes).into_owned(),
+    };
+    let mut out = Vec::with_capacity(text.len());
+    for line in text.split_inclusive('\n') {
+        let mut words = line.split_whitespace();
+        let first = words.next();
+        let skip =
+            matches!(first, Some("l" | "p")) || (first == Some("usemtl") && words.next().is_none());
+        if skip {
+            out.push(b'#');
+        }
+        out.extend_from_slice(line.as_bytes());
+    }
+    out
+}
+
+/// A `BufRead` over a byte slice that hands out one line at a time and counts the lines
+/// consumed, so a tobj error can name its line.
+struct LineCounter<'a> {
+    data: &'a [u8],
+    pos: usize,
+    line: usize,
+}
+
+impl std::io::Read for LineCounter<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let avail = self.fill_buf()?;
+        let n = avail.len().min(buf.len());
+        buf[..n].copy_from_slice(&avail[..n]);
+        self.consume(n);
+        Ok(n)
+    }
+}
+
+impl BufRead for LineCounter<'_> {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        let rest = &self.data[self.pos..];
+        let end = rest
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(rest.len(), |k| k + 1);
+        Ok(&rest[..end])
+    }
+    fn consume(&mut self, n: usize) {
+        let n = n.min(self.data.len() - self.pos);
+        self.line += self.data[self.pos..self.pos + n]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
+        self.pos += n;
+    }
 }

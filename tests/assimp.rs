@@ -1,0 +1,73 @@
+//! Our 3DS fixture read by a peer: when `assimp` (Debian `assimp-utils`) is installed, the bench
+//! fixture's triangle count (`assimp info -r`) and its bounds (from `assimp export` to OBJ, which
+//! places meshes by their node transforms; assimp's Y-up (X, Y, Z) is our (X, −Z, Y)) must equal
+//! what our reader gives. Without assimp the test says so and passes; the corpus run
+//! (`scripts/assimp-corpus.sh`) covers third-party files.
+
+use std::process::Command;
+
+fn assimp_available() -> bool {
+    Command::new("assimp")
+        .arg("version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+#[test]
+fn bench_fixture_agrees_with_assimp() {
+    if !assimp_available() {
+        eprintln!("assimp not installed: skipping the peer comparison");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    for (name, bytes) in bake::fixtures::object3ds::object_files() {
+        std::fs::write(dir.path().join(name), bytes).unwrap();
+    }
+    let file = dir.path().join("object.3ds");
+    let ours = bake::ingest::max3ds::load(&file).unwrap();
+
+    let info = Command::new("assimp")
+        .arg("info")
+        .arg(&file)
+        .arg("-r")
+        .output()
+        .unwrap();
+    assert!(info.status.success(), "assimp info failed");
+    let text = String::from_utf8_lossy(&info.stdout);
+    let faces: usize = text
+        .lines()
+        .find_map(|l| l.strip_prefix("Faces:"))
+        .and_then(|v| v.trim().parse().ok())
+        .expect("assimp info prints Faces:");
+    assert_eq!(ours.indices.len(), faces);
+
+    let obj = dir.path().join("peer.obj");
+    let export = Command::new("assimp")
+        .arg("export")
+        .arg(&file)
+        .arg(&obj)
+        .output()
+        .unwrap();
+    assert!(export.status.success(), "assimp export failed");
+    let text = std::fs::read_to_string(&obj).unwrap();
+    let peer: Vec<[f32; 3]> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("v "))
+        .map(|l| {
+            let v: Vec<f32> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            [v[0], -v[2], v[1]]
+        })
+        .collect();
+    let (plo, phi) = bake::model::bounds_of(&peer).unwrap();
+    let (lo, hi) = ours.bounds().unwrap();
+    for k in 0..3 {
+        assert!(
+            (plo[k] - lo[k]).abs() < 1e-4,
+            "min {lo:?} vs assimp {plo:?}"
+        );
+        assert!(
+            (phi[k] - hi[k]).abs() < 1e-4,
+            "max {hi:?} vs assimp {phi:?}"
+        );
+    }
+}
