@@ -196,3 +196,87 @@ fn dump_of_unknown_section_is_a_usage_error() {
     ]);
     assert_eq!(json(&o)["sections"].as_array().unwrap().len(), 1);
 }
+
+#[test]
+fn committed_fixtures_match_the_generator() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = bake(&["fixtures", dir.path().to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/scene");
+    let mut n = 0;
+    for e in std::fs::read_dir(dir.path()).unwrap() {
+        let e = e.unwrap();
+        let mine = std::fs::read(e.path()).unwrap();
+        let theirs = std::fs::read(committed.join(e.file_name())).unwrap_or_default();
+        assert!(
+            mine == theirs,
+            "fixtures/scene/{} differs from `bake fixtures`: regenerate with `cargo run -- fixtures`",
+            e.file_name().to_string_lossy()
+        );
+        n += 1;
+    }
+    assert!(n >= 8, "{n} fixture files");
+}
+
+#[test]
+fn fixture_scene_bakes_and_dumps_every_kind() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/scene");
+    let out = dir.path().join("scene.bake");
+    let o = bake(&[
+        scene.join("scene.eco").to_str().unwrap(),
+        "--sky",
+        scene.join("sky.hdr").to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let doc = json(&bake(&["dump", out.to_str().unwrap(), "--json"]));
+    let sections = doc["sections"].as_array().unwrap();
+    let kind = |k: &str| {
+        sections
+            .iter()
+            .filter(|s| s["kind"] == k)
+            .collect::<Vec<_>>()
+    };
+    assert!(sections.iter().all(|s| s["checksum_ok"] == true));
+    let inst = &kind("instances")[0]["summary"];
+    assert_eq!(inst["count"], 100);
+    assert_eq!(inst["layers"], serde_json::json!([1, 2]));
+    assert_eq!(
+        inst["models"],
+        serde_json::json!(["plant.txf", "object.3ds"])
+    );
+    let meshes = kind("mesh");
+    assert_eq!(meshes.len(), 2);
+    for m in &meshes {
+        let s = &m["summary"];
+        assert!(s["vertices"].as_u64().unwrap() > 0 && s["triangles"].as_u64().unwrap() > 0);
+        assert!(s["materials"].as_u64().unwrap() >= 1);
+        assert_eq!(s["bounds"]["min"].as_array().unwrap().len(), 3);
+    }
+    let t = &kind("terrain")[0]["summary"];
+    assert_eq!(
+        (t["width"].as_u64(), t["height"].as_u64()),
+        (Some(65), Some(65))
+    );
+    assert!(kind("texture").len() >= 3);
+    for t in kind("texture") {
+        assert!(t["summary"]["width"].as_u64().unwrap() > 0 && t["summary"]["format"].is_string());
+    }
+    assert_eq!(kind("sky").len(), 1);
+    // Instances stand on the terrain: z equals the terrain height at (x, y) within the 8-bit step.
+    let full = json(&bake(&[
+        "dump",
+        out.to_str().unwrap(),
+        "--json",
+        "--full",
+        "--section",
+        "instances",
+    ]));
+    for i in full["sections"][0]["data"]["instances"].as_array().unwrap() {
+        let z = i["position"][2].as_f64().unwrap();
+        assert!((0.0..=12.75).contains(&z), "{z}");
+    }
+}

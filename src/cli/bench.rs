@@ -89,7 +89,11 @@ fn cluster(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         })
         .collect();
     let values = crate::envmap::synthetic_envmaps(&positions);
-    let opts = crate::envmap::cluster::ClusterOptions { error: a.error, split_fraction: a.split_fraction, ..Default::default() };
+    let opts = crate::envmap::cluster::ClusterOptions {
+        error: a.error,
+        split_fraction: a.split_fraction,
+        ..Default::default()
+    };
     let t0 = std::time::Instant::now();
     let (meta, c, _) = crate::envmap::cluster_and_weigh(&positions, &values, DIM, &opts, false);
     let t_cluster = t0.elapsed().as_secs_f64();
@@ -103,7 +107,11 @@ fn cluster(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         let flat: Vec<f32> = positions.iter().flatten().copied().collect();
         let samples: Vec<f32> = c.samples.iter().map(|&s| s as f32).collect();
         std::fs::create_dir_all(dir).map_err(|e| crate::error::Error::io(dir, e))?;
-        for (name, data) in [("positions.f32", f32s(&flat)), ("values.f32", f32s(&values)), ("samples.f32", f32s(&samples))] {
+        for (name, data) in [
+            ("positions.f32", f32s(&flat)),
+            ("values.f32", f32s(&values)),
+            ("samples.f32", f32s(&samples)),
+        ] {
             crate::pack::write_atomic(&dir.join(name), &data)?;
         }
     }
@@ -114,5 +122,9 @@ fn cluster(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         "rounds": c.rounds, "seconds": t_cluster, "weights_seconds": t_weights,
         "weights_bytes": (nb.len() * 4 + w.len() * 4) as u64, "ill_conditioned": meta.ill_conditioned,
     });
-    Ok(Outcome { text: format!("{doc:#}\n"), json: doc, warnings: Vec::new() })
+    Ok(Outcome {
+        text: format!("{doc:#}\n"),
+        json: doc,
+        warnings: Vec::new(),
+    })
 }

@@ -13,7 +13,13 @@ use section::ClustersMeta;
 pub type NeighbourWeights = (Vec<u32>, Vec<f32>);
 
 /// Clusters the maps and, if asked, computes every instance's interpolation weights.
-pub fn cluster_and_weigh(positions: &[[f32; 3]], values: &[f32], dim: usize, opts: &ClusterOptions, store_weights: bool) -> (ClustersMeta, Clustering, Option<NeighbourWeights>) {
+pub fn cluster_and_weigh(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    opts: &ClusterOptions,
+    store_weights: bool,
+) -> (ClustersMeta, Clustering, Option<NeighbourWeights>) {
     let c = cluster_envmaps(positions, values, dim, opts);
     let weights = store_weights.then(|| instance_weights(positions, values, dim, &c));
     let meta = ClustersMeta {
@@ -33,9 +39,22 @@ pub fn cluster_and_weigh(positions: &[[f32; 3]], values: &[f32], dim: usize, opt
 }
 
 /// The k sample neighbours and multiquadric weights of every instance.
-pub fn instance_weights(positions: &[[f32; 3]], values: &[f32], dim: usize, c: &Clustering) -> NeighbourWeights {
+pub fn instance_weights(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    c: &Clustering,
+) -> NeighbourWeights {
     let pts: Vec<[f32; 3]> = c.samples.iter().map(|&s| positions[s as usize]).collect();
-    let vals: Vec<f32> = c.samples.iter().flat_map(|&s| values[s as usize * dim..(s as usize + 1) * dim].iter().copied()).collect();
+    let vals: Vec<f32> = c
+        .samples
+        .iter()
+        .flat_map(|&s| {
+            values[s as usize * dim..(s as usize + 1) * dim]
+                .iter()
+                .copied()
+        })
+        .collect();
     let ip = Interpolator::new(&pts, &vals, dim, c.radius, c.k);
     let k = c.k;
     let rows: Vec<(Vec<u32>, Vec<f32>)> = positions
@@ -74,7 +93,8 @@ pub fn synthetic_envmaps(positions: &[[f32; 3]]) -> Vec<f32> {
                 let band = (c % 48) / 3;
                 let l = (band as f32).sqrt().floor();
                 let f = 0.01 + 0.004 * (c % 5) as f32;
-                let smooth = 1.0 + 0.4 * (p[0] * f).sin() * (p[1] * f * 0.8 + c as f32).cos() + 0.05 * p[2];
+                let smooth =
+                    1.0 + 0.4 * (p[0] * f).sin() * (p[1] * f * 0.8 + c as f32).cos() + 0.05 * p[2];
                 (smooth - 0.3 * crowd) / (1.0 + l * l)
             })
         })

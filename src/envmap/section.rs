@@ -25,20 +25,39 @@ pub struct EnvmapsMeta {
     pub estimator: String,
 }
 
-pub fn envmaps_to_section(name: &str, meta: &EnvmapsMeta, sky: &[[[f32; 3]; COEFFS]], sun: &[[[f32; 3]; COEFFS]]) -> Section {
+pub fn envmaps_to_section(
+    name: &str,
+    meta: &EnvmapsMeta,
+    sky: &[[[f32; 3]; COEFFS]],
+    sun: &[[[f32; 3]; COEFFS]],
+) -> Section {
     let mut b = SectionBuilder::new(ENVMAPS_KIND, name);
-    b.meta(meta).array("sky", ArrayFormat::F32, 48, sky).array("sun", ArrayFormat::F32, 48, sun);
+    b.meta(meta)
+        .array("sky", ArrayFormat::F32, 48, sky)
+        .array("sun", ArrayFormat::F32, 48, sun);
     b.finish()
 }
 
 /// Decodes to (meta, sky, sun).
 #[allow(clippy::type_complexity)]
-pub fn envmaps_from_section(v: &SectionView) -> Result<(EnvmapsMeta, Vec<[[f32; 3]; COEFFS]>, Vec<[[f32; 3]; COEFFS]>), ParseError> {
+pub fn envmaps_from_section(
+    v: &SectionView,
+) -> Result<
+    (
+        EnvmapsMeta,
+        Vec<[[f32; 3]; COEFFS]>,
+        Vec<[[f32; 3]; COEFFS]>,
+    ),
+    ParseError,
+> {
     let meta: EnvmapsMeta = v.meta()?;
     let sky: Vec<[[f32; 3]; COEFFS]> = v.array_vec("sky")?;
     let sun: Vec<[[f32; 3]; COEFFS]> = v.array_vec("sun")?;
     if sky.len() as u64 != meta.instances || sun.len() as u64 != meta.instances {
-        return Err(ParseError::new("envmaps section", "map count differs from the instance count"));
+        return Err(ParseError::new(
+            "envmaps section",
+            "map count differs from the instance count",
+        ));
     }
     Ok((meta, sky, sun))
 }
@@ -47,13 +66,20 @@ pub fn envmaps_from_section(v: &SectionView) -> Result<(EnvmapsMeta, Vec<[[f32; 
 pub fn flatten(sky: &[[[f32; 3]; COEFFS]], sun: &[[[f32; 3]; COEFFS]]) -> Vec<f32> {
     sky.iter()
         .zip(sun)
-        .flat_map(|(a, b)| a.iter().chain(b.iter()).flat_map(|c| c.iter().copied()).collect::<Vec<f32>>())
+        .flat_map(|(a, b)| {
+            a.iter()
+                .chain(b.iter())
+                .flat_map(|c| c.iter().copied())
+                .collect::<Vec<f32>>()
+        })
         .collect()
 }
 
 pub fn envmaps_summary(v: &SectionView) -> Result<Value, ParseError> {
     let m: EnvmapsMeta = v.meta()?;
-    Ok(json!({"instances": m.instances, "order": m.order, "samples": m.samples, "estimator": m.estimator}))
+    Ok(
+        json!({"instances": m.instances, "order": m.order, "samples": m.samples, "estimator": m.estimator}),
+    )
 }
 
 pub fn envmaps_data(v: &SectionView) -> Result<Value, ParseError> {
@@ -81,17 +107,33 @@ pub struct ClustersMeta {
 
 /// Encodes the cluster samples (positions and values) and optionally per-instance neighbours and
 /// weights (`neighbours[i]` k sample indices, `weights[i]` k floats).
-pub fn clusters_to_section(name: &str, meta: &ClustersMeta, c: &Clustering, positions: &[[f32; 3]], values: &[f32], weights: Option<(&[u32], &[f32])>) -> Section {
+pub fn clusters_to_section(
+    name: &str,
+    meta: &ClustersMeta,
+    c: &Clustering,
+    positions: &[[f32; 3]],
+    values: &[f32],
+    weights: Option<(&[u32], &[f32])>,
+) -> Section {
     let dim = meta.dim as usize;
     let pts: Vec<[f32; 3]> = c.samples.iter().map(|&s| positions[s as usize]).collect();
-    let vals: Vec<f32> = c.samples.iter().flat_map(|&s| values[s as usize * dim..(s as usize + 1) * dim].iter().copied()).collect();
+    let vals: Vec<f32> = c
+        .samples
+        .iter()
+        .flat_map(|&s| {
+            values[s as usize * dim..(s as usize + 1) * dim]
+                .iter()
+                .copied()
+        })
+        .collect();
     let mut b = SectionBuilder::new(CLUSTERS_KIND, name);
     b.meta(meta)
         .array("sample_positions", ArrayFormat::F32, 3, &pts)
         .array("sample_values", ArrayFormat::F32, 1, &vals)
         .array("sample_instance", ArrayFormat::U32, 1, &c.samples);
     if let Some((nb, w)) = weights {
-        b.array("neighbours", ArrayFormat::U32, 1, nb).array("weights", ArrayFormat::F32, 1, w);
+        b.array("neighbours", ArrayFormat::U32, 1, nb)
+            .array("weights", ArrayFormat::F32, 1, w);
     }
     b.finish()
 }

@@ -82,7 +82,9 @@ pub fn parse_exr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
 
 fn exr_message(e: exr::error::Error) -> String {
     match e {
-        exr::error::Error::NotSupported(m) => format!("unsupported: {m} (an RGB or RGBA layer is expected)"),
+        exr::error::Error::NotSupported(m) => {
+            format!("unsupported: {m} (an RGB or RGBA layer is expected)")
+        }
         other => other.to_string(),
     }
 }
@@ -167,7 +169,10 @@ mod tests {
         bytes.extend_from_slice(&[128, 64, 0, 129]);
         let img = parse_hdr(&bytes).unwrap();
         let p = img.pixels[0];
-        assert!((p[0] - 1.0).abs() < 0.01 && (p[1] - 0.5).abs() < 0.01 && p[2] < 0.01, "{p:?}");
+        assert!(
+            (p[0] - 1.0).abs() < 0.01 && (p[1] - 0.5).abs() < 0.01 && p[2] < 0.01,
+            "{p:?}"
+        );
     }
 
     #[test]
@@ -187,7 +192,8 @@ mod tests {
 
     #[test]
     fn bad_files_give_clear_errors() {
-        let e = parse_hdr(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 4\n\x01\x02").unwrap_err();
+        let e =
+            parse_hdr(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 4\n\x01\x02").unwrap_err();
         assert!(e.place.contains("Radiance"), "{e}");
         let e = parse_exr(b"not an exr file at all").unwrap_err();
         assert!(e.place.contains("OpenEXR"), "{e}");
