@@ -1,0 +1,189 @@
+//! Light maps (seed 001, done properly): irradiance per texel of a surface placed once, here the
+//! terrain in its own grid coordinates (texel (i, j) covers the cell around x = x₀ + (i + ½)·extent/W,
+//! row 0 north like the colour map).
+//!
+//! `physical` mode (default), per texel:
+//! - direct sun: E_sun · max(0, n·s) times the visible fraction of the sun's disc (true angular
+//!   radius 0.00465 rad), estimated with `sun_samples` stratified points on the disc and shadow rays
+//!   through the whole scene (terrain and instances, alpha-tested);
+//! - sky: cosine-weighted hemisphere directions (a Hammersley set with a per-texel Cranley–Patterson
+//!   rotation), E ≈ π/N Σ L(d)·V(d) with L the sun-free sky;
+//! - one diffuse bounce: a direction that hits a surface brings ρ/π·(E_sun,direct + E_sky,unoccluded)
+//!   of that surface (ρ its mean albedo).
+//! `thesis` mode reproduces seed 001's estimator for comparison: one fixed Hammersley set for every
+//! texel, no visibility (neither for the sky nor the sun), no bounce.
+//!
+//! The terrain atlas is its grid, so it has no charts and no gutters; atlases for placed meshes
+//! (3DS objects) are not built yet.
+
+pub mod section;
+
+use crate::rt::{Ray, SceneBvh};
+use crate::sh::{ShIrradiance, ShRadiance};
+use crate::tracescene::TraceScene;
+use glam::Vec3A;
+use rayon::prelude::*;
+
+/// The sun's angular radius in radians (seed 000, eq. 3.1).
+pub const SUN_RADIUS: f32 = 0.004_65;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+pub enum LightmapMode {
+    Physical,
+    Thesis,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LightmapOptions {
+    /// Texels per side (the terrain grid size by default).
+    pub resolution: Option<u32>,
+    pub samples: u32,
+    pub sun_samples: u32,
+    pub mode: LightmapMode,
+}
+
+impl Default for LightmapOptions {
+    fn default() -> Self {
+        LightmapOptions { resolution: None, samples: 64, sun_samples: 16, mode: LightmapMode::Physical }
+    }
+}
+
+/// The light that reaches the scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lighting {
+    /// Sun-free sky radiance.
+    pub sky: ShRadiance,
+    /// Unit direction to the sun and its irradiance (RGB), if any.
+    pub sun: Option<([f32; 3], [f32; 3])>,
+}
+
+/// A light map: irradiance (linear RGB, W/m² for radiance in W/(m² sr)) per texel, row 0 north.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lightmap {
+    pub width: u32,
+    pub height: u32,
+    pub texels: Vec<[f32; 3]>,
+}
+
+/// Bakes the terrain light map of a scene.
+pub fn bake_terrain_lightmap(scene: &TraceScene, light: &Lighting, opts: &LightmapOptions) -> Option<Lightmap> {
+    let t = scene.terrain.as_ref()?;
+    let res = opts.resolution.unwrap_or(t.width.max(t.height)).max(1);
+    let (w, h) = (res, res);
+    let sky_irr = light.sky.to_irradiance();
+    let texels = (0..w * h)
+        .into_par_iter()
+        .map(|k| {
+            let (i, j) = (k % w, k / w);
+            let x = t.origin[0] + (i as f32 + 0.5) / w as f32 * t.extent[0];
+            // Row 0 is north (y = y₀ + extent).
+            let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / h as f32) * t.extent[1];
+            let p = Vec3A::new(x, y, t.height_at(x, y));
+            let n = Vec3A::from(height_normal(t, x, y));
+            texel_irradiance(&scene.bvh, &scene.albedo, light, &sky_irr, p, n, k as u64, opts)
+        })
+        .collect();
+    Some(Lightmap { width: w, height: h, texels })
+}
+
+/// Normal of the bilinear height field at (x, y) by central differences over one grid step.
+pub fn height_normal(t: &crate::model::Terrain, x: f32, y: f32) -> [f32; 3] {
+    let sx = t.extent[0] / (t.width - 1).max(1) as f32;
+    let sy = t.extent[1] / (t.height - 1).max(1) as f32;
+    let dzdx = (t.height_at(x + 0.5 * sx, y) - t.height_at(x - 0.5 * sx, y)) / sx;
+    let dzdy = (t.height_at(x, y + 0.5 * sy) - t.height_at(x, y - 0.5 * sy)) / sy;
+    glam::Vec3::new(-dzdx, -dzdy, 1.0).normalize().to_array()
+}
+
+/// Irradiance at one surface point.
+#[allow(clippy::too_many_arguments)]
+pub fn texel_irradiance(bvh: &SceneBvh, albedo: &[[f32; 3]], light: &Lighting, sky_irr: &ShIrradiance, p: Vec3A, n: Vec3A, texel: u64, opts: &LightmapOptions) -> [f32; 3] {
+    let thesis = opts.mode == LightmapMode::Thesis;
+    let origin = p + n * 1e-3;
+    let mut e = [0.0f64; 3];
+    if let Some((s, irr)) = light.sun {
+        let s = Vec3A::from(s);
+        let cos = n.dot(s);
+        if cos > 0.0 {
+            let vis = if thesis { 1.0 } else { sun_visibility(bvh, origin, s, opts.sun_samples, texel) };
+            for k in 0..3 {
+                e[k] += (irr[k] * cos * vis) as f64;
+            }
+        }
+    }
+    let nsamp = opts.samples.max(1);
+    let (tx, bx) = crate::rt::frame(n);
+    let shift = if thesis { (0.0, 0.0) } else { cp_rotation(texel) };
+    for k in 0..nsamp {
+        let (u1, u2) = hammersley(k, nsamp);
+        let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
+        let r = u1.sqrt();
+        let phi = std::f32::consts::TAU * u2;
+        let local = Vec3A::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
+        let d = (tx * local.x + bx * local.y + n * local.z).normalize();
+        let l = if thesis {
+            light.sky.eval(d.to_array())
+        } else {
+            match bvh.closest_hit(&Ray::new(origin, d, 1e-4)) {
+                None => light.sky.eval(d.to_array()),
+                Some(hit) => bounce_radiance(bvh, albedo, light, sky_irr, &hit, d),
+            }
+        };
+        for c in 0..3 {
+            e[c] += (l[c].max(0.0) * std::f32::consts::PI / nsamp as f32) as f64;
+        }
+    }
+    e.map(|v| v as f32)
+}
+
+/// Outgoing diffuse radiance of a hit surface lit by the sun (shadowed) and the unoccluded sky.
+fn bounce_radiance(bvh: &SceneBvh, albedo: &[[f32; 3]], light: &Lighting, sky_irr: &ShIrradiance, hit: &crate::rt::SceneHit, d: Vec3A) -> [f32; 3] {
+    let surf = bvh.surface(hit);
+    let mut n = surf.shading_normal;
+    if n.dot(d) > 0.0 {
+        n = -n;
+    }
+    let rho = albedo.get(hit.instance as usize).copied().unwrap_or([0.3; 3]);
+    let mut e = sky_irr.eval(n.to_array()).map(|v| v.max(0.0));
+    if let Some((s, irr)) = light.sun {
+        let s = Vec3A::from(s);
+        let cos = n.dot(s);
+        if cos > 0.0 && !bvh.any_hit(&Ray::new(surf.position + n * 1e-3, s, 1e-4)) {
+            for k in 0..3 {
+                e[k] += irr[k] * cos;
+            }
+        }
+    }
+    [0, 1, 2].map(|k| rho[k] / std::f32::consts::PI * e[k])
+}
+
+/// Fraction of the sun's disc visible from p: stratified points on the disc, one shadow ray each.
+pub fn sun_visibility(bvh: &SceneBvh, p: Vec3A, s: Vec3A, samples: u32, texel: u64) -> f32 {
+    let n = samples.max(1);
+    let (tx, bx) = crate::rt::frame(s);
+    let shift = cp_rotation(texel ^ 0x5u64 << 60);
+    let mut visible = 0;
+    for k in 0..n {
+        let (u1, u2) = hammersley(k, n);
+        let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
+        // Uniform on the disc of angular radius SUN_RADIUS (small-angle: a flat disc).
+        let r = SUN_RADIUS * u1.sqrt();
+        let phi = std::f32::consts::TAU * u2;
+        let d = (s + tx * (r * phi.cos()) + bx * (r * phi.sin())).normalize();
+        if !bvh.any_hit(&Ray::new(p, d, 1e-4)) {
+            visible += 1;
+        }
+    }
+    visible as f32 / n as f32
+}
+
+/// Point k of the N-point Hammersley set in [0, 1)².
+pub fn hammersley(k: u32, n: u32) -> (f32, f32) {
+    ((k as f32 + 0.5) / n as f32, (k.reverse_bits() as f64 / 4_294_967_296.0) as f32)
+}
+
+/// A per-texel Cranley–Patterson shift, from a hash of the texel index.
+fn cp_rotation(texel: u64) -> (f32, f32) {
+    let h = crate::rt::mix64(texel.wrapping_add(0x1234_5678));
+    ((h >> 40) as f32 / (1u64 << 24) as f32, ((h >> 16) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32)
+}

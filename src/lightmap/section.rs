@@ -1,0 +1,51 @@
+//! Kind `lightmap`: a surface's irradiance per texel.
+
+use super::{Lightmap, LightmapMode};
+use crate::error::ParseError;
+use crate::pack::section::SectionView;
+use crate::pack::{ArrayFormat, Section, SectionBuilder};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+
+pub const KIND: &str = "lightmap";
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LightmapMeta {
+    /// The surface: "terrain" or a mesh section name.
+    pub surface: String,
+    pub width: u32,
+    pub height: u32,
+    pub mode: LightmapMode,
+    pub samples: u32,
+    pub sun_samples: u32,
+}
+
+pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
+    let texels: Vec<[f32; 4]> = map.texels.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect();
+    let mut b = SectionBuilder::new(KIND, name);
+    b.meta(meta).array("irradiance", ArrayFormat::F32, 4, &texels);
+    b.finish()
+}
+
+pub fn from_section(v: &SectionView) -> Result<(LightmapMeta, Lightmap), ParseError> {
+    let meta: LightmapMeta = v.meta()?;
+    let t: Vec<[f32; 4]> = v.array_vec("irradiance")?;
+    if t.len() as u64 != meta.width as u64 * meta.height as u64 {
+        return Err(ParseError::new("lightmap section", "texel count does not match width × height"));
+    }
+    let map = Lightmap { width: meta.width, height: meta.height, texels: t.iter().map(|x| [x[0], x[1], x[2]]).collect() };
+    Ok((meta, map))
+}
+
+pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
+    let (m, map) = from_section(v)?;
+    let n = map.texels.len().max(1) as f32;
+    let mean = map.texels.iter().fold([0.0f32; 3], |a, t| [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]);
+    Ok(json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
+              "sun_samples": m.sun_samples, "mean_irradiance": mean}))
+}
+
+pub fn data(v: &SectionView) -> Result<Value, ParseError> {
+    let (_, map) = from_section(v)?;
+    Ok(json!({"irradiance": map.texels}))
+}

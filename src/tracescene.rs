@@ -1,0 +1,115 @@
+//! The ray-tracing scene of a scene pack, shared by the light-map and environment-map stages:
+//! one alpha-tested BVH per model, the instances placed by their transforms, and the terrain as
+//! one more (opaque) instance built from its height grid.
+
+use crate::error::{Error, Result};
+use crate::model::{Instances, Mesh, Rgba8Image, Terrain};
+use crate::pack::Pack;
+use crate::pack::kinds;
+use crate::rt::{BuildPreset, InstanceTransform, ModelBvh, SceneBvh};
+use std::sync::Arc;
+
+/// A traceable scene and what the lighting stages need to know about its surfaces.
+pub struct TraceScene {
+    pub bvh: SceneBvh,
+    /// Instances of the `instances` section come first, in order; the terrain (if any) is last.
+    pub instance_count: usize,
+    pub terrain: Option<Terrain>,
+    /// Mean diffuse albedo (linear RGB) of every BVH instance.
+    pub albedo: Vec<[f32; 3]>,
+    /// Height of each model's bounds (model units), for probe placement.
+    pub model_height: Vec<f32>,
+    pub instances: Instances,
+}
+
+/// The terrain grid as a triangle mesh in world space (two triangles per cell).
+pub fn terrain_mesh(t: &Terrain) -> Mesh {
+    let (w, h) = (t.width, t.height);
+    let mut mesh = Mesh::default();
+    for j in 0..h {
+        for i in 0..w {
+            mesh.positions.push(t.position(i, j));
+            mesh.normals.push(terrain_normal(t, i, j));
+            mesh.uvs.push([i as f32 / (w - 1).max(1) as f32, 1.0 - j as f32 / (h - 1).max(1) as f32]);
+        }
+    }
+    for j in 0..h.saturating_sub(1) {
+        for i in 0..w.saturating_sub(1) {
+            let a = j * w + i;
+            let (b, c, d) = (a + 1, a + w, a + w + 1);
+            mesh.indices.push([a, b, d]);
+            mesh.indices.push([a, d, c]);
+        }
+    }
+    mesh.triangle_materials = vec![0; mesh.indices.len()];
+    mesh.materials.push(crate::model::Material::default());
+    mesh
+}
+
+/// Normal of the height field at grid sample (i, j) by central differences.
+pub fn terrain_normal(t: &Terrain, i: u32, j: u32) -> [f32; 3] {
+    let sx = t.extent[0] / (t.width - 1).max(1) as f32;
+    let sy = t.extent[1] / (t.height - 1).max(1) as f32;
+    let (i0, i1) = (i.saturating_sub(1), (i + 1).min(t.width - 1));
+    let (j0, j1) = (j.saturating_sub(1), (j + 1).min(t.height - 1));
+    let dzdx = (t.sample(i1, j) - t.sample(i0, j)) / (sx * (i1 - i0).max(1) as f32);
+    let dzdy = (t.sample(i, j1) - t.sample(i, j0)) / (sy * (j1 - j0).max(1) as f32);
+    let n = glam::Vec3::new(-dzdx, -dzdy, 1.0).normalize();
+    n.to_array()
+}
+
+fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+}
+
+/// Mean linear colour of an sRGB image, weighting by coverage (alpha ≥ 0.5).
+pub fn mean_linear(img: &Rgba8Image) -> [f32; 3] {
+    let mut s = [0.0f64; 3];
+    let mut n = 0u64;
+    for p in img.pixels.iter().filter(|p| p[3] >= 128) {
+        for k in 0..3 {
+            s[k] += srgb_to_linear(p[k] as f32 / 255.0) as f64;
+        }
+        n += 1;
+    }
+    if n == 0 { [0.5; 3] } else { s.map(|v| (v / n as f64) as f32) }
+}
+
+/// Builds the scene of a pack with `instances` (and optionally `terrain`) sections.
+pub fn trace_scene(pack: &Pack) -> Result<TraceScene> {
+    let bad = |e| Error::invalid(pack.path(), e);
+    let (imeta, instances) = kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
+    let mut models = Vec::new();
+    let mut albedo_of_model = Vec::new();
+    let mut model_height = Vec::new();
+    for name in &imeta.mesh_sections {
+        let (meta, mesh) = kinds::mesh::from_section(&pack.view_named(name)?).map_err(bad)?;
+        let textures: Vec<Option<Rgba8Image>> = meta
+            .textures
+            .iter()
+            .map(|t| t.section.as_ref().and_then(|s| pack.view_named(s).ok()).and_then(|v| kinds::texture::from_section(&v).ok()).map(|(_, img)| img))
+            .collect();
+        let masks = crate::light::prt::alpha_masks(&mesh, &textures);
+        let mats = crate::light::prt::prt_materials(&mesh, &textures, 0.3);
+        let n = mats.len().max(1) as f32;
+        albedo_of_model.push(mats.iter().fold([0.0; 3], |a, m| [a[0] + m.albedo[0] / n, a[1] + m.albedo[1] / n, a[2] + m.albedo[2] / n]));
+        let (lo, hi) = mesh.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
+        model_height.push(hi[2] - lo[2].min(0.0));
+        models.push(Arc::new(ModelBvh::build(&mesh, &masks, BuildPreset::Medium)?));
+    }
+    let mut transforms: Vec<InstanceTransform> = instances.items.iter().map(InstanceTransform::from_instance).collect();
+    let mut albedo: Vec<[f32; 3]> = instances.items.iter().map(|i| albedo_of_model[i.model as usize]).collect();
+    let terrain = match pack.find("terrain") {
+        Some(e) => {
+            let (tmeta, t) = kinds::terrain::from_section(&pack.view(e)?).map_err(bad)?;
+            let color = tmeta.color_section.as_ref().and_then(|s| pack.view_named(s).ok()).and_then(|v| kinds::texture::from_section(&v).ok());
+            albedo.push(color.map_or([0.3; 3], |(_, img)| mean_linear(&img)));
+            models.push(Arc::new(ModelBvh::build(&terrain_mesh(&t), &[], BuildPreset::Medium)?));
+            transforms.push(InstanceTransform { model: (models.len() - 1) as u32, translation: [0.0; 3], scale: 1.0, rotation_deg: 0.0 });
+            Some(t)
+        }
+        None => None,
+    };
+    let instance_count = instances.items.len();
+    Ok(TraceScene { bvh: SceneBvh::build(models, transforms)?, instance_count, terrain, albedo, model_height, instances })
+}
