@@ -10,3 +10,4 @@ pub mod ingest;
 pub mod model;
 pub mod pack;
 pub mod pipeline;
+pub mod rt;
