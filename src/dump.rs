@@ -30,6 +30,11 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         kinds::texture::data,
     ),
     (kinds::sky::KIND, kinds::sky::summary, kinds::sky::data),
+    (
+        crate::light::prt_pack::KIND,
+        crate::light::prt_pack::summary,
+        crate::light::prt_pack::data,
+    ),
 ];
 
 /// Options of `bake dump`.

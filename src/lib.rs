@@ -7,6 +7,7 @@ pub mod cli;
 pub mod dump;
 pub mod error;
 pub mod ingest;
+pub mod light;
 pub mod model;
 pub mod pack;
 pub mod pipeline;
