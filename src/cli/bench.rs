@@ -14,6 +14,8 @@ pub struct BenchArgs {
 pub enum BenchWhat {
     /// Ingest throughput in MB/s per input file.
     Ingest(IngestBenchArgs),
+    /// Raw obvhs rays/s against PRT rays/s on one model (default: a procedural plant).
+    Rays(super::prt::RaysBenchArgs),
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -29,6 +31,7 @@ pub struct IngestBenchArgs {
 pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
     match &args.what {
         BenchWhat::Ingest(a) => ingest(a, g),
+        BenchWhat::Rays(a) => super::prt::bench(a, g),
     }
 }
 

@@ -5,6 +5,7 @@ pub mod bench;
 pub mod build;
 pub mod dump;
 pub mod ingest;
+pub mod prt;
 
 use serde_json::Value;
 

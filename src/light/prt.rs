@@ -6,7 +6,8 @@
 //! reflected into the hemisphere it came from with probability 1 − t or transmitted through the
 //! leaf with probability t (translucence), and its throughput is multiplied by the hit
 //! material's albedo (the BSDF is ρ(1−t)/π on the reflection side and ρt/π on the transmission
-//! side, so the sampling probabilities cancel and only ρ remains). When a path leaves the model,
+//! side, so the sampling probabilities cancel and only ρ remains); Russian roulette on the
+//! throughput ends most paths after a hit on a dark leaf, unbiased. When a path leaves the model,
 //! the SH basis of its final direction, weighted by the throughput, is added to the side's
 //! transfer: set 0 collects every path (V(D|G|S)*C), set 1 only paths with at least one bounce
 //! (V(D|G|S)+C, for the indirect sun). Paths still inside the model after `bounces` scattering
@@ -353,13 +354,9 @@ impl<'a> Ctx<'a> {
             let mut acc = [[[0.0f64; 3]; COEFFS]; SETS];
             rays += self.side(v, side, p + ns * self.eps, ns, &mut acc);
             let scale = 1.0 / self.opts.samples.max(1) as f64;
-            for set in 0..SETS {
-                for i in 0..COEFFS {
-                    let at = (side * SETS + set) * COEFFS + i;
-                    out[at] = std::array::from_fn(|k| {
-                        (acc[set][i][k] * scale * mat.albedo[k] as f64) as f32
-                    });
-                }
+            let dst = &mut out[side * SETS * COEFFS..(side + 1) * SETS * COEFFS];
+            for (o, a) in dst.iter_mut().zip(acc.iter().flatten()) {
+                *o = std::array::from_fn(|k| (a[k] * scale * mat.albedo[k] as f64) as f32);
             }
         }
         Some((out, rays))
@@ -386,11 +383,10 @@ impl<'a> Ctx<'a> {
             rays += r;
             if let Some((dir, beta, bounces)) = escape {
                 let y = sh_basis16(dir.to_array());
-                for set in 0..SETS {
-                    if set == 1 && bounces == 0 {
-                        continue;
-                    }
-                    for (a, &yi) in acc[set].iter_mut().zip(&y) {
+                // Set 0 takes every escaping path, set 1 only those that bounced.
+                let sets = if bounces == 0 { 1 } else { SETS };
+                for set_acc in acc.iter_mut().take(sets) {
+                    for (a, &yi) in set_acc.iter_mut().zip(&y) {
                         for c in 0..3 {
                             a[c] += (beta[c] * yi) as f64;
                         }
@@ -406,15 +402,30 @@ impl<'a> Ctx<'a> {
     fn trace(&self, mut o: Vec3A, mut d: Vec3A, rng: &mut Rng) -> (Option<Escape>, u64) {
         let mut beta = [1.0f32; 3];
         for bounce in 0..=self.opts.bounces {
-            let Some(h) = self.bvh.closest_hit(&Ray::new(o, d, 0.0)) else {
+            let ray = Ray::new(o, d, 0.0);
+            if bounce == self.opts.bounces {
+                // The last ray only has to tell whether the path escapes: any hit will do.
+                let escape = (!self.bvh.any_hit(&ray)).then_some((d, beta, bounce));
+                return (escape, bounce as u64 + 1);
+            }
+            let Some(h) = self.bvh.closest_hit(&ray) else {
                 return (Some((d, beta, bounce)), bounce as u64 + 1);
             };
             let s = self.bvh.surface(&h);
             let m = self.materials[s.material as usize];
             beta = std::array::from_fn(|k| beta[k] * m.albedo[k]);
             let ng = s.geometric_normal;
-            if bounce == self.opts.bounces || beta == [0.0; 3] || ng == Vec3A::ZERO {
+            if beta == [0.0; 3] || ng == Vec3A::ZERO {
                 return (None, bounce as u64 + 1);
+            }
+            // Russian roulette: go on with probability q = max(β) and divide by it, so dark
+            // leaves (albedo ≈ 0.1) end most paths after one hit without biasing the estimate.
+            let q = beta[0].max(beta[1]).max(beta[2]).min(1.0);
+            if q < 1.0 {
+                if rng.next_f32() >= q {
+                    return (None, bounce as u64 + 1);
+                }
+                beta = beta.map(|b| b / q);
             }
             let facing = if ng.dot(d) < 0.0 { ng } else { -ng };
             let out = if rng.next_f32() < m.translucence {
@@ -425,7 +436,7 @@ impl<'a> Ctx<'a> {
             o = s.position + out * self.eps;
             d = cosine_hemisphere(out, rng.next_f32(), rng.next_f32());
         }
-        unreachable!("the loop returns at bounce == bounces")
+        unreachable!("the loop returns at bounce == bounces at the latest")
     }
 }
 

@@ -231,7 +231,7 @@ pub fn prt_pack(
 }
 
 /// The decoded textures a mesh section refers to (`None` where there is no usable section).
-fn mesh_textures(
+pub fn mesh_textures(
     pack: &Pack,
     mesh_section: &str,
     meta: &kinds::mesh::MeshMeta,

@@ -395,7 +395,8 @@ fn intersect(tri: &PreTri, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(
     let inv = 1.0 / det;
     let s = o - tri.v0;
     let u = s.dot(p) * inv;
-    if !(u >= 0.0 && u <= 1.0) {
+    // Written so that NaN fails the test too.
+    if !(0.0..=1.0).contains(&u) {
         return None;
     }
     let q = s.cross(tri.e1);

@@ -90,7 +90,7 @@ impl SceneBvh {
                     models.len()
                 )));
             }
-            if !(i.scale > 0.0 && i.scale.is_finite()) || !i.rotation_deg.is_finite() {
+            if i.scale <= 0.0 || !i.scale.is_finite() || !i.rotation_deg.is_finite() {
                 return Err(Error::runtime(format!(
                     "instance {k}: scale {} / rotation {} is not usable",
                     i.scale, i.rotation_deg
