@@ -30,10 +30,17 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         kinds::texture::data,
     ),
     (kinds::sky::KIND, kinds::sky::summary, kinds::sky::data),
+    (crate::envmap::section::ENVMAPS_KIND, crate::envmap::section::envmaps_summary, crate::envmap::section::envmaps_data),
+    (crate::envmap::section::CLUSTERS_KIND, crate::envmap::section::clusters_summary, crate::envmap::section::clusters_data),
     (
         crate::bittree::section::KIND,
         crate::bittree::section::summary,
         crate::bittree::section::data,
+    ),
+    (
+        crate::light::prt_pack::KIND,
+        crate::light::prt_pack::summary,
+        crate::light::prt_pack::data,
     ),
 ];
 

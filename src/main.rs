@@ -25,6 +25,8 @@ enum Command {
     Build(cli::build::BuildArgs),
     /// Ingest any single input file into a pack.
     Ingest(cli::ingest::IngestArgs),
+    /// Per-vertex PRT (SH transfer) for every mesh of a pack or model file.
+    Prt(cli::prt::PrtArgs),
     /// Show what a pack holds.
     Dump(cli::dump::DumpArgs),
     /// Write the generated fixture scene into a folder.
@@ -42,6 +44,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
     match &cli.command {
         Command::Build(a) => cli::build::run(a, g),
         Command::Ingest(a) => cli::ingest::run(a, g),
+        Command::Prt(a) => cli::prt::run(a, g),
         Command::Dump(a) => cli::dump::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),
         Command::Bittree(a) => cli::bittree::run(a, g),

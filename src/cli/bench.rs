@@ -14,6 +14,8 @@ pub struct BenchArgs {
 pub enum BenchWhat {
     /// Ingest throughput in MB/s per input file.
     Ingest(IngestBenchArgs),
+    /// Raw obvhs rays/s against PRT rays/s on one model (default: a procedural plant).
+    Rays(super::prt::RaysBenchArgs),
     /// Environment-map clustering and interpolation weights on a generated scene.
     Cluster(ClusterBenchArgs),
 }
@@ -47,6 +49,7 @@ pub struct IngestBenchArgs {
 pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
     match &args.what {
         BenchWhat::Ingest(a) => ingest(a, g),
+        BenchWhat::Rays(a) => super::prt::bench(a, g),
         BenchWhat::Cluster(a) => cluster(a, g),
     }
 }

@@ -1,0 +1,238 @@
+//! `bake prt INPUT`: per-vertex PRT for every mesh of a pack or model file, and
+//! `bake bench rays`: raw obvhs traversal against PRT ray throughput (docs/PERFORMANCE.md).
+
+use super::{Global, Outcome};
+use crate::error::{Error, Result};
+use crate::ingest::{IngestOptions, InputKind};
+use crate::light::bench::{RaysBenchOptions, bench_rays};
+use crate::light::prt::{self, PrtOptions};
+use crate::light::prt_pack::{mesh_textures, mesh_vertex_count, prt_pack};
+use crate::pack::Pack;
+use crate::rt::BuildPreset;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct PrtArgs {
+    /// A pack with mesh sections (.bake), or a model or scene file (.txf .3ds .obj .gltf .glb
+    /// .eco), which is ingested first.
+    pub input: PathBuf,
+    /// Output pack (default: the input pack itself, or <input stem>.bake for a model file).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Monte-Carlo paths per vertex side.
+    #[arg(long, default_value_t = 256)]
+    pub samples: u32,
+    /// Scattering events a path may take inside the model (0: visibility only).
+    #[arg(long, default_value_t = 3)]
+    pub bounces: u32,
+    /// Translucence of TXF materials that carry none.
+    #[arg(long, default_value_t = 0.3)]
+    pub translucence: f32,
+    /// BVH build preset.
+    #[arg(long, value_enum, default_value_t = BuildPreset::default())]
+    pub preset: BuildPreset,
+    /// Seed of the sample scrambles.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+fn check_sampling(samples: u32, bounces: u32) -> Result<()> {
+    if samples == 0 || samples > 1 << 20 {
+        return Err(Error::usage(format!(
+            "--samples {samples}: expected 1 to {}",
+            1 << 20
+        )));
+    }
+    if bounces > 64 {
+        return Err(Error::usage(format!(
+            "--bounces {bounces}: expected 0 to 64"
+        )));
+    }
+    Ok(())
+}
+
+/// A pack file as it is, or any other input ingested into a pack in memory.
+fn open_or_ingest(input: &Path) -> Result<(Pack, Vec<String>)> {
+    if InputKind::of(input).is_none() {
+        return Ok((Pack::open(input)?, Vec::new()));
+    }
+    let (w, warnings) = crate::pipeline::ingest_to_pack(input, &IngestOptions::default())?;
+    let pack = Pack::from_bytes(&w.to_bytes()?, &input.display().to_string())?;
+    Ok((pack, warnings))
+}
+
+pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
+    check_sampling(args.samples, args.bounces)?;
+    if !(0.0..=1.0).contains(&args.translucence) {
+        return Err(Error::usage("--translucence: expected 0 to 1"));
+    }
+    let opts = PrtOptions {
+        samples: args.samples,
+        bounces: args.bounces,
+        preset: args.preset,
+        default_translucence: args.translucence,
+        seed: args.seed,
+        ..PrtOptions::default()
+    };
+    let is_pack = InputKind::of(&args.input).is_none();
+    let (pack, mut warnings) = open_or_ingest(&args.input)?;
+    let total = mesh_vertex_count(&pack);
+    if total == 0
+        && pack
+            .of_kind(crate::pack::kinds::mesh::KIND)
+            .next()
+            .is_none()
+    {
+        return Err(Error::invalid_at(
+            &args.input,
+            "section table",
+            "no mesh section: nothing to bake PRT for",
+        ));
+    }
+    let bar = g.progress(total, "prt");
+    let (w, reports, more) = prt_pack(&pack, &opts, &|n| bar.inc(n))?;
+    bar.finish_and_clear();
+    warnings.extend(more);
+    let output = match &args.output {
+        Some(o) => o.clone(),
+        None if is_pack => args.input.clone(),
+        None => args.input.with_extension("bake"),
+    };
+    let bytes = w.to_bytes()?;
+    drop(pack); // release the input's memory map before replacing the file
+    crate::pack::write_atomic(&output, &bytes)?;
+    let mut text = String::new();
+    for r in &reports {
+        text.push_str(&format!(
+            "{}: {} vertices, {} triangles, {} rays in {:.2} s ({:.2} M rays/s)\n",
+            r.section,
+            r.vertices,
+            r.triangles,
+            r.rays,
+            r.seconds,
+            r.rays as f64 / r.seconds.max(1e-9) / 1e6
+        ));
+    }
+    text.push_str(&format!("{}: {} bytes\n", output.display(), bytes.len()));
+    Ok(Outcome {
+        json: serde_json::json!({"output": output, "bytes": bytes.len(), "samples": args.samples,
+            "bounces": args.bounces, "meshes": reports}),
+        text,
+        warnings,
+    })
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct RaysBenchArgs {
+    /// A model file or pack (its first mesh); default: a procedural alpha-tested plant.
+    pub model: Option<PathBuf>,
+    /// Triangles of the procedural plant.
+    #[arg(long, default_value_t = 100_000)]
+    pub triangles: usize,
+    /// Vertices traced (strided over the model).
+    #[arg(long, default_value_t = 2000)]
+    pub vertices: usize,
+    /// Paths per vertex side for the measured PRT rays.
+    #[arg(long, default_value_t = 64)]
+    pub samples: u32,
+    #[arg(long, default_value_t = 3)]
+    pub bounces: u32,
+    /// Preset of the BVH the PRT rays use.
+    #[arg(long, value_enum, default_value_t = BuildPreset::default())]
+    pub preset: BuildPreset,
+    /// Measure build time and raw rate of every preset.
+    #[arg(long)]
+    pub all_presets: bool,
+    /// Also bake every vertex with this many samples per side and report the time.
+    #[arg(long)]
+    pub bake_samples: Option<u32>,
+}
+
+pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
+    check_sampling(a.samples, a.bounces)?;
+    let mut warnings = Vec::new();
+    let (mesh, textures, source) = match &a.model {
+        None => {
+            let (mesh, tex) = crate::light::plant::procedural_plant(a.triangles, 1);
+            (
+                mesh,
+                vec![Some(tex)],
+                "procedural plant, seed 1".to_string(),
+            )
+        }
+        Some(path) => {
+            let (pack, w) = open_or_ingest(path)?;
+            warnings.extend(w);
+            let e = pack
+                .of_kind(crate::pack::kinds::mesh::KIND)
+                .next()
+                .cloned()
+                .ok_or_else(|| Error::invalid_at(path, "section table", "no mesh section"))?;
+            let view = pack.view(&e)?;
+            let (meta, mesh) = crate::pack::kinds::mesh::from_section(&view)
+                .map_err(|err| Error::invalid(path, err))?;
+            let textures = mesh_textures(&pack, &e.name, &meta, &mut warnings);
+            (mesh, textures, path.display().to_string())
+        }
+    };
+    let mats = prt::prt_materials(&mesh, &textures, 0.3);
+    let masks = prt::alpha_masks(&mesh, &textures);
+    let opts = RaysBenchOptions {
+        vertices: a.vertices,
+        prt: PrtOptions {
+            samples: a.samples,
+            bounces: a.bounces,
+            preset: a.preset,
+            ..PrtOptions::default()
+        },
+        presets: if a.all_presets {
+            BuildPreset::ALL.to_vec()
+        } else {
+            vec![a.preset]
+        },
+        full_bake_samples: a.bake_samples,
+    };
+    let r = bench_rays(&mesh, &mats, &masks, &opts)?;
+    let mut text = format!(
+        "{source}: {} triangles, {} vertices traced, {} threads, preset {}\n\
+         raw obvhs   {:>8.3} M rays/s ({} rays)\n\
+         PRT         {:>8.3} M rays/s ({} rays)\n\
+         efficiency  {:>8.3}\n",
+        r.triangles,
+        r.vertices_traced,
+        r.threads,
+        r.preset,
+        r.raw_rays_per_second / 1e6,
+        r.raw_rays,
+        r.prt_rays_per_second / 1e6,
+        r.prt_rays,
+        r.efficiency
+    );
+    for p in &r.presets {
+        text.push_str(&format!(
+            "  preset {:<10} build {:>7.3} s, raw {:>7.3} M rays/s\n",
+            p.preset,
+            p.build_seconds,
+            p.raw_rays_per_second / 1e6
+        ));
+    }
+    if let Some(b) = &r.full_bake {
+        text.push_str(&format!(
+            "full bake: {} vertices × 2 sides × {} samples, {} bounces: {:.2} s \
+             (BVH {:.2} s, {:.3} M rays/s)\n",
+            b.vertices,
+            b.samples,
+            b.bounces,
+            b.seconds,
+            b.build_seconds,
+            b.rays_per_second / 1e6
+        ));
+    }
+    let mut json = serde_json::to_value(&r).unwrap_or_default();
+    json["source"] = source.into();
+    Ok(Outcome {
+        json,
+        text,
+        warnings,
+    })
+}

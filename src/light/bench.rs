@@ -1,0 +1,204 @@
+//! `bake bench rays`: raw obvhs traversal against the rays per second the PRT stage achieves on
+//! the same model in the same run, per BVH build preset, and optionally a timed full bake.
+//!
+//! Raw rays: closest hit with obvhs' own triangle test and no alpha test, for the incoherent
+//! cosine-distributed hemisphere rays that leave a sample of the model's vertices (both sides).
+//! PRT rays: every closest-hit query the PRT stage makes for the same vertices (first rays and
+//! bounce rays, with alpha tests, sampling and SH accumulation included). Both run over rayon on
+//! all threads; each is timed twice and the faster run counts (the machine is shared).
+
+use super::prt::{self, PrtMaterial, PrtOptions};
+use crate::error::Result;
+use crate::model::Mesh;
+use crate::rt::{AlphaMask, BuildPreset, ModelBvh, Ray, cosine_hemisphere};
+use glam::Vec3A;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::time::Instant;
+
+/// What to measure.
+#[derive(Debug, Clone)]
+pub struct RaysBenchOptions {
+    /// Vertices traced (evenly strided over the model).
+    pub vertices: usize,
+    /// PRT options for the measured rays (samples per side, bounces, preset).
+    pub prt: PrtOptions,
+    /// Presets whose build time and raw rate are measured.
+    pub presets: Vec<BuildPreset>,
+    /// Also bake every vertex with this many samples and time it.
+    pub full_bake_samples: Option<u32>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct PresetResult {
+    pub preset: &'static str,
+    pub build_seconds: f64,
+    pub raw_rays_per_second: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct FullBake {
+    pub vertices: u32,
+    pub samples: u32,
+    pub bounces: u32,
+    pub seconds: f64,
+    pub build_seconds: f64,
+    pub rays: u64,
+    pub rays_per_second: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct RaysBenchReport {
+    pub triangles: usize,
+    pub vertices_traced: usize,
+    pub threads: usize,
+    pub preset: &'static str,
+    pub raw_rays: u64,
+    pub raw_rays_per_second: f64,
+    pub prt_rays: u64,
+    pub prt_rays_per_second: f64,
+    pub efficiency: f64,
+    pub presets: Vec<PresetResult>,
+    pub full_bake: Option<FullBake>,
+}
+
+/// Runs the benchmark on `mesh` with its materials and alpha masks.
+pub fn bench_rays(
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    masks: &[Option<AlphaMask>],
+    opts: &RaysBenchOptions,
+) -> Result<RaysBenchReport> {
+    let stride = (mesh.positions.len() / opts.vertices.max(1)).max(1);
+    let verts: Vec<u32> = (0..mesh.positions.len() as u32)
+        .step_by(stride)
+        .take(opts.vertices.max(1))
+        .collect();
+    let rays = hemisphere_rays(mesh, &verts, &opts.prt);
+    let mut list = opts.presets.clone();
+    if !list.contains(&opts.prt.preset) {
+        list.push(opts.prt.preset);
+    }
+    let mut presets = Vec::new();
+    let mut chosen = None;
+    for p in list {
+        let start = Instant::now();
+        let bvh = ModelBvh::build(mesh, masks, p)?;
+        let build_seconds = start.elapsed().as_secs_f64();
+        let raw = raw_rate(&bvh, &rays);
+        if opts.presets.contains(&p) {
+            presets.push(PresetResult {
+                preset: p.name(),
+                build_seconds,
+                raw_rays_per_second: raw,
+            });
+        }
+        if p == opts.prt.preset {
+            chosen = Some((bvh, raw));
+        }
+    }
+    let Some((bvh, raw)) = chosen else {
+        return Err(crate::error::Error::runtime("the PRT preset was not built"));
+    };
+    let raw_rays = rays.len() as u64;
+    let (prt_rays, prt_rate) = prt_rate(&bvh, mesh, materials, &verts, &opts.prt);
+    let full_bake = opts
+        .full_bake_samples
+        .map(|s| full_bake(mesh, materials, masks, &opts.prt, s))
+        .transpose()?;
+    Ok(RaysBenchReport {
+        triangles: mesh.indices.len(),
+        vertices_traced: verts.len(),
+        threads: rayon::current_num_threads(),
+        preset: opts.prt.preset.name(),
+        raw_rays,
+        raw_rays_per_second: raw,
+        prt_rays,
+        prt_rays_per_second: prt_rate,
+        efficiency: if raw > 0.0 { prt_rate / raw } else { 0.0 },
+        presets,
+        full_bake,
+    })
+}
+
+/// The first rays of the PRT paths of `verts`, without the PRT machinery: origin offset along
+/// the normal, cosine-distributed directions (pseudo-random here; the distribution is the same).
+fn hemisphere_rays(mesh: &Mesh, verts: &[u32], o: &PrtOptions) -> Vec<Ray> {
+    let (lo, hi) = mesh.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
+    let eps = o.offset * (Vec3A::from(hi) - Vec3A::from(lo)).length().max(1e-6);
+    let mut rays = Vec::with_capacity(verts.len() * 2 * o.samples as usize);
+    for &v in verts {
+        let n = Vec3A::from(mesh.normals[v as usize]).normalize_or(Vec3A::Z);
+        let p = Vec3A::from(mesh.positions[v as usize]);
+        let mut rng = crate::rt::Rng::new(v as u64);
+        for side in [n, -n] {
+            for _ in 0..o.samples {
+                let d = cosine_hemisphere(side, rng.next_f32(), rng.next_f32());
+                rays.push(Ray::new(p + side * eps, d, 0.0));
+            }
+        }
+    }
+    rays
+}
+
+/// Best of two runs of raw obvhs closest-hit traversal, rays per second.
+fn raw_rate(bvh: &ModelBvh, rays: &[Ray]) -> f64 {
+    let tris = bvh.raw_triangles();
+    let mut best = f64::INFINITY;
+    for _ in 0..2 {
+        let start = Instant::now();
+        let hits: usize = rays
+            .par_iter()
+            .map(|r| bvh.raw_closest_t(&tris, r).is_finite() as usize)
+            .sum();
+        std::hint::black_box(hits);
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    rays.len() as f64 / best
+}
+
+/// Best of two PRT runs over `verts`: (rays traced, rays per second).
+fn prt_rate(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    verts: &[u32],
+    o: &PrtOptions,
+) -> (u64, f64) {
+    let mut best = f64::INFINITY;
+    let mut rays = 0;
+    for _ in 0..2 {
+        let start = Instant::now();
+        let t = prt::bake_prt_subset(bvh, mesh, materials, o, verts, &|_| {});
+        best = best.min(start.elapsed().as_secs_f64());
+        rays = t.rays;
+    }
+    (rays, rays as f64 / best)
+}
+
+fn full_bake(
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    masks: &[Option<AlphaMask>],
+    o: &PrtOptions,
+    samples: u32,
+) -> Result<FullBake> {
+    let o = PrtOptions {
+        samples,
+        ..o.clone()
+    };
+    let start = Instant::now();
+    let bvh = ModelBvh::build(mesh, masks, o.preset)?;
+    let build_seconds = start.elapsed().as_secs_f64();
+    let t = prt::bake_prt_with(&bvh, mesh, materials, &o, &|_| {});
+    let seconds = start.elapsed().as_secs_f64();
+    Ok(FullBake {
+        vertices: t.vertices,
+        samples,
+        bounces: o.bounces,
+        seconds,
+        build_seconds,
+        rays: t.rays,
+        rays_per_second: t.rays as f64 / (seconds - build_seconds).max(1e-9),
+    })
+}
