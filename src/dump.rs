@@ -30,8 +30,16 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         kinds::texture::data,
     ),
     (kinds::sky::KIND, kinds::sky::summary, kinds::sky::data),
-    (crate::envmap::section::ENVMAPS_KIND, crate::envmap::section::envmaps_summary, crate::envmap::section::envmaps_data),
-    (crate::envmap::section::CLUSTERS_KIND, crate::envmap::section::clusters_summary, crate::envmap::section::clusters_data),
+    (
+        crate::envmap::section::ENVMAPS_KIND,
+        crate::envmap::section::envmaps_summary,
+        crate::envmap::section::envmaps_data,
+    ),
+    (
+        crate::envmap::section::CLUSTERS_KIND,
+        crate::envmap::section::clusters_summary,
+        crate::envmap::section::clusters_data,
+    ),
     (
         crate::bittree::section::KIND,
         crate::bittree::section::summary,

@@ -30,7 +30,10 @@ pub fn terrain_mesh(t: &Terrain) -> Mesh {
         for i in 0..w {
             mesh.positions.push(t.position(i, j));
             mesh.normals.push(terrain_normal(t, i, j));
-            mesh.uvs.push([i as f32 / (w - 1).max(1) as f32, 1.0 - j as f32 / (h - 1).max(1) as f32]);
+            mesh.uvs.push([
+                i as f32 / (w - 1).max(1) as f32,
+                1.0 - j as f32 / (h - 1).max(1) as f32,
+            ]);
         }
     }
     for j in 0..h.saturating_sub(1) {
@@ -59,7 +62,11 @@ pub fn terrain_normal(t: &Terrain, i: u32, j: u32) -> [f32; 3] {
 }
 
 fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
 }
 
 /// Mean linear colour of an sRGB image, weighting by coverage (alpha ≥ 0.5).
@@ -72,13 +79,18 @@ pub fn mean_linear(img: &Rgba8Image) -> [f32; 3] {
         }
         n += 1;
     }
-    if n == 0 { [0.5; 3] } else { s.map(|v| (v / n as f64) as f32) }
+    if n == 0 {
+        [0.5; 3]
+    } else {
+        s.map(|v| (v / n as f64) as f32)
+    }
 }
 
 /// Builds the scene of a pack with `instances` (and optionally `terrain`) sections.
 pub fn trace_scene(pack: &Pack) -> Result<TraceScene> {
     let bad = |e| Error::invalid(pack.path(), e);
-    let (imeta, instances) = kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
+    let (imeta, instances) =
+        kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
     let mut models = Vec::new();
     let mut albedo_of_model = Vec::new();
     let mut model_height = Vec::new();
@@ -87,29 +99,73 @@ pub fn trace_scene(pack: &Pack) -> Result<TraceScene> {
         let textures: Vec<Option<Rgba8Image>> = meta
             .textures
             .iter()
-            .map(|t| t.section.as_ref().and_then(|s| pack.view_named(s).ok()).and_then(|v| kinds::texture::from_section(&v).ok()).map(|(_, img)| img))
+            .map(|t| {
+                t.section
+                    .as_ref()
+                    .and_then(|s| pack.view_named(s).ok())
+                    .and_then(|v| kinds::texture::from_section(&v).ok())
+                    .map(|(_, img)| img)
+            })
             .collect();
         let masks = crate::light::prt::alpha_masks(&mesh, &textures);
         let mats = crate::light::prt::prt_materials(&mesh, &textures, 0.3);
         let n = mats.len().max(1) as f32;
-        albedo_of_model.push(mats.iter().fold([0.0; 3], |a, m| [a[0] + m.albedo[0] / n, a[1] + m.albedo[1] / n, a[2] + m.albedo[2] / n]));
+        albedo_of_model.push(mats.iter().fold([0.0; 3], |a, m| {
+            [
+                a[0] + m.albedo[0] / n,
+                a[1] + m.albedo[1] / n,
+                a[2] + m.albedo[2] / n,
+            ]
+        }));
         let (lo, hi) = mesh.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
         model_height.push(hi[2] - lo[2].min(0.0));
-        models.push(Arc::new(ModelBvh::build(&mesh, &masks, BuildPreset::Medium)?));
+        models.push(Arc::new(ModelBvh::build(
+            &mesh,
+            &masks,
+            BuildPreset::Medium,
+        )?));
     }
-    let mut transforms: Vec<InstanceTransform> = instances.items.iter().map(InstanceTransform::from_instance).collect();
-    let mut albedo: Vec<[f32; 3]> = instances.items.iter().map(|i| albedo_of_model[i.model as usize]).collect();
+    let mut transforms: Vec<InstanceTransform> = instances
+        .items
+        .iter()
+        .map(InstanceTransform::from_instance)
+        .collect();
+    let mut albedo: Vec<[f32; 3]> = instances
+        .items
+        .iter()
+        .map(|i| albedo_of_model[i.model as usize])
+        .collect();
     let terrain = match pack.find("terrain") {
         Some(e) => {
             let (tmeta, t) = kinds::terrain::from_section(&pack.view(e)?).map_err(bad)?;
-            let color = tmeta.color_section.as_ref().and_then(|s| pack.view_named(s).ok()).and_then(|v| kinds::texture::from_section(&v).ok());
+            let color = tmeta
+                .color_section
+                .as_ref()
+                .and_then(|s| pack.view_named(s).ok())
+                .and_then(|v| kinds::texture::from_section(&v).ok());
             albedo.push(color.map_or([0.3; 3], |(_, img)| mean_linear(&img)));
-            models.push(Arc::new(ModelBvh::build(&terrain_mesh(&t), &[], BuildPreset::Medium)?));
-            transforms.push(InstanceTransform { model: (models.len() - 1) as u32, translation: [0.0; 3], scale: 1.0, rotation_deg: 0.0 });
+            models.push(Arc::new(ModelBvh::build(
+                &terrain_mesh(&t),
+                &[],
+                BuildPreset::Medium,
+            )?));
+            transforms.push(InstanceTransform {
+                model: (models.len() - 1) as u32,
+                translation: [0.0; 3],
+                scale: 1.0,
+                rotation_deg: 0.0,
+            });
             Some(t)
         }
         None => None,
     };
     let instance_count = instances.items.len();
-    Ok(TraceScene { bvh: SceneBvh::build(models, transforms)?, instance_count, terrain, albedo, model_height, instances })
+    Ok(TraceScene {
+        bvh: SceneBvh::build(models, transforms)?,
+        instance_count,
+        terrain,
+        albedo,
+        model_height,
+        instances,
+    })
 }

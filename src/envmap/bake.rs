@@ -54,7 +54,10 @@ pub struct EnvmapOptions {
 
 impl Default for EnvmapOptions {
     fn default() -> Self {
-        EnvmapOptions { samples: 256, seed: 0x00e0_2005 }
+        EnvmapOptions {
+            samples: 256,
+            seed: 0x00e0_2005,
+        }
     }
 }
 
@@ -64,15 +67,25 @@ pub type InstanceMaps = ([[f32; 3]; 16], [[f32; 3]; 16]);
 /// Bakes the maps of every instance (parallel, deterministic).
 pub fn bake_envmaps(scene: &EnvmapScene, opts: &EnvmapOptions) -> Vec<InstanceMaps> {
     let sky_irr = scene.sky.to_irradiance();
-    (0..scene.count).into_par_iter().map(|i| bake_one(scene, &sky_irr, i, opts)).collect()
+    (0..scene.count)
+        .into_par_iter()
+        .map(|i| bake_one(scene, &sky_irr, i, opts))
+        .collect()
 }
 
-fn bake_one(scene: &EnvmapScene, sky_irr: &ShIrradiance, i: usize, opts: &EnvmapOptions) -> InstanceMaps {
+fn bake_one(
+    scene: &EnvmapScene,
+    sky_irr: &ShIrradiance,
+    i: usize,
+    opts: &EnvmapOptions,
+) -> InstanceMaps {
     let inst = scene.bvh.instances()[i];
     let p = Vec3A::from(inst.translation) + Vec3A::Z * scene.probe_height[i];
     let n = opts.samples.max(1);
     let w = 4.0 * std::f64::consts::PI / n as f64;
-    let rot = random_rotation(crate::rt::mix64(opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+    let rot = random_rotation(crate::rt::mix64(
+        opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+    ));
     let mut ch = [[0.0f64; 3]; 16];
     let mut cs = [[0.0f64; 3]; 16];
     for k in 0..n {
@@ -106,7 +119,13 @@ fn bake_one(scene: &EnvmapScene, sky_irr: &ShIrradiance, i: usize, opts: &Envmap
 }
 
 /// Radiance from direction d at p: (sky part, sun part).
-fn radiance_along(scene: &EnvmapScene, sky_irr: &ShIrradiance, skip: u32, p: Vec3A, d: Vec3A) -> ([f32; 3], [f32; 3]) {
+fn radiance_along(
+    scene: &EnvmapScene,
+    sky_irr: &ShIrradiance,
+    skip: u32,
+    p: Vec3A,
+    d: Vec3A,
+) -> ([f32; 3], [f32; 3]) {
     let ray = Ray::new(p, d, 1e-4);
     match scene.bvh.closest_hit_excluding(&ray, Some(skip)) {
         None => (scene.sky.eval(d.to_array()).map(|v| v.max(0.0)), [0.0; 3]),
@@ -137,7 +156,8 @@ fn radiance_along(scene: &EnvmapScene, sky_irr: &ShIrradiance, skip: u32, p: Vec
 }
 
 fn blocked(bvh: &SceneBvh, skip: u32, p: Vec3A, d: Vec3A) -> bool {
-    bvh.closest_hit_excluding(&Ray::new(p, d, 1e-4), Some(skip)).is_some()
+    bvh.closest_hit_excluding(&Ray::new(p, d, 1e-4), Some(skip))
+        .is_some()
 }
 
 /// Point k of an N-point spherical Fibonacci set (uniform area, low discrepancy).
@@ -155,6 +175,12 @@ fn random_rotation(seed: u64) -> glam::Mat3A {
     let (u1, u2, u3) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
     let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
     let t = std::f32::consts::TAU;
-    let q = glam::Quat::from_xyzw(a * (t * u2).sin(), a * (t * u2).cos(), b * (t * u3).sin(), b * (t * u3).cos()).normalize();
+    let q = glam::Quat::from_xyzw(
+        a * (t * u2).sin(),
+        a * (t * u2).cos(),
+        b * (t * u3).sin(),
+        b * (t * u3).cos(),
+    )
+    .normalize();
     glam::Mat3A::from_quat(q)
 }

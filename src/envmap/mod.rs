@@ -1,4 +1,5 @@
 //! Per-instance environment maps (seed 000, 4.6.3): clustering and multiquadric interpolation.
+pub mod bake;
 pub mod cluster;
 pub mod interp;
 pub mod kdtree;

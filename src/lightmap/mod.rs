@@ -27,7 +27,9 @@ use rayon::prelude::*;
 /// The sun's angular radius in radians (seed 000, eq. 3.1).
 pub const SUN_RADIUS: f32 = 0.004_65;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
 pub enum LightmapMode {
     Physical,
     Thesis,
@@ -44,7 +46,12 @@ pub struct LightmapOptions {
 
 impl Default for LightmapOptions {
     fn default() -> Self {
-        LightmapOptions { resolution: None, samples: 64, sun_samples: 16, mode: LightmapMode::Physical }
+        LightmapOptions {
+            resolution: None,
+            samples: 64,
+            sun_samples: 16,
+            mode: LightmapMode::Physical,
+        }
     }
 }
 
@@ -66,7 +73,11 @@ pub struct Lightmap {
 }
 
 /// Bakes the terrain light map of a scene.
-pub fn bake_terrain_lightmap(scene: &TraceScene, light: &Lighting, opts: &LightmapOptions) -> Option<Lightmap> {
+pub fn bake_terrain_lightmap(
+    scene: &TraceScene,
+    light: &Lighting,
+    opts: &LightmapOptions,
+) -> Option<Lightmap> {
     let t = scene.terrain.as_ref()?;
     let res = opts.resolution.unwrap_or(t.width.max(t.height)).max(1);
     let (w, h) = (res, res);
@@ -80,10 +91,23 @@ pub fn bake_terrain_lightmap(scene: &TraceScene, light: &Lighting, opts: &Lightm
             let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / h as f32) * t.extent[1];
             let p = Vec3A::new(x, y, t.height_at(x, y));
             let n = Vec3A::from(height_normal(t, x, y));
-            texel_irradiance(&scene.bvh, &scene.albedo, light, &sky_irr, p, n, k as u64, opts)
+            texel_irradiance(
+                &scene.bvh,
+                &scene.albedo,
+                light,
+                &sky_irr,
+                p,
+                n,
+                k as u64,
+                opts,
+            )
         })
         .collect();
-    Some(Lightmap { width: w, height: h, texels })
+    Some(Lightmap {
+        width: w,
+        height: h,
+        texels,
+    })
 }
 
 /// Normal of the bilinear height field at (x, y) by central differences over one grid step.
@@ -97,7 +121,16 @@ pub fn height_normal(t: &crate::model::Terrain, x: f32, y: f32) -> [f32; 3] {
 
 /// Irradiance at one surface point.
 #[allow(clippy::too_many_arguments)]
-pub fn texel_irradiance(bvh: &SceneBvh, albedo: &[[f32; 3]], light: &Lighting, sky_irr: &ShIrradiance, p: Vec3A, n: Vec3A, texel: u64, opts: &LightmapOptions) -> [f32; 3] {
+pub fn texel_irradiance(
+    bvh: &SceneBvh,
+    albedo: &[[f32; 3]],
+    light: &Lighting,
+    sky_irr: &ShIrradiance,
+    p: Vec3A,
+    n: Vec3A,
+    texel: u64,
+    opts: &LightmapOptions,
+) -> [f32; 3] {
     let thesis = opts.mode == LightmapMode::Thesis;
     let origin = p + n * 1e-3;
     let mut e = [0.0f64; 3];
@@ -105,7 +138,11 @@ pub fn texel_irradiance(bvh: &SceneBvh, albedo: &[[f32; 3]], light: &Lighting, s
         let s = Vec3A::from(s);
         let cos = n.dot(s);
         if cos > 0.0 {
-            let vis = if thesis { 1.0 } else { sun_visibility(bvh, origin, s, opts.sun_samples, texel) };
+            let vis = if thesis {
+                1.0
+            } else {
+                sun_visibility(bvh, origin, s, opts.sun_samples, texel)
+            };
             for k in 0..3 {
                 e[k] += (irr[k] * cos * vis) as f64;
             }
@@ -113,7 +150,11 @@ pub fn texel_irradiance(bvh: &SceneBvh, albedo: &[[f32; 3]], light: &Lighting, s
     }
     let nsamp = opts.samples.max(1);
     let (tx, bx) = crate::rt::frame(n);
-    let shift = if thesis { (0.0, 0.0) } else { cp_rotation(texel) };
+    let shift = if thesis {
+        (0.0, 0.0)
+    } else {
+        cp_rotation(texel)
+    };
     for k in 0..nsamp {
         let (u1, u2) = hammersley(k, nsamp);
         let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
@@ -137,13 +178,23 @@ pub fn texel_irradiance(bvh: &SceneBvh, albedo: &[[f32; 3]], light: &Lighting, s
 }
 
 /// Outgoing diffuse radiance of a hit surface lit by the sun (shadowed) and the unoccluded sky.
-fn bounce_radiance(bvh: &SceneBvh, albedo: &[[f32; 3]], light: &Lighting, sky_irr: &ShIrradiance, hit: &crate::rt::SceneHit, d: Vec3A) -> [f32; 3] {
+fn bounce_radiance(
+    bvh: &SceneBvh,
+    albedo: &[[f32; 3]],
+    light: &Lighting,
+    sky_irr: &ShIrradiance,
+    hit: &crate::rt::SceneHit,
+    d: Vec3A,
+) -> [f32; 3] {
     let surf = bvh.surface(hit);
     let mut n = surf.shading_normal;
     if n.dot(d) > 0.0 {
         n = -n;
     }
-    let rho = albedo.get(hit.instance as usize).copied().unwrap_or([0.3; 3]);
+    let rho = albedo
+        .get(hit.instance as usize)
+        .copied()
+        .unwrap_or([0.3; 3]);
     let mut e = sky_irr.eval(n.to_array()).map(|v| v.max(0.0));
     if let Some((s, irr)) = light.sun {
         let s = Vec3A::from(s);
@@ -179,11 +230,17 @@ pub fn sun_visibility(bvh: &SceneBvh, p: Vec3A, s: Vec3A, samples: u32, texel: u
 
 /// Point k of the N-point Hammersley set in [0, 1)².
 pub fn hammersley(k: u32, n: u32) -> (f32, f32) {
-    ((k as f32 + 0.5) / n as f32, (k.reverse_bits() as f64 / 4_294_967_296.0) as f32)
+    (
+        (k as f32 + 0.5) / n as f32,
+        (k.reverse_bits() as f64 / 4_294_967_296.0) as f32,
+    )
 }
 
 /// A per-texel Cranley–Patterson shift, from a hash of the texel index.
 fn cp_rotation(texel: u64) -> (f32, f32) {
     let h = crate::rt::mix64(texel.wrapping_add(0x1234_5678));
-    ((h >> 40) as f32 / (1u64 << 24) as f32, ((h >> 16) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32)
+    (
+        (h >> 40) as f32 / (1u64 << 24) as f32,
+        ((h >> 16) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32,
+    )
 }

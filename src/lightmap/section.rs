@@ -23,7 +23,8 @@ pub struct LightmapMeta {
 pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
     let texels: Vec<[f32; 4]> = map.texels.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect();
     let mut b = SectionBuilder::new(KIND, name);
-    b.meta(meta).array("irradiance", ArrayFormat::F32, 4, &texels);
+    b.meta(meta)
+        .array("irradiance", ArrayFormat::F32, 4, &texels);
     b.finish()
 }
 
@@ -31,18 +32,29 @@ pub fn from_section(v: &SectionView) -> Result<(LightmapMeta, Lightmap), ParseEr
     let meta: LightmapMeta = v.meta()?;
     let t: Vec<[f32; 4]> = v.array_vec("irradiance")?;
     if t.len() as u64 != meta.width as u64 * meta.height as u64 {
-        return Err(ParseError::new("lightmap section", "texel count does not match width × height"));
+        return Err(ParseError::new(
+            "lightmap section",
+            "texel count does not match width × height",
+        ));
     }
-    let map = Lightmap { width: meta.width, height: meta.height, texels: t.iter().map(|x| [x[0], x[1], x[2]]).collect() };
+    let map = Lightmap {
+        width: meta.width,
+        height: meta.height,
+        texels: t.iter().map(|x| [x[0], x[1], x[2]]).collect(),
+    };
     Ok((meta, map))
 }
 
 pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     let (m, map) = from_section(v)?;
     let n = map.texels.len().max(1) as f32;
-    let mean = map.texels.iter().fold([0.0f32; 3], |a, t| [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]);
-    Ok(json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
-              "sun_samples": m.sun_samples, "mean_irradiance": mean}))
+    let mean = map.texels.iter().fold([0.0f32; 3], |a, t| {
+        [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
+    });
+    Ok(
+        json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
+              "sun_samples": m.sun_samples, "mean_irradiance": mean}),
+    )
 }
 
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {

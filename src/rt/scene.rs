@@ -121,11 +121,20 @@ impl SceneBvh {
 
     /// The closest opaque hit over all instances.
     pub fn closest_hit(&self, ray: &Ray) -> Option<SceneHit> {
+        self.closest_hit_excluding(ray, None)
+    }
+
+    /// The closest opaque hit over all instances but `skip` (tracing from an instance into the
+    /// rest of the scene: the environment-map stage ignores the instance itself).
+    pub fn closest_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit> {
         let tlas = self.tlas.as_ref()?;
         let mut best = None;
         let mut hit = obvhs::ray::RayHit::none();
         tlas.ray_traverse(ray.to_obvhs(), &mut hit, |r, slot| {
             let k = tlas.primitive_indices[slot];
+            if Some(k) == skip {
+                return f32::INFINITY;
+            }
             let inst = &self.instances[k as usize];
             let local = Ray {
                 tmax: r.tmax,
