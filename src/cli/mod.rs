@@ -8,6 +8,7 @@ pub mod cluster;
 pub mod dump;
 pub mod fixtures;
 pub mod ingest;
+pub mod sky;
 
 use serde_json::Value;
 

@@ -304,5 +304,40 @@ pub fn bake_sky(src: &SkySource, opts: &SkyOptions) -> Result<SkyBake> {
     Ok(SkyBake { cube, sun, sky, sh })
 }
 
+/// Names of the sections the sky stage writes.
+pub const SKY_SECTION: &str = "sky";
+pub const SUN_SECTION: &str = "sun";
+pub const SH_SECTION: &str = "sh";
+
+/// The pack sections of a baked sky: the sun-free cube map (`sky`), the sun (`sun`) and the
+/// sun-free sky's SH (`sh`).
+pub fn sky_sections(b: &SkyBake, source: &str) -> Vec<crate::pack::Section> {
+    vec![
+        section::cube_to_section(SKY_SECTION, source, &b.cube, &b.sky),
+        section::sun_to_section(SUN_SECTION, &b.sun),
+        section::sh_to_section(SH_SECTION, "sky radiance without the sun", &b.sh),
+    ]
+}
+
+/// The sky sections of a scene: its sky if it has one, else the built-in clear sky, so every
+/// scene bakes (for `pipeline::build`).
+pub fn scene_sky_sections(
+    sky: Option<&FloatImage>,
+    builtin: &builtin::BuiltinSky,
+    opts: &SkyOptions,
+) -> Result<Vec<crate::pack::Section>> {
+    let (src, name) = match sky {
+        Some(img) => (
+            image_to_source(img.clone()).map_err(|e| Error::invalid("sky", e))?,
+            "scene sky",
+        ),
+        None => (
+            SkySource::Cube(builtin::builtin_sky(builtin)),
+            "builtin:preetham",
+        ),
+    };
+    Ok(sky_sections(&bake_sky(&src, opts)?, name))
+}
+
 #[cfg(test)]
 mod tests;
