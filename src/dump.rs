@@ -50,6 +50,16 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         crate::light::prt_pack::summary,
         crate::light::prt_pack::data,
     ),
+    (
+        crate::sky::section::SUN_KIND,
+        crate::sky::section::sun_summary,
+        crate::sky::section::sun_data,
+    ),
+    (
+        crate::sky::section::SH_KIND,
+        crate::sky::section::sh_summary,
+        crate::sky::section::sh_data,
+    ),
 ];
 
 /// Options of `bake dump`.

@@ -35,6 +35,8 @@ enum Command {
     Bittree(cli::bittree::BitTreeArgs),
     /// Cluster per-instance environment maps and set up multiquadric interpolation.
     Cluster(cli::cluster::ClusterArgs),
+    /// An HDR sky (or the built-in one) to a cube map, the sun and the sky's SH.
+    Sky(cli::sky::SkyArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
 }
@@ -46,6 +48,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Ingest(a) => cli::ingest::run(a, g),
         Command::Prt(a) => cli::prt::run(a, g),
         Command::Dump(a) => cli::dump::run(a, g),
+        Command::Sky(a) => cli::sky::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),
         Command::Bittree(a) => cli::bittree::run(a, g),
         Command::Cluster(a) => cli::cluster::run(a, g),

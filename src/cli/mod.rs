@@ -9,6 +9,7 @@ pub mod dump;
 pub mod fixtures;
 pub mod ingest;
 pub mod prt;
+pub mod sky;
 
 use serde_json::Value;
 

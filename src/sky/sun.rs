@@ -7,7 +7,9 @@
 //!
 //! What bake does better, reporting the thesis' numbers beside its own:
 //! - texels are counted by their exact solid angle until they cover `enlargement · a` (cube
-//!   texels differ by up to 5.2× between a face's centre and its corners);
+//!   texels differ by up to 5.2× between a face's centre and its corners); a sun larger than
+//!   that (blurred, painted, or at low resolution) is taken whole: texels still 100× brighter
+//!   than the median sky join it, up to 1% of the sphere;
 //! - the sun irradiance is the energy actually removed, `Σ (T_i − T_{n+1}) · ω_i` (the thesis'
 //!   mean × a undercounts by the enlargement factor), so sky + sun conserve the map's energy;
 //! - the direction is the energy-weighted centroid of the removed excess, not the brightest texel;
@@ -25,6 +27,11 @@ pub const SUN_ANGULAR_RADIUS: f64 = 0.004_652_3;
 pub const DEFAULT_ENLARGEMENT: f64 = 4.0;
 /// Relative distance from the maximum within which texels count as one plateau (clipping).
 const PLATEAU_TOLERANCE: f32 = 1e-3;
+/// Texels this many times brighter than the median sky still belong to the sun (the sun is
+/// ~10⁵ times the sky; circumsolar sky and clipped suns stay below).
+const SUN_CONTRAST: f32 = 100.0;
+/// Upper bound of the sun's area when it is taken by contrast: 1% of the sphere.
+const MAX_SUN_AREA: f64 = 0.04 * std::f64::consts::PI;
 /// Texels at the maximum needed to call the sun clipped (more than the 4 equal texels of a
 /// symmetric disc centred on a texel corner).
 const PLATEAU_MIN_TEXELS: u32 = 5;
@@ -88,13 +95,38 @@ pub fn luminance(c: [f32; 3]) -> f32 {
     0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
 
+/// Median luminance of the upper hemisphere's texels (the sky's typical brightness).
+fn median_sky_luminance(cube: &CubeMap, lum: &[f32]) -> f32 {
+    let mut up: Vec<f32> = (0..lum.len())
+        .filter(|&i| texel_index_direction(cube.size, i)[2] > 0.0)
+        .map(|i| lum[i])
+        .collect();
+    if up.is_empty() {
+        return 0.0;
+    }
+    let mid = up.len() / 2;
+    *up.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
 /// Texel indices ordered by luminance, brightest first (ties by index, so the order is unique),
-/// enough of them to cover `area` sr plus one more.
+/// and n, the number of sun texels: enough to cover `area` sr, then on while the next texel is
+/// still [`SUN_CONTRAST`] times brighter than the median sky (a sun larger than the enlarged
+/// disc: blurred, painted or seen at low resolution), up to [`MAX_SUN_AREA`]. The order holds
+/// at least n + 1 texels.
 fn brightest_covering(cube: &CubeMap, omega: &[f64], area: f64) -> (Vec<usize>, usize) {
     let n2 = omega.len();
-    let min_omega = omega.iter().cloned().fold(f64::INFINITY, f64::min);
-    let bound = ((area / min_omega).ceil() as usize + 2).min(cube.texels.len());
     let lum: Vec<f32> = cube.texels.iter().map(|&t| luminance(t)).collect();
+    let median = median_sky_luminance(cube, &lum);
+    let threshold = if median > 0.0 {
+        median * SUN_CONTRAST
+    } else {
+        f32::INFINITY
+    };
+    let hot = lum.iter().filter(|&&l| l > threshold).count();
+    let min_omega = omega.iter().cloned().fold(f64::INFINITY, f64::min);
+    let bound = ((area / min_omega).ceil() as usize + 2)
+        .max(hot + 2)
+        .min(cube.texels.len());
     let mut idx: Vec<usize> = (0..cube.texels.len()).collect();
     let order = |a: &usize, b: &usize| lum[*b].total_cmp(&lum[*a]).then(a.cmp(b));
     if bound < idx.len() {
@@ -104,7 +136,9 @@ fn brightest_covering(cube: &CubeMap, omega: &[f64], area: f64) -> (Vec<usize>, 
     idx.sort_unstable_by(order);
     let mut covered = 0.0;
     let mut n = 0;
-    while n + 1 < idx.len() && covered < area {
+    while n + 1 < idx.len()
+        && (covered < area || (lum[idx[n]] > threshold && covered < MAX_SUN_AREA))
+    {
         covered += omega[idx[n] % n2];
         n += 1;
     }

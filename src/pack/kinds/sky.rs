@@ -33,6 +33,12 @@ pub fn to_section(name: &str, source: &str, img: &FloatImage) -> Section {
 
 pub fn from_section(v: &SectionView) -> Result<(SkyMeta, FloatImage), ParseError> {
     let meta: SkyMeta = v.meta()?;
+    if meta.layout == crate::sky::section::CUBE_LAYOUT {
+        return Err(ParseError::new(
+            "sky section",
+            "a cube-map sky; read it with sky::section::cube_from_section",
+        ));
+    }
     let texels: Vec<[f32; 4]> = v.array_vec("texels")?;
     if texels.len() as u64 != meta.width as u64 * meta.height as u64 {
         return Err(ParseError::new(
@@ -52,6 +58,9 @@ pub fn from_section(v: &SectionView) -> Result<(SkyMeta, FloatImage), ParseError
 }
 
 pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
+    if is_cube(v)? {
+        return crate::sky::section::cube_summary(v);
+    }
     let (meta, img) = from_section(v)?;
     let max = img.pixels.iter().flatten().fold(0.0f32, |a, &b| a.max(b));
     Ok(
@@ -60,6 +69,16 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
 }
 
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {
+    if is_cube(v)? {
+        return crate::sky::section::cube_data(v);
+    }
     let (_, img) = from_section(v)?;
     Ok(json!({ "texels": img.pixels }))
+}
+
+/// Whether a `sky` section holds a cube map (layout `cube`, written by `crate::sky::section`)
+/// rather than a lat-long image; the cube's metadata starts with [`SkyMeta`]'s fields.
+pub fn is_cube(v: &SectionView) -> Result<bool, ParseError> {
+    let meta: SkyMeta = v.meta()?;
+    Ok(meta.layout == crate::sky::section::CUBE_LAYOUT)
 }

@@ -173,11 +173,12 @@ fn sky_irradiance_matches_analytic_integrals() {
 fn enlargement_changes_the_covered_area() {
     let size = 256;
     let mut c = CubeMap::from_fn(size, smooth_sky);
+    // A faint sun (50× the sky), so only the area rule decides, not the contrast rule.
     add_sun_disc(
         &mut c,
         [0.0, 0.0, 1.0],
         SUN_ANGULAR_RADIUS,
-        [1e5; 3],
+        [25.0; 3],
         0.0,
         16,
     );
@@ -188,4 +189,26 @@ fn enlargement_changes_the_covered_area() {
         let one_more = sun.solid_angle - cube::texel_solid_angle(size, 128, 128);
         assert!(one_more < f * a, "{f}: covers more than needed");
     }
+}
+
+#[test]
+fn a_sun_larger_than_the_enlarged_disc_is_taken_whole() {
+    // A painted sun of 6× the true radius (like low-resolution or blurred HDRIs).
+    let size = 128;
+    let dir = cube::normalize([0.3, 0.2, 0.9]);
+    let clean = CubeMap::from_fn(size, smooth_sky);
+    let mut c = clean.clone();
+    let added = add_sun_disc(&mut c, dir, 6.0 * SUN_ANGULAR_RADIUS, [2.0e4; 3], 0.0, 16);
+    let (free, sun) = extract_sun(&c, &SunOptions::default());
+    assert!(sun.solid_angle > 10.0 * PI * SUN_ANGULAR_RADIUS.powi(2));
+    let rel = (sun.irradiance[0] as f64 - added[0]).abs() / added[0];
+    assert!(rel < 0.01, "{} vs {}", sun.irradiance[0], added[0]);
+    let (e_free, e_clean) = (sky_irradiance(&free), sky_irradiance(&clean));
+    let rel = (e_free.horizontal[0] - e_clean.horizontal[0]).abs() / e_clean.horizontal[0];
+    assert!(
+        rel < 0.01,
+        "sky {} vs {}",
+        e_free.horizontal[0],
+        e_clean.horizontal[0]
+    );
 }

@@ -1,0 +1,168 @@
+//! `bake sky [INPUT...]`: an HDR sky (lat-long, cube cross or six faces; .hdr or .exr), or the
+//! built-in clear sky, to a float cube map, the extracted sun and the sky's SH, written to a pack.
+
+use super::{Global, Outcome};
+use crate::error::{Error, Result};
+use crate::pack::{Pack, PackWriter};
+use crate::sky::builtin::BuiltinSky;
+use crate::sky::sun::SunOptions;
+use crate::sky::{self, SkyBake, SkyOptions, SkySource};
+use serde_json::{Value, json};
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct SkyArgs {
+    /// A lat-long (2:1) or cube-cross (4:3, 3:4) .hdr/.exr image, or six face files in the order
+    /// +X −X +Y −Y +Z −Z (crosses and faces Y up). None: the built-in clear sky.
+    pub inputs: Vec<PathBuf>,
+    /// Output pack (default: <input stem>.bake beside the input, or sky.bake). An existing pack is
+    /// updated: its sky, sun and sh sections are replaced, the rest is kept.
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Texels per cube face edge (default: a quarter of a lat-long's width, max 1024).
+    #[arg(long)]
+    pub face_size: Option<u32>,
+    /// Enlargement of the sun's area π r² for extraction (the thesis' 4.0).
+    #[arg(long, default_value_t = sky::sun::DEFAULT_ENLARGEMENT)]
+    pub sun_scale: f64,
+    /// Turn the sky about +Z by DEG (counter-clockwise from above), for skies shot with another north.
+    #[arg(
+        long,
+        value_name = "DEG",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    pub rotate: f64,
+    /// Built-in sky: sun elevation in degrees (0..90).
+    #[arg(long, default_value_t = 40.0)]
+    pub sun_elevation: f64,
+    /// Built-in sky: sun azimuth in degrees, counter-clockwise from +X (east).
+    #[arg(long, default_value_t = 225.0, allow_negative_numbers = true)]
+    pub sun_azimuth: f64,
+    /// Built-in sky: atmospheric turbidity (2 clear .. 10 hazy).
+    #[arg(long, default_value_t = 3.0)]
+    pub turbidity: f64,
+}
+
+/// Resolves the built-in sky's parameters, rejecting values outside the model's range.
+fn builtin_params(a: &SkyArgs) -> Result<BuiltinSky> {
+    if !(0.0..=90.0).contains(&a.sun_elevation) {
+        return Err(Error::usage(format!(
+            "--sun-elevation {}: expected 0 to 90 degrees",
+            a.sun_elevation
+        )));
+    }
+    if !(1.7..=10.0).contains(&a.turbidity) {
+        return Err(Error::usage(format!(
+            "--turbidity {}: expected 1.7 to 10 (Preetham's fits)",
+            a.turbidity
+        )));
+    }
+    Ok(BuiltinSky {
+        sun_elevation_deg: a.sun_elevation,
+        sun_azimuth_deg: a.sun_azimuth,
+        turbidity: a.turbidity,
+        face_size: a.face_size.unwrap_or(256),
+        ..BuiltinSky::default()
+    })
+}
+
+pub fn run(args: &SkyArgs, _g: &Global) -> Result<Outcome> {
+    let (src, source_name) = if args.inputs.is_empty() {
+        let p = builtin_params(args)?;
+        let name = format!(
+            "builtin:preetham elevation={} azimuth={} turbidity={}",
+            p.sun_elevation_deg, p.sun_azimuth_deg, p.turbidity
+        );
+        (SkySource::Cube(sky::builtin::builtin_sky(&p)), name)
+    } else {
+        let names: Vec<_> = args
+            .inputs
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
+        (sky::load_sky(&args.inputs)?, names.join(" "))
+    };
+    let opts = SkyOptions {
+        face_size: args.face_size,
+        rotate_deg: args.rotate,
+        sun: SunOptions {
+            enlargement: args.sun_scale,
+        },
+    };
+    let bake = sky::bake_sky(&src, &opts)?;
+    let output = args
+        .output
+        .clone()
+        .unwrap_or_else(|| match args.inputs.first() {
+            Some(p) => p.with_extension("bake"),
+            None => PathBuf::from("sky.bake"),
+        });
+    let mut w = if output.exists() {
+        PackWriter::from_pack(&Pack::open(&output)?)
+    } else {
+        PackWriter::new()
+    };
+    for s in sky::sky_sections(&bake, &source_name) {
+        w.insert(s);
+    }
+    let bytes = w.to_bytes()?;
+    crate::pack::write_atomic(&output, &bytes)?;
+    let mut json = report_json(&bake);
+    json["output"] = json!(output);
+    json["bytes"] = json!(bytes.len());
+    Ok(Outcome {
+        text: report_text(&bake, &output),
+        json,
+        warnings: warnings(&bake),
+    })
+}
+
+/// The `--json` document (stable keys: sun, sky, sh, cube).
+pub fn report_json(b: &SkyBake) -> Value {
+    let s = &b.sun;
+    json!({
+        "sun": {
+            "direction": s.direction, "direction_brightest": s.direction_brightest,
+            "irradiance": s.irradiance, "irradiance_thesis": s.irradiance_thesis,
+            "texels": s.texels, "solid_angle": s.solid_angle, "replacement": s.replacement,
+            "clipped": s.clipped, "plateau_texels": s.plateau_texels,
+            "enlargement": s.enlargement, "angular_radius": s.angular_radius,
+        },
+        "sky": {"irradiance_horizontal": b.sky.horizontal, "I_H_thesis": b.sky.thesis},
+        "sh": {"order": crate::sh::ORDER, "coefficients": b.sh.coeffs},
+        "cube": {"face_size": b.cube.size, "faces": 6},
+    })
+}
+
+fn report_text(b: &SkyBake, output: &std::path::Path) -> String {
+    let s = &b.sun;
+    let f = |v: [f32; 3]| format!("({:.4}, {:.4}, {:.4})", v[0], v[1], v[2]);
+    format!(
+        "{}: cube {}² × 6\n  sun direction {}, irradiance {} (thesis eq. 3.2: {}), {} texels{}\n  sky irradiance on the ground {} (thesis eq. 3.3: {})\n",
+        output.display(),
+        b.cube.size,
+        f(s.direction),
+        f(s.irradiance),
+        f(s.irradiance_thesis),
+        s.texels,
+        if s.clipped { ", CLIPPED" } else { "" },
+        f(b.sky.horizontal),
+        f(b.sky.thesis),
+    )
+}
+
+fn warnings(b: &SkyBake) -> Vec<String> {
+    let mut w = Vec::new();
+    if b.sun.clipped {
+        w.push(format!(
+            "the sun looks clipped ({} texels at the maximum): its irradiance is a lower bound",
+            b.sun.plateau_texels
+        ));
+    }
+    let big = b.cube.texels.iter().flatten().any(|v| v.abs() > 65504.0);
+    if big {
+        w.push("sky radiance above 65504 was clamped to the half-float range".into());
+    }
+    w
+}

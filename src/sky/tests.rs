@@ -1,0 +1,262 @@
+//! The sky stage end to end: layouts, resampling, rotation, determinism.
+
+use super::*;
+use crate::sky::cube::{latlong_direction, texel_direction};
+
+fn smooth(d: [f64; 3]) -> [f32; 3] {
+    let v = 1.0 + 0.5 * d[0] + 0.3 * d[1] * d[2] + 0.4 * d[2] * d[2];
+    [v as f32, (2.0 - d[2]) as f32, 0.5]
+}
+
+fn latlong_of(w: u32, h: u32, f: impl Fn([f64; 3]) -> [f32; 3]) -> FloatImage {
+    let pixels = (0..w * h)
+        .map(|i| latlong_direction((i % w) as f64 + 0.5, (i / w) as f64 + 0.5, w, h))
+        .map(f)
+        .collect();
+    FloatImage {
+        width: w,
+        height: h,
+        pixels,
+    }
+}
+
+#[test]
+fn latlong_to_cube_to_latlong_round_trip() {
+    let (w, h) = (512, 256);
+    let img = latlong_of(w, h, smooth);
+    let cube = source_to_cube(&SkySource::LatLong(img.clone()), 128, 0.0);
+    // The cube against the function itself.
+    for (i, t) in cube.texels.iter().enumerate() {
+        let d = sun::texel_index_direction(128, i);
+        let e = smooth(d);
+        assert!((t[0] - e[0]).abs() < 5e-3, "texel {i}: {t:?} vs {e:?}");
+    }
+    let back = cube_to_latlong(&cube, w, h);
+    for (a, b) in img.pixels.iter().zip(&back.pixels) {
+        for k in 0..3 {
+            assert!((a[k] - b[k]).abs() < 5e-3, "{a:?} vs {b:?}");
+        }
+    }
+    // Both carry the same energy (exact solid angles on both sides).
+    let sh_l = crate::sh::project_latlong(&img);
+    let sh_c = crate::sh::project_cube(&cube);
+    assert!((sh_l.coeffs[0][0] - sh_c.coeffs[0][0]).abs() < 1e-3 * sh_l.coeffs[0][0]);
+}
+
+/// A cross image with one bright marker pixel at (x, y), the rest 1.
+fn marked(w: u32, h: u32, x: u32, y: u32) -> FloatImage {
+    let mut pixels = vec![[1.0f32; 3]; (w * h) as usize];
+    pixels[(y * w + x) as usize] = [1000.0; 3];
+    FloatImage {
+        width: w,
+        height: h,
+        pixels,
+    }
+}
+
+/// Direction of the brightest texel of a world cube.
+fn brightest(cube: &CubeMap) -> [f64; 3] {
+    let i = (0..cube.texels.len())
+        .max_by(|&a, &b| cube.texels[a][0].total_cmp(&cube.texels[b][0]))
+        .unwrap();
+    sun::texel_index_direction(cube.size, i)
+}
+
+fn close(a: [f64; 3], b: [f64; 3], tol: f64) -> bool {
+    let b = cube::normalize(b);
+    (0..3).all(|k| (a[k] - b[k]).abs() < tol)
+}
+
+#[test]
+fn horizontal_cross_faces_land_where_the_standard_layout_puts_them() {
+    let n = 16;
+    // (cell centre pixel, expected world direction): +Y cell is the zenith, +X cell is +X,
+    // the centre (Y-up +Z, the viewer's back) is world −Y, −Y cell the nadir.
+    let cases = [
+        ((n + n / 2, n / 2), [0.0, 0.0, 1.0]),
+        ((2 * n + n / 2, n + n / 2), [1.0, 0.0, 0.0]),
+        ((n + n / 2, n + n / 2), [0.0, -1.0, 0.0]),
+        ((3 * n + n / 2, n + n / 2), [0.0, 1.0, 0.0]),
+        ((n / 2, n + n / 2), [-1.0, 0.0, 0.0]),
+        ((n + n / 2, 2 * n + n / 2), [0.0, 0.0, -1.0]),
+        // Top row of the centre cell borders the +Y cell: near the horizon, towards the zenith.
+        ((n + n / 2, n), [0.0, -1.0, 1.0]),
+    ];
+    for ((x, y), expect) in cases {
+        let src = image_to_source(marked(4 * n, 3 * n, x, y)).unwrap();
+        let cube = source_to_cube(&src, n, 0.0);
+        let got = brightest(&cube);
+        assert!(close(got, expect, 0.1), "({x},{y}): {got:?} vs {expect:?}");
+    }
+}
+
+#[test]
+fn vertical_cross_has_its_back_face_turned() {
+    let n = 16;
+    // Top-row centre of the −Z cell (bottom of the cross) borders the −Y cell: towards the nadir
+    // on the back side, world (0, 1, −1).
+    let src = image_to_source(marked(3 * n, 4 * n, n + n / 2, 3 * n)).unwrap();
+    let got = brightest(&source_to_cube(&src, n, 0.0));
+    assert!(close(got, [0.0, 1.0, -1.0], 0.1), "{got:?}");
+    let src = image_to_source(marked(3 * n, 4 * n, n + n / 2, n / 2)).unwrap();
+    let got = brightest(&source_to_cube(&src, n, 0.0));
+    assert!(close(got, [0.0, 0.0, 1.0], 0.1), "{got:?}");
+}
+
+#[test]
+fn cross_and_latlong_of_the_same_sky_agree() {
+    // Paint a Y-up cross from the world function, read it back, compare with the function.
+    let n = 64;
+    let mut img = FloatImage {
+        width: 4 * n,
+        height: 3 * n,
+        pixels: vec![[0.0; 3]; (12 * n * n) as usize],
+    };
+    let cells = [(Face::PosX, 2, 1), (Face::NegX, 0, 1), (Face::PosY, 1, 0)];
+    let cells =
+        cells
+            .into_iter()
+            .chain([(Face::NegY, 1, 2), (Face::PosZ, 1, 1), (Face::NegZ, 3, 1)]);
+    for (face, cx, cy) in cells {
+        for row in 0..n {
+            for col in 0..n {
+                let [x, y, z] = texel_direction(n, face, col, row); // Y-up
+                let v = smooth([x, -z, y]);
+                img.pixels[((cy * n + row) * 4 * n + cx * n + col) as usize] = v;
+            }
+        }
+    }
+    let cube = source_to_cube(&image_to_source(img).unwrap(), 32, 0.0);
+    for (i, t) in cube.texels.iter().enumerate() {
+        let e = smooth(sun::texel_index_direction(32, i));
+        assert!(
+            (t[0] - e[0]).abs() < 5e-3 && (t[1] - e[1]).abs() < 5e-3,
+            "{i}"
+        );
+    }
+}
+
+#[test]
+fn rotation_turns_the_sky_about_z() {
+    let img = latlong_of(256, 128, |d| {
+        let v = if d[0] > 0.95 { 100.0 } else { 1.0 };
+        [v; 3]
+    });
+    let cube = source_to_cube(&SkySource::LatLong(img), 32, 90.0);
+    // The cap around +X (cos > 0.95) now lies around +Y.
+    let got = brightest(&cube);
+    assert!(got[1] > 0.94, "{got:?}");
+}
+
+#[test]
+fn sun_painted_in_a_latlong_file_is_recovered_end_to_end() {
+    // A 2048×1024 lat-long with a limb-free disc of known irradiance, baked at face size 512.
+    let (w, h) = (2048, 1024);
+    let dir = cube::normalize([0.5, -0.3, 0.6]);
+    let r = sun::SUN_ANGULAR_RADIUS;
+    let e_sun = 4.0;
+    let l0 = (e_sun / (2.0 * std::f64::consts::PI * (1.0 - r.cos()))) as f32;
+    let sub = 8;
+    let img = latlong_of(w, h, |_| [0.0; 3]);
+    let mut pixels = img.pixels;
+    for (i, p) in pixels.iter_mut().enumerate() {
+        let (x, y) = ((i as u32 % w) as f64, (i as u32 / w) as f64);
+        let c = latlong_direction(x + 0.5, y + 0.5, w, h);
+        if c[0] * dir[0] + c[1] * dir[1] + c[2] * dir[2] < (4.0 * r).cos() {
+            *p = smooth(c);
+            continue;
+        }
+        let mut inside = 0;
+        for a in 0..sub {
+            for b in 0..sub {
+                let d = latlong_direction(
+                    x + (a as f64 + 0.5) / sub as f64,
+                    y + (b as f64 + 0.5) / sub as f64,
+                    w,
+                    h,
+                );
+                inside += (d[0] * dir[0] + d[1] * dir[1] + d[2] * dir[2] >= r.cos()) as u32;
+            }
+        }
+        let s = smooth(c);
+        let cover = inside as f32 / (sub * sub) as f32;
+        *p = [s[0] + l0 * cover, s[1] + l0 * cover, s[2] + l0 * cover];
+    }
+    let src = SkySource::LatLong(FloatImage {
+        width: w,
+        height: h,
+        pixels,
+    });
+    let bake = bake_sky(&src, &SkyOptions::default()).unwrap();
+    assert_eq!(bake.cube.size, 512);
+    let d = bake.sun.direction;
+    let err = (dir[0] * d[0] as f64 + dir[1] * d[1] as f64 + dir[2] * d[2] as f64)
+        .min(1.0)
+        .acos();
+    assert!(err < 2.0 / 512.0, "direction off by {err}");
+    let got = bake.sun.irradiance[1] as f64;
+    assert!((got - e_sun).abs() < 0.03 * e_sun, "{got} vs {e_sun}");
+}
+
+#[test]
+fn bake_is_deterministic_across_thread_counts() {
+    let img = latlong_of(256, 128, |d| {
+        let s = smooth(d);
+        if d[2] > 0.99 { [5e3; 3] } else { s }
+    });
+    let src = SkySource::LatLong(img);
+    let run = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| bake_sky(&src, &SkyOptions::default()).unwrap())
+    };
+    let (a, b) = (run(1), run(3));
+    let bytes = |s: &SkyBake| {
+        let mut w = crate::pack::PackWriter::new();
+        w.insert(section::cube_to_section("sky", "", &s.cube, &s.sky));
+        w.insert(section::sun_to_section("sun", &s.sun));
+        w.insert(section::sh_to_section("sh", "", &s.sh));
+        w.to_bytes().unwrap()
+    };
+    assert_eq!(bytes(&a), bytes(&b));
+}
+
+#[test]
+fn unusable_layouts_are_rejected_with_the_expected_shapes() {
+    let e = image_to_source(latlong_of(300, 100, smooth)).unwrap_err();
+    assert!(
+        e.message.contains("2:1") && e.message.contains("4:3"),
+        "{e}"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let mut paths = Vec::new();
+    for k in 0..6 {
+        let size = if k == 3 { 4 } else { 8 };
+        let img = FloatImage {
+            width: size,
+            height: size,
+            pixels: vec![[1.0; 3]; (size * size) as usize],
+        };
+        let p = dir.path().join(format!("f{k}.hdr"));
+        std::fs::write(&p, crate::ingest::skyimage::write_hdr(&img)).unwrap();
+        paths.push(p);
+    }
+    let e = load_sky(&paths).unwrap_err().to_string();
+    assert!(e.contains("f3.hdr") && e.contains("face -Y"), "{e}");
+    assert!(load_sky(&paths[..2]).is_err());
+}
+
+#[test]
+fn bad_options_are_usage_errors() {
+    let src = SkySource::Cube(CubeMap::filled(4, [1.0; 3]));
+    let mut o = SkyOptions {
+        face_size: Some(0),
+        ..SkyOptions::default()
+    };
+    assert!(bake_sky(&src, &o).is_err());
+    o.face_size = Some(4);
+    o.sun.enlargement = -1.0;
+    assert!(bake_sky(&src, &o).is_err());
+}
