@@ -31,6 +31,11 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
     ),
     (kinds::sky::KIND, kinds::sky::summary, kinds::sky::data),
     (
+        crate::lightmap::section::KIND,
+        crate::lightmap::section::summary,
+        crate::lightmap::section::data,
+    ),
+    (
         crate::envmap::section::ENVMAPS_KIND,
         crate::envmap::section::envmaps_summary,
         crate::envmap::section::envmaps_data,

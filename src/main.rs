@@ -37,6 +37,10 @@ enum Command {
     Cluster(cli::cluster::ClusterArgs),
     /// An HDR sky (or the built-in one) to a cube map, the sun and the sky's SH.
     Sky(cli::sky::SkyArgs),
+    /// Bake the terrain's light map.
+    Lightmap(cli::lightmap::LightmapArgs),
+    /// Bake per-instance SH environment maps.
+    Envmaps(cli::envmaps::EnvmapsArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
 }
@@ -52,6 +56,8 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Bench(a) => cli::bench::run(a, g),
         Command::Bittree(a) => cli::bittree::run(a, g),
         Command::Cluster(a) => cli::cluster::run(a, g),
+        Command::Lightmap(a) => cli::lightmap::run(a, g),
+        Command::Envmaps(a) => cli::envmaps::run(a, g),
         Command::Fixtures(a) => cli::fixtures::run(a, g),
     }
 }

@@ -6,8 +6,8 @@
 use crate::error::Result;
 use crate::ingest::{self, IngestOptions, Ingested};
 use crate::model::{Mesh, Scene, Terrain};
-use crate::pack::PackWriter;
 use crate::pack::kinds::{self, fit_name};
+use crate::pack::{Pack, PackWriter};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -113,9 +113,24 @@ pub struct BuildOptions {
     pub output: Option<PathBuf>,
     pub sky: Option<PathBuf>,
     pub ingest: IngestOptions,
+    pub prt: crate::light::prt::PrtOptions,
+    pub lightmap: crate::lightmap::LightmapOptions,
+    pub envmaps: crate::envmap::bake::EnvmapOptions,
+    pub cluster: crate::envmap::cluster::ClusterOptions,
 }
 
-/// `bake SCENE.eco`: ingest the whole scene into one pack.
+impl BuildOptions {
+    /// Quick, noisy lighting for previews.
+    pub fn preview(mut self) -> Self {
+        self.prt = crate::light::prt::PrtOptions::preview();
+        self.envmaps.samples = 64;
+        self.lightmap.samples = 16;
+        self.lightmap.sun_samples = 4;
+        self
+    }
+}
+
+/// `bake SCENE.eco`: every stage, in data-flow order, into one pack.
 pub fn build(opts: &BuildOptions) -> Result<BuildReport> {
     let first = opts
         .scenes
@@ -129,7 +144,42 @@ pub fn build(opts: &BuildOptions) -> Result<BuildReport> {
         .output
         .clone()
         .unwrap_or_else(|| first.with_extension("bake"));
-    let (w, warnings) = scene_to_pack(&scene, first);
+    let name = first.display().to_string();
+    let (mut w, mut warnings) = scene_to_pack(&scene, first);
+    // The sky first: every lighting stage reads its sun and SH (the built-in sky if none given).
+    for s in crate::sky::scene_sky_sections(
+        scene.sky.as_ref(),
+        &crate::sky::builtin::BuiltinSky::default(),
+        &crate::sky::SkyOptions::default(),
+    )? {
+        w.insert(s);
+    }
+    // Per-model transfer, then the scene-level lighting that traces the placed models.
+    let pack = Pack::from_bytes(&w.to_bytes()?, &name)?;
+    let (pw, _, prt_warnings) = crate::light::prt_pack::prt_pack(&pack, &opts.prt, &|_| {})?;
+    w = pw;
+    warnings.extend(prt_warnings);
+    let pack = Pack::from_bytes(&w.to_bytes()?, &name)?;
+    for s in crate::lightmap::lightmap_sections(&pack, &opts.lightmap)? {
+        w.insert(s);
+    }
+    for s in crate::envmap::envmap_sections(&pack, &opts.envmaps)? {
+        w.insert(s);
+    }
+    let pack = Pack::from_bytes(&w.to_bytes()?, &name)?;
+    let (sections, _) = crate::envmap::cluster_sections(&pack, &opts.cluster, false)?;
+    for s in sections {
+        w.insert(s);
+    }
+    match crate::bittree::section::to_section(
+        "bittree",
+        &scene.instances,
+        instance_area(&scene),
+        &Default::default(),
+    ) {
+        Ok(s) => w.insert(s),
+        Err(e) => warnings.push(format!("no BitTree: {e}")),
+    }
     let bytes = w.to_bytes()?;
     crate::pack::write_atomic(&output, &bytes)?;
     Ok(BuildReport {
@@ -145,6 +195,21 @@ pub fn build(opts: &BuildOptions) -> Result<BuildReport> {
             .sum(),
         warnings,
     })
+}
+
+/// The area the BitTree discretizes: the scene's area of interest, widened to hold every instance.
+pub fn instance_area(scene: &Scene) -> crate::model::Rect {
+    let pts: Vec<[f32; 3]> = scene.instances.items.iter().map(|i| i.position).collect();
+    let (lo, hi) = crate::model::bounds_of(&pts).unwrap_or(([0.0; 3], [1.0; 3]));
+    let a = scene.aoi;
+    let x0 = a.origin[0].min(lo[0]) - 1e-3;
+    let y0 = a.origin[1].min(lo[1]) - 1e-3;
+    let x1 = (a.origin[0] + a.extent[0]).max(hi[0]) + 1e-3;
+    let y1 = (a.origin[1] + a.extent[1]).max(hi[1]) + 1e-3;
+    crate::model::Rect {
+        origin: [x0, y0],
+        extent: [x1 - x0, y1 - y0],
+    }
 }
 
 /// `bake ingest INPUT`: one input file into a pack.

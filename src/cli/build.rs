@@ -23,6 +23,12 @@ pub struct BuildArgs {
     /// Colour map of the terrain (default: beside the RAW file).
     #[arg(long)]
     pub color_map: Option<PathBuf>,
+    /// Quick, noisy lighting (PRT 64 paths, 64 environment-map rays, 16 light-map rays).
+    #[arg(long)]
+    pub preview: bool,
+    /// Render the baked pack to this PNG afterwards (default camera).
+    #[arg(long, value_name = "PNG")]
+    pub render: Option<PathBuf>,
 }
 
 pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
@@ -35,7 +41,9 @@ pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
             color_map: args.color_map.clone(),
             ..Default::default()
         },
+        ..Default::default()
     };
+    let opts = if args.preview { opts.preview() } else { opts };
     let bar = g.progress(1, "build");
     let report = build(&opts)?;
     bar.finish_and_clear();

@@ -6,8 +6,10 @@ pub mod bittree;
 pub mod build;
 pub mod cluster;
 pub mod dump;
+pub mod envmaps;
 pub mod fixtures;
 pub mod ingest;
+pub mod lightmap;
 pub mod prt;
 pub mod sky;
 

@@ -101,3 +101,73 @@ pub fn synthetic_envmaps(positions: &[[f32; 3]]) -> Vec<f32> {
         })
         .collect()
 }
+
+/// The environment-map stage on a pack: an `envmaps` section for the scene's instances.
+pub fn envmap_sections(
+    pack: &crate::pack::Pack,
+    opts: &bake::EnvmapOptions,
+) -> crate::error::Result<Vec<crate::pack::Section>> {
+    let light = crate::lightmap::scene_lighting(pack)?;
+    let scene = crate::tracescene::trace_scene(pack)?;
+    let probe_height = scene
+        .instances
+        .items
+        .iter()
+        .map(|i| 0.5 * scene.model_height[i.model as usize] * i.scale)
+        .collect();
+    let es = bake::EnvmapScene {
+        bvh: &scene.bvh,
+        count: scene.instance_count,
+        probe_height,
+        albedo: scene.albedo.clone(),
+        sky: light.sky,
+        sun: light.sun.map(|(direction, irradiance)| bake::SunLight {
+            direction,
+            irradiance,
+        }),
+    };
+    let maps = bake::bake_envmaps(&es, opts);
+    let sky: Vec<[[f32; 3]; 16]> = maps.iter().map(|m| m.0).collect();
+    let sun: Vec<[[f32; 3]; 16]> = maps.iter().map(|m| m.1).collect();
+    let meta = section::EnvmapsMeta {
+        instances: maps.len() as u64,
+        order: 4,
+        samples: opts.samples,
+        estimator:
+            "spherical Fibonacci rays from a probe at half the model height; one diffuse bounce"
+                .into(),
+    };
+    Ok(vec![section::envmaps_to_section(
+        "envmaps", &meta, &sky, &sun,
+    )])
+}
+
+/// The clustering stage on a pack with `instances` and `envmaps`: the `clusters` section.
+pub fn cluster_sections(
+    pack: &crate::pack::Pack,
+    opts: &ClusterOptions,
+    store_weights: bool,
+) -> crate::error::Result<(Vec<crate::pack::Section>, Clustering)> {
+    let bad = |e| crate::error::Error::invalid(pack.path(), e);
+    let (_, inst) =
+        crate::pack::kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
+    let (_, sky, sun) = section::envmaps_from_section(&pack.view_named("envmaps")?).map_err(bad)?;
+    if sky.len() != inst.items.len() {
+        return Err(crate::error::Error::invalid_at(
+            pack.path(),
+            "envmaps",
+            "envmaps and instances differ in count",
+        ));
+    }
+    let positions: Vec<[f32; 3]> = inst.items.iter().map(|i| i.position).collect();
+    let values = section::flatten(&sky, &sun);
+    let (meta, c, weights) =
+        cluster_and_weigh(&positions, &values, section::DIM, opts, store_weights);
+    let wref = weights.as_ref().map(|(n, w)| (n.as_slice(), w.as_slice()));
+    Ok((
+        vec![section::clusters_to_section(
+            "clusters", &meta, &c, &positions, &values, wref,
+        )],
+        c,
+    ))
+}

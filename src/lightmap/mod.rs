@@ -244,3 +244,40 @@ fn cp_rotation(texel: u64) -> (f32, f32) {
         ((h >> 16) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32,
     )
 }
+
+/// The scene's light from its `sh` (sun-free sky) and `sun` sections.
+pub fn scene_lighting(pack: &crate::pack::Pack) -> crate::error::Result<Lighting> {
+    let bad = |e| crate::error::Error::invalid(pack.path(), e);
+    let (_, sky, _) =
+        crate::sky::section::sh_from_section(&pack.view_named(crate::sky::SH_SECTION)?)
+            .map_err(bad)?;
+    let sun = match pack.find(crate::sky::SUN_SECTION) {
+        Some(e) => {
+            let s = crate::sky::section::sun_from_section(&pack.view(e)?).map_err(bad)?;
+            Some((s.direction, s.irradiance))
+        }
+        None => None,
+    };
+    Ok(Lighting { sky, sun })
+}
+
+/// The light-map stage on a pack: a `lightmap` section for the terrain.
+pub fn lightmap_sections(
+    pack: &crate::pack::Pack,
+    opts: &LightmapOptions,
+) -> crate::error::Result<Vec<crate::pack::Section>> {
+    let light = scene_lighting(pack)?;
+    let scene = crate::tracescene::trace_scene(pack)?;
+    let Some(map) = bake_terrain_lightmap(&scene, &light, opts) else {
+        return Ok(Vec::new());
+    };
+    let meta = section::LightmapMeta {
+        surface: "terrain".into(),
+        width: map.width,
+        height: map.height,
+        mode: opts.mode,
+        samples: opts.samples,
+        sun_samples: opts.sun_samples,
+    };
+    Ok(vec![section::to_section("lightmap:terrain", &meta, &map)])
+}

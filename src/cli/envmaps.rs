@@ -1,0 +1,45 @@
+//! `bake envmaps INPUT`: per-instance SH environment maps (section `envmaps`).
+
+use super::{Global, Outcome};
+use crate::envmap::bake::EnvmapOptions;
+use crate::error::Result;
+use crate::pack::Pack;
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct EnvmapsArgs {
+    /// A scene pack (with `sh`/`sun` sections from `bake sky` or `bake build`).
+    pub input: PathBuf,
+    /// Output pack (default: the input pack).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Rays per instance.
+    #[arg(long, default_value_t = 256)]
+    pub samples: u32,
+}
+
+pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
+    let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
+    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
+    let opts = EnvmapOptions {
+        samples: args.samples,
+        ..Default::default()
+    };
+    let start = std::time::Instant::now();
+    let sections = crate::envmap::envmap_sections(&pack, &opts)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let n = sections.len();
+    for s in sections {
+        w.insert(s);
+    }
+    w.write(&output)?;
+    let out = Pack::open(&output)?;
+    let mut doc = crate::envmap::section::envmaps_summary(&out.view_named("envmaps")?)
+        .map_err(|e| crate::error::Error::invalid(&output, e))?;
+    doc["seconds"] = seconds.into();
+    Ok(Outcome {
+        text: format!("{}: {n} envmaps section, {doc}\n", output.display()),
+        json: doc,
+        warnings: Vec::new(),
+    })
+}

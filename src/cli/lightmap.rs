@@ -1,0 +1,60 @@
+//! `bake lightmap INPUT`: the terrain's light map (section `lightmap:terrain`).
+
+use super::{Global, Outcome};
+use crate::error::Result;
+use crate::lightmap::{LightmapMode, LightmapOptions};
+use crate::pack::Pack;
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct LightmapArgs {
+    /// A scene pack (with `sh`/`sun` sections from `bake sky` or `bake build`).
+    pub input: PathBuf,
+    /// Output pack (default: the input pack).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Texels per side (default: the terrain grid size).
+    #[arg(long)]
+    pub resolution: Option<u32>,
+    /// Hemisphere samples per texel.
+    #[arg(long, default_value_t = 64)]
+    pub samples: u32,
+    /// `physical` (visibility, true sun disc, one bounce) or `thesis` (seed 001's estimator).
+    #[arg(long, value_enum, default_value_t = LightmapMode::Physical)]
+    pub mode: LightmapMode,
+}
+
+pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
+    let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
+    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
+    let opts = LightmapOptions {
+        resolution: args.resolution,
+        samples: args.samples,
+        mode: args.mode,
+        ..Default::default()
+    };
+    let start = std::time::Instant::now();
+    let sections = crate::lightmap::lightmap_sections(&pack, &opts)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let mut summaries = Vec::new();
+    for s in sections {
+        let v = crate::pack::section::SectionView::parse(&s.payload, 0)
+            .map_err(|e| crate::error::Error::invalid(&output, e))?;
+        summaries.push(
+            crate::lightmap::section::summary(&v)
+                .map_err(|e| crate::error::Error::invalid(&output, e))?,
+        );
+        w.insert(s);
+    }
+    w.write(&output)?;
+    let doc = serde_json::json!({"output": output, "lightmaps": summaries, "seconds": seconds});
+    Ok(Outcome {
+        text: format!(
+            "{}: {} light map(s) in {seconds:.2} s\n",
+            output.display(),
+            summaries.len()
+        ),
+        json: doc,
+        warnings: Vec::new(),
+    })
+}
