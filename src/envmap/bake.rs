@@ -10,9 +10,11 @@
 //! - A ray that hits a surface with albedo ρ and normal n (facing the ray) sees its outgoing
 //!   diffuse radiance: the sun's part ρ/π·E_sun·max(0, n·s)·V_sun(x) goes to C_S, the sky's part
 //!   ρ/π·E_sky(n) (the sky's unoccluded irradiance, one bounce) to C_H.
-//! - The sun itself: one shadow ray from the probe; if unblocked, C_S += E_sun·y(s) (a directional
-//!   light's projection). Direct sun on the plant is rendered with a shadow map and PRT evaluates
-//!   C_S only with the ≥ 1-bounce transfer, so nothing is counted twice.
+//! - The sun's direct light is not in C_S: C_S is the sun's *indirect* light, reflected once by the
+//!   terrain and the other instances. The direct sun (and its bounces inside the plant, PRT's
+//!   ≥ 1-bounce transfer against the sun's own SH) is the runtime's, with shadow-map visibility; a
+//!   binary direct-sun visibility in C_S would also make neighbouring maps jump and defeat the
+//!   clustering.
 //!
 //! Both maps are finally rotated into the instance's frame (rotation about +Z, seed 000 4.7.3).
 //! Unbiased for that light model; it converges to the brute-force answer as samples grow.
@@ -96,17 +98,6 @@ fn bake_one(
             for ch_k in 0..3 {
                 ch[c][ch_k] += (lh[ch_k] * y[c]) as f64 * w;
                 cs[c][ch_k] += (ls[ch_k] * y[c]) as f64 * w;
-            }
-        }
-    }
-    if let Some(sun) = scene.sun {
-        let s = Vec3A::from(sun.direction);
-        if !blocked(scene.bvh, i as u32, p, s) {
-            let y = sh::eval_basis16(sun.direction);
-            for c in 0..16 {
-                for k in 0..3 {
-                    cs[c][k] += (sun.irradiance[k] * y[c]) as f64;
-                }
             }
         }
     }
