@@ -6,7 +6,9 @@
 //! `<diff>`, `<ambi>`, `<spec>`, `<emis>`, `<shin>` refer to. Whitespace around tags is accepted.
 //!
 //! A `<Set>` has a `<header>` whose `<tc_combo> TEX MAT </tc_combo>` picks texture and material
-//! (and `<translucence>`), `<references>` (skipped), and geometry: `<vertex_array>` with
+//! (and `<translucence>`; a negative texture id means untextured, an id missing from
+//! `<Textures>` or `<Colors>` gives a warning and no texture or the OpenGL default material),
+//! `<references>` (skipped as text), and geometry: `<vertex_array>` with
 //! `number_of_vertices` vertices of 36 bytes `{f32 texcoord[3]; f32 normal[3]; f32 position[3]}`
 //! (little-endian) in `<data>`, then `<index>` with `number_of_index_values` u32 indices
 //! (3 per triangle); `<line_array>` (`number_of_line_vertices`, index pairs) and `<point_array>`
