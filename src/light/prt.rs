@@ -70,7 +70,7 @@ impl PrtOptions {
         PrtOptions {
             samples: 64,
             bounces: 2,
-            preset: BuildPreset::Medium,
+            preset: BuildPreset::VeryFast,
             offset: 1e-4,
             default_translucence: 0.3,
             seed: 0,
@@ -411,10 +411,9 @@ impl<'a> Ctx<'a> {
             let Some(h) = self.bvh.closest_hit(&ray) else {
                 return (Some((d, beta, bounce)), bounce as u64 + 1);
             };
-            let s = self.bvh.surface(&h);
-            let m = self.materials[s.material as usize];
+            let (position, ng, material) = self.bvh.hit_point(&h);
+            let m = self.materials[material as usize];
             beta = std::array::from_fn(|k| beta[k] * m.albedo[k]);
-            let ng = s.geometric_normal;
             if beta == [0.0; 3] || ng == Vec3A::ZERO {
                 return (None, bounce as u64 + 1);
             }
@@ -433,7 +432,7 @@ impl<'a> Ctx<'a> {
             } else {
                 facing
             };
-            o = s.position + out * self.eps;
+            o = position + out * self.eps;
             d = cosine_hemisphere(out, rng.next_f32(), rng.next_f32());
         }
         unreachable!("the loop returns at bounce == bounces at the latest")
