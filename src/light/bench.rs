@@ -119,6 +119,11 @@ pub fn bench_rays(
     // through transparent texels travel further) from the cost of the PRT machinery.
     let opaque = ModelBvh::build(mesh, &[], opts.prt.preset)?;
     let (opaque_rays, opaque_t) = prt_timing(&opaque, mesh, materials, &verts, &opts.prt);
+    // Both measured or neither: a ratio of a CPU rate and a wall rate means nothing.
+    let (raw, prt) = match (raw.cpu, prt.cpu) {
+        (Some(_), Some(_)) => (raw, prt),
+        _ => (Timing { cpu: None, ..raw }, Timing { cpu: None, ..prt }),
+    };
     let per = |n: u64, t: Option<f64>| t.map(|t| n as f64 / t);
     let raw_cpu = per(raw_rays, raw.cpu);
     let prt_cpu = per(prt_rays, prt.cpu);
@@ -195,7 +200,11 @@ fn time_best(mut f: impl FnMut()) -> Timing {
         let (start, cpu0) = (Instant::now(), cpu_seconds());
         f();
         let wall = start.elapsed().as_secs_f64();
-        let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+        // schedstat advances in scheduler ticks: a run too short to register has no CPU time.
+        let cpu = cpu0
+            .zip(cpu_seconds())
+            .map(|(a, b)| b - a)
+            .filter(|&c| c > 1e-3);
         best.wall = best.wall.min(wall);
         best.cpu = match (best.cpu, cpu) {
             (Some(a), Some(b)) => Some(a.min(b)),
