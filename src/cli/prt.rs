@@ -193,27 +193,36 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
         full_bake_samples: a.bake_samples,
     };
     let r = bench_rays(&mesh, &mats, &masks, &opts)?;
+    let cpu = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.3}", v / 1e6));
     let mut text = format!(
         "{source}: {} triangles, {} vertices traced, {} threads, preset {}\n\
-         raw obvhs   {:>8.3} M rays/s ({} rays)\n\
-         PRT         {:>8.3} M rays/s ({} rays)\n\
-         efficiency  {:>8.3}\n",
+         M rays/s         wall     per CPU-s\n\
+         raw obvhs   {:>8.3}  {:>8}   ({} rays)\n\
+         PRT         {:>8.3}  {:>8}   ({} rays)\n\
+         PRT opaque  {:>8.3}  {:>8}   (no alpha test)\n\
+         efficiency  {:>8.3}  {:>8.3}\n",
         r.triangles,
         r.vertices_traced,
         r.threads,
         r.preset,
         r.raw_rays_per_second / 1e6,
+        cpu(r.raw_rays_per_cpu_second),
         r.raw_rays,
         r.prt_rays_per_second / 1e6,
+        cpu(r.prt_rays_per_cpu_second),
         r.prt_rays,
-        r.efficiency
+        r.prt_opaque_rays_per_second / 1e6,
+        cpu(r.prt_opaque_rays_per_cpu_second),
+        r.efficiency_wall,
+        r.efficiency,
     );
     for p in &r.presets {
         text.push_str(&format!(
-            "  preset {:<10} build {:>7.3} s, raw {:>7.3} M rays/s\n",
+            "  preset {:<10} build {:>7.3} s, raw {:>7.3} M rays/s, {:>7} per CPU-s\n",
             p.preset,
             p.build_seconds,
-            p.raw_rays_per_second / 1e6
+            p.raw_rays_per_second / 1e6,
+            cpu(p.raw_rays_per_cpu_second)
         ));
     }
     if let Some(b) = &r.full_bake {

@@ -5,7 +5,9 @@
 //! cosine-distributed hemisphere rays that leave a sample of the model's vertices (both sides).
 //! PRT rays: every closest-hit query the PRT stage makes for the same vertices (first rays and
 //! bounce rays, with alpha tests, sampling and SH accumulation included). Both run over rayon on
-//! all threads; each is timed twice and the faster run counts (the machine is shared).
+//! all threads; each is timed three times and the fastest run counts. The machine is shared, so
+//! CPU time (Linux schedstat) is measured beside wall time and the efficiency is the ratio of
+//! rays per CPU-second.
 
 use super::prt::{self, PrtMaterial, PrtOptions};
 use crate::error::Result;
@@ -34,6 +36,7 @@ pub struct PresetResult {
     pub preset: &'static str,
     pub build_seconds: f64,
     pub raw_rays_per_second: f64,
+    pub raw_rays_per_cpu_second: Option<f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -57,7 +60,16 @@ pub struct RaysBenchReport {
     pub raw_rays_per_second: f64,
     pub prt_rays: u64,
     pub prt_rays_per_second: f64,
+    /// PRT rays per CPU-second over raw rays per CPU-second (wall-clock ratio where CPU time
+    /// is not available).
     pub efficiency: f64,
+    /// The same ratio from wall-clock rates.
+    pub efficiency_wall: f64,
+    pub raw_rays_per_cpu_second: Option<f64>,
+    pub prt_rays_per_cpu_second: Option<f64>,
+    /// PRT rays per second with every texel opaque (no alpha test).
+    pub prt_opaque_rays_per_second: f64,
+    pub prt_opaque_rays_per_cpu_second: Option<f64>,
     pub presets: Vec<PresetResult>,
     pub full_bake: Option<FullBake>,
 }
@@ -85,12 +97,13 @@ pub fn bench_rays(
         let start = Instant::now();
         let bvh = ModelBvh::build(mesh, masks, p)?;
         let build_seconds = start.elapsed().as_secs_f64();
-        let raw = raw_rate(&bvh, &rays);
+        let raw = raw_timing(&bvh, &rays);
         if opts.presets.contains(&p) {
             presets.push(PresetResult {
                 preset: p.name(),
                 build_seconds,
-                raw_rays_per_second: raw,
+                raw_rays_per_second: rays.len() as f64 / raw.wall,
+                raw_rays_per_cpu_second: raw.cpu.map(|c| rays.len() as f64 / c),
             });
         }
         if p == opts.prt.preset {
@@ -101,7 +114,20 @@ pub fn bench_rays(
         return Err(crate::error::Error::runtime("the PRT preset was not built"));
     };
     let raw_rays = rays.len() as u64;
-    let (prt_rays, prt_rate) = prt_rate(&bvh, mesh, materials, &verts, &opts.prt);
+    let (prt_rays, prt) = prt_timing(&bvh, mesh, materials, &verts, &opts.prt);
+    // The same PRT without alpha masks: separates the cost of the alpha test (rays that pass
+    // through transparent texels travel further) from the cost of the PRT machinery.
+    let opaque = ModelBvh::build(mesh, &[], opts.prt.preset)?;
+    let (opaque_rays, opaque_t) = prt_timing(&opaque, mesh, materials, &verts, &opts.prt);
+    // Both measured or neither: a ratio of a CPU rate and a wall rate means nothing.
+    let (raw, prt) = match (raw.cpu, prt.cpu) {
+        (Some(_), Some(_)) => (raw, prt),
+        _ => (Timing { cpu: None, ..raw }, Timing { cpu: None, ..prt }),
+    };
+    let per = |n: u64, t: Option<f64>| t.map(|t| n as f64 / t);
+    let raw_cpu = per(raw_rays, raw.cpu);
+    let prt_cpu = per(prt_rays, prt.cpu);
+    let wall_eff = (raw_rays as f64 / raw.wall).recip() * (prt_rays as f64 / prt.wall);
     let full_bake = opts
         .full_bake_samples
         .map(|s| full_bake(mesh, materials, masks, &opts.prt, s))
@@ -112,10 +138,15 @@ pub fn bench_rays(
         threads: rayon::current_num_threads(),
         preset: opts.prt.preset.name(),
         raw_rays,
-        raw_rays_per_second: raw,
+        raw_rays_per_second: raw_rays as f64 / raw.wall,
         prt_rays,
-        prt_rays_per_second: prt_rate,
-        efficiency: if raw > 0.0 { prt_rate / raw } else { 0.0 },
+        prt_rays_per_second: prt_rays as f64 / prt.wall,
+        efficiency: raw_cpu.zip(prt_cpu).map_or(wall_eff, |(r, p)| p / r),
+        efficiency_wall: wall_eff,
+        raw_rays_per_cpu_second: raw_cpu,
+        prt_rays_per_cpu_second: prt_cpu,
+        prt_opaque_rays_per_second: opaque_rays as f64 / opaque_t.wall,
+        prt_opaque_rays_per_cpu_second: per(opaque_rays, opaque_t.cpu),
         presets,
         full_bake,
     })
@@ -141,39 +172,73 @@ fn hemisphere_rays(mesh: &Mesh, verts: &[u32], o: &PrtOptions) -> Vec<Ray> {
     rays
 }
 
-/// Best of two runs of raw obvhs closest-hit traversal, rays per second.
-fn raw_rate(bvh: &ModelBvh, rays: &[Ray]) -> f64 {
+/// CPU time of this process (all threads), from Linux' per-thread schedstat (nanoseconds);
+/// `None` elsewhere. On a shared machine, rays per CPU-second compare two runs far more stably
+/// than wall time.
+fn cpu_seconds() -> Option<f64> {
+    let mut total = 0u64;
+    for task in std::fs::read_dir("/proc/self/task").ok()? {
+        let stat = std::fs::read_to_string(task.ok()?.path().join("schedstat")).ok()?;
+        total += stat.split_whitespace().next()?.parse::<u64>().ok()?;
+    }
+    Some(total as f64 * 1e-9)
+}
+
+/// A measurement: the fastest of three runs, in wall and CPU seconds.
+#[derive(Debug, Clone, Copy)]
+struct Timing {
+    wall: f64,
+    cpu: Option<f64>,
+}
+
+fn time_best(mut f: impl FnMut()) -> Timing {
+    let mut best = Timing {
+        wall: f64::INFINITY,
+        cpu: None,
+    };
+    for _ in 0..3 {
+        let (start, cpu0) = (Instant::now(), cpu_seconds());
+        f();
+        let wall = start.elapsed().as_secs_f64();
+        // schedstat advances in scheduler ticks: a run too short to register has no CPU time.
+        let cpu = cpu0
+            .zip(cpu_seconds())
+            .map(|(a, b)| b - a)
+            .filter(|&c| c > 1e-3);
+        best.wall = best.wall.min(wall);
+        best.cpu = match (best.cpu, cpu) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+    }
+    best
+}
+
+/// Raw obvhs closest-hit traversal of `rays`.
+fn raw_timing(bvh: &ModelBvh, rays: &[Ray]) -> Timing {
     let tris = bvh.raw_triangles();
-    let mut best = f64::INFINITY;
-    for _ in 0..2 {
-        let start = Instant::now();
+    time_best(|| {
         let hits: usize = rays
             .par_iter()
             .map(|r| bvh.raw_closest_t(&tris, r).is_finite() as usize)
             .sum();
         std::hint::black_box(hits);
-        best = best.min(start.elapsed().as_secs_f64());
-    }
-    rays.len() as f64 / best
+    })
 }
 
-/// Best of two PRT runs over `verts`: (rays traced, rays per second).
-fn prt_rate(
+/// PRT over `verts`: (rays traced, timing).
+fn prt_timing(
     bvh: &ModelBvh,
     mesh: &Mesh,
     materials: &[PrtMaterial],
     verts: &[u32],
     o: &PrtOptions,
-) -> (u64, f64) {
-    let mut best = f64::INFINITY;
+) -> (u64, Timing) {
     let mut rays = 0;
-    for _ in 0..2 {
-        let start = Instant::now();
-        let t = prt::bake_prt_subset(bvh, mesh, materials, o, verts, &|_| {});
-        best = best.min(start.elapsed().as_secs_f64());
-        rays = t.rays;
-    }
-    (rays, rays as f64 / best)
+    let t = time_best(|| {
+        rays = prt::bake_prt_subset(bvh, mesh, materials, o, verts, &|_| {}).rays;
+    });
+    (rays, t)
 }
 
 fn full_bake(

@@ -38,7 +38,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// SH order (bands) of the transfer.
-pub const ORDER: usize = 4;
+pub const ORDER: usize = crate::sh::ORDER;
 /// Coefficients per transfer vector.
 pub const COEFFS: usize = ORDER * ORDER;
 /// Sides per vertex: 0 = front (along the normal), 1 = back.
@@ -70,7 +70,7 @@ impl PrtOptions {
         PrtOptions {
             samples: 64,
             bounces: 2,
-            preset: BuildPreset::Medium,
+            preset: BuildPreset::VeryFast,
             offset: 1e-4,
             default_translucence: 0.3,
             seed: 0,
@@ -382,7 +382,7 @@ impl<'a> Ctx<'a> {
             let (escape, r) = self.trace(origin, d, &mut rng);
             rays += r;
             if let Some((dir, beta, bounces)) = escape {
-                let y = sh_basis16(dir.to_array());
+                let y = crate::sh::eval_basis16(dir.to_array());
                 // Set 0 takes every escaping path, set 1 only those that bounced.
                 let sets = if bounces == 0 { 1 } else { SETS };
                 for set_acc in acc.iter_mut().take(sets) {
@@ -411,10 +411,9 @@ impl<'a> Ctx<'a> {
             let Some(h) = self.bvh.closest_hit(&ray) else {
                 return (Some((d, beta, bounce)), bounce as u64 + 1);
             };
-            let s = self.bvh.surface(&h);
-            let m = self.materials[s.material as usize];
+            let (position, ng, material) = self.bvh.hit_point(&h);
+            let m = self.materials[material as usize];
             beta = std::array::from_fn(|k| beta[k] * m.albedo[k]);
-            let ng = s.geometric_normal;
             if beta == [0.0; 3] || ng == Vec3A::ZERO {
                 return (None, bounce as u64 + 1);
             }
@@ -433,7 +432,7 @@ impl<'a> Ctx<'a> {
             } else {
                 facing
             };
-            o = s.position + out * self.eps;
+            o = position + out * self.eps;
             d = cosine_hemisphere(out, rng.next_f32(), rng.next_f32());
         }
         unreachable!("the loop returns at bounce == bounces at the latest")
@@ -458,32 +457,6 @@ fn sobol_scrambled(k: u32, sx: u32, sy: u32) -> (f32, f32) {
     let x = k.reverse_bits();
     let to_unit = |b: u32| (b >> 8) as f32 * (1.0 / (1u32 << 24) as f32);
     (to_unit(x ^ sx), to_unit(y ^ sy))
-}
-
-/// Order-4 real SH basis (brief convention, Condon–Shortley phase, index l(l+1)+m).
-/// PRIVATE STAND-IN: replace with `crate::sh::eval_basis16` once the SH module is on main
-/// (same constants; the tests below check orthonormality independently).
-fn sh_basis16(d: [f32; 3]) -> [f32; 16] {
-    let [x, y, z] = d;
-    let (x2, y2, z2) = (x * x, y * y, z * z);
-    [
-        0.282_094_8,
-        -0.488_602_5 * y,
-        0.488_602_5 * z,
-        -0.488_602_5 * x,
-        1.092_548_4 * x * y,
-        -1.092_548_4 * y * z,
-        0.315_391_57 * (3.0 * z2 - 1.0),
-        -1.092_548_4 * x * z,
-        0.546_274_2 * (x2 - y2),
-        -0.590_043_6 * y * (3.0 * x2 - y2),
-        2.890_611_4 * x * y * z,
-        -0.457_045_8 * y * (5.0 * z2 - 1.0),
-        0.373_176_33 * z * (5.0 * z2 - 3.0),
-        -0.457_045_8 * x * (5.0 * z2 - 1.0),
-        1.445_305_7 * z * (x2 - y2),
-        -0.590_043_6 * x * (x2 - 3.0 * y2),
-    ]
 }
 
 /// Rec. 709 luminance.

@@ -22,9 +22,9 @@ use rayon::prelude::*;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum BuildPreset {
     Fastest,
+    #[default]
     VeryFast,
     Fast,
-    #[default]
     Medium,
     Slow,
     VerySlow,
@@ -121,7 +121,13 @@ struct SlotInfo {
     triangle: u32,
     /// Index into `masks`, or `NO_MASK` for opaque triangles.
     mask: u32,
+    material: u32,
 }
+
+/// Texture coordinates of a slot's triangle: `uv0`, `uv1 − uv0`, `uv2 − uv0`. Kept in slot
+/// order beside the triangles so the alpha test of a candidate hit reads memory the traversal
+/// has just touched instead of three random vertex loads.
+type SlotUv = [[f32; 2]; 3];
 
 const NO_MASK: u32 = u32::MAX;
 
@@ -144,6 +150,7 @@ pub struct ModelBvh {
     bvh: Option<CwBvh>,
     slots: Vec<PreTri>,
     slot_info: Vec<SlotInfo>,
+    slot_uv: Vec<SlotUv>,
     masks: Vec<AlphaMask>,
     positions: Vec<Vec3A>,
     normals: Vec<Vec3A>,
@@ -198,6 +205,7 @@ impl ModelBvh {
             bvh: None,
             slots: Vec::new(),
             slot_info: Vec::new(),
+            slot_uv: Vec::new(),
             masks: masks.iter().flatten().cloned().collect(),
             positions,
             normals: mesh.normals.iter().map(|&n| n.into()).collect(),
@@ -230,11 +238,19 @@ impl ModelBvh {
                 e1: p(b) - p(a),
                 e2: p(c) - p(a),
             });
-            let mat = self.triangle_materials[t as usize] as usize;
+            let mat = self.triangle_materials[t as usize];
             self.slot_info.push(SlotInfo {
                 triangle: t,
-                mask: mask_of.get(mat).copied().unwrap_or(NO_MASK),
+                mask: mask_of.get(mat as usize).copied().unwrap_or(NO_MASK),
+                material: mat,
             });
+            let uv = |i: u32| self.uvs[i as usize];
+            let (ua, ub, uc) = (uv(a), uv(b), uv(c));
+            self.slot_uv.push([
+                ua,
+                [ub[0] - ua[0], ub[1] - ua[1]],
+                [uc[0] - ua[0], uc[1] - ua[1]],
+            ]);
         }
     }
 
@@ -252,21 +268,15 @@ impl ModelBvh {
         self.bounds
     }
 
-    /// Whether a triangle hit at barycentrics (u, v) is on an opaque texel.
+    /// Whether a hit on slot `slot` at barycentrics (u, v) is on an opaque texel.
     #[inline]
-    fn opaque(&self, info: SlotInfo, u: f32, v: f32) -> bool {
+    fn opaque(&self, slot: usize, info: SlotInfo, u: f32, v: f32) -> bool {
         if info.mask == NO_MASK {
             return true;
         }
-        let [a, b, c] = self.indices[info.triangle as usize];
-        let (ta, tb, tc) = (
-            self.uvs[a as usize],
-            self.uvs[b as usize],
-            self.uvs[c as usize],
-        );
-        let w = 1.0 - u - v;
-        let s = w * ta[0] + u * tb[0] + v * tc[0];
-        let t = w * ta[1] + u * tb[1] + v * tc[1];
+        let [t0, d1, d2] = self.slot_uv[slot];
+        let s = t0[0] + u * d1[0] + v * d2[0];
+        let t = t0[1] + u * d1[1] + v * d2[1];
         self.masks[info.mask as usize].opaque_at(s, t)
     }
 
@@ -275,9 +285,10 @@ impl ModelBvh {
     fn hit_slot(&self, slot: usize, ray: &Ray, tmax: f32) -> Option<Hit> {
         let (t, u, v) = intersect(&self.slots[slot], ray.origin, ray.dir, ray.tmin, tmax)?;
         let info = self.slot_info[slot];
-        self.opaque(info, u, v).then_some(Hit {
+        self.opaque(slot, info, u, v).then_some(Hit {
             t,
             triangle: info.triangle,
+            slot: slot as u32,
             u,
             v,
         })
@@ -333,6 +344,16 @@ impl ModelBvh {
     /// Any-hit results of many rays over rayon, in input order.
     pub fn any_hits(&self, rays: &[Ray]) -> Vec<bool> {
         rays.par_iter().map(|r| self.any_hit(r)).collect()
+    }
+
+    /// Position, unit geometric normal and material at a hit, from the slot data only (the
+    /// fast path for path tracing; [`ModelBvh::surface`] interpolates every attribute).
+    #[inline]
+    pub fn hit_point(&self, hit: &Hit) -> (Vec3A, Vec3A, u32) {
+        let p = &self.slots[hit.slot as usize];
+        let position = p.v0 + p.e1 * hit.u + p.e2 * hit.v;
+        let ng = p.e1.cross(p.e2).normalize_or_zero();
+        (position, ng, self.slot_info[hit.slot as usize].material)
     }
 
     /// Position, normals, texture coordinate and material at a hit.
@@ -553,6 +574,8 @@ mod tests {
         assert_eq!(s.geometric_normal, Vec3A::Z);
         let expect = Vec3A::new(0.25, 0.0, 0.75).normalize();
         assert!((s.shading_normal - expect).length() < 1e-6);
+        let (p, ng, m) = bvh.hit_point(&h);
+        assert!((p - s.position).length() < 1e-6 && ng == s.geometric_normal && m == 0);
         // A segment ending before the triangle misses it.
         let short = Ray { tmax: 1.4, ..r };
         assert!(bvh.closest_hit(&short).is_none() && !bvh.any_hit(&short));

@@ -51,12 +51,14 @@ impl Ray {
     }
 }
 
-/// A ray/triangle hit: parameter `t`, the triangle (index into the mesh's triangles) and the
-/// barycentrics: the hit point is `(1 − u − v)·p0 + u·p1 + v·p2`.
+/// A ray/triangle hit: parameter `t`, the triangle (index into the mesh's triangles), its BVH
+/// slot, and the barycentrics: the hit point is `(1 − u − v)·p0 + u·p1 + v·p2`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
     pub t: f32,
     pub triangle: u32,
+    /// Position of the triangle in the BVH's leaf order (for [`ModelBvh::hit_point`]).
+    pub slot: u32,
     pub u: f32,
     pub v: f32,
 }

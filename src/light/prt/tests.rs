@@ -104,7 +104,7 @@ fn cosine_sample_variance() -> [f64; 16] {
             let ph = (j as f64 + 0.5) / np as f64 * 2.0 * PI;
             let d = [th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()];
             let w = th.cos() / PI * th.sin() * (PI / 2.0 / nt as f64) * (2.0 * PI / np as f64);
-            let y = sh_basis16(d.map(|v| v as f32));
+            let y = crate::sh::eval_basis16(d.map(|v| v as f32));
             for k in 0..16 {
                 m1[k] += w * y[k] as f64;
                 m2[k] += w * (y[k] as f64).powi(2);
@@ -357,7 +357,7 @@ fn sh_basis_matches_the_legendre_definition() {
     for _ in 0..500 {
         let d = cosine_hemisphere(Vec3A::Z, rng.next_f32(), rng.next_f32())
             * if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
-        let fast = sh_basis16(d.to_array());
+        let fast = crate::sh::eval_basis16(d.to_array());
         for l in 0..4 {
             for m in -l..=l {
                 let i = (l * (l + 1) + m) as usize;

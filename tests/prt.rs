@@ -1,0 +1,126 @@
+//! Black-box tests of `bake prt` and the `prt` section's dump view, on the committed fixture
+//! plant (TXF with an alpha-tested SGI leaf texture).
+
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn bake(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bake"))
+        .args(args)
+        .output()
+        .expect("run bake")
+}
+
+fn json(o: &Output) -> Value {
+    assert!(
+        o.status.success(),
+        "bake failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
+}
+
+fn fixture(name: &str) -> String {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures/scene")
+        .join(name);
+    p.to_str().unwrap().to_string()
+}
+
+fn prt_section(doc: &Value) -> Value {
+    doc["sections"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["kind"] == "prt")
+        .cloned()
+        .expect("a prt section")
+}
+
+#[test]
+fn prt_of_a_txf_plant_dumps_its_summary_and_transfer() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("plant.bake");
+    let out = out.to_str().unwrap();
+    let run = json(&bake(&[
+        "prt",
+        &fixture("plant.txf"),
+        "-o",
+        out,
+        "--samples",
+        "16",
+        "--json",
+    ]));
+    assert_eq!(run["meshes"][0]["section"], "prt:plant.txf");
+    let vertices = run["meshes"][0]["vertices"].as_u64().unwrap();
+    assert!(vertices > 0);
+    let doc = json(&bake(&["dump", out, "--json", "--full"]));
+    let s = prt_section(&doc);
+    let summary = &s["summary"];
+    assert_eq!(summary["vertices"], vertices);
+    assert_eq!(summary["order"], 4);
+    assert_eq!(summary["samples"], 16);
+    assert_eq!(summary["sides"], 2);
+    assert_eq!(summary["sets"], 2);
+    let transfer = s["data"]["transfer"].as_array().unwrap();
+    assert_eq!(transfer.len() as u64, vertices);
+    let v0 = &transfer[0];
+    assert_eq!(v0.as_array().unwrap().len(), 2, "two sides");
+    assert_eq!(v0[0].as_array().unwrap().len(), 2, "two sets");
+    assert_eq!(v0[0][0].as_array().unwrap().len(), 16, "16 coefficients");
+    assert_eq!(v0[0][0][0].as_array().unwrap().len(), 3, "RGB");
+    // Some vertex sees the sky: the DC term of its front or back side is positive.
+    assert!(transfer.iter().any(|v| v[0][0][0][1].as_f64().unwrap() > 0.0
+        || v[1][0][0][1].as_f64().unwrap() > 0.0));
+
+    // A pack input is updated in place, replacing the section.
+    json(&bake(&[
+        "prt",
+        out,
+        "--samples",
+        "4",
+        "--bounces",
+        "1",
+        "--json",
+    ]));
+    let doc = json(&bake(&["dump", out, "--json"]));
+    assert_eq!(prt_section(&doc)["summary"]["samples"], 4);
+    assert_eq!(prt_section(&doc)["summary"]["bounces"], 1);
+}
+
+#[test]
+fn prt_rejects_bad_options_and_inputs_without_meshes() {
+    let o = bake(&["prt", &fixture("plant.txf"), "--samples", "0"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--samples 0"));
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sky.bake");
+    let o = bake(&["prt", &fixture("sky.hdr"), "-o", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no mesh section"));
+    assert!(!out.exists(), "a failed bake writes nothing");
+}
+
+#[test]
+fn bench_rays_reports_the_documented_keys() {
+    let doc = json(&bake(&[
+        "bench",
+        "rays",
+        "--triangles",
+        "300",
+        "--vertices",
+        "20",
+        "--samples",
+        "4",
+        "--json",
+    ]));
+    for key in [
+        "triangles",
+        "raw_rays_per_second",
+        "prt_rays_per_second",
+        "efficiency",
+    ] {
+        assert!(doc[key].is_number(), "{key}: {doc}");
+    }
+}
