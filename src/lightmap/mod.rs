@@ -10,6 +10,7 @@
 //!   rotation), E ≈ π/N Σ L(d)·V(d) with L the sun-free sky;
 //! - one diffuse bounce: a direction that hits a surface brings ρ/π·(E_sun,direct + E_sky,unoccluded)
 //!   of that surface (ρ its mean albedo).
+//!
 //! `thesis` mode reproduces seed 001's estimator for comparison: one fixed Hammersley set for every
 //! texel, no visibility (neither for the sky nor the sun), no bounce.
 //!

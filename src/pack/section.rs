@@ -251,7 +251,7 @@ impl<'a> SectionView<'a> {
             let fits = len
                 .and_then(|l| l.checked_add(info.offset))
                 .is_some_and(|e| e <= bytes.len() as u64);
-            if !fits || info.offset % ARRAY_ALIGN as u64 != 0 {
+            if !fits || !info.offset.is_multiple_of(ARRAY_ALIGN as u64) {
                 return Err(ParseError::at_byte(
                     base + d,
                     format!(

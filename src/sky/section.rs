@@ -52,7 +52,7 @@ pub fn cube_to_section(name: &str, source: &str, cube: &CubeMap, sky: &SkyIrradi
         .texels
         .iter()
         .map(|t| {
-            if t.iter().any(|&v| !(v.abs() <= F16_MAX)) {
+            if t.iter().any(|&v| v.is_nan() || v.abs() > F16_MAX) {
                 clamped += 1;
             }
             let h = |v: f32| f16::from_f32(v.clamp(-F16_MAX, F16_MAX)).to_bits();

@@ -56,8 +56,8 @@ fn injected_sun_is_recovered_in_direction_and_irradiance() {
             err < tol,
             "{name}: direction off by {err} rad (half a texel {tol})"
         );
-        for k in 0..3 {
-            let rel = (sun.irradiance[k] as f64 - added[k]).abs() / added[k];
+        for (k, &add) in added.iter().enumerate() {
+            let rel = (sun.irradiance[k] as f64 - add).abs() / add;
             assert!(
                 rel < 0.01,
                 "{name}: channel {k}: {} vs {}",
@@ -84,7 +84,7 @@ fn thesis_sun_undercounts_by_about_the_enlargement() {
         (ratio - expect).abs() < 0.05 * expect,
         "{ratio} vs {expect}"
     );
-    assert!(expect >= 4.0 && expect < 4.5, "{expect}");
+    assert!((4.0..4.5).contains(&expect), "{expect}");
 }
 
 #[test]
