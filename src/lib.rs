@@ -16,6 +16,7 @@ pub mod model;
 pub mod pack;
 pub mod pipeline;
 pub mod rt;
+pub mod render;
 pub mod sh;
 pub mod sky;
 pub mod tracescene;

@@ -41,6 +41,8 @@ enum Command {
     Lightmap(cli::lightmap::LightmapArgs),
     /// Bake per-instance SH environment maps.
     Envmaps(cli::envmaps::EnvmapsArgs),
+    /// Render a pack offscreen to a PNG (wgpu; runs on Mesa's lavapipe or llvmpipe without a GPU).
+    Render(cli::render::RenderArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
 }
@@ -59,6 +61,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Lightmap(a) => cli::lightmap::run(a, g),
         Command::Envmaps(a) => cli::envmaps::run(a, g),
         Command::Fixtures(a) => cli::fixtures::run(a, g),
+        Command::Render(a) => cli::render::run(a, g),
     }
 }
 

@@ -11,6 +11,7 @@ pub mod fixtures;
 pub mod ingest;
 pub mod lightmap;
 pub mod prt;
+pub mod render;
 pub mod sky;
 
 use serde_json::Value;

@@ -1,0 +1,149 @@
+//! `bake render PACK -o OUT.png`: an offscreen wgpu render of a pack (see src/render).
+
+use super::{Global, Outcome, parse_vec3};
+use crate::error::Result;
+use crate::pack::Pack;
+use crate::render::{BackendChoice, RenderOptions, encode_png, render_pack};
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct RenderArgs {
+    /// A .bake pack.
+    pub pack: PathBuf,
+    /// Output PNG.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 1280)]
+    pub width: u32,
+    /// Image height in pixels.
+    #[arg(long, default_value_t = 720)]
+    pub height: u32,
+    /// Camera position x,y,z in metres (default: framing the area of interest).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub eye: Option<[f32; 3]>,
+    /// Point looked at x,y,z (default: the centre of the area of interest).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub target: Option<[f32; 3]>,
+    /// Vertical field of view in degrees.
+    #[arg(long, default_value_t = crate::render::camera::DEFAULT_FOV_Y_DEG)]
+    pub fov: f32,
+    /// Exposure s of the tone map 1 − exp(−L·s) (default: an 18 % grey card in full light maps to 0.5).
+    #[arg(long)]
+    pub exposure: Option<f32>,
+    /// Graphics API.
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    pub backend: BackendChoice,
+}
+
+/// Silences the warning Mesa's device-select Vulkan layer prints on machines without a display,
+/// unless the user set `NODEVICE_SELECT` already.
+fn quiet_mesa_layer() {
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: called on the main thread before wgpu or rayon start any thread; nothing else
+        // reads or writes the environment concurrently.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
+}
+
+pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
+    quiet_mesa_layer();
+    let opts = RenderOptions {
+        width: args.width,
+        height: args.height,
+        eye: args.eye,
+        target: args.target,
+        fov_y_deg: args.fov,
+        exposure: args.exposure,
+        lighting: None,
+        backend: args.backend,
+    };
+    let pack = Pack::open(&args.pack)?;
+    let out = render_pack(&pack, &opts)?;
+    let png = encode_png(&out.image)?;
+    crate::pack::write_atomic(&args.output, &png)?;
+    let s = &out.stats;
+    let text = format!(
+        "{}: {}×{} on {}, {} instances of {} models, {} triangles, {:.3} s\n",
+        args.output.display(),
+        s.width,
+        s.height,
+        out.adapter,
+        s.instances,
+        s.models,
+        s.triangles,
+        s.seconds_setup + s.seconds_upload + s.seconds_draw
+    );
+    Ok(Outcome {
+        json: serde_json::json!({
+            "output": args.output,
+            "adapter": out.adapter,
+            "stats": out.stats,
+        }),
+        text,
+        warnings: out.warnings,
+    })
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct RenderBenchArgs {
+    /// A .bake pack.
+    pub pack: PathBuf,
+    #[arg(long, default_value_t = 1280)]
+    pub width: u32,
+    #[arg(long, default_value_t = 720)]
+    pub height: u32,
+    /// Renders (each opens its own device).
+    #[arg(long, default_value_t = 5)]
+    pub repeat: u32,
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    pub backend: BackendChoice,
+}
+
+/// `bake bench render PACK`: median seconds of device setup, upload and draw (with readback).
+pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
+    quiet_mesa_layer();
+    let pack = Pack::open(&args.pack)?;
+    let opts = RenderOptions {
+        width: args.width,
+        height: args.height,
+        backend: args.backend,
+        ..RenderOptions::default()
+    };
+    let mut runs = Vec::new();
+    let mut adapter = None;
+    for _ in 0..args.repeat.max(1) {
+        let out = render_pack(&pack, &opts)?;
+        let s = out.stats;
+        runs.push([s.seconds_setup, s.seconds_upload, s.seconds_draw]);
+        adapter = Some((out.adapter, s.triangles, s.instances, s.uploaded_bytes));
+    }
+    let median = |k: usize| {
+        let mut v: Vec<f64> = runs.iter().map(|r| r[k]).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (setup, upload, draw) = (median(0), median(1), median(2));
+    let (adapter, triangles, instances, bytes) = adapter.expect("at least one run");
+    let text = format!(
+        "{}: {}×{} on {adapter}: {triangles} triangles, {instances} instances, {bytes} bytes uploaded; \
+         median of {}: setup {:.1} ms, upload {:.1} ms, draw+readback {:.1} ms ({:.1} Mtri/s)\n",
+        args.pack.display(),
+        args.width,
+        args.height,
+        runs.len(),
+        setup * 1e3,
+        upload * 1e3,
+        draw * 1e3,
+        triangles as f64 / draw / 1e6
+    );
+    Ok(Outcome {
+        json: serde_json::json!({
+            "pack": args.pack, "adapter": adapter, "width": args.width, "height": args.height,
+            "runs": runs.len(), "triangles": triangles, "instances": instances, "uploaded_bytes": bytes,
+            "seconds_setup": setup, "seconds_upload": upload, "seconds_draw": draw,
+        }),
+        text,
+        warnings: Vec::new(),
+    })
+}

@@ -1,0 +1,213 @@
+//! The wgpu runtime stage: renders a pack offscreen to an image, proving that its arrays go
+//! straight into GPU buffers and come out as a picture.
+//!
+//! Order of work, each step its own module so later issues can swap one: [`scene`] reads and
+//! checks the pack on the CPU; [`gpu`] opens a device (a real GPU, or Mesa's lavapipe/llvmpipe);
+//! [`pipelines`] builds the passes; [`upload`] moves the arrays to the GPU; [`draw`] renders the
+//! sky, the terrain and the instanced models into an `Rgba16Float` target and tone-maps it
+//! (1 − exp(−L·s), then sRGB) into the output. [`light`] and [`camera`] hold the conventions.
+
+pub mod camera;
+pub mod draw;
+pub mod gpu;
+pub mod light;
+pub mod pipelines;
+pub mod scene;
+pub mod upload;
+
+use crate::error::{Error, Result};
+use crate::model::Rgba8Image;
+use crate::pack::Pack;
+use glam::Vec3;
+pub use gpu::{AdapterSummary, BackendChoice};
+pub use light::Lighting;
+
+/// Options of [`render_pack`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderOptions {
+    pub width: u32,
+    pub height: u32,
+    /// Camera position; default: framing the area of interest (see [`camera::Camera::frame_box`]).
+    pub eye: Option<[f32; 3]>,
+    /// Point looked at; default: the centre of the area of interest.
+    pub target: Option<[f32; 3]>,
+    /// Vertical field of view in degrees.
+    pub fov_y_deg: f32,
+    /// Tone-map exposure s in 1 − exp(−L·s); default: [`light::auto_exposure`].
+    pub exposure: Option<f32>,
+    /// Sun, sky ambient; default: [`light::default_lighting`] of the sky.
+    pub lighting: Option<Lighting>,
+    pub backend: BackendChoice,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions {
+            width: 1280,
+            height: 720,
+            eye: None,
+            target: None,
+            fov_y_deg: camera::DEFAULT_FOV_Y_DEG,
+            exposure: None,
+            lighting: None,
+            backend: BackendChoice::Auto,
+        }
+    }
+}
+
+/// What a render did.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RenderStats {
+    pub width: u32,
+    pub height: u32,
+    pub eye: [f32; 3],
+    pub target: [f32; 3],
+    pub fov_y_deg: f32,
+    pub exposure: f32,
+    pub lighting: Lighting,
+    /// True when the pack had no sky and the analytic one was drawn.
+    pub analytic_sky: bool,
+    pub models: usize,
+    pub instances: u64,
+    pub triangles: u64,
+    pub draw_calls: u32,
+    pub uploaded_bytes: u64,
+    pub seconds_setup: f64,
+    pub seconds_upload: f64,
+    pub seconds_draw: f64,
+}
+
+/// The rendered image and how it was made.
+#[derive(Debug, Clone)]
+pub struct RenderOutput {
+    /// sRGB-encoded, row 0 at the top, alpha 255.
+    pub image: Rgba8Image,
+    pub adapter: AdapterSummary,
+    pub stats: RenderStats,
+    pub warnings: Vec<String>,
+}
+
+/// Renders `pack`.
+pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
+    check_options(opts)?;
+    let scene = scene::load_scene(pack)?;
+    let aspect = opts.width as f32 / opts.height as f32;
+    let cam = choose_camera(&scene, opts, aspect);
+    let lighting = opts.lighting.unwrap_or_else(|| {
+        light::default_lighting(
+            &scene.sky.texels,
+            scene.sky.width,
+            scene.sky.height,
+            scene.sky.analytic,
+        )
+    });
+    let exposure = opts
+        .exposure
+        .unwrap_or_else(|| light::auto_exposure(&lighting));
+
+    let t0 = std::time::Instant::now();
+    let gpu = gpu::init_gpu(opts.backend)?;
+    let pipes = pipelines::Pipelines::new(&gpu.device);
+    gpu.check()?;
+    let t1 = std::time::Instant::now();
+    let gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;
+    gpu.wait()?;
+    let t2 = std::time::Instant::now();
+    let globals = draw::Globals::new(&cam, &lighting, exposure, (opts.width, opts.height));
+    let (pixels, counts) = draw::draw_frame(
+        &gpu,
+        &pipes,
+        &gpu_scene,
+        &globals,
+        (opts.width, opts.height),
+    )?;
+    let t3 = std::time::Instant::now();
+
+    let image = Rgba8Image {
+        width: opts.width,
+        height: opts.height,
+        pixels: bytemuck::cast_slice(&pixels).to_vec(),
+    };
+    let stats = RenderStats {
+        width: opts.width,
+        height: opts.height,
+        eye: cam.eye.to_array(),
+        target: cam.target.to_array(),
+        fov_y_deg: cam.fov_y_deg,
+        exposure,
+        lighting,
+        analytic_sky: scene.sky.analytic,
+        models: scene.models.len(),
+        instances: counts.instances,
+        triangles: counts.triangles,
+        draw_calls: counts.draw_calls,
+        uploaded_bytes: gpu_scene.bytes,
+        seconds_setup: (t1 - t0).as_secs_f64(),
+        seconds_upload: (t2 - t1).as_secs_f64(),
+        seconds_draw: (t3 - t2).as_secs_f64(),
+    };
+    Ok(RenderOutput {
+        image,
+        adapter: gpu.adapter.clone(),
+        stats,
+        warnings: scene.warnings,
+    })
+}
+
+fn check_options(opts: &RenderOptions) -> Result<()> {
+    if opts.width == 0 || opts.height == 0 || opts.width > 16384 || opts.height > 16384 {
+        return Err(Error::usage(format!(
+            "image size {}×{}: each side must be 1 to 16384",
+            opts.width, opts.height
+        )));
+    }
+    if !(opts.fov_y_deg > 0.0 && opts.fov_y_deg < 180.0) {
+        return Err(Error::usage(format!(
+            "field of view {}° is not in (0, 180)",
+            opts.fov_y_deg
+        )));
+    }
+    if let Some(s) = opts.exposure
+        && !(s > 0.0 && s.is_finite())
+    {
+        return Err(Error::usage(format!("exposure {s} must be positive")));
+    }
+    let finite = |v: &Option<[f32; 3]>| v.is_none_or(|v| v.iter().all(|c| c.is_finite()));
+    if !finite(&opts.eye) || !finite(&opts.target) {
+        return Err(Error::usage("--eye and --target must be finite"));
+    }
+    if let (Some(e), Some(t)) = (opts.eye, opts.target)
+        && Vec3::from(e) == Vec3::from(t)
+    {
+        return Err(Error::usage("--eye and --target are the same point"));
+    }
+    Ok(())
+}
+
+/// The default camera frames the scene's focus bounds; `--eye`/`--target` override either part.
+fn choose_camera(scene: &scene::SceneData, opts: &RenderOptions, aspect: f32) -> camera::Camera {
+    let (lo, hi) = scene.focus_bounds();
+    let framed = camera::Camera::frame_box(Vec3::from(lo), Vec3::from(hi), opts.fov_y_deg, aspect);
+    match (opts.eye, opts.target) {
+        (None, None) => framed,
+        (eye, target) => {
+            let eye = eye.map_or(framed.eye, Vec3::from);
+            let mut target = target.map_or(framed.target, Vec3::from);
+            if eye == target {
+                target = eye + Vec3::new(0.0, 1.0, 0.0);
+            }
+            camera::Camera::look_at(eye, target, opts.fov_y_deg, aspect)
+        }
+    }
+}
+
+/// Encodes an image as PNG (RGBA, 8 bits).
+pub fn encode_png(img: &Rgba8Image) -> Result<Vec<u8>> {
+    let raw: Vec<u8> = bytemuck::cast_slice(&img.pixels).to_vec();
+    let buf = image::RgbaImage::from_raw(img.width, img.height, raw)
+        .ok_or_else(|| Error::runtime("image buffer does not match its size"))?;
+    let mut out = std::io::Cursor::new(Vec::new());
+    buf.write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| Error::runtime(format!("PNG encoding failed: {e}")))?;
+    Ok(out.into_inner())
+}

@@ -1,0 +1,280 @@
+//! The render pipelines and their bind-group layouts: sky, terrain, instanced meshes (all into the
+//! `Rgba16Float` HDR target with a reversed-Z `Depth32Float` buffer) and the tone map into the
+//! `Rgba8UnormSrgb` output. Shaders live in `shaders/*.wgsl`; `common.wgsl` is prepended to the
+//! scene passes. Replacing the shading (PRT, Schlick, shadow maps) means a new pipeline here and
+//! a new shader, nothing else.
+
+use crate::pack::kinds::instances::InstanceRecord;
+
+/// Format of the HDR scene target.
+pub const HDR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
+/// Format of the depth buffer (reversed Z: cleared to 0, nearer is greater).
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Format of the displayed image (the hardware applies the sRGB encoding on store).
+pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+
+const COMMON_WGSL: &str = include_str!("shaders/common.wgsl");
+const SKY_WGSL: &str = include_str!("shaders/sky.wgsl");
+const TERRAIN_WGSL: &str = include_str!("shaders/terrain.wgsl");
+const MESH_WGSL: &str = include_str!("shaders/mesh.wgsl");
+const TONEMAP_WGSL: &str = include_str!("shaders/tonemap.wgsl");
+
+/// Every pipeline and layout of a frame.
+pub struct Pipelines {
+    /// Group 0 of the scene passes: globals uniform, sky texture.
+    pub globals_layout: wgpu::BindGroupLayout,
+    /// Group 1 of the terrain: params uniform, heights, colour map, sampler.
+    pub terrain_layout: wgpu::BindGroupLayout,
+    /// Group 1 of the meshes: material uniform, colour map, sampler.
+    pub material_layout: wgpu::BindGroupLayout,
+    /// Group 0 of the tone map: HDR image, exposure uniform.
+    pub tonemap_layout: wgpu::BindGroupLayout,
+    pub sky: wgpu::RenderPipeline,
+    pub terrain: wgpu::RenderPipeline,
+    pub mesh: wgpu::RenderPipeline,
+    pub tonemap: wgpu::RenderPipeline,
+}
+
+fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn texture_entry(
+    binding: u32,
+    visibility: wgpu::ShaderStages,
+    filterable: bool,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable },
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+fn sampler_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::FRAGMENT,
+        ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+        count: None,
+    }
+}
+
+fn layout(
+    device: &wgpu::Device,
+    label: &str,
+    entries: &[wgpu::BindGroupLayoutEntry],
+) -> wgpu::BindGroupLayout {
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(label),
+        entries,
+    })
+}
+
+fn shader(device: &wgpu::Device, label: &str, parts: &[&str]) -> wgpu::ShaderModule {
+    device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
+    })
+}
+
+/// Vertex buffers of the mesh pipeline: slots 0–2 are the mesh section's `positions`, `normals`
+/// and `uvs` arrays as stored; slot 3 the instances as `InstanceRecord`s (32-byte stride).
+const MESH_ATTRS_POS: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![0 => Float32x3];
+const MESH_ATTRS_NRM: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![1 => Float32x3];
+const MESH_ATTRS_UV: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![2 => Float32x2];
+/// InstanceRecord: position at 0, scale at 12, rotation_deg at 16.
+const INSTANCE_ATTRS: [wgpu::VertexAttribute; 3] =
+    wgpu::vertex_attr_array![3 => Float32x3, 4 => Float32, 5 => Float32];
+
+struct PassDesc<'a> {
+    label: &'a str,
+    module: &'a wgpu::ShaderModule,
+    layouts: &'a [Option<&'a wgpu::BindGroupLayout>],
+    buffers: &'a [Option<wgpu::VertexBufferLayout<'a>>],
+    target: wgpu::TextureFormat,
+    /// Depth writes and test on (scene geometry) or off (full-screen passes).
+    depth: Option<bool>,
+}
+
+fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipeline {
+    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(d.label),
+        bind_group_layouts: d.layouts,
+        immediate_size: 0,
+    });
+    let depth_stencil = d.depth.map(|write| wgpu::DepthStencilState {
+        format: DEPTH_FORMAT,
+        depth_write_enabled: Some(write),
+        depth_compare: Some(if write {
+            wgpu::CompareFunction::Greater
+        } else {
+            wgpu::CompareFunction::Always
+        }),
+        stencil: Default::default(),
+        bias: Default::default(),
+    });
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(d.label),
+        layout: Some(&layout),
+        vertex: wgpu::VertexState {
+            module: d.module,
+            entry_point: Some("vs_main"),
+            compilation_options: Default::default(),
+            buffers: d.buffers,
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            // Plants are thin and seen from both sides; terrain and sky cannot be seen from behind.
+            cull_mode: None,
+            ..Default::default()
+        },
+        depth_stencil,
+        multisample: Default::default(),
+        fragment: Some(wgpu::FragmentState {
+            module: d.module,
+            entry_point: Some("fs_main"),
+            compilation_options: Default::default(),
+            targets: &[Some(wgpu::ColorTargetState {
+                format: d.target,
+                blend: None,
+                write_mask: wgpu::ColorWrites::ALL,
+            })],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+impl Pipelines {
+    pub fn new(device: &wgpu::Device) -> Pipelines {
+        use wgpu::ShaderStages as S;
+        let vf = S::VERTEX | S::FRAGMENT;
+        let globals_layout = layout(
+            device,
+            "globals",
+            &[uniform_entry(0, vf), texture_entry(1, S::FRAGMENT, false)],
+        );
+        let terrain_layout = layout(
+            device,
+            "terrain",
+            &[
+                uniform_entry(0, vf),
+                texture_entry(1, S::VERTEX, false),
+                texture_entry(2, S::FRAGMENT, true),
+                sampler_entry(3),
+            ],
+        );
+        let material_layout = layout(
+            device,
+            "material",
+            &[
+                uniform_entry(0, vf),
+                texture_entry(1, S::FRAGMENT, true),
+                sampler_entry(2),
+            ],
+        );
+        let tonemap_layout = layout(
+            device,
+            "tonemap",
+            &[
+                texture_entry(0, S::FRAGMENT, false),
+                uniform_entry(1, S::FRAGMENT),
+            ],
+        );
+        let sky_module = shader(device, "sky", &[COMMON_WGSL, SKY_WGSL]);
+        let terrain_module = shader(device, "terrain", &[COMMON_WGSL, TERRAIN_WGSL]);
+        let mesh_module = shader(device, "mesh", &[COMMON_WGSL, MESH_WGSL]);
+        let tonemap_module = shader(device, "tonemap", &[TONEMAP_WGSL]);
+        let mesh_buffers = [
+            Some(wgpu::VertexBufferLayout {
+                array_stride: 12,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &MESH_ATTRS_POS,
+            }),
+            Some(wgpu::VertexBufferLayout {
+                array_stride: 12,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &MESH_ATTRS_NRM,
+            }),
+            Some(wgpu::VertexBufferLayout {
+                array_stride: 8,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &MESH_ATTRS_UV,
+            }),
+            Some(wgpu::VertexBufferLayout {
+                array_stride: size_of::<InstanceRecord>() as u64,
+                step_mode: wgpu::VertexStepMode::Instance,
+                attributes: &INSTANCE_ATTRS,
+            }),
+        ];
+        let sky = pipeline(
+            device,
+            &PassDesc {
+                label: "sky",
+                module: &sky_module,
+                layouts: &[Some(&globals_layout)],
+                buffers: &[],
+                target: HDR_FORMAT,
+                depth: Some(false),
+            },
+        );
+        let terrain = pipeline(
+            device,
+            &PassDesc {
+                label: "terrain",
+                module: &terrain_module,
+                layouts: &[Some(&globals_layout), Some(&terrain_layout)],
+                buffers: &[],
+                target: HDR_FORMAT,
+                depth: Some(true),
+            },
+        );
+        let mesh = pipeline(
+            device,
+            &PassDesc {
+                label: "mesh",
+                module: &mesh_module,
+                layouts: &[Some(&globals_layout), Some(&material_layout)],
+                buffers: &mesh_buffers,
+                target: HDR_FORMAT,
+                depth: Some(true),
+            },
+        );
+        let tonemap = pipeline(
+            device,
+            &PassDesc {
+                label: "tonemap",
+                module: &tonemap_module,
+                layouts: &[Some(&tonemap_layout)],
+                buffers: &[],
+                target: OUTPUT_FORMAT,
+                depth: None,
+            },
+        );
+        Pipelines {
+            globals_layout,
+            terrain_layout,
+            material_layout,
+            tonemap_layout,
+            sky,
+            terrain,
+            mesh,
+            tonemap,
+        }
+    }
+}

@@ -1,0 +1,544 @@
+//! What the renderer draws, read from a pack on the CPU and checked before anything touches the
+//! GPU: the terrain (heights and colour map), every model with its materials and instances, and
+//! the sky. Arrays are borrowed from the pack (memory map) so they go to GPU buffers unchanged.
+
+use super::light;
+use crate::error::{Error, Result};
+use crate::pack::Pack;
+use crate::pack::kinds::instances::{InstanceRecord, InstancesMeta};
+use crate::pack::kinds::mesh::MeshMeta;
+use crate::pack::kinds::sky::SkyMeta;
+use crate::pack::kinds::terrain::TerrainMeta;
+use crate::pack::kinds::texture::TextureMeta;
+use crate::pack::kinds::{instances, mesh, sky, terrain};
+use std::borrow::Cow;
+
+/// Size of the analytic sky used when the pack has none.
+pub const ANALYTIC_SKY_SIZE: (u32, u32) = (128, 64);
+
+/// An RGBA8 image borrowed from a texture section (sRGB-encoded, row 0 at the top).
+#[derive(Debug, Clone, Copy)]
+pub struct ImageData<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub texels: &'a [[u8; 4]],
+}
+
+/// The terrain grid: heights row-major, row 0 south (corner-aligned samples).
+#[derive(Debug, Clone)]
+pub struct TerrainData<'a> {
+    pub meta: TerrainMeta,
+    pub heights: &'a [f32],
+    pub min_height: f32,
+    pub max_height: f32,
+    /// Colour map, row 0 north.
+    pub color: Option<ImageData<'a>>,
+}
+
+/// One material as the preview shades it.
+#[derive(Debug, Clone)]
+pub struct MaterialData<'a> {
+    /// Linear RGB (the input's diffuse colour decoded from sRGB), alpha 1.
+    pub base_color: [f32; 4],
+    pub color_map: Option<ImageData<'a>>,
+}
+
+/// A run of triangles sharing a material: triangles `first..first + count` of the index buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DrawRange {
+    pub material: u32,
+    pub first: u32,
+    pub count: u32,
+}
+
+/// One model: vertex arrays straight from its mesh section, and its instances.
+#[derive(Debug, Clone)]
+pub struct ModelData<'a> {
+    pub name: String,
+    pub section: String,
+    pub positions: &'a [[f32; 3]],
+    pub normals: &'a [[f32; 3]],
+    pub uvs: &'a [[f32; 2]],
+    /// The section's indices, or a copy regrouped by material when its triangles were interleaved.
+    pub indices: Cow<'a, [[u32; 3]]>,
+    pub draws: Vec<DrawRange>,
+    pub materials: Vec<MaterialData<'a>>,
+    pub instances: Vec<InstanceRecord>,
+    /// Model-space bounds.
+    pub bounds: ([f32; 3], [f32; 3]),
+}
+
+/// The sky as a lat-long RGBA float image.
+#[derive(Debug, Clone)]
+pub struct SkyData<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub texels: Cow<'a, [[f32; 4]]>,
+    /// True when the pack had no sky and the analytic one is used.
+    pub analytic: bool,
+}
+
+/// Everything a frame needs.
+#[derive(Debug, Clone)]
+pub struct SceneData<'a> {
+    pub terrain: Option<TerrainData<'a>>,
+    pub models: Vec<ModelData<'a>>,
+    pub sky: SkyData<'a>,
+    /// What was skipped (missing textures, unusable sections).
+    pub warnings: Vec<String>,
+}
+
+/// Reads and checks everything the renderer draws from `pack`.
+pub fn load_scene(pack: &Pack) -> Result<SceneData<'_>> {
+    let mut warnings = Vec::new();
+    let terrain = match pack.of_kind(terrain::KIND).next() {
+        Some(e) => load_terrain(pack, &e.name, &mut warnings)?,
+        None => None,
+    };
+    let models = load_models(pack, &mut warnings)?;
+    let sky = load_sky(pack, &mut warnings)?;
+    Ok(SceneData {
+        terrain,
+        models,
+        sky,
+        warnings,
+    })
+}
+
+fn invalid(pack: &Pack, section: &str, message: impl Into<String>) -> Error {
+    Error::invalid_at(pack.path(), format!("section {section:?}"), message)
+}
+
+fn load_terrain<'a>(
+    pack: &'a Pack,
+    name: &str,
+    warnings: &mut Vec<String>,
+) -> Result<Option<TerrainData<'a>>> {
+    let v = pack.view_named(name)?;
+    let meta: TerrainMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
+    let heights: &[f32] = v
+        .array("heights")
+        .map_err(|e| Error::invalid(pack.path(), e))?;
+    if heights.len() as u64 != meta.width as u64 * meta.height as u64 {
+        return Err(invalid(
+            pack,
+            name,
+            format!(
+                "{} heights for a {}×{} grid",
+                heights.len(),
+                meta.width,
+                meta.height
+            ),
+        ));
+    }
+    if meta.width < 2 || meta.height < 2 {
+        warnings.push(format!(
+            "terrain {name:?} is {}×{}: fewer than 2×2 samples, not drawn",
+            meta.width, meta.height
+        ));
+        return Ok(None);
+    }
+    let (min_height, max_height) = heights
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &h| {
+            (lo.min(h), hi.max(h))
+        });
+    if !min_height.is_finite() || !max_height.is_finite() {
+        return Err(invalid(pack, name, "heights are not finite"));
+    }
+    let color = match &meta.color_section {
+        Some(s) => load_image(pack, s, warnings)?,
+        None => None,
+    };
+    Ok(Some(TerrainData {
+        meta,
+        heights,
+        min_height,
+        max_height,
+        color,
+    }))
+}
+
+/// A texture section as an image; a missing section is a warning (drawn untextured).
+fn load_image<'a>(
+    pack: &'a Pack,
+    name: &str,
+    warnings: &mut Vec<String>,
+) -> Result<Option<ImageData<'a>>> {
+    if pack.find(name).is_none() {
+        warnings.push(format!(
+            "texture section {name:?} is missing: drawn untextured"
+        ));
+        return Ok(None);
+    }
+    let v = pack.view_named(name)?;
+    let meta: TextureMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
+    let texels: &[[u8; 4]] = v
+        .array("texels")
+        .map_err(|e| Error::invalid(pack.path(), e))?;
+    if texels.len() as u64 != meta.width as u64 * meta.height as u64 || texels.is_empty() {
+        return Err(invalid(
+            pack,
+            name,
+            format!("{} texels for {}×{}", texels.len(), meta.width, meta.height),
+        ));
+    }
+    Ok(Some(ImageData {
+        width: meta.width,
+        height: meta.height,
+        texels,
+    }))
+}
+
+/// Every model of the `instances` section with its instances; without an `instances` section
+/// (a pack from `bake ingest model.txf`) every mesh section is drawn once at the origin.
+fn load_models<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<Vec<ModelData<'a>>> {
+    let mut out: Vec<ModelData<'a>> = Vec::new();
+    if let Some(e) = pack.of_kind(instances::KIND).next() {
+        let v = pack.view(e)?;
+        let meta: InstancesMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
+        let recs: &[InstanceRecord] = v
+            .array("instances")
+            .map_err(|e| Error::invalid(pack.path(), e))?;
+        if meta.mesh_sections.len() != meta.models.len() {
+            return Err(invalid(
+                pack,
+                &e.name,
+                format!(
+                    "{} models but {} mesh sections",
+                    meta.models.len(),
+                    meta.mesh_sections.len()
+                ),
+            ));
+        }
+        let mut per_model: Vec<Vec<InstanceRecord>> = vec![Vec::new(); meta.models.len()];
+        for (k, r) in recs.iter().enumerate() {
+            let list = per_model.get_mut(r.model as usize).ok_or_else(|| {
+                invalid(
+                    pack,
+                    &e.name,
+                    format!(
+                        "instance {k}: model index {} past {}",
+                        r.model,
+                        meta.models.len()
+                    ),
+                )
+            })?;
+            list.push(*r);
+        }
+        for ((name, section), inst) in meta.models.iter().zip(&meta.mesh_sections).zip(per_model) {
+            if inst.is_empty() {
+                continue;
+            }
+            if pack.find(section).is_none() {
+                warnings.push(format!(
+                    "model {name:?}: mesh section {section:?} missing, {} instances not drawn",
+                    inst.len()
+                ));
+                continue;
+            }
+            out.push(load_model(pack, name, section, inst, warnings)?);
+        }
+    }
+    if pack.of_kind(instances::KIND).next().is_none() {
+        for e in pack.of_kind(mesh::KIND) {
+            let origin = InstanceRecord {
+                position: [0.0; 3],
+                scale: 1.0,
+                rotation_deg: 0.0,
+                model: 0,
+                layer: 0,
+                reserved: 0,
+            };
+            let name = e.name.trim_start_matches("mesh:").to_string();
+            out.push(load_model(pack, &name, &e.name, vec![origin], warnings)?);
+        }
+    }
+    Ok(out)
+}
+
+fn load_model<'a>(
+    pack: &'a Pack,
+    name: &str,
+    section: &str,
+    instances: Vec<InstanceRecord>,
+    warnings: &mut Vec<String>,
+) -> Result<ModelData<'a>> {
+    let v = pack.view_named(section)?;
+    let bad = |e| Error::invalid(pack.path(), e);
+    let meta: MeshMeta = v.meta().map_err(bad)?;
+    let positions: &[[f32; 3]] = v.array("positions").map_err(bad)?;
+    let normals: &[[f32; 3]] = v.array("normals").map_err(bad)?;
+    let uvs: &[[f32; 2]] = v.array("uvs").map_err(bad)?;
+    let indices: &[[u32; 3]] = v.array("indices").map_err(bad)?;
+    let tri_mats: &[u32] = v.array("triangle_materials").map_err(bad)?;
+    let n = positions.len();
+    if normals.len() != n || uvs.len() != n || tri_mats.len() != indices.len() {
+        return Err(invalid(
+            pack,
+            section,
+            "vertex or triangle arrays differ in length",
+        ));
+    }
+    if let Some(t) = indices
+        .iter()
+        .position(|t| t.iter().any(|&i| i as usize >= n))
+    {
+        return Err(invalid(
+            pack,
+            section,
+            format!("triangle {t} refers to a vertex past {n}"),
+        ));
+    }
+    let materials = load_materials(pack, section, &meta, warnings)?;
+    if let Some(t) = tri_mats.iter().position(|&m| m as usize >= materials.len()) {
+        return Err(invalid(
+            pack,
+            section,
+            format!(
+                "triangle {t}: material {} past {}",
+                tri_mats[t],
+                materials.len()
+            ),
+        ));
+    }
+    let (indices, draws) = group_by_material(indices, tri_mats);
+    let bounds = crate::model::bounds_of(positions).unwrap_or(([0.0; 3], [0.0; 3]));
+    Ok(ModelData {
+        name: name.to_string(),
+        section: section.to_string(),
+        positions,
+        normals,
+        uvs,
+        indices,
+        draws,
+        materials,
+        instances,
+        bounds,
+    })
+}
+
+/// The preview's view of each material: diffuse colour decoded from sRGB, colour map section.
+/// A mesh without materials gets the OpenGL default one.
+fn load_materials<'a>(
+    pack: &'a Pack,
+    section: &str,
+    meta: &MeshMeta,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<MaterialData<'a>>> {
+    if meta.materials.is_empty() {
+        let d = crate::model::Material::default().diffuse;
+        return Ok(vec![MaterialData {
+            base_color: [
+                srgb_to_linear(d[0]),
+                srgb_to_linear(d[1]),
+                srgb_to_linear(d[2]),
+                1.0,
+            ],
+            color_map: None,
+        }]);
+    }
+    let mut out = Vec::with_capacity(meta.materials.len());
+    for m in &meta.materials {
+        let entry = m.color_map.and_then(|i| meta.textures.get(i as usize));
+        let color_map = match entry {
+            Some(t) => match &t.section {
+                Some(s) => load_image(pack, s, warnings)?,
+                None => {
+                    warnings.push(format!(
+                        "{section}: texture {:?} was not decoded: drawn untextured",
+                        t.name
+                    ));
+                    None
+                }
+            },
+            None => None,
+        };
+        let d = m.diffuse;
+        out.push(MaterialData {
+            base_color: [
+                srgb_to_linear(d[0]),
+                srgb_to_linear(d[1]),
+                srgb_to_linear(d[2]),
+                1.0,
+            ],
+            color_map,
+        });
+    }
+    Ok(out)
+}
+
+/// Runs of equal material. When a mesh interleaves materials (more runs than materials), the
+/// triangles are regrouped, stably, so each material is one draw call.
+pub fn group_by_material<'a>(
+    indices: &'a [[u32; 3]],
+    tri_mats: &[u32],
+) -> (Cow<'a, [[u32; 3]]>, Vec<DrawRange>) {
+    let runs = material_runs(tri_mats);
+    let distinct = {
+        let mut m: Vec<u32> = tri_mats.to_vec();
+        m.sort_unstable();
+        m.dedup();
+        m.len()
+    };
+    if runs.len() <= distinct {
+        return (Cow::Borrowed(indices), runs);
+    }
+    let mut order: Vec<u32> = (0..indices.len() as u32).collect();
+    order.sort_by_key(|&t| tri_mats[t as usize]);
+    let regrouped: Vec<[u32; 3]> = order.iter().map(|&t| indices[t as usize]).collect();
+    let mats: Vec<u32> = order.iter().map(|&t| tri_mats[t as usize]).collect();
+    (Cow::Owned(regrouped), material_runs(&mats))
+}
+
+fn material_runs(tri_mats: &[u32]) -> Vec<DrawRange> {
+    let mut runs: Vec<DrawRange> = Vec::new();
+    for (t, &m) in tri_mats.iter().enumerate() {
+        match runs.last_mut() {
+            Some(r) if r.material == m => r.count += 1,
+            _ => runs.push(DrawRange {
+                material: m,
+                first: t as u32,
+                count: 1,
+            }),
+        }
+    }
+    runs
+}
+
+fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a>> {
+    if let Some(e) = pack.of_kind(sky::KIND).next() {
+        let v = pack.view(e)?;
+        let meta: SkyMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
+        let texels: &[[f32; 4]] = v
+            .array("texels")
+            .map_err(|e| Error::invalid(pack.path(), e))?;
+        if texels.len() as u64 != meta.width as u64 * meta.height as u64 || texels.is_empty() {
+            return Err(invalid(
+                pack,
+                &e.name,
+                "texel count does not match width × height",
+            ));
+        }
+        if meta.layout == "latlong" {
+            return Ok(SkyData {
+                width: meta.width,
+                height: meta.height,
+                texels: Cow::Borrowed(texels),
+                analytic: false,
+            });
+        }
+        warnings.push(format!(
+            "sky {:?} has layout {:?}; the preview reads lat-long only and uses the analytic sky",
+            e.name, meta.layout
+        ));
+    }
+    let (w, h) = ANALYTIC_SKY_SIZE;
+    Ok(SkyData {
+        width: w,
+        height: h,
+        texels: Cow::Owned(light::analytic_sky(w, h)),
+        analytic: true,
+    })
+}
+
+/// sRGB transfer function, decoding.
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+impl SceneData<'_> {
+    /// Bounds of what the default camera frames: every instance's model bounds (turned about Z,
+    /// so x and y grow by the model's horizontal radius), else the terrain, else the unit cube.
+    pub fn focus_bounds(&self) -> ([f32; 3], [f32; 3]) {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for m in &self.models {
+            let (a, b) = m.bounds;
+            let r_xy = [a[0], b[0]]
+                .iter()
+                .flat_map(|x| [a[1], b[1]].map(|y| x.hypot(y)))
+                .fold(0.0f32, f32::max);
+            for i in &m.instances {
+                let s = i.scale.abs();
+                let p = i.position;
+                let (z0, z1) = (p[2] + a[2] * i.scale, p[2] + b[2] * i.scale);
+                let ext = [
+                    (p[0] - r_xy * s, p[0] + r_xy * s),
+                    (p[1] - r_xy * s, p[1] + r_xy * s),
+                    (z0.min(z1), z0.max(z1)),
+                ];
+                for (k, (l, h)) in ext.into_iter().enumerate() {
+                    lo[k] = lo[k].min(l);
+                    hi[k] = hi[k].max(h);
+                }
+            }
+        }
+        if lo.iter().chain(&hi).all(|v| v.is_finite()) {
+            return (lo, hi);
+        }
+        if let Some(t) = &self.terrain {
+            let o = t.meta.origin;
+            let e = t.meta.extent;
+            return (
+                [o[0], o[1], t.min_height],
+                [o[0] + e[0], o[1] + e[1], t.max_height],
+            );
+        }
+        ([-0.5; 3], [0.5; 3])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn contiguous_materials_keep_the_section_indices() {
+        let idx = [[0u32, 1, 2], [2, 1, 3], [3, 4, 5]];
+        let (i, d) = group_by_material(&idx, &[1, 1, 0]);
+        assert!(matches!(i, Cow::Borrowed(_)));
+        assert_eq!(
+            d,
+            vec![
+                DrawRange {
+                    material: 1,
+                    first: 0,
+                    count: 2
+                },
+                DrawRange {
+                    material: 0,
+                    first: 2,
+                    count: 1
+                }
+            ]
+        );
+    }
+
+    #[test]
+    fn interleaved_materials_are_regrouped_stably() {
+        let idx = [[0u32, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]];
+        let (i, d) = group_by_material(&idx, &[1, 0, 1, 0]);
+        assert_eq!(&*i, &[[1, 1, 1], [3, 3, 3], [0, 0, 0], [2, 2, 2]]);
+        assert_eq!(d.len(), 2);
+        assert_eq!(
+            d[1],
+            DrawRange {
+                material: 1,
+                first: 2,
+                count: 2
+            }
+        );
+    }
+
+    #[test]
+    fn srgb_decoding_matches_the_standard() {
+        assert_eq!(srgb_to_linear(0.0), 0.0);
+        assert!((srgb_to_linear(1.0) - 1.0).abs() < 1e-6);
+        assert!((srgb_to_linear(0.5) - 0.214_041).abs() < 1e-5);
+    }
+}

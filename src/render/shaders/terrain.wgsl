@@ -1,0 +1,62 @@
+// The terrain, drawn without vertex buffers: vertex k of quad q is a corner of grid cell q, its
+// height read from the R32Float height texture (the pack's heights array, uploaded as is).
+// Grid: corner-aligned samples, row 0 south; colour map row 0 north (v = 1 - j/(H-1)).
+
+struct TerrainParams {
+    // xy: origin, zw: extent (metres)
+    origin_extent: vec4<f32>,
+    // x, y: samples per row and number of rows
+    size: vec4<u32>,
+};
+
+@group(1) @binding(0) var<uniform> terrain: TerrainParams;
+@group(1) @binding(1) var heights: texture_2d<f32>;
+@group(1) @binding(2) var color_map: texture_2d<f32>;
+@group(1) @binding(3) var color_sampler: sampler;
+
+struct TerrainOut {
+    @builtin(position) position: vec4<f32>,
+    @location(0) world: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) uv: vec2<f32>,
+};
+
+fn height_at(i: i32, j: i32) -> f32 {
+    let w = i32(terrain.size.x);
+    let h = i32(terrain.size.y);
+    return textureLoad(heights, vec2<i32>(clamp(i, 0, w - 1), clamp(j, 0, h - 1)), 0).r;
+}
+
+@vertex
+fn vs_main(@builtin(vertex_index) vid: u32) -> TerrainOut {
+    let w = i32(terrain.size.x);
+    let h = i32(terrain.size.y);
+    let quad = i32(vid / 6u);
+    // Two counter-clockwise triangles (seen from above): (0,0) (1,0) (1,1) and (0,0) (1,1) (0,1).
+    var dx = array<i32, 6>(0, 1, 1, 0, 1, 0);
+    var dy = array<i32, 6>(0, 0, 1, 0, 1, 1);
+    let corner = vid % 6u;
+    let i = quad % (w - 1) + dx[corner];
+    let j = quad / (w - 1) + dy[corner];
+    let step = terrain.origin_extent.zw / vec2<f32>(f32(w - 1), f32(h - 1));
+    let xy = terrain.origin_extent.xy + vec2<f32>(f32(i), f32(j)) * step;
+    let world = vec3<f32>(xy, height_at(i, j));
+    // Central differences (one-sided at the edges).
+    let span_x = f32(min(i + 1, w - 1) - max(i - 1, 0)) * step.x;
+    let span_y = f32(min(j + 1, h - 1) - max(j - 1, 0)) * step.y;
+    let dzdx = (height_at(i + 1, j) - height_at(i - 1, j)) / span_x;
+    let dzdy = (height_at(i, j + 1) - height_at(i, j - 1)) / span_y;
+    var out: TerrainOut;
+    out.position = globals.view_proj * vec4<f32>(world, 1.0);
+    out.world = world;
+    out.normal = vec3<f32>(-dzdx, -dzdy, 1.0);
+    out.uv = vec2<f32>(f32(i) / f32(w - 1), 1.0 - f32(j) / f32(h - 1));
+    return out;
+}
+
+@fragment
+fn fs_main(in: TerrainOut) -> @location(0) vec4<f32> {
+    let albedo = textureSample(color_map, color_sampler, in.uv).rgb;
+    let n = normalize(in.normal);
+    return vec4<f32>(shade_lambert(albedo, n), 1.0);
+}

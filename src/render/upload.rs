@@ -1,0 +1,301 @@
+//! Scene upload: the pack's arrays go into GPU buffers and textures byte for byte (bytemuck
+//! casts, no per-vertex conversion): mesh `positions`/`normals`/`uvs`/`indices` become vertex and
+//! index buffers, `InstanceRecord`s an instance buffer per model, terrain heights an `R32Float`
+//! texture, colour maps `Rgba8UnormSrgb` textures, the sky an `Rgba32Float` texture.
+
+use super::gpu::Gpu;
+use super::pipelines::Pipelines;
+use super::scene::{DrawRange, ImageData, SceneData};
+use crate::error::{Error, Result};
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+/// Terrain parameters as the shader reads them: repr(C), Pod, 32 bytes.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct TerrainParams {
+    /// origin x, y; extent x, y (metres)
+    pub origin_extent: [f32; 4],
+    /// samples per row, rows, 0, 0
+    pub size: [u32; 4],
+}
+const _: () = assert!(size_of::<TerrainParams>() == 32);
+
+/// Material parameters: repr(C), Pod, 16 bytes.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct MaterialParams {
+    pub base_color: [f32; 4],
+}
+const _: () = assert!(size_of::<MaterialParams>() == 16);
+
+/// The terrain on the GPU; drawn with `vertex_count` vertices and no vertex buffer.
+pub struct TerrainGpu {
+    pub bind_group: wgpu::BindGroup,
+    pub vertex_count: u32,
+}
+
+/// One model on the GPU.
+pub struct ModelGpu {
+    pub positions: wgpu::Buffer,
+    pub normals: wgpu::Buffer,
+    pub uvs: wgpu::Buffer,
+    pub indices: wgpu::Buffer,
+    pub instances: wgpu::Buffer,
+    pub instance_count: u32,
+    pub draws: Vec<DrawRange>,
+    /// One per material, indexed by `DrawRange::material`.
+    pub materials: Vec<wgpu::BindGroup>,
+}
+
+/// Everything uploaded for a frame.
+pub struct GpuScene {
+    pub sky_view: wgpu::TextureView,
+    pub terrain: Option<TerrainGpu>,
+    pub models: Vec<ModelGpu>,
+    /// Bytes sent to the GPU.
+    pub bytes: u64,
+}
+
+struct Uploader<'g> {
+    gpu: &'g Gpu,
+    bytes: u64,
+}
+
+impl Uploader<'_> {
+    fn buffer(&mut self, label: &str, contents: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        self.bytes += contents.len() as u64;
+        self.gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+    }
+
+    /// A 2D texture from tightly packed rows of `bytes_per_texel` bytes.
+    fn texture(
+        &mut self,
+        label: &str,
+        (width, height): (u32, u32),
+        format: wgpu::TextureFormat,
+        bytes_per_texel: u32,
+        data: &[u8],
+    ) -> Result<wgpu::TextureView> {
+        let max = self.gpu.max_texture_side();
+        if width > max || height > max || width == 0 || height == 0 {
+            return Err(Error::runtime(format!(
+                "{label}: {width}×{height} texels, this GPU ({}) takes 1 to {max} per side",
+                self.gpu.adapter
+            )));
+        }
+        let size = wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        };
+        let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        self.gpu.queue.write_texture(
+            texture.as_image_copy(),
+            data,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(width * bytes_per_texel),
+                rows_per_image: Some(height),
+            },
+            size,
+        );
+        self.bytes += data.len() as u64;
+        Ok(texture.create_view(&Default::default()))
+    }
+
+    fn color_map(&mut self, label: &str, img: &ImageData) -> Result<wgpu::TextureView> {
+        self.texture(
+            label,
+            (img.width, img.height),
+            wgpu::TextureFormat::Rgba8UnormSrgb,
+            4,
+            bytemuck::cast_slice(img.texels),
+        )
+    }
+}
+
+fn sampler(gpu: &Gpu, address: wgpu::AddressMode) -> wgpu::Sampler {
+    gpu.device.create_sampler(&wgpu::SamplerDescriptor {
+        label: Some("colour maps"),
+        address_mode_u: address,
+        address_mode_v: address,
+        mag_filter: wgpu::FilterMode::Linear,
+        min_filter: wgpu::FilterMode::Linear,
+        ..Default::default()
+    })
+}
+
+/// Uploads the scene.
+pub fn upload_scene(gpu: &Gpu, pipes: &Pipelines, scene: &SceneData) -> Result<GpuScene> {
+    let mut up = Uploader { gpu, bytes: 0 };
+    let sky = &scene.sky;
+    let sky_view = up.texture(
+        "sky",
+        (sky.width, sky.height),
+        wgpu::TextureFormat::Rgba32Float,
+        16,
+        bytemuck::cast_slice(&sky.texels),
+    )?;
+    let white = up.color_map(
+        "white",
+        &ImageData {
+            width: 1,
+            height: 1,
+            texels: &[[255; 4]],
+        },
+    )?;
+    let terrain = upload_terrain(&mut up, pipes, scene)?;
+    let repeat = sampler(gpu, wgpu::AddressMode::Repeat);
+    let mut models = Vec::with_capacity(scene.models.len());
+    for m in &scene.models {
+        models.push(upload_model(&mut up, pipes, m, &white, &repeat)?);
+    }
+    Ok(GpuScene {
+        sky_view,
+        terrain,
+        models,
+        bytes: up.bytes,
+    })
+}
+
+fn upload_terrain(
+    up: &mut Uploader,
+    pipes: &Pipelines,
+    scene: &SceneData,
+) -> Result<Option<TerrainGpu>> {
+    let Some(t) = &scene.terrain else {
+        return Ok(None);
+    };
+    let (w, h) = (t.meta.width, t.meta.height);
+    let heights = up.texture(
+        "terrain heights",
+        (w, h),
+        wgpu::TextureFormat::R32Float,
+        4,
+        bytemuck::cast_slice(t.heights),
+    )?;
+    // Without a colour map the terrain is a mid grey (sRGB 128, albedo 0.22), not white.
+    let grey = ImageData {
+        width: 1,
+        height: 1,
+        texels: &[[128, 128, 128, 255]],
+    };
+    let color = up.color_map("terrain colour", t.color.as_ref().unwrap_or(&grey))?;
+    let params = TerrainParams {
+        origin_extent: [
+            t.meta.origin[0],
+            t.meta.origin[1],
+            t.meta.extent[0],
+            t.meta.extent[1],
+        ],
+        size: [w, h, 0, 0],
+    };
+    let params = up.buffer(
+        "terrain params",
+        bytemuck::bytes_of(&params),
+        wgpu::BufferUsages::UNIFORM,
+    );
+    let clamp = sampler(up.gpu, wgpu::AddressMode::ClampToEdge);
+    let bind_group = up.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("terrain"),
+        layout: &pipes.terrain_layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: params.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: wgpu::BindingResource::TextureView(&heights),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(&color),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: wgpu::BindingResource::Sampler(&clamp),
+            },
+        ],
+    });
+    let quads = (w as u64 - 1) * (h as u64 - 1);
+    let vertex_count = u32::try_from(quads * 6).map_err(|_| {
+        Error::runtime(format!(
+            "terrain {w}×{h} has too many vertices for one draw"
+        ))
+    })?;
+    Ok(Some(TerrainGpu {
+        bind_group,
+        vertex_count,
+    }))
+}
+
+fn upload_model(
+    up: &mut Uploader,
+    pipes: &Pipelines,
+    m: &super::scene::ModelData,
+    white: &wgpu::TextureView,
+    sampler: &wgpu::Sampler,
+) -> Result<ModelGpu> {
+    use wgpu::BufferUsages as U;
+    let positions = up.buffer("positions", bytemuck::cast_slice(m.positions), U::VERTEX);
+    let normals = up.buffer("normals", bytemuck::cast_slice(m.normals), U::VERTEX);
+    let uvs = up.buffer("uvs", bytemuck::cast_slice(m.uvs), U::VERTEX);
+    let indices = up.buffer("indices", bytemuck::cast_slice(&m.indices), U::INDEX);
+    let instances = up.buffer("instances", bytemuck::cast_slice(&m.instances), U::VERTEX);
+    let mut materials = Vec::with_capacity(m.materials.len());
+    for (k, mat) in m.materials.iter().enumerate() {
+        let view = match &mat.color_map {
+            Some(img) => up.color_map(&format!("{}: material {k}", m.section), img)?,
+            None => white.clone(),
+        };
+        let params = MaterialParams {
+            base_color: mat.base_color,
+        };
+        let params = up.buffer("material", bytemuck::bytes_of(&params), U::UNIFORM);
+        materials.push(up.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("material"),
+            layout: &pipes.material_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::Sampler(sampler),
+                },
+            ],
+        }));
+    }
+    Ok(ModelGpu {
+        positions,
+        normals,
+        uvs,
+        indices,
+        instances,
+        instance_count: m.instances.len() as u32,
+        draws: m.draws.clone(),
+        materials,
+    })
+}

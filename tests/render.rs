@@ -1,0 +1,735 @@
+//! Real renders of small packs built here, checked against CPU oracles written independently of
+//! the renderer: the camera (glam look_at/perspective), the lat-long lookup, Lambert shading of a
+//! flat terrain, the tone map 1 − exp(−L·s) and the sRGB encoding. Runs on any wgpu adapter,
+//! including Mesa's lavapipe (Vulkan) or llvmpipe (GL) on a machine without a GPU.
+
+use bake::model::{
+    FloatImage, Instance, Instances, Material, Mesh, Rgba8Image, Terrain, TextureRef,
+};
+use bake::pack::kinds::{self, instances, mesh, sky, terrain, texture};
+use bake::pack::{Pack, PackWriter};
+use bake::render::{Lighting, RenderOptions, render_pack};
+use glam::{Mat4, Vec3, Vec4Swizzles};
+use std::f32::consts::PI;
+
+const W: u32 = 128;
+const H: u32 = 96;
+const EYE: [f32; 3] = [10.0, -10.0, 8.0];
+const TARGET: [f32; 3] = [10.0, 10.0, 3.0];
+const FOV: f32 = 60.0;
+/// Rotation of instance 1, degrees about +Z.
+const ROT1: f32 = 150.0;
+const EXPOSURE: f32 = 1.0;
+
+/// Terrain colour-map quadrants (sRGB bytes): north-west, north-east, south-west, south-east.
+const NW: [u8; 3] = [200, 40, 40];
+const NE: [u8; 3] = [40, 40, 200];
+const SW: [u8; 3] = [40, 180, 40];
+const SE: [u8; 3] = [220, 200, 60];
+/// The opaque half of the quad's texture.
+const LEAF: [u8; 3] = [200, 60, 180];
+
+fn lighting() -> Lighting {
+    Lighting {
+        sun_direction: Vec3::new(0.2, -0.5, 0.8).normalize().to_array(),
+        sun_irradiance: [3.0, 2.9, 2.7],
+        ambient: [0.8, 0.9, 1.1],
+    }
+}
+
+/// A smooth lat-long sky: radiance varies with both θ and φ, so a wrong lookup shows.
+fn sky_radiance_at(u: f32, v: f32) -> [f32; 3] {
+    let (phi, theta) = (u * 2.0 * PI, v * PI);
+    [
+        0.3 + 0.2 * phi.cos(),
+        0.4 + 0.3 * theta.cos(),
+        0.5 + 0.4 * (phi * 0.5).sin() * theta.sin(),
+    ]
+}
+
+fn sky_image(w: u32, h: u32) -> FloatImage {
+    let mut pixels = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            pixels.push(sky_radiance_at(
+                (i as f32 + 0.5) / w as f32,
+                (j as f32 + 0.5) / h as f32,
+            ));
+        }
+    }
+    FloatImage {
+        width: w,
+        height: h,
+        pixels,
+    }
+}
+
+/// 8×8 colour map in quadrants, row 0 north.
+fn terrain_colors() -> Rgba8Image {
+    let mut pixels = Vec::new();
+    for row in 0..8 {
+        for col in 0..8 {
+            let c = match (row < 4, col < 4) {
+                (true, true) => NW,
+                (true, false) => NE,
+                (false, true) => SW,
+                (false, false) => SE,
+            };
+            pixels.push([c[0], c[1], c[2], 255]);
+        }
+    }
+    Rgba8Image {
+        width: 8,
+        height: 8,
+        pixels,
+    }
+}
+
+/// 8×8 texture: left half opaque LEAF, right half alpha 0 (green, which must never show).
+fn leaf_texture() -> Rgba8Image {
+    let mut pixels = Vec::new();
+    for _row in 0..8 {
+        for col in 0..8 {
+            pixels.push(if col < 4 {
+                [LEAF[0], LEAF[1], LEAF[2], 255]
+            } else {
+                [0, 255, 0, 0]
+            });
+        }
+    }
+    Rgba8Image {
+        width: 8,
+        height: 8,
+        pixels,
+    }
+}
+
+/// A 1×1 m quad standing in the XZ plane (x ∈ [−½, ½], z ∈ [0, 1]), facing −Y; u runs with x,
+/// v = 0 at the top (z = 1).
+fn quad_mesh() -> Mesh {
+    Mesh {
+        positions: vec![
+            [-0.5, 0.0, 0.0],
+            [0.5, 0.0, 0.0],
+            [0.5, 0.0, 1.0],
+            [-0.5, 0.0, 1.0],
+        ],
+        normals: vec![[0.0, -1.0, 0.0]; 4],
+        uvs: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+        triangle_materials: vec![0, 0],
+        materials: vec![Material {
+            diffuse: [1.0, 1.0, 1.0, 1.0],
+            color_map: Some(0),
+            ..Material::default()
+        }],
+        textures: vec![TextureRef {
+            name: "leaf.png".into(),
+            path: "leaf.png".into(),
+        }],
+        ..Mesh::default()
+    }
+}
+
+/// Instance 0 at (6, 10, 0), instance 1 at (14, 10, 0) turned 150° about +Z (still seen from
+/// its back, by the camera in the south); both scaled 4×.
+fn quad_instances() -> Instances {
+    let item = |x: f32, rot: f32| Instance {
+        model: 0,
+        position: [x, 10.0, 0.0],
+        scale: 4.0,
+        rotation_deg: rot,
+        layer: 0,
+    };
+    Instances {
+        models: vec!["quad".into()],
+        items: vec![item(6.0, 0.0), item(14.0, ROT1)],
+    }
+}
+
+/// A flat 5×5 terrain over [0, 20]² at z = 0 with the quadrant colour map, the quad instanced
+/// twice, and (optionally) the sky.
+fn build_pack(with_sky: bool) -> Pack {
+    let mut w = PackWriter::new();
+    let t = Terrain {
+        width: 5,
+        height: 5,
+        heights: vec![0.0; 25],
+        origin: [0.0, 0.0],
+        extent: [20.0, 20.0],
+        color: None,
+    };
+    let color = kinds::texture_section_name("terrain", "color");
+    w.insert(texture::to_section(&color, "test", &terrain_colors()));
+    w.insert(terrain::to_section("terrain", "test", &t, Some(color)));
+    let leaf = kinds::texture_section_name("quad", "leaf.png");
+    w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
+    let mesh_name = kinds::mesh_section_name("quad");
+    w.insert(mesh::to_section(
+        &mesh_name,
+        "test",
+        &quad_mesh(),
+        &[Some(leaf)],
+    ));
+    w.insert(instances::to_section(
+        "instances",
+        &quad_instances(),
+        vec![mesh_name],
+    ));
+    if with_sky {
+        w.insert(sky::to_section("sky", "test", &sky_image(64, 32)));
+    }
+    Pack::from_bytes(&w.to_bytes().unwrap(), "test.bake").unwrap()
+}
+
+fn options() -> RenderOptions {
+    RenderOptions {
+        width: W,
+        height: H,
+        eye: Some(EYE),
+        target: Some(TARGET),
+        fov_y_deg: FOV,
+        exposure: Some(EXPOSURE),
+        lighting: Some(lighting()),
+        ..RenderOptions::default()
+    }
+}
+
+// ---- the oracles ----------------------------------------------------------------------------
+
+/// The camera, from glam's own look-at and perspective (not the renderer's code).
+struct Oracle {
+    size: (u32, u32),
+    eye: Vec3,
+    view_proj: Mat4,
+    forward: Vec3,
+    right: Vec3,
+    up: Vec3,
+    tan_half: f32,
+    aspect: f32,
+}
+
+impl Oracle {
+    fn new(eye: [f32; 3], target: [f32; 3], fov: f32) -> Oracle {
+        Oracle::sized(eye, target, fov, (W, H))
+    }
+
+    fn sized(eye: [f32; 3], target: [f32; 3], fov: f32, size: (u32, u32)) -> Oracle {
+        let (eye, target) = (Vec3::from(eye), Vec3::from(target));
+        let aspect = size.0 as f32 / size.1 as f32;
+        let forward = (target - eye).normalize();
+        let right = forward.cross(Vec3::Z).normalize();
+        let up = right.cross(forward);
+        Oracle {
+            size,
+            eye,
+            view_proj: Mat4::perspective_rh(fov.to_radians(), aspect, 0.1, 1000.0)
+                * Mat4::look_at_rh(eye, target, Vec3::Z),
+            forward,
+            right,
+            up,
+            tan_half: (fov.to_radians() / 2.0).tan(),
+            aspect,
+        }
+    }
+
+    /// The pixel a world point falls in.
+    fn pixel(&self, p: Vec3) -> (u32, u32) {
+        let (x, y) = self.image_xy(p);
+        assert!(
+            x >= 0.0 && y >= 0.0 && x < self.size.0 as f32 && y < self.size.1 as f32,
+            "{p} is off screen"
+        );
+        (x as u32, y as u32)
+    }
+
+    /// Image coordinates (pixels, y down) of a point in front of the camera.
+    fn image_xy(&self, p: Vec3) -> (f32, f32) {
+        let c = self.view_proj * p.extend(1.0);
+        assert!(c.w > 0.0, "{p} is behind the camera");
+        let ndc = c.xyz() / c.w;
+        let x = (ndc.x + 1.0) * 0.5 * self.size.0 as f32;
+        let y = (1.0 - ndc.y) * 0.5 * self.size.1 as f32;
+        (x, y)
+    }
+
+    /// The ray through a pixel centre.
+    fn ray(&self, px: u32, py: u32) -> Vec3 {
+        let nx = (px as f32 + 0.5) / self.size.0 as f32 * 2.0 - 1.0;
+        let ny = 1.0 - (py as f32 + 0.5) / self.size.1 as f32 * 2.0;
+        (self.forward
+            + self.right * (nx * self.tan_half * self.aspect)
+            + self.up * (ny * self.tan_half))
+            .normalize()
+    }
+}
+
+fn srgb_decode(c: u8) -> f32 {
+    let c = c as f32 / 255.0;
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+fn srgb_encode(l: f32) -> f32 {
+    if l <= 0.003_130_8 {
+        l * 12.92
+    } else {
+        1.055 * l.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Radiance → displayed byte: 1 − exp(−L·s), then sRGB.
+fn display(l: [f32; 3]) -> [f32; 3] {
+    display_at(l, EXPOSURE)
+}
+
+fn display_at(l: [f32; 3], exposure: f32) -> [f32; 3] {
+    l.map(|c| srgb_encode(1.0 - (-c * exposure).exp()) * 255.0)
+}
+
+/// Lambert under the test's sun and sky for albedo (sRGB bytes) and unit normal n.
+fn lit(albedo: [u8; 3], n: Vec3) -> [f32; 3] {
+    let l = lighting();
+    let cos = n.dot(Vec3::from(l.sun_direction)).max(0.0);
+    let sky = 0.5 + 0.5 * n.z;
+    let mut out = [0.0; 3];
+    for k in 0..3 {
+        out[k] = srgb_decode(albedo[k]) * (l.sun_irradiance[k] * cos + l.ambient[k] * sky) / PI;
+    }
+    out
+}
+
+/// The sky along d, bilinear between texel centres of the 64×32 test image (wrap in u, clamp
+/// in v), from the brief's lat-long convention.
+fn sky_along(d: Vec3) -> [f32; 3] {
+    let (w, h) = (64i32, 32i32);
+    let theta = d.z.clamp(-1.0, 1.0).acos();
+    let phi = d.y.atan2(d.x).rem_euclid(2.0 * PI);
+    let x = phi / (2.0 * PI) * w as f32 - 0.5;
+    let y = theta / PI * h as f32 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let texel = |i: i32, j: i32| {
+        let i = i.rem_euclid(w);
+        let j = j.clamp(0, h - 1);
+        sky_radiance_at((i as f32 + 0.5) / w as f32, (j as f32 + 0.5) / h as f32)
+    };
+    let (i, j) = (x0 as i32, y0 as i32);
+    std::array::from_fn(|k| {
+        let a = texel(i, j)[k] * (1.0 - fx) + texel(i + 1, j)[k] * fx;
+        let b = texel(i, j + 1)[k] * (1.0 - fx) + texel(i + 1, j + 1)[k] * fx;
+        a * (1.0 - fy) + b * fy
+    })
+}
+
+/// The terrain colour under world (x, y): the quadrant of the colour map (row 0 north).
+fn terrain_albedo(x: f32, y: f32) -> [u8; 3] {
+    match (y >= 10.0, x < 10.0) {
+        (true, true) => NW,
+        (true, false) => NE,
+        (false, true) => SW,
+        (false, false) => SE,
+    }
+}
+
+fn pixel(img: &Rgba8Image, (x, y): (u32, u32)) -> [u8; 4] {
+    img.pixels[(y * img.width + x) as usize]
+}
+
+fn assert_close(got: [u8; 4], want: [f32; 3], tol: f32, what: &str) {
+    for k in 0..3 {
+        assert!(
+            (got[k] as f32 - want[k]).abs() <= tol,
+            "{what}: got {got:?}, expected {want:?} ± {tol}"
+        );
+    }
+    assert_eq!(got[3], 255, "{what}: alpha");
+}
+
+/// Where the ray through a pixel meets the ground plane z = 0.
+fn ground_hit(o: &Oracle, px: (u32, u32)) -> Vec3 {
+    let d = o.ray(px.0, px.1);
+    assert!(d.z < 0.0, "pixel {px:?} looks up");
+    o.eye + d * (-o.eye.z / d.z)
+}
+
+// ---- the tests --------------------------------------------------------------------------------
+
+#[test]
+fn background_pixels_show_the_sky_along_their_ray() {
+    let out = render_pack(&build_pack(true), &options()).unwrap();
+    let o = Oracle::new(EYE, TARGET, FOV);
+    let mut checked = 0;
+    // The top rows look above the horizon, past everything in the scene.
+    for py in [0u32, 3, 9, 17] {
+        for px in (0..W).step_by(9) {
+            let d = o.ray(px, py);
+            assert!(d.z > 0.0);
+            let want = display(sky_along(d));
+            assert_close(
+                pixel(&out.image, (px, py)),
+                want,
+                2.5,
+                &format!("sky at ({px}, {py})"),
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 50);
+    assert!(!out.stats.analytic_sky);
+}
+
+#[test]
+fn terrain_pixels_have_the_colour_map_under_the_sun_and_sky() {
+    let out = render_pack(&build_pack(true), &options()).unwrap();
+    let o = Oracle::new(EYE, TARGET, FOV);
+    // Points well inside each quadrant, away from the instances and the colour map's seams.
+    for (x, y) in [(3.0f32, 3.0f32), (16.0, 4.0), (1.0, 17.0), (19.5, 19.0)] {
+        let px = o.pixel(Vec3::new(x, y, 0.0));
+        let hit = ground_hit(&o, px);
+        let want = display(lit(terrain_albedo(hit.x, hit.y), Vec3::Z));
+        assert_close(
+            pixel(&out.image, px),
+            want,
+            2.5,
+            &format!("terrain at ({x}, {y})"),
+        );
+    }
+}
+
+/// Model point → world for instance `k`: counter-clockwise rotation about +Z by its angle, the
+/// scale, then the translation (the ECO convention, written out here independently).
+fn instance_point(k: usize, p: Vec3) -> Vec3 {
+    let inst = quad_instances().items[k];
+    let a = inst.rotation_deg.to_radians();
+    let q = p * inst.scale;
+    Vec3::new(
+        a.cos() * q.x - a.sin() * q.y,
+        a.sin() * q.x + a.cos() * q.y,
+        q.z,
+    ) + Vec3::from(inst.position)
+}
+
+/// The quad's normal (−Y in model space) for instance `k`, turned towards the viewer at `eye`.
+fn instance_normal(k: usize, eye: Vec3) -> Vec3 {
+    let n = instance_point(k, Vec3::NEG_Y) - instance_point(k, Vec3::ZERO);
+    let n = n.normalize();
+    if n.dot(eye - instance_point(k, Vec3::ZERO)) < 0.0 {
+        -n
+    } else {
+        n
+    }
+}
+
+#[test]
+fn instances_are_placed_scaled_and_rotated() {
+    let out = render_pack(&build_pack(true), &options()).unwrap();
+    let o = Oracle::new(EYE, TARGET, FOV);
+    for k in 0..2 {
+        let want = display(lit(LEAF, instance_normal(k, o.eye)));
+        // Inside the opaque half (model x < 0; u < 0.44 where the texture is purely opaque).
+        for p in [
+            Vec3::new(-0.25, 0.0, 0.5),
+            Vec3::new(-0.35, 0.0, 0.875),
+            Vec3::new(-0.35, 0.0, 0.125),
+        ] {
+            let w = instance_point(k, p);
+            assert_close(
+                pixel(&out.image, o.pixel(w)),
+                want,
+                2.5,
+                &format!("instance {k} at {w}"),
+            );
+        }
+        // Just outside the scaled quad the instance colour must not appear.
+        for p in [Vec3::new(-0.7, 0.0, 0.5), Vec3::new(-0.25, 0.0, 1.2)] {
+            let w = instance_point(k, p);
+            let got = pixel(&out.image, o.pixel(w));
+            let off = (0..3)
+                .map(|c| (got[c] as f32 - want[c]).abs())
+                .fold(0.0, f32::max);
+            assert!(
+                off > 20.0,
+                "instance {k}: its colour {got:?} outside the quad at {w}"
+            );
+        }
+    }
+    assert_eq!(out.stats.instances, 2);
+    assert_eq!(out.stats.triangles, 2 * 2 + 2 * 16);
+}
+
+#[test]
+fn alpha_tested_texels_show_what_is_behind() {
+    let out = render_pack(&build_pack(true), &options()).unwrap();
+    let o = Oracle::new(EYE, TARGET, FOV);
+    // The transparent half (model x > 0, alpha 0 for u > 0.56) of each instance.
+    for k in 0..2 {
+        let w = instance_point(k, Vec3::new(0.3, 0.0, 0.5));
+        let px = o.pixel(w);
+        let hit = ground_hit(&o, px);
+        assert!(
+            hit.y > 10.5 && hit.y < 20.0,
+            "the ray passes the quad to the terrain: {hit}"
+        );
+        let want = display(lit(terrain_albedo(hit.x, hit.y), Vec3::Z));
+        assert_close(
+            pixel(&out.image, px),
+            want,
+            2.5,
+            &format!("behind the cut-out at {w}"),
+        );
+    }
+}
+
+#[test]
+fn rendering_is_deterministic() {
+    let pack = build_pack(true);
+    let a = render_pack(&pack, &options()).unwrap();
+    let b = render_pack(&pack, &options()).unwrap();
+    assert!(a.image.pixels == b.image.pixels, "two renders differ");
+}
+
+#[test]
+fn default_camera_frames_every_instance() {
+    let pack = build_pack(false);
+    let opts = RenderOptions {
+        eye: None,
+        target: None,
+        ..options()
+    };
+    let out = render_pack(&pack, &opts).unwrap();
+    let s = &out.stats;
+    assert!(s.analytic_sky);
+    let o = Oracle::new(s.eye, s.target, s.fov_y_deg);
+    // Whatever the framing, the opaque halves' centres are in view and unoccluded.
+    for k in 0..2 {
+        let p = instance_point(k, Vec3::new(-0.25, 0.0, 0.5));
+        let got = pixel(&out.image, o.pixel(p));
+        let want = display(lit(LEAF, instance_normal(k, o.eye)));
+        assert_close(got, want, 2.5, &format!("instance {k} at {p}"));
+    }
+    // The analytic sky is blue above: the top row is bluer than it is red.
+    let top = pixel(&out.image, (W / 2, 0));
+    assert!(top[2] > top[0], "analytic sky at the top: {top:?}");
+}
+
+#[test]
+fn a_pack_with_only_a_mesh_renders_it_at_the_origin() {
+    let mut w = PackWriter::new();
+    let leaf = kinds::texture_section_name("quad", "leaf.png");
+    w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
+    w.insert(mesh::to_section(
+        &kinds::mesh_section_name("quad"),
+        "test",
+        &quad_mesh(),
+        &[Some(leaf)],
+    ));
+    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "mesh.bake").unwrap();
+    let out = render_pack(
+        &pack,
+        &RenderOptions {
+            eye: None,
+            target: None,
+            ..options()
+        },
+    )
+    .unwrap();
+    let s = &out.stats;
+    assert_eq!(s.instances, 1);
+    let o = Oracle::new(s.eye, s.target, s.fov_y_deg);
+    let got = pixel(&out.image, o.pixel(Vec3::new(-0.25, 0.0, 0.5)));
+    assert_close(got, display(lit(LEAF, Vec3::NEG_Y)), 2.5, "lone mesh");
+}
+
+#[test]
+fn a_corrupt_instance_record_is_an_invalid_input_error() {
+    let mut w = PackWriter::new();
+    let mut inst = quad_instances();
+    inst.items[1].model = 7;
+    // Write the records by hand: to_section keeps what it is given.
+    w.insert(instances::to_section(
+        "instances",
+        &inst,
+        vec![kinds::mesh_section_name("quad")],
+    ));
+    w.insert(mesh::to_section(
+        &kinds::mesh_section_name("quad"),
+        "test",
+        &quad_mesh(),
+        &[None],
+    ));
+    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "bad.bake").unwrap();
+    let err = render_pack(&pack, &options()).unwrap_err();
+    assert_eq!(err.exit_code(), bake::error::exit::INVALID_INPUT, "{err}");
+    assert!(err.to_string().contains("instance 1"), "{err}");
+}
+
+/// The command line: a PNG of the requested size, the adapter in the JSON report, exit 0; a
+/// missing pack is an I/O error (exit 3).
+#[test]
+fn bake_render_writes_a_png_and_reports_the_adapter() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = dir.path().join("scene.bake");
+    let png = dir.path().join("scene.png");
+    PackWriter::from_pack(&build_pack(true))
+        .write(&pack_path)
+        .unwrap();
+    let bin = env!("CARGO_BIN_EXE_bake");
+    let out = std::process::Command::new(bin)
+        .args(["render", "--json", "--width", "64", "--height", "48", "-o"])
+        .arg(&png)
+        .arg(&pack_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(
+        !doc["adapter"]["name"].as_str().unwrap().is_empty(),
+        "{doc}"
+    );
+    assert_eq!(doc["stats"]["instances"], 2);
+    let img = image::open(&png).unwrap();
+    assert_eq!((img.width(), img.height()), (64, 48));
+
+    let missing = std::process::Command::new(bin)
+        .args(["render", "-o"])
+        .arg(&png)
+        .arg(dir.path().join("nope.bake"))
+        .output()
+        .unwrap();
+    assert_eq!(missing.status.code(), Some(bake::error::exit::IO));
+    assert!(String::from_utf8_lossy(&missing.stderr).contains("nope.bake"));
+}
+
+/// The generated fixture scene (`bake fixtures`), baked with `bake build` and rendered with the
+/// default camera. Oracles: the fixture's analytic sky along each top-row ray, and placement: a
+/// second render without the instances differs only inside the projected bounds of instances,
+/// and most instances change some pixel inside their bounds.
+#[test]
+fn the_fixture_scene_renders_with_its_sky_and_every_instance_in_place() {
+    use bake::fixtures::scene::sky_radiance;
+    let dir = tempfile::tempdir().unwrap();
+    bake::fixtures::write_all(dir.path()).unwrap();
+    let out_path = dir.path().join("scene.bake");
+    bake::pipeline::build(&bake::pipeline::BuildOptions {
+        scenes: vec![dir.path().join("scene.eco")],
+        output: Some(out_path.clone()),
+        sky: Some(dir.path().join("sky.hdr")),
+        ingest: Default::default(),
+    })
+    .unwrap();
+    let pack = Pack::open(&out_path).unwrap();
+    let size = (320u32, 200u32);
+    let opts = RenderOptions {
+        width: size.0,
+        height: size.1,
+        ..RenderOptions::default()
+    };
+    let full = render_pack(&pack, &opts).unwrap();
+    let s = &full.stats;
+    let (_, inst) = instances::from_section(&pack.view_named("instances").unwrap()).unwrap();
+    assert_eq!(s.instances as usize, inst.items.len());
+    assert!(inst.items.len() >= 50);
+    let o = Oracle::sized(s.eye, s.target, s.fov_y_deg, size);
+
+    // The sky: the fixture's analytic radiance (the HDR file stores it RGBE-rounded, ~1 %).
+    for px in (0..size.0).step_by(7) {
+        let d = o.ray(px, 1);
+        assert!(d.z > 0.0, "the top row looks at the sky");
+        let want = display_at(sky_radiance(d.to_array()), s.exposure);
+        assert_close(
+            pixel(&full.image, (px, 1)),
+            want,
+            4.0,
+            &format!("fixture sky at ({px}, 1)"),
+        );
+    }
+
+    // The same pack without instances and meshes.
+    let mut w = PackWriter::from_pack(&pack);
+    w.remove_kind("instances");
+    w.remove_kind("mesh");
+    let bare_pack = Pack::from_bytes(&w.to_bytes().unwrap(), "bare.bake").unwrap();
+    let bare = render_pack(
+        &bare_pack,
+        &RenderOptions {
+            eye: Some(s.eye),
+            target: Some(s.target),
+            ..opts.clone()
+        },
+    )
+    .unwrap();
+    let boxes: Vec<[f32; 4]> = inst
+        .items
+        .iter()
+        .map(|i| {
+            let section = kinds::mesh_section_name(&inst.models[i.model as usize]);
+            let (_, m) = mesh::from_section(&pack.view_named(&section).unwrap()).unwrap();
+            instance_screen_box(&o, i, &m)
+        })
+        .collect();
+    let mut touched = vec![false; boxes.len()];
+    let mut changed = 0;
+    for y in 0..size.1 {
+        for x in 0..size.0 {
+            if pixel(&full.image, (x, y)) == pixel(&bare.image, (x, y)) {
+                continue;
+            }
+            changed += 1;
+            let (fx, fy) = (x as f32 + 0.5, y as f32 + 0.5);
+            let mut inside = false;
+            for (k, b) in boxes.iter().enumerate() {
+                if fx >= b[0] - 1.0 && fx <= b[2] + 1.0 && fy >= b[1] - 1.0 && fy <= b[3] + 1.0 {
+                    inside = true;
+                    touched[k] = true;
+                }
+            }
+            assert!(
+                inside,
+                "pixel ({x}, {y}) changed outside every instance's bounds"
+            );
+        }
+    }
+    let seen = touched.iter().filter(|&&t| t).count();
+    assert!(changed > 200, "instances cover {changed} pixels");
+    assert!(
+        seen * 10 >= boxes.len() * 8,
+        "only {seen} of {} instances visible",
+        boxes.len()
+    );
+}
+
+/// Screen rectangle [x0, y0, x1, y1] of an instance's model bounds, turned, scaled and moved
+/// by the instance (written out here, not the renderer's code).
+fn instance_screen_box(o: &Oracle, i: &Instance, m: &Mesh) -> [f32; 4] {
+    let (lo, hi) = m.bounds().unwrap();
+    let a = i.rotation_deg.to_radians();
+    let mut b = [
+        f32::INFINITY,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NEG_INFINITY,
+    ];
+    for k in 0..8 {
+        let c = Vec3::new(
+            if k & 1 == 0 { lo[0] } else { hi[0] },
+            if k & 2 == 0 { lo[1] } else { hi[1] },
+            if k & 4 == 0 { lo[2] } else { hi[2] },
+        ) * i.scale;
+        let w = Vec3::new(
+            a.cos() * c.x - a.sin() * c.y,
+            a.sin() * c.x + a.cos() * c.y,
+            c.z,
+        ) + Vec3::from(i.position);
+        let (x, y) = o.image_xy(w);
+        b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+    }
+    b
+}
