@@ -618,12 +618,15 @@ fn the_fixture_scene_renders_with_its_sky_and_every_instance_in_place() {
     let dir = tempfile::tempdir().unwrap();
     bake::fixtures::write_all(dir.path()).unwrap();
     let out_path = dir.path().join("scene.bake");
-    bake::pipeline::build(&bake::pipeline::BuildOptions {
-        scenes: vec![dir.path().join("scene.eco")],
-        output: Some(out_path.clone()),
-        sky: Some(dir.path().join("sky.hdr")),
-        ingest: Default::default(),
-    })
+    bake::pipeline::build(
+        &bake::pipeline::BuildOptions {
+            scenes: vec![dir.path().join("scene.eco")],
+            output: Some(out_path.clone()),
+            sky: Some(dir.path().join("sky.hdr")),
+            ..Default::default()
+        }
+        .preview(),
+    )
     .unwrap();
     let pack = Pack::open(&out_path).unwrap();
     let size = (320u32, 200u32);

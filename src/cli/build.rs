@@ -47,7 +47,7 @@ pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
     let bar = g.progress(1, "build");
     let report = build(&opts)?;
     bar.finish_and_clear();
-    let text = format!(
+    let mut text = format!(
         "{}: {} sections, {} bytes; {} models ({} triangles), {} instances\n",
         report.output.display(),
         report.sections,
@@ -56,9 +56,26 @@ pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
         report.triangles,
         report.instances
     );
+    let mut json = serde_json::to_value(&report).unwrap_or_default();
+    let mut warnings = report.warnings;
+    if let Some(png) = &args.render {
+        let pack = crate::pack::Pack::open(&report.output)?;
+        let out = crate::render::render_pack(&pack, &crate::render::RenderOptions::default())?;
+        crate::pack::write_atomic(png, &crate::render::encode_png(&out.image)?)?;
+        text.push_str(&format!(
+            "{}: {}×{} on {}\n",
+            png.display(),
+            out.stats.width,
+            out.stats.height,
+            out.adapter
+        ));
+        json["render"] =
+            serde_json::json!({"output": png, "adapter": out.adapter, "stats": out.stats});
+        warnings.extend(out.warnings);
+    }
     Ok(Outcome {
-        json: serde_json::to_value(&report).unwrap_or_default(),
+        json,
         text,
-        warnings: report.warnings,
+        warnings,
     })
 }

@@ -37,17 +37,17 @@ pub struct RenderArgs {
 }
 
 /// Silences the warning Mesa's device-select Vulkan layer prints on machines without a display,
-/// unless the user set `NODEVICE_SELECT` already.
-fn quiet_mesa_layer() {
+/// unless the user set `NODEVICE_SELECT` already. `main` calls it first thing, while the process
+/// has one thread.
+pub fn quiet_mesa_layer() {
     if std::env::var_os("NODEVICE_SELECT").is_none() {
-        // SAFETY: called on the main thread before wgpu or rayon start any thread; nothing else
+        // SAFETY: called by `main` before wgpu or rayon start any thread; nothing else
         // reads or writes the environment concurrently.
         unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
 }
 
 pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
-    quiet_mesa_layer();
     let opts = RenderOptions {
         width: args.width,
         height: args.height,
@@ -102,7 +102,6 @@ pub struct RenderBenchArgs {
 
 /// `bake bench render PACK`: median seconds of device setup, upload and draw (with readback).
 pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
-    quiet_mesa_layer();
     let pack = Pack::open(&args.pack)?;
     let opts = RenderOptions {
         width: args.width,

@@ -264,9 +264,9 @@ mod tests {
         let omega =
             2.0 * PI as f64 / 32.0 * ((3.0 * PI as f64 / 16.0).cos() - (PI as f64 / 4.0).cos());
         let want = [999.5, 899.5, 799.5].map(|x: f64| (x * 2.0 * omega) as f32);
-        for c in 0..3 {
+        for (c, w) in want.iter().enumerate() {
             assert!(
-                (sun.irradiance[c] - want[c]).abs() < 1e-3 * want[c],
+                (sun.irradiance[c] - w).abs() < 1e-3 * w,
                 "{:?}",
                 sun.irradiance
             );

@@ -87,20 +87,41 @@ pub struct RenderOutput {
     pub warnings: Vec<String>,
 }
 
+/// The light the sky stage measured: its extracted sun, and the horizontal irradiance of the
+/// sun-free sky's SH as ambient. `None` when the pack has no `sh` section.
+pub fn pack_lighting(pack: &Pack) -> Option<light::Lighting> {
+    let (_, _, irr) =
+        crate::sky::section::sh_from_section(&pack.view_named(crate::sky::SH_SECTION).ok()?)
+            .ok()?;
+    let sun = pack
+        .view_named(crate::sky::SUN_SECTION)
+        .ok()
+        .and_then(|v| crate::sky::section::sun_from_section(&v).ok());
+    let (dir, e) = sun.map_or(([0.0, 0.0, 1.0], [0.0; 3]), |s| (s.direction, s.irradiance));
+    Some(light::Lighting {
+        sun_direction: dir,
+        sun_irradiance: e,
+        ambient: irr.eval([0.0, 0.0, 1.0]).map(|v| v.max(0.0)),
+    })
+}
+
 /// Renders `pack`.
 pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     check_options(opts)?;
     let scene = scene::load_scene(pack)?;
     let aspect = opts.width as f32 / opts.height as f32;
     let cam = choose_camera(&scene, opts, aspect);
-    let lighting = opts.lighting.unwrap_or_else(|| {
-        light::default_lighting(
-            &scene.sky.texels,
-            scene.sky.width,
-            scene.sky.height,
-            scene.sky.analytic,
-        )
-    });
+    let lighting = opts
+        .lighting
+        .or_else(|| pack_lighting(pack))
+        .unwrap_or_else(|| {
+            light::default_lighting(
+                &scene.sky.texels,
+                scene.sky.width,
+                scene.sky.height,
+                scene.sky.analytic,
+            )
+        });
     let exposure = opts
         .exposure
         .unwrap_or_else(|| light::auto_exposure(&lighting));

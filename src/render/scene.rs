@@ -410,6 +410,20 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
     if let Some(e) = pack.of_kind(sky::KIND).next() {
         let v = pack.view(e)?;
         let meta: SkyMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
+        if meta.layout == "cube" {
+            // The sky stage's cube map (sun removed): resampled to lat-long for the sky pass.
+            let (_, cube) = crate::sky::section::cube_from_section(&v)
+                .map_err(|e| Error::invalid(pack.path(), e))?;
+            let (w, h) = ANALYTIC_SKY_SIZE;
+            let img = crate::sky::cube_to_latlong(&cube, w, h);
+            let texels = img.pixels.iter().map(|p| [p[0], p[1], p[2], 1.0]).collect();
+            return Ok(SkyData {
+                width: w,
+                height: h,
+                texels: Cow::Owned(texels),
+                analytic: false,
+            });
+        }
         let texels: &[[f32; 4]] = v
             .array("texels")
             .map_err(|e| Error::invalid(pack.path(), e))?;
