@@ -1372,6 +1372,21 @@ mod tests {
     }
 
     #[test]
+    fn rock_has_its_analytic_counts() {
+        // Two rocks of 250 × 125 quads: 2 · 62500 triangles.
+        let m = parse(&crate::fixtures::object3ds::rock_3ds(250, 2)).unwrap();
+        assert_eq!(m.indices.len(), 2 * 2 * 250 * 125);
+        assert_eq!(m.objects, ["Rock0", "Rock1"]);
+        assert_eq!(m.validate(), Ok(()));
+        let (lo, hi) = bounds(&m);
+        assert!(lo.iter().all(|c| (-1.11..-0.85).contains(c)), "{lo:?}");
+        assert!(
+            (3.35..3.61).contains(&hi[0]) && (0.85..1.11).contains(&hi[2]),
+            "{hi:?}"
+        );
+    }
+
+    #[test]
     fn out_of_range_faces_are_dropped_with_a_warning() {
         let mut o = one_box(None);
         o.faces.push([0, 1, 99]);
