@@ -3,8 +3,6 @@
 //! deletions, truncations) of the project's fixtures, and of the assimp corpus's 3DS files when
 //! `scripts/assimp-corpus.sh` has fetched them, fed to the byte-level readers. A reader must
 //! return `Ok` or `Err`, never panic, and what it accepts must be a valid mesh.
-//! (The TXF reader gets the same treatment in its own tests; add it here once `txf::parse`
-//! exists with this signature.)
 
 use bake::fixtures::Rng;
 use std::path::Path;
@@ -86,5 +84,20 @@ fn eco_survives_mutations() {
     let mut rng = Rng::new(5);
     for _ in 0..3000 {
         let _ = bake::ingest::eco::parse(&mutate(&seed, &mut rng));
+    }
+}
+
+#[test]
+fn txf_survives_mutations() {
+    let (_, seed) = bake::fixtures::plant::plant_files()
+        .into_iter()
+        .find(|(name, _)| name.ends_with(".txf"))
+        .expect("the plant fixture has a TXF file");
+    assert!(bake::ingest::txf::parse(&seed).is_ok());
+    let mut rng = Rng::new(11);
+    for _ in 0..3000 {
+        if let Ok(m) = bake::ingest::txf::parse(&mutate(&seed, &mut rng)) {
+            assert_eq!(m.validate(), Ok(()));
+        }
     }
 }
