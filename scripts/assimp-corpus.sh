@@ -50,7 +50,9 @@ allowed() {
 fetch_corpus() {
   if [ ! -d "$CACHE/root/usr/share/assimp/models" ]; then
     mkdir -p "$CACHE"
-    (cd "$CACHE" && apt-get download assimp-testmodels >/dev/null && dpkg-deb -x assimp-testmodels_*.deb root) || {
+    (cd "$CACHE" && { apt-get download assimp-testmodels >/dev/null 2>&1 ||
+        { [ "$(id -u)" = 0 ] && apt-get update -qq && apt-get download assimp-testmodels >/dev/null; }; } &&
+      dpkg-deb -x assimp-testmodels_*.deb root) || {
       echo "assimp-corpus: cannot fetch assimp-testmodels (apt-get download)" >&2; exit 2; }
   fi
   if ! command -v assimp >/dev/null; then

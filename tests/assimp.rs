@@ -71,3 +71,16 @@ fn bench_fixture_agrees_with_assimp() {
         );
     }
 }
+
+/// Writes benchmark rocks (`rock_<segments>x<copies>.3ds`) into `$BAKE_BENCH_DIR`; run with
+/// `BAKE_BENCH_DIR=dir cargo test --test assimp -- --ignored` (see docs/PERFORMANCE.md).
+#[test]
+#[ignore]
+fn write_benchmark_rocks() {
+    let dir = std::path::PathBuf::from(std::env::var("BAKE_BENCH_DIR").expect("BAKE_BENCH_DIR"));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (seg, copies) in [(64u16, 1u16), (250, 1), (250, 8)] {
+        let bytes = bake::fixtures::object3ds::rock_3ds(seg, copies);
+        std::fs::write(dir.join(format!("rock_{seg}x{copies}.3ds")), bytes).unwrap();
+    }
+}

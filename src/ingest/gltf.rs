@@ -447,3 +447,176 @@ fn percent_decode(s: &str) -> String {
     }
     String::from_utf8_lossy(&out).into_owned()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn base64(data: &[u8]) -> String {
+        const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut s = String::new();
+        for c in data.chunks(3) {
+            let n = (c[0] as u32) << 16
+                | (*c.get(1).unwrap_or(&0) as u32) << 8
+                | *c.get(2).unwrap_or(&0) as u32;
+            for k in 0..4 {
+                if k <= c.len() {
+                    s.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+                } else {
+                    s.push('=');
+                }
+            }
+        }
+        s
+    }
+
+    /// Four positions (a unit square in glTF's x/y) then three u16 indices, padded to 56 bytes.
+    fn buffer(indices: [u16; 3], first: [f32; 3]) -> Vec<u8> {
+        let mut b = Vec::new();
+        let pos = [first, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]];
+        for p in pos {
+            b.extend(p.iter().flat_map(|c| c.to_le_bytes()));
+        }
+        b.extend(indices.iter().flat_map(|i| i.to_le_bytes()));
+        b.extend([0, 0]);
+        b
+    }
+
+    /// parent (translation z = 5) → child (scale 2, mesh 0: indexed triangle, textured
+    /// material); strip (translation x = 10, mesh 1: 4-vertex triangle strip, no material).
+    fn document(uri: Option<&str>, nodes: &str) -> String {
+        let buf = match uri {
+            Some(u) => format!(r#"{{"byteLength": 56, "uri": "{u}"}}"#),
+            None => r#"{"byteLength": 56}"#.to_string(),
+        };
+        format!(
+            r#"{{"asset": {{"version": "2.0"}}, "scene": 0, "scenes": [{{"nodes": [0, 2]}}],
+  "nodes": {nodes},
+  "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0}}, "indices": 2, "material": 0}}]}},
+             {{"primitives": [{{"attributes": {{"POSITION": 1}}, "mode": 5}}]}}],
+  "materials": [{{"name": "Paint", "pbrMetallicRoughness": {{"baseColorFactor": [0.5, 0.25, 1, 1],
+     "metallicFactor": 0.3, "roughnessFactor": 0.7, "baseColorTexture": {{"index": 0}}}}}}],
+  "textures": [{{"source": 0}}], "images": [{{"uri": "tex%20a.png"}}],
+  "buffers": [{buf}],
+  "bufferViews": [{{"buffer": 0, "byteOffset": 0, "byteLength": 48}},
+                  {{"buffer": 0, "byteOffset": 48, "byteLength": 6}}],
+  "accessors": [
+    {{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]}},
+    {{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]}},
+    {{"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}}]}}"#
+        )
+    }
+
+    const NODES: &str = r#"[{"name": "parent", "translation": [0, 0, 5], "children": [1]},
+      {"name": "child", "scale": [2, 2, 2], "mesh": 0},
+      {"name": "strip", "translation": [10, 0, 0], "mesh": 1}]"#;
+
+    fn embedded(indices: [u16; 3], first: [f32; 3], nodes: &str) -> Vec<u8> {
+        let uri = format!(
+            "data:application/octet-stream;base64,{}",
+            base64(&buffer(indices, first))
+        );
+        document(Some(&uri), nodes).into_bytes()
+    }
+
+    fn glb(json: &str, bin: &[u8]) -> Vec<u8> {
+        let mut j = json.as_bytes().to_vec();
+        while !j.len().is_multiple_of(4) {
+            j.push(b' ');
+        }
+        let total = 12 + 8 + j.len() + 8 + bin.len();
+        let mut out = b"glTF".to_vec();
+        out.extend(2u32.to_le_bytes());
+        out.extend((total as u32).to_le_bytes());
+        out.extend((j.len() as u32).to_le_bytes());
+        out.extend(b"JSON");
+        out.extend(j);
+        out.extend((bin.len() as u32).to_le_bytes());
+        out.extend(b"BIN\0");
+        out.extend(bin);
+        out
+    }
+
+    fn check_scene(m: &Mesh) {
+        assert_eq!(m.objects, vec!["child".to_string(), "strip".to_string()]);
+        assert_eq!(m.indices.len(), 3, "1 triangle + a 4-vertex strip");
+        // child: glTF world T(0,0,5)·S(2), then (x, y, z) → (x, −z, y).
+        let tri: Vec<_> = m.indices[0]
+            .iter()
+            .map(|&i| m.positions[i as usize])
+            .collect();
+        assert_eq!(tri, [[0.0, -5.0, 0.0], [2.0, -5.0, 0.0], [0.0, -5.0, 2.0]]);
+        // glTF +z normal becomes −y; no normals in the file, so face normals.
+        for &i in &m.indices[0] {
+            assert_eq!(m.normals[i as usize], [0.0, -1.0, 0.0]);
+        }
+        // strip: both triangles keep the square's orientation (−y after the axis swap).
+        for t in &m.indices[1..] {
+            let [a, b, c] = t.map(|i| Vec3::from_array(m.positions[i as usize]));
+            assert!((b - a).cross(c - a).y < 0.0);
+            assert!(t.iter().all(|&i| m.positions[i as usize][0] >= 10.0));
+        }
+        let paint = &m.materials[m.triangle_materials[0] as usize];
+        assert_eq!(paint.name, "Paint");
+        assert_eq!(paint.diffuse, [0.5, 0.25, 1.0, 1.0]);
+        assert_eq!(
+            paint.source,
+            MaterialSource::MetallicRoughness {
+                metallic: 0.3,
+                roughness: 0.7
+            }
+        );
+        assert_eq!(
+            m.textures[paint.color_map.unwrap() as usize].name,
+            "tex a.png"
+        );
+        assert_eq!(
+            m.materials[m.triangle_materials[1] as usize].name,
+            "default"
+        );
+        assert!(m.warnings.iter().any(|w| w.contains("TEXCOORD_0")));
+        assert_eq!(m.validate(), Ok(()));
+    }
+
+    #[test]
+    fn node_transforms_axes_strips_and_materials() {
+        check_scene(&parse(&embedded([0, 1, 2], [0.0; 3], NODES)).unwrap());
+    }
+
+    #[test]
+    fn glb_and_external_buffer_give_the_same_mesh() {
+        let bin = buffer([0, 1, 2], [0.0; 3]);
+        check_scene(&parse(&glb(&document(None, NODES), &bin)).unwrap());
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("b.bin"), &bin).unwrap();
+        std::fs::write(dir.path().join("s.gltf"), document(Some("b.bin"), NODES)).unwrap();
+        let m = load(&dir.path().join("s.gltf")).unwrap();
+        check_scene(&m);
+        assert_eq!(m.textures[0].path, dir.path().join("tex a.png"));
+        std::fs::remove_file(dir.path().join("b.bin")).unwrap();
+        let e = load(&dir.path().join("s.gltf")).unwrap_err().to_string();
+        assert!(e.contains("buffers: cannot load buffer data"), "{e}");
+    }
+
+    #[test]
+    fn broken_files_are_clear_errors() {
+        let e = parse(&embedded([0, 1, 7], [0.0; 3], NODES)).unwrap_err();
+        assert_eq!(e.place, "mesh 0 primitive 0");
+        assert!(
+            e.message.contains("index 7 out of range (3 vertices)"),
+            "{e}"
+        );
+        let e = parse(&embedded([0, 1, 2], [f32::INFINITY, 0.0, 0.0], NODES)).unwrap_err();
+        assert!(e.message.contains("not finite"), "{e}");
+        let cycle = r#"[{"children": [1]}, {"children": [0], "mesh": 0}, {"mesh": 1}]"#;
+        let e = parse(&embedded([0, 1, 2], [0.0; 3], cycle)).unwrap_err();
+        assert!(e.message.contains("reached twice"), "{e}");
+        let e = parse(b"{\"asset\": 5}").unwrap_err();
+        assert!(e.message.contains("not a valid glTF"), "{e}");
+    }
+
+    #[test]
+    fn percent_decoding() {
+        assert_eq!(percent_decode("a%20b%2Fc%zz%"), "a b/c%zz%");
+    }
+}

@@ -45,7 +45,6 @@
 use crate::error::{Error, ParseError, Result};
 use crate::model::{Material, Mesh, TextureRef};
 use glam::{Mat3, Mat4, Vec3};
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 const MAIN: u16 = 0x4D4D;
@@ -1009,21 +1008,30 @@ fn object_mesh(
         })
         .collect();
     let normals = smooth_normals(&positions, &faces, &face_normals, &o.smoothing);
+    // Output vertices: one per (stored vertex, normal). Each stored vertex keeps a short chain
+    // of the output vertices made from it (no hashing: this is the reader's hot loop).
     let mut mesh = Mesh::default();
-    let mut remap: HashMap<(u16, [u32; 3]), u32> = HashMap::new();
+    let mut head = vec![u32::MAX; nv];
+    let mut next: Vec<u32> = Vec::with_capacity(faces.len() * 3);
     for (k, (_, f, m)) in faces.iter().enumerate() {
         let mut tri = [0u32; 3];
         for c in 0..3 {
-            let v = f[c];
-            let n = normals[3 * k + c];
-            let key = (v, n.to_array().map(f32::to_bits));
-            tri[c] = *remap.entry(key).or_insert_with(|| {
-                let uv = o.uvs.get(v as usize).copied().unwrap_or([0.0, 1.0]);
-                mesh.positions.push(positions[v as usize].to_array());
-                mesh.normals.push(n.to_array());
+            let v = f[c] as usize;
+            let n = normals[3 * k + c].to_array();
+            let mut at = head[v];
+            while at != u32::MAX && mesh.normals[at as usize] != n {
+                at = next[at as usize];
+            }
+            if at == u32::MAX {
+                let uv = o.uvs.get(v).copied().unwrap_or([0.0, 1.0]);
+                at = mesh.positions.len() as u32;
+                mesh.positions.push(positions[v].to_array());
+                mesh.normals.push(n);
                 mesh.uvs.push([uv[0], 1.0 - uv[1]]);
-                (mesh.positions.len() - 1) as u32
-            });
+                next.push(head[v]);
+                head[v] = at;
+            }
+            tri[c] = at;
         }
         mesh.indices.push(tri);
         mesh.triangle_materials.push(*m);
@@ -1031,8 +1039,8 @@ fn object_mesh(
     mesh
 }
 
-/// Per face corner: the normalized sum of the normals of the faces at the same position that
-/// share a smoothing group bit with the corner's face (the face itself always counts).
+/// Per face corner: the normalized sum of the normals of the faces that touch the same position
+/// and share a smoothing group bit with the corner's face (the face itself always counts).
 fn smooth_normals(
     positions: &[Vec3],
     faces: &[(usize, [u16; 3], u32)],
@@ -1040,12 +1048,28 @@ fn smooth_normals(
     smoothing: &[u32],
 ) -> Vec<Vec3> {
     let group = |k: usize| smoothing.get(faces[k].0).copied().unwrap_or(0);
-    let mut at: HashMap<[u32; 3], Vec<u32>> = HashMap::new();
+    let pid = position_ids(positions);
+    // Faces per position id, as compressed rows (counting sort).
+    let npos = pid.iter().map(|&p| p as usize + 1).max().unwrap_or(0);
+    let mut start = vec![0u32; npos + 1];
     for (k, (_, f, _)) in faces.iter().enumerate() {
         if group(k) != 0 {
             for &v in f {
-                let key = positions[v as usize].to_array().map(f32::to_bits);
-                at.entry(key).or_default().push(k as u32);
+                start[pid[v as usize] as usize + 1] += 1;
+            }
+        }
+    }
+    for i in 0..npos {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut rows = vec![0u32; start[npos] as usize];
+    for (k, (_, f, _)) in faces.iter().enumerate() {
+        if group(k) != 0 {
+            for &v in f {
+                let p = pid[v as usize] as usize;
+                rows[fill[p] as usize] = k as u32;
+                fill[p] += 1;
             }
         }
     }
@@ -1055,8 +1079,8 @@ fn smooth_normals(
         for &v in f {
             let mut n = face_normals[k];
             if g != 0 {
-                let key = positions[v as usize].to_array().map(f32::to_bits);
-                n = at[&key]
+                let p = pid[v as usize] as usize;
+                n = rows[start[p] as usize..start[p + 1] as usize]
                     .iter()
                     .filter(|&&j| group(j as usize) & g != 0)
                     .map(|&j| face_normals[j as usize])
@@ -1066,6 +1090,23 @@ fn smooth_normals(
         }
     }
     out
+}
+
+/// For each vertex, an id shared by all vertices at exactly the same position (3DS duplicates
+/// vertices along texture seams; smoothing must see through that).
+fn position_ids(positions: &[Vec3]) -> Vec<u32> {
+    let key = |i: u32| positions[i as usize].to_array().map(f32::to_bits);
+    let mut order: Vec<u32> = (0..positions.len() as u32).collect();
+    order.sort_unstable_by_key(|&i| key(i));
+    let mut ids = vec![0u32; positions.len()];
+    let mut id = 0;
+    for w in 0..order.len() {
+        if w > 0 && key(order[w]) != key(order[w - 1]) {
+            id += 1;
+        }
+        ids[order[w] as usize] = id;
+    }
+    ids
 }
 
 #[cfg(test)]
@@ -1283,6 +1324,66 @@ mod tests {
         mat[8] = 2.0;
         let m = parse(&file_3ds(&[], &[one_box(Some(mat))], None)).unwrap();
         assert_eq!(bounds(&m), ([0.0; 3], [1.0; 3]));
+    }
+
+    #[test]
+    fn smoothing_groups_average_normals_across_seams() {
+        // A roof: two faces meeting at the ridge x = 0, z = 1; the ridge vertices are stored
+        // twice (a texture seam), so only positions can tell they are shared.
+        let roof = |groups: Vec<u32>| Object3ds {
+            name: "R".into(),
+            positions: vec![
+                [-1.0, 0.0, 0.0],
+                [0.0, 0.0, 1.0],
+                [0.0, 1.0, 1.0],
+                [0.0, 0.0, 1.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 1.0],
+            ],
+            faces: vec![[0, 1, 2], [3, 4, 5]],
+            smoothing: groups,
+            ..Object3ds::default()
+        };
+        let ridge = |m: &Mesh| -> Vec<[f32; 3]> {
+            (0..m.positions.len())
+                .filter(|&i| m.positions[i][0] == 0.0)
+                .map(|i| m.normals[i])
+                .collect()
+        };
+        let smooth = parse(&file_3ds(&[], &[roof(vec![1, 1])], None)).unwrap();
+        let r = ridge(&smooth);
+        assert_eq!(r.len(), 4);
+        assert!(
+            r.iter()
+                .all(|n| close(*n, [0.0, 0.0, -1.0]) || close(*n, [0.0, 0.0, 1.0]))
+        );
+        let n0 = r[0];
+        assert!(
+            r.iter().all(|n| *n == n0),
+            "one averaged normal on the ridge: {r:?}"
+        );
+        let flat = parse(&file_3ds(&[], &[roof(vec![1, 2])], None)).unwrap();
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        assert!(
+            ridge(&flat)
+                .iter()
+                .all(|n| (n[0].abs() - h).abs() < 1e-5 && (n[2].abs() - h).abs() < 1e-5)
+        );
+    }
+
+    #[test]
+    fn rock_has_its_analytic_counts() {
+        // Two rocks of 250 × 125 quads: 2 · 62500 triangles.
+        let m = parse(&crate::fixtures::object3ds::rock_3ds(250, 2)).unwrap();
+        assert_eq!(m.indices.len(), 2 * 2 * 250 * 125);
+        assert_eq!(m.objects, ["Rock0", "Rock1"]);
+        assert_eq!(m.validate(), Ok(()));
+        let (lo, hi) = bounds(&m);
+        assert!(lo.iter().all(|c| (-1.11..-0.85).contains(c)), "{lo:?}");
+        assert!(
+            (3.35..3.61).contains(&hi[0]) && (0.85..1.11).contains(&hi[2]),
+            "{hi:?}"
+        );
     }
 
     #[test]

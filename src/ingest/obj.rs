@@ -330,3 +330,118 @@ impl BufRead for LineCounter<'_> {
         self.pos += n;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const OBJ: &str = "# a quad and a triangle, two materials\n\
+mtllib two.mtl\n\
+o Quad\n\
+v 0 0 0\nv 2 0 0\nv 2 1 0\nv 0 1 0\n\
+vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+usemtl Leaf\n\
+f 1/1 2/2 3/3 4/4\n\
+l 1 2 3 4\n\
+o Tri\n\
+v 0 0 1\nv 1 0 1\nv 0 0 2\n\
+usemtl Stone\n\
+f 5 6 7\n";
+
+    const MTL: &str = "newmtl Leaf\nKd 0.1 0.6 0.2\nKa 0 0 0\nKs 0.5 0.5 0.5\nNs 400\nd 0.25\n\
+map_Kd -bm 1 LEAF.png\nmap_Bump leaf_n.png\n\nnewmtl Stone\nKd 0.5 0.5 0.5\nTr 0.1\n";
+
+    fn write(dir: &Path) -> PathBuf {
+        std::fs::write(dir.join("two.obj"), OBJ).unwrap();
+        std::fs::write(dir.join("two.mtl"), MTL).unwrap();
+        std::fs::write(dir.join("leaf.png"), b"not decoded here").unwrap();
+        dir.join("two.obj")
+    }
+
+    #[test]
+    fn quad_and_triangle_with_mtl_materials() {
+        let dir = tempfile::tempdir().unwrap();
+        let m = load(&write(dir.path())).unwrap();
+        assert_eq!(
+            m.indices.len(),
+            3,
+            "quad → 2 triangles, line skipped, + 1 triangle"
+        );
+        assert_eq!(m.objects, vec!["Quad".to_string(), "Tri".to_string()]);
+        assert_eq!(m.triangle_materials, vec![0, 0, 1]);
+        let leaf = &m.materials[0];
+        assert_eq!(leaf.name, "Leaf");
+        assert_eq!(leaf.diffuse, [0.1, 0.6, 0.2, 1.0]);
+        assert_eq!(leaf.specular, [0.5, 0.5, 0.5, 1.0]);
+        assert_eq!(leaf.shininess, 128.0, "Ns 400 clamped to OpenGL's 128");
+        assert_eq!(leaf.transparency, 0.75);
+        let tex = &m.textures[leaf.color_map.unwrap() as usize];
+        assert_eq!(tex.name, "LEAF.png");
+        assert_eq!(
+            tex.path,
+            dir.path().join("leaf.png"),
+            "case-insensitive fallback"
+        );
+        assert_eq!(
+            m.textures[leaf.normal_map.unwrap() as usize].name,
+            "leaf_n.png"
+        );
+        assert!((m.materials[1].transparency - 0.1).abs() < 1e-6);
+        // No normals in the file: face normals, +z for the quad, -y for the triangle.
+        for (t, tri) in m.indices.iter().enumerate() {
+            let want = if t < 2 {
+                [0.0, 0.0, 1.0]
+            } else {
+                [0.0, -1.0, 0.0]
+            };
+            for &v in tri {
+                assert_eq!(m.normals[v as usize], want);
+            }
+        }
+        // v flipped: the corner with vt (1, 1) at (2, 1, 0) gets uv (1, 0).
+        let k = m
+            .positions
+            .iter()
+            .position(|p| *p == [2.0, 1.0, 0.0])
+            .unwrap();
+        assert_eq!(m.uvs[k], [1.0, 0.0]);
+        assert_eq!(m.validate(), Ok(()));
+    }
+
+    #[test]
+    fn parse_without_folder_uses_default_materials() {
+        let m = parse(OBJ.as_bytes()).unwrap();
+        assert_eq!(m.indices.len(), 3);
+        assert!(m.materials.iter().any(|x| x.name == "default"));
+        assert!(
+            m.warnings.iter().any(|w| w.contains("MTL")),
+            "{:?}",
+            m.warnings
+        );
+    }
+
+    #[test]
+    fn errors_name_the_line() {
+        let e = parse(b"v 0 0 0\nv 1 0 0\nv 1 x 0\nf 1 2 3\n").unwrap_err();
+        assert_eq!(e.place, "line 3", "{e}");
+        let e = parse(b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 9").unwrap_err();
+        assert_eq!(e.place, "line 4", "{e}");
+        let e = parse(b"v 0 0 0\np 1\n").unwrap_err();
+        assert!(e.message.contains("no faces"), "{e}");
+    }
+
+    #[test]
+    fn utf16_with_bom_is_read() {
+        let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+        let mut bytes = vec![0xFE, 0xFF];
+        bytes.extend(text.encode_utf16().flat_map(|u| u.to_be_bytes()));
+        assert_eq!(parse(&bytes).unwrap().indices.len(), 1);
+    }
+
+    #[test]
+    fn texture_options_are_stripped() {
+        assert_eq!(strip_options("-bm 0.5 -clamp on a b.png"), "a b.png");
+        assert_eq!(strip_options("-o 1 2 3 tex.png"), "tex.png");
+        assert_eq!(strip_options("plain.png"), "plain.png");
+    }
+}
