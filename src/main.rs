@@ -43,6 +43,10 @@ enum Command {
     Envmaps(cli::envmaps::EnvmapsArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
+    /// Voxelize a model or pack into a sparse voxel octree section.
+    Svo(cli::svo::SvoArgs),
+    /// Build the N-tree with line spaces (soft-shadow acceleration) of a model or pack.
+    Linespace(cli::linespace::LinespaceArgs),
 }
 
 fn run(cli: &Cli) -> Result<Outcome, Error> {
@@ -59,6 +63,8 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Lightmap(a) => cli::lightmap::run(a, g),
         Command::Envmaps(a) => cli::envmaps::run(a, g),
         Command::Fixtures(a) => cli::fixtures::run(a, g),
+        Command::Svo(a) => cli::svo::run(a, g),
+        Command::Linespace(a) => cli::linespace::run(a, g),
     }
 }
 

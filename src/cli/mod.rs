@@ -10,8 +10,10 @@ pub mod envmaps;
 pub mod fixtures;
 pub mod ingest;
 pub mod lightmap;
+pub mod linespace;
 pub mod prt;
 pub mod sky;
+pub mod svo;
 
 use serde_json::Value;
 
