@@ -8,7 +8,6 @@ use crate::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
 use crate::linespace::section;
 use crate::linespace::shaft::ChildMasks;
 use crate::model::Mesh;
-use crate::pack::PackWriter;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
@@ -57,9 +56,7 @@ pub fn run(args: &LinespaceArgs, _g: &Global) -> Result<Outcome> {
         Some(_) => args.input.clone(),
         None => args.input.with_extension("bake"),
     });
-    let mut w = pack
-        .as_ref()
-        .map_or_else(PackWriter::new, PackWriter::from_pack);
+    let mut w = super::svo::start_pack(&args.input, pack.as_ref(), &geo, &mut warnings);
     w.insert(section::to_section(
         "linespace",
         &args.input.display().to_string(),

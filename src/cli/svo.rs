@@ -56,6 +56,28 @@ pub fn load_geometry(path: &Path, warnings: &mut Vec<String>) -> Result<(Geometr
     Ok((Geometry { mesh, textures }, None))
 }
 
+/// The pack an output starts from: the input pack's sections, or for a model input its mesh
+/// (so `bake linespace` and later stages can chain on the output).
+pub fn start_pack(
+    input: &Path,
+    pack: Option<&Pack>,
+    geo: &Geometry,
+    warnings: &mut Vec<String>,
+) -> PackWriter {
+    match pack {
+        Some(p) => PackWriter::from_pack(p),
+        None => {
+            let mut w = PackWriter::new();
+            let name = input
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            crate::pipeline::add_mesh(&mut w, &name, input, &geo.mesh, warnings);
+            w
+        }
+    }
+}
+
 pub fn run(args: &SvoArgs, _g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let (geo, pack) = load_geometry(&args.input, &mut warnings)?;
@@ -90,9 +112,7 @@ pub fn run(args: &SvoArgs, _g: &Global) -> Result<Outcome> {
         Some(_) => args.input.clone(),
         None => args.input.with_extension("bake"),
     });
-    let mut w = pack
-        .as_ref()
-        .map_or_else(PackWriter::new, PackWriter::from_pack);
+    let mut w = start_pack(&args.input, pack.as_ref(), &geo, &mut warnings);
     let source = args.input.display().to_string();
     w.insert(section::to_section("svo", &source, &svo, args.solid));
     w.write(&output)?;
