@@ -65,6 +65,16 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         crate::sky::section::sh_summary,
         crate::sky::section::sh_data,
     ),
+    (
+        crate::voxel::section::KIND,
+        crate::voxel::section::summary,
+        crate::voxel::section::data,
+    ),
+    (
+        crate::linespace::section::KIND,
+        crate::linespace::section::summary,
+        crate::linespace::section::data,
+    ),
 ];
 
 /// Options of `bake dump`.

@@ -45,6 +45,10 @@ enum Command {
     Render(cli::render::RenderArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
+    /// Voxelize a model or pack into a sparse voxel octree section.
+    Svo(cli::svo::SvoArgs),
+    /// Build the N-tree with line spaces (soft-shadow acceleration) of a model or pack.
+    Linespace(cli::linespace::LinespaceArgs),
 }
 
 fn run(cli: &Cli) -> Result<Outcome, Error> {
@@ -62,6 +66,8 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Envmaps(a) => cli::envmaps::run(a, g),
         Command::Fixtures(a) => cli::fixtures::run(a, g),
         Command::Render(a) => cli::render::run(a, g),
+        Command::Svo(a) => cli::svo::run(a, g),
+        Command::Linespace(a) => cli::linespace::run(a, g),
     }
 }
 

@@ -14,6 +14,10 @@ pub struct BenchArgs {
 pub enum BenchWhat {
     /// Ingest throughput in MB/s per input file.
     Ingest(IngestBenchArgs),
+    /// Voxelization and octree build time, bytes per voxel.
+    Svo(crate::cli::svo::SvoBenchArgs),
+    /// Line-space shadow queries against exact BVH shadow rays.
+    Linespace(crate::cli::linespace::LinespaceBenchArgs),
     /// Raw obvhs rays/s against PRT rays/s on one model (default: a procedural plant).
     Rays(super::prt::RaysBenchArgs),
     /// Environment-map clustering and interpolation weights on a generated scene.
@@ -63,6 +67,8 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Rays(a) => super::prt::bench(a, g),
         BenchWhat::Cluster(a) => cluster(a, g),
         BenchWhat::Render(a) => super::render::bench(a, g),
+        BenchWhat::Svo(a) => crate::cli::svo::bench(a, g),
+        BenchWhat::Linespace(a) => crate::cli::linespace::bench(a, g),
     }
 }
 

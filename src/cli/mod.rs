@@ -10,9 +10,11 @@ pub mod envmaps;
 pub mod fixtures;
 pub mod ingest;
 pub mod lightmap;
+pub mod linespace;
 pub mod prt;
 pub mod render;
 pub mod sky;
+pub mod svo;
 
 use serde_json::Value;
 

@@ -1,0 +1,291 @@
+//! `bake svo INPUT`: voxelize a model or a pack (its meshes, or its whole scene) into a sparse
+//! voxel octree section.
+
+use super::{Global, Outcome};
+use crate::error::{Error, Result};
+use crate::pack::{Pack, PackWriter};
+use crate::voxel::geometry::{Geometry, pack_geometry};
+use crate::voxel::section;
+use crate::voxel::svo::voxels_to_svo;
+use crate::voxel::voxelize::{VoxelizeOptions, mesh_to_voxels};
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct SvoArgs {
+    /// A model (.txf .3ds .obj .gltf .glb) or a .bake pack with mesh sections or a scene.
+    pub input: PathBuf,
+    /// Output pack (default: the input pack itself, or <model>.bake).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Voxels along the longest axis of the bounds.
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=(1 << 21)))]
+    pub resolution: u32,
+    /// Fill the inside of closed meshes too.
+    #[arg(long)]
+    pub solid: bool,
+}
+
+/// Whether a path is a pack (by extension).
+pub fn is_pack(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bake"))
+}
+
+/// Reads the geometry of a model file or a pack; missing textures become warnings.
+pub fn load_geometry(path: &Path, warnings: &mut Vec<String>) -> Result<(Geometry, Option<Pack>)> {
+    if is_pack(path) {
+        let pack = Pack::open(path)?;
+        let g = pack_geometry(&pack)?;
+        return Ok((g, Some(pack)));
+    }
+    let mesh = crate::ingest::load_mesh(path)?;
+    warnings.extend(mesh.warnings.iter().cloned());
+    let mut textures = Vec::with_capacity(mesh.textures.len());
+    for t in &mesh.textures {
+        match crate::ingest::texture::load(&t.path) {
+            Ok(img) => textures.push(Some(img)),
+            Err(e) => {
+                warnings.push(format!(
+                    "texture {:?} skipped (voxels untextured): {e}",
+                    t.name
+                ));
+                textures.push(None);
+            }
+        }
+    }
+    Ok((Geometry { mesh, textures }, None))
+}
+
+/// The pack an output starts from: the input pack's sections, or for a model input its mesh
+/// (so `bake linespace` and later stages can chain on the output).
+pub fn start_pack(
+    input: &Path,
+    pack: Option<&Pack>,
+    geo: &Geometry,
+    warnings: &mut Vec<String>,
+) -> PackWriter {
+    match pack {
+        Some(p) => PackWriter::from_pack(p),
+        None => {
+            let mut w = PackWriter::new();
+            let name = input
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            crate::pipeline::add_mesh(&mut w, &name, input, &geo.mesh, warnings);
+            w
+        }
+    }
+}
+
+pub fn run(args: &SvoArgs, _g: &Global) -> Result<Outcome> {
+    let mut warnings = Vec::new();
+    let (geo, pack) = load_geometry(&args.input, &mut warnings)?;
+    if geo.mesh.indices.is_empty() {
+        return Err(Error::invalid_at(
+            &args.input,
+            "geometry",
+            "no triangles to voxelize",
+        ));
+    }
+    let opts = VoxelizeOptions {
+        solid: args.solid,
+        ..VoxelizeOptions::surface(args.resolution)
+    };
+    let start = std::time::Instant::now();
+    let voxels = mesh_to_voxels(&geo.mesh, &geo.textures, &opts)?;
+    let svo = voxels_to_svo(&voxels);
+    let seconds = start.elapsed().as_secs_f64();
+    if voxels.skipped_triangles > 0 {
+        warnings.push(format!(
+            "{} triangles left no voxel (outside the grid or alpha-tested away)",
+            voxels.skipped_triangles
+        ));
+    }
+    if voxels.open_columns > 0 {
+        warnings.push(format!(
+            "solid fill: {} columns crossed the surface an odd number of times (mesh not closed)",
+            voxels.open_columns
+        ));
+    }
+    let output = args.output.clone().unwrap_or_else(|| match &pack {
+        Some(_) => args.input.clone(),
+        None => args.input.with_extension("bake"),
+    });
+    let mut w = start_pack(&args.input, pack.as_ref(), &geo, &mut warnings);
+    let source = args.input.display().to_string();
+    w.insert(section::to_section("svo", &source, &svo, args.solid));
+    w.write(&output)?;
+    let mut json = section::summary_of(&svo);
+    json["output"] = serde_json::json!(output);
+    json["seconds"] = serde_json::json!(seconds);
+    json["triangles"] = serde_json::json!(geo.mesh.indices.len());
+    let text = format!(
+        "{}: svo {:?} voxels, {} voxels, {} nodes, {:.3} B/voxel topology, {:.2} B/voxel total ({:.3} s)\n",
+        output.display(),
+        svo.grid.dims,
+        json["voxels"],
+        json["nodes"],
+        json["topology_bytes_per_voxel"].as_f64().unwrap_or(0.0),
+        json["bytes_per_voxel"].as_f64().unwrap_or(0.0),
+        seconds
+    );
+    Ok(Outcome {
+        json,
+        text,
+        warnings,
+    })
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct SvoBenchArgs {
+    /// Model or pack to voxelize (default: a procedural 70,000-triangle closed blob).
+    pub model: Option<PathBuf>,
+    /// Voxels along the longest axis.
+    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..=(1 << 21)))]
+    pub resolution: u32,
+    /// Repetitions (the best time is reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: u32,
+}
+
+/// `bake bench svo`: voxelization + octree build, best of `repeat`.
+pub fn bench(a: &SvoBenchArgs, _g: &Global) -> Result<Outcome> {
+    let mut warnings = Vec::new();
+    let (geo, name) = match &a.model {
+        Some(p) => (load_geometry(p, &mut warnings)?.0, p.display().to_string()),
+        None => (
+            Geometry {
+                mesh: crate::voxel::geometry::procedural_blob(250, 140),
+                textures: Vec::new(),
+            },
+            "procedural blob (250×140×2 triangles)".to_string(),
+        ),
+    };
+    let opts = VoxelizeOptions::surface(a.resolution);
+    let (mut best_vox, mut best_total) = (f64::INFINITY, f64::INFINITY);
+    let mut last = None;
+    for _ in 0..a.repeat.max(1) {
+        let t0 = std::time::Instant::now();
+        let voxels = mesh_to_voxels(&geo.mesh, &geo.textures, &opts)?;
+        let t1 = t0.elapsed().as_secs_f64();
+        let svo = voxels_to_svo(&voxels);
+        let t2 = t0.elapsed().as_secs_f64();
+        best_vox = best_vox.min(t1);
+        best_total = best_total.min(t2);
+        last = Some(svo);
+    }
+    let svo = last.ok_or_else(|| Error::Runtime("no run".into()))?;
+    let st = svo.stats();
+    let per = |b: u64| b as f64 / st.voxels.max(1) as f64;
+    let json = serde_json::json!({
+        "model": name,
+        "triangles": geo.mesh.indices.len(),
+        "resolution": a.resolution,
+        "grid": svo.grid.dims,
+        "threads": rayon::current_num_threads(),
+        "seconds": best_total,
+        "voxelize_seconds": best_vox,
+        "voxels": st.voxels,
+        "nodes": st.nodes,
+        "topology_bytes_per_voxel": per(st.topology_bytes),
+        "esvo_topology_bytes_per_voxel": per(st.esvo_topology_bytes),
+        "bytes_per_voxel": per(st.topology_bytes + st.attribute_bytes),
+    });
+    let text = format!(
+        "{name}: {} triangles at {}³ → {} voxels in {:.3} s (voxelize {:.3} s); topology {:.3} B/voxel (ESVO descriptors {:.3}), total {:.2} B/voxel\n",
+        geo.mesh.indices.len(),
+        a.resolution,
+        st.voxels,
+        best_total,
+        best_vox,
+        per(st.topology_bytes),
+        per(st.esvo_topology_bytes),
+        per(st.topology_bytes + st.attribute_bytes)
+    );
+    Ok(Outcome {
+        json,
+        text,
+        warnings,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dump::{DumpOptions, dump_json};
+
+    /// `bake svo` and `bake linespace` on a pack with a mesh section, then `bake dump`.
+    #[test]
+    fn svo_and_linespace_commands_add_sections_that_dump_shows() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("box.bake");
+        let mesh = crate::voxel::tests::box_mesh([0.0, 0.0, 0.0], [2.0, 1.0, 1.0]);
+        let mut w = PackWriter::new();
+        w.insert(crate::pack::kinds::mesh::to_section(
+            "mesh:box",
+            "box",
+            &mesh,
+            &[],
+        ));
+        w.write(&path).unwrap();
+        let g = Global::default();
+        let args = SvoArgs {
+            input: path.clone(),
+            output: None,
+            resolution: 16,
+            solid: true,
+        };
+        let out = run(&args, &g).unwrap();
+        assert_eq!(out.json["resolution"], serde_json::json!([16, 8, 8]));
+        let la = crate::cli::linespace::LinespaceArgs {
+            input: path.clone(),
+            output: None,
+            n: 4,
+            depth: 2,
+        };
+        crate::cli::linespace::run(&la, &g).unwrap();
+        let pack = Pack::open(&path).unwrap();
+        let doc = dump_json(
+            &pack,
+            &DumpOptions {
+                full: true,
+                section: None,
+            },
+        )
+        .unwrap();
+        let secs = doc["sections"].as_array().unwrap();
+        let svo = secs.iter().find(|s| s["kind"] == "svo").unwrap();
+        // A solid 16×8×8 box: every voxel.
+        assert_eq!(svo["summary"]["voxels"], 16 * 8 * 8);
+        for k in [
+            "resolution",
+            "origin",
+            "voxel_size",
+            "voxels",
+            "nodes",
+            "bytes",
+            "bytes_per_voxel",
+            "topology_bytes_per_voxel",
+        ] {
+            assert!(svo["summary"].get(k).is_some(), "summary lacks {k}");
+        }
+        assert_eq!(svo["data"]["voxels"].as_array().unwrap().len(), 16 * 8 * 8);
+        let ls = secs.iter().find(|s| s["kind"] == "linespace").unwrap();
+        for k in [
+            "n",
+            "depth",
+            "nodes",
+            "inner_nodes",
+            "bits_per_linespace",
+            "bytes",
+        ] {
+            assert!(ls["summary"].get(k).is_some(), "summary lacks {k}");
+        }
+        assert_eq!(ls["summary"]["bits_per_linespace"], 15 * 256);
+        assert!(
+            secs.iter().any(|s| s["kind"] == "mesh"),
+            "the mesh section was kept"
+        );
+    }
+}

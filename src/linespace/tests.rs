@@ -1,0 +1,296 @@
+//! Invariants of the N-tree and its line spaces against brute-force oracles: a full-matrix build
+//! with the separating-axis shaft test, random segments between patches, exact shadow rays.
+
+use super::linespace::{FACES, Layout, get};
+use super::ntree::{NTree, NTreeOptions, build_ntree};
+use super::query::{AreaLight, ExactShadow, QueryStats, Segment};
+use super::shaft::{ChildMasks, patch_box, shaft_meets_cell_sat};
+use crate::voxel::tests::Rng;
+use crate::voxel::voxelize::tri_box_overlap_reference;
+
+fn random_tris(rng: &mut Rng, count: usize, size: f32) -> Vec<[[f32; 3]; 3]> {
+    (0..count)
+        .map(|_| {
+            let c = [
+                rng.range(0.0, 10.0),
+                rng.range(0.0, 10.0),
+                rng.range(0.0, 10.0),
+            ];
+            std::array::from_fn(|_| [0, 1, 2].map(|k| c[k] + rng.range(-size, size)))
+        })
+        .collect()
+}
+
+/// Two big triangles spanning the scene's bounds, so added geometry keeps the root box.
+fn frame() -> Vec<[[f32; 3]; 3]> {
+    vec![
+        [[-1.0, -1.0, -1.0], [11.0, -1.0, -1.0], [11.0, 11.0, -1.0]],
+        [[-1.0, 11.0, 11.0], [11.0, 11.0, 11.0], [-1.0, -1.0, 11.0]],
+    ]
+}
+
+fn build(tris: &[[[f32; 3]; 3]], n: u32, depth: u32) -> NTree {
+    build_ntree(tris, &NTreeOptions { n, depth }, &ChildMasks::build(n)).unwrap()
+}
+
+/// Every inner node: (group, level, world minimum corner, world size).
+fn inner_nodes(t: &NTree) -> Vec<(u32, u32, [f32; 3], [f32; 3])> {
+    let side = t.leaf_size.map(|s| s * t.n.pow(t.depth) as f32);
+    let mut out = vec![(0, 0, t.origin, side)];
+    let mut i = 0;
+    while i < out.len() {
+        let (g, l, o, s) = out[i];
+        let cs = s.map(|x| x / t.n as f32);
+        for slot in 0..t.n3() {
+            let e = t.nodes[1 + g as usize * t.n3() + slot];
+            if e.children() {
+                let c = [
+                    slot as u32 % t.n,
+                    slot as u32 / t.n % t.n,
+                    slot as u32 / (t.n * t.n),
+                ];
+                let co = [0, 1, 2].map(|k| o[k] + c[k] as f32 * cs[k]);
+                out.push((e.group(), l + 1, co, cs));
+            }
+        }
+        i += 1;
+    }
+    out
+}
+
+/// Filled children of group g.
+fn filled(t: &NTree, g: u32) -> Vec<[i64; 3]> {
+    (0..t.n3())
+        .filter(|&s| t.nodes[1 + g as usize * t.n3() + s].geometry())
+        .map(|s| {
+            let n = t.n as usize;
+            [s % n, s / n % n, s / (n * n)].map(|x| x as i64)
+        })
+        .collect()
+}
+
+#[test]
+fn linespaces_are_bit_exact_against_a_brute_force_full_matrix() {
+    let mut rng = Rng(17);
+    let tris = random_tris(&mut rng, 12, 2.0);
+    let t = build(&tris, 3, 2);
+    let layout = Layout::new(3);
+    let pp = 9u32;
+    for (g, _, _, _) in inner_nodes(&t) {
+        let kids = filled(&t, g);
+        let full = layout.expand_full(t.linespace(g));
+        for fa in 0..FACES {
+            for pa in 0..pp {
+                for fb in 0..FACES {
+                    for pb in 0..pp {
+                        let (a, b) = (patch_box(3, fa, pa), patch_box(3, fb, pb));
+                        let want = kids.iter().any(|&c| shaft_meets_cell_sat(&a, &b, c));
+                        let got = get(&full, layout.full_index(fa, pa, fb, pb));
+                        assert_eq!(got, want, "group {g}: {fa}:{pa} → {fb}:{pb}");
+                        // Symmetry and same-face emptiness of the full matrix.
+                        assert_eq!(got, get(&full, layout.full_index(fb, pb, fa, pa)));
+                        if fa == fb {
+                            assert!(!got);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn filled_cells_match_the_akenine_moller_test() {
+    let mut rng = Rng(4);
+    let tris = random_tris(&mut rng, 30, 1.5);
+    let t = build(&tris, 4, 2);
+    for (g, level, o, s) in inner_nodes(&t) {
+        if level != 1 {
+            continue;
+        }
+        let cs = s.map(|x| x / 4.0);
+        for slot in 0..64usize {
+            let c = [slot % 4, slot / 4 % 4, slot / 16].map(|x| x as f32);
+            let center = [0, 1, 2].map(|k| (o[k] + (c[k] + 0.5) * cs[k]) as f64);
+            // Strictly inside or clearly outside: compare with a box slightly smaller and larger.
+            let half_in = cs.map(|x| x as f64 * (0.5 - 1e-3));
+            let half_out = cs.map(|x| x as f64 * (0.5 + 2e-3));
+            let over = |h: [f64; 3]| {
+                tris.iter()
+                    .any(|tr| tri_box_overlap_reference(center, h, tr.map(|p| p.map(|v| v as f64))))
+            };
+            let got = t.nodes[1 + g as usize * 64 + slot].geometry();
+            if over(half_in) {
+                assert!(got, "group {g} slot {slot} misses a triangle");
+            }
+            if !over(half_out) {
+                assert!(!got, "group {g} slot {slot} filled without a triangle");
+            }
+        }
+    }
+}
+
+#[test]
+fn linespaces_grow_monotonically_with_added_geometry() {
+    let mut rng = Rng(8);
+    let mut tris = frame();
+    tris.extend(random_tris(&mut rng, 10, 1.0));
+    let a = build(&tris, 4, 2);
+    tris.extend(random_tris(&mut rng, 10, 1.0));
+    let b = build(&tris, 4, 2);
+    assert_eq!(a.origin, b.origin);
+    let nodes_b = inner_nodes(&b);
+    for (ga, la, oa, _) in inner_nodes(&a) {
+        let (gb, ..) = nodes_b
+            .iter()
+            .find(|(_, lb, ob, _)| *lb == la && *ob == oa)
+            .expect("a node of the smaller scene is missing");
+        let (sa, sb) = (a.linespace(ga), b.linespace(*gb));
+        assert!(
+            sa.iter().zip(sb).all(|(x, y)| x & !y == 0),
+            "node {ga} lost bits"
+        );
+    }
+}
+
+/// Ray/triangle hit parameter on segment p + t·d, t ∈ [0, 1] (f64 Möller–Trumbore).
+fn hit_t(p: [f64; 3], d: [f64; 3], tri: &[[f32; 3]; 3]) -> Option<f64> {
+    let v = tri.map(|q| q.map(|x| x as f64));
+    let e1 = [0, 1, 2].map(|k| v[1][k] - v[0][k]);
+    let e2 = [0, 1, 2].map(|k| v[2][k] - v[0][k]);
+    let cr = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let dt = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let h = cr(d, e2);
+    let det = dt(e1, h);
+    if det.abs() < 1e-15 {
+        return None;
+    }
+    let s = [0, 1, 2].map(|k| p[k] - v[0][k]);
+    let u = dt(s, h) / det;
+    let q = cr(s, e1);
+    let w = dt(d, q) / det;
+    let t = dt(e2, q) / det;
+    (u >= 0.0 && w >= 0.0 && u + w <= 1.0 && (0.0..=1.0).contains(&t)).then_some(t)
+}
+
+#[test]
+fn segments_between_patches_that_hit_geometry_land_in_set_bits() {
+    let mut rng = Rng(99);
+    let tris = random_tris(&mut rng, 25, 2.0);
+    let t = build(&tris, 4, 2);
+    let layout = Layout::new(4);
+    let (mut checked, mut hits) = (0, 0);
+    for (g, _, o, s) in inner_nodes(&t) {
+        for _ in 0..3000 {
+            let (fa, fb) = ((rng.next_u64() % 6) as usize, (rng.next_u64() % 6) as usize);
+            if fa == fb {
+                continue;
+            }
+            let (pa, pb) = ((rng.next_u64() % 16) as u32, (rng.next_u64() % 16) as u32);
+            let point = |f: usize, p: u32, rng: &mut Rng| {
+                let b = patch_box(4, f, p);
+                [0, 1, 2].map(|k| {
+                    let x = b.lo[k] as f64 + (b.hi[k] - b.lo[k]) as f64 * rng.f32() as f64;
+                    o[k] as f64 + x * s[k] as f64 / 4.0
+                })
+            };
+            let (a, b) = (point(fa, pa, &mut rng), point(fb, pb, &mut rng));
+            let d = [0, 1, 2].map(|k| b[k] - a[k]);
+            checked += 1;
+            if tris.iter().any(|tr| hit_t(a, d, tr).is_some()) {
+                hits += 1;
+                let bit = layout.bit(fa, pa, fb, pb).unwrap();
+                assert!(
+                    get(t.linespace(g), bit),
+                    "node {g}: {fa}:{pa} → {fb}:{pb} hits geometry but reads empty"
+                );
+            }
+        }
+    }
+    assert!(hits > 100 && hits < checked, "{hits} of {checked}");
+}
+
+#[test]
+fn linespace_shadow_is_never_brighter_than_exact_shadow_rays() {
+    let mut rng = Rng(123);
+    for (n, depth) in [(4, 2), (3, 3), (10, 2)] {
+        let mut tris = random_tris(&mut rng, 200, 0.8);
+        tris.push([[-2.0, -2.0, -0.5], [12.0, -2.0, -0.5], [12.0, 12.0, -0.5]]);
+        tris.push([[-2.0, -2.0, -0.5], [12.0, 12.0, -0.5], [-2.0, 12.0, -0.5]]);
+        let t = build(&tris, n, depth);
+        let exact = ExactShadow::new(&tris);
+        let light = AreaLight {
+            corner: [2.0, 3.0, 14.0],
+            edge_u: [4.0, 0.0, 0.0],
+            edge_v: [0.0, 3.0, 1.0],
+            samples: 4,
+        };
+        let mut stats = QueryStats::default();
+        let (mut lit, mut blocked, mut over) = (0, 0, 0);
+        for i in 0..600 {
+            let tri = &tris[rng.next_u64() as usize % tris.len()];
+            let (mut a, mut b) = (rng.f32(), rng.f32());
+            if a + b > 1.0 {
+                (a, b) = (1.0 - a, 1.0 - b);
+            }
+            let p = [0, 1, 2]
+                .map(|k| tri[0][k] + a * (tri[1][k] - tri[0][k]) + b * (tri[2][k] - tri[0][k]));
+            // Some receivers in free space, some far outside the root box.
+            let p = match i % 10 {
+                0 => [
+                    rng.range(-5.0, 15.0),
+                    rng.range(-5.0, 15.0),
+                    rng.range(-5.0, 15.0),
+                ],
+                _ => p,
+            };
+            for s in 0..16 {
+                let seg = Segment::between(p, light.sample(s), 1e-3);
+                let e = exact.occluded(&seg);
+                assert_eq!(
+                    e,
+                    exact.occluded_brute_force(&seg),
+                    "BVH and brute force disagree"
+                );
+                let l = t.segment_occluded(&seg, &mut stats);
+                assert!(
+                    !e || l,
+                    "n {n} depth {depth}: {seg:?} is shadowed but the line space says lit"
+                );
+                match (e, l) {
+                    (false, false) => lit += 1,
+                    (true, _) => blocked += 1,
+                    (false, true) => over += 1,
+                }
+            }
+        }
+        assert!(
+            lit > 1000 && blocked > 500,
+            "n {n}: lit {lit}, blocked {blocked}, over {over}"
+        );
+        assert!(stats.linespace_lookups > 0);
+    }
+}
+
+#[test]
+fn section_round_trips() {
+    let mut rng = Rng(1);
+    let t = build(&random_tris(&mut rng, 20, 1.0), 4, 2);
+    let mut w = crate::pack::PackWriter::new();
+    w.insert(super::section::to_section("linespace", "test", &t));
+    let bytes = w.to_bytes().unwrap();
+    let pack = crate::pack::Pack::from_bytes(&bytes, "mem").unwrap();
+    let view = pack.view_named("linespace").unwrap();
+    let (_, back) = super::section::from_section(&view).unwrap();
+    assert_eq!(back, t);
+    let s = super::section::summary(&view).unwrap();
+    assert_eq!(s["n"], 4);
+    assert_eq!(s["bits_per_linespace"], 15 * 256);
+    assert_eq!(s["inner_nodes"], t.inner_nodes());
+}

@@ -1,0 +1,198 @@
+//! What the voxelizer and the N-tree read: one triangle mesh in world space with its decoded
+//! colour maps, from a model, or from a pack (its meshes, or a whole scene: the terrain as a
+//! triangulated height field plus every instance's mesh placed on it).
+
+use crate::error::{ParseError, Result};
+use crate::model::{Instance, Material, Mesh, Rgba8Image, Terrain};
+use crate::pack::Pack;
+use crate::pack::kinds;
+
+/// A world-space mesh and the decoded images of its `textures` (same indices; None = missing).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Geometry {
+    pub mesh: Mesh,
+    pub textures: Vec<Option<Rgba8Image>>,
+}
+
+impl Geometry {
+    /// Appends another geometry (indices, materials and textures offset).
+    pub fn append(&mut self, other: Geometry) {
+        self.mesh.append(other.mesh);
+        self.textures.extend(other.textures);
+    }
+}
+
+/// The terrain as two triangles per grid cell, with its colour map as material 0's colour map.
+pub fn terrain_mesh(t: &Terrain) -> Geometry {
+    let (w, h) = (t.width.max(1), t.height.max(1));
+    let mut mesh = Mesh::default();
+    for j in 0..h {
+        for i in 0..w {
+            mesh.positions.push(t.position(i, j));
+            mesh.normals.push([0.0, 0.0, 1.0]);
+            let u = if w > 1 {
+                i as f32 / (w - 1) as f32
+            } else {
+                0.5
+            };
+            // Row 0 of the colour image is the northern edge (largest y).
+            let v = if h > 1 {
+                1.0 - j as f32 / (h - 1) as f32
+            } else {
+                0.5
+            };
+            mesh.uvs.push([u, v]);
+        }
+    }
+    for j in 0..h.saturating_sub(1) {
+        for i in 0..w.saturating_sub(1) {
+            let a = j * w + i;
+            mesh.indices.push([a, a + 1, a + w + 1]);
+            mesh.indices.push([a, a + w + 1, a + w]);
+        }
+    }
+    mesh.triangle_materials = vec![0; mesh.indices.len()];
+    let textured = t.color.is_some();
+    mesh.materials.push(Material {
+        name: "terrain".into(),
+        diffuse: [1.0, 1.0, 1.0, 1.0],
+        color_map: textured.then_some(0),
+        ..Material::default()
+    });
+    mesh.objects.push("terrain".into());
+    let textures = if textured {
+        mesh.textures.push(crate::model::TextureRef {
+            name: "terrain color".into(),
+            path: "terrain".into(),
+        });
+        vec![t.color.clone()]
+    } else {
+        Vec::new()
+    };
+    Geometry { mesh, textures }
+}
+
+/// A model's mesh placed by an instance: scaled, rotated about +Z, translated.
+pub fn place_instance(model: &Geometry, inst: &Instance) -> Geometry {
+    let (s, c) = inst.rotation_deg.to_radians().sin_cos();
+    let rot = |p: [f32; 3]| [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]];
+    let mut g = model.clone();
+    for p in &mut g.mesh.positions {
+        let r = rot(p.map(|x| x * inst.scale));
+        *p = [0, 1, 2].map(|k| r[k] + inst.position[k]);
+    }
+    for n in &mut g.mesh.normals {
+        *n = rot(*n);
+    }
+    g
+}
+
+fn invalid(pack: &Pack, e: ParseError) -> crate::error::Error {
+    crate::error::Error::invalid(pack.path(), e)
+}
+
+/// A mesh section and its texture sections.
+pub fn mesh_from_pack(pack: &Pack, name: &str) -> Result<Geometry> {
+    let view = pack.view_named(name)?;
+    let (meta, mesh) = kinds::mesh::from_section(&view).map_err(|e| invalid(pack, e))?;
+    let mut textures = Vec::with_capacity(meta.textures.len());
+    for t in &meta.textures {
+        let img = match &t.section {
+            Some(s) if pack.find(s).is_some() => {
+                let v = pack.view_named(s)?;
+                Some(
+                    kinds::texture::from_section(&v)
+                        .map_err(|e| invalid(pack, e))?
+                        .1,
+                )
+            }
+            _ => None,
+        };
+        textures.push(img);
+    }
+    Ok(Geometry { mesh, textures })
+}
+
+/// All geometry of a pack: with an `instances` section, the scene (terrain plus placed
+/// instances); otherwise every mesh section (and the terrain, if any) as it is.
+pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
+    let mut g = Geometry::default();
+    if let Some(e) = pack.of_kind(kinds::terrain::KIND).next() {
+        let view = pack.view(e)?;
+        let (meta, mut t) = kinds::terrain::from_section(&view).map_err(|e| invalid(pack, e))?;
+        if let Some(cs) = meta
+            .color_section
+            .as_deref()
+            .filter(|s| pack.find(s).is_some())
+        {
+            let v = pack.view_named(cs)?;
+            t.color = Some(
+                kinds::texture::from_section(&v)
+                    .map_err(|e| invalid(pack, e))?
+                    .1,
+            );
+        }
+        g.append(terrain_mesh(&t));
+    }
+    if let Some(e) = pack.of_kind(kinds::instances::KIND).next() {
+        let view = pack.view(e)?;
+        let (meta, inst) = kinds::instances::from_section(&view).map_err(|e| invalid(pack, e))?;
+        let models: Vec<Option<Geometry>> = meta
+            .mesh_sections
+            .iter()
+            .map(|s| pack.find(s).map(|_| mesh_from_pack(pack, s)).transpose())
+            .collect::<Result<_>>()?;
+        for i in &inst.items {
+            if let Some(Some(m)) = models.get(i.model as usize) {
+                g.append(place_instance(m, i));
+            }
+        }
+    } else {
+        let names: Vec<String> = pack
+            .of_kind(kinds::mesh::KIND)
+            .map(|e| e.name.clone())
+            .collect();
+        for n in names {
+            g.append(mesh_from_pack(pack, &n)?);
+        }
+    }
+    Ok(g)
+}
+
+/// A closed, bumpy, scan-like procedural surface of `2 · cols · rows` triangles (a sphere
+/// displaced by a few sine waves), for benchmarks where no scanned mesh is at hand.
+pub fn procedural_blob(cols: u32, rows: u32) -> Mesh {
+    let (cols, rows) = (cols.max(3), rows.max(2));
+    let mut mesh = Mesh::default();
+    for j in 0..=rows {
+        let theta = std::f32::consts::PI * j as f32 / rows as f32;
+        for i in 0..cols {
+            let phi = std::f32::consts::TAU * i as f32 / cols as f32;
+            let bump = 1.0
+                + 0.12 * (5.0 * phi).sin() * (3.0 * theta).sin()
+                + 0.05 * (17.0 * phi + 2.0 * theta).sin() * theta.sin()
+                + 0.02 * (41.0 * theta).sin();
+            let d = [
+                theta.sin() * phi.cos(),
+                theta.sin() * phi.sin(),
+                theta.cos(),
+            ];
+            mesh.positions.push(d.map(|x| x * bump));
+            mesh.normals.push(d);
+            mesh.uvs
+                .push([i as f32 / cols as f32, j as f32 / rows as f32]);
+        }
+    }
+    for j in 0..rows {
+        for i in 0..cols {
+            let a = j * cols + i;
+            let b = j * cols + (i + 1) % cols;
+            mesh.indices.push([a, b, b + cols]);
+            mesh.indices.push([a, b + cols, a + cols]);
+        }
+    }
+    mesh.triangle_materials = vec![0; mesh.indices.len()];
+    mesh.materials.push(Material::default());
+    mesh.objects.push("procedural blob".into());
+    mesh
+}
