@@ -18,6 +18,8 @@ pub enum BenchWhat {
     Rays(super::prt::RaysBenchArgs),
     /// Environment-map clustering and interpolation weights on a generated scene.
     Cluster(ClusterBenchArgs),
+    /// The sky stage on a lat-long sky: decode, SH, full bake; SH accuracy against exact integrals.
+    Sky(super::sky::SkyBenchArgs),
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -60,6 +62,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Ingest(a) => ingest(a, g),
         BenchWhat::Rays(a) => super::prt::bench(a, g),
         BenchWhat::Cluster(a) => cluster(a, g),
+        BenchWhat::Sky(a) => super::sky::bench(a, g),
     }
 }
 
