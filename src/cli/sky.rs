@@ -33,6 +33,10 @@ pub struct SkyArgs {
         allow_negative_numbers = true
     )]
     pub rotate: f64,
+    /// Only project the input to SH (with the sun, no cube, no pack) and report it, like
+    /// `cmgen --sh=4`; the input must be a lat-long image.
+    #[arg(long)]
+    pub sh_only: bool,
     /// Built-in sky: sun elevation in degrees (0..90).
     #[arg(long, default_value_t = 40.0)]
     pub sun_elevation: f64,
@@ -67,7 +71,10 @@ fn builtin_params(a: &SkyArgs) -> Result<BuiltinSky> {
     })
 }
 
-pub fn run(args: &SkyArgs, _g: &Global) -> Result<Outcome> {
+pub fn run(args: &SkyArgs, g: &Global) -> Result<Outcome> {
+    if args.sh_only {
+        return sh_only(args, g);
+    }
     let (src, source_name) = if args.inputs.is_empty() {
         let p = builtin_params(args)?;
         let name = format!(
@@ -115,6 +122,30 @@ pub fn run(args: &SkyArgs, _g: &Global) -> Result<Outcome> {
         text: report_text(&bake, &output),
         json,
         warnings: warnings(&bake),
+    })
+}
+
+/// `--sh-only`: the SH of a lat-long input as it is (sun included), exact solid angles.
+fn sh_only(args: &SkyArgs, _g: &Global) -> Result<Outcome> {
+    let [input] = args.inputs.as_slice() else {
+        return Err(Error::usage("--sh-only takes exactly one lat-long image"));
+    };
+    let img = crate::ingest::skyimage::load(input)?;
+    let img = match sky::image_to_source(img).map_err(|e| Error::invalid(input, e))? {
+        SkySource::LatLong(img) => img,
+        _ => return Err(Error::usage("--sh-only takes a lat-long (2:1) image")),
+    };
+    let sh = crate::sh::project_latlong(&img);
+    let sh = sh.rotated_z(args.rotate.to_radians());
+    let text = sh
+        .coeffs
+        .iter()
+        .map(|c| format!("{:.6} {:.6} {:.6}\n", c[0], c[1], c[2]))
+        .collect();
+    Ok(Outcome {
+        json: json!({"sh": {"order": crate::sh::ORDER, "coefficients": sh.coeffs}}),
+        text,
+        warnings: Vec::new(),
     })
 }
 
@@ -210,7 +241,13 @@ fn sh_error(a: &crate::sh::ShRadiance, exact: &crate::sh::ShRadiance) -> f64 {
 
 pub fn bench(a: &SkyBenchArgs, _g: &Global) -> Result<Outcome> {
     if let Some((w, h)) = a.write_sample {
-        let img = sky::builtin::builtin_sky_latlong(&BuiltinSky::default(), w, h);
+        // Sun off the diagonals, so the x and y axes are told apart in comparisons.
+        let params = BuiltinSky {
+            sun_elevation_deg: 35.0,
+            sun_azimuth_deg: 160.0,
+            ..BuiltinSky::default()
+        };
+        let img = sky::builtin::builtin_sky_latlong(&params, w, h);
         crate::pack::write_atomic(&a.input, &crate::ingest::skyimage::write_hdr(&img))?;
         return Ok(Outcome {
             json: json!({"written": a.input, "width": w, "height": h}),
@@ -249,6 +286,7 @@ pub fn bench(a: &SkyBenchArgs, _g: &Global) -> Result<Outcome> {
         let theirs = read_cmgen_sh(path)?;
         let err = sh_error(&theirs, &exact);
         json["sh_error_vs_exact"]["cmgen"] = json!(err);
+        json["sh_cmgen_aligned"] = json!(theirs.coeffs);
         text.push_str(&format!("  cmgen (aligned): {err:.2e}\n"));
     }
     Ok(Outcome {
@@ -294,7 +332,12 @@ fn read_cmgen_sh(path: &std::path::Path) -> Result<crate::sh::ShRadiance> {
     Ok(cmgen_to_bake(coeffs))
 }
 
-/// cmgen's basis and axes to bake's (filled in from the comparison: see `cmgen_to_bake` notes).
+/// cmgen's coefficients in bake's convention. cmgen (Filament `libs/ibl`) uses the same real
+/// basis with the Condon–Shortley phase, but its axes are Y up and its cube maps mirrored (its
+/// default): a world direction (x, y, z) is cmgen's (x', y', z') = (y, z, −x), found by matching
+/// the band-1 dipole of a sky whose sun is off the diagonals (an improper map, det −1). bake's
+/// function at ω is cmgen's at M·ω, i.e. cmgen's rotated by Mᵀ.
 fn cmgen_to_bake(c: [[f32; 3]; 16]) -> crate::sh::ShRadiance {
-    crate::sh::ShRadiance { coeffs: c }
+    let mt = [[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    crate::sh::ShRadiance { coeffs: c }.rotated(&crate::sh::ShRotation::new(4, mt))
 }
