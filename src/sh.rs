@@ -432,8 +432,60 @@ pub fn project_cube(cube: &CubeMap) -> ShRadiance {
 }
 
 /// Projects a lat-long image (docs/CONVENTIONS.md mapping) to order 4 with exact pixel solid
-/// angles `Δφ (cos θ0 − cos θ1)`.
+/// angles `Δφ (cos θ0 − cos θ1)`: the midpoint rule per pixel, computed separably (fast path).
+///
+/// With `y_lm(θ, φ) = y_lm(θ, 0)·cos(mφ)` and `y_{l,−m}(θ, φ) = y_lm(θ, 0)·sin(mφ)` (m > 0), each
+/// row only needs the sums `Σ_col L·cos(mφ)` and `Σ_col L·sin(mφ)` for m < 4: 7 products per
+/// pixel instead of 16. [`project_latlong_reference`] is the same sum texel by texel.
 pub fn project_latlong(img: &FloatImage) -> ShRadiance {
+    let (w, h) = (img.width as usize, img.height as usize);
+    // cos(mφ), sin(mφ) per column, m = 0..3 (sin(0) omitted): 7 entries.
+    let trig: Vec<[f64; 7]> = (0..w)
+        .map(|col| {
+            let phi = (col as f64 + 0.5) / w as f64 * 2.0 * PI;
+            let (s1, c1) = phi.sin_cos();
+            let (s2, c2) = (2.0 * phi).sin_cos();
+            let (s3, c3) = (3.0 * phi).sin_cos();
+            [1.0, c1, s1, c2, s2, c3, s3]
+        })
+        .collect();
+    let rows: Vec<_> = (0..h)
+        .into_par_iter()
+        .map(|row| {
+            let omega = cube::latlong_row_solid_angle(row as u32, img.width, img.height);
+            let theta = (row as f64 + 0.5) / h as f64 * PI;
+            let mut b = [0.0f64; COEFFS];
+            eval_basis_into(ORDER, [theta.sin(), 0.0, theta.cos()], &mut b);
+            let mut sums = [[0.0f64; 3]; 7];
+            for (p, t) in img.pixels[row * w..(row + 1) * w].iter().zip(&trig) {
+                let v = p.map(f64::from);
+                for (s, &tk) in sums.iter_mut().zip(t) {
+                    s[0] += v[0] * tk;
+                    s[1] += v[1] * tk;
+                    s[2] += v[2] * tk;
+                }
+            }
+            let mut acc = [[0.0f64; 3]; COEFFS];
+            for l in 0..ORDER {
+                for m in 0..=l {
+                    let f = omega * b[index(l, m as i32)];
+                    let (c, s) = if m == 0 { (0, 0) } else { (2 * m - 1, 2 * m) };
+                    for k in 0..3 {
+                        acc[index(l, m as i32)][k] += f * sums[c][k];
+                        if m > 0 {
+                            acc[index(l, -(m as i32))][k] += f * sums[s][k];
+                        }
+                    }
+                }
+            }
+            acc
+        })
+        .collect();
+    sum_rows(rows)
+}
+
+/// The same sum as [`project_latlong`], pixel by pixel (reference path).
+pub fn project_latlong_reference(img: &FloatImage) -> ShRadiance {
     let (w, h) = (img.width as usize, img.height as usize);
     let rows: Vec<_> = (0..h)
         .into_par_iter()
@@ -447,6 +499,45 @@ pub fn project_latlong(img: &FloatImage) -> ShRadiance {
                 let (sp, cp) = phi.sin_cos();
                 let d = [(st * cp) as f32, (st * sp) as f32, ct as f32];
                 accumulate(&mut acc, d, img.pixels[row * w + col], omega);
+            }
+            acc
+        })
+        .collect();
+    sum_rows(rows)
+}
+
+/// The exact projection of the image read as piecewise constant per pixel:
+/// `Σ_p L_p ∫_pixel y_i dω`, each pixel integral by a 4 × 4 Gauss–Legendre rule in (θ, φ)
+/// (error ~ Δ⁸: exact to rounding at any practical resolution). Slow; the benchmarks' oracle.
+pub fn project_latlong_exact(img: &FloatImage) -> ShRadiance {
+    let (w, h) = (img.width as usize, img.height as usize);
+    let gl = gauss_legendre(4);
+    let (dphi, dtheta) = (2.0 * PI / w as f64, PI / h as f64);
+    let rows: Vec<_> = (0..h)
+        .into_par_iter()
+        .map(|row| {
+            let mut acc = [[0.0f64; 3]; COEFFS];
+            let mut b = [0.0f64; COEFFS];
+            for col in 0..w {
+                let mut integral = [0.0f64; COEFFS];
+                for &(u, wu) in &gl {
+                    let theta = (row as f64 + 0.5 + 0.5 * u) * dtheta;
+                    let (st, ct) = theta.sin_cos();
+                    for &(v, wv) in &gl {
+                        let phi = (col as f64 + 0.5 + 0.5 * v) * dphi;
+                        eval_basis_into(ORDER, [st * phi.cos(), st * phi.sin(), ct], &mut b);
+                        let wt = wu * wv * 0.25 * dtheta * dphi * st;
+                        for (i, bi) in b.iter().enumerate() {
+                            integral[i] += wt * bi;
+                        }
+                    }
+                }
+                let p = img.pixels[row * w + col];
+                for (a, y) in acc.iter_mut().zip(integral) {
+                    for k in 0..3 {
+                        a[k] += p[k] as f64 * y;
+                    }
+                }
             }
             acc
         })

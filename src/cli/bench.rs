@@ -24,6 +24,8 @@ pub enum BenchWhat {
     Cluster(ClusterBenchArgs),
     /// Offscreen render of a pack: device setup, upload and draw times.
     Render(super::render::RenderBenchArgs),
+    /// The sky stage on a lat-long sky: decode, SH, full bake; SH accuracy against exact integrals.
+    Sky(super::sky::SkyBenchArgs),
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -69,6 +71,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Render(a) => super::render::bench(a, g),
         BenchWhat::Svo(a) => crate::cli::svo::bench(a, g),
         BenchWhat::Linespace(a) => crate::cli::linespace::bench(a, g),
+        BenchWhat::Sky(a) => super::sky::bench(a, g),
     }
 }
 

@@ -239,7 +239,8 @@ pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeM
                     for b in 0..k {
                         let s = 2.0 * (col as f64 + (a as f64 + 0.5) / k as f64) / n as f64 - 1.0;
                         let t = 2.0 * (row + (b as f64 + 0.5) / k as f64) / n as f64 - 1.0;
-                        let w = (1.0 + s * s + t * t).powf(-1.5);
+                        let r2 = 1.0 + s * s + t * t;
+                        let w = 1.0 / (r2 * r2.sqrt());
                         let d = cube::normalize(face.direction(s, t));
                         // The source is read where the rotation came from: R_z(−angle)·d.
                         let d = [

@@ -55,7 +55,15 @@ pub fn cube_to_section(name: &str, source: &str, cube: &CubeMap, sky: &SkyIrradi
             if t.iter().any(|&v| v.is_nan() || v.abs() > F16_MAX) {
                 clamped += 1;
             }
-            let h = |v: f32| f16::from_f32(v.clamp(-F16_MAX, F16_MAX)).to_bits();
+            // NaN becomes 0; ±∞ and out-of-range values the largest half float.
+            let h = |v: f32| {
+                f16::from_f32(if v.is_nan() {
+                    0.0
+                } else {
+                    v.clamp(-F16_MAX, F16_MAX)
+                })
+                .to_bits()
+            };
             [h(t[0]), h(t[1]), h(t[2]), h(1.0)]
         })
         .collect();

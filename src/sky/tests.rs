@@ -1,4 +1,5 @@
 //! The sky stage end to end: layouts, resampling, rotation, determinism.
+#![allow(clippy::needless_range_loop)] // index loops mirror the formulas
 
 use super::*;
 use crate::sky::cube::{latlong_direction, texel_direction};

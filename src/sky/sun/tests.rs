@@ -1,4 +1,5 @@
 //! Sun extraction against injected suns of known direction and irradiance.
+#![allow(clippy::needless_range_loop)] // index loops mirror the formulas
 
 use super::*;
 use std::f64::consts::PI;
