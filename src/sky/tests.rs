@@ -261,3 +261,24 @@ fn bad_options_are_usage_errors() {
     o.sun.enlargement = -1.0;
     assert!(bake_sky(&src, &o).is_err());
 }
+
+#[test]
+fn a_scene_without_a_sky_gets_the_builtin_one() {
+    let p = builtin::BuiltinSky {
+        face_size: 16,
+        ..builtin::BuiltinSky::default()
+    };
+    let opts = SkyOptions {
+        face_size: Some(16),
+        ..SkyOptions::default()
+    };
+    let kinds: Vec<_> = scene_sky_sections(None, &p, &opts)
+        .unwrap()
+        .into_iter()
+        .map(|s| (s.kind, s.name))
+        .collect();
+    let expect = [("sky", "sky"), ("sun", "sun"), ("sh", "sh")];
+    assert_eq!(kinds, expect.map(|(k, n)| (k.to_string(), n.to_string())));
+    let img = latlong_of(64, 32, smooth);
+    assert_eq!(scene_sky_sections(Some(&img), &p, &opts).unwrap().len(), 3);
+}
