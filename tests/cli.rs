@@ -280,3 +280,145 @@ fn fixture_scene_bakes_and_dumps_every_kind() {
         assert!((0.0..=12.75).contains(&z), "{z}");
     }
 }
+
+/// `dump --json` shape for packs made from every single-file input kind (OBJ, glTF, GLB written
+/// here; EXR written with the `exr` crate; TXF and 3DS from the fixtures).
+#[test]
+fn dump_json_shape_for_every_input_kind() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake::fixtures::write_all(d).unwrap();
+    write(
+        d,
+        "quad.obj",
+        b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n",
+    );
+    // A glTF triangle with an embedded base64 buffer: 3 positions (36 bytes) + 3 u16 indices.
+    let mut buf: Vec<u8> = [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.]]
+        .iter()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    buf.extend([0u16, 1, 2].iter().flat_map(|v| v.to_le_bytes()));
+    buf.extend([0u8, 0]);
+    let b64 = base64_encode(&buf);
+    let gltf = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0,"translation":[0,2,0]}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+        "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}],
+        "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":6}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+                     {{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}}]}}"#,
+        buf.len()
+    );
+    write(d, "tri.gltf", gltf.as_bytes());
+    exr::prelude::write_rgb_file(d.join("sky.exr"), 16, 8, |x, y| {
+        (x as f32 * 0.1, y as f32 * 0.1, 1.0f32)
+    })
+    .unwrap();
+    let cases: [(&str, &[&str], &str, u64); 7] = [
+        ("plant.txf", &[], "mesh", 268),
+        ("object.3ds", &[], "mesh", 36),
+        ("quad.obj", &[], "mesh", 2),
+        ("tri.gltf", &[], "mesh", 1),
+        (
+            "terrain.raw",
+            &["--size", "65x65", "--scale", "0.05"],
+            "terrain",
+            0,
+        ),
+        ("sky.hdr", &[], "sky", 0),
+        ("sky.exr", &[], "sky", 0),
+    ];
+    for (file, extra, kind, tris) in cases {
+        let out = d.join(format!("{file}.bake"));
+        let input = d.join(file);
+        let mut args = vec![
+            "ingest",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--quiet",
+        ];
+        args.extend_from_slice(extra);
+        let o = bake(&args);
+        assert!(o.status.success(), "{file}: {}", stderr(&o));
+        let doc = json(&bake(&["dump", out.to_str().unwrap(), "--json", "--full"]));
+        assert!(doc["file"].is_string() && doc["version"].is_u64(), "{file}");
+        let s = doc["sections"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["kind"] == kind)
+            .unwrap_or_else(|| panic!("{file}: no {kind} section"));
+        for key in ["name", "kind", "bytes", "checksum_ok", "summary", "data"] {
+            assert!(s.get(key).is_some(), "{file}: section lacks {key}");
+        }
+        let sum = &s["summary"];
+        match kind {
+            "mesh" => {
+                assert_eq!(sum["triangles"].as_u64(), Some(tris), "{file}");
+                for key in ["vertices", "materials"] {
+                    assert!(sum[key].is_u64(), "{file}: {key}");
+                }
+                assert_eq!(sum["bounds"]["max"].as_array().map(Vec::len), Some(3));
+                let data = &s["data"];
+                assert_eq!(
+                    data["indices"].as_array().map(Vec::len),
+                    Some(tris as usize)
+                );
+                assert_eq!(
+                    data["triangle_materials"].as_array().map(Vec::len),
+                    Some(tris as usize)
+                );
+                let n = sum["vertices"].as_u64().unwrap() as usize;
+                for key in ["positions", "normals", "uvs"] {
+                    assert_eq!(data[key].as_array().map(Vec::len), Some(n), "{file}: {key}");
+                }
+            }
+            "terrain" => {
+                for key in [
+                    "width",
+                    "height",
+                    "origin",
+                    "extent",
+                    "min_height",
+                    "max_height",
+                ] {
+                    assert!(!sum[key].is_null(), "{file}: {key}");
+                }
+                assert_eq!(s["data"]["heights"].as_array().map(Vec::len), Some(65 * 65));
+            }
+            _ => assert!(
+                sum["width"].as_u64().unwrap() > 0 && sum["height"].as_u64().unwrap() > 0,
+                "{file}"
+            ),
+        }
+    }
+    // glTF node translation (0, 2, 0) in Y-up is (0, 0, 2) in bake's Z-up.
+    let doc = json(&bake(&[
+        "dump",
+        d.join("tri.gltf.bake").to_str().unwrap(),
+        "--json",
+    ]));
+    let min = &doc["sections"][0]["summary"]["bounds"]["min"];
+    assert_eq!(min[2].as_f64(), Some(2.0), "{min}");
+}
+
+fn base64_encode(data: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in data.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(T[(n >> (18 - 6 * k)) as usize & 63] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
