@@ -75,6 +75,16 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         crate::linespace::section::summary,
         crate::linespace::section::data,
     ),
+    (
+        crate::material::section::KIND,
+        crate::material::section::summary,
+        crate::material::section::data,
+    ),
+    (
+        crate::mesh::tangents::KIND,
+        crate::mesh::tangents::summary,
+        crate::mesh::tangents::data,
+    ),
 ];
 
 /// Options of `bake dump`.

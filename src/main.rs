@@ -43,6 +43,10 @@ enum Command {
     Envmaps(cli::envmaps::EnvmapsArgs),
     /// Render a pack offscreen to a PNG (wgpu; runs on Mesa's lavapipe or llvmpipe without a GPU).
     Render(cli::render::RenderArgs),
+    /// Convert materials to two-layer Schlick, process textures, add tangents.
+    Material(cli::material::MaterialArgs),
+    /// Prepare terrains: four-tap height texture, normal map, min/max quadtree.
+    Terrain(cli::terrain::TerrainArgs),
     /// Benchmarks (see docs/PERFORMANCE.md).
     Bench(cli::bench::BenchArgs),
     /// Voxelize a model or pack into a sparse voxel octree section.
@@ -60,6 +64,8 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Dump(a) => cli::dump::run(a, g),
         Command::Sky(a) => cli::sky::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),
+        Command::Material(a) => cli::material::run(a, g),
+        Command::Terrain(a) => cli::terrain::run(a, g),
         Command::Bittree(a) => cli::bittree::run(a, g),
         Command::Cluster(a) => cli::cluster::run(a, g),
         Command::Lightmap(a) => cli::lightmap::run(a, g),

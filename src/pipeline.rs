@@ -146,6 +146,12 @@ pub fn build(opts: &BuildOptions) -> Result<BuildReport> {
         .unwrap_or_else(|| first.with_extension("bake"));
     let name = first.display().to_string();
     let (mut w, mut warnings) = scene_to_pack(&scene, first);
+    // Materials, processed textures, tangents (which may split mesh vertices) and the prepared
+    // terrain before any stage reads the meshes.
+    warnings.extend(prepare_assets(
+        &mut w,
+        &crate::material::MaterialOptions::default(),
+    )?);
     // The sky first: every lighting stage reads its sun and SH (the built-in sky if none given).
     for s in crate::sky::scene_sky_sections(
         scene.sky.as_ref(),
@@ -238,4 +244,20 @@ pub fn ingest_to_pack(input: &Path, opts: &IngestOptions) -> Result<(PackWriter,
         }
     }
     Ok((w, warnings))
+}
+
+/// The material and terrain stages over a pack being built (`bake SCENE.eco` runs them after
+/// ingest, like `bake material` and `bake terrain` would): materials, processed textures and
+/// tangents, then the prepared terrain. Returns the stages' warnings.
+pub fn prepare_assets(
+    w: &mut PackWriter,
+    opts: &crate::material::MaterialOptions,
+) -> Result<Vec<String>> {
+    let pack = crate::pack::Pack::from_bytes(&w.to_bytes()?, "(pack being built)")?;
+    let (sections, report) = crate::material::bake_materials(&pack, opts)?;
+    let (terrain, _) = crate::terrain::bake_terrain(&pack)?;
+    for s in sections.into_iter().chain(terrain) {
+        w.insert(s);
+    }
+    Ok(report.warnings)
 }

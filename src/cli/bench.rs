@@ -26,6 +26,32 @@ pub enum BenchWhat {
     Render(super::render::RenderBenchArgs),
     /// The sky stage on a lat-long sky: decode, SH, full bake; SH accuracy against exact integrals.
     Sky(super::sky::SkyBenchArgs),
+    /// Texture processing in MB/s of source texels: decode, linearize, mips, normal map.
+    Textures(TexturesBenchArgs),
+    /// Terrain preparation (four-tap texture, normals, min/max quadtree) of a generated grid.
+    Terrain(TerrainBenchArgs),
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct TexturesBenchArgs {
+    /// Image files to process (default: a generated leaf texture encoded as PNG).
+    pub files: Vec<std::path::PathBuf>,
+    /// Size of the generated texture (square).
+    #[arg(long, default_value_t = 1024)]
+    pub size: u32,
+    /// Repetitions per file.
+    #[arg(long, default_value_t = 3)]
+    pub repeat: u32,
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct TerrainBenchArgs {
+    /// Grid size in samples (square).
+    #[arg(long, default_value_t = 4096)]
+    pub size: u32,
+    /// Repetitions.
+    #[arg(long, default_value_t = 3)]
+    pub repeat: u32,
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -72,6 +98,8 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Svo(a) => crate::cli::svo::bench(a, g),
         BenchWhat::Linespace(a) => crate::cli::linespace::bench(a, g),
         BenchWhat::Sky(a) => super::sky::bench(a, g),
+        BenchWhat::Textures(a) => crate::texture::bench::bench_textures(a),
+        BenchWhat::Terrain(a) => crate::terrain::bench::bench_terrain(a),
     }
 }
 

@@ -11,10 +11,12 @@ pub mod fixtures;
 pub mod ingest;
 pub mod lightmap;
 pub mod linespace;
+pub mod material;
 pub mod prt;
 pub mod render;
 pub mod sky;
 pub mod svo;
+pub mod terrain;
 
 use serde_json::Value;
 

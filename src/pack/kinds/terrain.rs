@@ -67,6 +67,8 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     Ok(json!({
         "width": t.width, "height": t.height, "origin": t.origin, "extent": t.extent,
         "min_height": lo, "max_height": hi, "color": meta.color_section, "source": meta.source,
+        // 0 until `bake terrain` has prepared the section (src/terrain/section.rs).
+        "quadtree_levels": v.info("quadtree_levels").map_or(0, |a| a.count),
     }))
 }
 

@@ -33,6 +33,10 @@ pub fn to_section(name: &str, source: &str, img: &Rgba8Image) -> Section {
 
 pub fn from_section(v: &SectionView) -> Result<(TextureMeta, Rgba8Image), ParseError> {
     let meta: TextureMeta = v.meta()?;
+    // Processed textures (mips, linear f16): level 0 back in sRGB.
+    if crate::texture::section::is_processed(&meta.format) {
+        return crate::texture::section::level0_rgba8(v);
+    }
     let pixels: Vec<[u8; 4]> = v.array_vec("texels")?;
     if pixels.len() as u64 != meta.width as u64 * meta.height as u64 {
         return Err(ParseError::new(
@@ -52,12 +56,24 @@ pub fn from_section(v: &SectionView) -> Result<(TextureMeta, Rgba8Image), ParseE
 
 pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     let meta: TextureMeta = v.meta()?;
+    if crate::texture::section::is_processed(&meta.format) {
+        return crate::texture::section::summary(v);
+    }
+    // An ingested texture is one level; coverage: fraction of texels passing the 0.5 alpha test.
+    let texels: &[[u8; 4]] = v.array("texels")?;
+    let pass = texels.iter().filter(|p| p[3] >= 128).count();
+    let coverage = pass as f64 / texels.len().max(1) as f64;
     Ok(
-        json!({"width": meta.width, "height": meta.height, "format": meta.format, "source": meta.source}),
+        json!({"width": meta.width, "height": meta.height, "format": meta.format, "source": meta.source,
+               "mips": 1, "coverage": [coverage]}),
     )
 }
 
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {
+    let meta: TextureMeta = v.meta()?;
+    if crate::texture::section::is_processed(&meta.format) {
+        return crate::texture::section::data(v);
+    }
     let (_, img) = from_section(v)?;
     Ok(json!({ "texels": img.pixels }))
 }

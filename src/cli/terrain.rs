@@ -1,0 +1,81 @@
+//! `bake terrain IN [-o OUT]`: prepares every terrain of a pack (or of a RAW/ECO input, ingested
+//! first): the four-tap height texture, the normal map and the min/max quadtree.
+
+use super::{Global, Outcome, parse_size};
+use crate::error::Result;
+use crate::ingest::IngestOptions;
+use crate::pack::{Pack, PackWriter};
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct TerrainArgs {
+    /// A pack (.bake), a RAW height map or an ECO scene.
+    pub input: PathBuf,
+    /// Output pack (default: the input pack, or <input stem>.bake).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// RAW size in samples, WxH.
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
+    /// RAW metres per sample step.
+    #[arg(long)]
+    pub scale: Option<f32>,
+}
+
+/// A pack stays a pack; anything else is ingested with the RAW options.
+fn open(args: &TerrainArgs) -> Result<(PackWriter, PathBuf)> {
+    let is_pack = args
+        .input
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bake"));
+    if is_pack {
+        return super::open_or_ingest(&args.input, args.output.clone());
+    }
+    let opts = IngestOptions {
+        size: args.size,
+        scale: args.scale,
+        ..Default::default()
+    };
+    let (w, _) = crate::pipeline::ingest_to_pack(&args.input, &opts)?;
+    let out = args
+        .output
+        .clone()
+        .unwrap_or_else(|| Path::new(&args.input).with_extension("bake"));
+    Ok((w, out))
+}
+
+pub fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
+    let (mut w, output) = open(args)?;
+    let bar = g.progress(1, "terrain");
+    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
+    let (sections, report) = crate::terrain::bake_terrain(&pack)?;
+    bar.finish_and_clear();
+    let warnings = if report.terrains == 0 {
+        vec![format!(
+            "{}: no terrain section to prepare",
+            args.input.display()
+        )]
+    } else {
+        Vec::new()
+    };
+    for s in sections {
+        w.insert(s);
+    }
+    let bytes = w.to_bytes()?;
+    crate::pack::write_atomic(&output, &bytes)?;
+    let text = format!(
+        "{}: {} terrain(s), {} samples, quadtree levels {:?}\n",
+        output.display(),
+        report.terrains,
+        report.samples,
+        report.quadtree_levels
+    );
+    let mut json = serde_json::to_value(&report).unwrap_or_default();
+    json["output"] = serde_json::json!(output);
+    json["bytes"] = serde_json::json!(bytes.len());
+    Ok(Outcome {
+        json,
+        text,
+        warnings,
+    })
+}

@@ -1,0 +1,300 @@
+//! Input materials (OpenGL fixed-function, OBJ/MTL Phong, glTF metallic-roughness) to the
+//! two-layer Schlick material of Table 3.1.
+//!
+//! The mapping (docs/MATERIALS.md repeats it):
+//!
+//! * **Default OpenGL material** (diffuse 0.8 grey, specular and emission black, shininess 0, as
+//!   every Xfrog export carries it; seed 000 3.1.2): the thesis' leaf, [`LEAF_DEFAULT`]. Top
+//!   (wax): roughness 0.1, isotropy 1, glossy 1, reflectivity 0.075 grey. Bottom: diffuse 1,
+//!   colour (1, 1, 1) × colour map. Bump ±1 mm, translucence 0.3 (or the TXF set's own value).
+//! * **Authored fixed-function material**: the Phong exponent `n = shininess` becomes the top
+//!   layer's roughness `r = 2 / (n + 2)` (Blinn-Phong ↔ Beckmann/GGX: `α² = 2/(n + 2)`, and
+//!   Schlick's `Z/π` is GGX with `α² = r`); the top layer is glossy with reflectivity
+//!   `spec.rgb · 8/(n + 2)` (OpenGL's highlight-to-diffuse ratio, see [`specular_to_reflectivity`]);
+//!   the bottom layer is diffuse with colour `diff.rgb` (× colour map, OpenGL's modulate). `emis`
+//!   becomes emission, `1 − transparency` (× `diff.a`) the opacity; ambient is dropped (ambient
+//!   light comes from the sky). Translucence is the TXF set's value, else 0; bump ±1 mm when a
+//!   normal map exists.
+//! * **glTF metallic-roughness**: `r = α² = roughness⁴` (glTF roughness is perceptual, `α =
+//!   roughness²`); top layer glossy with reflectivity `lerp(0.04, base, metallic)`; bottom layer
+//!   diffuse with `base × (1 − metallic)`; emission as given; translucence 0.
+//!
+//! OpenGL colours are lighting coefficients that act on linear values in the fixed-function
+//! equation, so they are taken as linear; glTF factors are linear by definition.
+
+use super::schlick::{NormalMap, SchlickLayer, SchlickMaterial};
+use crate::model::{Material, MaterialSource};
+
+/// The leaf defaults of seed 000 3.1.2 (no maps: [`material_to_schlick`] attaches them).
+pub const LEAF_DEFAULT: SchlickMaterial = SchlickMaterial {
+    layers: [
+        SchlickLayer {
+            roughness: 0.1,
+            isotropy: 1.0,
+            diffuse: 0.0,
+            glossy: 1.0,
+            specular: 0.0,
+            color: [0.075; 3],
+        },
+        SchlickLayer {
+            roughness: 1.0,
+            isotropy: 1.0,
+            diffuse: 1.0,
+            glossy: 0.0,
+            specular: 0.0,
+            color: [1.0; 3],
+        },
+    ],
+    bump_height: 0.001,
+    translucence: 0.3,
+    color_map: None,
+    normal_map: NormalMap::None,
+    emission: [0.0; 3],
+    opacity: 1.0,
+};
+
+/// The bump amplitude used wherever a normal map exists (seed 000: ±1 mm).
+pub const BUMP_HEIGHT_M: f32 = 0.001;
+
+/// Whether `m` is OpenGL's default material (ambient and alpha ignored).
+pub fn is_default_opengl(m: &Material) -> bool {
+    let close = |a: &[f32; 4], v: f32| a[..3].iter().all(|&c| (c - v).abs() < 1e-3);
+    m.source == MaterialSource::FixedFunction
+        && close(&m.diffuse, 0.8)
+        && close(&m.specular, 0.0)
+        && close(&m.emission, 0.0)
+        && m.shininess.abs() < 1e-3
+}
+
+/// Converts one input material; see the module documentation for the mapping.
+pub fn material_to_schlick(m: &Material) -> SchlickMaterial {
+    let mut out = match m.source {
+        // A TXF set header's translucence of 0 means "not set" (Xfrog writes 0): the leaf's 0.3.
+        _ if is_default_opengl(m) => SchlickMaterial {
+            translucence: m.translucence.filter(|&t| t > 0.0).map_or(0.3, unit),
+            ..LEAF_DEFAULT
+        },
+        MaterialSource::FixedFunction => fixed_function(m),
+        MaterialSource::MetallicRoughness {
+            metallic,
+            roughness,
+        } => metallic_roughness(m, metallic, roughness),
+    };
+    out.color_map = m.color_map;
+    out.normal_map = match (m.normal_map, m.color_map) {
+        (Some(n), _) => NormalMap::Explicit(n),
+        // glTF materials carry their own normal maps; a colour map is not a height field there.
+        (None, Some(c)) if m.source == MaterialSource::FixedFunction => NormalMap::FromColor(c),
+        _ => NormalMap::None,
+    };
+    out.bump_height = match out.normal_map {
+        NormalMap::None => 0.0,
+        _ => BUMP_HEIGHT_M,
+    };
+    out.opacity = unit(m.diffuse[3] * (1.0 - m.transparency));
+    out
+}
+
+fn unit(x: f32) -> f32 {
+    if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+fn rgb(c: &[f32; 4]) -> [f32; 3] {
+    [unit(c[0]), unit(c[1]), unit(c[2])]
+}
+
+fn glossy_layer(roughness: f32, color: [f32; 3]) -> SchlickLayer {
+    SchlickLayer {
+        roughness: unit(roughness),
+        isotropy: 1.0,
+        diffuse: 0.0,
+        glossy: 1.0,
+        specular: 0.0,
+        color,
+    }
+}
+
+fn diffuse_layer(color: [f32; 3]) -> SchlickLayer {
+    SchlickLayer {
+        roughness: 1.0,
+        isotropy: 1.0,
+        diffuse: 1.0,
+        glossy: 0.0,
+        specular: 0.0,
+        color,
+    }
+}
+
+/// Phong exponent to Schlick roughness: `r = 2 / (n + 2)`.
+pub fn shininess_to_roughness(n: f32) -> f32 {
+    let n = if n.is_finite() { n.max(0.0) } else { 0.0 };
+    2.0 / (n + 2.0)
+}
+
+/// OpenGL's specular colour to the top layer's reflectivity: `spec · 8/(n + 2)`, which gives the
+/// glossy peak at normal incidence (`C/(4π r) = C (n+2)/(8π)`) the same ratio to the diffuse term
+/// as OpenGL's `spec·(n·h)^n` has to `diff·(n·l)` (and keeps a white OpenGL highlight from turning
+/// the top layer into a mirror that hides the colour map).
+pub fn specular_to_reflectivity(spec: &[f32; 4], shininess: f32) -> [f32; 3] {
+    let n = if shininess.is_finite() {
+        shininess.max(0.0)
+    } else {
+        0.0
+    };
+    rgb(spec).map(|c| unit(c * 8.0 / (n + 2.0)))
+}
+
+fn fixed_function(m: &Material) -> SchlickMaterial {
+    SchlickMaterial {
+        layers: [
+            glossy_layer(
+                shininess_to_roughness(m.shininess),
+                specular_to_reflectivity(&m.specular, m.shininess),
+            ),
+            diffuse_layer(rgb(&m.diffuse)),
+        ],
+        bump_height: 0.0,
+        translucence: m.translucence.map_or(0.0, unit),
+        color_map: None,
+        normal_map: NormalMap::None,
+        emission: rgb(&m.emission),
+        opacity: 1.0,
+    }
+}
+
+fn metallic_roughness(m: &Material, metallic: f32, roughness: f32) -> SchlickMaterial {
+    let base = rgb(&m.diffuse);
+    let k = unit(metallic);
+    let f0 = base.map(|b| 0.04 * (1.0 - k) + b * k);
+    let alpha = unit(roughness).powi(2);
+    SchlickMaterial {
+        layers: [
+            glossy_layer(alpha * alpha, f0),
+            diffuse_layer(base.map(|b| b * (1.0 - k))),
+        ],
+        bump_height: 0.0,
+        translucence: 0.0,
+        color_map: None,
+        normal_map: NormalMap::None,
+        emission: m.emission[..3]
+            .iter()
+            .map(|&e| if e.is_finite() { e.max(0.0) } else { 0.0 })
+            .collect::<Vec<_>>()
+            .try_into()
+            .unwrap_or([0.0; 3]),
+        opacity: 1.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_opengl_material_becomes_the_leaf() {
+        let m = Material {
+            color_map: Some(0),
+            ..Material::default()
+        };
+        let s = material_to_schlick(&m);
+        assert_eq!(s.layers, LEAF_DEFAULT.layers);
+        assert_eq!(s.translucence, 0.3);
+        assert_eq!(s.bump_height, 0.001);
+        assert_eq!(s.color_map, Some(0));
+        assert_eq!(s.normal_map, NormalMap::FromColor(0));
+        s.validate().unwrap();
+        // The TXF set header's translucence wins over the thesis' 0.3.
+        let t = Material {
+            translucence: Some(0.6),
+            ..Material::default()
+        };
+        assert_eq!(material_to_schlick(&t).translucence, 0.6);
+        let unset = Material {
+            translucence: Some(0.0),
+            ..Material::default()
+        };
+        assert_eq!(material_to_schlick(&unset).translucence, 0.3);
+    }
+
+    #[test]
+    fn authored_txf_material_maps_shininess_and_colours() {
+        // A TXF <Colors> entry: diff 0.2 0.5 0.1 1, spec 0.3 0.3 0.3 1, shin 30, emis 0.
+        let m = Material {
+            name: "bark".into(),
+            diffuse: [0.2, 0.5, 0.1, 1.0],
+            ambient: [0.1, 0.1, 0.1, 1.0],
+            specular: [0.3, 0.3, 0.3, 1.0],
+            emission: [0.0, 0.0, 0.0, 1.0],
+            shininess: 30.0,
+            transparency: 0.25,
+            translucence: None,
+            color_map: Some(2),
+            normal_map: None,
+            source: MaterialSource::FixedFunction,
+        };
+        assert!(!is_default_opengl(&m));
+        let s = material_to_schlick(&m);
+        s.validate().unwrap();
+        let [top, bottom] = s.layers;
+        // r = 2/(n+2) = 2/32.
+        assert!((top.roughness - 0.0625).abs() < 1e-6);
+        assert_eq!((top.diffuse, top.glossy, top.specular), (0.0, 1.0, 0.0));
+        // 0.3 · 8/32: the thesis' wax reflectivity, 0.075.
+        assert!(top.color.iter().all(|&c| (c - 0.075).abs() < 1e-6));
+        assert_eq!(
+            (bottom.diffuse, bottom.glossy, bottom.specular),
+            (1.0, 0.0, 0.0)
+        );
+        assert_eq!(bottom.color, [0.2, 0.5, 0.1]);
+        assert_eq!(s.translucence, 0.0);
+        assert_eq!(s.opacity, 0.75);
+        assert_eq!(s.normal_map, NormalMap::FromColor(2));
+    }
+
+    #[test]
+    fn shininess_mapping_matches_blinn_phong_peak() {
+        // Independent oracle: normalized Blinn-Phong (n+2)/(2π)·t^n and GGX with α² = 2/(n+2)
+        // have the same value at t = 1: (n+2)/(2π) vs 1/(π α²).
+        for n in [1.0f32, 10.0, 100.0] {
+            let r = shininess_to_roughness(n);
+            let ggx_peak = 1.0 / (std::f32::consts::PI * r);
+            let phong_peak = (n + 2.0) / (2.0 * std::f32::consts::PI);
+            assert!((ggx_peak - phong_peak).abs() < 1e-4 * phong_peak);
+        }
+    }
+
+    #[test]
+    fn gltf_metal_and_dielectric() {
+        let base = Material {
+            diffuse: [0.9, 0.6, 0.2, 1.0],
+            ..Material::default()
+        };
+        let metal = Material {
+            source: MaterialSource::MetallicRoughness {
+                metallic: 1.0,
+                roughness: 0.5,
+            },
+            ..base.clone()
+        };
+        let s = material_to_schlick(&metal);
+        s.validate().unwrap();
+        assert_eq!(s.layers[0].color, [0.9, 0.6, 0.2]);
+        assert_eq!(s.layers[1].color, [0.0; 3]);
+        assert!((s.layers[0].roughness - 0.0625).abs() < 1e-6);
+        let plastic = Material {
+            source: MaterialSource::MetallicRoughness {
+                metallic: 0.0,
+                roughness: 1.0,
+            },
+            ..base
+        };
+        let s = material_to_schlick(&plastic);
+        assert_eq!(s.layers[0].color, [0.04; 3]);
+        assert_eq!(s.layers[1].color, [0.9, 0.6, 0.2]);
+        assert_eq!(s.normal_map, NormalMap::None);
+    }
+}

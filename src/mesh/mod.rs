@@ -1,0 +1,3 @@
+//! Mesh processing stages that work on [`crate::model::Mesh`]: tangent frames.
+
+pub mod tangents;
