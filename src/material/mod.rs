@@ -263,7 +263,7 @@ fn process_job(
     let t = process_texture(&img, j.role, &topts);
     let texels = img.pixels.len() as u64;
     Ok(Some((
-        crate::texture::section::to_section(&j.section, &meta.source, &t),
+        crate::texture::section::to_section(&j.section, &meta.source, &img, &t),
         texels,
     )))
 }

@@ -66,7 +66,7 @@ pub fn bench_textures(a: &TexturesBenchArgs) -> Result<Outcome> {
                 &TextureOptions::for_size(img.width, img.height),
             );
             let t2 = Instant::now();
-            let s = super::section::to_section("texture:bench", name, &p);
+            let s = super::section::to_section("texture:bench", name, &img, &p);
             let t3 = Instant::now();
             std::hint::black_box(s);
             t_decode += (t1 - t0).as_secs_f64();

@@ -5,8 +5,8 @@
 //!
 //! | format | arrays |
 //! |---|---|
-//! | `rgba16f_linear` (colour map) | `levels` u32×4 (width, height, first texel, texel count), `color` f16×4 (linear RGB, straight alpha scaled for coverage), `coverage` f32 and `alpha_scale` f32 per level, `normal` u8×4, `height` f16 |
-//! | `normal_rgba8` (authored normal map) | `levels`, `normal` u8×4 |
+//! | `rgba16f_linear` (colour map) | `texels` u8×4 (the input, as ingested), `levels` u32×4 (width, height, first texel, texel count), `color` f16×4 (linear RGB, straight alpha scaled for coverage), `coverage` f32 and `alpha_scale` f32 per level, `normal` u8×4, `height` f16 |
+//! | `normal_rgba8` (authored normal map) | `texels`, `levels`, `normal` u8×4 |
 //!
 //! `normal`: `(r, g, b) = (n + 1)/2` of the unit normal, `a` = length of the filtered normal
 //! (Toksvig; 255 at level 0). The `levels` table applies to every per-texel array.
@@ -44,7 +44,14 @@ fn level_table<T>(levels: &[MipLevel<T>]) -> Vec<[u32; 4]> {
         .collect()
 }
 
-pub fn to_section(name: &str, source: &str, t: &ProcessedTexture) -> Section {
+/// Encodes a processed texture; `original` (the decoded input) is kept as the ingest `texels`
+/// array so readers of the ingest layout (the renderer, the PRT alpha test) keep working.
+pub fn to_section(
+    name: &str,
+    source: &str,
+    original: &Rgba8Image,
+    t: &ProcessedTexture,
+) -> Section {
     let base = &t.normals.levels[0];
     let format = match t.role {
         TextureRole::Color => FORMAT_COLOR,
@@ -61,12 +68,14 @@ pub fn to_section(name: &str, source: &str, t: &ProcessedTexture) -> Section {
         normal.par_extend(l.texels.par_iter().map(|&(n, len)| encode_normal(n, len)));
     }
     let mut b = SectionBuilder::new(KIND, name);
-    b.meta(&meta).array(
-        "levels",
-        ArrayFormat::U32,
-        4,
-        &level_table(&t.normals.levels),
-    );
+    b.meta(&meta)
+        .array("texels", ArrayFormat::U8, 4, &original.pixels)
+        .array(
+            "levels",
+            ArrayFormat::U32,
+            4,
+            &level_table(&t.normals.levels),
+        );
     if let Some(c) = &t.color {
         let mut color: Vec<[u16; 4]> = Vec::new();
         for l in &c.levels {
@@ -270,7 +279,7 @@ mod tests {
     fn processed_texture_round_trips_through_a_pack() {
         let img = sample_image();
         let t = process_texture(&img, TextureRole::Color, &TextureOptions::for_size(64, 64));
-        let s = to_section("texture:leaf/leaf.png", "leaf.png", &t);
+        let s = to_section("texture:leaf/leaf.png", "leaf.png", &img, &t);
         let mut w = crate::pack::PackWriter::new();
         w.insert(s);
         let pack = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap();
@@ -289,7 +298,8 @@ mod tests {
         let sum = crate::pack::kinds::texture::summary(&view).unwrap();
         assert_eq!(sum["mips"], 7);
         assert_eq!(sum["coverage"].as_array().unwrap().len(), 7);
-        // Level 0 back to sRGB equals the input.
+        // Level 0 back to sRGB equals the input, and the ingest texels are kept as they were.
+        assert_eq!(view.array::<[u8; 4]>("texels").unwrap(), &img.pixels[..]);
         let (_, l0) = level0_rgba8(&view).unwrap();
         assert_eq!(l0.pixels, img.pixels);
     }
