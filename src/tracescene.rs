@@ -61,21 +61,13 @@ pub fn terrain_normal(t: &Terrain, i: u32, j: u32) -> [f32; 3] {
     n.to_array()
 }
 
-fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-
 /// Mean linear colour of an sRGB image, weighting by coverage (alpha ≥ 0.5).
 pub fn mean_linear(img: &Rgba8Image) -> [f32; 3] {
     let mut s = [0.0f64; 3];
     let mut n = 0u64;
     for p in img.pixels.iter().filter(|p| p[3] >= 128) {
         for k in 0..3 {
-            s[k] += srgb_to_linear(p[k] as f32 / 255.0) as f64;
+            s[k] += crate::render::scene::srgb_to_linear(p[k] as f32 / 255.0) as f64;
         }
         n += 1;
     }

@@ -158,15 +158,7 @@ fn evaluate(
     radius: f32,
     k: usize,
 ) -> (Vec<f64>, usize) {
-    let pts: Vec<[f32; 3]> = samples.iter().map(|&s| positions[s as usize]).collect();
-    let vals: Vec<f32> = samples
-        .iter()
-        .flat_map(|&s| {
-            values[s as usize * dim..(s as usize + 1) * dim]
-                .iter()
-                .copied()
-        })
-        .collect();
+    let (pts, vals) = gather_samples(positions, values, dim, samples);
     let ip = Interpolator::new(&pts, &vals, dim, radius, k);
     let res: Vec<(f64, bool)> = (0..positions.len())
         .into_par_iter()
@@ -186,6 +178,25 @@ fn evaluate(
         .collect();
     let ill = res.iter().filter(|r| r.1).count();
     (res.into_iter().map(|r| r.0).collect(), ill)
+}
+
+/// Positions and values (`dim` floats each) of the given sample instances, in sample order.
+pub fn gather_samples(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    samples: &[u32],
+) -> (Vec<[f32; 3]>, Vec<f32>) {
+    let pts = samples.iter().map(|&s| positions[s as usize]).collect();
+    let vals = samples
+        .iter()
+        .flat_map(|&s| {
+            values[s as usize * dim..(s as usize + 1) * dim]
+                .iter()
+                .copied()
+        })
+        .collect();
+    (pts, vals)
 }
 
 /// The member nearest to the mean position (ties: lowest index).

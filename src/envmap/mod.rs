@@ -46,16 +46,7 @@ pub fn instance_weights(
     dim: usize,
     c: &Clustering,
 ) -> NeighbourWeights {
-    let pts: Vec<[f32; 3]> = c.samples.iter().map(|&s| positions[s as usize]).collect();
-    let vals: Vec<f32> = c
-        .samples
-        .iter()
-        .flat_map(|&s| {
-            values[s as usize * dim..(s as usize + 1) * dim]
-                .iter()
-                .copied()
-        })
-        .collect();
+    let (pts, vals) = cluster::gather_samples(positions, values, dim, &c.samples);
     let ip = Interpolator::new(&pts, &vals, dim, c.radius, c.k);
     let k = c.k;
     let rows: Vec<(Vec<u32>, Vec<f32>)> = positions

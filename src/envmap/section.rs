@@ -116,16 +116,7 @@ pub fn clusters_to_section(
     weights: Option<(&[u32], &[f32])>,
 ) -> Section {
     let dim = meta.dim as usize;
-    let pts: Vec<[f32; 3]> = c.samples.iter().map(|&s| positions[s as usize]).collect();
-    let vals: Vec<f32> = c
-        .samples
-        .iter()
-        .flat_map(|&s| {
-            values[s as usize * dim..(s as usize + 1) * dim]
-                .iter()
-                .copied()
-        })
-        .collect();
+    let (pts, vals) = super::cluster::gather_samples(positions, values, dim, &c.samples);
     let mut b = SectionBuilder::new(CLUSTERS_KIND, name);
     b.meta(meta)
         .array("sample_positions", ArrayFormat::F32, 3, &pts)
