@@ -7,6 +7,7 @@
 //! sky, the terrain and the instanced models into an `Rgba16Float` target and tone-maps it
 //! (1 − exp(−L·s), then sRGB) into the output. [`light`] and [`camera`] hold the conventions.
 
+pub mod ambient;
 pub mod camera;
 pub mod draw;
 pub mod gpu;

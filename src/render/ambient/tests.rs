@@ -1,0 +1,542 @@
+//! Oracles for the ambient term: the clamped-cosine integral of an open quad under a constant
+//! sky, eq. 4.8's side selection, frame handling of interpolated maps (a constant world field
+//! must come back exactly in every instance's frame), samples reproduced exactly, and the terrain
+//! light map's direct sun taken out exactly (flat terrain: only πL_sky remains).
+
+use super::*;
+use crate::light::prt::{PrtOptions, Transfer};
+use crate::model::{Instance, Instances, Material, Mesh, Terrain};
+use crate::pack::kinds::{self, instances};
+use crate::pack::{ArrayFormat, PackWriter, SectionBuilder};
+use crate::render::scene::load_scene;
+use crate::sh::ShRotation;
+
+/// Deterministic values in [-1, 1).
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((self.0 >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    }
+    fn sh(&mut self) -> Sh16 {
+        std::array::from_fn(|_| std::array::from_fn(|_| self.next()))
+    }
+}
+
+/// A constant sky of radiance L: only the band-0 coefficient, L·√(4π).
+fn constant_sky(l: [f32; 3]) -> ShRadiance {
+    let mut coeffs = [[0.0; 3]; COEFFS];
+    coeffs[0] = l.map(|c| c * (4.0 * PI).sqrt());
+    ShRadiance { coeffs }
+}
+
+fn sun_section(direction: [f32; 3], irradiance: [f32; 3]) -> crate::pack::Section {
+    let sun = crate::sky::sun::Sun {
+        direction,
+        direction_brightest: direction,
+        irradiance,
+        irradiance_thesis: irradiance,
+        texels: 1,
+        solid_angle: 1e-4,
+        replacement: [0.0; 3],
+        peak_luminance: 1.0,
+        plateau_texels: 0,
+        clipped: false,
+        enlargement: 4.0,
+        angular_radius: 0.00465,
+    };
+    crate::sky::section::sun_to_section(crate::sky::SUN_SECTION, &sun)
+}
+
+/// The unit quad at z = 0 facing +Z, material diffuse grey (sRGB 0.8).
+fn quad() -> Mesh {
+    let mut m = Mesh {
+        materials: vec![Material {
+            diffuse: [0.8, 0.8, 0.8, 1.0],
+            ..Material::default()
+        }],
+        ..Mesh::default()
+    };
+    for p in [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]] {
+        m.positions.push([p[0], p[1], 0.0]);
+        m.normals.push([0.0, 0.0, 1.0]);
+        m.uvs.push(p);
+    }
+    m.indices = vec![[0, 1, 2], [0, 2, 3]];
+    m.triangle_materials = vec![0, 0];
+    m
+}
+
+fn quad_pack(sky: &ShRadiance, rotation_deg: f32) -> Pack {
+    let mut w = PackWriter::new();
+    w.insert(kinds::mesh::to_section(
+        "mesh:quad.obj",
+        "quad.obj",
+        &quad(),
+        &[],
+    ));
+    let inst = Instances {
+        models: vec!["quad.obj".into()],
+        items: vec![Instance {
+            model: 0,
+            position: [3.0, 4.0, 0.0],
+            scale: 1.0,
+            rotation_deg,
+            layer: 0,
+        }],
+    };
+    w.insert(instances::to_section(
+        "instances",
+        &inst,
+        vec!["mesh:quad.obj".into()],
+    ));
+    w.insert(crate::sky::section::sh_to_section(
+        crate::sky::SH_SECTION,
+        "sky radiance without the sun",
+        sky,
+    ));
+    w.insert(sun_section([0.3, 0.2, 0.9], [50.0, 40.0, 30.0]));
+    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "quad.bake").unwrap();
+    let opts = PrtOptions {
+        samples: 64,
+        bounces: 2,
+        ..PrtOptions::default()
+    };
+    let (w, _, _) = crate::light::prt_pack::prt_pack(&pack, &opts, &|_| {}).unwrap();
+    Pack::from_bytes(&w.to_bytes().unwrap(), "quad.bake").unwrap()
+}
+
+fn hit(vertices: [u32; 3], bary: [f32; 3], seen_front: bool, albedo: [f32; 3]) -> MeshHit {
+    MeshHit {
+        model: 0,
+        instance: 0,
+        vertices,
+        barycentrics: bary,
+        material: 0,
+        facing_normal: [0.0, 0.0, if seen_front { 1.0 } else { -1.0 }],
+        seen_front,
+        albedo,
+    }
+}
+
+#[test]
+fn open_quad_under_a_constant_sky_reflects_albedo_times_sky() {
+    // ∫ ρ/π · L · cos θ dω over the hemisphere = ρ·L, whatever the instance's rotation, and the
+    // sun adds nothing: a lone quad has no bounce, so its ≥ 1-bounce transfer is zero.
+    let l = [1.5f32, 2.0, 3.0];
+    let pack = quad_pack(&constant_sky(l), 70.0);
+    let scene = load_scene(&pack).unwrap();
+    for layout in [PrtLayout::Full, PrtLayout::Packed] {
+        let amb = load_ambient(&pack, &scene, layout).unwrap();
+        assert_eq!(amb.source, EnvSource::Sky);
+        let m = &amb.models[0];
+        assert_eq!(m.mode(), MeshAmbientMode::Prt);
+        let rho = m.prt.as_ref().unwrap().materials[0].albedo;
+        assert!((rho[0] - srgb(0.8)).abs() < 1e-6, "{rho:?}");
+        for seen_front in [true, false] {
+            let got = amb.mesh_radiance(&hit([0, 1, 2], [0.2, 0.3, 0.5], seen_front, rho));
+            for c in 0..3 {
+                let want = rho[c] * l[c];
+                assert!(
+                    (got[c] - want).abs() < 2e-4 * want,
+                    "{layout:?} front {seen_front}: {got:?} vs {want}"
+                );
+            }
+        }
+        // The texture detail modulates: twice the folded albedo, twice the radiance.
+        let twice = amb.mesh_radiance(&hit([0, 1, 2], [1.0, 0.0, 0.0], true, rho.map(|a| 2.0 * a)));
+        assert!((twice[1] - 2.0 * rho[1] * l[1]).abs() < 4e-4 * rho[1] * l[1]);
+    }
+}
+
+fn srgb(c: f32) -> f32 {
+    crate::render::scene::srgb_to_linear(c)
+}
+
+/// A two-vertex transfer with random coefficients.
+fn random_prt(rng: &mut Lcg, t: f32) -> PrtData {
+    let coeffs: Vec<[f32; 3]> = (0..2 * PER_VERTEX)
+        .map(|_| [rng.next(), rng.next(), rng.next()])
+        .collect();
+    let tr = Transfer {
+        vertices: 2,
+        samples: 1,
+        bounces: 1,
+        coeffs,
+        rays: 0,
+        skipped_vertices: 0,
+    };
+    PrtData {
+        vertices: 2,
+        packed: crate::light::prt::pack_gpu(&tr),
+        transfer: tr.coeffs,
+        materials: vec![PrtMaterial {
+            albedo: [0.5; 3],
+            translucence: t,
+        }],
+    }
+}
+
+/// `Σ_i P_i · C_i` through `Transfer::get`, the stage's own indexing.
+fn reference_side(prt: &PrtData, v: usize, side: usize, env: &InstanceEnv) -> [f32; 3] {
+    let tr = Transfer {
+        vertices: prt.vertices as u32,
+        samples: 1,
+        bounces: 1,
+        coeffs: prt.transfer.clone(),
+        rays: 0,
+        skipped_vertices: 0,
+    };
+    let mut out = [0.0f32; 3];
+    for (set, c) in [(0, &env.sky), (1, &env.sun)] {
+        for (p, ci) in tr.get(v, side, set).iter().zip(c.iter()) {
+            (0..3).for_each(|k| out[k] += p[k] * ci[k]);
+        }
+    }
+    out
+}
+
+#[test]
+fn eq_4_8_with_t_zero_and_one_picks_the_front_and_back_sets() {
+    let mut rng = Lcg(7);
+    let prt = random_prt(&mut rng, 0.0);
+    let env = InstanceEnv {
+        sky: rng.sh(),
+        sun: rng.sh(),
+    };
+    for v in 0..2 {
+        let sides = side_radiance(&prt, PrtLayout::Full, v, &env);
+        let (f, b) = (
+            reference_side(&prt, v, 0, &env),
+            reference_side(&prt, v, 1, &env),
+        );
+        for c in 0..3 {
+            assert!((sides[0][c] - f[c]).abs() < 1e-5 && (sides[1][c] - b[c]).abs() < 1e-5);
+        }
+        let pos = |x: [f32; 3]| x.map(|c| c.max(0.0));
+        assert_eq!(mix_sides(sides, 0.0, true), pos(sides[0]));
+        assert_eq!(mix_sides(sides, 1.0, true), pos(sides[1]));
+        assert_eq!(mix_sides(sides, 0.0, false), pos(sides[1]));
+        assert_eq!(mix_sides(sides, 1.0, false), pos(sides[0]));
+        // In between: the linear mix (before the clamp).
+        let m = mix_sides([[1.0; 3], [3.0; 3]], 0.25, true);
+        assert_eq!(m, [1.5; 3]);
+    }
+}
+
+#[test]
+fn packed_layout_decodes_band_zero_exactly_and_measures_its_loss() {
+    let mut rng = Lcg(11);
+    let prt = random_prt(&mut rng, 0.3);
+    // An environment of band 0 only: the packed layout keeps band 0 in RGB, so set 0 is exact
+    // and set 1 is the stored fraction of it.
+    let mut sky = [[0.0; 3]; COEFFS];
+    sky[0] = [1.0, 2.0, 3.0];
+    let env = InstanceEnv {
+        sky,
+        sun: [[0.0; 3]; COEFFS],
+    };
+    let full = side_radiance(&prt, PrtLayout::Full, 1, &env);
+    let packed = side_radiance(&prt, PrtLayout::Packed, 1, &env);
+    for s in 0..2 {
+        for c in 0..3 {
+            assert!((full[s][c] - packed[s][c]).abs() < 1e-6);
+        }
+    }
+    // Random transfers are not what the thesis' layout assumes: the loss is large, and measured.
+    let envs = [InstanceEnv {
+        sky: rng.sh(),
+        sun: rng.sh(),
+    }];
+    assert!(packed_layout_error(&prt, &envs) > 0.1);
+    assert_eq!(packed_layout_error(&prt, &[env]), 0.0);
+}
+
+#[test]
+fn sky_maps_turn_into_the_instance_frame() {
+    // C_local(d) = C_world(R_z(θ)·d), checked by evaluating both functions.
+    let mut rng = Lcg(3);
+    let world = rng.sh();
+    for theta in [0.0f32, 35.0, 150.0, -80.0] {
+        let local = to_instance_frame(&world, theta);
+        let (s, c) = theta.to_radians().sin_cos();
+        for d in [[0.3f32, -0.5, 0.81], [0.9, 0.1, -0.42], [-0.2, 0.7, 0.68]] {
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let d = d.map(|x| x / n);
+            let rd = [c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]];
+            let a = ShRadiance { coeffs: local }.eval(d);
+            let b = ShRadiance { coeffs: world }.eval(rd);
+            for k in 0..3 {
+                assert!((a[k] - b[k]).abs() < 1e-4, "θ {theta}: {a:?} vs {b:?}");
+            }
+        }
+        let back = to_world_frame(&local, theta);
+        for (x, y) in back.iter().flatten().zip(world.iter().flatten()) {
+            assert!((x - y).abs() < 1e-5);
+        }
+        // The direct sun's SH in the instance frame: the same by both routes.
+        let sun = ([0.48f32, -0.6, 0.64], [10.0f32, 9.0, 8.0]);
+        let y = crate::sh::eval_basis16(sun.0);
+        let w: Sh16 = std::array::from_fn(|i| sun.1.map(|e| e * y[i]));
+        let direct = sun_sh_local(Some(sun), theta);
+        for (x, y) in direct
+            .iter()
+            .flatten()
+            .zip(to_instance_frame(&w, theta).iter().flatten())
+        {
+            assert!((x - y).abs() < 1e-3, "{x} vs {y}");
+        }
+    }
+}
+
+/// A pack of `n` instances of the quad with per-instance maps `maps` (instance frame) in an
+/// `envmaps` section and a hand-made `clusters` section whose samples are every third instance.
+fn cluster_pack(records: &[Instance], maps: &[(Sh16, Sh16)], weights: bool) -> Pack {
+    use crate::envmap::section::{self as es, ClustersMeta, DIM};
+    let mut w = PackWriter::new();
+    w.insert(kinds::mesh::to_section(
+        "mesh:quad.obj",
+        "quad.obj",
+        &quad(),
+        &[],
+    ));
+    let inst = Instances {
+        models: vec!["quad.obj".into()],
+        items: records.to_vec(),
+    };
+    w.insert(instances::to_section(
+        "instances",
+        &inst,
+        vec!["mesh:quad.obj".into()],
+    ));
+    let sky: Vec<Sh16> = maps.iter().map(|m| m.0).collect();
+    let sun: Vec<Sh16> = maps.iter().map(|m| m.1).collect();
+    let emeta = es::EnvmapsMeta {
+        instances: maps.len() as u64,
+        order: 4,
+        samples: 1,
+        estimator: "test".into(),
+    };
+    w.insert(es::envmaps_to_section("envmaps", &emeta, &sky, &sun));
+    let samples: Vec<u32> = (0..records.len() as u32).step_by(3).collect();
+    let values = es::flatten(&sky, &sun);
+    let positions: Vec<[f32; 3]> = records.iter().map(|r| r.position).collect();
+    let (pts, vals) = crate::envmap::cluster::gather_samples(&positions, &values, DIM, &samples);
+    let k = 4;
+    let meta = ClustersMeta {
+        instances: records.len() as u64,
+        clusters: samples.len() as u64,
+        dim: DIM as u32,
+        k: k as u32,
+        radius: 2.0,
+        constant_term: true,
+        error_bound: 0.1,
+        rms_error_relative: 0.0,
+        max_error_relative: 0.0,
+        ill_conditioned: 0,
+        weights,
+    };
+    let mut b = SectionBuilder::new(es::CLUSTERS_KIND, "clusters");
+    b.meta(&meta)
+        .array("sample_positions", ArrayFormat::F32, 3, &pts)
+        .array("sample_values", ArrayFormat::F32, 1, &vals)
+        .array("sample_instance", ArrayFormat::U32, 1, &samples);
+    if weights {
+        let ip = crate::envmap::interp::Interpolator::new(&pts, &vals, DIM, 2.0, k);
+        let (mut nbs, mut ws) = (Vec::new(), Vec::new());
+        for p in &positions {
+            let (mut nb, mut wt) = (Vec::new(), Vec::new());
+            ip.weights(*p, &mut nb, &mut wt);
+            nbs.extend(nb.iter().map(|x| x.1));
+            ws.extend(wt.iter().map(|&x| x as f32));
+        }
+        b.array("neighbours", ArrayFormat::U32, 1, &nbs)
+            .array("weights", ArrayFormat::F32, 1, &ws);
+    }
+    w.insert(b.finish());
+    w.insert(crate::sky::section::sh_to_section(
+        crate::sky::SH_SECTION,
+        "sky",
+        &constant_sky([1.0; 3]),
+    ));
+    Pack::from_bytes(&w.to_bytes().unwrap(), "clusters.bake").unwrap()
+}
+
+fn records(n: usize, rng: &mut Lcg) -> Vec<Instance> {
+    (0..n)
+        .map(|i| Instance {
+            model: 0,
+            position: [5.0 * rng.next(), 5.0 * rng.next(), 0.1 * i as f32],
+            scale: 1.0,
+            rotation_deg: 180.0 * rng.next(),
+            layer: 0,
+        })
+        .collect()
+}
+
+fn assert_maps_close(a: &(Sh16, Sh16), b: &(Sh16, Sh16), tol: f32, what: &str) {
+    let fa = a.0.iter().chain(&a.1).flatten();
+    let fb = b.0.iter().chain(&b.1).flatten();
+    for (x, y) in fa.zip(fb) {
+        assert!((x - y).abs() < tol, "{what}: {x} vs {y}");
+    }
+}
+
+fn pack_records(pack: &Pack) -> Vec<InstanceRecord> {
+    pack.view_named("instances")
+        .unwrap()
+        .array_vec("instances")
+        .unwrap()
+}
+
+#[test]
+fn a_constant_world_field_comes_back_in_every_instance_frame() {
+    // Every instance sees the same world-frame maps, stored in its own frame (rotated by the
+    // general SH rotation, an independent code path). The multiquadric with a constant term
+    // reproduces constants, so every instance, sample or not, must get its own stored maps:
+    // mixing samples of different frames without turning them back to world would not.
+    let mut rng = Lcg(5);
+    let recs = records(24, &mut rng);
+    let (wh, ws) = (rng.sh(), rng.sh());
+    let local = |m: &Sh16, theta: f32| {
+        let rot = ShRotation::from_axis_angle(4, [0.0, 0.0, 1.0], -(theta as f64).to_radians());
+        ShRadiance { coeffs: *m }.rotated(&rot).coeffs
+    };
+    let maps: Vec<(Sh16, Sh16)> = recs
+        .iter()
+        .map(|r| (local(&wh, r.rotation_deg), local(&ws, r.rotation_deg)))
+        .collect();
+    for weights in [false, true] {
+        let pack = cluster_pack(&recs, &maps, weights);
+        let light = sky_light(&pack, &load_scene(&pack).unwrap().sky, &mut Vec::new()).unwrap();
+        let (got, src) = instance_maps(&pack, &pack_records(&pack), &light).unwrap();
+        assert_eq!(src, EnvSource::Clusters);
+        for (i, (g, m)) in got.iter().zip(&maps).enumerate() {
+            assert_maps_close(g, m, 2e-3, &format!("instance {i}, weights {weights}"));
+        }
+    }
+}
+
+#[test]
+fn an_instance_at_a_cluster_sample_gets_that_samples_maps() {
+    let mut rng = Lcg(9);
+    let recs = records(20, &mut rng);
+    let maps: Vec<(Sh16, Sh16)> = recs.iter().map(|_| (rng.sh(), rng.sh())).collect();
+    let pack = cluster_pack(&recs, &maps, false);
+    let light = sky_light(&pack, &load_scene(&pack).unwrap().sky, &mut Vec::new()).unwrap();
+    let (got, _) = instance_maps(&pack, &pack_records(&pack), &light).unwrap();
+    for i in (0..recs.len()).step_by(3) {
+        assert_maps_close(&got[i], &maps[i], 1e-4, &format!("sample instance {i}"));
+    }
+    // A non-sample instance is a blend, not a copy of its own map.
+    let differs = (0..recs.len())
+        .filter(|i| i % 3 != 0)
+        .any(|i| (got[i].0[0][0] - maps[i].0[0][0]).abs() > 1e-2);
+    assert!(differs);
+}
+
+#[test]
+fn bilinear_light_texture_matches_texel_centres_and_clamps() {
+    let tex = LightTexture {
+        width: 2,
+        height: 2,
+        texels: vec![
+            [0.0, 0.0, 0.0, 1.0],
+            [4.0, 0.0, 0.0, 1.0],
+            [0.0, 8.0, 0.0, 1.0],
+            [4.0, 8.0, 2.0, 1.0],
+        ],
+    };
+    assert_eq!(tex.sample(0.25, 0.25), [0.0, 0.0, 0.0]);
+    assert_eq!(tex.sample(0.75, 0.75), [4.0, 8.0, 2.0]);
+    assert_eq!(tex.sample(0.5, 0.5), [2.0, 4.0, 0.5]);
+    assert_eq!(tex.sample(-3.0, 0.25), [0.0, 0.0, 0.0]);
+    assert_eq!(tex.sample(0.5, 0.25), [2.0, 0.0, 0.0]);
+}
+
+fn flat_terrain_pack(sky: &ShRadiance, sun: ([f32; 3], [f32; 3])) -> Pack {
+    let t = Terrain {
+        width: 9,
+        height: 9,
+        heights: vec![2.0; 81],
+        origin: [10.0, 20.0],
+        extent: [16.0, 16.0],
+        color: None,
+    };
+    let mut w = PackWriter::new();
+    w.insert(kinds::terrain::to_section("terrain", "flat.raw", &t, None));
+    w.insert(instances::to_section(
+        "instances",
+        &Instances::default(),
+        vec![],
+    ));
+    w.insert(crate::sky::section::sh_to_section(
+        crate::sky::SH_SECTION,
+        "sky",
+        sky,
+    ));
+    w.insert(sun_section(sun.0, sun.1));
+    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "flat.bake").unwrap();
+    let opts = crate::lightmap::LightmapOptions {
+        samples: 16,
+        sun_samples: 4,
+        ..Default::default()
+    };
+    for s in crate::lightmap::lightmap_sections(&pack, &opts).unwrap() {
+        w.insert(s);
+    }
+    Pack::from_bytes(&w.to_bytes().unwrap(), "flat.bake").unwrap()
+}
+
+#[test]
+fn the_terrain_light_map_loses_exactly_its_direct_sun() {
+    // Flat open terrain: every sky ray escapes, so the bake's E = π·L_sky + E_sun·cos θ exactly
+    // (cosine-weighted samples of a constant sky); the ambient term must keep π·L_sky only.
+    let l = [0.5f32, 0.75, 1.0];
+    let s = [0.6f32, 0.0, 0.8];
+    let e_sun = [40.0f32, 30.0, 20.0];
+    let pack = flat_terrain_pack(&constant_sky(l), (s, e_sun));
+    let raw = crate::lightmap::section::from_section(&pack.view_named("lightmap:terrain").unwrap())
+        .unwrap()
+        .1;
+    for c in 0..3 {
+        let want = PI * l[c] + e_sun[c] * 0.8;
+        assert!(
+            (raw.texels[40][c] - want).abs() < 1e-3 * want,
+            "{:?}",
+            raw.texels[40]
+        );
+    }
+    let scene = load_scene(&pack).unwrap();
+    let amb = load_ambient(&pack, &scene, PrtLayout::Full).unwrap();
+    let tex = amb.terrain.as_ref().expect("terrain light map");
+    for t in &tex.texels {
+        for c in 0..3 {
+            assert!((t[c] - PI * l[c]).abs() < 1e-4 * PI * l[c] + 1e-5, "{t:?}");
+        }
+    }
+    // And the shading: albedo · E / π at any point.
+    let meta = &scene.terrain.as_ref().unwrap().meta;
+    let got = amb.terrain_radiance(meta, [13.0, 27.0], [0.0, 0.0, 1.0], [0.5; 3]);
+    for c in 0..3 {
+        assert!((got[c] - 0.5 * l[c]).abs() < 1e-4, "{got:?}");
+    }
+}
+
+#[test]
+fn without_a_light_map_surfaces_take_the_sky_irradiance() {
+    // A constant sky gives E = π·L on any normal: L_ambient = ρ·L.
+    let l = [0.4f32, 0.6, 0.9];
+    let pack = quad_pack(&constant_sky(l), 0.0);
+    let scene = load_scene(&pack).unwrap();
+    let mut amb = load_ambient(&pack, &scene, PrtLayout::Full).unwrap();
+    amb.models[0].prt = None;
+    assert_eq!(amb.models[0].mode(), MeshAmbientMode::SkyIrradiance);
+    let got = amb.mesh_radiance(&hit([0, 1, 2], [0.3, 0.3, 0.4], false, [0.5; 3]));
+    for c in 0..3 {
+        assert!((got[c] - 0.5 * l[c]).abs() < 1e-3 * l[c], "{got:?}");
+    }
+}
