@@ -34,6 +34,9 @@ pub struct RenderArgs {
     /// Graphics API.
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
     pub backend: BackendChoice,
+    /// PRT layout of the ambient term: the full transfer or the thesis' 5 vec4 per side.
+    #[arg(long, value_enum, default_value_t = crate::render::ambient::PrtLayout::Full)]
+    pub prt_layout: crate::render::ambient::PrtLayout,
 }
 
 /// Silences the warning Mesa's device-select Vulkan layer prints on machines without a display,
@@ -57,6 +60,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         exposure: args.exposure,
         lighting: None,
         backend: args.backend,
+        prt_layout: args.prt_layout,
     };
     let pack = Pack::open(&args.pack)?;
     let out = render_pack(&pack, &opts)?;

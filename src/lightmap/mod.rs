@@ -280,5 +280,54 @@ pub fn lightmap_sections(
         samples: opts.samples,
         sun_samples: opts.sun_samples,
     };
-    Ok(vec![section::to_section("lightmap:terrain", &meta, &map)])
+    let direct = terrain_direct_sun(&scene, &light, &meta);
+    let indirect: Vec<[f32; 3]> = map
+        .texels
+        .iter()
+        .zip(&direct)
+        .map(|(e, d)| std::array::from_fn(|c| (e[c] - d[c]).max(0.0)))
+        .collect();
+    Ok(vec![section::to_section_with_indirect(
+        "lightmap:terrain",
+        &meta,
+        &map,
+        &indirect,
+    )])
+}
+
+/// The direct-sun part of every texel of a terrain light map, exactly as
+/// [`bake_terrain_lightmap`] and [`texel_irradiance`] add it (same texel positions, normals, ray
+/// origins, disc samples and per-texel seeds): `E_sun · max(0, n·s) · V`, V = 1 in thesis mode.
+/// The renderer's ambient term is the light map without it (the direct term draws the sun).
+pub fn terrain_direct_sun(
+    scene: &TraceScene,
+    light: &Lighting,
+    meta: &section::LightmapMeta,
+) -> Vec<[f32; 3]> {
+    let (w, h) = (meta.width, meta.height);
+    let (Some(t), Some((s, irr))) = (scene.terrain.as_ref(), light.sun) else {
+        return vec![[0.0; 3]; (w * h) as usize];
+    };
+    let s = Vec3A::from(s);
+    (0..w * h)
+        .into_par_iter()
+        .map(|k| {
+            let (i, j) = (k % w, k / w);
+            let x = t.origin[0] + (i as f32 + 0.5) / w as f32 * t.extent[0];
+            let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / h as f32) * t.extent[1];
+            let n = Vec3A::from(height_normal(t, x, y));
+            let cos = n.dot(s);
+            if cos <= 0.0 {
+                return [0.0; 3];
+            }
+            let vis = match meta.mode {
+                LightmapMode::Thesis => 1.0,
+                LightmapMode::Physical => {
+                    let o = Vec3A::new(x, y, t.height_at(x, y)) + n * 1e-3;
+                    sun_visibility(&scene.bvh, o, s, meta.sun_samples, k as u64)
+                }
+            };
+            irr.map(|e| e * cos * vis)
+        })
+        .collect()
 }

@@ -28,6 +28,23 @@ pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
     b.finish()
 }
 
+/// As [`to_section`], plus the `indirect` array: the irradiance without the direct sun (sky and
+/// bounced light only, f32×4 with A = 1), which the renderer's ambient term reads.
+pub fn to_section_with_indirect(
+    name: &str,
+    meta: &LightmapMeta,
+    map: &Lightmap,
+    indirect: &[[f32; 3]],
+) -> Section {
+    let rgba =
+        |t: &[[f32; 3]]| -> Vec<[f32; 4]> { t.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect() };
+    let mut b = SectionBuilder::new(KIND, name);
+    b.meta(meta)
+        .array("irradiance", ArrayFormat::F32, 4, &rgba(&map.texels))
+        .array("indirect", ArrayFormat::F32, 4, &rgba(indirect));
+    b.finish()
+}
+
 pub fn from_section(v: &SectionView) -> Result<(LightmapMeta, Lightmap), ParseError> {
     let meta: LightmapMeta = v.meta()?;
     let t: Vec<[f32; 4]> = v.array_vec("irradiance")?;

@@ -37,9 +37,10 @@
 //! E from the surface's `lightmap` section when there is one (bilinear, clamped to the edge;
 //! texel (i, j) centred at x₀ + (i + ½)·extent/W, row 0 north), else the sky SH irradiance for
 //! the facing normal. The light-map stage stores the *total* irradiance, direct sun included;
-//! the direct part is taken out again: from an `indirect` array if the section has one, else
-//! (terrain) by recomputing exactly what the bake added, `E_sun·max(0, n·s)·V` with the bake's own
-//! normals, disc samples and per-texel seeds ([`strip_terrain_direct_sun`]). A mesh light map
+//! the direct part is taken out again: the `indirect` array the light-map stage now writes beside
+//! it, else (older terrain maps) by recomputing exactly what the bake added,
+//! `E_sun·max(0, n·s)·V` with the bake's own normals, disc samples and per-texel seeds
+//! ([`strip_terrain_direct_sun`]). A mesh light map
 //! (atlas) is read generically: an irradiance texture plus per-vertex (or per instance and vertex)
 //! light-map UVs (`lightmap_uv` array).
 
@@ -81,7 +82,7 @@ pub enum EnvSource {
 }
 
 /// Which PRT layout the runtime evaluates.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum PrtLayout {
     /// The full-precision transfer (2 sides × 2 sets × 16 RGB per vertex).
@@ -429,11 +430,52 @@ fn model_instance_indices(
     Ok(Some((recs, lists)))
 }
 
-/// Resolves the ambient light of `scene` from `pack`.
-pub fn load_ambient(pack: &Pack, scene: &SceneData, layout: PrtLayout) -> Result<AmbientScene> {
+/// The sky light of an explicit [`Lighting`](super::light::Lighting) (`RenderOptions::lighting`):
+/// its sun, and a sky whose irradiance is the preview's `E(n) = A·(1 + n_z)/2` for the ambient A
+/// (exactly two SH coefficients: band 0 and the z function of band 1).
+pub fn lighting_sky(l: &super::light::Lighting) -> SkyLight {
+    let y0 = crate::sh::eval_basis16([0.0, 0.0, 1.0]);
+    let (b0, b1) = (y0[0], y0[2]);
+    let mut irr = [[0.0; 3]; COEFFS];
+    irr[0] = l.ambient.map(|a| 0.5 * a / b0);
+    irr[2] = l.ambient.map(|a| 0.5 * a / b1);
+    let mut rad = [[0.0; 3]; COEFFS];
+    rad[0] = irr[0].map(|c| c / PI);
+    rad[2] = irr[2].map(|c| c / (2.0 * PI / 3.0));
+    let sun = (l.sun_irradiance != [0.0; 3]).then_some((l.sun_direction, l.sun_irradiance));
+    SkyLight {
+        sky: ShRadiance { coeffs: rad },
+        irradiance: ShIrradiance { coeffs: irr },
+        sun,
+    }
+}
+
+/// Resolves the ambient light of `scene` from `pack`. An `explicit` lighting replaces every
+/// baked light (sky SH, environment maps, light maps: they were baked for the pack's own sky).
+pub fn load_ambient(
+    pack: &Pack,
+    scene: &SceneData,
+    layout: PrtLayout,
+    explicit: Option<&super::light::Lighting>,
+) -> Result<AmbientScene> {
     let mut warnings = Vec::new();
-    let light = sky_light(pack, &scene.sky, &mut warnings)?;
+    let light = match explicit {
+        Some(l) => lighting_sky(l),
+        None => sky_light(pack, &scene.sky, &mut warnings)?,
+    };
     let (maps, source, lists) = match model_instance_indices(pack, scene)? {
+        Some((recs, lists)) if explicit.is_some() => {
+            let maps = recs
+                .iter()
+                .map(|r| {
+                    (
+                        to_instance_frame(&light.sky.coeffs, r.rotation_deg),
+                        [[0.0; 3]; 16],
+                    )
+                })
+                .collect();
+            (maps, EnvSource::Sky, Some(lists))
+        }
         Some((recs, lists)) => {
             let (maps, source) = instance_maps(pack, &recs, &light)?;
             (maps, source, Some(lists))
@@ -457,13 +499,20 @@ pub fn load_ambient(pack: &Pack, scene: &SceneData, layout: PrtLayout) -> Result
                 })
                 .collect(),
         };
+        let lightmap = match explicit {
+            None => load_mesh_lightmap(pack, m, &mut warnings)?,
+            Some(_) => None,
+        };
         models.push(ModelAmbient {
             prt: load_prt(pack, m, &mut warnings)?,
-            lightmap: load_mesh_lightmap(pack, m, &mut warnings)?,
+            lightmap,
             envs,
         });
     }
-    let terrain = load_terrain_lightmap(pack, &light, &mut warnings)?;
+    let terrain = match explicit {
+        None => load_terrain_lightmap(pack, &light, &mut warnings)?,
+        Some(_) => None,
+    };
     Ok(AmbientScene {
         light,
         source,
@@ -692,48 +741,26 @@ fn indirect_array(
     Ok(Some(t.iter().map(|x| [x[0], x[1], x[2], 1.0]).collect()))
 }
 
-/// Subtracts from a terrain light map exactly the direct sun its bake added
-/// (src/lightmap/mod.rs `bake_terrain_lightmap` + `texel_irradiance`): the same texel positions,
-/// normals, ray origins, disc samples and per-texel seeds, so `E − E_direct` is the sky and
-/// bounce light only. `Err` when the map does not fit the scene's terrain.
+/// Subtracts from a terrain light map without an `indirect` array (older packs) the direct sun
+/// its bake added, recomputed exactly ([`crate::lightmap::terrain_direct_sun`]). `Err` when the
+/// map does not fit the scene's terrain.
 pub fn strip_terrain_direct_sun(
     tex: &mut LightTexture,
     meta: &crate::lightmap::section::LightmapMeta,
     scene: &crate::tracescene::TraceScene,
     light: &SkyLight,
 ) -> std::result::Result<(), String> {
-    use glam::Vec3A;
-    let Some((s, irr)) = light.sun else {
-        return Ok(());
+    if scene.terrain.is_none() {
+        return Err("the pack has no terrain".into());
+    }
+    if tex.texels.len() as u64 != meta.width as u64 * meta.height as u64 {
+        return Err("texel count does not match width × height".into());
+    }
+    let l = crate::lightmap::Lighting {
+        sky: light.sky,
+        sun: light.sun,
     };
-    let t = scene.terrain.as_ref().ok_or("the pack has no terrain")?;
-    let (w, h) = (tex.width, tex.height);
-    let s = Vec3A::from(s);
-    let thesis = meta.mode == crate::lightmap::LightmapMode::Thesis;
-    let direct: Vec<[f32; 3]> = {
-        use rayon::prelude::*;
-        (0..w * h)
-            .into_par_iter()
-            .map(|k| {
-                let (i, j) = (k % w, k / w);
-                let x = t.origin[0] + (i as f32 + 0.5) / w as f32 * t.extent[0];
-                let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / h as f32) * t.extent[1];
-                let p = Vec3A::new(x, y, t.height_at(x, y));
-                let n = Vec3A::from(crate::lightmap::height_normal(t, x, y));
-                let cos = n.dot(s);
-                if cos <= 0.0 {
-                    return [0.0; 3];
-                }
-                let vis = if thesis {
-                    1.0
-                } else {
-                    let o = p + n * 1e-3;
-                    crate::lightmap::sun_visibility(&scene.bvh, o, s, meta.sun_samples, k as u64)
-                };
-                irr.map(|e| e * cos * vis)
-            })
-            .collect()
-    };
+    let direct = crate::lightmap::terrain_direct_sun(scene, &l, meta);
     for (texel, d) in tex.texels.iter_mut().zip(direct) {
         for c in 0..3 {
             texel[c] = (texel[c] - d[c]).max(0.0);
@@ -784,6 +811,33 @@ fn load_mesh_lightmap(
         uvs,
         per_instance,
     }))
+}
+
+/// What [`AmbientScene`] resolved, for the render statistics.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct AmbientSummary {
+    /// Where the instances' C_H and C_S came from.
+    pub source: EnvSource,
+    pub prt_layout: PrtLayout,
+    /// Models lit by PRT, by a light map, by the sky irradiance.
+    pub prt_models: usize,
+    pub lightmap_models: usize,
+    pub sky_models: usize,
+    pub terrain_light_map: bool,
+}
+
+impl AmbientScene {
+    pub fn summary(&self) -> AmbientSummary {
+        let count = |k| self.models.iter().filter(|m| m.mode() == k).count();
+        AmbientSummary {
+            source: self.source,
+            prt_layout: self.layout,
+            prt_models: count(MeshAmbientMode::Prt),
+            lightmap_models: count(MeshAmbientMode::Lightmap),
+            sky_models: count(MeshAmbientMode::SkyIrradiance),
+            terrain_light_map: self.terrain.is_some(),
+        }
+    }
 }
 
 /// What lights a model's surfaces in the ambient term.

@@ -183,12 +183,15 @@ fn scene_pass(
     if let Some(t) = &scene.terrain {
         pass.set_pipeline(&pipes.terrain);
         pass.set_bind_group(1, &t.bind_group, &[]);
+        if let Some(a) = &scene.ambient {
+            pass.set_bind_group(3, &a.terrain, &[]);
+        }
         pass.draw(0..t.vertex_count, 0..1);
         counts.draw_calls += 1;
         counts.triangles += t.vertex_count as u64 / 3;
     }
     pass.set_pipeline(&pipes.mesh);
-    for m in &scene.models {
+    for (k, m) in scene.models.iter().enumerate() {
         pass.set_vertex_buffer(0, m.positions.slice(..));
         pass.set_vertex_buffer(1, m.normals.slice(..));
         pass.set_vertex_buffer(2, m.uvs.slice(..));
@@ -196,6 +199,9 @@ fn scene_pass(
         pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
         for d in &m.draws {
             pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
+            if let Some(a) = &scene.ambient {
+                pass.set_bind_group(3, &a.models[k][d.material as usize], &[]);
+            }
             pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, 0..m.instance_count);
             counts.draw_calls += 1;
             counts.triangles += d.count as u64 * m.instance_count as u64;

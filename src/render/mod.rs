@@ -8,6 +8,7 @@
 //! (1 − exp(−L·s), then sRGB) into the output. [`light`] and [`camera`] hold the conventions.
 
 pub mod ambient;
+pub mod ambient_gpu;
 pub mod camera;
 pub mod draw;
 pub mod gpu;
@@ -39,6 +40,8 @@ pub struct RenderOptions {
     /// Sun, sky ambient; default: [`light::default_lighting`] of the sky.
     pub lighting: Option<Lighting>,
     pub backend: BackendChoice,
+    /// PRT layout the ambient term evaluates (see [`ambient`]).
+    pub prt_layout: ambient::PrtLayout,
 }
 
 impl Default for RenderOptions {
@@ -52,6 +55,7 @@ impl Default for RenderOptions {
             exposure: None,
             lighting: None,
             backend: BackendChoice::Auto,
+            prt_layout: ambient::PrtLayout::Full,
         }
     }
 }
@@ -76,6 +80,8 @@ pub struct RenderStats {
     pub seconds_setup: f64,
     pub seconds_upload: f64,
     pub seconds_draw: f64,
+    /// Where the ambient term's light came from.
+    pub ambient: ambient::AmbientSummary,
 }
 
 /// The rendered image and how it was made.
@@ -132,7 +138,11 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let pipes = pipelines::Pipelines::new(&gpu.device);
     gpu.check()?;
     let t1 = std::time::Instant::now();
-    let gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;
+    let amb = ambient::load_ambient(pack, &scene, opts.prt_layout, opts.lighting.as_ref())?;
+    let mut gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;
+    let amb_gpu = ambient_gpu::upload_ambient(&gpu, &pipes, &scene, &amb, 1.0)?;
+    gpu_scene.bytes += amb_gpu.bytes;
+    gpu_scene.ambient = Some(amb_gpu);
     gpu.wait()?;
     let t2 = std::time::Instant::now();
     let globals = draw::Globals::new(&cam, &lighting, exposure, (opts.width, opts.height));
@@ -167,12 +177,15 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         seconds_setup: (t1 - t0).as_secs_f64(),
         seconds_upload: (t2 - t1).as_secs_f64(),
         seconds_draw: (t3 - t2).as_secs_f64(),
+        ambient: amb.summary(),
     };
+    let mut warnings = scene.warnings;
+    warnings.extend(amb.warnings);
     Ok(RenderOutput {
         image,
         adapter: gpu.adapter.clone(),
         stats,
-        warnings: scene.warnings,
+        warnings,
     })
 }
 

@@ -18,6 +18,7 @@ const SKY_WGSL: &str = include_str!("shaders/sky.wgsl");
 const TERRAIN_WGSL: &str = include_str!("shaders/terrain.wgsl");
 const MESH_WGSL: &str = include_str!("shaders/mesh.wgsl");
 const TONEMAP_WGSL: &str = include_str!("shaders/tonemap.wgsl");
+const AMBIENT_WGSL: &str = include_str!("shaders/ambient.wgsl");
 
 /// Every pipeline and layout of a frame.
 pub struct Pipelines {
@@ -29,6 +30,8 @@ pub struct Pipelines {
     pub material_layout: wgpu::BindGroupLayout,
     /// Group 0 of the tone map: HDR image, exposure uniform.
     pub tonemap_layout: wgpu::BindGroupLayout,
+    /// Group 3 of the terrain and meshes: the ambient term (see [`super::ambient_gpu`]).
+    pub ambient_layout: wgpu::BindGroupLayout,
     pub sky: wgpu::RenderPipeline,
     pub terrain: wgpu::RenderPipeline,
     pub mesh: wgpu::RenderPipeline,
@@ -196,9 +199,14 @@ impl Pipelines {
                 uniform_entry(1, S::FRAGMENT),
             ],
         );
+        let ambient_layout = layout(device, "ambient", &super::ambient_gpu::layout_entries());
         let sky_module = shader(device, "sky", &[COMMON_WGSL, SKY_WGSL]);
-        let terrain_module = shader(device, "terrain", &[COMMON_WGSL, TERRAIN_WGSL]);
-        let mesh_module = shader(device, "mesh", &[COMMON_WGSL, MESH_WGSL]);
+        let terrain_module = shader(
+            device,
+            "terrain",
+            &[COMMON_WGSL, AMBIENT_WGSL, TERRAIN_WGSL],
+        );
+        let mesh_module = shader(device, "mesh", &[COMMON_WGSL, AMBIENT_WGSL, MESH_WGSL]);
         let tonemap_module = shader(device, "tonemap", &[TONEMAP_WGSL]);
         let mesh_buffers = [
             Some(wgpu::VertexBufferLayout {
@@ -238,7 +246,12 @@ impl Pipelines {
             &PassDesc {
                 label: "terrain",
                 module: &terrain_module,
-                layouts: &[Some(&globals_layout), Some(&terrain_layout)],
+                layouts: &[
+                    Some(&globals_layout),
+                    Some(&terrain_layout),
+                    None,
+                    Some(&ambient_layout),
+                ],
                 buffers: &[],
                 target: HDR_FORMAT,
                 depth: Some(true),
@@ -249,7 +262,12 @@ impl Pipelines {
             &PassDesc {
                 label: "mesh",
                 module: &mesh_module,
-                layouts: &[Some(&globals_layout), Some(&material_layout)],
+                layouts: &[
+                    Some(&globals_layout),
+                    Some(&material_layout),
+                    None,
+                    Some(&ambient_layout),
+                ],
                 buffers: &mesh_buffers,
                 target: HDR_FORMAT,
                 depth: Some(true),
@@ -271,6 +289,7 @@ impl Pipelines {
             terrain_layout,
             material_layout,
             tonemap_layout,
+            ambient_layout,
             sky,
             terrain,
             mesh,

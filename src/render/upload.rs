@@ -55,6 +55,8 @@ pub struct GpuScene {
     pub models: Vec<ModelGpu>,
     /// Bytes sent to the GPU.
     pub bytes: u64,
+    /// Group 3, the ambient term (set after [`upload_scene`], see `render_pack`).
+    pub ambient: Option<super::ambient_gpu::AmbientGpu>,
 }
 
 struct Uploader<'g> {
@@ -171,6 +173,7 @@ pub fn upload_scene(gpu: &Gpu, pipes: &Pipelines, scene: &SceneData) -> Result<G
         terrain,
         models,
         bytes: up.bytes,
+        ambient: None,
     })
 }
 

@@ -130,7 +130,7 @@ fn open_quad_under_a_constant_sky_reflects_albedo_times_sky() {
     let pack = quad_pack(&constant_sky(l), 70.0);
     let scene = load_scene(&pack).unwrap();
     for layout in [PrtLayout::Full, PrtLayout::Packed] {
-        let amb = load_ambient(&pack, &scene, layout).unwrap();
+        let amb = load_ambient(&pack, &scene, layout, None).unwrap();
         assert_eq!(amb.source, EnvSource::Sky);
         let m = &amb.models[0];
         assert_eq!(m.mode(), MeshAmbientMode::Prt);
@@ -510,19 +510,39 @@ fn the_terrain_light_map_loses_exactly_its_direct_sun() {
             raw.texels[40]
         );
     }
-    let scene = load_scene(&pack).unwrap();
-    let amb = load_ambient(&pack, &scene, PrtLayout::Full).unwrap();
-    let tex = amb.terrain.as_ref().expect("terrain light map");
-    for t in &tex.texels {
-        for c in 0..3 {
-            assert!((t[c] - PI * l[c]).abs() < 1e-4 * PI * l[c] + 1e-5, "{t:?}");
+    // As baked (the `indirect` array), and as an older pack without it (recomputed here).
+    let (meta, _) =
+        crate::lightmap::section::from_section(&pack.view_named("lightmap:terrain").unwrap())
+            .unwrap();
+    let mut w = PackWriter::from_pack(&pack);
+    w.insert(crate::lightmap::section::to_section(
+        "lightmap:terrain",
+        &meta,
+        &raw,
+    ));
+    let old = Pack::from_bytes(&w.to_bytes().unwrap(), "old.bake").unwrap();
+    assert!(
+        old.view_named("lightmap:terrain")
+            .unwrap()
+            .info("indirect")
+            .is_none()
+    );
+    for p in [&pack, &old] {
+        let scene = load_scene(p).unwrap();
+        let amb = load_ambient(p, &scene, PrtLayout::Full, None).unwrap();
+        assert!(amb.warnings.is_empty(), "{:?}", amb.warnings);
+        let tex = amb.terrain.as_ref().expect("terrain light map");
+        for t in &tex.texels {
+            for c in 0..3 {
+                assert!((t[c] - PI * l[c]).abs() < 1e-4 * PI * l[c] + 1e-5, "{t:?}");
+            }
         }
-    }
-    // And the shading: albedo · E / π at any point.
-    let meta = &scene.terrain.as_ref().unwrap().meta;
-    let got = amb.terrain_radiance(meta, [13.0, 27.0], [0.0, 0.0, 1.0], [0.5; 3]);
-    for c in 0..3 {
-        assert!((got[c] - 0.5 * l[c]).abs() < 1e-4, "{got:?}");
+        // And the shading: albedo · E / π at any point.
+        let meta = &scene.terrain.as_ref().unwrap().meta;
+        let got = amb.terrain_radiance(meta, [13.0, 27.0], [0.0, 0.0, 1.0], [0.5; 3]);
+        for c in 0..3 {
+            assert!((got[c] - 0.5 * l[c]).abs() < 1e-4, "{got:?}");
+        }
     }
 }
 
@@ -532,7 +552,7 @@ fn without_a_light_map_surfaces_take_the_sky_irradiance() {
     let l = [0.4f32, 0.6, 0.9];
     let pack = quad_pack(&constant_sky(l), 0.0);
     let scene = load_scene(&pack).unwrap();
-    let mut amb = load_ambient(&pack, &scene, PrtLayout::Full).unwrap();
+    let mut amb = load_ambient(&pack, &scene, PrtLayout::Full, None).unwrap();
     amb.models[0].prt = None;
     assert_eq!(amb.models[0].mode(), MeshAmbientMode::SkyIrradiance);
     let got = amb.mesh_radiance(&hit([0, 1, 2], [0.3, 0.3, 0.4], false, [0.5; 3]));

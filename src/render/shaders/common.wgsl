@@ -31,6 +31,11 @@ fn shade_lambert(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     return albedo * (sun + sky) / PI;
 }
 
+// The sun alone on a Lambert surface (the direct term until the Schlick shader replaces it).
+fn direct_lambert(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return albedo * globals.sun_irradiance.rgb * max(dot(n, globals.sun_direction.xyz), 0.0) / PI;
+}
+
 // Normal facing the viewer (plants are thin and lit from both sides); a degenerate normal
 // becomes the view direction.
 fn facing_normal(n_in: vec3<f32>, world: vec3<f32>) -> vec3<f32> {

@@ -18,6 +18,8 @@ struct MeshIn {
     @location(3) instance_position: vec3<f32>,
     @location(4) instance_scale: f32,
     @location(5) instance_rotation_deg: f32,
+    @builtin(vertex_index) vertex_index: u32,
+    @builtin(instance_index) instance_index: u32,
 };
 
 struct MeshOut {
@@ -25,6 +27,10 @@ struct MeshOut {
     @location(0) world: vec3<f32>,
     @location(1) normal: vec3<f32>,
     @location(2) uv: vec2<f32>,
+    // The ambient term's per-vertex values (shaders/ambient.wgsl).
+    @location(8) ambient_front: vec3<f32>,
+    @location(9) ambient_back: vec3<f32>,
+    @location(10) light_map_uv: vec2<f32>,
 };
 
 @vertex
@@ -40,6 +46,10 @@ fn vs_main(v: MeshIn) -> MeshOut {
     // A uniform scale keeps normals; only the rotation applies.
     out.normal = vec3<f32>(c * v.normal.x - s * v.normal.y, s * v.normal.x + c * v.normal.y, v.normal.z);
     out.uv = v.uv;
+    let amb = ambient_vertex(v.vertex_index, v.instance_index);
+    out.ambient_front = amb.front;
+    out.ambient_back = amb.back;
+    out.light_map_uv = amb.uv;
     return out;
 }
 
@@ -50,5 +60,9 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
         discard;
     }
     let n = facing_normal(in.normal, in.world);
-    return vec4<f32>(shade_lambert(texel.rgb * material.base_color.rgb, n), 1.0);
+    let albedo = texel.rgb * material.base_color.rgb;
+    let seen_front = dot(in.normal, globals.eye.xyz - in.world) >= 0.0;
+    let l = direct_lambert(albedo, n)
+        + ambient_mesh(in.ambient_front, in.ambient_back, in.light_map_uv, albedo, n, seen_front);
+    return vec4<f32>(l, 1.0);
 }

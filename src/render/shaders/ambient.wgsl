@@ -1,0 +1,192 @@
+// The ambient term L_ambient (sky light and the sun's indirect light; never the direct sun), the
+// GPU side of src/render/ambient.rs, which documents the formulas and evaluates the same ones for
+// the CPU reference. Group 3 of the terrain and mesh passes (one layout for both; the terrain
+// binds placeholders for what only meshes read):
+//   0 AmbientParams (uniform), 1 light map (Rgba32Float, textureLoad + manual bilinear, the same
+//   arithmetic as LightTexture::sample), 2 PRT per vertex (f32, full or packed layout),
+//   3 per-instance maps C_H, C_S (96 f32 each, instance frame), 4 light-map UVs per vertex.
+
+struct AmbientParams {
+    // SH irradiance of the sun-free sky (world frame), rgb per coefficient
+    sky_irradiance: array<vec4<f32>, 16>,
+    // xyz: 1 / folded albedo of the material (PRT), w: translucence t
+    albedo_scale_t: vec4<f32>,
+    // x: mode (0 PRT, 1 light map, 2 sky irradiance), y: PRT layout (0 full, 1 packed),
+    // z: vertices per instance of the light-map UVs (0: shared by all instances),
+    // w: 1 when the terrain has a light map
+    mode: vec4<u32>,
+    // x: weight of the ambient term (0 or 1, `terms`)
+    scale: vec4<f32>,
+};
+
+@group(3) @binding(0) var<uniform> ambient: AmbientParams;
+@group(3) @binding(1) var light_map: texture_2d<f32>;
+@group(3) @binding(2) var<storage, read> prt: array<f32>;
+@group(3) @binding(3) var<storage, read> instance_maps: array<f32>;
+@group(3) @binding(4) var<storage, read> light_map_uvs: array<vec2<f32>>;
+
+const AMBIENT_PRT: u32 = 0u;
+const AMBIENT_LIGHT_MAP: u32 = 1u;
+
+// The order-4 real SH basis of src/sh.rs (`eval_basis16`, Condon–Shortley phase).
+fn sh_basis16(d: vec3<f32>) -> array<f32, 16> {
+    let x = d.x;
+    let y = d.y;
+    let z = d.z;
+    let x2 = x * x;
+    let y2 = y * y;
+    let z2 = z * z;
+    return array<f32, 16>(
+        0.2820948,
+        -0.4886025 * y,
+        0.4886025 * z,
+        -0.4886025 * x,
+        1.0925484 * x * y,
+        -1.0925484 * y * z,
+        0.31539157 * (3.0 * z2 - 1.0),
+        -1.0925484 * x * z,
+        0.5462742 * (x2 - y2),
+        -0.5900436 * y * (3.0 * x2 - y2),
+        2.8906114 * x * y * z,
+        -0.4570458 * y * (5.0 * z2 - 1.0),
+        0.37317633 * z * (5.0 * z2 - 3.0),
+        -0.4570458 * x * (5.0 * z2 - 1.0),
+        1.4453057 * z * (x2 - y2),
+        -0.5900436 * x * (x2 - 3.0 * y2),
+    );
+}
+
+// Irradiance of the sun-free sky on a surface with unit normal n.
+fn sky_irradiance(n: vec3<f32>) -> vec3<f32> {
+    let y = sh_basis16(n);
+    var e = vec3<f32>(0.0);
+    for (var i = 0u; i < 16u; i++) {
+        e += ambient.sky_irradiance[i].rgb * y[i];
+    }
+    return e;
+}
+
+// Bilinear light-map lookup at (u, v), v = 0 at row 0, clamped to the edge.
+fn light_map_bilinear(uv: vec2<f32>) -> vec3<f32> {
+    let size = vec2<i32>(textureDimensions(light_map));
+    let f = uv * vec2<f32>(size) - 0.5;
+    let f0 = floor(f);
+    let a = f - f0;
+    let i0 = vec2<i32>(f0);
+    let hi = size - vec2<i32>(1);
+    let t00 = textureLoad(light_map, clamp(i0, vec2<i32>(0), hi), 0).rgb;
+    let t10 = textureLoad(light_map, clamp(i0 + vec2<i32>(1, 0), vec2<i32>(0), hi), 0).rgb;
+    let t01 = textureLoad(light_map, clamp(i0 + vec2<i32>(0, 1), vec2<i32>(0), hi), 0).rgb;
+    let t11 = textureLoad(light_map, clamp(i0 + vec2<i32>(1, 1), vec2<i32>(0), hi), 0).rgb;
+    let top = t00 + (t10 - t00) * a.x;
+    let bottom = t01 + (t11 - t01) * a.x;
+    return top + (bottom - top) * a.y;
+}
+
+// P·C over 16 RGB coefficients: transfer at prt[p + 3i + c], map at instance_maps[m + 3i + c].
+fn prt_dot_full(p: u32, m: u32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    for (var i = 0u; i < 16u; i++) {
+        let t = vec3<f32>(prt[p + 3u * i], prt[p + 3u * i + 1u], prt[p + 3u * i + 2u]);
+        let c = vec3<f32>(
+            instance_maps[m + 3u * i],
+            instance_maps[m + 3u * i + 1u],
+            instance_maps[m + 3u * i + 2u],
+        );
+        out += t * c;
+    }
+    return out;
+}
+
+// The packed side at prt[p..p + 20] against the map at instance_maps[m]: band 0 in RGB, bands
+// 1–3 luminance with band 0's chromaticity (src/render/ambient.rs `decode_packed`).
+fn prt_dot_packed(p: u32, m: u32) -> vec3<f32> {
+    let b0 = vec3<f32>(prt[p], prt[p + 1u], prt[p + 2u]);
+    let l0 = dot(b0, vec3<f32>(0.2126, 0.7152, 0.0722));
+    var chroma = vec3<f32>(1.0);
+    if (l0 > 0.0) {
+        chroma = b0 / l0;
+    }
+    var out = b0 * vec3<f32>(instance_maps[m], instance_maps[m + 1u], instance_maps[m + 2u]);
+    for (var i = 1u; i < 16u; i++) {
+        let c = vec3<f32>(
+            instance_maps[m + 3u * i],
+            instance_maps[m + 3u * i + 1u],
+            instance_maps[m + 3u * i + 2u],
+        );
+        out += chroma * prt[p + 3u + i] * c;
+    }
+    return out;
+}
+
+// Per vertex and side (0 front, 1 back): P_s0·C_H + P_s1·C_S (eq. 4.8 before the mix).
+fn prt_side(vertex: u32, instance: u32, side: u32) -> vec3<f32> {
+    let m = instance * 96u;
+    if (ambient.mode.y == 0u) {
+        let base = vertex * 192u + side * 96u;
+        return prt_dot_full(base, m) + prt_dot_full(base + 48u, m + 48u);
+    }
+    let p = vertex * 40u + side * 20u;
+    return prt_dot_packed(p, m) + prt[p + 3u] * prt_dot_packed(p, m + 48u);
+}
+
+// What the mesh vertex shader hands to the fragment: both sides' PRT radiance and the light-map UV.
+struct AmbientVarying {
+    front: vec3<f32>,
+    back: vec3<f32>,
+    uv: vec2<f32>,
+};
+
+fn ambient_vertex(vertex: u32, instance: u32) -> AmbientVarying {
+    var out: AmbientVarying;
+    out.front = vec3<f32>(0.0);
+    out.back = vec3<f32>(0.0);
+    out.uv = vec2<f32>(0.0);
+    if (ambient.mode.x == AMBIENT_PRT) {
+        out.front = prt_side(vertex, instance, 0u);
+        out.back = prt_side(vertex, instance, 1u);
+    } else if (ambient.mode.x == AMBIENT_LIGHT_MAP) {
+        out.uv = light_map_uvs[instance * ambient.mode.z + vertex];
+    }
+    return out;
+}
+
+// L_ambient of a mesh fragment: albedo = base colour × texel (linear), n the facing normal,
+// seen_front whether the viewer is on the vertex normals' side.
+fn ambient_mesh(
+    front: vec3<f32>,
+    back: vec3<f32>,
+    uv: vec2<f32>,
+    albedo: vec3<f32>,
+    n: vec3<f32>,
+    seen_front: bool,
+) -> vec3<f32> {
+    var l = vec3<f32>(0.0);
+    if (ambient.mode.x == AMBIENT_PRT) {
+        let t = ambient.albedo_scale_t.w;
+        var seen = front;
+        var other = back;
+        if (!seen_front) {
+            seen = back;
+            other = front;
+        }
+        let mixed = max(seen * (1.0 - t) + other * t, vec3<f32>(0.0));
+        l = mixed * albedo * ambient.albedo_scale_t.xyz;
+    } else if (ambient.mode.x == AMBIENT_LIGHT_MAP) {
+        l = albedo * max(light_map_bilinear(uv), vec3<f32>(0.0)) / PI;
+    } else {
+        l = albedo * max(sky_irradiance(n), vec3<f32>(0.0)) / PI;
+    }
+    return l * ambient.scale.x;
+}
+
+// L_ambient of the terrain at colour-map coordinates uv (row 0 north) with facing normal n.
+fn ambient_terrain(uv: vec2<f32>, albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    var e = vec3<f32>(0.0);
+    if (ambient.mode.w == 1u) {
+        e = light_map_bilinear(uv);
+    } else {
+        e = sky_irradiance(n);
+    }
+    return albedo * max(e, vec3<f32>(0.0)) / PI * ambient.scale.x;
+}
