@@ -3,7 +3,7 @@
 use super::{Global, Outcome, parse_vec3};
 use crate::error::Result;
 use crate::pack::Pack;
-use crate::render::{BackendChoice, RenderOptions, encode_png, render_pack};
+use crate::render::{BackendChoice, RenderOptions, Terms, encode_png, render_pack};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
@@ -37,7 +37,17 @@ pub struct RenderArgs {
     /// PRT layout of the ambient term: the full transfer or the thesis' 5 vec4 per side.
     #[arg(long, value_enum, default_value_t = crate::render::ambient::PrtLayout::Full)]
     pub prt_layout: crate::render::ambient::PrtLayout,
+    /// Light terms to draw: all (direct sun + ambient), direct or ambient alone.
+    #[arg(long, value_enum, default_value_t = Terms::All)]
+    pub terms: Terms,
+    /// Also render the view on the CPU (ray-cast reference, src/render/reference.rs) into this
+    /// PNG; the JSON result adds the difference between the two images.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
 }
+
+/// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
+pub const REFERENCE_THRESHOLD: u8 = 24;
 
 /// Silences the warning Mesa's device-select Vulkan layer prints on machines without a display,
 /// unless the user set `NODEVICE_SELECT` already. `main` calls it first thing, while the process
@@ -61,13 +71,14 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         lighting: None,
         backend: args.backend,
         prt_layout: args.prt_layout,
+        terms: args.terms,
     };
     let pack = Pack::open(&args.pack)?;
     let out = render_pack(&pack, &opts)?;
     let png = encode_png(&out.image)?;
     crate::pack::write_atomic(&args.output, &png)?;
     let s = &out.stats;
-    let text = format!(
+    let mut text = format!(
         "{}: {}×{} on {}, {} instances of {} models, {} triangles, {:.3} s\n",
         args.output.display(),
         s.width,
@@ -78,12 +89,32 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         s.triangles,
         s.seconds_setup + s.seconds_upload + s.seconds_draw
     );
+    let mut json = serde_json::json!({
+        "output": args.output,
+        "adapter": out.adapter,
+        "stats": out.stats,
+    });
+    if let Some(path) = &args.reference {
+        let r = crate::render::reference::render_reference(&pack, &opts)?;
+        crate::pack::write_atomic(path, &encode_png(&r.image)?)?;
+        let d =
+            crate::render::reference::image_difference(&out.image, &r.image, REFERENCE_THRESHOLD)
+                .ok_or_else(|| crate::error::Error::runtime("reference image has another size"))?;
+        text += &format!(
+            "{}: CPU reference, {:.3} s; mean absolute difference {:.2}/255, {:.2} % of pixels off by more than {}/255\n",
+            path.display(),
+            r.seconds,
+            d.mad,
+            d.fraction_over * 100.0,
+            d.threshold
+        );
+        json["reference"] = serde_json::json!({
+            "output": path, "seconds": r.seconds, "mad": d.mad,
+            "pixels_over": d.fraction_over, "threshold": d.threshold, "max": d.max,
+        });
+    }
     Ok(Outcome {
-        json: serde_json::json!({
-            "output": args.output,
-            "adapter": out.adapter,
-            "stats": out.stats,
-        }),
+        json,
         text,
         warnings: out.warnings,
     })

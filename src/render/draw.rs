@@ -25,7 +25,7 @@ pub struct Globals {
     pub sun_direction: [f32; 4],
     pub sun_irradiance: [f32; 4],
     pub ambient: [f32; 4],
-    /// width, height, 0, 0
+    /// width, height, then the weights of the direct and ambient terms (1 or 0)
     pub viewport: [f32; 4],
 }
 const _: () = assert!(size_of::<Globals>() == 192);
@@ -35,7 +35,14 @@ fn v4(v: [f32; 3], w: f32) -> [f32; 4] {
 }
 
 impl Globals {
-    pub fn new(cam: &Camera, light: &Lighting, exposure: f32, size: (u32, u32)) -> Globals {
+    pub fn new(
+        cam: &Camera,
+        light: &Lighting,
+        exposure: f32,
+        size: (u32, u32),
+        terms: super::Terms,
+    ) -> Globals {
+        let [kd, ka] = terms.weights();
         let b = cam.basis();
         let ty = (cam.fov_y_deg.to_radians() * 0.5).tan();
         Globals {
@@ -47,7 +54,7 @@ impl Globals {
             sun_direction: v4(light.sun_direction, 0.0),
             sun_irradiance: v4(light.sun_irradiance, 0.0),
             ambient: v4(light.ambient, 0.0),
-            viewport: [size.0 as f32, size.1 as f32, 0.0, 0.0],
+            viewport: [size.0 as f32, size.1 as f32, kd, ka],
         }
     }
 }

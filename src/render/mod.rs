@@ -14,6 +14,7 @@ pub mod draw;
 pub mod gpu;
 pub mod light;
 pub mod pipelines;
+pub mod reference;
 pub mod scene;
 pub mod upload;
 
@@ -42,6 +43,31 @@ pub struct RenderOptions {
     pub backend: BackendChoice,
     /// PRT layout the ambient term evaluates (see [`ambient`]).
     pub prt_layout: ambient::PrtLayout,
+    /// Which light terms to draw (the shading contract: L = L_direct + L_ambient).
+    pub terms: Terms,
+}
+
+/// Which terms of `L = L_direct + L_ambient` a render draws (the sky background is always drawn).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Terms {
+    #[default]
+    All,
+    /// The sun alone: E_sun · visibility · BRDF · cos.
+    Direct,
+    /// Sky and indirect light alone.
+    Ambient,
+}
+
+impl Terms {
+    /// Weights of the direct and ambient terms (1 or 0), as the shaders get them.
+    pub fn weights(self) -> [f32; 2] {
+        match self {
+            Terms::All => [1.0, 1.0],
+            Terms::Direct => [1.0, 0.0],
+            Terms::Ambient => [0.0, 1.0],
+        }
+    }
 }
 
 impl Default for RenderOptions {
@@ -56,6 +82,7 @@ impl Default for RenderOptions {
             lighting: None,
             backend: BackendChoice::Auto,
             prt_layout: ambient::PrtLayout::Full,
+            terms: Terms::All,
         }
     }
 }
@@ -112,12 +139,18 @@ pub fn pack_lighting(pack: &Pack) -> Option<light::Lighting> {
     })
 }
 
-/// Renders `pack`.
-pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
-    check_options(opts)?;
-    let scene = scene::load_scene(pack)?;
+/// What both renderers (GPU and [`reference`]) agree on before drawing: camera, light, exposure.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct View {
+    pub camera: camera::Camera,
+    pub lighting: Lighting,
+    pub exposure: f32,
+}
+
+/// The view of `opts` over `scene` (defaults filled in from the pack).
+pub fn resolve_view(pack: &Pack, scene: &scene::SceneData, opts: &RenderOptions) -> View {
     let aspect = opts.width as f32 / opts.height as f32;
-    let cam = choose_camera(&scene, opts, aspect);
+    let camera = choose_camera(scene, opts, aspect);
     let lighting = opts
         .lighting
         .or_else(|| pack_lighting(pack))
@@ -132,6 +165,22 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let exposure = opts
         .exposure
         .unwrap_or_else(|| light::auto_exposure(&lighting));
+    View {
+        camera,
+        lighting,
+        exposure,
+    }
+}
+
+/// Renders `pack`.
+pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
+    check_options(opts)?;
+    let scene = scene::load_scene(pack)?;
+    let View {
+        camera: cam,
+        lighting,
+        exposure,
+    } = resolve_view(pack, &scene, opts);
 
     let t0 = std::time::Instant::now();
     let gpu = gpu::init_gpu(opts.backend)?;
@@ -140,12 +189,18 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let t1 = std::time::Instant::now();
     let amb = ambient::load_ambient(pack, &scene, opts.prt_layout, opts.lighting.as_ref())?;
     let mut gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;
-    let amb_gpu = ambient_gpu::upload_ambient(&gpu, &pipes, &scene, &amb, 1.0)?;
+    let amb_gpu = ambient_gpu::upload_ambient(&gpu, &pipes, &scene, &amb, opts.terms.weights()[1])?;
     gpu_scene.bytes += amb_gpu.bytes;
     gpu_scene.ambient = Some(amb_gpu);
     gpu.wait()?;
     let t2 = std::time::Instant::now();
-    let globals = draw::Globals::new(&cam, &lighting, exposure, (opts.width, opts.height));
+    let globals = draw::Globals::new(
+        &cam,
+        &lighting,
+        exposure,
+        (opts.width, opts.height),
+        opts.terms,
+    );
     let (pixels, counts) = draw::draw_frame(
         &gpu,
         &pipes,
@@ -189,7 +244,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     })
 }
 
-fn check_options(opts: &RenderOptions) -> Result<()> {
+pub fn check_options(opts: &RenderOptions) -> Result<()> {
     if opts.width == 0 || opts.height == 0 || opts.width > 16384 || opts.height > 16384 {
         return Err(Error::usage(format!(
             "image size {}×{}: each side must be 1 to 16384",

@@ -33,7 +33,8 @@ fn shade_lambert(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
 
 // The sun alone on a Lambert surface (the direct term until the Schlick shader replaces it).
 fn direct_lambert(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
-    return albedo * globals.sun_irradiance.rgb * max(dot(n, globals.sun_direction.xyz), 0.0) / PI;
+    let e = globals.sun_irradiance.rgb * max(dot(n, globals.sun_direction.xyz), 0.0);
+    return albedo * e / PI * globals.viewport.z;
 }
 
 // Normal facing the viewer (plants are thin and lit from both sides); a degenerate normal
