@@ -398,12 +398,12 @@ fn split_dim(v: &[f32]) -> (Sh16, Sh16) {
     (m(0), m(COEFFS * 3))
 }
 
+/// The `instances` records and, per model of a scene, the indices of its instances among them.
+type InstanceLists = (Vec<InstanceRecord>, Vec<Vec<usize>>);
+
 /// Global `instances` indices of each model of `scene` (by its name and mesh section), in
 /// [`ModelData::instances`] order; `None` for a pack without an `instances` section.
-fn model_instance_indices(
-    pack: &Pack,
-    scene: &SceneData,
-) -> Result<Option<(Vec<InstanceRecord>, Vec<Vec<usize>>)>> {
+fn model_instance_indices(pack: &Pack, scene: &SceneData) -> Result<Option<InstanceLists>> {
     let kind = crate::pack::kinds::instances::KIND;
     let Some(e) = pack.of_kind(kind).next() else {
         return Ok(None);

@@ -89,7 +89,7 @@ impl Up<'_> {
 
     /// A storage buffer; an empty one gets 16 zero bytes (bindings must not be empty).
     fn storage(&mut self, label: &str, data: &[u8]) -> Result<wgpu::Buffer> {
-        let max = self.gpu.device.limits().max_storage_buffer_binding_size as u64;
+        let max = self.gpu.device.limits().max_storage_buffer_binding_size;
         if data.len() as u64 > max {
             return Err(Error::runtime(format!(
                 "{label}: {} bytes, this GPU binds at most {max} per storage buffer",
