@@ -560,3 +560,60 @@ fn without_a_light_map_surfaces_take_the_sky_irradiance() {
         assert!((got[c] - 0.5 * l[c]).abs() < 1e-3 * l[c], "{got:?}");
     }
 }
+
+/// The quad pack plus a 2×2 light map for its mesh: total irradiance 100 + k, indirect k + 1 per
+/// texel k (row-major), light-map UVs at the texel centres (vertices 0–3 on texels 0, 1, 3, 2).
+pub(super) fn quad_lightmap_pack() -> Pack {
+    let base = quad_pack(&constant_sky([1.0; 3]), 30.0);
+    let meta = crate::lightmap::section::LightmapMeta {
+        surface: "mesh:quad.obj".into(),
+        width: 2,
+        height: 2,
+        mode: crate::lightmap::LightmapMode::Physical,
+        samples: 1,
+        sun_samples: 1,
+    };
+    let total: Vec<[f32; 4]> = (0..4).map(|k| [100.0 + k as f32; 4]).collect();
+    let indirect: Vec<[f32; 4]> = (0..4)
+        .map(|k| [k as f32 + 1.0, 2.0 * (k as f32 + 1.0), 0.5, 1.0])
+        .collect();
+    let uvs: Vec<[f32; 2]> = vec![[0.25, 0.25], [0.75, 0.25], [0.75, 0.75], [0.25, 0.75]];
+    let mut b = SectionBuilder::new(crate::lightmap::section::KIND, "lightmap:quad.obj");
+    b.meta(&meta)
+        .array("irradiance", ArrayFormat::F32, 4, &total)
+        .array("indirect", ArrayFormat::F32, 4, &indirect)
+        .array("lightmap_uv", ArrayFormat::F32, 2, &uvs);
+    let mut w = PackWriter::from_pack(&base);
+    w.insert(b.finish());
+    Pack::from_bytes(&w.to_bytes().unwrap(), "lm.bake").unwrap()
+}
+
+#[test]
+fn a_mesh_light_map_takes_precedence_and_reads_its_indirect_part() {
+    let pack = quad_lightmap_pack();
+    let scene = load_scene(&pack).unwrap();
+    let amb = load_ambient(&pack, &scene, PrtLayout::Full, None).unwrap();
+    assert!(amb.warnings.is_empty(), "{:?}", amb.warnings);
+    let m = &amb.models[0];
+    assert!(m.prt.is_some());
+    assert_eq!(m.mode(), MeshAmbientMode::Lightmap);
+    let albedo = [0.5, 0.25, 1.0];
+    for v in 0..3u32 {
+        let mut bary = [0.0; 3];
+        bary[v as usize] = 1.0;
+        let got = amb.mesh_radiance(&hit([0, 1, 2], bary, true, albedo));
+        let k = [0.0f32, 1.0, 3.0, 2.0][v as usize];
+        let e = [k + 1.0, 2.0 * (k + 1.0), 0.5];
+        for c in 0..3 {
+            assert!(
+                (got[c] - albedo[c] * e[c] / PI).abs() < 1e-5,
+                "vertex {v}: {got:?}"
+            );
+        }
+    }
+    // Inside a triangle: the UV interpolates, the texture filters bilinearly.
+    let got = amb.mesh_radiance(&hit([0, 2, 3], [0.5, 0.25, 0.25], false, [1.0; 3]));
+    // uv = (0.375, 0.5): a quarter of the way from column 0 to 1, half way from row 0 to 1.
+    let e0 = 0.5 * (1.0 + 0.25 * (2.0 - 1.0)) + 0.5 * (3.0 + 0.25 * (4.0 - 3.0));
+    assert!((got[0] - e0 / PI).abs() < 1e-5, "{got:?}");
+}
