@@ -30,6 +30,8 @@ pub enum BenchWhat {
     Textures(TexturesBenchArgs),
     /// Terrain preparation (four-tap texture, normals, min/max quadtree) of a generated grid.
     Terrain(TerrainBenchArgs),
+    /// The renderer's ambient term at load time: cluster maps per instance, eq. 4.8 per vertex.
+    Ambient(crate::render::ambient_bench::AmbientBenchArgs),
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -100,6 +102,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Sky(a) => super::sky::bench(a, g),
         BenchWhat::Textures(a) => crate::texture::bench::bench_textures(a),
         BenchWhat::Terrain(a) => crate::terrain::bench::bench_terrain(a),
+        BenchWhat::Ambient(a) => crate::render::ambient_bench::bench_ambient(a),
     }
 }
 

@@ -330,21 +330,26 @@ fn cluster_maps(pack: &Pack, records: &[InstanceRecord]) -> Result<Vec<(Sh16, Sh
             meta.k.max(1) as usize,
         )
     };
-    let mut out = Vec::with_capacity(records.len());
-    let mut buf = vec![0.0f32; DIM];
-    for (i, r) in records.iter().enumerate() {
-        match &stored {
-            Some((nb, w)) => blend(&world, &nb[i], &w[i], &mut buf),
-            None => {
-                ip.reconstruct(r.position, &mut buf);
+    // Per instance in parallel, collected in order: deterministic whatever the thread count.
+    use rayon::prelude::*;
+    let out = records
+        .par_iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let mut buf = vec![0.0f32; DIM];
+            match &stored {
+                Some((nb, w)) => blend(&world, &nb[i], &w[i], &mut buf),
+                None => {
+                    ip.reconstruct(r.position, &mut buf);
+                }
             }
-        }
-        let (h, sn) = split_dim(&buf);
-        out.push((
-            to_instance_frame(&h, r.rotation_deg),
-            to_instance_frame(&sn, r.rotation_deg),
-        ));
-    }
+            let (h, sn) = split_dim(&buf);
+            (
+                to_instance_frame(&h, r.rotation_deg),
+                to_instance_frame(&sn, r.rotation_deg),
+            )
+        })
+        .collect();
     Ok(out)
 }
 

@@ -8,6 +8,7 @@
 //! (1 − exp(−L·s), then sRGB) into the output. [`light`] and [`camera`] hold the conventions.
 
 pub mod ambient;
+pub mod ambient_bench;
 pub mod ambient_gpu;
 pub mod camera;
 pub mod draw;
