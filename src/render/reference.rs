@@ -59,6 +59,9 @@ pub struct Reference<'s, 'a> {
     /// Per model, per triangle of `ModelData::indices`: the material.
     triangle_materials: Vec<Vec<u32>>,
     terrain_model: Option<Terrain>,
+    /// Trace shadow rays (on by default; off gives the unshadowed image a test can hold
+    /// against a bound to show the bound detects missing shadows).
+    pub shadows: bool,
 }
 
 /// The reference image of a view.
@@ -185,6 +188,7 @@ impl<'s, 'a> Reference<'s, 'a> {
             owner,
             triangle_materials,
             terrain_model,
+            shadows: true,
         })
     }
 
@@ -229,10 +233,22 @@ impl<'s, 'a> Reference<'s, 'a> {
     }
 
     /// Whether nothing blocks the sun seen from `hit` (an exact shadow ray, alpha-tested). The
-    /// ray starts on the sun's side of the triangle, pushed off it by a few ulps of the position.
+    /// ray starts on the sun's side of the surface (the side the interpolated normal says, as
+    /// the GPU's lookup does; winding orders are not consistent in the inputs), pushed off the
+    /// triangle's plane by a few ulps of the position.
     pub fn sun_visible(&self, hit: &HitRecord, sun: Vec3) -> bool {
-        let ng = hit.geometric_normal;
-        let side = if ng.dot(sun) >= 0.0 { 1.0 } else { -1.0 };
+        if !self.shadows {
+            return true;
+        }
+        let mut ng = hit.geometric_normal;
+        if ng.dot(hit.normal) < 0.0 {
+            ng = -ng;
+        }
+        let side = if hit.normal.dot(sun) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        };
         let eps = 2e-5 * (1.0 + hit.position.abs().max_element());
         let origin = hit.position + ng * (side * eps);
         !self
