@@ -369,3 +369,39 @@ fn the_shader_evaluates_the_schlick_brdf_like_the_rust_code() {
         assert!(checked > 500, "{checked}");
     }
 }
+
+/// `bake render --reference OUT.png --json` writes both images and reports their difference.
+#[test]
+fn the_cli_writes_the_reference_and_reports_the_difference() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = dir.path().join("flat.bake");
+    let pack = flat_terrain_pack([120, 140, 90]);
+    let bytes = PackWriter::from_pack(&pack).to_bytes().unwrap();
+    std::fs::write(&pack_path, bytes).unwrap();
+    let (gpu, cpu) = (dir.path().join("gpu.png"), dir.path().join("cpu.png"));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_bake"))
+        .args(["--json", "render", "--width", "64", "--height", "48"])
+        .args([
+            "--eye", "0,-30,12", "--target", "0,0,2", "--terms", "direct",
+        ])
+        .arg(&pack_path)
+        .arg("-o")
+        .arg(&gpu)
+        .arg("--reference")
+        .arg(&cpu)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let r = &doc["reference"];
+    assert!(r["mad"].as_f64().unwrap() < 1.0, "{doc}");
+    assert_eq!(r["threshold"], 24);
+    for p in [&gpu, &cpu] {
+        let img = image::open(p).unwrap();
+        assert_eq!((img.width(), img.height()), (64, 48));
+    }
+}

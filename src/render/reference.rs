@@ -56,6 +56,8 @@ pub struct Reference<'s, 'a> {
     bvh: SceneBvh,
     /// Per BVH instance: the model index (`u32::MAX` for the terrain).
     owner: Vec<u32>,
+    /// Per BVH instance: its index in `ModelData::instances` of its model.
+    slot: Vec<u32>,
     /// Per model, per triangle of `ModelData::indices`: the material.
     triangle_materials: Vec<Vec<u32>>,
     terrain_model: Option<Terrain>,
@@ -151,6 +153,7 @@ impl<'s, 'a> Reference<'s, 'a> {
         let mut models = Vec::new();
         let mut transforms = Vec::new();
         let mut owner = Vec::new();
+        let mut slot = Vec::new();
         let mut triangle_materials = Vec::new();
         for (k, m) in scene.models.iter().enumerate() {
             let (mesh, tri_mats) = model_mesh(m);
@@ -160,7 +163,8 @@ impl<'s, 'a> Reference<'s, 'a> {
                 BuildPreset::Medium,
             )?));
             triangle_materials.push(tri_mats);
-            for i in &m.instances {
+            for (j, i) in m.instances.iter().enumerate() {
+                slot.push(j as u32);
                 transforms.push(InstanceTransform {
                     model: k as u32,
                     translation: i.position,
@@ -181,15 +185,27 @@ impl<'s, 'a> Reference<'s, 'a> {
                 rotation_deg: 0.0,
             });
             owner.push(u32::MAX);
+            slot.push(0);
         }
         Ok(Reference {
             scene,
             bvh: SceneBvh::build(models, transforms)?,
             owner,
+            slot,
             triangle_materials,
             terrain_model,
             shadows: true,
         })
+    }
+
+    /// The instance record a hit belongs to (`None` for the terrain): position, scale, rotation
+    /// of the model instance, as `SceneData::models[model].instances` holds it.
+    pub fn instance_record(
+        &self,
+        hit: &HitRecord,
+    ) -> Option<&crate::pack::kinds::instances::InstanceRecord> {
+        let m = self.scene.models.get(hit.model? as usize)?;
+        m.instances.get(self.slot[hit.instance as usize] as usize)
     }
 
     /// The closest hit along `ray` with its attributes.
