@@ -64,8 +64,10 @@ fn mesh_direct(in: MeshOut, texel: vec3<f32>, ts: vec3<f32>) -> vec3<f32> {
         let n = facing_normal(in.normal, in.world);
         return direct_lambert(texel * material.base_color.rgb, n, in.world);
     }
-    let n = normalize(in.normal);
-    let t = normalize(in.tangent.xyz);
+    // Degenerate inputs: a zero normal faces the viewer, a zero tangent is any orthogonal one.
+    let n = facing_normal_or_self(in.normal, in.world);
+    let tl = dot(in.tangent.xyz, in.tangent.xyz);
+    let t = select(any_tangent(n), in.tangent.xyz * inverseSqrt(tl), tl > 1e-12);
     var ns = n;
     if (direct_material.mode.y != 0.0) {
         let b = cross(n, t) * select(1.0, -1.0, in.tangent.w < 0.0);
@@ -73,6 +75,14 @@ fn mesh_direct(in: MeshOut, texel: vec3<f32>, ts: vec3<f32>) -> vec3<f32> {
     }
     let m = schlick_from_record(direct_material.record);
     return direct_schlick(m, texel, ns, t, n, in.world);
+}
+
+// The unit normal; a zero one becomes the view direction (like `facing_normal`, not flipped).
+fn facing_normal_or_self(n: vec3<f32>, world: vec3<f32>) -> vec3<f32> {
+    if (dot(n, n) < 1e-12) {
+        return normalize(globals.eye.xyz - world);
+    }
+    return normalize(n);
 }
 
 // Sky light until the ambient term lands: the diffuse albedo under ambient_sky.
