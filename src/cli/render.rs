@@ -133,6 +133,19 @@ pub struct RenderBenchArgs {
     pub repeat: u32,
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
     pub backend: BackendChoice,
+    /// Also time the CPU reference (src/render/reference.rs) of the same view.
+    #[arg(long)]
+    pub reference: bool,
+}
+
+/// Median seconds of `repeat` CPU reference renders (BVH build included).
+fn bench_reference(pack: &Pack, opts: &RenderOptions, repeat: u32) -> Result<f64> {
+    let mut t = Vec::new();
+    for _ in 0..repeat.max(1) {
+        t.push(crate::render::reference::render_reference(pack, opts)?.seconds);
+    }
+    t.sort_by(f64::total_cmp);
+    Ok(t[t.len() / 2])
 }
 
 /// `bake bench render PACK`: median seconds of device setup, upload and draw (with readback).
@@ -159,7 +172,12 @@ pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
     };
     let (setup, upload, draw) = (median(0), median(1), median(2));
     let (adapter, triangles, instances, bytes) = adapter.expect("at least one run");
-    let text = format!(
+    let reference = if args.reference {
+        Some(bench_reference(&pack, &opts, args.repeat)?)
+    } else {
+        None
+    };
+    let mut text = format!(
         "{}: {}×{} on {adapter}: {triangles} triangles, {instances} instances, {bytes} bytes uploaded; \
          median of {}: setup {:.1} ms, upload {:.1} ms, draw+readback {:.1} ms ({:.1} Mtri/s)\n",
         args.pack.display(),
@@ -171,11 +189,15 @@ pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
         draw * 1e3,
         triangles as f64 / draw / 1e6
     );
+    if let Some(r) = reference {
+        text += &format!("CPU reference: median {:.1} ms\n", r * 1e3);
+    }
     Ok(Outcome {
         json: serde_json::json!({
             "pack": args.pack, "adapter": adapter, "width": args.width, "height": args.height,
             "runs": runs.len(), "triangles": triangles, "instances": instances, "uploaded_bytes": bytes,
             "seconds_setup": setup, "seconds_upload": upload, "seconds_draw": draw,
+            "seconds_reference": reference,
         }),
         text,
         warnings: Vec::new(),

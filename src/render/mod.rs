@@ -17,6 +17,7 @@ pub mod light;
 pub mod pipelines;
 pub mod reference;
 pub mod scene;
+pub mod shadow;
 pub mod upload;
 
 use crate::error::{Error, Result};
@@ -208,6 +209,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         &gpu_scene,
         &globals,
         (opts.width, opts.height),
+        shadow::shadow_params(&scene, lighting.sun_direction).as_ref(),
     )?;
     let t3 = std::time::Instant::now();
 

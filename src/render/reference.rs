@@ -56,12 +56,17 @@ pub struct Reference<'s, 'a> {
     bvh: SceneBvh,
     /// Per BVH instance: the model index (`u32::MAX` for the terrain).
     owner: Vec<u32>,
+    /// Per BVH instance: its index in `ModelData::instances` of its model.
+    slot: Vec<u32>,
     /// Per model, per triangle of `ModelData::indices`: the material.
     triangle_materials: Vec<Vec<u32>>,
     terrain_model: Option<Terrain>,
     /// The ambient term's light (src/render/ambient.rs); without it, the sky's horizontal
     /// irradiance × (1 + n_z)/2 stands in.
     pub ambient: Option<super::ambient::AmbientScene>,
+    /// Trace shadow rays (on by default; off gives the unshadowed image a test can hold
+    /// against a bound to show the bound detects missing shadows).
+    pub shadows: bool,
 }
 
 /// The reference image of a view.
@@ -157,6 +162,7 @@ impl<'s, 'a> Reference<'s, 'a> {
         let mut models = Vec::new();
         let mut transforms = Vec::new();
         let mut owner = Vec::new();
+        let mut slot = Vec::new();
         let mut triangle_materials = Vec::new();
         for (k, m) in scene.models.iter().enumerate() {
             let (mesh, tri_mats) = model_mesh(m);
@@ -166,7 +172,8 @@ impl<'s, 'a> Reference<'s, 'a> {
                 BuildPreset::Medium,
             )?));
             triangle_materials.push(tri_mats);
-            for i in &m.instances {
+            for (j, i) in m.instances.iter().enumerate() {
+                slot.push(j as u32);
                 transforms.push(InstanceTransform {
                     model: k as u32,
                     translation: i.position,
@@ -187,15 +194,28 @@ impl<'s, 'a> Reference<'s, 'a> {
                 rotation_deg: 0.0,
             });
             owner.push(u32::MAX);
+            slot.push(0);
         }
         Ok(Reference {
             scene,
             bvh: SceneBvh::build(models, transforms)?,
             owner,
+            slot,
             triangle_materials,
             terrain_model,
             ambient: None,
+            shadows: true,
         })
+    }
+
+    /// The instance record a hit belongs to (`None` for the terrain): position, scale, rotation
+    /// of the model instance, as `SceneData::models[model].instances` holds it.
+    pub fn instance_record(
+        &self,
+        hit: &HitRecord,
+    ) -> Option<&crate::pack::kinds::instances::InstanceRecord> {
+        let m = self.scene.models.get(hit.model? as usize)?;
+        m.instances.get(self.slot[hit.instance as usize] as usize)
     }
 
     /// The closest hit along `ray` with its attributes.
@@ -239,10 +259,22 @@ impl<'s, 'a> Reference<'s, 'a> {
     }
 
     /// Whether nothing blocks the sun seen from `hit` (an exact shadow ray, alpha-tested). The
-    /// ray starts on the sun's side of the triangle, pushed off it by a few ulps of the position.
+    /// ray starts on the sun's side of the surface (the side the interpolated normal says, as
+    /// the GPU's lookup does; winding orders are not consistent in the inputs), pushed off the
+    /// triangle's plane by a few ulps of the position.
     pub fn sun_visible(&self, hit: &HitRecord, sun: Vec3) -> bool {
-        let ng = hit.geometric_normal;
-        let side = if ng.dot(sun) >= 0.0 { 1.0 } else { -1.0 };
+        if !self.shadows {
+            return true;
+        }
+        let mut ng = hit.geometric_normal;
+        if ng.dot(hit.normal) < 0.0 {
+            ng = -ng;
+        }
+        let side = if hit.normal.dot(sun) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        };
         let eps = 2e-5 * (1.0 + hit.position.abs().max_element());
         let origin = hit.position + ng * (side * eps);
         !self
@@ -338,14 +370,10 @@ impl<'s, 'a> Reference<'s, 'a> {
         };
         let k = k as usize;
         let m = &self.scene.models[k];
-        let first: usize = self.scene.models[..k]
-            .iter()
-            .map(|m| m.instances.len())
-            .sum();
         let c = m.materials[hit.material as usize].base_color;
         let h = super::ambient::MeshHit {
             model: k,
-            instance: hit.instance as usize - first,
+            instance: self.slot[hit.instance as usize] as usize,
             vertices: m.indices[hit.triangle as usize],
             barycentrics: hit.barycentrics,
             material: hit.material as usize,

@@ -14,7 +14,7 @@ struct Globals {
     sun_irradiance: vec4<f32>,
     // irradiance of a horizontal surface from the sky
     ambient: vec4<f32>,
-    // x, y: image width and height in pixels
+    // x, y: image width and height in pixels; z, w: weights of the direct and ambient terms
     viewport: vec4<f32>,
 };
 
@@ -24,17 +24,10 @@ struct Globals {
 
 const PI: f32 = 3.14159265358979;
 
-// Lambert under the sun plus the sky ambient, see src/render/light.rs.
-fn shade_lambert(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
-    let sun = globals.sun_irradiance.rgb * max(dot(n, globals.sun_direction.xyz), 0.0);
-    let sky = globals.ambient.rgb * (0.5 + 0.5 * n.z);
-    return albedo * (sun + sky) / PI;
-}
-
-// The sun alone on a Lambert surface (the direct term until the Schlick shader replaces it).
-fn direct_lambert(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
-    let e = globals.sun_irradiance.rgb * max(dot(n, globals.sun_direction.xyz), 0.0);
-    return albedo * e / PI * globals.viewport.z;
+// The sky ambient of src/render/light.rs: albedo/π · E_sky · (1 + n_z)/2 (the CPU reference's
+// `Reference::ambient_term`; the ambient term of the shading contract replaces it).
+fn ambient_sky(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return albedo * globals.ambient.rgb * (0.5 + 0.5 * n.z) / PI;
 }
 
 // Normal facing the viewer (plants are thin and lit from both sides); a degenerate normal
