@@ -350,8 +350,13 @@ fn cluster_pack(records: &[Instance], maps: &[(Sh16, Sh16)], weights: bool) -> P
         for p in &positions {
             let (mut nb, mut wt) = (Vec::new(), Vec::new());
             ip.weights(*p, &mut nb, &mut wt);
-            nbs.extend(nb.iter().map(|x| x.1));
-            ws.extend(wt.iter().map(|&x| x as f32));
+            // Padded to k with sample 0 / weight 0, as the clustering stage stores them.
+            let mut idx: Vec<u32> = nb.iter().map(|x| x.1).collect();
+            let mut wf: Vec<f32> = wt.iter().map(|&x| x as f32).collect();
+            idx.resize(k, 0);
+            wf.resize(k, 0.0);
+            nbs.extend(idx);
+            ws.extend(wf);
         }
         b.array("neighbours", ArrayFormat::U32, 1, &nbs)
             .array("weights", ArrayFormat::F32, 1, &ws);
@@ -616,4 +621,35 @@ fn a_mesh_light_map_takes_precedence_and_reads_its_indirect_part() {
     // uv = (0.375, 0.5): a quarter of the way from column 0 to 1, half way from row 0 to 1.
     let e0 = 0.5 * (1.0 + 0.25 * (2.0 - 1.0)) + 0.5 * (3.0 + 0.25 * (4.0 - 3.0));
     assert!((got[0] - e0 / PI).abs() < 1e-5, "{got:?}");
+}
+
+#[test]
+fn a_corrupt_clusters_section_is_an_error_naming_it() {
+    let mut rng = Lcg(13);
+    let recs = records(9, &mut rng);
+    let maps: Vec<(Sh16, Sh16)> = recs.iter().map(|_| (rng.sh(), rng.sh())).collect();
+    let pack = cluster_pack(&recs, &maps, true);
+    // Rewrite the section with a neighbour index past the samples.
+    let v = pack.view_named("clusters").unwrap();
+    let meta: crate::envmap::section::ClustersMeta = v.meta().unwrap();
+    let mut nb: Vec<u32> = v.array_vec("neighbours").unwrap();
+    nb[5] = 1000;
+    let mut b = SectionBuilder::new(crate::envmap::section::CLUSTERS_KIND, "clusters");
+    let pts: Vec<[f32; 3]> = v.array_vec("sample_positions").unwrap();
+    let vals: Vec<f32> = v.array_vec("sample_values").unwrap();
+    let owner: Vec<u32> = v.array_vec("sample_instance").unwrap();
+    let wts: Vec<f32> = v.array_vec("weights").unwrap();
+    b.meta(&meta)
+        .array("sample_positions", ArrayFormat::F32, 3, &pts)
+        .array("sample_values", ArrayFormat::F32, 1, &vals)
+        .array("sample_instance", ArrayFormat::U32, 1, &owner)
+        .array("neighbours", ArrayFormat::U32, 1, &nb)
+        .array("weights", ArrayFormat::F32, 1, &wts);
+    let mut w = PackWriter::from_pack(&pack);
+    w.insert(b.finish());
+    let bad = Pack::from_bytes(&w.to_bytes().unwrap(), "bad.bake").unwrap();
+    let light = sky_light(&bad, &load_scene(&bad).unwrap().sky, &mut Vec::new()).unwrap();
+    let err = instance_maps(&bad, &pack_records(&bad), &light).unwrap_err();
+    let text = err.to_string();
+    assert!(text.contains("clusters") && text.contains("1000"), "{text}");
 }
