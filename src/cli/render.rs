@@ -34,6 +34,16 @@ pub struct RenderArgs {
     /// Graphics API.
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
     pub backend: BackendChoice,
+    /// The sun's visibility from the line-space soft shadows (the pack needs a `linespace`
+    /// section); the light is the sun's disc unless --area-light is given.
+    #[arg(long)]
+    pub soft_shadows: bool,
+    /// Quad light of the soft shadows: corner, edge u, edge v (cx,cy,cz,ux,uy,uz,vx,vy,vz, metres).
+    #[arg(long, value_parser = crate::render::soft_shadow::parse_area_light, allow_hyphen_values = true, requires = "soft_shadows")]
+    pub area_light: Option<crate::linespace::query::AreaLight>,
+    /// Light samples per side of the soft shadows (samples² shadow segments per pixel).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub shadow_samples: u32,
 }
 
 /// Silences the warning Mesa's device-select Vulkan layer prints on machines without a display,
@@ -57,6 +67,12 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         exposure: args.exposure,
         lighting: None,
         backend: args.backend,
+        soft_shadows: args
+            .soft_shadows
+            .then_some(crate::render::soft_shadow::SoftShadows {
+                area_light: args.area_light,
+                samples: args.shadow_samples,
+            }),
     };
     let pack = Pack::open(&args.pack)?;
     let out = render_pack(&pack, &opts)?;
@@ -79,6 +95,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
             "output": args.output,
             "adapter": out.adapter,
             "stats": out.stats,
+            "soft_shadows": out.soft_shadows.as_ref().map(|s| s.stats),
         }),
         text,
         warnings: out.warnings,

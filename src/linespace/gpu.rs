@@ -149,6 +149,39 @@ impl<'g> NTreeGpu<'g> {
         Ok(raw.iter().map(|&b| f32::from_bits(b)).collect())
     }
 
+    /// Records the `shadow` kernel (f32 fractions into `out`) over `count` receivers that
+    /// `queries` already holds as vec4 (w = 1: a receiver, w = 0: none), e.g. a world-position
+    /// texture copied in; the light samples are written behind them.
+    pub fn record_shadow_fractions(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        queries: &wgpu::Buffer,
+        count: u32,
+        light: &AreaLight,
+        offset: f32,
+        out: &wgpu::Buffer,
+    ) -> Result<()> {
+        let (q, params) = self.shadow_setup(&[], light, offset)?;
+        let (grid, stride) = compute::grid_for(count);
+        let params = Params {
+            count,
+            stride,
+            flags: FLAG_FRACTION,
+            ..params
+        };
+        let need = 16 * (count as u64 + q.len() as u64);
+        if queries.size() < need || out.size() < 4 * count as u64 {
+            return Err(Error::runtime("shadow kernel: buffers too small"));
+        }
+        let g = self.gpu;
+        g.queue
+            .write_buffer(queries, 16 * count as u64, bytemuck::cast_slice(&q));
+        let uniform = compute::uniform(g, "ntree params", bytemuck::bytes_of(&params));
+        let [a, b, c, d] = &self.pools;
+        self.shadow
+            .record(g, enc, &uniform, &[a, b, c, d, queries], out, grid)
+    }
+
     /// Receivers then light samples (computed on the CPU, so both sides use the same points).
     fn shadow_setup(
         &self,

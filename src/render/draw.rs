@@ -94,6 +94,7 @@ pub fn draw_frame(
     scene: &GpuScene,
     globals: &Globals,
     size: (u32, u32),
+    sun_visibility: &wgpu::TextureView,
 ) -> Result<(Vec<u8>, DrawCounts)> {
     let dev = &gpu.device;
     let hdr = target(gpu, "hdr", size, HDR_FORMAT, false);
@@ -116,6 +117,10 @@ pub fn draw_frame(
             wgpu::BindGroupEntry {
                 binding: 1,
                 resource: wgpu::BindingResource::TextureView(&scene.sky_view),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(sun_visibility),
             },
         ],
     });

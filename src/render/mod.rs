@@ -13,6 +13,7 @@ pub mod gpu;
 pub mod light;
 pub mod pipelines;
 pub mod scene;
+pub mod soft_shadow;
 pub mod upload;
 
 use crate::error::{Error, Result};
@@ -38,6 +39,8 @@ pub struct RenderOptions {
     /// Sun, sky ambient; default: [`light::default_lighting`] of the sky.
     pub lighting: Option<Lighting>,
     pub backend: BackendChoice,
+    /// The sun's visibility from the line-space soft shadows (needs a `linespace` section).
+    pub soft_shadows: Option<soft_shadow::SoftShadows>,
 }
 
 impl Default for RenderOptions {
@@ -51,6 +54,7 @@ impl Default for RenderOptions {
             exposure: None,
             lighting: None,
             backend: BackendChoice::Auto,
+            soft_shadows: None,
         }
     }
 }
@@ -85,6 +89,8 @@ pub struct RenderOutput {
     pub adapter: AdapterSummary,
     pub stats: RenderStats,
     pub warnings: Vec<String>,
+    /// The soft-shadow pass's receivers and visibility, with `--soft-shadows`.
+    pub soft_shadows: Option<soft_shadow::SoftShadowImage>,
 }
 
 /// The light the sky stage measured: its extracted sun, and the horizontal irradiance of the
@@ -135,13 +141,16 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     gpu.wait()?;
     let t2 = std::time::Instant::now();
     let globals = draw::Globals::new(&cam, &lighting, exposure, (opts.width, opts.height));
-    let (pixels, counts) = draw::draw_frame(
-        &gpu,
-        &pipes,
-        &gpu_scene,
-        &globals,
-        (opts.width, opts.height),
-    )?;
+    let size = (opts.width, opts.height);
+    let soft = match &opts.soft_shadows {
+        Some(s) => Some(soft_shadow::for_render(
+            &gpu, &pipes, &gpu_scene, &globals, size, pack, &lighting, s,
+        )?),
+        None => None,
+    };
+    let lit = soft_shadow::fully_lit(&gpu);
+    let visibility = soft.as_ref().map_or(&lit, |v| &v.view);
+    let (pixels, counts) = draw::draw_frame(&gpu, &pipes, &gpu_scene, &globals, size, visibility)?;
     let t3 = std::time::Instant::now();
 
     let image = Rgba8Image {
@@ -172,6 +181,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         adapter: gpu.adapter.clone(),
         stats,
         warnings: scene.warnings,
+        soft_shadows: soft.map(|v| v.image),
     })
 }
 

@@ -22,11 +22,20 @@ struct Globals {
 // The sky, lat-long, linear RGB radiance, Rgba32Float read with textureLoad (not filterable on GL).
 @group(0) @binding(1) var sky_texture: texture_2d<f32>;
 
+// The sun's visibility per pixel, R32Float: 1×1 texel of 1 unless `--soft-shadows` (then the
+// line-space soft shadows of src/render/soft_shadow.rs, one texel per pixel).
+@group(0) @binding(2) var sun_visibility: texture_2d<f32>;
+
 const PI: f32 = 3.14159265358979;
 
-// Lambert under the sun plus the sky ambient, see src/render/light.rs.
-fn shade_lambert(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
-    let sun = globals.sun_irradiance.rgb * max(dot(n, globals.sun_direction.xyz), 0.0);
+fn sun_visibility_at(frag: vec4<f32>) -> f32 {
+    let last = vec2<i32>(textureDimensions(sun_visibility)) - vec2<i32>(1);
+    return textureLoad(sun_visibility, min(vec2<i32>(frag.xy), last), 0).r;
+}
+
+// Lambert under the sun (times its visibility) plus the sky ambient, see src/render/light.rs.
+fn shade_lambert(albedo: vec3<f32>, n: vec3<f32>, visibility: f32) -> vec3<f32> {
+    let sun = globals.sun_irradiance.rgb * max(dot(n, globals.sun_direction.xyz), 0.0) * visibility;
     let sky = globals.ambient.rgb * (0.5 + 0.5 * n.z);
     return albedo * (sun + sky) / PI;
 }

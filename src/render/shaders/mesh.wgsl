@@ -50,5 +50,5 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
         discard;
     }
     let n = facing_normal(in.normal, in.world);
-    return vec4<f32>(shade_lambert(texel.rgb * material.base_color.rgb, n), 1.0);
+    return vec4<f32>(shade_lambert(texel.rgb * material.base_color.rgb, n, sun_visibility_at(in.position)), 1.0);
 }

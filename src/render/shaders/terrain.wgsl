@@ -58,5 +58,5 @@ fn vs_main(@builtin(vertex_index) vid: u32) -> TerrainOut {
 fn fs_main(in: TerrainOut) -> @location(0) vec4<f32> {
     let albedo = textureSample(color_map, color_sampler, in.uv).rgb;
     let n = normalize(in.normal);
-    return vec4<f32>(shade_lambert(albedo, n), 1.0);
+    return vec4<f32>(shade_lambert(albedo, n, sun_visibility_at(in.position)), 1.0);
 }
