@@ -51,9 +51,16 @@ fn validate_svo_section(
         bytemuck::cast_slice(bricks),
     )?;
     let rays = random_rays(svo.grid.dims, args.rays, args.seed);
+    let t0 = std::time::Instant::now();
     let on_gpu = dev.trace(&rays)?;
+    let t1 = std::time::Instant::now();
     let on_cpu: Vec<_> = rays.iter().map(|r| trace_svo_cpu(&svo, r)).collect();
-    Ok(compare_hits(&on_gpu, &on_cpu))
+    let t2 = std::time::Instant::now();
+    Ok(SvoAgreement {
+        gpu_seconds: (t1 - t0).as_secs_f64(),
+        cpu_seconds: (t2 - t1).as_secs_f64(),
+        ..compare_hits(&on_gpu, &on_cpu)
+    })
 }
 
 pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {

@@ -294,6 +294,10 @@ pub struct LinespaceAgreement {
     pub penumbra: usize,
     /// Up to 5 disagreeing segment indices.
     pub examples: Vec<usize>,
+    /// Wall time of the line-space segments on the GPU (upload, dispatch, read-back) and on
+    /// the CPU (one thread).
+    pub gpu_seconds: f64,
+    pub cpu_seconds: f64,
 }
 
 impl LinespaceAgreement {
@@ -322,15 +326,19 @@ pub fn validate_linespace(
         .collect();
     let dev = NTreeGpu::new(gpu, t)?;
     let mut stats = QueryStats::default();
+    let t0 = std::time::Instant::now();
     let cpu: Vec<bool> = segs
         .iter()
         .map(|s| t.segment_occluded(s, &mut stats))
         .collect();
+    let t1 = std::time::Instant::now();
     let cpu_exact: Vec<bool> = segs
         .iter()
         .map(|s| t.segment_occluded_exact(s, &mut stats))
         .collect();
+    let t2 = std::time::Instant::now();
     let on_gpu = dev.segments_occluded(&segs, true)?;
+    let t3 = std::time::Instant::now();
     let on_gpu_exact = dev.segments_occluded(&segs, false)?;
     let recv: Vec<Receiver> = points.iter().map(|&p| Some(p)).collect();
     let counts_gpu = dev.shadow_counts(&recv, &light, offset)?;
@@ -340,6 +348,8 @@ pub fn validate_linespace(
         occluded: cpu.iter().filter(|&&o| o).count(),
         receivers: points.len(),
         samples: k,
+        cpu_seconds: (t1 - t0).as_secs_f64(),
+        gpu_seconds: (t3 - t2).as_secs_f64(),
         ..Default::default()
     };
     for i in 0..segs.len() {

@@ -149,7 +149,7 @@ pub fn grid_for(count: u32) -> ([u32; 2], u32) {
 /// A storage buffer holding `bytes` (padded to a multiple of 4 and at least 16 bytes: wgpu
 /// rejects empty bindings).
 pub fn storage(gpu: &Gpu, label: &str, bytes: &[u8]) -> Result<wgpu::Buffer> {
-    let limit = gpu.device.limits().max_storage_buffer_binding_size as u64;
+    let limit = gpu.device.limits().max_storage_buffer_binding_size;
     if bytes.len() as u64 > limit {
         return Err(Error::runtime(format!(
             "{label}: {} bytes exceed the device's storage-buffer limit of {limit} bytes",

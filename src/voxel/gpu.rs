@@ -194,6 +194,9 @@ pub struct SvoAgreement {
     pub t_tolerance: f32,
     /// Up to 5 disagreeing ray indices.
     pub examples: Vec<usize>,
+    /// Wall time of the GPU batch (upload, dispatch, read-back) and of the CPU traversal.
+    pub gpu_seconds: f64,
+    pub cpu_seconds: f64,
 }
 
 impl SvoAgreement {
@@ -236,9 +239,17 @@ pub fn compare_hits(gpu: &[Option<Hit>], cpu: &[Option<Hit>]) -> SvoAgreement {
 /// Traces `rays` random rays on the GPU and the CPU and compares them.
 pub fn validate_svo(gpu: &Gpu, svo: &Svo, rays: usize, seed: u64) -> Result<SvoAgreement> {
     let batch = random_rays(svo.grid.dims, rays, seed);
-    let on_gpu = SvoGpu::new(gpu, svo)?.trace(&batch)?;
+    let dev = SvoGpu::new(gpu, svo)?;
+    let t0 = std::time::Instant::now();
+    let on_gpu = dev.trace(&batch)?;
+    let t1 = std::time::Instant::now();
     let on_cpu: Vec<Option<Hit>> = batch.iter().map(|r| trace_svo_cpu(svo, r)).collect();
-    Ok(compare_hits(&on_gpu, &on_cpu))
+    let t2 = std::time::Instant::now();
+    Ok(SvoAgreement {
+        gpu_seconds: (t1 - t0).as_secs_f64(),
+        cpu_seconds: (t2 - t1).as_secs_f64(),
+        ..compare_hits(&on_gpu, &on_cpu)
+    })
 }
 
 #[cfg(test)]

@@ -120,6 +120,7 @@ pub fn summary_of(svo: &Svo) -> Value {
         "topology_bytes_per_voxel": per(st.topology_bytes),
         "levels": svo.levels,
         "esvo_topology_bytes_per_voxel": per(st.esvo_topology_bytes),
+        "submask_topology_bytes_per_voxel": per(st.submask_topology_bytes),
     })
 }
 

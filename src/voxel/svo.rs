@@ -79,6 +79,8 @@ pub struct SvoStats {
     pub topology_bytes: u64,
     pub attribute_bytes: u64,
     pub esvo_topology_bytes: u64,
+    /// The same inner nodes with bricks as 2³ sub-masks ([`submask_topology_bytes`]).
+    pub submask_topology_bytes: u64,
 }
 
 /// Packs linear RGBA in 0..1 to RGBA8.
@@ -363,6 +365,7 @@ impl Svo {
             topology_bytes,
             attribute_bytes,
             esvo_topology_bytes: esvo_topology_bytes(&self.leaf_bricks(), self.levels),
+            submask_topology_bytes: submask_topology_bytes(self.nodes.len(), &self.bricks),
         }
     }
 }
@@ -399,4 +402,36 @@ pub fn esvo_topology_bytes(bricks: &[Brick], levels: u32) -> u64 {
         count += keys.len() as u64;
     }
     8 * count
+}
+
+/// Topology bytes of a candidate layout for thin surfaces (a measurement, not the stored layout):
+/// the same 16-byte inner nodes, and each 4³ brick as one byte of non-empty 2³ octants followed by
+/// one 8-bit mask per non-empty octant (octant o is byte o of the 64-bit mask, the slots with
+/// high coordinate bits o). Bricks would be found by walking the siblings' octant bytes. A plane
+/// crossing a brick fills 4 octants with 16 voxels: 5 bytes instead of 8.
+pub fn submask_topology_bytes(inner_nodes: usize, bricks: &[u64]) -> u64 {
+    let leaves: u64 = bricks
+        .iter()
+        .map(|&m| 1 + (0..8).filter(|o| m >> (8 * o) & 0xff != 0).count() as u64)
+        .sum();
+    16 * inner_nodes as u64 + leaves
+}
+
+#[cfg(test)]
+mod submask_tests {
+    #[test]
+    fn submask_bytes_count_one_header_and_one_byte_per_octant() {
+        // A full brick: header + 8 octants; one voxel: header + 1; a 4×4 plane z = 0 (slots with
+        // z bits 0: octants 0, 1, 2 and 3 hold 4 voxels each): header + 4.
+        let plane: u64 = (0..64u64)
+            .filter(|s| s >> 2 & 1 == 0 && s >> 5 & 1 == 0)
+            .map(|s| 1u64 << s)
+            .sum();
+        assert_eq!(plane.count_ones(), 16);
+        assert_eq!(
+            super::submask_topology_bytes(0, &[u64::MAX, 1 << 40, plane]),
+            9 + 2 + 5
+        );
+        assert_eq!(super::submask_topology_bytes(3, &[]), 48);
+    }
 }
