@@ -42,13 +42,13 @@ fn validate_svo_section(
     let (_, svo) =
         crate::voxel::section::from_section(view).map_err(|e| Error::invalid(path, e))?;
     let nodes: &[[u32; 4]] = view.array("nodes").map_err(|e| Error::invalid(path, e))?;
-    let bricks: &[u64] = view.array("bricks").map_err(|e| Error::invalid(path, e))?;
+    let leaves: &[u8] = view.array("leaves").map_err(|e| Error::invalid(path, e))?;
     let dev = crate::voxel::gpu::SvoGpu::from_arrays(
         gpu,
         svo.grid.dims,
         svo.levels,
         bytemuck::cast_slice(nodes),
-        bytemuck::cast_slice(bricks),
+        leaves,
     )?;
     let rays = random_rays(svo.grid.dims, args.rays, args.seed);
     let t0 = std::time::Instant::now();

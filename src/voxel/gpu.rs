@@ -1,6 +1,6 @@
-//! GPU ray traversal of the sparse voxel octree: the `svo` section's `nodes` and `bricks` arrays
-//! bound as storage buffers exactly as packed (a brick's u64 mask reads as a (low, high) u32
-//! pair in WGSL), traversed by `shaders/svo_trace.wgsl`, which follows [`super::traverse`]
+//! GPU ray traversal of the sparse voxel octree: the `svo` section's `nodes` and `leaves` arrays
+//! bound as storage buffers exactly as packed ([`super::packed`]: bricks as 2³ sub-masks, read
+//! byte by byte from u32 words; 64-bit masks as (low, high) u32 pairs), traversed by `shaders/svo_trace.wgsl`, which follows [`super::traverse`]
 //! operation for operation. [`validate_svo`] compares it with the CPU on random rays.
 
 use super::compute::{self, Kernel, SplitMix};
@@ -44,33 +44,34 @@ pub struct SvoGpu<'g> {
     gpu: &'g Gpu,
     kernel: Kernel,
     nodes: wgpu::Buffer,
-    bricks: wgpu::Buffer,
+    leaves: wgpu::Buffer,
     dims: [u32; 3],
     levels: u32,
     node_count: u32,
 }
 
 impl<'g> SvoGpu<'g> {
-    /// Uploads the octree's topology arrays as they are (the bytes of the `svo` section's
-    /// `nodes` and `bricks` arrays).
+    /// Uploads the octree's topology in its stored form (the bytes the `svo` section's `nodes`
+    /// and `leaves` arrays hold).
     pub fn new(gpu: &'g Gpu, svo: &Svo) -> Result<Self> {
+        let (nodes, leaves) = super::packed::pack_leaves(svo);
         Self::from_arrays(
             gpu,
             svo.grid.dims,
             svo.levels,
-            bytemuck::cast_slice(&svo.nodes),
-            bytemuck::cast_slice(&svo.bricks),
+            bytemuck::cast_slice(&nodes),
+            &leaves,
         )
     }
 
-    /// From the raw section arrays (`nodes`: u32×4 per node, `bricks`: u64), e.g. the slices
+    /// From the raw section arrays (`nodes`: u32×4 per node, `leaves`: bytes), e.g. the slices
     /// of a [`crate::pack::section::SectionView`]; the caller has validated them.
     pub fn from_arrays(
         gpu: &'g Gpu,
         dims: [u32; 3],
         levels: u32,
         nodes: &[u8],
-        bricks: &[u8],
+        leaves: &[u8],
     ) -> Result<Self> {
         if !(2..=11).contains(&levels) {
             return Err(Error::runtime(format!(
@@ -81,7 +82,7 @@ impl<'g> SvoGpu<'g> {
             gpu,
             kernel: Kernel::new(gpu, "svo trace", &[DDA_WGSL, SVO_WGSL], "main", 3)?,
             nodes: compute::storage(gpu, "svo nodes", nodes)?,
-            bricks: compute::storage(gpu, "svo bricks", bricks)?,
+            leaves: compute::storage(gpu, "svo leaves", leaves)?,
             dims,
             levels,
             node_count: (nodes.len() / 16) as u32,
@@ -118,7 +119,7 @@ impl<'g> SvoGpu<'g> {
         let raw = self.kernel.run(
             g,
             &uniform,
-            &[&self.nodes, &self.bricks, &input],
+            &[&self.nodes, &self.leaves, &input],
             &out,
             grid,
             bytes,

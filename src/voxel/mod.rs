@@ -9,6 +9,7 @@
 pub mod compute;
 pub mod geometry;
 pub mod gpu;
+pub mod packed;
 pub mod section;
 pub mod svo;
 pub mod traverse;

@@ -1,5 +1,5 @@
-// First hit of a batch of rays in the packed SVO (src/voxel/svo.rs layout, the `svo` section's
-// arrays bound as they are): a hierarchical DDA over the 4³ cells of each node with an explicit
+// First hit of a batch of rays in the packed SVO (src/voxel/svo.rs and src/voxel/packed.rs, the
+// `svo` section's arrays bound as they are): a hierarchical DDA over the 4³ cells of each node with an explicit
 // stack in place of traverse::trace_node's recursion. Rays are in voxel units. Output per ray:
 // (i, j, k, bits of t) of the first occupied voxel, or all ones on a miss.
 // Prepended: dda.wgsl.
@@ -22,10 +22,12 @@ struct GpuRay {
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
-// `nodes`: u32×4 per inner node (mask low, mask high, first_child, first_voxel).
+// `nodes`: u32×4 per inner node (mask low, mask high, first_child, first_voxel); on the last
+// inner level first_child is a byte offset into `leaves`.
 @group(0) @binding(1) var<storage, read> nodes: array<vec4<u32>>;
-// `bricks`: u64 masks, little endian, so (low, high) u32 pairs.
-@group(0) @binding(2) var<storage, read> bricks: array<vec2<u32>>;
+// `leaves`: bytes (little endian in u32 words), per brick an octant byte and one 8-bit mask per
+// non-empty octant.
+@group(0) @binding(2) var<storage, read> leaves: array<u32>;
 @group(0) @binding(3) var<storage, read> rays: array<GpuRay>;
 @group(0) @binding(4) var<storage, read_write> hits: array<vec4<u32>>;
 
@@ -50,6 +52,33 @@ fn count_below(m: vec2<u32>, s: u32) -> u32 {
         return countOneBits(m.x & ((1u << s) - 1u));
     }
     return countOneBits(m.x) + countOneBits(m.y & ((1u << (s - 32u)) - 1u));
+}
+
+fn leaf_byte(b: u32) -> u32 {
+    return (leaves[b >> 2u] >> ((b & 3u) * 8u)) & 0xffu;
+}
+
+// The 64-bit mask (low, high) of brick `index` among the bricks starting at byte `first`.
+fn brick_mask(first: u32, index: u32) -> vec2<u32> {
+    var at = first;
+    for (var i = 0u; i < index; i++) {
+        at += 1u + countOneBits(leaf_byte(at));
+    }
+    let octants = leaf_byte(at);
+    var m = vec2<u32>(0u);
+    var k = at + 1u;
+    for (var o = 0u; o < 8u; o++) {
+        if (((octants >> o) & 1u) == 1u) {
+            let b = leaf_byte(k);
+            k += 1u;
+            if (o < 4u) {
+                m.x |= b << (8u * o);
+            } else {
+                m.y |= b << (8u * (o - 4u));
+            }
+        }
+    }
+    return m;
 }
 
 fn voxel_entry_t(o: vec3<f32>, d: vec3<f32>, t_min: f32, v: vec3<u32>) -> f32 {
@@ -105,10 +134,11 @@ fn trace(r: GpuRay) -> vec4<u32> {
         let s = slot_of(dda[lv].c);
         let exit = min(dda_exit(dda[lv]), t_end[lv]);
         if (mask_bit(nd.xy, s)) {
-            let child = nd.z + count_below(nd.xy, s);
+            let below = count_below(nd.xy, s);
+            let child = nd.z + below;
             let cbase = base[lv] + vec3<f32>(dda[lv].c) * cell[lv];
             if (lv + 1u == params.inner_levels) {
-                let h = trace_brick(r, bricks[child], cbase, t[lv], exit);
+                let h = trace_brick(r, brick_mask(nd.z, below), cbase, t[lv], exit);
                 if (h.x != 0xffffffffu) {
                     return h;
                 }
