@@ -405,47 +405,30 @@ pub fn compute_visibility(
     });
     let out = crate::voxel::compute::output(gpu, "visibility", 4 * count as u64);
     let mut enc = gpu.device.create_command_encoder(&Default::default());
-    world_pass(
-        gpu,
-        pipes,
-        scene,
-        globals,
-        &mut enc,
-        &world_tex.create_view(&Default::default()),
-        size,
-    );
+    let world_view = world_tex.create_view(&Default::default());
+    world_pass(gpu, pipes, scene, globals, &mut enc, &world_view, size);
+    // Rows of `padded` texels: 16 B and 4 B per texel keep both copies 256-byte aligned.
+    let rows = |bytes_per_texel: u32| wgpu::TexelCopyBufferLayout {
+        offset: 0,
+        bytes_per_row: Some(bytes_per_texel * padded),
+        rows_per_image: Some(h),
+    };
     enc.copy_texture_to_buffer(
         world_tex.as_image_copy(),
         wgpu::TexelCopyBufferInfo {
             buffer: &queries,
-            layout: wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(16 * padded),
-                rows_per_image: Some(h),
-            },
+            layout: rows(16),
         },
         world_tex.size(),
     );
     dev.record_shadow_fractions(&mut enc, &queries, count, light, offset, &out)?;
-    let vis_tex = texture(
-        gpu,
-        "sun visibility",
-        size,
-        VISIBILITY_FORMAT,
-        wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-    );
-    enc.copy_buffer_to_texture(
-        wgpu::TexelCopyBufferInfo {
-            buffer: &out,
-            layout: wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(4 * padded),
-                rows_per_image: Some(h),
-            },
-        },
-        vis_tex.as_image_copy(),
-        vis_tex.size(),
-    );
+    let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+    let vis_tex = texture(gpu, "sun visibility", size, VISIBILITY_FORMAT, usage);
+    let dst = wgpu::TexelCopyBufferInfo {
+        buffer: &out,
+        layout: rows(4),
+    };
+    enc.copy_buffer_to_texture(dst, vis_tex.as_image_copy(), vis_tex.size());
     gpu.queue.submit([enc.finish()]);
     gpu.check()?;
     let world_raw = crate::voxel::compute::read_back(gpu, &queries, 16 * count as u64)?;
