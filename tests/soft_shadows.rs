@@ -1,8 +1,8 @@
 //! `bake render --soft-shadows` on a scene with a blocker: a plate hovering over a flat terrain
 //! under a quad light. Checked per pixel against independent oracles: exact obvhs shadow rays
 //! from the same receivers to the same light samples (the line space may only darken), the CPU
-//! line-space query (the GPU computes the same fraction), and the image itself (shadowed terrain
-//! is darker than without soft shadows). Runs on any wgpu adapter, lavapipe included.
+//! line-space query (the GPU computes the same fraction), and the image itself (terrain in the
+//! umbra looks as with the ambient term alone; lit terrain is brighter). Runs on any wgpu adapter, lavapipe included.
 
 use bake::linespace::ntree::{NTreeOptions, build_ntree};
 use bake::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
@@ -11,7 +11,7 @@ use bake::model::{Instance, Instances, Material, Mesh, Terrain};
 use bake::pack::kinds::{self, instances, mesh, terrain};
 use bake::pack::{Pack, PackWriter};
 use bake::render::soft_shadow::SoftShadows;
-use bake::render::{Lighting, RenderOptions, render_pack};
+use bake::render::{Lighting, RenderOptions, Terms, render_pack};
 
 /// A 4 × 4 m plate, horizontal, centred on its origin.
 fn plate() -> Mesh {
@@ -108,7 +108,11 @@ fn options(soft: bool) -> RenderOptions {
 fn soft_shadows_have_a_penumbra_and_are_never_brighter_than_exact_shadow_rays() {
     let pack = build_pack();
     let out = render_pack(&pack, &options(true)).unwrap();
-    let plain = render_pack(&pack, &options(false)).unwrap();
+    let ambient_only = RenderOptions {
+        terms: Terms::Ambient,
+        ..options(false)
+    };
+    let plain = render_pack(&pack, &ambient_only).unwrap();
     assert!(plain.soft_shadows.is_none());
     let s = out.soft_shadows.as_ref().expect("the soft-shadow pass ran");
     assert_eq!((s.width, s.height), (96, 80));
@@ -120,7 +124,7 @@ fn soft_shadows_have_a_penumbra_and_are_never_brighter_than_exact_shadow_rays() 
         bake::linespace::section::from_section(&pack.view_named("linespace").unwrap()).unwrap();
     assert_eq!(tree_meta.n, 4);
     let k = 16;
-    let (mut penumbra, mut umbra, mut darker) = (0, 0, 0);
+    let (mut penumbra, mut umbra, mut darker, mut lit) = (0, 0, 0, 0);
     let mut stats = QueryStats::default();
     for (i, (p, &v)) in s.world.iter().zip(&s.visibility).enumerate() {
         if p[3] < 0.5 {
@@ -141,14 +145,20 @@ fn soft_shadows_have_a_penumbra_and_are_never_brighter_than_exact_shadow_rays() 
         if v > 0.0 && v < 1.0 {
             penumbra += 1;
         }
+        let (a, b) = (out.image.pixels[i], plain.image.pixels[i]);
         if v == 0.0 {
             umbra += 1;
-            // Shadowed terrain (not the plate's top) is darker than under the plain sun.
+            // Terrain in the umbra (not the plate's top) gets no sun: the ambient term alone.
             if p[2] < 0.5 {
-                let (a, b) = (out.image.pixels[i], plain.image.pixels[i]);
-                assert!(a[0] < b[0], "pixel {i}: {a:?} not darker than {b:?}");
+                assert!(
+                    a[0].abs_diff(b[0]) <= 1,
+                    "pixel {i}: {a:?} vs ambient {b:?}"
+                );
                 darker += 1;
             }
+        } else if v == 1.0 && p[2] < 0.5 {
+            assert!(a[0] > b[0] + 10, "pixel {i}: lit {a:?} vs ambient {b:?}");
+            lit += 1;
         }
     }
     assert!(penumbra >= 20, "only {penumbra} penumbra pixels");
@@ -156,6 +166,7 @@ fn soft_shadows_have_a_penumbra_and_are_never_brighter_than_exact_shadow_rays() 
         umbra >= 20 && darker >= 20,
         "umbra {umbra}, darker {darker}"
     );
+    assert!(lit >= 20, "lit {lit}");
     assert_eq!(s.stats.penumbra_pixels, penumbra as u64);
 }
 

@@ -3,7 +3,7 @@
 use super::{Global, Outcome, parse_vec3};
 use crate::error::Result;
 use crate::pack::Pack;
-use crate::render::{BackendChoice, RenderOptions, encode_png, render_pack};
+use crate::render::{BackendChoice, RenderOptions, Terms, encode_png, render_pack};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
@@ -44,7 +44,17 @@ pub struct RenderArgs {
     /// Light samples per side of the soft shadows (samples² shadow segments per pixel).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub shadow_samples: u32,
+    /// Light terms to draw: all (direct sun + ambient), direct or ambient alone.
+    #[arg(long, value_enum, default_value_t = Terms::All)]
+    pub terms: Terms,
+    /// Also render the view on the CPU (ray-cast reference, src/render/reference.rs) into this
+    /// PNG; the JSON result adds the difference between the two images.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
 }
+
+/// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
+pub const REFERENCE_THRESHOLD: u8 = 24;
 
 /// Silences the warning Mesa's device-select Vulkan layer prints on machines without a display,
 /// unless the user set `NODEVICE_SELECT` already. `main` calls it first thing, while the process
@@ -73,13 +83,14 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
                 area_light: args.area_light,
                 samples: args.shadow_samples,
             }),
+        terms: args.terms,
     };
     let pack = Pack::open(&args.pack)?;
     let out = render_pack(&pack, &opts)?;
     let png = encode_png(&out.image)?;
     crate::pack::write_atomic(&args.output, &png)?;
     let s = &out.stats;
-    let text = format!(
+    let mut text = format!(
         "{}: {}×{} on {}, {} instances of {} models, {} triangles, {:.3} s\n",
         args.output.display(),
         s.width,
@@ -90,13 +101,33 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         s.triangles,
         s.seconds_setup + s.seconds_upload + s.seconds_draw
     );
+    let mut json = serde_json::json!({
+        "output": args.output,
+        "adapter": out.adapter,
+        "stats": out.stats,
+        "soft_shadows": out.soft_shadows.as_ref().map(|s| s.stats),
+    });
+    if let Some(path) = &args.reference {
+        let r = crate::render::reference::render_reference(&pack, &opts)?;
+        crate::pack::write_atomic(path, &encode_png(&r.image)?)?;
+        let d =
+            crate::render::reference::image_difference(&out.image, &r.image, REFERENCE_THRESHOLD)
+                .ok_or_else(|| crate::error::Error::runtime("reference image has another size"))?;
+        text += &format!(
+            "{}: CPU reference, {:.3} s; mean absolute difference {:.2}/255, {:.2} % of pixels off by more than {}/255\n",
+            path.display(),
+            r.seconds,
+            d.mad,
+            d.fraction_over * 100.0,
+            d.threshold
+        );
+        json["reference"] = serde_json::json!({
+            "output": path, "seconds": r.seconds, "mad": d.mad,
+            "pixels_over": d.fraction_over, "threshold": d.threshold, "max": d.max,
+        });
+    }
     Ok(Outcome {
-        json: serde_json::json!({
-            "output": args.output,
-            "adapter": out.adapter,
-            "stats": out.stats,
-            "soft_shadows": out.soft_shadows.as_ref().map(|s| s.stats),
-        }),
+        json,
         text,
         warnings: out.warnings,
     })
@@ -115,6 +146,19 @@ pub struct RenderBenchArgs {
     pub repeat: u32,
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
     pub backend: BackendChoice,
+    /// Also time the CPU reference (src/render/reference.rs) of the same view.
+    #[arg(long)]
+    pub reference: bool,
+}
+
+/// Median seconds of `repeat` CPU reference renders (BVH build included).
+fn bench_reference(pack: &Pack, opts: &RenderOptions, repeat: u32) -> Result<f64> {
+    let mut t = Vec::new();
+    for _ in 0..repeat.max(1) {
+        t.push(crate::render::reference::render_reference(pack, opts)?.seconds);
+    }
+    t.sort_by(f64::total_cmp);
+    Ok(t[t.len() / 2])
 }
 
 /// `bake bench render PACK`: median seconds of device setup, upload and draw (with readback).
@@ -141,7 +185,12 @@ pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
     };
     let (setup, upload, draw) = (median(0), median(1), median(2));
     let (adapter, triangles, instances, bytes) = adapter.expect("at least one run");
-    let text = format!(
+    let reference = if args.reference {
+        Some(bench_reference(&pack, &opts, args.repeat)?)
+    } else {
+        None
+    };
+    let mut text = format!(
         "{}: {}×{} on {adapter}: {triangles} triangles, {instances} instances, {bytes} bytes uploaded; \
          median of {}: setup {:.1} ms, upload {:.1} ms, draw+readback {:.1} ms ({:.1} Mtri/s)\n",
         args.pack.display(),
@@ -153,11 +202,15 @@ pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
         draw * 1e3,
         triangles as f64 / draw / 1e6
     );
+    if let Some(r) = reference {
+        text += &format!("CPU reference: median {:.1} ms\n", r * 1e3);
+    }
     Ok(Outcome {
         json: serde_json::json!({
             "pack": args.pack, "adapter": adapter, "width": args.width, "height": args.height,
             "runs": runs.len(), "triangles": triangles, "instances": instances, "uploaded_bytes": bytes,
             "seconds_setup": setup, "seconds_upload": upload, "seconds_draw": draw,
+            "seconds_reference": reference,
         }),
         text,
         warnings: Vec::new(),

@@ -1,10 +1,12 @@
-//! Drawing one frame: per-frame constants, the scene pass into the HDR target (sky, terrain,
-//! instanced models), the tone-map pass into the sRGB output, and the readback.
+//! Drawing one frame: per-frame constants, the sun's shadow map (terrain and alpha-tested
+//! models, depth only), the scene pass into the HDR target (sky, terrain, instanced models), the
+//! tone-map pass into the sRGB output, and the readback.
 
 use super::camera::Camera;
 use super::gpu::Gpu;
 use super::light::Lighting;
-use super::pipelines::{DEPTH_FORMAT, HDR_FORMAT, OUTPUT_FORMAT, Pipelines};
+use super::pipelines::{DEPTH_FORMAT, HDR_FORMAT, OUTPUT_FORMAT, Pipelines, SHADOW_FORMAT};
+use super::shadow::{SHADOW_MAP_SIZE, ShadowParams};
 use super::upload::GpuScene;
 use crate::error::Result;
 use bytemuck::{Pod, Zeroable};
@@ -25,7 +27,7 @@ pub struct Globals {
     pub sun_direction: [f32; 4],
     pub sun_irradiance: [f32; 4],
     pub ambient: [f32; 4],
-    /// width, height, 0, 0
+    /// width, height, then the weights of the direct and ambient terms (1 or 0)
     pub viewport: [f32; 4],
 }
 const _: () = assert!(size_of::<Globals>() == 192);
@@ -35,7 +37,14 @@ fn v4(v: [f32; 3], w: f32) -> [f32; 4] {
 }
 
 impl Globals {
-    pub fn new(cam: &Camera, light: &Lighting, exposure: f32, size: (u32, u32)) -> Globals {
+    pub fn new(
+        cam: &Camera,
+        light: &Lighting,
+        exposure: f32,
+        size: (u32, u32),
+        terms: super::Terms,
+    ) -> Globals {
+        let [kd, ka] = terms.weights();
         let b = cam.basis();
         let ty = (cam.fov_y_deg.to_radians() * 0.5).tan();
         Globals {
@@ -47,7 +56,7 @@ impl Globals {
             sun_direction: v4(light.sun_direction, 0.0),
             sun_irradiance: v4(light.sun_irradiance, 0.0),
             ambient: v4(light.ambient, 0.0),
-            viewport: [size.0 as f32, size.1 as f32, 0.0, 0.0],
+            viewport: [size.0 as f32, size.1 as f32, kd, ka],
         }
     }
 }
@@ -87,32 +96,27 @@ fn target(
     })
 }
 
-/// Draws the scene and returns the tone-mapped image as tightly packed RGBA8 rows (sRGB).
-pub fn draw_frame(
+fn globals_group(
     gpu: &Gpu,
     pipes: &Pipelines,
     scene: &GpuScene,
     globals: &Globals,
-    size: (u32, u32),
     sun_visibility: &wgpu::TextureView,
-) -> Result<(Vec<u8>, DrawCounts)> {
-    let dev = &gpu.device;
-    let hdr = target(gpu, "hdr", size, HDR_FORMAT, false);
-    let depth = target(gpu, "depth", size, DEPTH_FORMAT, false);
-    let out = target(gpu, "output", size, OUTPUT_FORMAT, true);
-    let hdr_view = hdr.create_view(&Default::default());
-    let globals_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("globals"),
-        contents: bytemuck::bytes_of(globals),
-        usage: wgpu::BufferUsages::UNIFORM,
-    });
-    let globals_bg = dev.create_bind_group(&wgpu::BindGroupDescriptor {
+) -> wgpu::BindGroup {
+    let buf = gpu
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("globals"),
+            contents: bytemuck::bytes_of(globals),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("globals"),
         layout: &pipes.globals_layout,
         entries: &[
             wgpu::BindGroupEntry {
                 binding: 0,
-                resource: globals_buf.as_entire_binding(),
+                resource: buf.as_entire_binding(),
             },
             wgpu::BindGroupEntry {
                 binding: 1,
@@ -123,13 +127,34 @@ pub fn draw_frame(
                 resource: wgpu::BindingResource::TextureView(sun_visibility),
             },
         ],
-    });
-    let mut enc = dev.create_command_encoder(&Default::default());
+    })
+}
+
+/// Draws the scene and returns the tone-mapped image as tightly packed RGBA8 rows (sRGB).
+/// `shadow`: the sun's shadow-map view (`None`: no shadow map, everything sees the sun).
+/// `sun_visibility`: the soft-shadow visibility per pixel (used where `globals.sun_direction.w`
+/// is 1, see src/render/soft_shadow.rs).
+pub fn draw_frame(
+    gpu: &Gpu,
+    pipes: &Pipelines,
+    scene: &GpuScene,
+    globals: &Globals,
+    size: (u32, u32),
+    shadow: Option<&ShadowParams>,
+    sun_visibility: &wgpu::TextureView,
+) -> Result<(Vec<u8>, DrawCounts)> {
+    let hdr = target(gpu, "hdr", size, HDR_FORMAT, false);
+    let depth = target(gpu, "depth", size, DEPTH_FORMAT, false);
+    let out = target(gpu, "output", size, OUTPUT_FORMAT, true);
+    let hdr_view = hdr.create_view(&Default::default());
+    let globals_bg = globals_group(gpu, pipes, scene, globals, sun_visibility);
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let shadow_bg = shadow_group(gpu, pipes, scene, globals, shadow, sun_visibility, &mut enc);
     let counts = scene_pass(
         &mut enc,
         pipes,
         scene,
-        &globals_bg,
+        [&globals_bg, &shadow_bg],
         &hdr_view,
         &depth.create_view(&Default::default()),
     );
@@ -147,11 +172,120 @@ pub fn draw_frame(
     Ok((pixels, counts))
 }
 
+/// Renders the shadow map (when `params` is given) and returns bind group 2 of the scene pass.
+fn shadow_group(
+    gpu: &Gpu,
+    pipes: &Pipelines,
+    scene: &GpuScene,
+    globals: &Globals,
+    params: Option<&ShadowParams>,
+    sun_visibility: &wgpu::TextureView,
+    enc: &mut wgpu::CommandEncoder,
+) -> wgpu::BindGroup {
+    let side = if params.is_some() { SHADOW_MAP_SIZE } else { 1 };
+    let map = target(gpu, "shadow map", (side, side), SHADOW_FORMAT, false);
+    let view = map.create_view(&Default::default());
+    let off = ShadowParams {
+        light_view_proj: glam::Mat4::IDENTITY.to_cols_array_2d(),
+        params: [1.0, 0.0, 0.0, 0.0],
+    };
+    let p = params.copied().unwrap_or(off);
+    if params.is_some() {
+        let light = Globals {
+            view_proj: p.light_view_proj,
+            ..*globals
+        };
+        let bg = globals_group(gpu, pipes, scene, &light, sun_visibility);
+        shadow_pass(enc, pipes, scene, &bg, &view);
+    }
+    let buf = gpu
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("shadow params"),
+            contents: bytemuck::bytes_of(&p),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+    let sampler = gpu.device.create_sampler(&wgpu::SamplerDescriptor {
+        label: Some("shadow"),
+        mag_filter: wgpu::FilterMode::Linear,
+        min_filter: wgpu::FilterMode::Linear,
+        compare: Some(wgpu::CompareFunction::LessEqual),
+        ..Default::default()
+    });
+    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("shadow"),
+        layout: &pipes.shadow_layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: buf.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: wgpu::BindingResource::TextureView(&view),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::Sampler(&sampler),
+            },
+        ],
+    })
+}
+
+/// Depth of the terrain and every instance as seen from the sun (alpha-tested models).
+fn shadow_pass(
+    enc: &mut wgpu::CommandEncoder,
+    pipes: &Pipelines,
+    scene: &GpuScene,
+    light_bg: &wgpu::BindGroup,
+    map: &wgpu::TextureView,
+) {
+    let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some("shadow"),
+        color_attachments: &[],
+        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+            view: map,
+            depth_ops: Some(wgpu::Operations {
+                load: wgpu::LoadOp::Clear(1.0),
+                store: wgpu::StoreOp::Store,
+            }),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    pass.set_bind_group(0, light_bg, &[]);
+    if let Some(t) = &scene.terrain {
+        pass.set_pipeline(&pipes.terrain_shadow);
+        pass.set_bind_group(1, &t.bind_group, &[]);
+        pass.draw(0..t.vertex_count, 0..1);
+    }
+    pass.set_pipeline(&pipes.mesh_shadow);
+    for m in &scene.models {
+        bind_model(&mut pass, m);
+        for d in &m.draws {
+            pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
+            pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, 0..m.instance_count);
+        }
+    }
+}
+
+/// The vertex and index buffers of a model (slots as in pipelines.rs).
+fn bind_model(pass: &mut wgpu::RenderPass, m: &super::upload::ModelGpu) {
+    pass.set_vertex_buffer(0, m.positions.slice(..));
+    pass.set_vertex_buffer(1, m.normals.slice(..));
+    pass.set_vertex_buffer(2, m.uvs.slice(..));
+    pass.set_vertex_buffer(3, m.instances.slice(..));
+    pass.set_vertex_buffer(4, m.tangents.slice(..));
+    pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
+}
+
 fn scene_pass(
     enc: &mut wgpu::CommandEncoder,
     pipes: &Pipelines,
     scene: &GpuScene,
-    globals_bg: &wgpu::BindGroup,
+    [globals_bg, shadow_bg]: [&wgpu::BindGroup; 2],
     hdr: &wgpu::TextureView,
     depth: &wgpu::TextureView,
 ) -> DrawCounts {
@@ -181,6 +315,7 @@ fn scene_pass(
     });
     let mut counts = DrawCounts::default();
     pass.set_bind_group(0, globals_bg, &[]);
+    pass.set_bind_group(2, shadow_bg, &[]);
     // The sky first, without depth writes: everything else covers it.
     pass.set_pipeline(&pipes.sky);
     pass.draw(0..3, 0..1);
@@ -194,11 +329,7 @@ fn scene_pass(
     }
     pass.set_pipeline(&pipes.mesh);
     for m in &scene.models {
-        pass.set_vertex_buffer(0, m.positions.slice(..));
-        pass.set_vertex_buffer(1, m.normals.slice(..));
-        pass.set_vertex_buffer(2, m.uvs.slice(..));
-        pass.set_vertex_buffer(3, m.instances.slice(..));
-        pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
+        bind_model(&mut pass, m);
         for d in &m.draws {
             pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
             pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, 0..m.instance_count);

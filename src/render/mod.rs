@@ -12,7 +12,9 @@ pub mod draw;
 pub mod gpu;
 pub mod light;
 pub mod pipelines;
+pub mod reference;
 pub mod scene;
+pub mod shadow;
 pub mod soft_shadow;
 pub mod upload;
 
@@ -41,6 +43,31 @@ pub struct RenderOptions {
     pub backend: BackendChoice,
     /// The sun's visibility from the line-space soft shadows (needs a `linespace` section).
     pub soft_shadows: Option<soft_shadow::SoftShadows>,
+    /// Which light terms to draw (the shading contract: L = L_direct + L_ambient).
+    pub terms: Terms,
+}
+
+/// Which terms of `L = L_direct + L_ambient` a render draws (the sky background is always drawn).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Terms {
+    #[default]
+    All,
+    /// The sun alone: E_sun · visibility · BRDF · cos.
+    Direct,
+    /// Sky and indirect light alone.
+    Ambient,
+}
+
+impl Terms {
+    /// Weights of the direct and ambient terms (1 or 0), as the shaders get them.
+    pub fn weights(self) -> [f32; 2] {
+        match self {
+            Terms::All => [1.0, 1.0],
+            Terms::Direct => [1.0, 0.0],
+            Terms::Ambient => [0.0, 1.0],
+        }
+    }
 }
 
 impl Default for RenderOptions {
@@ -55,6 +82,7 @@ impl Default for RenderOptions {
             lighting: None,
             backend: BackendChoice::Auto,
             soft_shadows: None,
+            terms: Terms::All,
         }
     }
 }
@@ -111,12 +139,18 @@ pub fn pack_lighting(pack: &Pack) -> Option<light::Lighting> {
     })
 }
 
-/// Renders `pack`.
-pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
-    check_options(opts)?;
-    let scene = scene::load_scene(pack)?;
+/// What both renderers (GPU and [`reference`]) agree on before drawing: camera, light, exposure.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct View {
+    pub camera: camera::Camera,
+    pub lighting: Lighting,
+    pub exposure: f32,
+}
+
+/// The view of `opts` over `scene` (defaults filled in from the pack).
+pub fn resolve_view(pack: &Pack, scene: &scene::SceneData, opts: &RenderOptions) -> View {
     let aspect = opts.width as f32 / opts.height as f32;
-    let cam = choose_camera(&scene, opts, aspect);
+    let camera = choose_camera(scene, opts, aspect);
     let lighting = opts
         .lighting
         .or_else(|| pack_lighting(pack))
@@ -131,6 +165,22 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let exposure = opts
         .exposure
         .unwrap_or_else(|| light::auto_exposure(&lighting));
+    View {
+        camera,
+        lighting,
+        exposure,
+    }
+}
+
+/// Renders `pack`.
+pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
+    check_options(opts)?;
+    let scene = scene::load_scene(pack)?;
+    let View {
+        camera: cam,
+        lighting,
+        exposure,
+    } = resolve_view(pack, &scene, opts);
 
     let t0 = std::time::Instant::now();
     let gpu = gpu::init_gpu(opts.backend)?;
@@ -140,8 +190,8 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;
     gpu.wait()?;
     let t2 = std::time::Instant::now();
-    let globals = draw::Globals::new(&cam, &lighting, exposure, (opts.width, opts.height));
     let size = (opts.width, opts.height);
+    let mut globals = draw::Globals::new(&cam, &lighting, exposure, size, opts.terms);
     let soft = match &opts.soft_shadows {
         Some(s) => Some(soft_shadow::for_render(
             &gpu, &pipes, &gpu_scene, &globals, size, pack, &lighting, s,
@@ -150,7 +200,24 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     };
     let lit = soft_shadow::fully_lit(&gpu);
     let visibility = soft.as_ref().map_or(&lit, |v| &v.view);
-    let (pixels, counts) = draw::draw_frame(&gpu, &pipes, &gpu_scene, &globals, size, visibility)?;
+    // Soft shadows replace the shadow map: direct.wgsl reads the visibility texture where
+    // sun_direction.w is 1.
+    let shadow_params = match soft {
+        Some(_) => {
+            globals.sun_direction[3] = 1.0;
+            None
+        }
+        None => shadow::shadow_params(&scene, lighting.sun_direction),
+    };
+    let (pixels, counts) = draw::draw_frame(
+        &gpu,
+        &pipes,
+        &gpu_scene,
+        &globals,
+        size,
+        shadow_params.as_ref(),
+        visibility,
+    )?;
     let t3 = std::time::Instant::now();
 
     let image = Rgba8Image {
@@ -185,7 +252,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     })
 }
 
-fn check_options(opts: &RenderOptions) -> Result<()> {
+pub fn check_options(opts: &RenderOptions) -> Result<()> {
     if opts.width == 0 || opts.height == 0 || opts.width > 16384 || opts.height > 16384 {
         return Err(Error::usage(format!(
             "image size {}×{}: each side must be 1 to 16384",

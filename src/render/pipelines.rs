@@ -17,6 +17,9 @@ const COMMON_WGSL: &str = include_str!("shaders/common.wgsl");
 const SKY_WGSL: &str = include_str!("shaders/sky.wgsl");
 const TERRAIN_WGSL: &str = include_str!("shaders/terrain.wgsl");
 const MESH_WGSL: &str = include_str!("shaders/mesh.wgsl");
+const DIRECT_WGSL: &str = include_str!("shaders/direct.wgsl");
+/// Format of the sun's shadow map (orthographic, normal Z: cleared to 1, nearer is smaller).
+pub const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const TONEMAP_WGSL: &str = include_str!("shaders/tonemap.wgsl");
 
 /// Every pipeline and layout of a frame.
@@ -29,10 +32,15 @@ pub struct Pipelines {
     pub material_layout: wgpu::BindGroupLayout,
     /// Group 0 of the tone map: HDR image, exposure uniform.
     pub tonemap_layout: wgpu::BindGroupLayout,
+    /// Group 2 of the terrain and meshes: shadow parameters, shadow map, comparison sampler.
+    pub shadow_layout: wgpu::BindGroupLayout,
     pub sky: wgpu::RenderPipeline,
     pub terrain: wgpu::RenderPipeline,
     pub mesh: wgpu::RenderPipeline,
     pub tonemap: wgpu::RenderPipeline,
+    /// Depth-only passes into the shadow map (the mesh one alpha-tested).
+    pub terrain_shadow: wgpu::RenderPipeline,
+    pub mesh_shadow: wgpu::RenderPipeline,
 }
 
 fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
@@ -97,6 +105,7 @@ fn shader(device: &wgpu::Device, label: &str, parts: &[&str]) -> wgpu::ShaderMod
 const MESH_ATTRS_POS: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![0 => Float32x3];
 const MESH_ATTRS_NRM: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![1 => Float32x3];
 const MESH_ATTRS_UV: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![2 => Float32x2];
+const MESH_ATTRS_TAN: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![6 => Float32x4];
 /// InstanceRecord: position at 0, scale at 12, rotation_deg at 16.
 const INSTANCE_ATTRS: [wgpu::VertexAttribute; 3] =
     wgpu::vertex_attr_array![3 => Float32x3, 4 => Float32, 5 => Float32];
@@ -160,6 +169,78 @@ fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipeline {
     })
 }
 
+/// A depth-only pipeline into the shadow map; `fragment` names the alpha-test entry point.
+fn shadow_pipeline(
+    device: &wgpu::Device,
+    d: &PassDesc,
+    fragment: Option<&str>,
+) -> wgpu::RenderPipeline {
+    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(d.label),
+        bind_group_layouts: d.layouts,
+        immediate_size: 0,
+    });
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(d.label),
+        layout: Some(&layout),
+        vertex: wgpu::VertexState {
+            module: d.module,
+            entry_point: Some("vs_main"),
+            compilation_options: Default::default(),
+            buffers: d.buffers,
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            cull_mode: None,
+            ..Default::default()
+        },
+        // The bias is applied in the lookup (shaders/direct.wgsl), in world units.
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: SHADOW_FORMAT,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Less),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: Default::default(),
+        fragment: fragment.map(|entry| wgpu::FragmentState {
+            module: d.module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            targets: &[],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+fn shadow_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
+    let f = wgpu::ShaderStages::FRAGMENT;
+    layout(
+        device,
+        "shadow",
+        &[
+            uniform_entry(0, f),
+            wgpu::BindGroupLayoutEntry {
+                binding: 1,
+                visibility: f,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Depth,
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                },
+                count: None,
+            },
+            wgpu::BindGroupLayoutEntry {
+                binding: 2,
+                visibility: f,
+                ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                count: None,
+            },
+        ],
+    )
+}
+
 impl Pipelines {
     pub fn new(device: &wgpu::Device) -> Pipelines {
         use wgpu::ShaderStages as S;
@@ -182,6 +263,7 @@ impl Pipelines {
                 texture_entry(1, S::VERTEX, false),
                 texture_entry(2, S::FRAGMENT, true),
                 sampler_entry(3),
+                texture_entry(4, S::FRAGMENT, true),
             ],
         );
         let material_layout = layout(
@@ -191,8 +273,11 @@ impl Pipelines {
                 uniform_entry(0, vf),
                 texture_entry(1, S::FRAGMENT, true),
                 sampler_entry(2),
+                uniform_entry(3, S::FRAGMENT),
+                texture_entry(4, S::FRAGMENT, true),
             ],
         );
+        let shadow_layout = shadow_layout(device);
         let tonemap_layout = layout(
             device,
             "tonemap",
@@ -202,8 +287,8 @@ impl Pipelines {
             ],
         );
         let sky_module = shader(device, "sky", &[COMMON_WGSL, SKY_WGSL]);
-        let terrain_module = shader(device, "terrain", &[COMMON_WGSL, TERRAIN_WGSL]);
-        let mesh_module = shader(device, "mesh", &[COMMON_WGSL, MESH_WGSL]);
+        let terrain_module = shader(device, "terrain", &[COMMON_WGSL, DIRECT_WGSL, TERRAIN_WGSL]);
+        let mesh_module = shader(device, "mesh", &[COMMON_WGSL, DIRECT_WGSL, MESH_WGSL]);
         let tonemap_module = shader(device, "tonemap", &[TONEMAP_WGSL]);
         let mesh_buffers = [
             Some(wgpu::VertexBufferLayout {
@@ -226,6 +311,11 @@ impl Pipelines {
                 step_mode: wgpu::VertexStepMode::Instance,
                 attributes: &INSTANCE_ATTRS,
             }),
+            Some(wgpu::VertexBufferLayout {
+                array_stride: 16,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &MESH_ATTRS_TAN,
+            }),
         ];
         let sky = pipeline(
             device,
@@ -243,7 +333,11 @@ impl Pipelines {
             &PassDesc {
                 label: "terrain",
                 module: &terrain_module,
-                layouts: &[Some(&globals_layout), Some(&terrain_layout)],
+                layouts: &[
+                    Some(&globals_layout),
+                    Some(&terrain_layout),
+                    Some(&shadow_layout),
+                ],
                 buffers: &[],
                 target: HDR_FORMAT,
                 depth: Some(true),
@@ -254,11 +348,39 @@ impl Pipelines {
             &PassDesc {
                 label: "mesh",
                 module: &mesh_module,
+                layouts: &[
+                    Some(&globals_layout),
+                    Some(&material_layout),
+                    Some(&shadow_layout),
+                ],
+                buffers: &mesh_buffers,
+                target: HDR_FORMAT,
+                depth: Some(true),
+            },
+        );
+        let terrain_shadow = shadow_pipeline(
+            device,
+            &PassDesc {
+                label: "terrain shadow",
+                module: &terrain_module,
+                layouts: &[Some(&globals_layout), Some(&terrain_layout)],
+                buffers: &[],
+                target: HDR_FORMAT,
+                depth: Some(true),
+            },
+            None,
+        );
+        let mesh_shadow = shadow_pipeline(
+            device,
+            &PassDesc {
+                label: "mesh shadow",
+                module: &mesh_module,
                 layouts: &[Some(&globals_layout), Some(&material_layout)],
                 buffers: &mesh_buffers,
                 target: HDR_FORMAT,
                 depth: Some(true),
             },
+            Some("fs_shadow"),
         );
         let tonemap = pipeline(
             device,
@@ -276,10 +398,13 @@ impl Pipelines {
             terrain_layout,
             material_layout,
             tonemap_layout,
+            shadow_layout,
             sky,
             terrain,
             mesh,
             tonemap,
+            terrain_shadow,
+            mesh_shadow,
         }
     }
 }

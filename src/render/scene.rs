@@ -33,6 +33,9 @@ pub struct TerrainData<'a> {
     pub max_height: f32,
     /// Colour map, row 0 north.
     pub color: Option<ImageData<'a>>,
+    /// World-space normal map, one texel per grid sample, row 0 south, `(n + 1)/2` in RGB: the
+    /// prepared section's `normals` array, or computed here for an unprepared terrain.
+    pub normals: Cow<'a, [[u8; 4]]>,
 }
 
 /// One material as the preview shades it.
@@ -41,6 +44,10 @@ pub struct MaterialData<'a> {
     /// Linear RGB (the input's diffuse colour decoded from sRGB), alpha 1.
     pub base_color: [f32; 4],
     pub color_map: Option<ImageData<'a>>,
+    /// The two-layer Schlick material of the `material:<model>/<i>` section; `None`: Lambert.
+    pub schlick: Option<crate::material::schlick::SchlickMaterial>,
+    /// Level 0 of the tangent-space normal map (`normal` array of the processed texture).
+    pub normal_map: Option<ImageData<'a>>,
 }
 
 /// A run of triangles sharing a material: triangles `first..first + count` of the index buffer.
@@ -59,6 +66,9 @@ pub struct ModelData<'a> {
     pub positions: &'a [[f32; 3]],
     pub normals: &'a [[f32; 3]],
     pub uvs: &'a [[f32; 2]],
+    /// Per-vertex tangent `[x, y, z, w]` (bitangent `w·(n × t)`): the `tangents:<model>`
+    /// section, or any tangent orthogonal to the normal where the pack has none.
+    pub tangents: Cow<'a, [[f32; 4]]>,
     /// The section's indices, or a copy regrouped by material when its triangles were interleaved.
     pub indices: Cow<'a, [[u32; 3]]>,
     pub draws: Vec<DrawRange>,
@@ -150,13 +160,38 @@ fn load_terrain<'a>(
         Some(s) => load_image(pack, s, warnings)?,
         None => None,
     };
+    let normals = terrain_normals(&v, &meta, heights);
     Ok(Some(TerrainData {
         meta,
         heights,
         min_height,
         max_height,
         color,
+        normals,
     }))
+}
+
+/// The prepared terrain's normal map, else one computed from the heights (the terrain stage's
+/// own function, so both agree).
+fn terrain_normals<'a>(
+    v: &crate::pack::section::SectionView<'a>,
+    meta: &TerrainMeta,
+    heights: &[f32],
+) -> Cow<'a, [[u8; 4]]> {
+    if let Ok(n) = v.array::<[u8; 4]>("normals")
+        && n.len() == heights.len()
+    {
+        return Cow::Borrowed(n);
+    }
+    let t = crate::model::Terrain {
+        width: meta.width,
+        height: meta.height,
+        heights: heights.to_vec(),
+        origin: meta.origin,
+        extent: meta.extent,
+        color: None,
+    };
+    Cow::Owned(crate::terrain::prepare::terrain_normal_map(&t))
 }
 
 /// A texture section as an image; a missing section is a warning (drawn untextured).
@@ -291,6 +326,7 @@ fn load_model<'a>(
         ));
     }
     let materials = load_materials(pack, section, &meta, warnings)?;
+    let tangents = load_tangents(pack, section, normals, warnings);
     if let Some(t) = tri_mats.iter().position(|&m| m as usize >= materials.len()) {
         return Err(invalid(
             pack,
@@ -310,6 +346,7 @@ fn load_model<'a>(
         positions,
         normals,
         uvs,
+        tangents,
         indices,
         draws,
         materials,
@@ -336,6 +373,8 @@ fn load_materials<'a>(
                 1.0,
             ],
             color_map: None,
+            schlick: None,
+            normal_map: None,
         }]);
     }
     let mut out = Vec::with_capacity(meta.materials.len());
@@ -355,6 +394,7 @@ fn load_materials<'a>(
             None => None,
         };
         let d = m.diffuse;
+        let (schlick, normal_map) = load_schlick(pack, section, out.len(), warnings)?;
         out.push(MaterialData {
             base_color: [
                 srgb_to_linear(d[0]),
@@ -363,9 +403,122 @@ fn load_materials<'a>(
                 1.0,
             ],
             color_map,
+            schlick,
+            normal_map,
         });
     }
     Ok(out)
+}
+
+/// The model name the material stage uses in its section names.
+fn model_of(mesh_section: &str) -> &str {
+    mesh_section.strip_prefix("mesh:").unwrap_or(mesh_section)
+}
+
+/// The Schlick material `index` of a mesh section and level 0 of its normal map; `(None, None)`
+/// when the material stage has not run (the mesh is shaded with Lambert).
+fn load_schlick<'a>(
+    pack: &'a Pack,
+    mesh_section: &str,
+    index: usize,
+    warnings: &mut Vec<String>,
+) -> Result<(
+    Option<crate::material::schlick::SchlickMaterial>,
+    Option<ImageData<'a>>,
+)> {
+    use crate::material::section as ms;
+    let name = ms::material_section_name(model_of(mesh_section), index);
+    if pack.find(&name).is_none() {
+        return Ok((None, None));
+    }
+    let v = pack.view_named(&name)?;
+    let meta = ms::from_section(&v).map_err(|e| Error::invalid(pack.path(), e))?;
+    if meta.mesh_section != mesh_section || meta.index as usize != index {
+        warnings.push(format!(
+            "{name:?} belongs to {:?} material {}: shaded with Lambert",
+            meta.mesh_section, meta.index
+        ));
+        return Ok((None, None));
+    }
+    let normal_map = match &meta.normal_map {
+        Some(s) => load_normal_map(pack, s, warnings)?,
+        None => None,
+    };
+    Ok((Some(meta.material), normal_map))
+}
+
+/// Level 0 of a processed texture's `normal` array (the first width × height texels).
+fn load_normal_map<'a>(
+    pack: &'a Pack,
+    name: &str,
+    warnings: &mut Vec<String>,
+) -> Result<Option<ImageData<'a>>> {
+    let v = match pack.find(name) {
+        Some(_) => pack.view_named(name)?,
+        None => {
+            warnings.push(format!("normal map {name:?} is missing: drawn flat"));
+            return Ok(None);
+        }
+    };
+    let meta: TextureMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
+    let Ok(normal) = v.array::<[u8; 4]>("normal") else {
+        warnings.push(format!("texture {name:?} has no normal array: drawn flat"));
+        return Ok(None);
+    };
+    let n = meta.width as u64 * meta.height as u64;
+    if n == 0 || (normal.len() as u64) < n {
+        return Err(invalid(
+            pack,
+            name,
+            format!(
+                "{} normals for {}×{}",
+                normal.len(),
+                meta.width,
+                meta.height
+            ),
+        ));
+    }
+    Ok(Some(ImageData {
+        width: meta.width,
+        height: meta.height,
+        texels: &normal[..n as usize],
+    }))
+}
+
+/// The `tangents:<model>` section's frames when they match the mesh's vertices, else any unit
+/// tangent orthogonal to each normal (Frisvad), so every model has a frame to shade in.
+fn load_tangents<'a>(
+    pack: &'a Pack,
+    mesh_section: &str,
+    normals: &[[f32; 3]],
+    warnings: &mut Vec<String>,
+) -> Cow<'a, [[f32; 4]]> {
+    let name = crate::mesh::tangents::tangents_section_name(model_of(mesh_section));
+    if let Some(v) = pack.find(&name).and_then(|_| pack.view_named(&name).ok()) {
+        match v.array::<[f32; 4]>("tangents") {
+            Ok(t) if t.len() == normals.len() => return Cow::Borrowed(t),
+            _ => warnings.push(format!(
+                "{name:?} does not match the vertices of {mesh_section:?}: tangents made up"
+            )),
+        }
+    }
+    Cow::Owned(normals.iter().map(|&n| any_tangent(n)).collect())
+}
+
+/// A unit vector orthogonal to `n` (Frisvad's construction) with w = +1.
+pub fn any_tangent(n: [f32; 3]) -> [f32; 4] {
+    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    let n = if l > 0.0 {
+        n.map(|c| c / l)
+    } else {
+        [0.0, 0.0, 1.0]
+    };
+    if n[2] < -0.999_999 {
+        return [0.0, -1.0, 0.0, 1.0];
+    }
+    let a = 1.0 / (1.0 + n[2]);
+    let b = -n[0] * n[1] * a;
+    [1.0 - n[0] * n[0] * a, b, -n[0], 1.0]
 }
 
 /// Runs of equal material. When a mesh interleaves materials (more runs than materials), the

@@ -3,7 +3,7 @@
 //! shaders of our own, `shaders/world_*.wgsl`) writes each pixel's receiver point; the N-tree
 //! `shadow` kernel ([`crate::linespace::gpu`]) answers the fraction of a quad light's samples
 //! that reach it; the fractions become an `R32Float` texture that the scene pass reads as
-//! `sun_visibility` (common.wgsl) and multiplies into the sun term.
+//! `soft_visibility` (common.wgsl) in place of the shadow map (direct.wgsl `sun_visibility`).
 //!
 //! The light is either explicit (`--area-light`) or the sun's disc: a square of the disc's
 //! angular diameter, perpendicular to the sun direction at 100 scene diagonals from the N-tree's
@@ -25,6 +25,7 @@ use wgpu::util::DeviceExt;
 const COMMON_WGSL: &str = include_str!("shaders/common.wgsl");
 const TERRAIN_WGSL: &str = include_str!("shaders/terrain.wgsl");
 const MESH_WGSL: &str = include_str!("shaders/mesh.wgsl");
+const DIRECT_WGSL: &str = include_str!("shaders/direct.wgsl");
 const WORLD_TERRAIN_WGSL: &str = include_str!("shaders/world_terrain.wgsl");
 const WORLD_MESH_WGSL: &str = include_str!("shaders/world_mesh.wgsl");
 
@@ -237,6 +238,7 @@ const ATTR_NRM: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![1 => Float
 const ATTR_UV: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![2 => Float32x2];
 const ATTR_INSTANCE: [wgpu::VertexAttribute; 3] =
     wgpu::vertex_attr_array![3 => Float32x3, 4 => Float32, 5 => Float32];
+const ATTR_TANGENT: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![6 => Float32x4];
 
 impl WorldPipelines {
     fn new(gpu: &Gpu, pipes: &Pipelines) -> Self {
@@ -253,19 +255,20 @@ impl WorldPipelines {
             vb(12, v, &ATTR_NRM[..]),
             vb(8, v, &ATTR_UV[..]),
             vb(size_of::<InstanceRecord>() as u64, i, &ATTR_INSTANCE[..]),
+            vb(16, v, &ATTR_TANGENT[..]),
         ];
         WorldPipelines {
             terrain: world_pipeline(
                 gpu,
                 "world terrain",
-                &[COMMON_WGSL, TERRAIN_WGSL, WORLD_TERRAIN_WGSL],
+                &[COMMON_WGSL, DIRECT_WGSL, TERRAIN_WGSL, WORLD_TERRAIN_WGSL],
                 &[Some(&pipes.globals_layout), Some(&pipes.terrain_layout)],
                 &[],
             ),
             mesh: world_pipeline(
                 gpu,
                 "world mesh",
-                &[COMMON_WGSL, MESH_WGSL, WORLD_MESH_WGSL],
+                &[COMMON_WGSL, DIRECT_WGSL, MESH_WGSL, WORLD_MESH_WGSL],
                 &[Some(&pipes.globals_layout), Some(&pipes.material_layout)],
                 &mesh_buffers,
             ),
@@ -362,6 +365,7 @@ fn world_pass(
         pass.set_vertex_buffer(1, m.normals.slice(..));
         pass.set_vertex_buffer(2, m.uvs.slice(..));
         pass.set_vertex_buffer(3, m.instances.slice(..));
+        pass.set_vertex_buffer(4, m.tangents.slice(..));
         pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
         for d in &m.draws {
             pass.set_bind_group(1, &m.materials[d.material as usize], &[]);

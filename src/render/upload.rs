@@ -29,6 +29,37 @@ pub struct MaterialParams {
 }
 const _: () = assert!(size_of::<MaterialParams>() == 16);
 
+/// The direct-sun material (shaders/mesh.wgsl `DirectMaterial`): the material section's record
+/// and how to use it. repr(C), Pod, 112 bytes.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct DirectMaterialParams {
+    pub record: crate::material::section::MaterialRecord,
+    /// x: 1 = two-layer Schlick, 0 = Lambert; y: 1 = normal map; z: opacity; w: 0
+    pub mode: [f32; 4],
+}
+const _: () = assert!(size_of::<DirectMaterialParams>() == 112);
+
+impl DirectMaterialParams {
+    pub fn new(mat: &super::scene::MaterialData) -> Self {
+        match &mat.schlick {
+            Some(m) => DirectMaterialParams {
+                record: crate::material::section::material_record(m),
+                mode: [
+                    1.0,
+                    if mat.normal_map.is_some() { 1.0 } else { 0.0 },
+                    m.opacity,
+                    0.0,
+                ],
+            },
+            None => DirectMaterialParams {
+                record: Zeroable::zeroed(),
+                mode: [0.0, 0.0, 1.0, 0.0],
+            },
+        }
+    }
+}
+
 /// The terrain on the GPU; drawn with `vertex_count` vertices and no vertex buffer.
 pub struct TerrainGpu {
     pub bind_group: wgpu::BindGroup,
@@ -40,6 +71,8 @@ pub struct ModelGpu {
     pub positions: wgpu::Buffer,
     pub normals: wgpu::Buffer,
     pub uvs: wgpu::Buffer,
+    /// The `tangents:<model>` frames (vertex slot 4).
+    pub tangents: wgpu::Buffer,
     pub indices: wgpu::Buffer,
     pub instances: wgpu::Buffer,
     pub instance_count: u32,
@@ -117,6 +150,17 @@ impl Uploader<'_> {
         );
         self.bytes += data.len() as u64;
         Ok(texture.create_view(&Default::default()))
+    }
+
+    /// A normal map (`(n + 1)/2` in RGB, read as linear unorm).
+    fn normal_map(&mut self, label: &str, img: &ImageData) -> Result<wgpu::TextureView> {
+        self.texture(
+            label,
+            (img.width, img.height),
+            wgpu::TextureFormat::Rgba8Unorm,
+            4,
+            bytemuck::cast_slice(img.texels),
+        )
     }
 
     fn color_map(&mut self, label: &str, img: &ImageData) -> Result<wgpu::TextureView> {
@@ -197,6 +241,14 @@ fn upload_terrain(
         texels: &[[128, 128, 128, 255]],
     };
     let color = up.color_map("terrain colour", t.color.as_ref().unwrap_or(&grey))?;
+    let normals = up.normal_map(
+        "terrain normals",
+        &ImageData {
+            width: w,
+            height: h,
+            texels: &t.normals,
+        },
+    )?;
     let params = TerrainParams {
         origin_extent: [
             t.meta.origin[0],
@@ -232,6 +284,10 @@ fn upload_terrain(
                 binding: 3,
                 resource: wgpu::BindingResource::Sampler(&clamp),
             },
+            wgpu::BindGroupEntry {
+                binding: 4,
+                resource: wgpu::BindingResource::TextureView(&normals),
+            },
         ],
     });
     let quads = (w as u64 - 1) * (h as u64 - 1);
@@ -253,10 +309,20 @@ fn upload_model(
     white: &wgpu::TextureView,
     sampler: &wgpu::Sampler,
 ) -> Result<ModelGpu> {
+    // Unused where a material has no normal map (the shader reads the flag), but bound.
+    let flat = up.normal_map(
+        "flat normal",
+        &ImageData {
+            width: 1,
+            height: 1,
+            texels: &[[128, 128, 255, 255]],
+        },
+    )?;
     use wgpu::BufferUsages as U;
     let positions = up.buffer("positions", bytemuck::cast_slice(m.positions), U::VERTEX);
     let normals = up.buffer("normals", bytemuck::cast_slice(m.normals), U::VERTEX);
     let uvs = up.buffer("uvs", bytemuck::cast_slice(m.uvs), U::VERTEX);
+    let tangents = up.buffer("tangents", bytemuck::cast_slice(&m.tangents), U::VERTEX);
     let indices = up.buffer("indices", bytemuck::cast_slice(&m.indices), U::INDEX);
     let instances = up.buffer("instances", bytemuck::cast_slice(&m.instances), U::VERTEX);
     let mut materials = Vec::with_capacity(m.materials.len());
@@ -269,6 +335,15 @@ fn upload_model(
             base_color: mat.base_color,
         };
         let params = up.buffer("material", bytemuck::bytes_of(&params), U::UNIFORM);
+        let direct = up.buffer(
+            "direct material",
+            bytemuck::bytes_of(&DirectMaterialParams::new(mat)),
+            U::UNIFORM,
+        );
+        let normal_view = match &mat.normal_map {
+            Some(img) => up.normal_map(&format!("{}: normal map {k}", m.section), img)?,
+            None => flat.clone(),
+        };
         materials.push(up.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("material"),
             layout: &pipes.material_layout,
@@ -285,6 +360,14 @@ fn upload_model(
                     binding: 2,
                     resource: wgpu::BindingResource::Sampler(sampler),
                 },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: direct.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: wgpu::BindingResource::TextureView(&normal_view),
+                },
             ],
         }));
     }
@@ -292,6 +375,7 @@ fn upload_model(
         positions,
         normals,
         uvs,
+        tangents,
         indices,
         instances,
         instance_count: m.instances.len() as u32,

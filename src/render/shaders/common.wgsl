@@ -14,30 +14,32 @@ struct Globals {
     sun_irradiance: vec4<f32>,
     // irradiance of a horizontal surface from the sky
     ambient: vec4<f32>,
-    // x, y: image width and height in pixels
+    // x, y: image width and height in pixels; z, w: weights of the direct and ambient terms
     viewport: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> globals: Globals;
 // The sky, lat-long, linear RGB radiance, Rgba32Float read with textureLoad (not filterable on GL).
 @group(0) @binding(1) var sky_texture: texture_2d<f32>;
-
-// The sun's visibility per pixel, R32Float: 1×1 texel of 1 unless `--soft-shadows` (then the
-// line-space soft shadows of src/render/soft_shadow.rs, one texel per pixel).
-@group(0) @binding(2) var sun_visibility: texture_2d<f32>;
+// The sun's visibility per pixel from the line-space soft shadows (src/render/soft_shadow.rs),
+// R32Float, used where sun_direction.w is 1 (`bake render --soft-shadows`); 1×1 otherwise.
+@group(0) @binding(2) var soft_visibility: texture_2d<f32>;
 
 const PI: f32 = 3.14159265358979;
 
-fn sun_visibility_at(frag: vec4<f32>) -> f32 {
-    let last = vec2<i32>(textureDimensions(sun_visibility)) - vec2<i32>(1);
-    return textureLoad(sun_visibility, min(vec2<i32>(frag.xy), last), 0).r;
+// The soft-shadow visibility of the pixel that `world` projects to.
+fn soft_visibility_at(world: vec3<f32>) -> f32 {
+    let c = globals.view_proj * vec4<f32>(world, 1.0);
+    let uv = vec2<f32>(c.x / c.w * 0.5 + 0.5, 0.5 - c.y / c.w * 0.5);
+    let size = vec2<i32>(textureDimensions(soft_visibility));
+    let px = clamp(vec2<i32>(floor(uv * vec2<f32>(size))), vec2<i32>(0), size - vec2<i32>(1));
+    return textureLoad(soft_visibility, px, 0).r;
 }
 
-// Lambert under the sun (times its visibility) plus the sky ambient, see src/render/light.rs.
-fn shade_lambert(albedo: vec3<f32>, n: vec3<f32>, visibility: f32) -> vec3<f32> {
-    let sun = globals.sun_irradiance.rgb * max(dot(n, globals.sun_direction.xyz), 0.0) * visibility;
-    let sky = globals.ambient.rgb * (0.5 + 0.5 * n.z);
-    return albedo * (sun + sky) / PI;
+// The sky ambient of src/render/light.rs: albedo/π · E_sky · (1 + n_z)/2 (the CPU reference's
+// `Reference::ambient_term`; the ambient term of the shading contract replaces it).
+fn ambient_sky(albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return albedo * globals.ambient.rgb * (0.5 + 0.5 * n.z) / PI;
 }
 
 // Normal facing the viewer (plants are thin and lit from both sides); a degenerate normal

@@ -1,6 +1,7 @@
 // Instanced models: vertex arrays straight from the mesh section (positions, normals, uvs in
-// three buffers) and one 32-byte InstanceRecord per instance (position, scale, rotation about +Z
-// in degrees). Alpha test at 0.5 on the colour map.
+// three buffers, tangents from the `tangents:<model>` section in a fourth) and one 32-byte
+// InstanceRecord per instance (position, scale, rotation about +Z in degrees). Alpha test at 0.5
+// on the colour map times the material's opacity; the direct sun in direct.wgsl.
 
 struct MaterialParams {
     // linear RGB diffuse colour, alpha 1
@@ -11,6 +12,16 @@ struct MaterialParams {
 @group(1) @binding(1) var color_map: texture_2d<f32>;
 @group(1) @binding(2) var color_sampler: sampler;
 
+struct DirectMaterial {
+    // the material section's 96-byte MaterialRecord
+    record: array<vec4<f32>, 6>,
+    // x: 1 = two-layer Schlick, 0 = Lambert; y: 1 = has a normal map; z: opacity
+    mode: vec4<f32>,
+};
+
+@group(1) @binding(3) var<uniform> direct_material: DirectMaterial;
+@group(1) @binding(4) var normal_map: texture_2d<f32>;
+
 struct MeshIn {
     @location(0) position: vec3<f32>,
     @location(1) normal: vec3<f32>,
@@ -18,6 +29,7 @@ struct MeshIn {
     @location(3) instance_position: vec3<f32>,
     @location(4) instance_scale: f32,
     @location(5) instance_rotation_deg: f32,
+    @location(6) tangent: vec4<f32>,
 };
 
 struct MeshOut {
@@ -25,6 +37,7 @@ struct MeshOut {
     @location(0) world: vec3<f32>,
     @location(1) normal: vec3<f32>,
     @location(2) uv: vec2<f32>,
+    @location(3) tangent: vec4<f32>,
 };
 
 @vertex
@@ -40,15 +53,65 @@ fn vs_main(v: MeshIn) -> MeshOut {
     // A uniform scale keeps normals; only the rotation applies.
     out.normal = vec3<f32>(c * v.normal.x - s * v.normal.y, s * v.normal.x + c * v.normal.y, v.normal.z);
     out.uv = v.uv;
+    out.tangent = vec4<f32>(c * v.tangent.x - s * v.tangent.y, s * v.tangent.x + c * v.tangent.y, v.tangent.z, v.tangent.w);
     return out;
+}
+
+// The sun on a model: two-layer Schlick in the normal-mapped tangent frame, or Lambert on the
+// side facing the viewer for models without a material section.
+fn mesh_direct(in: MeshOut, texel: vec3<f32>, ts: vec3<f32>) -> vec3<f32> {
+    if (direct_material.mode.x == 0.0) {
+        let n = facing_normal(in.normal, in.world);
+        return direct_lambert(texel * material.base_color.rgb, n, in.world);
+    }
+    // Degenerate inputs: a zero normal faces the viewer, a zero tangent is any orthogonal one.
+    let n = facing_normal_or_self(in.normal, in.world);
+    let tl = dot(in.tangent.xyz, in.tangent.xyz);
+    let t = select(any_tangent(n), in.tangent.xyz * inverseSqrt(tl), tl > 1e-12);
+    var ns = n;
+    if (direct_material.mode.y != 0.0) {
+        let b = cross(n, t) * select(1.0, -1.0, in.tangent.w < 0.0);
+        ns = normalize(t * ts.x + b * ts.y + n * ts.z);
+    }
+    let m = schlick_from_record(direct_material.record);
+    return direct_schlick(m, texel, ns, t, n, in.world);
+}
+
+// The unit normal; a zero one becomes the view direction (like `facing_normal`, not flipped).
+fn facing_normal_or_self(n: vec3<f32>, world: vec3<f32>) -> vec3<f32> {
+    if (dot(n, n) < 1e-12) {
+        return normalize(globals.eye.xyz - world);
+    }
+    return normalize(n);
+}
+
+// Sky light until the ambient term lands: the diffuse albedo under ambient_sky.
+fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
+    var albedo = texel * material.base_color.rgb;
+    if (direct_material.mode.x != 0.0) {
+        albedo = direct_material.record[3].yzw * texel;
+    }
+    return ambient_sky(albedo, facing_normal(in.normal, in.world));
 }
 
 @fragment
 fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
+    // Every texture read before the discard (derivatives need uniform control flow).
     let texel = textureSample(color_map, color_sampler, in.uv);
-    if (texel.a < 0.5) {
+    let ts = textureSample(normal_map, color_sampler, in.uv).xyz * 2.0 - 1.0;
+    if (texel.a * direct_material.mode.z < 0.5) {
         discard;
     }
-    let n = facing_normal(in.normal, in.world);
-    return vec4<f32>(shade_lambert(texel.rgb * material.base_color.rgb, n, sun_visibility_at(in.position)), 1.0);
+    let l = mesh_direct(in, texel.rgb, ts) * globals.viewport.z
+        + mesh_ambient(in, texel.rgb) * globals.viewport.w;
+    return vec4<f32>(l, 1.0);
+}
+
+// The shadow pass: depth only, with the same alpha test.
+@fragment
+fn fs_shadow(in: MeshOut) {
+    let texel = textureSample(color_map, color_sampler, in.uv);
+    if (texel.a * direct_material.mode.z < 0.5) {
+        discard;
+    }
 }

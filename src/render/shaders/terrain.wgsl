@@ -13,6 +13,8 @@ struct TerrainParams {
 @group(1) @binding(1) var heights: texture_2d<f32>;
 @group(1) @binding(2) var color_map: texture_2d<f32>;
 @group(1) @binding(3) var color_sampler: sampler;
+// World-space normals, one texel per grid sample, row 0 south (the terrain section's `normals`).
+@group(1) @binding(4) var terrain_normals: texture_2d<f32>;
 
 struct TerrainOut {
     @builtin(position) position: vec4<f32>,
@@ -54,9 +56,20 @@ fn vs_main(@builtin(vertex_index) vid: u32) -> TerrainOut {
     return out;
 }
 
+// The normal map at a world point: texel centres sit on the grid samples, so the bilinear
+// lookup interpolates the sample normals.
+fn terrain_normal(world: vec3<f32>) -> vec3<f32> {
+    let size = vec2<f32>(f32(terrain.size.x), f32(terrain.size.y));
+    let g = (world.xy - terrain.origin_extent.xy) / terrain.origin_extent.zw * (size - 1.0);
+    let c = textureSample(terrain_normals, color_sampler, (g + 0.5) / size).xyz * 2.0 - 1.0;
+    return normalize(c);
+}
+
 @fragment
 fn fs_main(in: TerrainOut) -> @location(0) vec4<f32> {
     let albedo = textureSample(color_map, color_sampler, in.uv).rgb;
-    let n = normalize(in.normal);
-    return vec4<f32>(shade_lambert(albedo, n, sun_visibility_at(in.position)), 1.0);
+    let n = terrain_normal(in.world);
+    let l = direct_lambert(albedo, n, in.world) * globals.viewport.z
+        + ambient_sky(albedo, n) * globals.viewport.w;
+    return vec4<f32>(l, 1.0);
 }

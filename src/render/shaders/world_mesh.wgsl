@@ -5,7 +5,7 @@
 @fragment
 fn fs_world(in: MeshOut) -> @location(0) vec4<f32> {
     let texel = textureSample(color_map, color_sampler, in.uv);
-    if (texel.a < 0.5) {
+    if (texel.a * direct_material.mode.z < 0.5) {
         discard;
     }
     let n = facing_normal(in.normal, in.world);

@@ -1,0 +1,681 @@
+//! The CPU reference of the renderer: a ray caster that draws the same view of a pack as the
+//! wgpu path, from the same [`SceneData`] and [`View`], with the same Rust shading functions
+//! (`SchlickMaterial::eval`, the tone map), so a GPU image can be checked pixel by pixel.
+//!
+//! One primary ray per pixel centre (the rasterizer samples there too) through a two-level BVH
+//! (src/rt: one alpha-tested BVH per model, the terrain as one more instance built by
+//! [`crate::tracescene::terrain_mesh`]); the hit becomes a [`HitRecord`] (instance, model,
+//! triangle, barycentrics, world position, interpolated normal/tangent/uv, material) and is
+//! shaded by the terms of the shading contract: [`Reference::direct_term`] (sun irradiance ×
+//! an exact shadow ray × BRDF × cos) and [`Reference::ambient_term`]. Misses show the sky,
+//! looked up like shaders/sky.wgsl does. Textures are read like the GPU samplers read them:
+//! bilinear between texel centres, sRGB decoded before filtering, repeat on models and clamp
+//! on the terrain. Rows are shaded in parallel and collected in order (deterministic).
+
+use super::camera::Camera;
+use super::scene::{ImageData, ModelData, SceneData, TerrainData, srgb_to_linear};
+use super::{RenderOptions, Terms, View};
+use crate::error::Result;
+use crate::model::{Material, Mesh, Rgba8Image, Terrain};
+use crate::pack::Pack;
+use crate::rt::{AlphaMask, BuildPreset, InstanceTransform, ModelBvh, Ray, SceneBvh};
+use glam::{Vec3, Vec3A};
+use rayon::prelude::*;
+use std::f32::consts::PI;
+use std::sync::Arc;
+
+/// What a primary ray hit, with every attribute the shading needs (world space).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HitRecord {
+    /// Index of the instance in the BVH: the models' instances in [`SceneData`] order, then
+    /// the terrain.
+    pub instance: u32,
+    /// Index into `SceneData::models`; `None` for the terrain.
+    pub model: Option<u32>,
+    /// Triangle of the model's (regrouped) index list, or of the terrain mesh.
+    pub triangle: u32,
+    /// Weights of the triangle's three vertices.
+    pub barycentrics: [f32; 3],
+    /// Ray parameter (the primary ray's direction is unit: metres from the eye).
+    pub t: f32,
+    pub position: Vec3,
+    /// Unit normal of the triangle's plane.
+    pub geometric_normal: Vec3,
+    /// Interpolated vertex normal, normalized.
+    pub normal: Vec3,
+    /// Interpolated vertex tangent (xyz normalized) and the bitangent sign w.
+    pub tangent: [f32; 4],
+    pub uv: [f32; 2],
+    /// Material index of the model (0 for the terrain).
+    pub material: u32,
+}
+
+/// A scene prepared for ray casting.
+pub struct Reference<'s, 'a> {
+    pub scene: &'s SceneData<'a>,
+    bvh: SceneBvh,
+    /// Per BVH instance: the model index (`u32::MAX` for the terrain).
+    owner: Vec<u32>,
+    /// Per BVH instance: its index in `ModelData::instances` of its model.
+    slot: Vec<u32>,
+    /// Per model, per triangle of `ModelData::indices`: the material.
+    triangle_materials: Vec<Vec<u32>>,
+    terrain_model: Option<Terrain>,
+    /// Trace shadow rays (on by default; off gives the unshadowed image a test can hold
+    /// against a bound to show the bound detects missing shadows).
+    pub shadows: bool,
+}
+
+/// The reference image of a view.
+#[derive(Debug, Clone)]
+pub struct ReferenceOutput {
+    /// sRGB-encoded, row 0 at the top, alpha 255 (like the GPU output).
+    pub image: Rgba8Image,
+    /// Linear radiance per pixel before the tone map.
+    pub radiance: Vec<[f32; 3]>,
+    pub view: View,
+    pub seconds: f64,
+}
+
+/// Renders the view `opts` of `pack` on the CPU (the same defaults as [`super::render_pack`]).
+pub fn render_reference(pack: &Pack, opts: &RenderOptions) -> Result<ReferenceOutput> {
+    super::check_options(opts)?;
+    let t0 = std::time::Instant::now();
+    let scene = super::scene::load_scene(pack)?;
+    let view = super::resolve_view(pack, &scene, opts);
+    let r = Reference::build(&scene)?;
+    let radiance = r.radiance_image(&view, (opts.width, opts.height), opts.terms);
+    let image = tone_map_image(&radiance, view.exposure, (opts.width, opts.height));
+    Ok(ReferenceOutput {
+        image,
+        radiance,
+        view,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The model as a `Mesh` for the BVH builder (materials only count; the shading reads
+/// [`ModelData`]), and its triangles' materials in the order of `m.indices`.
+fn model_mesh(m: &ModelData) -> (Mesh, Vec<u32>) {
+    let mut tri_mats = vec![0u32; m.indices.len()];
+    for d in &m.draws {
+        tri_mats[d.first as usize..(d.first + d.count) as usize].fill(d.material);
+    }
+    let mesh = Mesh {
+        positions: m.positions.to_vec(),
+        normals: m.normals.to_vec(),
+        uvs: m.uvs.to_vec(),
+        indices: m.indices.to_vec(),
+        triangle_materials: tri_mats.clone(),
+        materials: vec![Material::default(); m.materials.len().max(1)],
+        ..Default::default()
+    };
+    (mesh, tri_mats)
+}
+
+/// Alpha masks of a model's materials: the colour map's alpha times the material's opacity,
+/// tested at 0.5 (nearest texel; the GPU filters bilinearly, which moves edges by < 1 texel).
+fn model_masks(m: &ModelData) -> Vec<Option<AlphaMask>> {
+    m.materials
+        .iter()
+        .map(|mat| {
+            let img = mat.color_map.as_ref()?;
+            let opacity = mat.schlick.map_or(1.0, |s| s.opacity);
+            let pixels = img
+                .texels
+                .iter()
+                .map(|p| [p[0], p[1], p[2], (p[3] as f32 * opacity).round() as u8])
+                .collect();
+            Some(AlphaMask::from_rgba8(&Rgba8Image {
+                width: img.width,
+                height: img.height,
+                pixels,
+            }))
+        })
+        .collect()
+}
+
+/// The terrain of the scene as the model type the mesh builder reads.
+fn terrain_model(t: &TerrainData) -> Terrain {
+    Terrain {
+        width: t.meta.width,
+        height: t.meta.height,
+        heights: t.heights.to_vec(),
+        origin: t.meta.origin,
+        extent: t.meta.extent,
+        color: None,
+    }
+}
+
+impl<'s, 'a> Reference<'s, 'a> {
+    /// Builds the BVHs of every model and of the terrain.
+    pub fn build(scene: &'s SceneData<'a>) -> Result<Self> {
+        let mut models = Vec::new();
+        let mut transforms = Vec::new();
+        let mut owner = Vec::new();
+        let mut slot = Vec::new();
+        let mut triangle_materials = Vec::new();
+        for (k, m) in scene.models.iter().enumerate() {
+            let (mesh, tri_mats) = model_mesh(m);
+            models.push(Arc::new(ModelBvh::build(
+                &mesh,
+                &model_masks(m),
+                BuildPreset::Medium,
+            )?));
+            triangle_materials.push(tri_mats);
+            for (j, i) in m.instances.iter().enumerate() {
+                slot.push(j as u32);
+                transforms.push(InstanceTransform {
+                    model: k as u32,
+                    translation: i.position,
+                    scale: i.scale,
+                    rotation_deg: i.rotation_deg,
+                });
+                owner.push(k as u32);
+            }
+        }
+        let terrain_model = scene.terrain.as_ref().map(terrain_model);
+        if let Some(t) = &terrain_model {
+            let mesh = crate::tracescene::terrain_mesh(t);
+            models.push(Arc::new(ModelBvh::build(&mesh, &[], BuildPreset::Medium)?));
+            transforms.push(InstanceTransform {
+                model: (models.len() - 1) as u32,
+                translation: [0.0; 3],
+                scale: 1.0,
+                rotation_deg: 0.0,
+            });
+            owner.push(u32::MAX);
+            slot.push(0);
+        }
+        Ok(Reference {
+            scene,
+            bvh: SceneBvh::build(models, transforms)?,
+            owner,
+            slot,
+            triangle_materials,
+            terrain_model,
+            shadows: true,
+        })
+    }
+
+    /// The instance record a hit belongs to (`None` for the terrain): position, scale, rotation
+    /// of the model instance, as `SceneData::models[model].instances` holds it.
+    pub fn instance_record(
+        &self,
+        hit: &HitRecord,
+    ) -> Option<&crate::pack::kinds::instances::InstanceRecord> {
+        let m = self.scene.models.get(hit.model? as usize)?;
+        m.instances.get(self.slot[hit.instance as usize] as usize)
+    }
+
+    /// The closest hit along `ray` with its attributes.
+    pub fn trace(&self, ray: &Ray) -> Option<HitRecord> {
+        let h = self.bvh.closest_hit(ray)?;
+        let sp = self.bvh.surface(&h);
+        let inst = self.bvh.instances()[h.instance as usize];
+        let (u, v) = (h.hit.u, h.hit.v);
+        let bary = [1.0 - u - v, u, v];
+        let owner = self.owner[h.instance as usize];
+        let mut rec = HitRecord {
+            instance: h.instance,
+            model: None,
+            triangle: h.hit.triangle,
+            barycentrics: bary,
+            t: h.hit.t,
+            position: Vec3::from(sp.position),
+            geometric_normal: Vec3::from(sp.geometric_normal),
+            normal: Vec3::from(sp.shading_normal),
+            tangent: [1.0, 0.0, 0.0, 1.0],
+            uv: sp.uv,
+            material: 0,
+        };
+        if owner != u32::MAX {
+            let m = &self.scene.models[owner as usize];
+            let tri = m.indices[h.hit.triangle as usize];
+            let t = tri.iter().zip(bary).fold(Vec3::ZERO, |acc, (&i, w)| {
+                acc + Vec3::from_slice(&m.tangents[i as usize][..3]) * w
+            });
+            let t = Vec3::from(inst.normal_to_world(Vec3A::from(t))).normalize_or_zero();
+            let w = if m.tangents[tri[0] as usize][3] < 0.0 {
+                -1.0
+            } else {
+                1.0
+            };
+            rec.model = Some(owner);
+            rec.tangent = [t.x, t.y, t.z, w];
+            rec.material = self.triangle_materials[owner as usize][h.hit.triangle as usize];
+        }
+        Some(rec)
+    }
+
+    /// Whether nothing blocks the sun seen from `hit` (an exact shadow ray, alpha-tested). The
+    /// ray starts on the sun's side of the surface (the side the interpolated normal says, as
+    /// the GPU's lookup does; winding orders are not consistent in the inputs), pushed off the
+    /// triangle's plane by a few ulps of the position.
+    pub fn sun_visible(&self, hit: &HitRecord, sun: Vec3) -> bool {
+        if !self.shadows {
+            return true;
+        }
+        let mut ng = hit.geometric_normal;
+        if ng.dot(hit.normal) < 0.0 {
+            ng = -ng;
+        }
+        let side = if hit.normal.dot(sun) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        };
+        let eps = 2e-5 * (1.0 + hit.position.abs().max_element());
+        let origin = hit.position + ng * (side * eps);
+        !self
+            .bvh
+            .any_hit(&Ray::new(Vec3A::from(origin), Vec3A::from(sun), eps))
+    }
+
+    /// Linear radiance of every pixel of a `size` image of `view`.
+    pub fn radiance_image(&self, view: &View, size: (u32, u32), terms: Terms) -> Vec<[f32; 3]> {
+        let (w, h) = size;
+        (0..h)
+            .into_par_iter()
+            .flat_map_iter(|y| (0..w).map(move |x| self.pixel(view, size, terms, x, y)))
+            .collect::<Vec<_>>()
+    }
+
+    /// Radiance of pixel (x, y): the ray through its centre.
+    pub fn pixel(&self, view: &View, (w, h): (u32, u32), terms: Terms, x: u32, y: u32) -> [f32; 3] {
+        let cam: &Camera = &view.camera;
+        let ndc_x = (x as f32 + 0.5) / w as f32 * 2.0 - 1.0;
+        let ndc_y = 1.0 - (y as f32 + 0.5) / h as f32 * 2.0;
+        let d = cam.ray(ndc_x, ndc_y);
+        let ray = Ray::new(Vec3A::from(cam.eye), Vec3A::from(d), cam.near);
+        match self.trace(&ray) {
+            None => sky_radiance(self.scene, d),
+            Some(hit) => {
+                let wo = -d;
+                let [kd, ka] = terms.weights();
+                let mut l = [0.0f32; 3];
+                if kd > 0.0 {
+                    l = self.direct_term(&hit, wo, view);
+                }
+                if ka > 0.0 {
+                    let a = self.ambient_term(&hit, wo, view);
+                    l = [l[0] + a[0], l[1] + a[1], l[2] + a[2]];
+                }
+                l
+            }
+        }
+    }
+
+    /// The sun's contribution at `hit` seen from `wo` (unit, towards the eye): E_sun ×
+    /// visibility × BRDF × cos. Terrain: Lambert with its colour map and normal map. Models
+    /// with a Schlick material: `SchlickMaterial::eval` in the normal-mapped tangent frame,
+    /// two-sided (|cos|). Models without: Lambert on the side facing the viewer.
+    pub fn direct_term(&self, hit: &HitRecord, wo: Vec3, view: &View) -> [f32; 3] {
+        let e = view.lighting.sun_irradiance;
+        let sun = Vec3::from(view.lighting.sun_direction).normalize_or_zero();
+        if e.iter().all(|&c| c <= 0.0) || sun == Vec3::ZERO {
+            return [0.0; 3];
+        }
+        let surface = self.surface(hit, wo);
+        let f_cos = match &surface.brdf {
+            Brdf::Schlick(m) => {
+                let (t, b, n) = surface.frame;
+                let local = |d: Vec3| [d.dot(t), d.dot(b), d.dot(n)];
+                let wi = local(sun);
+                let f = m.eval(wi, local(wo), surface.map);
+                f.map(|c| c * wi[2].abs())
+            }
+            Brdf::Lambert(albedo) => {
+                let c = surface.frame.2.dot(sun).max(0.0) / PI;
+                albedo.map(|a| a * c)
+            }
+        };
+        if f_cos.iter().all(|&c| c <= 0.0) || !self.sun_visible(hit, sun) {
+            return [0.0; 3];
+        }
+        [0, 1, 2].map(|k| e[k] * f_cos[k])
+    }
+
+    /// Sky light (placeholder until the ambient term of the shading contract lands): the
+    /// surface's diffuse albedo × the sky's horizontal irradiance × (1 + n_z)/2 / π, the
+    /// shaders' `ambient_sky` of common.wgsl.
+    pub fn ambient_term(&self, hit: &HitRecord, wo: Vec3, view: &View) -> [f32; 3] {
+        let s = self.surface(hit, wo);
+        let albedo = match &s.brdf {
+            Brdf::Schlick(m) => m.bottom_color(s.map),
+            Brdf::Lambert(a) => *a,
+        };
+        let n = facing(s.frame.2, wo);
+        let k = (0.5 + 0.5 * n.z) / PI;
+        [0, 1, 2].map(|c| albedo[c] * view.lighting.ambient[c] * k)
+    }
+
+    /// The shading inputs at a hit: BRDF, colour-map value and shading frame.
+    pub fn surface(&self, hit: &HitRecord, wo: Vec3) -> Surface {
+        let Some(k) = hit.model else {
+            return self.terrain_surface(hit);
+        };
+        let m = &self.scene.models[k as usize];
+        let mat = &m.materials[hit.material as usize];
+        let texel = mat
+            .color_map
+            .as_ref()
+            .map_or([1.0; 4], |img| sample_srgb(img, hit.uv, true));
+        let map = [texel[0], texel[1], texel[2]];
+        match &mat.schlick {
+            Some(s) => {
+                let n = match &mat.normal_map {
+                    Some(nm) => perturb(hit, sample_normal(nm, hit.uv, true)),
+                    None => hit.normal,
+                };
+                Surface {
+                    brdf: Brdf::Schlick(*s),
+                    map,
+                    frame: tangent_frame(n, Vec3::from_slice(&hit.tangent[..3])),
+                }
+            }
+            None => {
+                let c = mat.base_color;
+                let n = facing(hit.normal, wo);
+                Surface {
+                    brdf: Brdf::Lambert([c[0] * map[0], c[1] * map[1], c[2] * map[2]]),
+                    map,
+                    frame: tangent_frame(n, Vec3::from_slice(&hit.tangent[..3])),
+                }
+            }
+        }
+    }
+
+    fn terrain_surface(&self, hit: &HitRecord) -> Surface {
+        let (Some(t), Some(tm)) = (&self.scene.terrain, &self.terrain_model) else {
+            return Surface {
+                brdf: Brdf::Lambert([0.0; 3]),
+                map: [1.0; 3],
+                frame: tangent_frame(hit.normal, Vec3::X),
+            };
+        };
+        let (w, h) = (tm.width, tm.height);
+        let (ox, oy) = (tm.origin[0], tm.origin[1]);
+        let (ex, ey) = (tm.extent[0], tm.extent[1]);
+        let p = hit.position;
+        let uv = [(p.x - ox) / ex, 1.0 - (p.y - oy) / ey];
+        // Without a colour map the terrain is sRGB 128 grey, like the GPU upload.
+        let grey = [srgb_to_linear(128.0 / 255.0); 4];
+        let c = t
+            .color
+            .as_ref()
+            .map_or(grey, |img| sample_srgb(img, uv, false));
+        // The normal map has one texel per grid sample, row 0 south: texel centres sit on the
+        // samples, so the bilinear lookup interpolates the sample normals.
+        let gx = (p.x - ox) / ex * (w - 1) as f32;
+        let gy = (p.y - oy) / ey * (h - 1) as f32;
+        let nimg = ImageData {
+            width: w,
+            height: h,
+            texels: &t.normals,
+        };
+        let nuv = [(gx + 0.5) / w as f32, (gy + 0.5) / h as f32];
+        let n = decode_normal_texel(bilinear(&nimg, nuv, false, unorm));
+        Surface {
+            brdf: Brdf::Lambert([c[0], c[1], c[2]]),
+            map: [c[0], c[1], c[2]],
+            frame: tangent_frame(n, Vec3::X),
+        }
+    }
+}
+
+/// How a surface reflects.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Brdf {
+    Schlick(crate::material::schlick::SchlickMaterial),
+    /// Diffuse albedo, linear RGB.
+    Lambert([f32; 3]),
+}
+
+/// Shading inputs at a hit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Surface {
+    pub brdf: Brdf,
+    /// The colour map's linear RGB at the hit (1 without a map).
+    pub map: [f32; 3],
+    /// Tangent, bitangent, normal (orthonormal; the normal is normal-mapped).
+    pub frame: (Vec3, Vec3, Vec3),
+}
+
+/// `n` turned towards the viewer (`wo` points to the eye); a degenerate `n` becomes `wo`.
+fn facing(n: Vec3, wo: Vec3) -> Vec3 {
+    if n.length_squared() < 1e-12 {
+        return wo;
+    }
+    if n.dot(wo) < 0.0 { -n } else { n }
+}
+
+/// An orthonormal frame around `n` with the tangent as close to `t` as possible (Gram–Schmidt;
+/// any orthogonal tangent where `t` is parallel to `n`). The bitangent's sign does not matter to
+/// the BRDF (the anisotropy reads cos² of the azimuth).
+pub fn tangent_frame(n: Vec3, t: Vec3) -> (Vec3, Vec3, Vec3) {
+    let n = n.normalize_or(Vec3::Z);
+    let mut tt = t - n * n.dot(t);
+    if tt.length_squared() < 1e-12 {
+        let a = super::scene::any_tangent(n.to_array());
+        tt = Vec3::new(a[0], a[1], a[2]);
+    }
+    let tt = tt.normalize();
+    (tt, n.cross(tt), n)
+}
+
+/// The interpolated normal bent by a tangent-space normal `ts` (+X = tangent, +Y = bitangent
+/// `w·(n × t)`, +Z = normal).
+fn perturb(hit: &HitRecord, ts: [f32; 3]) -> Vec3 {
+    let n = hit.normal;
+    let t = Vec3::from_slice(&hit.tangent[..3]);
+    let b = n.cross(t) * hit.tangent[3];
+    (t * ts[0] + b * ts[1] + n * ts[2]).normalize_or(n)
+}
+
+fn unorm(p: &[u8; 4]) -> [f32; 4] {
+    p.map(|c| c as f32 / 255.0)
+}
+
+fn srgb(p: &[u8; 4]) -> [f32; 4] {
+    [
+        srgb_to_linear(p[0] as f32 / 255.0),
+        srgb_to_linear(p[1] as f32 / 255.0),
+        srgb_to_linear(p[2] as f32 / 255.0),
+        p[3] as f32 / 255.0,
+    ]
+}
+
+fn decode_normal_texel(c: [f32; 4]) -> Vec3 {
+    Vec3::new(c[0] * 2.0 - 1.0, c[1] * 2.0 - 1.0, c[2] * 2.0 - 1.0).normalize_or(Vec3::Z)
+}
+
+/// A tangent-space normal from a normal map (bilinear on the encoded values, as the GPU does).
+fn sample_normal(img: &ImageData, uv: [f32; 2], repeat: bool) -> [f32; 3] {
+    decode_normal_texel(bilinear(img, uv, repeat, unorm)).to_array()
+}
+
+/// A colour map texel as the `Rgba8UnormSrgb` sampler returns it: linear RGB, alpha.
+fn sample_srgb(img: &ImageData, uv: [f32; 2], repeat: bool) -> [f32; 4] {
+    bilinear(img, uv, repeat, srgb)
+}
+
+/// Bilinear filtering between texel centres, like a `Linear` sampler at level 0: repeat or
+/// clamp-to-edge addressing, `decode` applied to each texel before the weights.
+pub fn bilinear(
+    img: &ImageData,
+    uv: [f32; 2],
+    repeat: bool,
+    decode: fn(&[u8; 4]) -> [f32; 4],
+) -> [f32; 4] {
+    let (w, h) = (img.width as i64, img.height as i64);
+    let x = uv[0] * w as f32 - 0.5;
+    let y = uv[1] * h as f32 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let wrap = |i: i64, n: i64| {
+        if repeat {
+            i.rem_euclid(n)
+        } else {
+            i.clamp(0, n - 1)
+        }
+    };
+    let at = |i: i64, j: i64| decode(&img.texels[(wrap(j, h) * w + wrap(i, w)) as usize]);
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let (a, b, c, d) = (
+        at(x0, y0),
+        at(x0 + 1, y0),
+        at(x0, y0 + 1),
+        at(x0 + 1, y0 + 1),
+    );
+    [0, 1, 2, 3].map(|k| {
+        let top = a[k] + (b[k] - a[k]) * fx;
+        let bottom = c[k] + (d[k] - c[k]) * fx;
+        top + (bottom - top) * fy
+    })
+}
+
+/// The sky along unit `d`: the lat-long image, bilinear with wrap in u and clamp in v
+/// (shaders/sky.wgsl `sky_radiance`).
+pub fn sky_radiance(scene: &SceneData, d: Vec3) -> [f32; 3] {
+    let sky = &scene.sky;
+    let (w, h) = (sky.width as i64, sky.height as i64);
+    let theta = d.z.clamp(-1.0, 1.0).acos();
+    let mut phi = d.y.atan2(d.x);
+    if phi < 0.0 {
+        phi += 2.0 * PI;
+    }
+    let x = phi / (2.0 * PI) * w as f32 - 0.5;
+    let y = theta / PI * h as f32 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let i0 = (x0 as i64).rem_euclid(w);
+    let i1 = (i0 + 1) % w;
+    let j0 = (y0 as i64).clamp(0, h - 1);
+    let j1 = (y0 as i64 + 1).clamp(0, h - 1);
+    let at = |i: i64, j: i64| sky.texels[(j * w + i) as usize];
+    let (a, b, c, e) = (at(i0, j0), at(i1, j0), at(i0, j1), at(i1, j1));
+    [0, 1, 2].map(|k| {
+        let top = a[k] + (b[k] - a[k]) * fx;
+        let bottom = c[k] + (e[k] - c[k]) * fx;
+        top + (bottom - top) * fy
+    })
+}
+
+/// sRGB transfer function, encoding.
+pub fn linear_to_srgb(l: f32) -> f32 {
+    if l <= 0.003_130_8 {
+        l * 12.92
+    } else {
+        1.055 * l.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// The display value of radiance `l`: `1 − exp(−L·s)`, sRGB-encoded, rounded to 8 bits (what
+/// the tone-map pass writes into the `Rgba8UnormSrgb` target).
+pub fn tone_map(l: f32, exposure: f32) -> u8 {
+    let v = 1.0 - (-l.max(0.0) * exposure).exp();
+    (linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0).round() as u8
+}
+
+/// Tone-maps a radiance image into an sRGB RGBA8 image.
+pub fn tone_map_image(radiance: &[[f32; 3]], exposure: f32, (w, h): (u32, u32)) -> Rgba8Image {
+    Rgba8Image {
+        width: w,
+        height: h,
+        pixels: radiance
+            .iter()
+            .map(|l| {
+                let [r, g, b] = l.map(|c| tone_map(c, exposure));
+                [r, g, b, 255]
+            })
+            .collect(),
+    }
+}
+
+/// How far two images of the same size are apart (RGB only).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ImageDifference {
+    /// Mean absolute difference over pixels and channels, in 8-bit steps.
+    pub mad: f64,
+    /// Fraction of pixels where some channel differs by more than `threshold`.
+    pub fraction_over: f64,
+    pub threshold: u8,
+    /// Largest difference of any channel.
+    pub max: u8,
+}
+
+/// Compares two images (`None` when their sizes differ).
+pub fn image_difference(a: &Rgba8Image, b: &Rgba8Image, threshold: u8) -> Option<ImageDifference> {
+    if (a.width, a.height) != (b.width, b.height) || a.pixels.len() != b.pixels.len() {
+        return None;
+    }
+    let (mut sum, mut over, mut max) = (0u64, 0u64, 0u8);
+    for (p, q) in a.pixels.iter().zip(&b.pixels) {
+        let d = [0, 1, 2].map(|k| p[k].abs_diff(q[k]));
+        sum += d.iter().map(|&x| x as u64).sum::<u64>();
+        let m = d.into_iter().max().unwrap_or(0);
+        over += u64::from(m > threshold);
+        max = max.max(m);
+    }
+    let n = a.pixels.len().max(1) as f64;
+    Some(ImageDifference {
+        mad: sum as f64 / (3.0 * n),
+        fraction_over: over as f64 / n,
+        threshold,
+        max,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tone_map_matches_the_formula() {
+        // 1 − exp(−L s) = 0.5 at L s = ln 2; sRGB(0.5) = 0.7354 → 188.
+        assert_eq!(tone_map(std::f32::consts::LN_2, 1.0), 188);
+        assert_eq!(tone_map(0.0, 3.0), 0);
+        assert_eq!(tone_map(1e9, 1.0), 255);
+    }
+
+    #[test]
+    fn bilinear_interpolates_between_texel_centres() {
+        let texels = [[0u8, 0, 0, 0], [255, 0, 0, 0]];
+        let img = ImageData {
+            width: 2,
+            height: 1,
+            texels: &texels,
+        };
+        // u = 0.5 lies halfway between the centres 0.25 and 0.75.
+        let c = bilinear(&img, [0.5, 0.5], false, unorm);
+        assert!((c[0] - 0.5).abs() < 1e-6);
+        // Clamped beyond the last centre, wrapped when repeating.
+        assert_eq!(bilinear(&img, [1.0, 0.5], false, unorm)[0], 1.0);
+        assert!((bilinear(&img, [1.0, 0.5], true, unorm)[0] - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn tangent_frame_is_orthonormal_and_keeps_the_tangent_direction() {
+        let n = Vec3::new(0.2, -0.3, 0.9).normalize();
+        let (t, b, nn) = tangent_frame(n, Vec3::new(1.0, 0.1, 0.0));
+        assert!((t.length() - 1.0).abs() < 1e-5 && (b.length() - 1.0).abs() < 1e-5);
+        assert!(t.dot(nn).abs() < 1e-5 && b.dot(nn).abs() < 1e-5 && t.dot(b).abs() < 1e-5);
+        assert!(t.x > 0.9);
+    }
+
+    #[test]
+    fn image_difference_counts_pixels_over_the_threshold() {
+        let a = Rgba8Image {
+            width: 2,
+            height: 1,
+            pixels: vec![[10, 10, 10, 255], [100, 100, 100, 255]],
+        };
+        let mut b = a.clone();
+        b.pixels[1] = [100, 130, 100, 255];
+        let d = image_difference(&a, &b, 24).unwrap();
+        assert_eq!(d.max, 30);
+        assert!((d.mad - 30.0 / 6.0).abs() < 1e-12);
+        assert!((d.fraction_over - 0.5).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,182 @@
+// The direct sun of the shading contract: L_direct = E_sun · visibility · f(wi, wo) · |cos θi|.
+// f is the two-layer Schlick BRDF, a line-by-line port of `SchlickMaterial::eval`
+// (src/material/schlick.rs; keep the two in step), evaluated in the normal-mapped tangent frame;
+// visibility comes from the sun's shadow map (group 2, src/render/shadow.rs) with 3x3 PCF.
+// Prepended (after common.wgsl) to the terrain and mesh shaders.
+
+struct ShadowParams {
+    light_view_proj: mat4x4<f32>,
+    // x: one texel in uv, y: normal offset (m), z: depth bias (depth units), w: 1 = map used
+    params: vec4<f32>,
+};
+
+@group(2) @binding(0) var<uniform> shadow: ShadowParams;
+@group(2) @binding(1) var shadow_map: texture_depth_2d;
+@group(2) @binding(2) var shadow_sampler: sampler_comparison;
+
+struct SchlickLayer {
+    roughness: f32,
+    isotropy: f32,
+    diffuse: f32,
+    glossy: f32,
+    specular: f32,
+    color: vec3<f32>,
+};
+
+struct Schlick {
+    top: SchlickLayer,
+    bottom: SchlickLayer,
+    translucence: f32,
+};
+
+// The 96-byte `MaterialRecord` of src/material/section.rs as six vec4s: (r, p, a, b) and
+// (c, C) of the top layer, the same of the bottom layer, (bump, τ, opacity, flags), emission.
+fn schlick_from_record(v: array<vec4<f32>, 6>) -> Schlick {
+    let top = SchlickLayer(v[0].x, v[0].y, v[0].z, v[0].w, v[1].x, v[1].yzw);
+    let bottom = SchlickLayer(v[2].x, v[2].y, v[2].z, v[2].w, v[3].x, v[3].yzw);
+    return Schlick(top, bottom, v[4].y);
+}
+
+// G(v): Smith masking of the GGX distribution Z/π.
+fn schlick_shadowing(l: SchlickLayer, v: f32) -> f32 {
+    let r = max(l.roughness, 1e-4);
+    return 2.0 * v / (v + sqrt(r + (1.0 - r) * v * v));
+}
+
+// S(u) = C + (1 - C)(1 - u)^5.
+fn schlick_fresnel(l: SchlickLayer, u: f32) -> vec3<f32> {
+    let m = 1.0 - clamp(u, 0.0, 1.0);
+    let m2 = m * m;
+    return l.color + (vec3<f32>(1.0) - l.color) * (m2 * m2 * m);
+}
+
+// G·G'·Z·A / (4π v v').
+fn schlick_glossy_lobe(l: SchlickLayer, wi: vec3<f32>, wo: vec3<f32>, h: vec3<f32>) -> f32 {
+    let v = wo.z;
+    let vp = wi.z;
+    let r = max(l.roughness, 1e-4);
+    let t = h.z;
+    let d = 1.0 + r * t * t - t * t;
+    let z = r / (d * d);
+    let p = clamp(l.isotropy, 1e-4, 1.0);
+    let hxy = sqrt(h.x * h.x + h.y * h.y);
+    var w = 1.0;
+    if (hxy > 1e-7) {
+        w = h.x / hxy;
+    }
+    let a = sqrt(p / (p * p - p * p * w * w + w * w));
+    return schlick_shadowing(l, v) * schlick_shadowing(l, vp) * z * a / (4.0 * PI * v * vp);
+}
+
+fn schlick_reflectance(l: SchlickLayer, wi: vec3<f32>, wo: vec3<f32>, h: vec3<f32>, u: f32) -> vec3<f32> {
+    let d = l.diffuse / PI + l.glossy * schlick_glossy_lobe(l, wi, wo, h);
+    return schlick_fresnel(l, u) * d;
+}
+
+// `SchlickMaterial::eval`: light from wi, seen from wo, tangent frame, two-sided, translucent.
+fn schlick_eval(m: Schlick, wi_in: vec3<f32>, wo_in: vec3<f32>, map: vec3<f32>) -> vec3<f32> {
+    if (wi_in.z == 0.0 || wo_in.z == 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let bottom_color = m.bottom.color * map;
+    if ((wi_in.z > 0.0) != (wo_in.z > 0.0)) {
+        return m.translucence * bottom_color / PI;
+    }
+    let wi = vec3<f32>(wi_in.xy, abs(wi_in.z));
+    let wo = vec3<f32>(wo_in.xy, abs(wo_in.z));
+    let h = normalize(wi + wo);
+    let u = clamp(dot(wo, h), 0.0, 1.0);
+    let rt = schlick_reflectance(m.top, wi, wo, h, u);
+    var b = m.bottom;
+    b.color = bottom_color;
+    let rb = schlick_reflectance(b, wi, wo, h, u);
+    let through = (vec3<f32>(1.0) - schlick_fresnel(m.top, wi.z)) * (vec3<f32>(1.0) - schlick_fresnel(m.top, wo.z));
+    return (1.0 - m.translucence) * (rt + through * rb);
+}
+
+// Any unit vector orthogonal to unit n (Frisvad), as src/render/scene.rs `any_tangent`.
+fn any_tangent(n: vec3<f32>) -> vec3<f32> {
+    if (n.z < -0.999999) {
+        return vec3<f32>(0.0, -1.0, 0.0);
+    }
+    let a = 1.0 / (1.0 + n.z);
+    let b = -n.x * n.y * a;
+    return vec3<f32>(1.0 - n.x * n.x * a, b, -n.x);
+}
+
+// Orthonormal (t, b, n) around unit n with t as close to `t_in` as possible.
+fn shading_frame(n: vec3<f32>, t_in: vec3<f32>) -> mat3x3<f32> {
+    var t = t_in - n * dot(n, t_in);
+    if (dot(t, t) < 1e-12) {
+        t = any_tangent(n);
+    }
+    t = normalize(t);
+    return mat3x3<f32>(t, cross(n, t), n);
+}
+
+// The fraction of the sun seen at `world` (1 without a shadow map). The point is pushed along
+// the normal towards the sun's side before the lookup, and compared with a small depth bias.
+fn sun_visibility(world: vec3<f32>, n: vec3<f32>) -> f32 {
+    // `--soft-shadows`: the line-space visibility replaces the shadow map.
+    if (globals.sun_direction.w > 0.5) {
+        return soft_visibility_at(world);
+    }
+    if (shadow.params.w == 0.0) {
+        return 1.0;
+    }
+    let cos_s = dot(n, normalize(globals.sun_direction.xyz));
+    let side = select(-1.0, 1.0, cos_s >= 0.0);
+    let p = world + n * (side * shadow.params.y);
+    let c = shadow.light_view_proj * vec4<f32>(p, 1.0);
+    let uv = vec2<f32>(c.x * 0.5 + 0.5, 0.5 - c.y * 0.5);
+    // Slope-scaled: across the filter's reach (2 texels) a surface tilted by θ from the light
+    // changes depth by 2 tan θ texels.
+    let a = max(abs(cos_s), 1e-3);
+    let tan_s = min(sqrt(max(1.0 - a * a, 0.0)) / a, 8.0);
+    let depth = c.z - shadow.params.z * (1.0 + 2.0 * tan_s);
+    var sum = 0.0;
+    for (var dy = -1; dy <= 1; dy = dy + 1) {
+        for (var dx = -1; dx <= 1; dx = dx + 1) {
+            let o = vec2<f32>(f32(dx), f32(dy)) * shadow.params.x;
+            sum = sum + textureSampleCompareLevel(shadow_map, shadow_sampler, uv + o, depth);
+        }
+    }
+    return sum / 9.0;
+}
+
+// The sun's unit direction and irradiance; zero irradiance when there is no sun.
+fn sun_light() -> vec4<f32> {
+    let s = globals.sun_direction.xyz;
+    if (dot(s, s) < 1e-12) {
+        return vec4<f32>(0.0, 0.0, 1.0, 0.0);
+    }
+    return vec4<f32>(normalize(s), 1.0);
+}
+
+// Lambert under the sun: albedo/π · E · max(n·s, 0) · visibility (n faces the viewer).
+fn direct_lambert(albedo: vec3<f32>, n: vec3<f32>, world: vec3<f32>) -> vec3<f32> {
+    let sun = sun_light();
+    let c = max(dot(n, sun.xyz), 0.0) * sun.w;
+    if (c <= 0.0) {
+        return vec3<f32>(0.0);
+    }
+    return albedo / PI * globals.sun_irradiance.rgb * c * sun_visibility(world, n);
+}
+
+// Two-layer Schlick under the sun in the frame of shading normal `ns` and tangent `t`; `n` is
+// the interpolated (unmapped) normal used for the shadow lookup.
+fn direct_schlick(m: Schlick, map: vec3<f32>, ns: vec3<f32>, t: vec3<f32>, n: vec3<f32>, world: vec3<f32>) -> vec3<f32> {
+    let sun = sun_light();
+    if (sun.w == 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let f = shading_frame(ns, t);
+    let wo = normalize(globals.eye.xyz - world);
+    let wi_l = vec3<f32>(dot(sun.xyz, f[0]), dot(sun.xyz, f[1]), dot(sun.xyz, f[2]));
+    let wo_l = vec3<f32>(dot(wo, f[0]), dot(wo, f[1]), dot(wo, f[2]));
+    let fr = schlick_eval(m, wi_l, wo_l, map) * abs(wi_l.z);
+    if (max(fr.r, max(fr.g, fr.b)) <= 0.0) {
+        return vec3<f32>(0.0);
+    }
+    return globals.sun_irradiance.rgb * fr * sun_visibility(world, n);
+}
