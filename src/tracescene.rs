@@ -1,13 +1,25 @@
 //! The ray-tracing scene of a scene pack, shared by the light-map and environment-map stages:
 //! one alpha-tested BVH per model, the instances placed by their transforms, and the terrain as
-//! one more (opaque) instance built from its height grid.
+//! one more (opaque) instance: traced through its min/max quadtree ([`TerrainMode::Heightfield`],
+//! the default) or as a BVH over its triangle mesh ([`TerrainMode::Mesh`], kept for comparison;
+//! both give the same hits, see `rt::heightfield`).
 
 use crate::error::{Error, Result};
 use crate::model::{Instances, Mesh, Rgba8Image, Terrain};
 use crate::pack::Pack;
 use crate::pack::kinds;
-use crate::rt::{BuildPreset, InstanceTransform, ModelBvh, SceneBvh};
+use crate::rt::{BuildPreset, Heightfield, InstanceTransform, ModelBvh, SceneBvh};
 use std::sync::Arc;
+
+/// How the terrain is traced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TerrainMode {
+    /// The height grid through its min/max quadtree (no triangle BVH).
+    #[default]
+    Heightfield,
+    /// A BVH over the two triangles per cell (the previous path).
+    Mesh,
+}
 
 /// A traceable scene and what the lighting stages need to know about its surfaces.
 pub struct TraceScene {
@@ -80,6 +92,11 @@ pub fn mean_linear(img: &Rgba8Image) -> [f32; 3] {
 
 /// Builds the scene of a pack with `instances` (and optionally `terrain`) sections.
 pub fn trace_scene(pack: &Pack) -> Result<TraceScene> {
+    trace_scene_with(pack, TerrainMode::default())
+}
+
+/// [`trace_scene`] with a choice of terrain tracing.
+pub fn trace_scene_with(pack: &Pack, mode: TerrainMode) -> Result<TraceScene> {
     let bad = |e| Error::invalid(pack.path(), e);
     let (imeta, instances) =
         kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
@@ -127,33 +144,54 @@ pub fn trace_scene(pack: &Pack) -> Result<TraceScene> {
         .iter()
         .map(|i| albedo_of_model[i.model as usize])
         .collect();
+    let mut heightfield = None;
     let terrain = match pack.find("terrain") {
         Some(e) => {
-            let (tmeta, t) = kinds::terrain::from_section(&pack.view(e)?).map_err(bad)?;
+            let view = pack.view(e)?;
+            let (tmeta, t) = kinds::terrain::from_section(&view).map_err(bad)?;
             let color = tmeta
                 .color_section
                 .as_ref()
                 .and_then(|s| pack.view_named(s).ok())
                 .and_then(|v| kinds::texture::from_section(&v).ok());
             albedo.push(color.map_or([0.3; 3], |(_, img)| mean_linear(&img)));
-            models.push(Arc::new(ModelBvh::build(
-                &terrain_mesh(&t),
-                &[],
-                BuildPreset::Medium,
-            )?));
-            transforms.push(InstanceTransform {
-                model: (models.len() - 1) as u32,
-                translation: [0.0; 3],
-                scale: 1.0,
-                rotation_deg: 0.0,
-            });
+            match mode {
+                TerrainMode::Heightfield => {
+                    // The terrain stage's quadtree when the section has one.
+                    let stored = crate::terrain::section::is_prepared(&view)
+                        .then(|| crate::terrain::section::quadtree_from_section(&view))
+                        .transpose()
+                        .map_err(bad)?;
+                    heightfield = Some(Arc::new(match stored {
+                        Some(tree) => Heightfield::with_quadtree(&t, tree)?,
+                        None => Heightfield::new(&t)?,
+                    }));
+                }
+                TerrainMode::Mesh => {
+                    models.push(Arc::new(ModelBvh::build(
+                        &terrain_mesh(&t),
+                        &[],
+                        BuildPreset::Medium,
+                    )?));
+                    transforms.push(InstanceTransform {
+                        model: (models.len() - 1) as u32,
+                        translation: [0.0; 3],
+                        scale: 1.0,
+                        rotation_deg: 0.0,
+                    });
+                }
+            }
             Some(t)
         }
         None => None,
     };
     let instance_count = instances.items.len();
+    let mut bvh = SceneBvh::build(models, transforms)?;
+    if let Some(h) = heightfield {
+        bvh = bvh.with_terrain(h);
+    }
     Ok(TraceScene {
-        bvh: SceneBvh::build(models, transforms)?,
+        bvh,
         instance_count,
         terrain,
         albedo,

@@ -109,10 +109,10 @@ impl AlphaMask {
 
 /// A triangle prepared for Möller–Trumbore: `v0`, `e1 = v1 − v0`, `e2 = v2 − v0`.
 #[derive(Debug, Clone, Copy)]
-struct PreTri {
-    v0: Vec3A,
-    e1: Vec3A,
-    e2: Vec3A,
+pub(crate) struct PreTri {
+    pub(crate) v0: Vec3A,
+    pub(crate) e1: Vec3A,
+    pub(crate) e2: Vec3A,
 }
 
 /// What a slot (a triangle in leaf order) refers to.
@@ -407,7 +407,7 @@ impl ModelBvh {
 /// Möller–Trumbore ray/triangle test (both faces). Returns (t, u, v) for t in [tmin, tmax].
 /// Comparisons are written so that NaN never passes.
 #[inline(always)]
-fn intersect(tri: &PreTri, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
+pub(crate) fn intersect(tri: &PreTri, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
     let p = d.cross(tri.e2);
     let det = tri.e1.dot(p);
     if det == 0.0 {
