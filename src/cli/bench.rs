@@ -30,6 +30,8 @@ pub enum BenchWhat {
     Textures(TexturesBenchArgs),
     /// Terrain preparation (four-tap texture, normals, min/max quadtree) of a generated grid.
     Terrain(TerrainBenchArgs),
+    /// Terrain rays/s: heightfield (min/max quadtree) against the triangle-mesh BVH.
+    TerrainRays(crate::rt::bench::TerrainRaysBenchArgs),
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -100,6 +102,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Sky(a) => super::sky::bench(a, g),
         BenchWhat::Textures(a) => crate::texture::bench::bench_textures(a),
         BenchWhat::Terrain(a) => crate::terrain::bench::bench_terrain(a),
+        BenchWhat::TerrainRays(a) => crate::rt::bench::bench_terrain_rays(a),
     }
 }
 

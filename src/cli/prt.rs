@@ -143,6 +143,9 @@ pub struct RaysBenchArgs {
     /// Measure build time and raw rate of every preset.
     #[arg(long)]
     pub all_presets: bool,
+    /// Subdivision depth of the alpha-aware BVH build (0: one box per triangle).
+    #[arg(long, default_value_t = crate::rt::bvh::ALPHA_SPLIT_DEPTH)]
+    pub alpha_split: u32,
     /// Also bake every vertex with this many samples per side and report the time.
     #[arg(long)]
     pub bake_samples: Option<u32>,
@@ -183,6 +186,7 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
             samples: a.samples,
             bounces: a.bounces,
             preset: a.preset,
+            alpha_split: a.alpha_split,
             ..PrtOptions::default()
         },
         presets: if a.all_presets {

@@ -5,6 +5,7 @@
 //! Every query here is pure and single-threaded; batch helpers run queries over rayon and
 //! collect in input order, so results never depend on the thread count.
 
+pub mod bench;
 pub mod bvh;
 pub mod heightfield;
 pub mod scene;
