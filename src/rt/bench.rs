@@ -90,17 +90,19 @@ fn ray_set(hf: &Heightfield, set: &str, sun: Vec3A, n: usize) -> Vec<Ray> {
     (0..n as u64)
         .into_par_iter()
         .map(|k| {
-            let mut rng = Rng::new(k ^ 0x7e44_a1);
+            let mut rng = Rng::new(k ^ 0x007e_44a1);
             let (x, y) = (
                 lo.x + (hi.x - lo.x) * rng.next_f32(),
                 lo.y + (hi.y - lo.y) * rng.next_f32(),
             );
             // The surface point under (x, y): a vertical ray down from above the terrain.
             let down = Ray::new(Vec3A::new(x, y, hi.z + 1.0), Vec3A::NEG_Z, 0.0);
-            let (p, n) = hf.closest_hit(&down).map_or((Vec3A::new(x, y, lo.z), Vec3A::Z), |h| {
-                let s = hf.hit_point(&h);
-                (s.position, s.normal)
-            });
+            let (p, n) = hf
+                .closest_hit(&down)
+                .map_or((Vec3A::new(x, y, lo.z), Vec3A::Z), |h| {
+                    let s = hf.hit_point(&h);
+                    (s.position, s.normal)
+                });
             let d = match set {
                 "gather" => cosine_hemisphere(n, rng.next_f32(), rng.next_f32()),
                 "shadow" => sun,

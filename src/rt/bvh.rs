@@ -318,7 +318,9 @@ impl ModelBvh {
 
     /// Whether triangle `t` is in the BVH (not skipped, not fully transparent).
     pub fn contains_triangle(&self, t: u32) -> bool {
-        self.first_slot.get(t as usize).is_some_and(|&s| s != NO_SLOT)
+        self.first_slot
+            .get(t as usize)
+            .is_some_and(|&s| s != NO_SLOT)
     }
 
     /// Triangles left out of the BVH (non-finite positions).
@@ -596,7 +598,11 @@ fn alpha_boxes(
 ) -> (Vec<obvhs::aabb::Aabb>, Vec<u32>) {
     let counts: Vec<Option<OpaqueCount>> = masks
         .iter()
-        .map(|m| m.as_ref().filter(|m| !m.is_all_opaque()).map(OpaqueCount::new))
+        .map(|m| {
+            m.as_ref()
+                .filter(|m| !m.is_all_opaque())
+                .map(OpaqueCount::new)
+        })
         .collect();
     let per_tri: Vec<Vec<obvhs::aabb::Aabb>> = kept
         .par_iter()
@@ -634,7 +640,9 @@ fn split_opaque(
     depth: u32,
     out: &mut Vec<obvhs::aabb::Aabb>,
 ) {
-    let at = |b: [f32; 2], k: usize| uv[0][k] + b[0] * (uv[1][k] - uv[0][k]) + b[1] * (uv[2][k] - uv[0][k]);
+    let at = |b: [f32; 2], k: usize| {
+        uv[0][k] + b[0] * (uv[1][k] - uv[0][k]) + b[1] * (uv[2][k] - uv[0][k])
+    };
     let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
     for b in bary {
         for k in 0..2 {
@@ -672,7 +680,13 @@ fn split_opaque(
 /// Möller–Trumbore ray/triangle test (both faces). Returns (t, u, v) for t in [tmin, tmax].
 /// Comparisons are written so that NaN never passes.
 #[inline(always)]
-pub(crate) fn intersect(tri: &PreTri, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
+pub(crate) fn intersect(
+    tri: &PreTri,
+    o: Vec3A,
+    d: Vec3A,
+    tmin: f32,
+    tmax: f32,
+) -> Option<(f32, f32, f32)> {
     let p = d.cross(tri.e2);
     let det = tri.e1.dot(p);
     if det == 0.0 {
@@ -885,7 +899,10 @@ mod tests {
                 hits += a.is_some() as u32;
                 differ += (a.map(|h| h.t) != opaque.closest_hit(&r).map(|h| h.t)) as u32;
             }
-            assert!(hits > 500 && differ > 100, "depth {depth}: {hits} hits, {differ} differ");
+            assert!(
+                hits > 500 && differ > 100,
+                "depth {depth}: {hits} hits, {differ} differ"
+            );
         }
         // Depth 0 keeps every leaf triangle whole (each touches opaque texels); deeper builds
         // drop transparent corners and split the rest.
@@ -936,7 +953,10 @@ mod tests {
             seen_o += (expect == Coverage::Opaque) as u32;
             seen_m += (expect == Coverage::Mixed) as u32;
         }
-        assert!(seen_t > 100 && seen_o > 100 && seen_m > 100, "{seen_t} {seen_o} {seen_m}");
+        assert!(
+            seen_t > 100 && seen_o > 100 && seen_m > 100,
+            "{seen_t} {seen_o} {seen_m}"
+        );
     }
 
     #[test]
@@ -968,7 +988,11 @@ mod tests {
         };
         let bvh = ModelBvh::build(&mesh, &[Some(checker())], BuildPreset::default()).unwrap();
         assert!(!bvh.contains_triangle(0) && bvh.contains_triangle(1));
-        assert_eq!(bvh.primitive_count(), 1, "an all-opaque triangle is one box");
+        assert_eq!(
+            bvh.primitive_count(),
+            1,
+            "an all-opaque triangle is one box"
+        );
         let up = Ray::new(Vec3A::new(0.2, 0.2, -1.0), Vec3A::Z, 0.0);
         let h = bvh.closest_hit(&up).unwrap();
         assert_eq!((h.triangle, h.t), (1, 2.0));

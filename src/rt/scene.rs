@@ -401,7 +401,9 @@ mod tests {
         let with_hf = s.clone().with_terrain(hf);
         let mut models = s.models.clone();
         let mesh = crate::tracescene::terrain_mesh(&t);
-        models.push(Arc::new(ModelBvh::build(&mesh, &[], BuildPreset::Fast).unwrap()));
+        models.push(Arc::new(
+            ModelBvh::build(&mesh, &[], BuildPreset::Fast).unwrap(),
+        ));
         let mut instances = s.instances().to_vec();
         instances.push(InstanceTransform {
             model: (models.len() - 1) as u32,
@@ -426,8 +428,14 @@ mod tests {
             );
             let r = Ray::new(o, d.normalize_or(Vec3A::X), 1e-4);
             let (a, b) = (with_hf.closest_hit(&r), with_mesh.closest_hit(&r));
-            assert_eq!(a.map(|h| (h.hit.t, h.instance)), b.map(|h| (h.hit.t, h.instance)));
-            assert_eq!(with_hf.brute_force_closest_hit(&r).map(|h| h.hit.t), a.map(|h| h.hit.t));
+            assert_eq!(
+                a.map(|h| (h.hit.t, h.instance)),
+                b.map(|h| (h.hit.t, h.instance))
+            );
+            assert_eq!(
+                with_hf.brute_force_closest_hit(&r).map(|h| h.hit.t),
+                a.map(|h| h.hit.t)
+            );
             assert_eq!(with_hf.any_hit(&r), a.is_some());
             if let (Some(a), Some(b)) = (a, b) {
                 let (sa, sb) = (with_hf.surface(&a), with_mesh.surface(&b));

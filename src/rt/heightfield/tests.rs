@@ -138,7 +138,9 @@ fn vertical_rays_from_above_and_below_hit_the_two_triangle_surface() {
         let tol = 1e-3 * (1.0 + z.abs());
         for (oz, dz) in [(zhi + 5.0, -1.0), (zlo - 5.0, 1.0)] {
             let r = Ray::new(Vec3A::new(x, y, oz), Vec3A::new(0.0, 0.0, dz), 0.0);
-            let h = hf.closest_hit(&r).expect("a vertical ray over the grid hits it");
+            let h = hf
+                .closest_hit(&r)
+                .expect("a vertical ray over the grid hits it");
             let p = hf.hit_point(&h);
             assert!((p.position.z - z).abs() < tol, "{} vs {z}", p.position.z);
             assert!((r.at(h.t).z - z).abs() < tol);
@@ -163,7 +165,10 @@ fn grazing_rays_along_grid_lines_and_diagonals_equal_brute_force() {
     let mut rng = Rng::new(10);
     let mut hits = 0;
     for _ in 0..3000 {
-        let (i, j) = ((rng.next_f32() * 30.0) as u32, (rng.next_f32() * 28.0) as u32);
+        let (i, j) = (
+            (rng.next_f32() * 30.0) as u32,
+            (rng.next_f32() * 28.0) as u32,
+        );
         let p = Vec3A::from(t.position(i, j));
         // Along a row, a column, a cell diagonal or its mirror: rays through vertices and edges.
         let dirs = [
@@ -211,8 +216,12 @@ fn rays_starting_on_the_surface() {
             t.origin[1] + fy * t.extent[1] / 49.0,
             two_triangle_height(&t, fx, fy),
         );
-        let d = Vec3A::new(rng.next_f32() - 0.5, rng.next_f32() - 0.5, rng.next_f32() - 0.5)
-            .normalize_or(Vec3A::Z);
+        let d = Vec3A::new(
+            rng.next_f32() - 0.5,
+            rng.next_f32() - 0.5,
+            rng.next_f32() - 0.5,
+        )
+        .normalize_or(Vec3A::Z);
         for tmin in [0.0, 1e-3] {
             let r = Ray::new(o, d, tmin);
             let b = hf.brute_force_closest_hit(&r);
