@@ -204,7 +204,9 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
          raw obvhs   {:>8.3}  {:>8}   ({} rays)\n\
          PRT         {:>8.3}  {:>8}   ({} rays)\n\
          PRT opaque  {:>8.3}  {:>8}   (no alpha test)\n\
-         efficiency  {:>8.3}  {:>8.3}\n",
+         raw alpha   {:>8.3}  {:>8}   (raw rays, alpha-tested BVH)\n\
+         efficiency  {:>8.3}  {:>8.3}\n\
+         efficiency vs raw alpha     {:>8.3}\n",
         r.triangles,
         r.vertices_traced,
         r.threads,
@@ -217,8 +219,11 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
         r.prt_rays,
         r.prt_opaque_rays_per_second / 1e6,
         cpu(r.prt_opaque_rays_per_cpu_second),
+        r.raw_alpha_rays_per_second / 1e6,
+        cpu(r.raw_alpha_rays_per_cpu_second),
         r.efficiency_wall,
         r.efficiency,
+        r.efficiency_alpha,
     );
     for p in &r.presets {
         text.push_str(&format!(

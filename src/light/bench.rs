@@ -72,6 +72,13 @@ pub struct RaysBenchReport {
     /// PRT rays per second with every texel opaque (no alpha test).
     pub prt_opaque_rays_per_second: f64,
     pub prt_opaque_rays_per_cpu_second: Option<f64>,
+    /// The raw rays again, through the PRT's alpha-tested BVH (closest hit with the alpha test,
+    /// no PRT machinery): the cost of the query itself on alpha-tested geometry.
+    pub raw_alpha_rays_per_second: f64,
+    pub raw_alpha_rays_per_cpu_second: Option<f64>,
+    /// PRT rays per CPU-second over raw alpha-tested rays per CPU-second (the overhead of the
+    /// PRT machinery alone; wall-clock ratio where CPU time is not available).
+    pub efficiency_alpha: f64,
     pub presets: Vec<PresetResult>,
     pub full_bake: Option<FullBake>,
 }
@@ -122,6 +129,13 @@ pub fn bench_rays(
     // The same PRT without alpha masks: separates the cost of the alpha test (rays that pass
     // through transparent texels travel further) from the cost of the PRT machinery.
     let (opaque_rays, opaque_t) = prt_timing(&opaque, mesh, materials, &verts, &opts.prt);
+    let raw_alpha = time_best(|| {
+        let hits: usize = rays
+            .par_iter()
+            .map(|r| bvh.closest_hit(r).is_some() as usize)
+            .sum();
+        std::hint::black_box(hits);
+    });
     // Both measured or neither: a ratio of a CPU rate and a wall rate means nothing.
     let (raw, prt) = match (raw.cpu, prt.cpu) {
         (Some(_), Some(_)) => (raw, prt),
@@ -150,6 +164,12 @@ pub fn bench_rays(
         prt_rays_per_cpu_second: prt_cpu,
         prt_opaque_rays_per_second: opaque_rays as f64 / opaque_t.wall,
         prt_opaque_rays_per_cpu_second: per(opaque_rays, opaque_t.cpu),
+        raw_alpha_rays_per_second: raw_rays as f64 / raw_alpha.wall,
+        raw_alpha_rays_per_cpu_second: per(raw_rays, raw_alpha.cpu),
+        efficiency_alpha: per(raw_rays, raw_alpha.cpu).zip(prt_cpu).map_or(
+            prt_rays as f64 / prt.wall * raw_alpha.wall / raw_rays as f64,
+            |(r, p)| p / r,
+        ),
         presets,
         full_bake,
     })

@@ -9,14 +9,15 @@
 //! reference implementation (an exhaustive loop over the mesh's triangles with the same triangle
 //! and alpha test) the tests compare against.
 //!
-//! Alpha-aware build: a triangle of a material with an alpha mask is not one BVH primitive but
-//! up to 4^[`ALPHA_SPLIT_DEPTH`] boxes: its barycentric midpoint subdivision, where sub-triangles
-//! whose texels (every texel their texture-coordinate box touches, padded) are all transparent
-//! are dropped, and all-opaque ones are kept whole. A fully transparent triangle thus leaves the
-//! BVH, and rays through the transparent corners of a leaf quad skip its leaf boxes instead of
-//! testing the triangle and the texture. Every box still refers to the whole triangle (the hit
-//! test and the alpha test are unchanged, so results are exactly those of the brute force); a
-//! traversal skips a triangle it has just tested through a neighbouring box.
+//! Alpha-aware build: every texel a masked triangle can read (its texture-coordinate box,
+//! padded) is classified with a summed-area table. A triangle whose texels are all transparent
+//! leaves the BVH; one whose texels are all opaque skips the alpha test. With a split depth
+//! d > 0 a mixed triangle becomes up to 4^d boxes of its barycentric midpoint subdivision, with
+//! the all-transparent parts dropped (rays through the transparent corners of a leaf quad then
+//! miss its boxes). Every box still refers to the whole triangle, so hit and alpha tests, and
+//! thus results, are exactly the brute force's; a traversal skips a triangle it has just tested
+//! through a neighbouring box. The default depth is 0: on the procedural plant the finer boxes
+//! made PRT slower (docs/PERFORMANCE.md).
 
 use super::{Hit, Ray};
 use crate::error::{Error, Result};
@@ -143,7 +144,7 @@ const NO_SLOT: u32 = u32::MAX;
 
 /// Subdivision depth of the alpha-aware build (up to 4^depth boxes per masked triangle); chosen
 /// by `bake bench rays` (docs/PERFORMANCE.md).
-pub const ALPHA_SPLIT_DEPTH: u32 = 2;
+pub const ALPHA_SPLIT_DEPTH: u32 = 0;
 
 /// A point on the surface at a hit, with attributes interpolated from the vertices.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -214,10 +215,13 @@ impl ModelBvh {
             .collect();
         let mut model = Self::from_mesh(mesh, masks, mesh.indices.len() - kept.len());
         let masked = masks.iter().flatten().any(|m| !m.is_all_opaque());
+        // Per kept triangle: all its texels are opaque (no alpha test needed).
+        let mut skip_alpha = Vec::new();
         let (bvh, order) = if tris.is_empty() {
             (None, Vec::new())
         } else if masked {
-            let (boxes, owner) = alpha_boxes(&tris, &kept, mesh, masks, split_depth.min(8));
+            let (boxes, owner, opaque) = alpha_boxes(&tris, &kept, mesh, masks, split_depth.min(8));
+            skip_alpha = opaque;
             let bvh = (!boxes.is_empty()).then(|| {
                 obvhs::cwbvh::builder::build_cwbvh(
                     &boxes,
@@ -241,7 +245,7 @@ impl ModelBvh {
             let order = b.primitive_indices.clone();
             (Some(b), order)
         };
-        model.fill_slots(&order, &kept, masks);
+        model.fill_slots(&order, &kept, masks, &skip_alpha);
         model.bvh = bvh;
         Ok(model)
     }
@@ -268,7 +272,14 @@ impl ModelBvh {
     }
 
     /// Lays the triangles out in leaf order (`order[slot]` indexes `kept`).
-    fn fill_slots(&mut self, order: &[u32], kept: &[u32], masks: &[Option<AlphaMask>]) {
+    /// `skip_alpha[k]` (if present): kept triangle k reads only opaque texels.
+    fn fill_slots(
+        &mut self,
+        order: &[u32],
+        kept: &[u32],
+        masks: &[Option<AlphaMask>],
+        skip_alpha: &[bool],
+    ) {
         // Material → index into `self.masks` (which holds only the present masks).
         let mut mask_of = Vec::with_capacity(masks.len());
         let mut next = 0u32;
@@ -291,9 +302,13 @@ impl ModelBvh {
                 e2: p(c) - p(a),
             });
             let mat = self.triangle_materials[t as usize];
+            let opaque = skip_alpha.get(k as usize).copied().unwrap_or(false);
             self.slot_info.push(SlotInfo {
                 triangle: t,
-                mask: mask_of.get(mat as usize).copied().unwrap_or(NO_MASK),
+                mask: match opaque {
+                    true => NO_MASK,
+                    false => mask_of.get(mat as usize).copied().unwrap_or(NO_MASK),
+                },
                 material: mat,
             });
             let uv = |i: u32| self.uvs[i as usize];
@@ -564,6 +579,27 @@ impl OpaqueCount {
         }
     }
 
+    /// Coverage of the sub-triangle with barycentric corners `bary` (weights of vertices 1 and
+    /// 2) of a triangle with texture coordinates `uv`.
+    fn coverage_of(&self, uv: &[[f32; 2]; 3], bary: [[f32; 2]; 3]) -> Coverage {
+        let at = |b: [f32; 2], k: usize| {
+            uv[0][k] + b[0] * (uv[1][k] - uv[0][k]) + b[1] * (uv[2][k] - uv[0][k])
+        };
+        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+        for b in bary {
+            for k in 0..2 {
+                lo[k] = lo[k].min(at(b, k));
+                hi[k] = hi[k].max(at(b, k));
+            }
+        }
+        // Margin: a hit's interpolated coordinate may round a little outside the corners' box.
+        let pad = [1e-3 / self.w as f32, 1e-3 / self.h as f32];
+        self.coverage(
+            [lo[0] - pad[0], lo[1] - pad[1]],
+            [hi[0] + pad[0], hi[1] + pad[1]],
+        )
+    }
+
     /// Coverage of every texel that nearest sampling (repeating) can read for texture
     /// coordinates in the box [lo, hi].
     fn coverage(&self, lo: [f32; 2], hi: [f32; 2]) -> Coverage {
@@ -595,7 +631,7 @@ fn alpha_boxes(
     mesh: &Mesh,
     masks: &[Option<AlphaMask>],
     depth: u32,
-) -> (Vec<obvhs::aabb::Aabb>, Vec<u32>) {
+) -> (Vec<obvhs::aabb::Aabb>, Vec<u32>, Vec<bool>) {
     let counts: Vec<Option<OpaqueCount>> = masks
         .iter()
         .map(|m| {
@@ -604,29 +640,34 @@ fn alpha_boxes(
                 .map(OpaqueCount::new)
         })
         .collect();
-    let per_tri: Vec<Vec<obvhs::aabb::Aabb>> = kept
+    let per_tri: Vec<(Vec<obvhs::aabb::Aabb>, bool)> = kept
         .par_iter()
         .zip(tris)
         .map(|(&t, tri)| {
             let mat = mesh.triangle_materials[t as usize] as usize;
             let Some(count) = counts.get(mat).and_then(|c| c.as_ref()) else {
-                return vec![tri.aabb()];
+                return (vec![tri.aabb()], false);
             };
             let p = [tri.v0, tri.v1, tri.v2].map(|v| Vec3A::from(v.to_array()));
             let uv = mesh.indices[t as usize].map(|i| mesh.uvs[i as usize]);
-            let mut out = Vec::new();
             let corners = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
+            if count.coverage_of(&uv, corners) == Coverage::Opaque {
+                return (vec![tri.aabb()], true);
+            }
+            let mut out = Vec::new();
             split_opaque(&p, &uv, count, corners, depth, &mut out);
-            out
+            (out, false)
         })
         .collect();
     let mut boxes = Vec::new();
     let mut owner = Vec::new();
-    for (k, b) in per_tri.into_iter().enumerate() {
+    let mut opaque = Vec::with_capacity(per_tri.len());
+    for (k, (b, o)) in per_tri.into_iter().enumerate() {
         owner.extend(std::iter::repeat_n(k as u32, b.len()));
         boxes.extend(b);
+        opaque.push(o);
     }
-    (boxes, owner)
+    (boxes, owner, opaque)
 }
 
 /// Adds the boxes of the sub-triangle with barycentric corners `bary` (weights of p1 and p2)
@@ -640,21 +681,7 @@ fn split_opaque(
     depth: u32,
     out: &mut Vec<obvhs::aabb::Aabb>,
 ) {
-    let at = |b: [f32; 2], k: usize| {
-        uv[0][k] + b[0] * (uv[1][k] - uv[0][k]) + b[1] * (uv[2][k] - uv[0][k])
-    };
-    let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
-    for b in bary {
-        for k in 0..2 {
-            lo[k] = lo[k].min(at(b, k));
-            hi[k] = hi[k].max(at(b, k));
-        }
-    }
-    // Margin: a hit's interpolated coordinate may round a little outside the corners' box.
-    let pad = [1e-3 / count.w as f32, 1e-3 / count.h as f32];
-    let lo = [lo[0] - pad[0], lo[1] - pad[1]];
-    let hi = [hi[0] + pad[0], hi[1] + pad[1]];
-    let cov = count.coverage(lo, hi);
+    let cov = count.coverage_of(uv, bary);
     if cov == Coverage::Transparent {
         return;
     }
