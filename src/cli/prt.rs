@@ -236,12 +236,13 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
     }
     if let Some(b) = &r.full_bake {
         text.push_str(&format!(
-            "full bake: {} vertices × 2 sides × {} samples, {} bounces: {:.2} s \
+            "full bake: {} vertices × 2 sides × {} samples, {} bounces: {:.2} s, {} CPU-s \
              (BVH {:.2} s, {:.3} M rays/s)\n",
             b.vertices,
             b.samples,
             b.bounces,
             b.seconds,
+            b.cpu_seconds.map_or("-".into(), |c| format!("{c:.1}")),
             b.build_seconds,
             b.rays_per_second / 1e6
         ));

@@ -47,6 +47,8 @@ pub struct FullBake {
     pub samples: u32,
     pub bounces: u32,
     pub seconds: f64,
+    /// CPU time of the whole bake (all threads; Linux only).
+    pub cpu_seconds: Option<f64>,
     pub build_seconds: f64,
     pub rays: u64,
     pub rays_per_second: f64,
@@ -275,16 +277,18 @@ fn full_bake(
         samples,
         ..o.clone()
     };
-    let start = Instant::now();
+    let (start, cpu0) = (Instant::now(), cpu_seconds());
     let bvh = ModelBvh::build_split(mesh, masks, o.preset, o.alpha_split)?;
     let build_seconds = start.elapsed().as_secs_f64();
     let t = prt::bake_prt_with(&bvh, mesh, materials, &o, &|_| {});
     let seconds = start.elapsed().as_secs_f64();
+    let cpu_seconds = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
     Ok(FullBake {
         vertices: t.vertices,
         samples,
         bounces: o.bounces,
         seconds,
+        cpu_seconds,
         build_seconds,
         rays: t.rays,
         rays_per_second: t.rays as f64 / (seconds - build_seconds).max(1e-9),
