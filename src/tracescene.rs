@@ -199,3 +199,121 @@ pub fn trace_scene_with(pack: &Pack, mode: TerrainMode) -> Result<TraceScene> {
         instances,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Instance, Material};
+    use crate::pack::PackWriter;
+    use crate::rt::{Ray, Rng};
+    use glam::Vec3A;
+
+    /// A pack with one box-ish model, 12 instances and a rough 30×20 terrain; with `prepared`
+    /// the terrain section carries the terrain stage's quadtree.
+    fn pack(prepared: bool) -> Pack {
+        let mut rng = Rng::new(3);
+        let t = Terrain {
+            width: 30,
+            height: 20,
+            heights: (0..600).map(|_| rng.next_f32() * 2.0).collect(),
+            origin: [-5.0, -5.0],
+            extent: [40.0, 30.0],
+            color: None,
+        };
+        let mut mesh = Mesh {
+            materials: vec![Material::default()],
+            ..Mesh::default()
+        };
+        for k in 0..40u32 {
+            for _ in 0..3 {
+                mesh.positions
+                    .push([rng.next_f32(), rng.next_f32(), rng.next_f32() * 3.0]);
+                mesh.normals.push([0.0, 0.0, 1.0]);
+                mesh.uvs.push([0.0, 0.0]);
+            }
+            mesh.indices.push([3 * k, 3 * k + 1, 3 * k + 2]);
+            mesh.triangle_materials.push(0);
+        }
+        let instances = Instances {
+            models: vec!["blob".into()],
+            items: (0..12)
+                .map(|_| Instance {
+                    model: 0,
+                    position: [
+                        rng.next_f32() * 30.0 - 5.0,
+                        rng.next_f32() * 20.0 - 5.0,
+                        1.0,
+                    ],
+                    scale: 1.0 + rng.next_f32(),
+                    rotation_deg: rng.next_f32() * 360.0,
+                    layer: 0,
+                })
+                .collect(),
+        };
+        let mut w = PackWriter::new();
+        w.insert(kinds::mesh::to_section("mesh.blob", "blob.obj", &mesh, &[]));
+        w.insert(kinds::instances::to_section(
+            "instances",
+            &instances,
+            vec!["mesh.blob".into()],
+        ));
+        let terrain = if prepared {
+            let meta = kinds::terrain::TerrainMeta {
+                width: t.width,
+                height: t.height,
+                origin: t.origin,
+                extent: t.extent,
+                color_section: None,
+                source: "test".into(),
+            };
+            let p = crate::terrain::prepare_terrain(&t).unwrap();
+            crate::terrain::section::to_section("terrain", &meta, &t, &p).unwrap()
+        } else {
+            kinds::terrain::to_section("terrain", "test", &t, None)
+        };
+        w.insert(terrain);
+        Pack::from_bytes(&w.to_bytes().unwrap(), "test.bake").unwrap()
+    }
+
+    #[test]
+    fn heightfield_and_mesh_terrain_modes_trace_the_same_scene() {
+        for prepared in [false, true] {
+            let p = pack(prepared);
+            let hf = trace_scene(&p).unwrap();
+            let mesh = trace_scene_with(&p, TerrainMode::Mesh).unwrap();
+            assert_eq!(hf.instance_count, 12);
+            assert_eq!(hf.bvh.terrain_instance(), Some(12));
+            assert_eq!(
+                mesh.bvh.instances().len(),
+                13,
+                "the mesh terrain is the last instance"
+            );
+            assert_eq!(hf.albedo, mesh.albedo);
+            let mut rng = Rng::new(9);
+            let mut terrain_hits = 0;
+            for _ in 0..2000 {
+                let o = Vec3A::new(
+                    rng.next_f32() * 40.0 - 5.0,
+                    rng.next_f32() * 30.0 - 5.0,
+                    rng.next_f32() * 6.0,
+                );
+                let d = Vec3A::new(rng.next_f32() - 0.5, rng.next_f32() - 0.5, -rng.next_f32());
+                let r = Ray::new(o, d.normalize_or(Vec3A::NEG_Z), 1e-4);
+                let (a, b) = (hf.bvh.closest_hit(&r), mesh.bvh.closest_hit(&r));
+                assert_eq!(
+                    a.map(|h| (h.instance, h.hit.t)),
+                    b.map(|h| (h.instance, h.hit.t)),
+                    "{r:?}"
+                );
+                assert_eq!(hf.bvh.any_hit(&r), mesh.bvh.any_hit(&r));
+                if let (Some(a), Some(b)) = (a, b) {
+                    let (sa, sb) = (hf.bvh.surface(&a), mesh.bvh.surface(&b));
+                    assert!((sa.position - sb.position).length() < 1e-4);
+                    assert!((sa.shading_normal - sb.shading_normal).length() < 1e-4);
+                    terrain_hits += (a.instance == 12) as u32;
+                }
+            }
+            assert!(terrain_hits > 500, "{terrain_hits}");
+        }
+    }
+}
