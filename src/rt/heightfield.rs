@@ -67,6 +67,7 @@ struct Node {
 /// The ray in grid space (x and y in cells, z unchanged; `t` is the world ray's `t`).
 struct GridRay {
     o: Vec3A,
+    d: Vec3A,
     inv: Vec3A,
 }
 
@@ -220,12 +221,30 @@ impl Heightfield {
             ray.dir.y / self.step[1],
             ray.dir.z,
         );
-        GridRay { o, inv: d.recip() }
+        GridRay {
+            o,
+            d,
+            inv: d.recip(),
+        }
     }
 
     /// Entry distance of node (k, x, y)'s padded box, if the ray meets it within [tmin, tmax].
     #[inline]
     fn enter(&self, g: &GridRay, k: u32, x: u32, y: u32, tmin: f32, tmax: f32) -> Option<f32> {
+        self.span(g, k, x, y, tmin, tmax).map(|s| s.0)
+    }
+
+    /// Entry and exit distances of node (k, x, y)'s padded box within [tmin, tmax].
+    #[inline]
+    fn span(
+        &self,
+        g: &GridRay,
+        k: u32,
+        x: u32,
+        y: u32,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<(f32, f32)> {
         let l0 = self.tree.level(0);
         let x0 = (x << k) as f32;
         let y0 = (y << k) as f32;
@@ -240,7 +259,7 @@ impl Heightfield {
         // which touches no surface), so the box is then missed or bounded by the other axes.
         let near = t0.min(t1).max_element().max(tmin);
         let far = t0.max(t1).min_element().min(tmax);
-        (near <= far).then_some(near)
+        (near <= far).then_some((near, far))
     }
 
     /// The children of node `n` the ray enters before `tmax`, pushed farthest first.
@@ -267,14 +286,44 @@ impl Heightfield {
         }
     }
 
+    /// Where a descent starts: the smallest node whose cells cover the footprint of the ray's
+    /// segment inside the terrain's box (every cell the ray can hit lies under it), so short
+    /// segments (rays leaving the surface upwards, shadow rays) skip the upper levels.
     fn root(&self, g: &GridRay, ray: &Ray) -> Option<Node> {
-        let k = (self.tree.levels() - 1) as u32;
-        let t = self.enter(g, k, 0, 0, ray.tmin, ray.tmax)?;
-        Some(Node {
-            level: k,
+        let top = (self.tree.levels() - 1) as u32;
+        let (t0, t1) = self.span(g, top, 0, 0, ray.tmin, ray.tmax)?;
+        let root = Node {
+            level: top,
             x: 0,
             y: 0,
-            t,
+            t: t0,
+        };
+        let (a, b) = (g.o + g.d * t0, g.o + g.d * t1);
+        if !(a.is_finite() && b.is_finite()) {
+            return Some(root);
+        }
+        let l0 = self.tree.level(0);
+        // `as u32` saturates (negative → 0); the margin reaches the cell on the other side of a
+        // cell edge the segment ends on.
+        let cell = |v: f32, n: u32| (v as u32).min(n - 1);
+        let pad = 2.0 * PAD_CELLS;
+        let (x0, x1) = (
+            cell(a.x.min(b.x) - pad, l0.width),
+            cell(a.x.max(b.x) + pad, l0.width),
+        );
+        let (y0, y1) = (
+            cell(a.y.min(b.y) - pad, l0.height),
+            cell(a.y.max(b.y) + pad, l0.height),
+        );
+        let mut k = 0;
+        while k < top && (x0 >> k != x1 >> k || y0 >> k != y1 >> k) {
+            k += 1;
+        }
+        Some(Node {
+            level: k,
+            x: x0 >> k,
+            y: y0 >> k,
+            t: t0,
         })
     }
 
