@@ -53,6 +53,8 @@ enum Command {
     Svo(cli::svo::SvoArgs),
     /// Build the N-tree with line spaces (soft-shadow acceleration) of a model or pack.
     Linespace(cli::linespace::LinespaceArgs),
+    /// Check the GPU traversal of a pack's svo and linespace sections against the CPU.
+    Validate(cli::validate::ValidateArgs),
 }
 
 fn run(cli: &Cli) -> Result<Outcome, Error> {
@@ -74,6 +76,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Render(a) => cli::render::run(a, g),
         Command::Svo(a) => cli::svo::run(a, g),
         Command::Linespace(a) => cli::linespace::run(a, g),
+        Command::Validate(a) => cli::validate::run(a, g),
     }
 }
 

@@ -1,13 +1,25 @@
 //! The ray-tracing scene of a scene pack, shared by the light-map and environment-map stages:
 //! one alpha-tested BVH per model, the instances placed by their transforms, and the terrain as
-//! one more (opaque) instance built from its height grid.
+//! one more (opaque) instance: traced through its min/max quadtree ([`TerrainMode::Heightfield`],
+//! the default) or as a BVH over its triangle mesh ([`TerrainMode::Mesh`], kept for comparison;
+//! both give the same hits, see `rt::heightfield`).
 
 use crate::error::{Error, Result};
 use crate::model::{Instances, Mesh, Rgba8Image, Terrain};
 use crate::pack::Pack;
 use crate::pack::kinds;
-use crate::rt::{BuildPreset, InstanceTransform, ModelBvh, SceneBvh};
+use crate::rt::{BuildPreset, Heightfield, InstanceTransform, ModelBvh, SceneBvh};
 use std::sync::Arc;
+
+/// How the terrain is traced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TerrainMode {
+    /// The height grid through its min/max quadtree (no triangle BVH).
+    #[default]
+    Heightfield,
+    /// A BVH over the two triangles per cell (the previous path).
+    Mesh,
+}
 
 /// A traceable scene and what the lighting stages need to know about its surfaces.
 pub struct TraceScene {
@@ -80,6 +92,11 @@ pub fn mean_linear(img: &Rgba8Image) -> [f32; 3] {
 
 /// Builds the scene of a pack with `instances` (and optionally `terrain`) sections.
 pub fn trace_scene(pack: &Pack) -> Result<TraceScene> {
+    trace_scene_with(pack, TerrainMode::default())
+}
+
+/// [`trace_scene`] with a choice of terrain tracing.
+pub fn trace_scene_with(pack: &Pack, mode: TerrainMode) -> Result<TraceScene> {
     let bad = |e| Error::invalid(pack.path(), e);
     let (imeta, instances) =
         kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
@@ -127,37 +144,176 @@ pub fn trace_scene(pack: &Pack) -> Result<TraceScene> {
         .iter()
         .map(|i| albedo_of_model[i.model as usize])
         .collect();
+    let mut heightfield = None;
     let terrain = match pack.find("terrain") {
         Some(e) => {
-            let (tmeta, t) = kinds::terrain::from_section(&pack.view(e)?).map_err(bad)?;
+            let view = pack.view(e)?;
+            let (tmeta, t) = kinds::terrain::from_section(&view).map_err(bad)?;
             let color = tmeta
                 .color_section
                 .as_ref()
                 .and_then(|s| pack.view_named(s).ok())
                 .and_then(|v| kinds::texture::from_section(&v).ok());
             albedo.push(color.map_or([0.3; 3], |(_, img)| mean_linear(&img)));
-            models.push(Arc::new(ModelBvh::build(
-                &terrain_mesh(&t),
-                &[],
-                BuildPreset::Medium,
-            )?));
-            transforms.push(InstanceTransform {
-                model: (models.len() - 1) as u32,
-                translation: [0.0; 3],
-                scale: 1.0,
-                rotation_deg: 0.0,
-            });
+            match mode {
+                TerrainMode::Heightfield => {
+                    // The terrain stage's quadtree when the section has one.
+                    let stored = crate::terrain::section::is_prepared(&view)
+                        .then(|| crate::terrain::section::quadtree_from_section(&view))
+                        .transpose()
+                        .map_err(bad)?;
+                    heightfield = Some(Arc::new(match stored {
+                        Some(tree) => Heightfield::with_quadtree(&t, tree)?,
+                        None => Heightfield::new(&t)?,
+                    }));
+                }
+                TerrainMode::Mesh => {
+                    models.push(Arc::new(ModelBvh::build(
+                        &terrain_mesh(&t),
+                        &[],
+                        BuildPreset::Medium,
+                    )?));
+                    transforms.push(InstanceTransform {
+                        model: (models.len() - 1) as u32,
+                        translation: [0.0; 3],
+                        scale: 1.0,
+                        rotation_deg: 0.0,
+                    });
+                }
+            }
             Some(t)
         }
         None => None,
     };
     let instance_count = instances.items.len();
+    let mut bvh = SceneBvh::build(models, transforms)?;
+    if let Some(h) = heightfield {
+        bvh = bvh.with_terrain(h);
+    }
     Ok(TraceScene {
-        bvh: SceneBvh::build(models, transforms)?,
+        bvh,
         instance_count,
         terrain,
         albedo,
         model_height,
         instances,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Instance, Material};
+    use crate::pack::PackWriter;
+    use crate::rt::{Ray, Rng};
+    use glam::Vec3A;
+
+    /// A pack with one box-ish model, 12 instances and a rough 30×20 terrain; with `prepared`
+    /// the terrain section carries the terrain stage's quadtree.
+    fn pack(prepared: bool) -> Pack {
+        let mut rng = Rng::new(3);
+        let t = Terrain {
+            width: 30,
+            height: 20,
+            heights: (0..600).map(|_| rng.next_f32() * 2.0).collect(),
+            origin: [-5.0, -5.0],
+            extent: [40.0, 30.0],
+            color: None,
+        };
+        let mut mesh = Mesh {
+            materials: vec![Material::default()],
+            ..Mesh::default()
+        };
+        for k in 0..40u32 {
+            for _ in 0..3 {
+                mesh.positions
+                    .push([rng.next_f32(), rng.next_f32(), rng.next_f32() * 3.0]);
+                mesh.normals.push([0.0, 0.0, 1.0]);
+                mesh.uvs.push([0.0, 0.0]);
+            }
+            mesh.indices.push([3 * k, 3 * k + 1, 3 * k + 2]);
+            mesh.triangle_materials.push(0);
+        }
+        let instances = Instances {
+            models: vec!["blob".into()],
+            items: (0..12)
+                .map(|_| Instance {
+                    model: 0,
+                    position: [
+                        rng.next_f32() * 30.0 - 5.0,
+                        rng.next_f32() * 20.0 - 5.0,
+                        1.0,
+                    ],
+                    scale: 1.0 + rng.next_f32(),
+                    rotation_deg: rng.next_f32() * 360.0,
+                    layer: 0,
+                })
+                .collect(),
+        };
+        let mut w = PackWriter::new();
+        w.insert(kinds::mesh::to_section("mesh.blob", "blob.obj", &mesh, &[]));
+        w.insert(kinds::instances::to_section(
+            "instances",
+            &instances,
+            vec!["mesh.blob".into()],
+        ));
+        let terrain = if prepared {
+            let meta = kinds::terrain::TerrainMeta {
+                width: t.width,
+                height: t.height,
+                origin: t.origin,
+                extent: t.extent,
+                color_section: None,
+                source: "test".into(),
+            };
+            let p = crate::terrain::prepare_terrain(&t).unwrap();
+            crate::terrain::section::to_section("terrain", &meta, &t, &p).unwrap()
+        } else {
+            kinds::terrain::to_section("terrain", "test", &t, None)
+        };
+        w.insert(terrain);
+        Pack::from_bytes(&w.to_bytes().unwrap(), "test.bake").unwrap()
+    }
+
+    #[test]
+    fn heightfield_and_mesh_terrain_modes_trace_the_same_scene() {
+        for prepared in [false, true] {
+            let p = pack(prepared);
+            let hf = trace_scene(&p).unwrap();
+            let mesh = trace_scene_with(&p, TerrainMode::Mesh).unwrap();
+            assert_eq!(hf.instance_count, 12);
+            assert_eq!(hf.bvh.terrain_instance(), Some(12));
+            assert_eq!(
+                mesh.bvh.instances().len(),
+                13,
+                "the mesh terrain is the last instance"
+            );
+            assert_eq!(hf.albedo, mesh.albedo);
+            let mut rng = Rng::new(9);
+            let mut terrain_hits = 0;
+            for _ in 0..2000 {
+                let o = Vec3A::new(
+                    rng.next_f32() * 40.0 - 5.0,
+                    rng.next_f32() * 30.0 - 5.0,
+                    rng.next_f32() * 6.0,
+                );
+                let d = Vec3A::new(rng.next_f32() - 0.5, rng.next_f32() - 0.5, -rng.next_f32());
+                let r = Ray::new(o, d.normalize_or(Vec3A::NEG_Z), 1e-4);
+                let (a, b) = (hf.bvh.closest_hit(&r), mesh.bvh.closest_hit(&r));
+                assert_eq!(
+                    a.map(|h| (h.instance, h.hit.t)),
+                    b.map(|h| (h.instance, h.hit.t)),
+                    "{r:?}"
+                );
+                assert_eq!(hf.bvh.any_hit(&r), mesh.bvh.any_hit(&r));
+                if let (Some(a), Some(b)) = (a, b) {
+                    let (sa, sb) = (hf.bvh.surface(&a), mesh.bvh.surface(&b));
+                    assert!((sa.position - sb.position).length() < 1e-4);
+                    assert!((sa.shading_normal - sb.shading_normal).length() < 1e-4);
+                    terrain_hits += (a.instance == 12) as u32;
+                }
+            }
+            assert!(terrain_hits > 500, "{terrain_hits}");
+        }
+    }
 }

@@ -32,6 +32,8 @@ pub enum BenchWhat {
     Terrain(TerrainBenchArgs),
     /// The renderer's ambient term at load time: cluster maps per instance, eq. 4.8 per vertex.
     Ambient(crate::render::ambient_bench::AmbientBenchArgs),
+    /// Terrain rays/s: heightfield (min/max quadtree) against the triangle-mesh BVH.
+    TerrainRays(crate::rt::bench::TerrainRaysBenchArgs),
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -103,6 +105,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Textures(a) => crate::texture::bench::bench_textures(a),
         BenchWhat::Terrain(a) => crate::terrain::bench::bench_terrain(a),
         BenchWhat::Ambient(a) => crate::render::ambient_bench::bench_ambient(a),
+        BenchWhat::TerrainRays(a) => crate::rt::bench::bench_terrain_rays(a),
     }
 }
 

@@ -17,6 +17,7 @@ pub mod render;
 pub mod sky;
 pub mod svo;
 pub mod terrain;
+pub mod validate;
 
 use serde_json::Value;
 

@@ -143,6 +143,9 @@ pub struct RaysBenchArgs {
     /// Measure build time and raw rate of every preset.
     #[arg(long)]
     pub all_presets: bool,
+    /// Subdivision depth of the alpha-aware BVH build (0: one box per triangle).
+    #[arg(long, default_value_t = crate::rt::bvh::ALPHA_SPLIT_DEPTH)]
+    pub alpha_split: u32,
     /// Also bake every vertex with this many samples per side and report the time.
     #[arg(long)]
     pub bake_samples: Option<u32>,
@@ -183,6 +186,7 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
             samples: a.samples,
             bounces: a.bounces,
             preset: a.preset,
+            alpha_split: a.alpha_split,
             ..PrtOptions::default()
         },
         presets: if a.all_presets {
@@ -200,7 +204,9 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
          raw obvhs   {:>8.3}  {:>8}   ({} rays)\n\
          PRT         {:>8.3}  {:>8}   ({} rays)\n\
          PRT opaque  {:>8.3}  {:>8}   (no alpha test)\n\
-         efficiency  {:>8.3}  {:>8.3}\n",
+         raw alpha   {:>8.3}  {:>8}   (raw rays, alpha-tested BVH)\n\
+         efficiency  {:>8.3}  {:>8.3}\n\
+         efficiency vs raw alpha     {:>8.3}\n",
         r.triangles,
         r.vertices_traced,
         r.threads,
@@ -213,8 +219,11 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
         r.prt_rays,
         r.prt_opaque_rays_per_second / 1e6,
         cpu(r.prt_opaque_rays_per_cpu_second),
+        r.raw_alpha_rays_per_second / 1e6,
+        cpu(r.raw_alpha_rays_per_cpu_second),
         r.efficiency_wall,
         r.efficiency,
+        r.efficiency_alpha,
     );
     for p in &r.presets {
         text.push_str(&format!(
@@ -227,12 +236,13 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
     }
     if let Some(b) = &r.full_bake {
         text.push_str(&format!(
-            "full bake: {} vertices × 2 sides × {} samples, {} bounces: {:.2} s \
+            "full bake: {} vertices × 2 sides × {} samples, {} bounces: {:.2} s, {} CPU-s \
              (BVH {:.2} s, {:.3} M rays/s)\n",
             b.vertices,
             b.samples,
             b.bounces,
             b.seconds,
+            b.cpu_seconds.map_or("-".into(), |c| format!("{c:.1}")),
             b.build_seconds,
             b.rays_per_second / 1e6
         ));

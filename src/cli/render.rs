@@ -37,6 +37,16 @@ pub struct RenderArgs {
     /// PRT layout of the ambient term: the full transfer or the thesis' 5 vec4 per side.
     #[arg(long, value_enum, default_value_t = crate::render::ambient::PrtLayout::Full)]
     pub prt_layout: crate::render::ambient::PrtLayout,
+    /// The sun's visibility from the line-space soft shadows (the pack needs a `linespace`
+    /// section); the light is the sun's disc unless --area-light is given.
+    #[arg(long)]
+    pub soft_shadows: bool,
+    /// Quad light of the soft shadows: corner, edge u, edge v (cx,cy,cz,ux,uy,uz,vx,vy,vz, metres).
+    #[arg(long, value_parser = crate::render::soft_shadow::parse_area_light, allow_hyphen_values = true, requires = "soft_shadows")]
+    pub area_light: Option<crate::linespace::query::AreaLight>,
+    /// Light samples per side of the soft shadows (samples² shadow segments per pixel).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub shadow_samples: u32,
     /// Light terms to draw: all (direct sun + ambient), direct or ambient alone.
     #[arg(long, value_enum, default_value_t = Terms::All)]
     pub terms: Terms,
@@ -71,6 +81,12 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         lighting: None,
         backend: args.backend,
         prt_layout: args.prt_layout,
+        soft_shadows: args
+            .soft_shadows
+            .then_some(crate::render::soft_shadow::SoftShadows {
+                area_light: args.area_light,
+                samples: args.shadow_samples,
+            }),
         terms: args.terms,
     };
     let pack = Pack::open(&args.pack)?;
@@ -93,6 +109,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         "output": args.output,
         "adapter": out.adapter,
         "stats": out.stats,
+        "soft_shadows": out.soft_shadows.as_ref().map(|s| s.stats),
     });
     if let Some(path) = &args.reference {
         let r = crate::render::reference::render_reference(&pack, &opts)?;

@@ -190,10 +190,11 @@ pub fn bench(a: &SvoBenchArgs, _g: &Global) -> Result<Outcome> {
         "nodes": st.nodes,
         "topology_bytes_per_voxel": per(st.topology_bytes),
         "esvo_topology_bytes_per_voxel": per(st.esvo_topology_bytes),
+        "mask64_topology_bytes_per_voxel": per(st.mask64_topology_bytes),
         "bytes_per_voxel": per(st.topology_bytes + st.attribute_bytes),
     });
     let text = format!(
-        "{name}: {} triangles at {}³ → {} voxels in {:.3} s (voxelize {:.3} s); topology {:.3} B/voxel (ESVO descriptors {:.3}), total {:.2} B/voxel\n",
+        "{name}: {} triangles at {}³ → {} voxels in {:.3} s (voxelize {:.3} s); topology {:.3} B/voxel (ESVO descriptors {:.3}, u64 brick masks {:.3}), total {:.2} B/voxel\n",
         geo.mesh.indices.len(),
         a.resolution,
         st.voxels,
@@ -201,6 +202,7 @@ pub fn bench(a: &SvoBenchArgs, _g: &Global) -> Result<Outcome> {
         best_vox,
         per(st.topology_bytes),
         per(st.esvo_topology_bytes),
+        per(st.mask64_topology_bytes),
         per(st.topology_bytes + st.attribute_bytes)
     );
     Ok(Outcome {

@@ -1,7 +1,8 @@
 //! `bake bench rays`: raw obvhs traversal against the rays per second the PRT stage achieves on
 //! the same model in the same run, per BVH build preset, and optionally a timed full bake.
 //!
-//! Raw rays: closest hit with obvhs' own triangle test and no alpha test, for the incoherent
+//! Raw rays: closest hit on obvhs' own BVH over the triangles (`build_cwbvh_from_tris`) with
+//! obvhs' triangle test and no alpha test, for the incoherent
 //! cosine-distributed hemisphere rays that leave a sample of the model's vertices (both sides).
 //! PRT rays: every closest-hit query the PRT stage makes for the same vertices (first rays and
 //! bounce rays, with alpha tests, sampling and SH accumulation included). Both run over rayon on
@@ -34,6 +35,7 @@ pub struct RaysBenchOptions {
 #[derive(Debug, Clone, Serialize)]
 pub struct PresetResult {
     pub preset: &'static str,
+    /// Build time of the alpha-aware BVH the PRT uses.
     pub build_seconds: f64,
     pub raw_rays_per_second: f64,
     pub raw_rays_per_cpu_second: Option<f64>,
@@ -45,6 +47,8 @@ pub struct FullBake {
     pub samples: u32,
     pub bounces: u32,
     pub seconds: f64,
+    /// CPU time of the whole bake (all threads; Linux only).
+    pub cpu_seconds: Option<f64>,
     pub build_seconds: f64,
     pub rays: u64,
     pub rays_per_second: f64,
@@ -70,6 +74,13 @@ pub struct RaysBenchReport {
     /// PRT rays per second with every texel opaque (no alpha test).
     pub prt_opaque_rays_per_second: f64,
     pub prt_opaque_rays_per_cpu_second: Option<f64>,
+    /// The raw rays again, through the PRT's alpha-tested BVH (closest hit with the alpha test,
+    /// no PRT machinery): the cost of the query itself on alpha-tested geometry.
+    pub raw_alpha_rays_per_second: f64,
+    pub raw_alpha_rays_per_cpu_second: Option<f64>,
+    /// PRT rays per CPU-second over raw alpha-tested rays per CPU-second (the overhead of the
+    /// PRT machinery alone; wall-clock ratio where CPU time is not available).
+    pub efficiency_alpha: f64,
     pub presets: Vec<PresetResult>,
     pub full_bake: Option<FullBake>,
 }
@@ -94,10 +105,12 @@ pub fn bench_rays(
     let mut presets = Vec::new();
     let mut chosen = None;
     for p in list {
+        // Raw: obvhs' own BVH over the triangles (no alpha masks, no alpha-aware boxes).
+        let plain = ModelBvh::build(mesh, &[], p)?;
+        let raw = raw_timing(&plain, &rays);
         let start = Instant::now();
-        let bvh = ModelBvh::build(mesh, masks, p)?;
+        let bvh = ModelBvh::build_split(mesh, masks, p, opts.prt.alpha_split)?;
         let build_seconds = start.elapsed().as_secs_f64();
-        let raw = raw_timing(&bvh, &rays);
         if opts.presets.contains(&p) {
             presets.push(PresetResult {
                 preset: p.name(),
@@ -107,18 +120,24 @@ pub fn bench_rays(
             });
         }
         if p == opts.prt.preset {
-            chosen = Some((bvh, raw));
+            chosen = Some((bvh, plain, raw));
         }
     }
-    let Some((bvh, raw)) = chosen else {
+    let Some((bvh, opaque, raw)) = chosen else {
         return Err(crate::error::Error::runtime("the PRT preset was not built"));
     };
     let raw_rays = rays.len() as u64;
     let (prt_rays, prt) = prt_timing(&bvh, mesh, materials, &verts, &opts.prt);
     // The same PRT without alpha masks: separates the cost of the alpha test (rays that pass
     // through transparent texels travel further) from the cost of the PRT machinery.
-    let opaque = ModelBvh::build(mesh, &[], opts.prt.preset)?;
     let (opaque_rays, opaque_t) = prt_timing(&opaque, mesh, materials, &verts, &opts.prt);
+    let raw_alpha = time_best(|| {
+        let hits: usize = rays
+            .par_iter()
+            .map(|r| bvh.closest_hit(r).is_some() as usize)
+            .sum();
+        std::hint::black_box(hits);
+    });
     // Both measured or neither: a ratio of a CPU rate and a wall rate means nothing.
     let (raw, prt) = match (raw.cpu, prt.cpu) {
         (Some(_), Some(_)) => (raw, prt),
@@ -147,6 +166,12 @@ pub fn bench_rays(
         prt_rays_per_cpu_second: prt_cpu,
         prt_opaque_rays_per_second: opaque_rays as f64 / opaque_t.wall,
         prt_opaque_rays_per_cpu_second: per(opaque_rays, opaque_t.cpu),
+        raw_alpha_rays_per_second: raw_rays as f64 / raw_alpha.wall,
+        raw_alpha_rays_per_cpu_second: per(raw_rays, raw_alpha.cpu),
+        efficiency_alpha: per(raw_rays, raw_alpha.cpu).zip(prt_cpu).map_or(
+            prt_rays as f64 / prt.wall * raw_alpha.wall / raw_rays as f64,
+            |(r, p)| p / r,
+        ),
         presets,
         full_bake,
     })
@@ -175,7 +200,7 @@ fn hemisphere_rays(mesh: &Mesh, verts: &[u32], o: &PrtOptions) -> Vec<Ray> {
 /// CPU time of this process (all threads), from Linux' per-thread schedstat (nanoseconds);
 /// `None` elsewhere. On a shared machine, rays per CPU-second compare two runs far more stably
 /// than wall time.
-fn cpu_seconds() -> Option<f64> {
+pub(crate) fn cpu_seconds() -> Option<f64> {
     let mut total = 0u64;
     for task in std::fs::read_dir("/proc/self/task").ok()? {
         let stat = std::fs::read_to_string(task.ok()?.path().join("schedstat")).ok()?;
@@ -186,12 +211,12 @@ fn cpu_seconds() -> Option<f64> {
 
 /// A measurement: the fastest of three runs, in wall and CPU seconds.
 #[derive(Debug, Clone, Copy)]
-struct Timing {
-    wall: f64,
-    cpu: Option<f64>,
+pub(crate) struct Timing {
+    pub(crate) wall: f64,
+    pub(crate) cpu: Option<f64>,
 }
 
-fn time_best(mut f: impl FnMut()) -> Timing {
+pub(crate) fn time_best(mut f: impl FnMut()) -> Timing {
     let mut best = Timing {
         wall: f64::INFINITY,
         cpu: None,
@@ -252,16 +277,18 @@ fn full_bake(
         samples,
         ..o.clone()
     };
-    let start = Instant::now();
-    let bvh = ModelBvh::build(mesh, masks, o.preset)?;
+    let (start, cpu0) = (Instant::now(), cpu_seconds());
+    let bvh = ModelBvh::build_split(mesh, masks, o.preset, o.alpha_split)?;
     let build_seconds = start.elapsed().as_secs_f64();
     let t = prt::bake_prt_with(&bvh, mesh, materials, &o, &|_| {});
     let seconds = start.elapsed().as_secs_f64();
+    let cpu_seconds = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
     Ok(FullBake {
         vertices: t.vertices,
         samples,
         bounces: o.bounces,
         seconds,
+        cpu_seconds,
         build_seconds,
         rays: t.rays,
         rays_per_second: t.rays as f64 / (seconds - build_seconds).max(1e-9),

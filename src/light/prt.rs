@@ -56,6 +56,8 @@ pub struct PrtOptions {
     /// Scattering events a path may take inside the model (0: visibility only).
     pub bounces: u32,
     pub preset: BuildPreset,
+    /// Subdivision depth of the alpha-aware BVH build ([`crate::rt::bvh::ALPHA_SPLIT_DEPTH`]).
+    pub alpha_split: u32,
     /// Ray origin offset along the normal, relative to the model's bounding-box diagonal.
     pub offset: f32,
     /// Translucence of materials that carry none (TXF plants: 0.3; objects: 0).
@@ -71,6 +73,7 @@ impl PrtOptions {
             samples: 64,
             bounces: 2,
             preset: BuildPreset::VeryFast,
+            alpha_split: crate::rt::bvh::ALPHA_SPLIT_DEPTH,
             offset: 1e-4,
             default_translucence: 0.3,
             seed: 0,
@@ -206,7 +209,7 @@ pub fn bake_prt(
     masks: &[Option<AlphaMask>],
     opts: &PrtOptions,
 ) -> Result<Transfer> {
-    let bvh = ModelBvh::build(mesh, masks, opts.preset)?;
+    let bvh = ModelBvh::build_split(mesh, masks, opts.preset, opts.alpha_split)?;
     Ok(bake_prt_with(&bvh, mesh, materials, opts, &|_| {}))
 }
 

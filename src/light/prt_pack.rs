@@ -206,7 +206,7 @@ pub fn prt_pack(
         };
         let mats = prt::prt_materials(&mesh, &textures, o.default_translucence);
         let masks = prt::alpha_masks(&mesh, &textures);
-        let bvh = ModelBvh::build(&mesh, &masks, o.preset)?;
+        let bvh = ModelBvh::build_split(&mesh, &masks, o.preset, o.alpha_split)?;
         if bvh.skipped_triangles() > 0 {
             warnings.push(format!(
                 "{}: {} triangles with non-finite positions left out of the BVH",

@@ -1,6 +1,7 @@
 //! The N-tree with a line space per inner node (seed 002): [`ntree`] builds the tree and its
 //! GPU pools, [`shaft`] the exact shaft/box test and the per-child shaft masks, [`linespace`]
 //! the bit layout, [`query`] soft-shadow queries, [`section`] the `linespace` pack section.
+pub mod gpu;
 #[allow(clippy::module_inception)]
 pub mod linespace;
 pub mod ntree;

@@ -7,6 +7,8 @@
 //!   every Xfrog export carries it; seed 000 3.1.2): the thesis' leaf, [`LEAF_DEFAULT`]. Top
 //!   (wax): roughness 0.1, isotropy 1, glossy 1, reflectivity 0.075 grey. Bottom: diffuse 1,
 //!   colour (1, 1, 1) × colour map. Bump ±1 mm, translucence 0.3 (or the TXF set's own value).
+//!   Without a colour map (Xfrog's untextured stems) the bottom is OpenGL's 0.8 grey and the
+//!   translucence the TXF set's value, else 0.
 //! * **Authored fixed-function material**: the Phong exponent `n = shininess` becomes the top
 //!   layer's roughness `r = 2 / (n + 2)` (Blinn-Phong ↔ Beckmann/GGX: `α² = 2/(n + 2)`, and
 //!   Schlick's `Z/π` is GGX with `α² = r`); the top layer is glossy with reflectivity
@@ -70,10 +72,20 @@ pub fn is_default_opengl(m: &Material) -> bool {
 pub fn material_to_schlick(m: &Material) -> SchlickMaterial {
     let mut out = match m.source {
         // A TXF set header's translucence of 0 means "not set" (Xfrog writes 0): the leaf's 0.3.
-        _ if is_default_opengl(m) => SchlickMaterial {
+        _ if is_default_opengl(m) && m.color_map.is_some() => SchlickMaterial {
             translucence: m.translucence.filter(|&t| t > 0.0).map_or(0.3, unit),
             ..LEAF_DEFAULT
         },
+        // Without a colour map the part is no leaf blade (Xfrog's untextured stems carry the
+        // default material too): the wax top layer stays, the bottom keeps OpenGL's 0.8 grey
+        // instead of the white that only makes sense under a leaf texture, and it transmits
+        // only what the TXF set says (a closed stem lit through its back faces would glow).
+        _ if is_default_opengl(m) => {
+            let mut leaf = LEAF_DEFAULT;
+            leaf.layers[1].color = rgb(&m.diffuse);
+            leaf.translucence = m.translucence.map_or(0.0, unit);
+            leaf
+        }
         MaterialSource::FixedFunction => fixed_function(m),
         MaterialSource::MetallicRoughness {
             metallic,
@@ -210,14 +222,29 @@ mod tests {
         // The TXF set header's translucence wins over the thesis' 0.3.
         let t = Material {
             translucence: Some(0.6),
-            ..Material::default()
+            ..m.clone()
         };
         assert_eq!(material_to_schlick(&t).translucence, 0.6);
         let unset = Material {
             translucence: Some(0.0),
-            ..Material::default()
+            ..m.clone()
         };
         assert_eq!(material_to_schlick(&unset).translucence, 0.3);
+    }
+
+    #[test]
+    fn untextured_default_material_is_an_opaque_grey_stem() {
+        let s = material_to_schlick(&Material::default());
+        assert_eq!(s.layers[0], LEAF_DEFAULT.layers[0]);
+        assert_eq!(s.layers[1].color, [0.8; 3]);
+        assert_eq!(s.translucence, 0.0);
+        assert_eq!(s.normal_map, NormalMap::None);
+        s.validate().unwrap();
+        let set = Material {
+            translucence: Some(0.2),
+            ..Material::default()
+        };
+        assert_eq!(material_to_schlick(&set).translucence, 0.2);
     }
 
     #[test]

@@ -101,6 +101,7 @@ fn globals_group(
     pipes: &Pipelines,
     scene: &GpuScene,
     globals: &Globals,
+    sun_visibility: &wgpu::TextureView,
 ) -> wgpu::BindGroup {
     let buf = gpu
         .device
@@ -121,12 +122,18 @@ fn globals_group(
                 binding: 1,
                 resource: wgpu::BindingResource::TextureView(&scene.sky_view),
             },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(sun_visibility),
+            },
         ],
     })
 }
 
 /// Draws the scene and returns the tone-mapped image as tightly packed RGBA8 rows (sRGB).
 /// `shadow`: the sun's shadow-map view (`None`: no shadow map, everything sees the sun).
+/// `sun_visibility`: the soft-shadow visibility per pixel (used where `globals.sun_direction.w`
+/// is 1, see src/render/soft_shadow.rs).
 pub fn draw_frame(
     gpu: &Gpu,
     pipes: &Pipelines,
@@ -134,14 +141,15 @@ pub fn draw_frame(
     globals: &Globals,
     size: (u32, u32),
     shadow: Option<&ShadowParams>,
+    sun_visibility: &wgpu::TextureView,
 ) -> Result<(Vec<u8>, DrawCounts)> {
     let hdr = target(gpu, "hdr", size, HDR_FORMAT, false);
     let depth = target(gpu, "depth", size, DEPTH_FORMAT, false);
     let out = target(gpu, "output", size, OUTPUT_FORMAT, true);
     let hdr_view = hdr.create_view(&Default::default());
-    let globals_bg = globals_group(gpu, pipes, scene, globals);
+    let globals_bg = globals_group(gpu, pipes, scene, globals, sun_visibility);
     let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let shadow_bg = shadow_group(gpu, pipes, scene, globals, shadow, &mut enc);
+    let shadow_bg = shadow_group(gpu, pipes, scene, globals, shadow, sun_visibility, &mut enc);
     let counts = scene_pass(
         &mut enc,
         pipes,
@@ -171,6 +179,7 @@ fn shadow_group(
     scene: &GpuScene,
     globals: &Globals,
     params: Option<&ShadowParams>,
+    sun_visibility: &wgpu::TextureView,
     enc: &mut wgpu::CommandEncoder,
 ) -> wgpu::BindGroup {
     let side = if params.is_some() { SHADOW_MAP_SIZE } else { 1 };
@@ -186,7 +195,7 @@ fn shadow_group(
             view_proj: p.light_view_proj,
             ..*globals
         };
-        let bg = globals_group(gpu, pipes, scene, &light);
+        let bg = globals_group(gpu, pipes, scene, &light, sun_visibility);
         shadow_pass(enc, pipes, scene, &bg, &view);
     }
     let buf = gpu

@@ -18,6 +18,7 @@ pub mod pipelines;
 pub mod reference;
 pub mod scene;
 pub mod shadow;
+pub mod soft_shadow;
 pub mod upload;
 
 use crate::error::{Error, Result};
@@ -45,6 +46,8 @@ pub struct RenderOptions {
     pub backend: BackendChoice,
     /// PRT layout the ambient term evaluates (see [`ambient`]).
     pub prt_layout: ambient::PrtLayout,
+    /// The sun's visibility from the line-space soft shadows (needs a `linespace` section).
+    pub soft_shadows: Option<soft_shadow::SoftShadows>,
     /// Which light terms to draw (the shading contract: L = L_direct + L_ambient).
     pub terms: Terms,
 }
@@ -84,6 +87,7 @@ impl Default for RenderOptions {
             lighting: None,
             backend: BackendChoice::Auto,
             prt_layout: ambient::PrtLayout::Full,
+            soft_shadows: None,
             terms: Terms::All,
         }
     }
@@ -121,6 +125,8 @@ pub struct RenderOutput {
     pub adapter: AdapterSummary,
     pub stats: RenderStats,
     pub warnings: Vec<String>,
+    /// The soft-shadow pass's receivers and visibility, with `--soft-shadows`.
+    pub soft_shadows: Option<soft_shadow::SoftShadowImage>,
 }
 
 /// The light the sky stage measured: its extracted sun, and the horizontal irradiance of the
@@ -196,20 +202,33 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     gpu_scene.ambient = Some(amb_gpu);
     gpu.wait()?;
     let t2 = std::time::Instant::now();
-    let globals = draw::Globals::new(
-        &cam,
-        &lighting,
-        exposure,
-        (opts.width, opts.height),
-        opts.terms,
-    );
+    let size = (opts.width, opts.height);
+    let mut globals = draw::Globals::new(&cam, &lighting, exposure, size, opts.terms);
+    let soft = match &opts.soft_shadows {
+        Some(s) => Some(soft_shadow::for_render(
+            &gpu, &pipes, &gpu_scene, &globals, size, pack, &lighting, s,
+        )?),
+        None => None,
+    };
+    let lit = soft_shadow::fully_lit(&gpu);
+    let visibility = soft.as_ref().map_or(&lit, |v| &v.view);
+    // Soft shadows replace the shadow map: direct.wgsl reads the visibility texture where
+    // sun_direction.w is 1.
+    let shadow_params = match soft {
+        Some(_) => {
+            globals.sun_direction[3] = 1.0;
+            None
+        }
+        None => shadow::shadow_params(&scene, lighting.sun_direction),
+    };
     let (pixels, counts) = draw::draw_frame(
         &gpu,
         &pipes,
         &gpu_scene,
         &globals,
-        (opts.width, opts.height),
-        shadow::shadow_params(&scene, lighting.sun_direction).as_ref(),
+        size,
+        shadow_params.as_ref(),
+        visibility,
     )?;
     let t3 = std::time::Instant::now();
 
@@ -244,6 +263,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         adapter: gpu.adapter.clone(),
         stats,
         warnings,
+        soft_shadows: soft.map(|v| v.image),
     })
 }
 

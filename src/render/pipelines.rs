@@ -253,7 +253,12 @@ impl Pipelines {
         let globals_layout = layout(
             device,
             "globals",
-            &[uniform_entry(0, vf), texture_entry(1, S::FRAGMENT, false)],
+            &[
+                uniform_entry(0, vf),
+                texture_entry(1, S::FRAGMENT, false),
+                // The sun's visibility (soft shadows), R32Float.
+                texture_entry(2, S::FRAGMENT, false),
+            ],
         );
         let terrain_layout = layout(
             device,

@@ -6,8 +6,18 @@
 //!
 //! Triangles are stored in BVH leaf order ("slots") with precomputed edges for Möller–Trumbore,
 //! so a leaf's triangles are contiguous in memory. [`ModelBvh::brute_force_closest_hit`] is the
-//! reference implementation (an exhaustive loop with the same triangle test) the tests compare
-//! against.
+//! reference implementation (an exhaustive loop over the mesh's triangles with the same triangle
+//! and alpha test) the tests compare against.
+//!
+//! Alpha-aware build: every texel a masked triangle can read (its texture-coordinate box,
+//! padded) is classified with a summed-area table. A triangle whose texels are all transparent
+//! leaves the BVH; one whose texels are all opaque skips the alpha test. With a split depth
+//! d > 0 a mixed triangle becomes up to 4^d boxes of its barycentric midpoint subdivision, with
+//! the all-transparent parts dropped (rays through the transparent corners of a leaf quad then
+//! miss its boxes). Every box still refers to the whole triangle, so hit and alpha tests, and
+//! thus results, are exactly the brute force's; a traversal skips a triangle it has just tested
+//! through a neighbouring box. The default depth is 0: on the procedural plant the finer boxes
+//! made PRT slower (docs/PERFORMANCE.md).
 
 use super::{Hit, Ray};
 use crate::error::{Error, Result};
@@ -109,10 +119,10 @@ impl AlphaMask {
 
 /// A triangle prepared for Möller–Trumbore: `v0`, `e1 = v1 − v0`, `e2 = v2 − v0`.
 #[derive(Debug, Clone, Copy)]
-struct PreTri {
-    v0: Vec3A,
-    e1: Vec3A,
-    e2: Vec3A,
+pub(crate) struct PreTri {
+    pub(crate) v0: Vec3A,
+    pub(crate) e1: Vec3A,
+    pub(crate) e2: Vec3A,
 }
 
 /// What a slot (a triangle in leaf order) refers to.
@@ -130,6 +140,11 @@ struct SlotInfo {
 type SlotUv = [[f32; 2]; 3];
 
 const NO_MASK: u32 = u32::MAX;
+const NO_SLOT: u32 = u32::MAX;
+
+/// Subdivision depth of the alpha-aware build (up to 4^depth boxes per masked triangle); chosen
+/// by `bake bench rays` (docs/PERFORMANCE.md).
+pub const ALPHA_SPLIT_DEPTH: u32 = 0;
 
 /// A point on the surface at a hit, with attributes interpolated from the vertices.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -159,6 +174,10 @@ pub struct ModelBvh {
     triangle_materials: Vec<u32>,
     bounds: (Vec3A, Vec3A),
     skipped: usize,
+    /// Mask index per material (`NO_MASK`: opaque), for the brute force.
+    material_mask: Vec<u32>,
+    /// The first slot of each triangle (`NO_SLOT`: not in the BVH).
+    first_slot: Vec<u32>,
 }
 
 impl ModelBvh {
@@ -166,6 +185,17 @@ impl ModelBvh {
     /// missing entry: opaque). Triangles with non-finite positions are left out and counted in
     /// [`ModelBvh::skipped_triangles`].
     pub fn build(mesh: &Mesh, masks: &[Option<AlphaMask>], preset: BuildPreset) -> Result<Self> {
+        Self::build_split(mesh, masks, preset, ALPHA_SPLIT_DEPTH)
+    }
+
+    /// [`ModelBvh::build`] with the subdivision depth of the alpha-aware build (0: one box per
+    /// triangle, fully transparent triangles still dropped).
+    pub fn build_split(
+        mesh: &Mesh,
+        masks: &[Option<AlphaMask>],
+        preset: BuildPreset,
+        split_depth: u32,
+    ) -> Result<Self> {
         mesh.validate()
             .map_err(|m| Error::runtime(format!("cannot build a BVH: {m}")))?;
         let finite = |i: u32| mesh.positions[i as usize].iter().all(|c| c.is_finite());
@@ -183,17 +213,39 @@ impl ModelBvh {
                 }
             })
             .collect();
-        let bvh = (!tris.is_empty()).then(|| {
-            obvhs::cwbvh::builder::build_cwbvh_from_tris(
+        let mut model = Self::from_mesh(mesh, masks, mesh.indices.len() - kept.len());
+        let masked = masks.iter().flatten().any(|m| !m.is_all_opaque());
+        // Per kept triangle: all its texels are opaque (no alpha test needed).
+        let mut skip_alpha = Vec::new();
+        let (bvh, order) = if tris.is_empty() {
+            (None, Vec::new())
+        } else if masked {
+            let (boxes, owner, opaque) = alpha_boxes(&tris, &kept, mesh, masks, split_depth.min(8));
+            skip_alpha = opaque;
+            let bvh = (!boxes.is_empty()).then(|| {
+                obvhs::cwbvh::builder::build_cwbvh(
+                    &boxes,
+                    preset.params(),
+                    &mut std::time::Duration::default(),
+                )
+            });
+            let order = bvh.as_ref().map_or(Vec::new(), |b| {
+                b.primitive_indices
+                    .iter()
+                    .map(|&p| owner[p as usize])
+                    .collect()
+            });
+            (bvh, order)
+        } else {
+            let b = obvhs::cwbvh::builder::build_cwbvh_from_tris(
                 &tris,
                 preset.params(),
                 &mut std::time::Duration::default(),
-            )
-        });
-        let mut model = Self::from_mesh(mesh, masks, mesh.indices.len() - kept.len());
-        if let Some(b) = &bvh {
-            model.fill_slots(&b.primitive_indices, &kept, masks);
-        }
+            );
+            let order = b.primitive_indices.clone();
+            (Some(b), order)
+        };
+        model.fill_slots(&order, &kept, masks, &skip_alpha);
         model.bvh = bvh;
         Ok(model)
     }
@@ -214,11 +266,20 @@ impl ModelBvh {
             triangle_materials: mesh.triangle_materials.clone(),
             bounds: (lo.into(), hi.into()),
             skipped,
+            material_mask: Vec::new(),
+            first_slot: vec![NO_SLOT; mesh.indices.len()],
         }
     }
 
     /// Lays the triangles out in leaf order (`order[slot]` indexes `kept`).
-    fn fill_slots(&mut self, order: &[u32], kept: &[u32], masks: &[Option<AlphaMask>]) {
+    /// `skip_alpha[k]` (if present): kept triangle k reads only opaque texels.
+    fn fill_slots(
+        &mut self,
+        order: &[u32],
+        kept: &[u32],
+        masks: &[Option<AlphaMask>],
+        skip_alpha: &[bool],
+    ) {
         // Material → index into `self.masks` (which holds only the present masks).
         let mut mask_of = Vec::with_capacity(masks.len());
         let mut next = 0u32;
@@ -229,8 +290,10 @@ impl ModelBvh {
             });
             next += m.is_some() as u32;
         }
-        for &k in order {
+        for (slot, &k) in order.iter().enumerate() {
             let t = kept[k as usize];
+            let first = &mut self.first_slot[t as usize];
+            *first = (*first).min(slot as u32);
             let [a, b, c] = self.indices[t as usize];
             let p = |i: u32| self.positions[i as usize];
             self.slots.push(PreTri {
@@ -239,9 +302,13 @@ impl ModelBvh {
                 e2: p(c) - p(a),
             });
             let mat = self.triangle_materials[t as usize];
+            let opaque = skip_alpha.get(k as usize).copied().unwrap_or(false);
             self.slot_info.push(SlotInfo {
                 triangle: t,
-                mask: mask_of.get(mat as usize).copied().unwrap_or(NO_MASK),
+                mask: match opaque {
+                    true => NO_MASK,
+                    false => mask_of.get(mat as usize).copied().unwrap_or(NO_MASK),
+                },
                 material: mat,
             });
             let uv = |i: u32| self.uvs[i as usize];
@@ -252,10 +319,23 @@ impl ModelBvh {
                 [uc[0] - ua[0], uc[1] - ua[1]],
             ]);
         }
+        self.material_mask = mask_of;
     }
 
     pub fn triangle_count(&self) -> usize {
         self.indices.len()
+    }
+
+    /// BVH primitives (boxes): one per triangle, more with the alpha-aware build.
+    pub fn primitive_count(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Whether triangle `t` is in the BVH (not skipped, not fully transparent).
+    pub fn contains_triangle(&self, t: u32) -> bool {
+        self.first_slot
+            .get(t as usize)
+            .is_some_and(|&s| s != NO_SLOT)
     }
 
     /// Triangles left out of the BVH (non-finite positions).
@@ -299,7 +379,14 @@ impl ModelBvh {
         let bvh = self.bvh.as_ref()?;
         let mut best = None;
         let mut hit = obvhs::ray::RayHit::none();
+        let mut last = NO_SLOT;
         bvh.ray_traverse(ray.to_obvhs(), &mut hit, |r, slot| {
+            // The same triangle through a neighbouring box of the alpha-aware build: its result
+            // (a hit that already shortened the ray, or none) cannot change.
+            let tri = self.slot_info[slot].triangle;
+            if std::mem::replace(&mut last, tri) == tri {
+                return f32::INFINITY;
+            }
             match self.hit_slot(slot, ray, r.tmax) {
                 Some(h) if h.t < r.tmax => {
                     best = Some(h);
@@ -316,21 +403,54 @@ impl ModelBvh {
         let Some(bvh) = self.bvh.as_ref() else {
             return false;
         };
+        let mut last = NO_SLOT;
         !bvh.ray_traverse_miss(ray.to_obvhs(), |r, slot| {
+            let tri = self.slot_info[slot].triangle;
+            if std::mem::replace(&mut last, tri) == tri {
+                return f32::INFINITY;
+            }
             self.hit_slot(slot, ray, r.tmax)
                 .map_or(f32::INFINITY, |h| h.t)
         })
     }
 
-    /// Reference closest hit: every triangle, in order, with the same triangle and alpha test.
+    /// Reference closest hit: every triangle of the mesh, in order, with the same triangle and
+    /// alpha test, independent of the BVH and of which triangles its build kept.
     pub fn brute_force_closest_hit(&self, ray: &Ray) -> Option<Hit> {
         let mut best: Option<Hit> = None;
-        for slot in 0..self.slots.len() {
+        for (t, &[a, b, c]) in self.indices.iter().enumerate() {
+            let p = |i: u32| self.positions[i as usize];
+            if !(p(a).is_finite() && p(b).is_finite() && p(c).is_finite()) {
+                continue;
+            }
+            let tri = PreTri {
+                v0: p(a),
+                e1: p(b) - p(a),
+                e2: p(c) - p(a),
+            };
             let tmax = best.map_or(ray.tmax, |h| h.t);
-            if let Some(h) = self.hit_slot(slot, ray, tmax)
-                && h.t < tmax
-            {
-                best = Some(h);
+            let Some((th, u, v)) = intersect(&tri, ray.origin, ray.dir, ray.tmin, tmax) else {
+                continue;
+            };
+            let mat = self.triangle_materials[t] as usize;
+            let mask = self.material_mask.get(mat).copied().unwrap_or(NO_MASK);
+            if mask != NO_MASK {
+                let uv = |i: u32| self.uvs[i as usize];
+                let (ua, ub, uc) = (uv(a), uv(b), uv(c));
+                let s = ua[0] + u * (ub[0] - ua[0]) + v * (uc[0] - ua[0]);
+                let tt = ua[1] + u * (ub[1] - ua[1]) + v * (uc[1] - ua[1]);
+                if !self.masks[mask as usize].opaque_at(s, tt) {
+                    continue;
+                }
+            }
+            if best.is_none_or(|h| th < h.t) {
+                best = Some(Hit {
+                    t: th,
+                    triangle: t as u32,
+                    slot: self.first_slot[t],
+                    u,
+                    v,
+                });
             }
         }
         best
@@ -404,10 +524,196 @@ impl ModelBvh {
     }
 }
 
+/// Opaque-texel counts of a mask over texel rectangles (a summed-area table), for classifying
+/// sub-triangles at build time in O(1).
+struct OpaqueCount {
+    w: i64,
+    h: i64,
+    /// `sat[y·(w+1) + x]`: opaque texels in [0, x) × [0, y).
+    sat: Vec<u32>,
+}
+
+/// What a region of a masked triangle shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Coverage {
+    Transparent,
+    Opaque,
+    Mixed,
+}
+
+impl OpaqueCount {
+    fn new(m: &AlphaMask) -> Self {
+        let (w, h) = (m.width as usize, m.height as usize);
+        let mut sat = vec![0u32; (w + 1) * (h + 1)];
+        for y in 0..h {
+            let mut row = 0u32;
+            for x in 0..w {
+                let i = y * w + x;
+                row += (m.bits[i / 64] >> (i % 64) & 1) as u32;
+                sat[(y + 1) * (w + 1) + x + 1] = sat[y * (w + 1) + x + 1] + row;
+            }
+        }
+        OpaqueCount {
+            w: w as i64,
+            h: h as i64,
+            sat,
+        }
+    }
+
+    fn rect(&self, (x0, x1): (i64, i64), (y0, y1): (i64, i64)) -> u64 {
+        let at = |x: i64, y: i64| self.sat[(y * (self.w + 1) + x) as usize] as u64;
+        at(x1, y1) + at(x0, y0) - at(x0, y1) - at(x1, y0)
+    }
+
+    /// The texel ranges (half-open, within the texture) an inclusive, unwrapped range covers.
+    fn wrap(a: i64, b: i64, n: i64) -> [(i64, i64); 2] {
+        let len = b - a + 1;
+        if len >= n {
+            return [(0, n), (0, 0)];
+        }
+        let start = a.rem_euclid(n);
+        if start + len <= n {
+            [(start, start + len), (0, 0)]
+        } else {
+            [(start, n), (0, start + len - n)]
+        }
+    }
+
+    /// Coverage of the sub-triangle with barycentric corners `bary` (weights of vertices 1 and
+    /// 2) of a triangle with texture coordinates `uv`.
+    fn coverage_of(&self, uv: &[[f32; 2]; 3], bary: [[f32; 2]; 3]) -> Coverage {
+        let at = |b: [f32; 2], k: usize| {
+            uv[0][k] + b[0] * (uv[1][k] - uv[0][k]) + b[1] * (uv[2][k] - uv[0][k])
+        };
+        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+        for b in bary {
+            for k in 0..2 {
+                lo[k] = lo[k].min(at(b, k));
+                hi[k] = hi[k].max(at(b, k));
+            }
+        }
+        // Margin: a hit's interpolated coordinate may round a little outside the corners' box.
+        let pad = [1e-3 / self.w as f32, 1e-3 / self.h as f32];
+        self.coverage(
+            [lo[0] - pad[0], lo[1] - pad[1]],
+            [hi[0] + pad[0], hi[1] + pad[1]],
+        )
+    }
+
+    /// Coverage of every texel that nearest sampling (repeating) can read for texture
+    /// coordinates in the box [lo, hi].
+    fn coverage(&self, lo: [f32; 2], hi: [f32; 2]) -> Coverage {
+        if !(lo.iter().chain(&hi).all(|c| c.is_finite())) {
+            return Coverage::Mixed;
+        }
+        let texel = |c: f32, n: i64| (c * n as f32).floor() as i64;
+        let xs = Self::wrap(texel(lo[0], self.w), texel(hi[0], self.w), self.w);
+        let ys = Self::wrap(texel(lo[1], self.h), texel(hi[1], self.h), self.h);
+        let (mut opaque, mut area) = (0u64, 0u64);
+        for &x in &xs {
+            for &y in &ys {
+                opaque += self.rect(x, y);
+                area += ((x.1 - x.0) * (y.1 - y.0)) as u64;
+            }
+        }
+        match opaque {
+            0 => Coverage::Transparent,
+            n if n == area => Coverage::Opaque,
+            _ => Coverage::Mixed,
+        }
+    }
+}
+
+/// Primitive boxes of the alpha-aware build and, per box, its triangle (index into `kept`).
+fn alpha_boxes(
+    tris: &[obvhs::triangle::Triangle],
+    kept: &[u32],
+    mesh: &Mesh,
+    masks: &[Option<AlphaMask>],
+    depth: u32,
+) -> (Vec<obvhs::aabb::Aabb>, Vec<u32>, Vec<bool>) {
+    let counts: Vec<Option<OpaqueCount>> = masks
+        .iter()
+        .map(|m| {
+            m.as_ref()
+                .filter(|m| !m.is_all_opaque())
+                .map(OpaqueCount::new)
+        })
+        .collect();
+    let per_tri: Vec<(Vec<obvhs::aabb::Aabb>, bool)> = kept
+        .par_iter()
+        .zip(tris)
+        .map(|(&t, tri)| {
+            let mat = mesh.triangle_materials[t as usize] as usize;
+            let Some(count) = counts.get(mat).and_then(|c| c.as_ref()) else {
+                return (vec![tri.aabb()], false);
+            };
+            let p = [tri.v0, tri.v1, tri.v2].map(|v| Vec3A::from(v.to_array()));
+            let uv = mesh.indices[t as usize].map(|i| mesh.uvs[i as usize]);
+            let corners = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
+            if count.coverage_of(&uv, corners) == Coverage::Opaque {
+                return (vec![tri.aabb()], true);
+            }
+            let mut out = Vec::new();
+            split_opaque(&p, &uv, count, corners, depth, &mut out);
+            (out, false)
+        })
+        .collect();
+    let mut boxes = Vec::new();
+    let mut owner = Vec::new();
+    let mut opaque = Vec::with_capacity(per_tri.len());
+    for (k, (b, o)) in per_tri.into_iter().enumerate() {
+        owner.extend(std::iter::repeat_n(k as u32, b.len()));
+        boxes.extend(b);
+        opaque.push(o);
+    }
+    (boxes, owner, opaque)
+}
+
+/// Adds the boxes of the sub-triangle with barycentric corners `bary` (weights of p1 and p2)
+/// that can show opaque texels: dropped if every texel it may read is transparent, one box if
+/// all are opaque or `depth` is spent, else its four midpoint children.
+fn split_opaque(
+    p: &[Vec3A; 3],
+    uv: &[[f32; 2]; 3],
+    count: &OpaqueCount,
+    bary: [[f32; 2]; 3],
+    depth: u32,
+    out: &mut Vec<obvhs::aabb::Aabb>,
+) {
+    let cov = count.coverage_of(uv, bary);
+    if cov == Coverage::Transparent {
+        return;
+    }
+    if cov == Coverage::Opaque || depth == 0 {
+        let q = bary.map(|b| p[0] + (p[1] - p[0]) * b[0] + (p[2] - p[0]) * b[1]);
+        let (mn, mx) = (q[0].min(q[1]).min(q[2]), q[0].max(q[1]).max(q[2]));
+        // Margin: the hit point of the whole triangle may round a little outside this box.
+        let pad = (mx - mn).max_element() * 1e-4 + mx.abs().max(mn.abs()).max_element() * 1e-6;
+        out.push(obvhs::aabb::Aabb::new(
+            (mn - pad).to_array().into(),
+            (mx + pad).to_array().into(),
+        ));
+        return;
+    }
+    let mid = |a: [f32; 2], b: [f32; 2]| [(a[0] + b[0]) * 0.5, (a[1] + b[1]) * 0.5];
+    let [a, b, c] = bary;
+    let (ab, bc, ca) = (mid(a, b), mid(b, c), mid(c, a));
+    for child in [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]] {
+        split_opaque(p, uv, count, child, depth - 1, out);
+    }
+}
+
 /// Möller–Trumbore ray/triangle test (both faces). Returns (t, u, v) for t in [tmin, tmax].
 /// Comparisons are written so that NaN never passes.
 #[inline(always)]
-fn intersect(tri: &PreTri, o: Vec3A, d: Vec3A, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
+pub(crate) fn intersect(
+    tri: &PreTri,
+    o: Vec3A,
+    d: Vec3A,
+    tmin: f32,
+    tmax: f32,
+) -> Option<(f32, f32, f32)> {
     let p = d.cross(tri.e2);
     let det = tri.e1.dot(p);
     if det == 0.0 {
@@ -590,6 +896,134 @@ mod tests {
         mesh.positions[0] = [f32::NAN, 0.0, 0.0];
         let bvh = ModelBvh::build(&mesh, &[], BuildPreset::default()).unwrap();
         assert_eq!(bvh.skipped_triangles(), 1);
+    }
+
+    #[test]
+    fn alpha_aware_build_equals_brute_force_on_a_plant() {
+        // The procedural plant: leaf quads whose texture is 43% transparent around a lens.
+        let (mesh, tex) = crate::light::plant::procedural_plant(1500, 4);
+        let masks = vec![Some(AlphaMask::from_rgba8(&tex)), None];
+        let opaque = ModelBvh::build(&mesh, &[], BuildPreset::VeryFast).unwrap();
+        let (lo, hi) = opaque.bounds();
+        let mut counts = Vec::new();
+        for depth in 0..=3 {
+            let bvh = ModelBvh::build_split(&mesh, &masks, BuildPreset::VeryFast, depth).unwrap();
+            counts.push(bvh.primitive_count());
+            let mut rng = Rng::new(30 + depth as u64);
+            let (mut hits, mut differ) = (0, 0);
+            for _ in 0..3000 {
+                let f = Vec3A::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+                let o = lo + (hi - lo) * f;
+                let d = Vec3A::new(
+                    rng.next_f32() - 0.5,
+                    rng.next_f32() - 0.5,
+                    rng.next_f32() - 0.5,
+                );
+                let r = Ray::new(o, d.normalize_or(Vec3A::Z), 0.0);
+                let a = bvh.closest_hit(&r);
+                same_hit(a, bvh.brute_force_closest_hit(&r));
+                assert_eq!(bvh.any_hit(&r), a.is_some());
+                hits += a.is_some() as u32;
+                differ += (a.map(|h| h.t) != opaque.closest_hit(&r).map(|h| h.t)) as u32;
+            }
+            assert!(
+                hits > 500 && differ > 100,
+                "depth {depth}: {hits} hits, {differ} differ"
+            );
+        }
+        // Depth 0 keeps every leaf triangle whole (each touches opaque texels); deeper builds
+        // drop transparent corners and split the rest.
+        assert_eq!(counts[0], mesh.indices.len());
+        assert!(counts[1] > counts[0] && counts[3] > counts[2], "{counts:?}");
+    }
+
+    #[test]
+    fn coverage_equals_a_texel_loop() {
+        let mut rng = Rng::new(17);
+        let (w, h) = (13u32, 7u32);
+        let img = Rgba8Image {
+            width: w,
+            height: h,
+            pixels: (0..w * h)
+                .map(|_| [0, 0, 0, if rng.next_f32() < 0.8 { 255 } else { 0 }])
+                .collect(),
+        };
+        let mask = AlphaMask::from_rgba8(&img);
+        let count = OpaqueCount::new(&mask);
+        let (mut seen_t, mut seen_o, mut seen_m) = (0, 0, 0);
+        for _ in 0..5000 {
+            let size = [rng.next_f32() * 0.4, rng.next_f32() * 0.6];
+            let lo = [rng.next_f32() * 4.0 - 2.0, rng.next_f32() * 4.0 - 2.0];
+            let hi = [lo[0] + size[0] * size[0], lo[1] + size[1] * size[1] * 3.0];
+            // Reference: every texel nearest sampling can read in the box, looped over.
+            let (x0, x1) = ((lo[0] * 13.0).floor() as i64, (hi[0] * 13.0).floor() as i64);
+            let (y0, y1) = ((lo[1] * 7.0).floor() as i64, (hi[1] * 7.0).floor() as i64);
+            let (mut any_o, mut any_t) = (false, false);
+            for x in x0..=x1.min(x0 + 13) {
+                for y in y0..=y1.min(y0 + 7) {
+                    let u = (x.rem_euclid(13) as f32 + 0.5) / 13.0;
+                    let v = (y.rem_euclid(7) as f32 + 0.5) / 7.0;
+                    if mask.opaque_at(u, v) {
+                        any_o = true;
+                    } else {
+                        any_t = true;
+                    }
+                }
+            }
+            let expect = match (any_o, any_t) {
+                (true, false) => Coverage::Opaque,
+                (false, true) => Coverage::Transparent,
+                _ => Coverage::Mixed,
+            };
+            assert_eq!(count.coverage(lo, hi), expect, "{lo:?} {hi:?}");
+            seen_t += (expect == Coverage::Transparent) as u32;
+            seen_o += (expect == Coverage::Opaque) as u32;
+            seen_m += (expect == Coverage::Mixed) as u32;
+        }
+        assert!(
+            seen_t > 100 && seen_o > 100 && seen_m > 100,
+            "{seen_t} {seen_o} {seen_m}"
+        );
+    }
+
+    #[test]
+    fn transparent_triangles_leave_the_bvh_and_opaque_ones_stay_whole() {
+        // Checker texels: (0, 0) opaque, (1, 0) transparent. Triangle 0 samples only texel
+        // (1, 0), triangle 1 only texel (0, 0).
+        let mesh = Mesh {
+            positions: vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+                [1.0, 0.0, 1.0],
+                [0.0, 1.0, 1.0],
+            ],
+            normals: vec![[0.0, 0.0, 1.0]; 6],
+            uvs: vec![
+                [0.13, 0.01],
+                [0.24, 0.01],
+                [0.13, 0.12],
+                [0.01, 0.01],
+                [0.12, 0.01],
+                [0.01, 0.12],
+            ],
+            indices: vec![[0, 1, 2], [3, 4, 5]],
+            triangle_materials: vec![0, 0],
+            materials: vec![Material::default()],
+            ..Mesh::default()
+        };
+        let bvh = ModelBvh::build(&mesh, &[Some(checker())], BuildPreset::default()).unwrap();
+        assert!(!bvh.contains_triangle(0) && bvh.contains_triangle(1));
+        assert_eq!(
+            bvh.primitive_count(),
+            1,
+            "an all-opaque triangle is one box"
+        );
+        let up = Ray::new(Vec3A::new(0.2, 0.2, -1.0), Vec3A::Z, 0.0);
+        let h = bvh.closest_hit(&up).unwrap();
+        assert_eq!((h.triangle, h.t), (1, 2.0));
+        assert_eq!(bvh.brute_force_closest_hit(&up), Some(h));
     }
 
     #[test]

@@ -1,13 +1,17 @@
-//! Ray tracing: per-model BVHs with alpha-tested triangles ([`bvh`]), a two-level scene of
-//! instanced models ([`scene`]), and the shared ray, hit and sampling types.
+//! Ray tracing: per-model BVHs with alpha-tested triangles ([`bvh`]), the terrain traced through
+//! its min/max quadtree ([`heightfield`]), a two-level scene of instanced models on the terrain
+//! ([`scene`]), and the shared ray, hit and sampling types.
 //!
 //! Every query here is pure and single-threaded; batch helpers run queries over rayon and
 //! collect in input order, so results never depend on the thread count.
 
+pub mod bench;
 pub mod bvh;
+pub mod heightfield;
 pub mod scene;
 
 pub use bvh::{AlphaMask, BuildPreset, ModelBvh, SurfacePoint};
+pub use heightfield::{Heightfield, TerrainPoint};
 pub use scene::{InstanceTransform, SceneBvh, SceneHit};
 
 use glam::Vec3A;

@@ -1,6 +1,11 @@
 //! Two-level scene: instances of model BVHs (bottom level) under a BVH over the instances'
 //! world bounds (top level), for tracing from one instance into the others (the environment-map
-//! stage, seed 000 4.6.3).
+//! stage, seed 000 4.6.3), plus optionally the terrain as a [`Heightfield`] beside the top level.
+//!
+//! The terrain counts as one more instance, numbered after the model instances: its hits carry
+//! the terrain-mesh triangle numbering (see [`Heightfield::closest_hit`]). A closest-hit query
+//! traces the terrain first and the top level only up to the terrain's hit: the ground ends most
+//! rays that would otherwise traverse far.
 //!
 //! An instance places its model by `world = translation + scale · Rz(rotation) · local`
 //! (ECO: uniform scale, rotation about +Z in degrees). A world ray is mapped into the model with
@@ -8,6 +13,7 @@
 //! same in both spaces and hits of different instances compare directly.
 
 use super::bvh::{ModelBvh, SurfacePoint};
+use super::heightfield::Heightfield;
 use super::{Hit, Ray};
 use crate::error::{Error, Result};
 use glam::{Mat3A, Vec3A};
@@ -76,6 +82,7 @@ pub struct SceneBvh {
     models: Vec<Arc<ModelBvh>>,
     instances: Vec<InstanceTransform>,
     tlas: Option<CwBvh>,
+    terrain: Option<Arc<Heightfield>>,
 }
 
 impl SceneBvh {
@@ -112,11 +119,35 @@ impl SceneBvh {
             models,
             instances,
             tlas,
+            terrain: None,
         })
     }
 
+    /// Adds the terrain, traced as a heightfield; it becomes instance number
+    /// `instances().len()`.
+    pub fn with_terrain(mut self, terrain: Arc<Heightfield>) -> Self {
+        self.terrain = Some(terrain);
+        self
+    }
+
+    /// The model instances (the heightfield terrain has no transform and is not among them).
     pub fn instances(&self) -> &[InstanceTransform] {
         &self.instances
+    }
+
+    /// The instance number of the heightfield terrain, if the scene has one.
+    pub fn terrain_instance(&self) -> Option<u32> {
+        self.terrain.as_ref().map(|_| self.instances.len() as u32)
+    }
+
+    /// The terrain's closest hit unless it is skipped.
+    fn terrain_hit(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit> {
+        let instance = self.terrain_instance()?;
+        if skip == Some(instance) {
+            return None;
+        }
+        let hit = self.terrain.as_ref()?.closest_hit(ray)?;
+        Some(SceneHit { instance, hit })
     }
 
     /// The closest opaque hit over all instances.
@@ -127,10 +158,16 @@ impl SceneBvh {
     /// The closest opaque hit over all instances but `skip` (tracing from an instance into the
     /// rest of the scene: the environment-map stage ignores the instance itself).
     pub fn closest_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit> {
-        let tlas = self.tlas.as_ref()?;
-        let mut best = None;
+        let mut best = self.terrain_hit(ray, skip);
+        let Some(tlas) = self.tlas.as_ref() else {
+            return best;
+        };
+        let bounded = Ray {
+            tmax: best.map_or(ray.tmax, |b| b.hit.t),
+            ..*ray
+        };
         let mut hit = obvhs::ray::RayHit::none();
-        tlas.ray_traverse(ray.to_obvhs(), &mut hit, |r, slot| {
+        tlas.ray_traverse(bounded.to_obvhs(), &mut hit, |r, slot| {
             let k = tlas.primitive_indices[slot];
             if Some(k) == skip {
                 return f32::INFINITY;
@@ -156,6 +193,9 @@ impl SceneBvh {
 
     /// Whether any instance blocks the ray segment.
     pub fn any_hit(&self, ray: &Ray) -> bool {
+        if self.terrain.as_ref().is_some_and(|t| t.any_hit(ray)) {
+            return true;
+        }
         let Some(tlas) = self.tlas.as_ref() else {
             return false;
         };
@@ -168,7 +208,7 @@ impl SceneBvh {
 
     /// Reference: every instance in turn, without the top level.
     pub fn brute_force_closest_hit(&self, ray: &Ray) -> Option<SceneHit> {
-        let mut best: Option<SceneHit> = None;
+        let mut best: Option<SceneHit> = self.terrain_hit(ray, None);
         for (k, inst) in self.instances.iter().enumerate() {
             let local = Ray {
                 tmax: best.map_or(ray.tmax, |b| b.hit.t),
@@ -191,6 +231,11 @@ impl SceneBvh {
 
     /// The hit's surface in world space.
     pub fn surface(&self, h: &SceneHit) -> SurfacePoint {
+        if let Some(t) = &self.terrain
+            && Some(h.instance) == self.terrain_instance()
+        {
+            return t.surface(&h.hit);
+        }
         let inst = &self.instances[h.instance as usize];
         let s = self.models[inst.model as usize].surface(&h.hit);
         SurfacePoint {
@@ -330,6 +375,78 @@ mod tests {
             }
         }
         assert!(checked > 100, "{checked}");
+    }
+
+    /// A rough terrain under the instances of [`scene`] (they stand on z = 0..2).
+    fn ground() -> crate::model::Terrain {
+        let mut rng = Rng::new(12);
+        let (w, h) = (23u32, 19u32);
+        crate::model::Terrain {
+            width: w,
+            height: h,
+            heights: (0..w * h).map(|_| rng.next_f32() * 1.5 - 0.5).collect(),
+            origin: [-2.0, -1.5],
+            extent: [14.0, 13.0],
+            color: None,
+        }
+    }
+
+    #[test]
+    fn heightfield_terrain_equals_terrain_mesh_instance() {
+        // Oracle: the same scene with the terrain as a triangle-mesh instance (the switch kept
+        // in `tracescene`); the terrain is the last instance in both.
+        let (s, _) = scene();
+        let t = ground();
+        let hf = Arc::new(crate::rt::Heightfield::new(&t).unwrap());
+        let with_hf = s.clone().with_terrain(hf);
+        let mut models = s.models.clone();
+        let mesh = crate::tracescene::terrain_mesh(&t);
+        models.push(Arc::new(
+            ModelBvh::build(&mesh, &[], BuildPreset::Fast).unwrap(),
+        ));
+        let mut instances = s.instances().to_vec();
+        instances.push(InstanceTransform {
+            model: (models.len() - 1) as u32,
+            translation: [0.0; 3],
+            scale: 1.0,
+            rotation_deg: 0.0,
+        });
+        let with_mesh = SceneBvh::build(models, instances).unwrap();
+        assert_eq!(with_hf.terrain_instance(), Some(30));
+        let mut rng = Rng::new(13);
+        let mut terrain_hits = 0;
+        for _ in 0..3000 {
+            let o = Vec3A::new(
+                rng.next_f32() * 12.0 - 1.0,
+                rng.next_f32() * 12.0 - 1.0,
+                rng.next_f32() * 4.0 - 0.5,
+            );
+            let d = Vec3A::new(
+                rng.next_f32() - 0.5,
+                rng.next_f32() - 0.5,
+                rng.next_f32() - 0.5,
+            );
+            let r = Ray::new(o, d.normalize_or(Vec3A::X), 1e-4);
+            let (a, b) = (with_hf.closest_hit(&r), with_mesh.closest_hit(&r));
+            assert_eq!(
+                a.map(|h| (h.hit.t, h.instance)),
+                b.map(|h| (h.hit.t, h.instance))
+            );
+            assert_eq!(
+                with_hf.brute_force_closest_hit(&r).map(|h| h.hit.t),
+                a.map(|h| h.hit.t)
+            );
+            assert_eq!(with_hf.any_hit(&r), a.is_some());
+            if let (Some(a), Some(b)) = (a, b) {
+                let (sa, sb) = (with_hf.surface(&a), with_mesh.surface(&b));
+                assert!((sa.position - sb.position).length() < 1e-4);
+                terrain_hits += (a.instance == 30) as u32;
+            }
+            // Skipping the terrain leaves the instances only.
+            let skipped = with_hf.closest_hit_excluding(&r, Some(30));
+            assert_eq!(skipped.map(|h| h.hit.t), s.closest_hit(&r).map(|h| h.hit.t));
+        }
+        assert!(terrain_hits > 500, "{terrain_hits}");
     }
 
     #[test]

@@ -6,7 +6,10 @@
 //! covers `origin + [i, i+1) × voxel_size` on each axis. Voxels are keyed by their 64-bit Morton
 //! code (bit 3b = x bit b, 3b+1 = y bit b, 3b+2 = z bit b), so grids up to 2²¹ voxels per axis fit.
 
+pub mod compute;
 pub mod geometry;
+pub mod gpu;
+pub mod packed;
 pub mod section;
 pub mod svo;
 pub mod traverse;

@@ -1,6 +1,6 @@
 //! Kind `svo`: a sparse voxel octree (layout in [`super::svo`]) as a pack section, and its `dump`
-//! views. Arrays: `nodes` (u32×4 per inner node), `bricks` (u64), `voxel_colors`,
-//! `voxel_normals`, `node_colors`, `node_normals` (u32 each).
+//! views. Arrays: `nodes` (u32×4 per inner node), `leaves` (u8: the bricks as 2³ sub-masks, see
+//! [`super::packed`]), `voxel_colors`, `voxel_normals`, `node_colors`, `node_normals` (u32 each).
 
 use super::Grid;
 use super::svo::{Node, Svo};
@@ -30,10 +30,11 @@ pub fn to_section(name: &str, source: &str, svo: &Svo, solid: bool) -> Section {
         level_start: svo.level_start.clone(),
         solid,
     };
+    let (nodes, leaves) = super::packed::pack_leaves(svo);
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(&meta)
-        .array("nodes", ArrayFormat::U32, 4, &svo.nodes)
-        .array("bricks", ArrayFormat::U64, 1, &svo.bricks)
+        .array("nodes", ArrayFormat::U32, 4, &nodes)
+        .array("leaves", ArrayFormat::U8, 1, &leaves)
         .array("voxel_colors", ArrayFormat::U32, 1, &svo.voxel_colors)
         .array("voxel_normals", ArrayFormat::U32, 1, &svo.voxel_normals)
         .array("node_colors", ArrayFormat::U32, 1, &svo.node_colors)
@@ -43,12 +44,16 @@ pub fn to_section(name: &str, source: &str, svo: &Svo, solid: bool) -> Section {
 
 pub fn from_section(v: &SectionView) -> Result<(SvoMeta, Svo), ParseError> {
     let meta: SvoMeta = v.meta()?;
+    let stored: Vec<Node> = v.array_vec("nodes")?;
+    let leaves: &[u8] = v.array("leaves")?;
+    let (nodes, bricks) = super::packed::unpack_leaves(&stored, &meta.level_start, leaves)
+        .map_err(|m| ParseError::new("svo section", m))?;
     let svo = Svo {
         grid: meta.grid,
         levels: meta.levels,
-        nodes: v.array_vec::<Node>("nodes")?,
+        nodes,
         level_start: meta.level_start.clone(),
-        bricks: v.array_vec("bricks")?,
+        bricks,
         voxel_colors: v.array_vec("voxel_colors")?,
         voxel_normals: v.array_vec("voxel_normals")?,
         node_colors: v.array_vec("node_colors")?,
@@ -120,6 +125,7 @@ pub fn summary_of(svo: &Svo) -> Value {
         "topology_bytes_per_voxel": per(st.topology_bytes),
         "levels": svo.levels,
         "esvo_topology_bytes_per_voxel": per(st.esvo_topology_bytes),
+        "mask64_topology_bytes_per_voxel": per(st.mask64_topology_bytes),
     })
 }
 

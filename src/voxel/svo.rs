@@ -2,8 +2,10 @@
 //! two octree levels), topology and attributes in separate arrays.
 //!
 //! Layout (chosen by measurement, see docs/PERFORMANCE.md "Voxels and line spaces": ESVO-style
-//! 8-byte child descriptors need about 1 B/voxel of topology on scanned surfaces, this layout
-//! about 0.3 B/voxel; [`esvo_topology_bytes`] computes the ESVO figure for the same voxels):
+//! 8-byte child descriptors need about 2.7 B/voxel of topology on thin surfaces, u64 brick masks
+//! about 0.57 B/voxel, and the stored form of the bricks, 2³ sub-masks ([`super::packed`]),
+//! about 0.38 B/voxel; [`esvo_topology_bytes`] computes the ESVO figure for the same voxels).
+//! In memory the bricks are plain u64 masks:
 //!
 //! - The root covers 4^L voxels per axis (L = [`Svo::levels`] ≥ 2, the smallest power of four
 //!   that holds the grid). Levels 0..L−2 are inner [`Node`]s (16 B); level L−1 are bricks, a bare
@@ -14,7 +16,7 @@
 //!   so child s is `first_child + popcount(mask & ((1 << s) − 1))`.
 //! - Voxel attributes are in Morton order. A voxel's index is the `first_voxel` of the brick's
 //!   parent, plus the popcounts of the sibling bricks before it, plus the popcount of the brick's
-//!   mask below the voxel's slot (bricks carry no pointer, which keeps topology at 8 B/brick).
+//!   mask below the voxel's slot (bricks carry no pointer).
 //! - Attributes per voxel: colour RGBA8, linear, premultiplied alpha; normal as 2 × snorm16
 //!   octahedral. Per node and brick the filtered value of its 64 cells: the mean of the children's
 //!   premultiplied colours with empty cells counting as transparent black (so alpha is coverage),
@@ -79,6 +81,8 @@ pub struct SvoStats {
     pub topology_bytes: u64,
     pub attribute_bytes: u64,
     pub esvo_topology_bytes: u64,
+    /// The same inner nodes with bricks as u64 masks (the in-memory form, 8 B per brick).
+    pub mask64_topology_bytes: u64,
 }
 
 /// Packs linear RGBA in 0..1 to RGBA8.
@@ -347,10 +351,10 @@ impl Svo {
         }
     }
 
-    /// Byte figures (topology: 16 B per inner node + 8 B per brick).
+    /// Byte figures (topology as stored: 16 B per inner node + the packed bricks).
     pub fn stats(&self) -> SvoStats {
         let voxels = self.voxel_colors.len() as u64;
-        let topology_bytes = 16 * self.nodes.len() as u64 + 8 * self.bricks.len() as u64;
+        let topology_bytes = submask_topology_bytes(self.nodes.len(), &self.bricks);
         let attribute_bytes = 4
             * (self.voxel_colors.len()
                 + self.voxel_normals.len()
@@ -363,6 +367,7 @@ impl Svo {
             topology_bytes,
             attribute_bytes,
             esvo_topology_bytes: esvo_topology_bytes(&self.leaf_bricks(), self.levels),
+            mask64_topology_bytes: 16 * self.nodes.len() as u64 + 8 * self.bricks.len() as u64,
         }
     }
 }
@@ -399,4 +404,34 @@ pub fn esvo_topology_bytes(bricks: &[Brick], levels: u32) -> u64 {
         count += keys.len() as u64;
     }
     8 * count
+}
+
+/// Topology bytes as stored ([`super::packed`]): 16-byte inner nodes, and each 4³ brick as one
+/// byte of non-empty 2³ octants followed by one 8-bit mask per non-empty octant. A plane crossing
+/// a brick fills 4 octants with 16 voxels: 5 bytes instead of a u64 mask's 8.
+pub fn submask_topology_bytes(inner_nodes: usize, bricks: &[u64]) -> u64 {
+    let leaves: u64 = bricks
+        .iter()
+        .map(|&m| super::packed::brick_bytes(m) as u64)
+        .sum();
+    16 * inner_nodes as u64 + leaves
+}
+
+#[cfg(test)]
+mod submask_tests {
+    #[test]
+    fn submask_bytes_count_one_header_and_one_byte_per_octant() {
+        // A full brick: header + 8 octants; one voxel: header + 1; a 4×4 plane z = 0 (slots with
+        // z bits 0: octants 0, 1, 2 and 3 hold 4 voxels each): header + 4.
+        let plane: u64 = (0..64u64)
+            .filter(|s| s >> 2 & 1 == 0 && s >> 5 & 1 == 0)
+            .map(|s| 1u64 << s)
+            .sum();
+        assert_eq!(plane.count_ones(), 16);
+        assert_eq!(
+            super::submask_topology_bytes(0, &[u64::MAX, 1 << 40, plane]),
+            9 + 2 + 5
+        );
+        assert_eq!(super::submask_topology_bytes(3, &[]), 48);
+    }
 }

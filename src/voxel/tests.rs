@@ -244,7 +244,7 @@ fn voxelization_is_independent_of_thread_count() {
 }
 
 /// Random voxel sets: a noisy sphere shell and scattered voxels, in a non-cubic grid.
-fn random_voxels(rng: &mut Rng, dims: [u32; 3]) -> Voxels {
+pub(crate) fn random_voxels(rng: &mut Rng, dims: [u32; 3]) -> Voxels {
     let mut keys = Vec::new();
     let c = dims.map(|d| d as f32 / 2.0);
     let r = c[0].min(c[1]).min(c[2]) * 0.8;

@@ -21,8 +21,20 @@ struct Globals {
 @group(0) @binding(0) var<uniform> globals: Globals;
 // The sky, lat-long, linear RGB radiance, Rgba32Float read with textureLoad (not filterable on GL).
 @group(0) @binding(1) var sky_texture: texture_2d<f32>;
+// The sun's visibility per pixel from the line-space soft shadows (src/render/soft_shadow.rs),
+// R32Float, used where sun_direction.w is 1 (`bake render --soft-shadows`); 1×1 otherwise.
+@group(0) @binding(2) var soft_visibility: texture_2d<f32>;
 
 const PI: f32 = 3.14159265358979;
+
+// The soft-shadow visibility of the pixel that `world` projects to.
+fn soft_visibility_at(world: vec3<f32>) -> f32 {
+    let c = globals.view_proj * vec4<f32>(world, 1.0);
+    let uv = vec2<f32>(c.x / c.w * 0.5 + 0.5, 0.5 - c.y / c.w * 0.5);
+    let size = vec2<i32>(textureDimensions(soft_visibility));
+    let px = clamp(vec2<i32>(floor(uv * vec2<f32>(size))), vec2<i32>(0), size - vec2<i32>(1));
+    return textureLoad(soft_visibility, px, 0).r;
+}
 
 // The sky ambient of src/render/light.rs: albedo/π · E_sky · (1 + n_z)/2 (the CPU reference's
 // `Reference::ambient_term`; the ambient term of the shading contract replaces it).

@@ -117,6 +117,10 @@ fn shading_frame(n: vec3<f32>, t_in: vec3<f32>) -> mat3x3<f32> {
 // The fraction of the sun seen at `world` (1 without a shadow map). The point is pushed along
 // the normal towards the sun's side before the lookup, and compared with a small depth bias.
 fn sun_visibility(world: vec3<f32>, n: vec3<f32>) -> f32 {
+    // `--soft-shadows`: the line-space visibility replaces the shadow map.
+    if (globals.sun_direction.w > 0.5) {
+        return soft_visibility_at(world);
+    }
     if (shadow.params.w == 0.0) {
         return 1.0;
     }

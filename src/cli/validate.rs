@@ -1,0 +1,122 @@
+//! `bake validate PACK`: the runtime check of issue 6 — the compute shaders traverse the pack's
+//! `svo` and `linespace` sections for a batch of random rays and the answers are compared with
+//! the CPU traversal; exits non-zero (runtime error) when they disagree.
+
+use super::{Global, Outcome};
+use crate::error::{Error, Result};
+use crate::linespace::gpu::validate_linespace;
+use crate::pack::Pack;
+use crate::render::BackendChoice;
+use crate::voxel::gpu::{SvoAgreement, compare_hits, random_rays, trace_svo_cpu};
+use serde_json::json;
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct ValidateArgs {
+    /// A .bake pack with an `svo` and/or a `linespace` section.
+    pub pack: PathBuf,
+    /// Random rays through the octree.
+    #[arg(long, default_value_t = 100_000)]
+    pub rays: usize,
+    /// Random receivers of the soft-shadow queries.
+    #[arg(long, default_value_t = 2_000)]
+    pub receivers: usize,
+    /// Light samples per side (samples² segments per receiver).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub samples: u32,
+    /// Seed of the random batches.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Graphics API.
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    pub backend: BackendChoice,
+}
+
+/// Traces the `svo` section: GPU buffers straight from the section's arrays.
+fn validate_svo_section(
+    gpu: &crate::render::gpu::Gpu,
+    view: &crate::pack::section::SectionView,
+    args: &ValidateArgs,
+    path: &std::path::Path,
+) -> Result<SvoAgreement> {
+    let (_, svo) =
+        crate::voxel::section::from_section(view).map_err(|e| Error::invalid(path, e))?;
+    let nodes: &[[u32; 4]] = view.array("nodes").map_err(|e| Error::invalid(path, e))?;
+    let leaves: &[u8] = view.array("leaves").map_err(|e| Error::invalid(path, e))?;
+    let dev = crate::voxel::gpu::SvoGpu::from_arrays(
+        gpu,
+        svo.grid.dims,
+        svo.levels,
+        bytemuck::cast_slice(nodes),
+        leaves,
+    )?;
+    let rays = random_rays(svo.grid.dims, args.rays, args.seed);
+    let t0 = std::time::Instant::now();
+    let on_gpu = dev.trace(&rays)?;
+    let t1 = std::time::Instant::now();
+    let on_cpu: Vec<_> = rays.iter().map(|r| trace_svo_cpu(&svo, r)).collect();
+    let t2 = std::time::Instant::now();
+    Ok(SvoAgreement {
+        gpu_seconds: (t1 - t0).as_secs_f64(),
+        cpu_seconds: (t2 - t1).as_secs_f64(),
+        ..compare_hits(&on_gpu, &on_cpu)
+    })
+}
+
+pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
+    let pack = Pack::open(&args.pack)?;
+    let svo_entry = pack.of_kind(crate::voxel::section::KIND).next();
+    let ls_entry = pack.of_kind(crate::linespace::section::KIND).next();
+    if svo_entry.is_none() && ls_entry.is_none() {
+        return Err(Error::invalid_at(
+            &args.pack,
+            "section table",
+            "no svo or linespace section to validate (run `bake svo` or `bake linespace`)",
+        ));
+    }
+    let gpu = crate::render::gpu::init_gpu(args.backend)?;
+    let mut json = json!({ "pack": args.pack, "adapter": gpu.adapter });
+    let mut text = format!("{}: on {}\n", args.pack.display(), gpu.adapter);
+    let mut ok = true;
+    if let Some(e) = svo_entry {
+        let a = validate_svo_section(&gpu, &pack.view(e)?, args, &args.pack)?;
+        ok &= a.agrees();
+        text += &format!(
+            "svo: {} rays, {} hits, {} voxel mismatches, {} t mismatches (max |Δt| {:.2e})\n",
+            a.rays, a.hits, a.voxel_mismatches, a.t_mismatches, a.max_t_error
+        );
+        json["svo"] = json!(a);
+        json["svo"]["agree"] = json!(a.agrees());
+    }
+    if let Some(e) = ls_entry {
+        let (_, tree) = crate::linespace::section::from_section(&pack.view(e)?)
+            .map_err(|err| Error::invalid(&args.pack, err))?;
+        let a = validate_linespace(&gpu, &tree, args.receivers, args.samples, args.seed)?;
+        ok &= a.agrees();
+        text += &format!(
+            "linespace: {} segments ({} occluded), {} mismatches ({} without line spaces); \
+             {} receivers × {} samples, {} shadow-fraction mismatches, {} in penumbra\n",
+            a.segments,
+            a.occluded,
+            a.segment_mismatches,
+            a.exact_mismatches,
+            a.receivers,
+            a.samples,
+            a.fraction_mismatches,
+            a.penumbra
+        );
+        json["linespace"] = json!(a);
+        json["linespace"]["agree"] = json!(a.agrees());
+    }
+    json["agree"] = json!(ok);
+    if !ok {
+        return Err(Error::runtime(format!(
+            "GPU and CPU traversals disagree: {text}{json}"
+        )));
+    }
+    Ok(Outcome {
+        json,
+        text,
+        warnings: Vec::new(),
+    })
+}

@@ -1,0 +1,432 @@
+//! GPU soft-shadow queries through the N-tree with line spaces: the `linespace` section's
+//! `nodes`, `linespaces`, `tri_indices` and `triangles` arrays bound as storage buffers exactly
+//! as packed, traversed by `shaders/ls_query.wgsl`, which follows [`super::query`] operation for
+//! operation (DDA, line-space termination, exact Möller–Trumbore tests as obvhs writes them).
+//! [`validate_linespace`] compares it with the CPU on random segments and shadow queries.
+
+use super::ntree::NTree;
+use super::query::{AreaLight, QueryStats, Segment};
+use crate::error::{Error, Result};
+use crate::render::gpu::Gpu;
+use crate::voxel::compute::{self, Kernel, SplitMix};
+use bytemuck::{Pod, Zeroable};
+
+const DDA_WGSL: &str = include_str!("../voxel/shaders/dda.wgsl");
+const QUERY_WGSL: &str = include_str!("shaders/ls_query.wgsl");
+
+/// The shader's `Params` (64 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct Params {
+    origin: [f32; 3],
+    n: u32,
+    leaf_size: [f32; 3],
+    depth: u32,
+    count: u32,
+    stride: u32,
+    words: u32,
+    use_linespaces: u32,
+    offset: f32,
+    seg_t_max: f32,
+    samples: u32,
+    flags: u32,
+}
+
+/// Output of the `shadow` kernel: counts of lit samples, or f32 fractions.
+const FLAG_FRACTION: u32 = 1;
+
+/// Receivers of a shadow query: a world position, or none (answered fully lit).
+pub type Receiver = Option<[f32; 3]>;
+
+/// An N-tree resident on the GPU, with its two kernels.
+pub struct NTreeGpu<'g> {
+    gpu: &'g Gpu,
+    segments: Kernel,
+    shadow: Kernel,
+    pools: [wgpu::Buffer; 4],
+    base: Params,
+}
+
+impl<'g> NTreeGpu<'g> {
+    /// Uploads the tree's pools as they are (the bytes of the `linespace` section's arrays).
+    pub fn new(gpu: &'g Gpu, t: &NTree) -> Result<Self> {
+        if t.depth as usize > 12 {
+            return Err(Error::runtime("linespace: depth > 12"));
+        }
+        let parts = [DDA_WGSL, QUERY_WGSL];
+        let pools = [
+            compute::storage(gpu, "ntree nodes", bytemuck::cast_slice(&t.nodes))?,
+            compute::storage(gpu, "linespaces", bytemuck::cast_slice(&t.linespaces))?,
+            compute::storage(gpu, "tri indices", bytemuck::cast_slice(&t.tri_indices))?,
+            compute::storage(gpu, "triangles", bytemuck::cast_slice(&t.triangles))?,
+        ];
+        Ok(NTreeGpu {
+            gpu,
+            segments: Kernel::new(gpu, "ntree segments", &parts, "segments", 5)?,
+            shadow: Kernel::new(gpu, "ntree shadow", &parts, "shadow", 5)?,
+            pools,
+            base: Params {
+                origin: t.origin,
+                n: t.n,
+                leaf_size: t.leaf_size,
+                depth: t.depth,
+                count: 0,
+                stride: 0,
+                words: t.layout().words() as u32,
+                use_linespaces: 1,
+                offset: 0.0,
+                seg_t_max: 1.0,
+                samples: 0,
+                flags: 0,
+            },
+        })
+    }
+
+    fn run(&self, kernel: &Kernel, params: Params, queries: &[[f32; 4]]) -> Result<Vec<u32>> {
+        let (grid, stride) = compute::grid_for(params.count);
+        let params = Params { stride, ..params };
+        let g = self.gpu;
+        let uniform = compute::uniform(g, "ntree params", bytemuck::bytes_of(&params));
+        let input = compute::storage(g, "ntree queries", bytemuck::cast_slice(queries))?;
+        let bytes = 4 * params.count as u64;
+        let out = compute::output(g, "ntree results", bytes);
+        let [a, b, c, d] = &self.pools;
+        let raw = kernel.run(g, &uniform, &[a, b, c, d, &input], &out, grid, bytes)?;
+        Ok(bytemuck::cast_slice(&raw).to_vec())
+    }
+
+    /// Whether each segment may be blocked ([`NTree::segment_occluded`], or with
+    /// `linespaces == false` [`NTree::segment_occluded_exact`]).
+    pub fn segments_occluded(&self, segs: &[Segment], linespaces: bool) -> Result<Vec<bool>> {
+        let count = u32::try_from(segs.len())
+            .map_err(|_| Error::runtime("linespace: more than 2³² segments"))?;
+        let queries: Vec<[f32; 4]> = segs
+            .iter()
+            .flat_map(|s| {
+                [
+                    [s.from[0], s.from[1], s.from[2], s.t_min],
+                    [s.dir[0], s.dir[1], s.dir[2], s.t_max],
+                ]
+            })
+            .collect();
+        let params = Params {
+            count,
+            use_linespaces: linespaces as u32,
+            ..self.base
+        };
+        Ok(self
+            .run(&self.segments, params, &queries)?
+            .iter()
+            .map(|&r| r == 1)
+            .collect())
+    }
+
+    /// Lit light samples per receiver ([`NTree::shadow`] × samples²; `None` receivers count all
+    /// samples as lit).
+    pub fn shadow_counts(
+        &self,
+        receivers: &[Receiver],
+        light: &AreaLight,
+        offset: f32,
+    ) -> Result<Vec<u32>> {
+        let (queries, params) = self.shadow_setup(receivers, light, offset)?;
+        self.run(&self.shadow, params, &queries)
+    }
+
+    /// Lit fraction per receiver, computed on the GPU (lit / samples²).
+    pub fn shadow_fractions(
+        &self,
+        receivers: &[Receiver],
+        light: &AreaLight,
+        offset: f32,
+    ) -> Result<Vec<f32>> {
+        let (queries, params) = self.shadow_setup(receivers, light, offset)?;
+        let params = Params {
+            flags: FLAG_FRACTION,
+            ..params
+        };
+        let raw = self.run(&self.shadow, params, &queries)?;
+        Ok(raw.iter().map(|&b| f32::from_bits(b)).collect())
+    }
+
+    /// Records the `shadow` kernel (f32 fractions into `out`) over `count` receivers that
+    /// `queries` already holds as vec4 (w = 1: a receiver, w = 0: none), e.g. a world-position
+    /// texture copied in; the light samples are written behind them.
+    pub fn record_shadow_fractions(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        queries: &wgpu::Buffer,
+        count: u32,
+        light: &AreaLight,
+        offset: f32,
+        out: &wgpu::Buffer,
+    ) -> Result<()> {
+        let (q, params) = self.shadow_setup(&[], light, offset)?;
+        let (grid, stride) = compute::grid_for(count);
+        let params = Params {
+            count,
+            stride,
+            flags: FLAG_FRACTION,
+            ..params
+        };
+        let need = 16 * (count as u64 + q.len() as u64);
+        if queries.size() < need || out.size() < 4 * count as u64 {
+            return Err(Error::runtime("shadow kernel: buffers too small"));
+        }
+        let g = self.gpu;
+        g.queue
+            .write_buffer(queries, 16 * count as u64, bytemuck::cast_slice(&q));
+        let uniform = compute::uniform(g, "ntree params", bytemuck::bytes_of(&params));
+        let [a, b, c, d] = &self.pools;
+        self.shadow
+            .record(g, enc, &uniform, &[a, b, c, d, queries], out, grid)
+    }
+
+    /// Receivers then light samples (computed on the CPU, so both sides use the same points).
+    fn shadow_setup(
+        &self,
+        receivers: &[Receiver],
+        light: &AreaLight,
+        offset: f32,
+    ) -> Result<(Vec<[f32; 4]>, Params)> {
+        let count = u32::try_from(receivers.len())
+            .map_err(|_| Error::runtime("linespace: more than 2³² receivers"))?;
+        let k = light.samples.max(1).pow(2);
+        let mut q: Vec<[f32; 4]> = receivers
+            .iter()
+            .map(|r| r.map_or([0.0; 4], |p| [p[0], p[1], p[2], 1.0]))
+            .collect();
+        q.extend((0..k).map(|i| {
+            let s = light.sample(i);
+            [s[0], s[1], s[2], 1.0]
+        }));
+        let params = Params {
+            count,
+            offset,
+            seg_t_max: Segment::between([0.0; 3], [1.0; 3], 0.0).t_max,
+            samples: k,
+            ..self.base
+        };
+        Ok((q, params))
+    }
+}
+
+/// Lit samples per receiver on the CPU ([`NTree::shadow`] without the division).
+pub fn shadow_counts_cpu(
+    t: &NTree,
+    receivers: &[Receiver],
+    light: &AreaLight,
+    offset: f32,
+) -> Vec<u32> {
+    let k = light.samples.max(1).pow(2);
+    let mut stats = QueryStats::default();
+    receivers
+        .iter()
+        .map(|r| match r {
+            None => k,
+            Some(p) => (0..k)
+                .filter(|&i| {
+                    let s = Segment::between(*p, light.sample(i), offset);
+                    !t.segment_occluded(&s, &mut stats)
+                })
+                .count() as u32,
+        })
+        .collect()
+}
+
+/// The root box of the tree: minimum corner and size.
+pub fn root_box(t: &NTree) -> ([f32; 3], [f32; 3]) {
+    let side = t.n.pow(t.depth) as f32;
+    (t.origin, t.leaf_size.map(|s| s * side))
+}
+
+/// A quad light above the tree's box (as `bake bench linespace` places it).
+pub fn light_above(t: &NTree, samples: u32) -> AreaLight {
+    let (lo, size) = root_box(t);
+    AreaLight {
+        corner: [
+            lo[0] + 0.3 * size[0],
+            lo[1] + 0.3 * size[1],
+            lo[2] + 2.0 * size[2],
+        ],
+        edge_u: [0.4 * size[0], 0.0, 0.0],
+        edge_v: [0.0, 0.4 * size[1], 0.0],
+        samples,
+    }
+}
+
+/// Random receivers: points on random triangles (where shadows and self-occlusion matter)
+/// and points anywhere in the box.
+pub fn random_receivers(t: &NTree, count: usize, seed: u64) -> Vec<[f32; 3]> {
+    let mut rng = SplitMix(seed);
+    let (lo, size) = root_box(t);
+    (0..count)
+        .map(|i| {
+            if i % 2 == 0 && !t.triangles.is_empty() {
+                let tri = t.triangles[(rng.next_u64() % t.triangles.len() as u64) as usize];
+                let (mut a, mut b) = (rng.f32(), rng.f32());
+                if a + b > 1.0 {
+                    (a, b) = (1.0 - a, 1.0 - b);
+                }
+                [0, 1, 2]
+                    .map(|k| tri[0][k] + a * (tri[1][k] - tri[0][k]) + b * (tri[2][k] - tri[0][k]))
+            } else {
+                [0, 1, 2].map(|k| lo[k] + rng.f32() * size[k])
+            }
+        })
+        .collect()
+}
+
+/// Agreement of GPU and CPU line-space queries.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct LinespaceAgreement {
+    pub segments: usize,
+    pub occluded: usize,
+    /// Segments where the GPU and the CPU line-space answers differ.
+    pub segment_mismatches: usize,
+    /// The same without line spaces (exact N-tree traversal on both sides).
+    pub exact_mismatches: usize,
+    pub receivers: usize,
+    pub samples: u32,
+    /// Receivers whose lit fraction differs.
+    pub fraction_mismatches: usize,
+    /// Receivers strictly between 0 and 1 (penumbra).
+    pub penumbra: usize,
+    /// Up to 5 disagreeing segment indices.
+    pub examples: Vec<usize>,
+    /// Wall time of the line-space segments on the GPU (upload, dispatch, read-back) and on
+    /// the CPU (one thread).
+    pub gpu_seconds: f64,
+    pub cpu_seconds: f64,
+}
+
+impl LinespaceAgreement {
+    pub fn agrees(&self) -> bool {
+        self.segment_mismatches == 0 && self.exact_mismatches == 0 && self.fraction_mismatches == 0
+    }
+}
+
+/// Runs `receivers` random receivers against a `samples × samples` light above the tree: every
+/// segment on both sides (with and without line spaces), and the shadow kernel's counts.
+pub fn validate_linespace(
+    gpu: &Gpu,
+    t: &NTree,
+    receivers: usize,
+    samples: u32,
+    seed: u64,
+) -> Result<LinespaceAgreement> {
+    let light = light_above(t, samples.max(1));
+    let (_, size) = root_box(t);
+    let offset = 1e-4 * size.iter().cloned().fold(0.0, f32::max);
+    let points = random_receivers(t, receivers, seed);
+    let k = light.samples.pow(2);
+    let segs: Vec<Segment> = points
+        .iter()
+        .flat_map(|&p| (0..k).map(move |i| Segment::between(p, light.sample(i), offset)))
+        .collect();
+    let dev = NTreeGpu::new(gpu, t)?;
+    let mut stats = QueryStats::default();
+    let t0 = std::time::Instant::now();
+    let cpu: Vec<bool> = segs
+        .iter()
+        .map(|s| t.segment_occluded(s, &mut stats))
+        .collect();
+    let t1 = std::time::Instant::now();
+    let cpu_exact: Vec<bool> = segs
+        .iter()
+        .map(|s| t.segment_occluded_exact(s, &mut stats))
+        .collect();
+    let t2 = std::time::Instant::now();
+    let on_gpu = dev.segments_occluded(&segs, true)?;
+    let t3 = std::time::Instant::now();
+    let on_gpu_exact = dev.segments_occluded(&segs, false)?;
+    let recv: Vec<Receiver> = points.iter().map(|&p| Some(p)).collect();
+    let counts_gpu = dev.shadow_counts(&recv, &light, offset)?;
+    let counts_cpu = shadow_counts_cpu(t, &recv, &light, offset);
+    let mut a = LinespaceAgreement {
+        segments: segs.len(),
+        occluded: cpu.iter().filter(|&&o| o).count(),
+        receivers: points.len(),
+        samples: k,
+        cpu_seconds: (t1 - t0).as_secs_f64(),
+        gpu_seconds: (t3 - t2).as_secs_f64(),
+        ..Default::default()
+    };
+    for i in 0..segs.len() {
+        let bad = cpu[i] != on_gpu[i];
+        a.segment_mismatches += bad as usize;
+        a.exact_mismatches += (cpu_exact[i] != on_gpu_exact[i]) as usize;
+        if (bad || cpu_exact[i] != on_gpu_exact[i]) && a.examples.len() < 5 {
+            a.examples.push(i);
+        }
+    }
+    a.fraction_mismatches = counts_gpu
+        .iter()
+        .zip(&counts_cpu)
+        .filter(|(g, c)| g != c)
+        .count();
+    a.penumbra = counts_cpu.iter().filter(|&&c| c > 0 && c < k).count();
+    Ok(a)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::linespace::ntree::{NTreeOptions, build_ntree};
+    use crate::linespace::shaft::ChildMasks;
+    use crate::render::{BackendChoice, gpu::init_gpu};
+
+    /// Small random triangles in [0, 10]³ over a ground quad at z = −0.5.
+    fn scene(seed: u64, count: usize) -> Vec<[[f32; 3]; 3]> {
+        let mut rng = SplitMix(seed);
+        let mut tris: Vec<[[f32; 3]; 3]> = (0..count)
+            .map(|_| {
+                let c = [0, 1, 2].map(|_| rng.range(0.0, 10.0));
+                std::array::from_fn(|_| [0, 1, 2].map(|k| c[k] + rng.range(-0.8, 0.8)))
+            })
+            .collect();
+        tris.push([[-2.0, -2.0, -0.5], [12.0, -2.0, -0.5], [12.0, 12.0, -0.5]]);
+        tris.push([[-2.0, -2.0, -0.5], [12.0, 12.0, -0.5], [-2.0, 12.0, -0.5]]);
+        tris
+    }
+
+    #[test]
+    fn gpu_shadow_queries_equal_cpu_on_every_segment() {
+        let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
+        for (n, depth, seed) in [(4, 2, 1), (3, 3, 2), (10, 2, 3), (2, 5, 4)] {
+            let tris = scene(seed, 200);
+            let t = build_ntree(&tris, &NTreeOptions { n, depth }, &ChildMasks::build(n)).unwrap();
+            let a = validate_linespace(&gpu, &t, 400, 4, seed).unwrap();
+            assert!(a.agrees(), "n {n} depth {depth}: {a:?}");
+            assert_eq!(a.segments, 400 * 16);
+            assert!(
+                a.occluded > 400 && a.occluded < 6000,
+                "n {n} depth {depth}: {a:?}"
+            );
+            assert!(a.penumbra > 10, "n {n} depth {depth}: {a:?}");
+        }
+    }
+
+    #[test]
+    fn none_receivers_are_fully_lit_and_fractions_are_counts_over_samples() {
+        let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
+        let tris = scene(9, 100);
+        let t = build_ntree(
+            &tris,
+            &NTreeOptions { n: 4, depth: 2 },
+            &ChildMasks::build(4),
+        )
+        .unwrap();
+        let light = light_above(&t, 3);
+        let mut recv: Vec<Receiver> = random_receivers(&t, 50, 1).into_iter().map(Some).collect();
+        recv[7] = None;
+        let dev = NTreeGpu::new(&gpu, &t).unwrap();
+        let counts = dev.shadow_counts(&recv, &light, 1e-3).unwrap();
+        let fractions = dev.shadow_fractions(&recv, &light, 1e-3).unwrap();
+        assert_eq!(counts, shadow_counts_cpu(&t, &recv, &light, 1e-3));
+        assert_eq!(counts[7], 9);
+        for (c, f) in counts.iter().zip(&fractions) {
+            assert!((f - *c as f32 / 9.0).abs() <= 1e-6, "{f} vs {c}/9");
+        }
+    }
+}

@@ -1,0 +1,10 @@
+// World-position pass of the soft shadows (src/render/soft_shadow.rs), terrain: the receiver,
+// lifted off the surface along its normal by 10⁻³ of its distance to the eye. Appended to
+// common.wgsl + terrain.wgsl (vs_main, TerrainOut).
+
+@fragment
+fn fs_world(in: TerrainOut) -> @location(0) vec4<f32> {
+    let n = normalize(in.normal);
+    let bias = 1e-3 * distance(globals.eye.xyz, in.world);
+    return vec4<f32>(in.world + n * bias, 1.0);
+}

@@ -1,0 +1,546 @@
+//! `bake render --soft-shadows`: the sun's visibility per pixel from the line-space soft-shadow
+//! query (issue 6). A world-position pass (the terrain and mesh vertex shaders with fragment
+//! shaders of our own, `shaders/world_*.wgsl`) writes each pixel's receiver point; the N-tree
+//! `shadow` kernel ([`crate::linespace::gpu`]) answers the fraction of a quad light's samples
+//! that reach it; the fractions become an `R32Float` texture that the scene pass reads as
+//! `soft_visibility` (common.wgsl) in place of the shadow map (direct.wgsl `sun_visibility`).
+//!
+//! The light is either explicit (`--area-light`) or the sun's disc: a square of the disc's
+//! angular diameter, perpendicular to the sun direction at 100 scene diagonals from the N-tree's
+//! centre. Receivers are moved off their surface along the (viewer-facing) normal by 10⁻³ of
+//! their distance to the eye, against self-shadowing from the rasterizer's depth precision.
+
+use super::draw::Globals;
+use super::gpu::Gpu;
+use super::pipelines::{DEPTH_FORMAT, Pipelines};
+use super::upload::GpuScene;
+use crate::error::{Error, Result};
+use crate::linespace::gpu::NTreeGpu;
+use crate::linespace::ntree::NTree;
+use crate::linespace::query::AreaLight;
+use crate::pack::Pack;
+use crate::pack::kinds::instances::InstanceRecord;
+use wgpu::util::DeviceExt;
+
+const COMMON_WGSL: &str = include_str!("shaders/common.wgsl");
+const TERRAIN_WGSL: &str = include_str!("shaders/terrain.wgsl");
+const MESH_WGSL: &str = include_str!("shaders/mesh.wgsl");
+const DIRECT_WGSL: &str = include_str!("shaders/direct.wgsl");
+const AMBIENT_WGSL: &str = include_str!("shaders/ambient.wgsl");
+const WORLD_TERRAIN_WGSL: &str = include_str!("shaders/world_terrain.wgsl");
+const WORLD_MESH_WGSL: &str = include_str!("shaders/world_mesh.wgsl");
+
+/// Format of the world-position target (xyz: receiver, w: 1 where geometry was drawn).
+const WORLD_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+/// Format of the visibility texture.
+pub const VISIBILITY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+/// Pixels per padded row: 64 × 4 B and 64 × 16 B rows are multiples of wgpu's 256-byte copy
+/// alignment, so the world texture and the visibility buffer copy without repacking.
+const ROW_ALIGN: u32 = 64;
+/// Angular diameter of the sun's disc, degrees.
+pub const SUN_DIAMETER_DEG: f32 = 0.53;
+
+/// Options of the soft shadows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SoftShadows {
+    /// An explicit quad light; None: the sun's disc.
+    pub area_light: Option<AreaLight>,
+    /// Light samples per side (samples² segments per pixel).
+    pub samples: u32,
+}
+
+impl Default for SoftShadows {
+    fn default() -> Self {
+        SoftShadows {
+            area_light: None,
+            samples: 4,
+        }
+    }
+}
+
+/// What the soft-shadow pass computed (padding removed, row 0 at the top).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SoftShadowImage {
+    pub width: u32,
+    pub height: u32,
+    /// Receiver per pixel: xyz, and w = 1 where geometry was drawn (0: sky, lit).
+    pub world: Vec<[f32; 4]>,
+    /// Fraction of the light's samples that reach the receiver.
+    pub visibility: Vec<f32>,
+    pub light: AreaLight,
+    /// Segment offset at the receiver (metres), as in `Segment::between`.
+    pub offset: f32,
+    pub stats: SoftShadowStats,
+}
+
+/// Counts for the render report.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SoftShadowStats {
+    pub receivers: u64,
+    pub samples: u32,
+    /// Pixels strictly between shadow and light.
+    pub penumbra_pixels: u64,
+    pub shadowed_pixels: u64,
+    pub seconds: f64,
+}
+
+/// The visibility texture plus its read-back copy.
+pub struct Visibility {
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+    pub image: SoftShadowImage,
+}
+
+/// The pack's N-tree (its first `linespace` section).
+pub fn load_tree(pack: &Pack) -> Result<NTree> {
+    let e = pack
+        .of_kind(crate::linespace::section::KIND)
+        .next()
+        .ok_or_else(|| {
+            Error::invalid_at(
+                pack.path(),
+                "section table",
+                "--soft-shadows needs a linespace section (run `bake linespace PACK` first)",
+            )
+        })?;
+    let (_, tree) = crate::linespace::section::from_section(&pack.view(e)?)
+        .map_err(|err| Error::invalid(pack.path(), err))?;
+    Ok(tree)
+}
+
+/// The sun's disc as a square quad light, seen from the N-tree's box.
+pub fn sun_light(tree: &NTree, sun_direction: [f32; 3], samples: u32) -> AreaLight {
+    let (lo, size) = crate::linespace::gpu::root_box(tree);
+    let diag = (size[0] * size[0] + size[1] * size[1] + size[2] * size[2]).sqrt();
+    let d = glam::Vec3::from(sun_direction).normalize_or(glam::Vec3::Z);
+    let centre = glam::Vec3::from(lo) + 0.5 * glam::Vec3::from(size) + d * (100.0 * diag);
+    let side = 2.0 * 100.0 * diag * (0.5 * SUN_DIAMETER_DEG).to_radians().tan();
+    let u = d.any_orthonormal_vector();
+    let v = d.cross(u);
+    let corner = centre - 0.5 * side * (u + v);
+    AreaLight {
+        corner: corner.to_array(),
+        edge_u: (u * side).to_array(),
+        edge_v: (v * side).to_array(),
+        samples,
+    }
+}
+
+fn texture(
+    gpu: &Gpu,
+    label: &str,
+    size: (u32, u32),
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    gpu.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: size.0,
+            height: size.1,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage,
+        view_formats: &[],
+    })
+}
+
+/// A 1×1 visibility of 1 (the scene pass's binding when soft shadows are off).
+pub fn fully_lit(gpu: &Gpu) -> wgpu::TextureView {
+    let t = gpu.device.create_texture_with_data(
+        &gpu.queue,
+        &wgpu::TextureDescriptor {
+            label: Some("sun visibility (lit)"),
+            size: wgpu::Extent3d {
+                width: 1,
+                height: 1,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: VISIBILITY_FORMAT,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        },
+        wgpu::util::TextureDataOrder::LayerMajor,
+        bytemuck::bytes_of(&1.0f32),
+    );
+    t.create_view(&Default::default())
+}
+
+/// The world-position pipelines (terrain, meshes) over the renderer's bind-group layouts.
+struct WorldPipelines {
+    terrain: wgpu::RenderPipeline,
+    mesh: wgpu::RenderPipeline,
+}
+
+/// `vertex`: the entry point (meshes use `vs_shadow`, placement without the ambient term's
+/// group 3).
+fn world_pipeline(
+    gpu: &Gpu,
+    label: &str,
+    vertex: &str,
+    parts: &[&str],
+    layouts: &[Option<&wgpu::BindGroupLayout>],
+    buffers: &[Option<wgpu::VertexBufferLayout>],
+) -> wgpu::RenderPipeline {
+    let device = &gpu.device;
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
+    });
+    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(label),
+        bind_group_layouts: layouts,
+        immediate_size: 0,
+    });
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(label),
+        layout: Some(&layout),
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some(vertex),
+            compilation_options: Default::default(),
+            buffers,
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            cull_mode: None,
+            ..Default::default()
+        },
+        // Reversed Z, as the scene pass: the same nearest surface per pixel.
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH_FORMAT,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Greater),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: Default::default(),
+        fragment: Some(wgpu::FragmentState {
+            module: &module,
+            entry_point: Some("fs_world"),
+            compilation_options: Default::default(),
+            targets: &[Some(wgpu::ColorTargetState {
+                format: WORLD_FORMAT,
+                blend: None,
+                write_mask: wgpu::ColorWrites::ALL,
+            })],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+const ATTR_POS: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![0 => Float32x3];
+const ATTR_NRM: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![1 => Float32x3];
+const ATTR_UV: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![2 => Float32x2];
+const ATTR_INSTANCE: [wgpu::VertexAttribute; 3] =
+    wgpu::vertex_attr_array![3 => Float32x3, 4 => Float32, 5 => Float32];
+const ATTR_TANGENT: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![6 => Float32x4];
+
+impl WorldPipelines {
+    fn new(gpu: &Gpu, pipes: &Pipelines) -> Self {
+        let vb = |stride: u64, step, attributes| {
+            Some(wgpu::VertexBufferLayout {
+                array_stride: stride,
+                step_mode: step,
+                attributes,
+            })
+        };
+        let (v, i) = (wgpu::VertexStepMode::Vertex, wgpu::VertexStepMode::Instance);
+        let mesh_buffers = [
+            vb(12, v, &ATTR_POS[..]),
+            vb(12, v, &ATTR_NRM[..]),
+            vb(8, v, &ATTR_UV[..]),
+            vb(size_of::<InstanceRecord>() as u64, i, &ATTR_INSTANCE[..]),
+            vb(16, v, &ATTR_TANGENT[..]),
+        ];
+        WorldPipelines {
+            terrain: world_pipeline(
+                gpu,
+                "world terrain",
+                "vs_main",
+                &[
+                    COMMON_WGSL,
+                    DIRECT_WGSL,
+                    AMBIENT_WGSL,
+                    TERRAIN_WGSL,
+                    WORLD_TERRAIN_WGSL,
+                ],
+                &[Some(&pipes.globals_layout), Some(&pipes.terrain_layout)],
+                &[],
+            ),
+            mesh: world_pipeline(
+                gpu,
+                "world mesh",
+                "vs_shadow",
+                &[
+                    COMMON_WGSL,
+                    DIRECT_WGSL,
+                    AMBIENT_WGSL,
+                    MESH_WGSL,
+                    WORLD_MESH_WGSL,
+                ],
+                &[Some(&pipes.globals_layout), Some(&pipes.material_layout)],
+                &mesh_buffers,
+            ),
+        }
+    }
+}
+
+fn globals_group(
+    gpu: &Gpu,
+    pipes: &Pipelines,
+    scene: &GpuScene,
+    globals: &Globals,
+) -> wgpu::BindGroup {
+    let buf = gpu
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("globals (world pass)"),
+            contents: bytemuck::bytes_of(globals),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+    let lit = fully_lit(gpu);
+    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("globals (world pass)"),
+        layout: &pipes.globals_layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: buf.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: wgpu::BindingResource::TextureView(&scene.sky_view),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(&lit),
+            },
+        ],
+    })
+}
+
+/// Draws the receivers of every pixel into `target` (cleared to w = 0).
+fn world_pass(
+    gpu: &Gpu,
+    pipes: &Pipelines,
+    scene: &GpuScene,
+    globals: &Globals,
+    enc: &mut wgpu::CommandEncoder,
+    target: &wgpu::TextureView,
+    size: (u32, u32),
+) {
+    let wp = WorldPipelines::new(gpu, pipes);
+    let bg = globals_group(gpu, pipes, scene, globals);
+    let depth = texture(
+        gpu,
+        "world depth",
+        size,
+        DEPTH_FORMAT,
+        wgpu::TextureUsages::RENDER_ATTACHMENT,
+    );
+    let depth_view = depth.create_view(&Default::default());
+    let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some("world positions"),
+        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+            view: target,
+            depth_slice: None,
+            resolve_target: None,
+            ops: wgpu::Operations {
+                load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                store: wgpu::StoreOp::Store,
+            },
+        })],
+        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+            view: &depth_view,
+            depth_ops: Some(wgpu::Operations {
+                load: wgpu::LoadOp::Clear(0.0),
+                store: wgpu::StoreOp::Discard,
+            }),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    pass.set_bind_group(0, &bg, &[]);
+    if let Some(t) = &scene.terrain {
+        pass.set_pipeline(&wp.terrain);
+        pass.set_bind_group(1, &t.bind_group, &[]);
+        pass.draw(0..t.vertex_count, 0..1);
+    }
+    pass.set_pipeline(&wp.mesh);
+    for m in &scene.models {
+        pass.set_vertex_buffer(0, m.positions.slice(..));
+        pass.set_vertex_buffer(1, m.normals.slice(..));
+        pass.set_vertex_buffer(2, m.uvs.slice(..));
+        pass.set_vertex_buffer(3, m.instances.slice(..));
+        pass.set_vertex_buffer(4, m.tangents.slice(..));
+        pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
+        for d in &m.draws {
+            pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
+            pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, 0..m.instance_count);
+        }
+    }
+}
+
+/// The soft-shadow visibility of every pixel of the view in `globals`.
+pub fn compute_visibility(
+    gpu: &Gpu,
+    pipes: &Pipelines,
+    scene: &GpuScene,
+    globals: &Globals,
+    size: (u32, u32),
+    tree: &NTree,
+    light: &AreaLight,
+) -> Result<Visibility> {
+    let start = std::time::Instant::now();
+    let (w, h) = size;
+    let padded = w.next_multiple_of(ROW_ALIGN);
+    let count = padded * h;
+    let k = light.samples.max(1).pow(2);
+    let (_, box_size) = crate::linespace::gpu::root_box(tree);
+    let offset = 1e-4 * box_size.iter().cloned().fold(0.0, f32::max);
+    let dev = NTreeGpu::new(gpu, tree)?;
+    let world_tex = texture(
+        gpu,
+        "world positions",
+        size,
+        WORLD_FORMAT,
+        wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+    );
+    let queries = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("receivers"),
+        size: 16 * (count as u64 + k as u64),
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    let out = crate::voxel::compute::output(gpu, "visibility", 4 * count as u64);
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let world_view = world_tex.create_view(&Default::default());
+    world_pass(gpu, pipes, scene, globals, &mut enc, &world_view, size);
+    // Rows of `padded` texels: 16 B and 4 B per texel keep both copies 256-byte aligned.
+    let rows = |bytes_per_texel: u32| wgpu::TexelCopyBufferLayout {
+        offset: 0,
+        bytes_per_row: Some(bytes_per_texel * padded),
+        rows_per_image: Some(h),
+    };
+    enc.copy_texture_to_buffer(
+        world_tex.as_image_copy(),
+        wgpu::TexelCopyBufferInfo {
+            buffer: &queries,
+            layout: rows(16),
+        },
+        world_tex.size(),
+    );
+    dev.record_shadow_fractions(&mut enc, &queries, count, light, offset, &out)?;
+    let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+    let vis_tex = texture(gpu, "sun visibility", size, VISIBILITY_FORMAT, usage);
+    let dst = wgpu::TexelCopyBufferInfo {
+        buffer: &out,
+        layout: rows(4),
+    };
+    enc.copy_buffer_to_texture(dst, vis_tex.as_image_copy(), vis_tex.size());
+    gpu.queue.submit([enc.finish()]);
+    gpu.check()?;
+    let world_raw = crate::voxel::compute::read_back(gpu, &queries, 16 * count as u64)?;
+    let vis_raw = crate::voxel::compute::read_back(gpu, &out, 4 * count as u64)?;
+    let image = unpad(
+        size,
+        padded,
+        bytemuck::cast_slice(&world_raw),
+        bytemuck::cast_slice(&vis_raw),
+        light,
+        offset,
+        start,
+    );
+    Ok(Visibility {
+        view: vis_tex.create_view(&Default::default()),
+        texture: vis_tex,
+        image,
+    })
+}
+
+fn unpad(
+    (w, h): (u32, u32),
+    padded: u32,
+    world: &[[f32; 4]],
+    vis: &[f32],
+    light: &AreaLight,
+    offset: f32,
+    start: std::time::Instant,
+) -> SoftShadowImage {
+    let rows = |y: u32| (y * padded) as usize..(y * padded + w) as usize;
+    let world: Vec<[f32; 4]> = (0..h)
+        .flat_map(|y| world[rows(y)].iter().copied())
+        .collect();
+    let visibility: Vec<f32> = (0..h).flat_map(|y| vis[rows(y)].iter().copied()).collect();
+    let drawn = || world.iter().zip(&visibility).filter(|(p, _)| p[3] > 0.5);
+    let stats = SoftShadowStats {
+        receivers: drawn().count() as u64,
+        samples: light.samples.max(1).pow(2),
+        penumbra_pixels: drawn().filter(|(_, v)| **v > 0.0 && **v < 1.0).count() as u64,
+        shadowed_pixels: drawn().filter(|(_, v)| **v == 0.0).count() as u64,
+        seconds: start.elapsed().as_secs_f64(),
+    };
+    SoftShadowImage {
+        width: w,
+        height: h,
+        world,
+        visibility,
+        light: *light,
+        offset,
+        stats,
+    }
+}
+
+/// The render's soft-shadow pass: the pack's N-tree, the explicit light or the sun's disc.
+#[allow(clippy::too_many_arguments)]
+pub fn for_render(
+    gpu: &Gpu,
+    pipes: &Pipelines,
+    scene: &GpuScene,
+    globals: &Globals,
+    size: (u32, u32),
+    pack: &Pack,
+    lighting: &super::Lighting,
+    opts: &SoftShadows,
+) -> Result<Visibility> {
+    let tree = load_tree(pack)?;
+    let samples = opts.samples.clamp(1, 64);
+    let light = match opts.area_light {
+        Some(l) => AreaLight { samples, ..l },
+        None => sun_light(&tree, lighting.sun_direction, samples),
+    };
+    compute_visibility(gpu, pipes, scene, globals, size, &tree, &light)
+}
+
+/// Parses `--area-light cx,cy,cz,ux,uy,uz,vx,vy,vz` (corner, edge u, edge v; metres).
+pub fn parse_area_light(s: &str) -> std::result::Result<AreaLight, String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| format!("{s:?}: expected 9 numbers cx,cy,cz,ux,uy,uz,vx,vy,vz"))?;
+    if v.len() != 9 || v.iter().any(|x| !x.is_finite()) {
+        return Err(format!(
+            "{s:?}: expected 9 finite numbers cx,cy,cz,ux,uy,uz,vx,vy,vz"
+        ));
+    }
+    Ok(AreaLight {
+        corner: [v[0], v[1], v[2]],
+        edge_u: [v[3], v[4], v[5]],
+        edge_v: [v[6], v[7], v[8]],
+        samples: 4,
+    })
+}

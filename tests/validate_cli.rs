@@ -1,0 +1,158 @@
+//! Black-box tests of `bake validate` and `bake render --soft-shadows`: a small OBJ through
+//! `bake svo` and `bake linespace`, then the GPU/CPU comparison (exit 0, every answer equal) and
+//! the error paths (exit 4 for a pack with nothing to validate or no line space to shade with).
+
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn bake(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bake"))
+        .args(args)
+        .env("NODEVICE_SELECT", "1")
+        .output()
+        .expect("run bake")
+}
+
+fn json(o: &Output) -> Value {
+    assert!(
+        o.status.success(),
+        "bake failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
+}
+
+/// A unit cube over a ground quad, as OBJ text.
+fn scene_obj() -> String {
+    let mut s = String::new();
+    for (x, y, z) in [
+        (0, 0, 1),
+        (1, 0, 1),
+        (1, 1, 1),
+        (0, 1, 1),
+        (0, 0, 2),
+        (1, 0, 2),
+        (1, 1, 2),
+        (0, 1, 2),
+    ] {
+        s += &format!("v {x} {y} {z}\n");
+    }
+    s += "v -3 -3 0\nv 4 -3 0\nv 4 4 0\nv -3 4 0\n";
+    for f in [
+        [1, 3, 2],
+        [1, 4, 3],
+        [5, 6, 7],
+        [5, 7, 8],
+        [1, 2, 6],
+        [1, 6, 5],
+        [2, 3, 7],
+        [2, 7, 6],
+        [3, 4, 8],
+        [3, 8, 7],
+        [4, 1, 5],
+        [4, 5, 8],
+        [9, 10, 11],
+        [9, 11, 12],
+    ] {
+        s += &format!("f {} {} {}\n", f[0], f[1], f[2]);
+    }
+    s
+}
+
+fn path(dir: &Path, name: &str) -> String {
+    dir.join(name).to_str().unwrap().to_string()
+}
+
+#[test]
+fn validate_agrees_on_svo_and_linespace_of_a_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = path(dir.path(), "scene.obj");
+    std::fs::write(&obj, scene_obj()).unwrap();
+    let pack = path(dir.path(), "scene.bake");
+    json(&bake(&[
+        "svo",
+        &obj,
+        "-o",
+        &pack,
+        "--resolution",
+        "64",
+        "--json",
+    ]));
+    json(&bake(&[
+        "linespace",
+        &pack,
+        "--n",
+        "4",
+        "--depth",
+        "3",
+        "--json",
+    ]));
+    let v = json(&bake(&[
+        "validate",
+        &pack,
+        "--rays",
+        "5000",
+        "--receivers",
+        "300",
+        "--json",
+    ]));
+    assert_eq!(v["agree"], true, "{v}");
+    assert_eq!(v["svo"]["rays"], 5000);
+    assert_eq!(v["svo"]["voxel_mismatches"], 0);
+    assert!(v["svo"]["hits"].as_u64().unwrap() > 500, "{v}");
+    assert_eq!(v["linespace"]["segments"], 300 * 16);
+    assert_eq!(v["linespace"]["fraction_mismatches"], 0);
+    assert!(v["linespace"]["occluded"].as_u64().unwrap() > 100, "{v}");
+
+    // The cube shadows the ground under a light above it.
+    let png = path(dir.path(), "soft.png");
+    let r = json(&bake(&[
+        "render",
+        &pack,
+        "-o",
+        &png,
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--eye",
+        "0.5,-6,6",
+        "--target",
+        "0.5,0.5,0",
+        "--soft-shadows",
+        "--area-light",
+        "0,0,6,1,0,0,0,1,0",
+        "--json",
+    ]));
+    let s = &r["soft_shadows"];
+    assert!(s["receivers"].as_u64().unwrap() > 1000, "{r}");
+    assert!(s["shadowed_pixels"].as_u64().unwrap() > 0, "{r}");
+    assert!(Path::new(&png).exists());
+}
+
+#[test]
+fn validate_and_soft_shadows_need_their_sections() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = path(dir.path(), "scene.obj");
+    std::fs::write(&obj, scene_obj()).unwrap();
+    let pack = path(dir.path(), "mesh.bake");
+    json(&bake(&["ingest", &obj, "-o", &pack, "--json"]));
+    let o = bake(&["validate", &pack]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no svo or linespace"));
+    let png = path(dir.path(), "x.png");
+    let o = bake(&["render", &pack, "-o", &png, "--soft-shadows"]);
+    assert_eq!(o.status.code(), Some(4));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("linespace"));
+    let o = bake(&[
+        "render",
+        &pack,
+        "-o",
+        &png,
+        "--soft-shadows",
+        "--area-light",
+        "1,2,3",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+}
