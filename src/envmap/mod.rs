@@ -4,6 +4,7 @@ pub mod cluster;
 pub mod interp;
 pub mod kdtree;
 pub mod section;
+pub mod synthetic;
 
 use cluster::{ClusterOptions, Clustering, cluster_envmaps};
 use interp::Interpolator;
@@ -70,27 +71,53 @@ pub fn instance_weights(
     (nb, w)
 }
 
-/// A synthetic field of environment maps for benchmarks and tests: smooth variation over the
-/// terrain (sky visibility, sun bounce) plus a local term that depends on each instance's
-/// neighbourhood density (occlusion by nearby plants), `DIM` floats per instance.
-pub fn synthetic_envmaps(positions: &[[f32; 3]]) -> Vec<f32> {
-    let tree = kdtree::KdTree::build(positions);
-    positions
-        .par_iter()
-        .flat_map_iter(|p| {
-            let mut nb = Vec::new();
-            tree.nearest(*p, 6, &mut nb);
-            let crowd = nb.iter().map(|x| 1.0 / (1.0 + x.0)).sum::<f32>() / 6.0;
-            (0..section::DIM).map(move |c| {
-                let band = (c % 48) / 3;
-                let l = (band as f32).sqrt().floor();
-                let f = 0.01 + 0.004 * (c % 5) as f32;
-                let smooth =
-                    1.0 + 0.4 * (p[0] * f).sin() * (p[1] * f * 0.8 + c as f32).cos() + 0.05 * p[2];
-                (smooth - 0.3 * crowd) / (1.0 + l * l)
-            })
+/// Reconstructs every instance (`dim` floats each) from per-instance neighbours (indices into
+/// `samples`, k per instance) and weights, as the runtime does with stored weights.
+pub fn apply_weights(
+    values: &[f32],
+    dim: usize,
+    samples: &[u32],
+    k: usize,
+    neighbours: &[u32],
+    weights: &[f32],
+) -> Vec<f32> {
+    neighbours
+        .par_chunks(k.max(1))
+        .zip(weights.par_chunks(k.max(1)))
+        .flat_map_iter(|(nb, w)| {
+            let mut acc = vec![0.0f64; dim];
+            for (&j, &wj) in nb.iter().zip(w) {
+                let s = samples[j as usize] as usize;
+                for (a, &v) in acc.iter_mut().zip(&values[s * dim..(s + 1) * dim]) {
+                    *a += wj as f64 * v as f64;
+                }
+            }
+            acc.into_iter().map(|a| a as f32)
         })
         .collect()
+}
+
+/// Rotates maps stored in each instance's frame back into the world frame (the inverse of the
+/// rotation in `bake::bake_one`): neighbouring instances have unrelated rotations, so only
+/// world-frame maps vary smoothly over the terrain and can be clustered and interpolated. The
+/// runtime rotates an interpolated map by the instance's own rotation.
+pub fn to_world_frame(
+    sky: &mut [[[f32; 3]; 16]],
+    sun: &mut [[[f32; 3]; 16]],
+    rotation_deg: &[f32],
+) {
+    let rot = |m: &mut [[f32; 3]; 16], deg: f32| {
+        *m = crate::sh::ShRadiance { coeffs: *m }
+            .rotated_z((deg as f64).to_radians())
+            .coeffs;
+    };
+    sky.par_iter_mut()
+        .zip(sun.par_iter_mut())
+        .zip(rotation_deg.par_iter())
+        .for_each(|((h, s), &deg)| {
+            rot(h, deg);
+            rot(s, deg);
+        });
 }
 
 /// The environment-map stage on a pack: an `envmaps` section for the scene's instances.
@@ -133,7 +160,8 @@ pub fn envmap_sections(
     )])
 }
 
-/// The clustering stage on a pack with `instances` and `envmaps`: the `clusters` section.
+/// The clustering stage on a pack with `instances` and `envmaps`: the `clusters` section, whose
+/// sample values are in the world frame (see [`to_world_frame`]).
 pub fn cluster_sections(
     pack: &crate::pack::Pack,
     opts: &ClusterOptions,
@@ -151,6 +179,9 @@ pub fn cluster_sections(
         ));
     }
     let positions: Vec<[f32; 3]> = inst.items.iter().map(|i| i.position).collect();
+    let rotations: Vec<f32> = inst.items.iter().map(|i| i.rotation_deg).collect();
+    let (mut sky, mut sun) = (sky, sun);
+    to_world_frame(&mut sky, &mut sun, &rotations);
     let values = section::flatten(&sky, &sun);
     let (meta, c, weights) =
         cluster_and_weigh(&positions, &values, section::DIM, opts, store_weights);
