@@ -145,14 +145,17 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         radius: a.radius,
         noise: a.noise,
     };
-    let t0 = std::time::Instant::now();
+    let (t0, cpu0) = (std::time::Instant::now(), process_cpu_seconds());
     let c = crate::envmap::cluster::cluster_envmaps(&positions, &values, DIM, &opts);
     let t_cluster = t0.elapsed().as_secs_f64();
-    let t1 = std::time::Instant::now();
+    let (t1, cpu_t1) = (std::time::Instant::now(), process_cpu_seconds());
     let (nb, w) = crate::envmap::instance_weights(&positions, &values, DIM, &c);
     let t_weights = t1.elapsed().as_secs_f64();
+    let cpu1 = process_cpu_seconds();
     let rec = crate::envmap::apply_weights(&values, DIM, &c.samples, c.k, &nb, &w);
     let t_interp = t1.elapsed().as_secs_f64();
+    let cpu2 = process_cpu_seconds();
+    let cpu = |a: Option<f64>, b: Option<f64>| a.zip(b).map(|(a, b)| b - a);
     let rel = |reference: &[f32]| relative_rms(&rec, reference, c.rms);
     let raw = (positions.len() * DIM * 4) as u64;
     let packed = c.samples.len() as u64 * (12 + 4 + DIM as u64 * 4);
@@ -166,9 +169,12 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         "weights_seconds": t_weights, "interpolation_seconds": t_interp,
         "interpolation_rms_error_relative": rel(&values),
         "cluster_and_weights_seconds": t_cluster + t_weights,
+        "cluster_and_weights_cpu_seconds": cpu(cpu0, cpu1),
+        "cluster_cpu_seconds": cpu(cpu0, cpu_t1), "interpolation_cpu_seconds": cpu(cpu_t1, cpu2),
         "envmap_seconds": envmap_seconds, "synthetic": a.synthetic,
         "weights_bytes": (nb.len() * 4 + w.len() * 4) as u64, "ill_conditioned": c.ill_conditioned,
         "threads": rayon::current_num_threads(),
+        "loo": c.loo.iter().map(|&(k, r, e)| serde_json::json!({"k": k, "radius": r, "rms_error_relative": e})).collect::<Vec<_>>(),
     });
     let tmp;
     let dir = match (&a.export, a.scipy) {
@@ -193,6 +199,19 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         json: doc,
         warnings: Vec::new(),
     })
+}
+
+/// CPU time (user + system, all threads) of this process so far, from /proc/self/stat (Linux,
+/// where its unit USER_HZ is 100); None elsewhere. On the shared machine the wall-clock times
+/// depend on other jobs; CPU time does not.
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) start at field 3, the state;
+    // utime and stime are fields 14 and 15.
+    let rest = stat.get(stat.rfind(')')? + 1..)?;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
 }
 
 /// RMS of (a − b) relative to `rms`.

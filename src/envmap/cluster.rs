@@ -420,6 +420,7 @@ pub(crate) struct Scratch {
     xs: Vec<[f32; 3]>,
     w: Vec<f64>,
     a: Vec<f64>,
+    acc: Vec<f64>,
 }
 
 /// An instance's reconstruction error.
@@ -451,17 +452,23 @@ pub(crate) fn instance_error(p: &Problem, i: usize, nb: &[u32], s: &mut Scratch)
         s.w.resize(nb.len(), 0.0);
         s.w[0] = 1.0;
     }
+    // Accumulate sample by sample: each sample's coefficients are contiguous.
     let dim = p.dim;
-    let own = &p.values[i * dim..(i + 1) * dim];
-    let mut e = 0.0f64;
-    for (c, &o) in own.iter().enumerate() {
-        let rec: f64 = nb
-            .iter()
-            .zip(&s.w)
-            .map(|(&j, wj)| wj * p.values[j as usize * dim + c] as f64)
-            .sum();
-        e += ((rec as f32 - o) as f64).powi(2);
+    s.acc.clear();
+    s.acc.resize(dim, 0.0);
+    for (&j, &wj) in nb.iter().zip(&s.w) {
+        let v = &p.values[j as usize * dim..(j as usize + 1) * dim];
+        for (a, &x) in s.acc.iter_mut().zip(v) {
+            *a += wj * x as f64;
+        }
     }
+    let own = &p.values[i * dim..(i + 1) * dim];
+    let e = s
+        .acc
+        .iter()
+        .zip(own)
+        .map(|(&rec, &o)| ((rec as f32 - o) as f64).powi(2))
+        .sum();
     let wsq = s.w.iter().map(|w| w * w).sum();
     InstanceError { e, wsq, ill }
 }
@@ -703,8 +710,11 @@ pub fn jacobi_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
     ([a[0][0], a[1][1], a[2][2]], v)
 }
 
-/// Chooses (k, R) by leave-one-out: for a deterministic subset of instances, reconstruct each from
-/// its k nearest *other* instances and keep the candidate with the smallest relative RMS error.
+/// Chooses (k, R) by cross-validation at a sample density near the clustering's: every t-th
+/// instance (t = 16 for large sets) acts as a sample, and a deterministic subset of the other
+/// instances is reconstructed from its k nearest such samples; the candidate with the smallest
+/// relative RMS error wins. (Validating at the instances' own density picks an R suited to
+/// neighbours a metre apart, not to cluster samples ten metres apart.)
 fn choose_parameters(
     positions: &[[f32; 3]],
     values: &[f32],
@@ -717,37 +727,51 @@ fn choose_parameters(
     if n < 3 || (opts.k.is_some() && opts.radius.is_some()) {
         return (default_k, opts.radius.unwrap_or(1.0), Vec::new());
     }
-    let tree = KdTree::build(positions);
-    let stride = (n / 500).max(1);
-    let subset: Vec<usize> = (0..n).step_by(stride).collect();
+    let t = (n / 200).clamp(1, 16);
+    let thin: Vec<u32> = (0..n as u32).step_by(t).collect();
+    let thin_pos: Vec<[f32; 3]> = thin.iter().map(|&i| positions[i as usize]).collect();
+    let tree = KdTree::build(&thin_pos);
+    let m = thin.len();
     let mut nb = Vec::new();
-    let mut spacing: Vec<f32> = subset
+    let mut spacing: Vec<f32> = thin_pos
         .iter()
-        .map(|&i| {
-            tree.nearest(positions[i], 2, &mut nb);
+        .step_by((m / 500).max(1))
+        .map(|p| {
+            tree.nearest(*p, 2, &mut nb);
             nb.get(1).map_or(0.0, |x| x.0.sqrt())
         })
         .collect();
     spacing.sort_by(f32::total_cmp);
     let s = spacing[spacing.len() / 2].max(1e-3);
+    let queries: Vec<usize> = (0..n)
+        .filter(|i| t == 1 || i % t != 0)
+        .step_by((n / 500).max(1))
+        .collect();
     let ks: Vec<usize> = match opts.k {
-        Some(k) => vec![k.clamp(1, n - 1)],
-        None => [4usize, 8, 16].iter().map(|&k| k.min(n - 1)).collect(),
+        Some(k) => vec![k.clamp(1, m - 1)],
+        None => [4usize, 8, 16].iter().map(|&k| k.min(m - 1)).collect(),
     };
     let rs: Vec<f32> = match opts.radius {
         Some(r) => vec![r],
         None => [0.5f32, 1.0, 2.0, 4.0].iter().map(|f| f * s).collect(),
     };
+    let ctx = Validation {
+        tree: &tree,
+        ids: &thin,
+        positions,
+        values,
+        dim,
+    };
     let mut scores = Vec::new();
     for &k in &ks {
         for &r in &rs {
-            let err: f64 = subset
+            let err: f64 = queries
                 .par_iter()
-                .map(|&i| loo_error(&tree, positions, values, dim, i, k, r))
+                .map(|&i| ctx.error(i, k, r))
                 .collect::<Vec<f64>>()
                 .iter()
                 .sum();
-            scores.push((k, r, relative(err / subset.len() as f64, dim, rms)));
+            scores.push((k, r, relative(err / queries.len() as f64, dim, rms)));
         }
     }
     let best = scores
@@ -756,36 +780,47 @@ fn choose_parameters(
     (best.0, best.1, scores)
 }
 
-fn loo_error(
-    tree: &KdTree,
-    positions: &[[f32; 3]],
-    values: &[f32],
+/// The thinned sample set of [`choose_parameters`].
+struct Validation<'a> {
+    tree: &'a KdTree,
+    /// Instance index of each tree point.
+    ids: &'a [u32],
+    positions: &'a [[f32; 3]],
+    values: &'a [f32],
     dim: usize,
-    i: usize,
-    k: usize,
-    r: f32,
-) -> f64 {
-    let mut nb = Vec::new();
-    tree.nearest(positions[i], k + 1, &mut nb);
-    nb.retain(|&(_, j)| j as usize != i);
-    nb.truncate(k);
-    let xs: Vec<[f32; 3]> = nb.iter().map(|&(_, j)| positions[j as usize]).collect();
-    let mut w = Vec::new();
-    if super::interp::multiquadric_weights(&xs, positions[i], r, true, &mut w).is_err() {
-        w = vec![0.0; nb.len()];
-        w[0] = 1.0;
+}
+
+impl Validation<'_> {
+    /// Squared error of instance i reconstructed from its k nearest thinned samples other than
+    /// itself.
+    fn error(&self, i: usize, k: usize, r: f32) -> f64 {
+        let mut nb = Vec::new();
+        self.tree.nearest(self.positions[i], k + 1, &mut nb);
+        let mut ids: Vec<usize> = nb
+            .iter()
+            .map(|&(_, j)| self.ids[j as usize] as usize)
+            .filter(|&j| j != i)
+            .collect();
+        ids.truncate(k);
+        let xs: Vec<[f32; 3]> = ids.iter().map(|&j| self.positions[j]).collect();
+        let mut w = Vec::new();
+        if super::interp::multiquadric_weights(&xs, self.positions[i], r, true, &mut w).is_err() {
+            w = vec![0.0; ids.len()];
+            w[0] = 1.0;
+        }
+        let dim = self.dim;
+        let own = &self.values[i * dim..(i + 1) * dim];
+        (0..dim)
+            .map(|c| {
+                let rec: f64 = ids
+                    .iter()
+                    .zip(&w)
+                    .map(|(&j, wj)| wj * self.values[j * dim + c] as f64)
+                    .sum();
+                (rec - own[c] as f64).powi(2)
+            })
+            .sum()
     }
-    let own = &values[i * dim..(i + 1) * dim];
-    (0..dim)
-        .map(|c| {
-            let rec: f64 = nb
-                .iter()
-                .zip(&w)
-                .map(|(&(_, j), wj)| wj * values[j as usize * dim + c] as f64)
-                .sum();
-            (rec - own[c] as f64).powi(2)
-        })
-        .sum()
 }
 
 #[cfg(test)]

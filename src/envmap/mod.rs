@@ -193,3 +193,34 @@ pub fn cluster_sections(
         c,
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn world_frame_undoes_the_instance_rotation_of_the_bake() {
+        // A world-frame map with every band populated, put into an instance's frame the way
+        // `bake::bake_one` does (C_local(d) = C_world(Rz(θ)·d)).
+        let world: [[f32; 3]; 16] =
+            std::array::from_fn(|c| [0.3 + 0.1 * c as f32, (c as f32 * 0.7).sin(), 0.05]);
+        let deg = 73.0f32;
+        let local = crate::sh::ShRadiance { coeffs: world }
+            .rotated_z(-(deg as f64).to_radians())
+            .coeffs;
+        let d = [0.48f32, -0.6, 0.64];
+        let (s, c) = deg.to_radians().sin_cos();
+        let rd = [c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]];
+        let w_at = crate::sh::ShRadiance { coeffs: world }.eval(rd);
+        let l_at = crate::sh::ShRadiance { coeffs: local }.eval(d);
+        for k in 0..3 {
+            assert!((w_at[k] - l_at[k]).abs() < 1e-4, "{w_at:?} {l_at:?}");
+        }
+        let (mut sky, mut sun) = (vec![local], vec![local]);
+        to_world_frame(&mut sky, &mut sun, &[deg]);
+        for (a, b) in sky[0].iter().flatten().zip(world.iter().flatten()) {
+            assert!((a - b).abs() < 1e-5);
+        }
+        assert_eq!(sky, sun);
+    }
+}
