@@ -168,13 +168,9 @@ mod tests {
                         / n as f64;
             }
         }
-        for c in 0..3 {
-            assert!(
-                (m.truth[c] as f64 - expect[c]).abs() < 0.02 * expect[c],
-                "{c}: {} {}",
-                m.truth[c],
-                expect[c]
-            );
+        for (c, e) in expect.iter().enumerate() {
+            let got = m.truth[c] as f64;
+            assert!((got - e).abs() < 0.02 * e, "{c}: {got} {e}");
         }
         // Every instance on flat ground sees the same maps.
         assert!(m.truth.chunks(DIM).all(|c| c == &m.truth[..DIM]));
