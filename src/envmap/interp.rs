@@ -49,13 +49,18 @@ pub fn solve_in_place(a: &mut [f64], b: &mut [f64], n: usize) -> Result<(), IllC
             b.swap(piv, col);
         }
         let d = a[col * n + col];
-        for r in col + 1..n {
-            let f = a[r * n + col] / d;
+        // Row slices instead of indexing: the same arithmetic, without bounds checks in the
+        // innermost loop.
+        let (top, bottom) = a.split_at_mut((col + 1) * n);
+        let pivot_row = &top[col * n + col..col * n + n];
+        let (b_top, b_bottom) = b.split_at_mut(col + 1);
+        for (row, br) in bottom.chunks_exact_mut(n).zip(b_bottom.iter_mut()) {
+            let f = row[col] / d;
             if f != 0.0 {
-                for c in col..n {
-                    a[r * n + c] -= f * a[col * n + c];
+                for (x, &pv) in row[col..].iter_mut().zip(pivot_row) {
+                    *x -= f * pv;
                 }
-                b[r] -= f * b[col];
+                *br -= f * b_top[col];
             }
         }
     }
@@ -78,10 +83,23 @@ pub fn multiquadric_weights(
     constant_term: bool,
     w: &mut Vec<f64>,
 ) -> Result<(), IllConditioned> {
+    multiquadric_weights_with(xs, x, r, constant_term, w, &mut Vec::new())
+}
+
+/// [`multiquadric_weights`] with a caller-provided matrix buffer (no allocation per call).
+pub fn multiquadric_weights_with(
+    xs: &[[f32; 3]],
+    x: [f32; 3],
+    r: f32,
+    constant_term: bool,
+    w: &mut Vec<f64>,
+    a: &mut Vec<f64>,
+) -> Result<(), IllConditioned> {
     let n = xs.len();
     let m = if constant_term && n > 1 { n + 1 } else { n };
     let r2 = (r as f64) * (r as f64);
-    let mut a = vec![0.0f64; m * m];
+    a.clear();
+    a.resize(m * m, 0.0);
     for i in 0..n {
         for j in i..n {
             let v = (dist2(xs[i], xs[j]) as f64 + r2).sqrt();
@@ -102,7 +120,7 @@ pub fn multiquadric_weights(
         w[0] = 1.0;
         return Ok(());
     }
-    solve_in_place(&mut a, w, m)?;
+    solve_in_place(a, w, m)?;
     w.truncate(n);
     Ok(())
 }
