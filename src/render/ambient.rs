@@ -19,10 +19,10 @@
 //! - Source of the maps, first found: the `clusters` section (multiquadric interpolation at the
 //!   instance position, [`crate::envmap::interp`]), the `envmaps` section, else the sky SH (`sh`
 //!   section) turned into the instance frame with no reflected sun.
-//! - Frames: the maps are baked in the instance frame, `C_local(d) = C_world(R_z(θ)·d)`
-//!   (`ShRadiance::rotated_z(−θ)`, src/envmap/bake.rs). Cluster samples keep their own instance's
-//!   frame, so each sample is turned back to world (`rotated_z(+θ_j)`) before interpolating and
-//!   the result into the instance's frame.
+//! - Frames: the `envmaps` maps are in the instance frame, `C_local(d) = C_world(R_z(θ)·d)`
+//!   (`ShRadiance::rotated_z(−θ)`, src/envmap/bake.rs); the `clusters` samples are in the world
+//!   frame (only world-frame maps vary smoothly between instances of unrelated rotations), so the
+//!   interpolated map is turned into the instance's frame here ([`to_instance_frame`]).
 //! - Albedo: the transfer has the receiving vertex's albedo folded in (src/light/prt.rs: the
 //!   material's sRGB-decoded diffuse colour × the mean linear colour of its colour map's opaque
 //!   texels, and the 1/π). The runtime restores the texture detail by multiplying with
@@ -278,8 +278,9 @@ pub fn instance_maps(
     Ok((maps, EnvSource::Sky))
 }
 
-/// Multiquadric reconstruction of every instance's maps from the `clusters` section: stored
-/// neighbours and weights when present, else solved here with the section's k and R.
+/// Multiquadric reconstruction of every instance's maps from the `clusters` section (world-frame
+/// samples): stored neighbours and weights when present, else solved here with the section's k
+/// and R; then turned into each instance's frame.
 fn cluster_maps(pack: &Pack, records: &[InstanceRecord]) -> Result<Vec<(Sh16, Sh16)>> {
     use crate::envmap::section::{ClustersMeta, DIM};
     let place = "section \"clusters\"";
@@ -306,19 +307,11 @@ fn cluster_maps(pack: &Pack, records: &[InstanceRecord]) -> Result<Vec<(Sh16, Sh
             records.len()
         )));
     }
-    // Every sample back into the world frame (its own instance's rotation).
-    let mut world = Vec::with_capacity(vals.len());
-    for (s, &inst) in owner.iter().enumerate() {
-        let r = records
-            .get(inst as usize)
-            .ok_or_else(|| invalid(format!("sample {s} names instance {inst}")))?;
-        let (h, sn) = split_dim(&vals[s * DIM..(s + 1) * DIM]);
-        let (h, sn) = (
-            to_world_frame(&h, r.rotation_deg),
-            to_world_frame(&sn, r.rotation_deg),
-        );
-        world.extend(h.iter().chain(&sn).flatten());
+    // The samples are in the world frame (docs/FORMAT.md); each one's instance must exist.
+    if let Some(s) = owner.iter().position(|&i| i as usize >= records.len()) {
+        return Err(invalid(format!("sample {s} names instance {}", owner[s])));
     }
+    let world = vals;
     let stored = stored_weights(&v, &meta, pts.len(), records.len()).map_err(invalid)?;
     let ip = crate::envmap::interp::Interpolator {
         constant_term: meta.constant_term,

@@ -1,7 +1,7 @@
 //! `bake bench ambient`: the load-time cost of the ambient term on a generated scene of many
 //! instances: per-instance C_H/C_S from the `clusters` section (multiquadric reconstruction,
-//! solved here or from stored weights, both with the frame turns) and the PRT evaluation of
-//! eq. 4.8 per vertex as the CPU reference does it.
+//! solved here or from stored weights, then turned into each instance's frame) and the PRT
+//! evaluation of eq. 4.8 per vertex as the CPU reference does it.
 
 use super::ambient::{InstanceEnv, PrtData, PrtLayout, instance_maps, side_radiance};
 use crate::cli::Outcome;
@@ -28,7 +28,7 @@ fn scene(n: usize) -> (Vec<InstanceRecord>, Vec<f32>) {
         .map(|_| {
             let (x, y) = (rng.f32() * 1024.0, rng.f32() * 1024.0);
             InstanceRecord {
-                position: [x, y, 20.0 * (x * 0.01).sin() * (y * 0.013).cos()],
+                position: [x, y, crate::envmap::synthetic::bench_terrain_height(x, y)],
                 scale: 1.0,
                 rotation_deg: rng.f32() * 360.0,
                 model: 0,
@@ -38,7 +38,10 @@ fn scene(n: usize) -> (Vec<InstanceRecord>, Vec<f32>) {
         })
         .collect();
     let pos: Vec<[f32; 3]> = recs.iter().map(|r| r.position).collect();
-    (recs, crate::envmap::synthetic_envmaps(&pos))
+    let h = crate::envmap::synthetic::bench_terrain_height;
+    // World-frame maps (the `clusters` section's frame), 1 % noise.
+    let maps = crate::envmap::synthetic::synthetic_envmaps(&pos, &h, 0.01, 2005);
+    (recs, maps.noisy)
 }
 
 fn pack_of(recs: &[InstanceRecord], values: &[f32], error: f32, weights: bool) -> Result<Pack> {

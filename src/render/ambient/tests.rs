@@ -322,7 +322,11 @@ fn cluster_pack(records: &[Instance], maps: &[(Sh16, Sh16)], weights: bool) -> P
     };
     w.insert(es::envmaps_to_section("envmaps", &emeta, &sky, &sun));
     let samples: Vec<u32> = (0..records.len() as u32).step_by(3).collect();
-    let values = es::flatten(&sky, &sun);
+    // The clustering stage's samples are in the world frame (its own rotation back).
+    let (mut wsky, mut wsun) = (sky.clone(), sun.clone());
+    let rotations: Vec<f32> = records.iter().map(|r| r.rotation_deg).collect();
+    crate::envmap::to_world_frame(&mut wsky, &mut wsun, &rotations);
+    let values = es::flatten(&wsky, &wsun);
     let positions: Vec<[f32; 3]> = records.iter().map(|r| r.position).collect();
     let (pts, vals) = crate::envmap::cluster::gather_samples(&positions, &values, DIM, &samples);
     let k = 4;
@@ -402,7 +406,8 @@ fn a_constant_world_field_comes_back_in_every_instance_frame() {
     // Every instance sees the same world-frame maps, stored in its own frame (rotated by the
     // general SH rotation, an independent code path). The multiquadric with a constant term
     // reproduces constants, so every instance, sample or not, must get its own stored maps:
-    // mixing samples of different frames without turning them back to world would not.
+    // interpolating in the world frame and turning the result into the instance's frame does;
+    // a wrong or missing turn would not.
     let mut rng = Lcg(5);
     let recs = records(24, &mut rng);
     let (wh, ws) = (rng.sh(), rng.sh());
