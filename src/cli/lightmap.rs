@@ -1,4 +1,5 @@
-//! `bake lightmap INPUT`: the terrain's light map (section `lightmap:terrain`).
+//! `bake lightmap INPUT`: the terrain's light map (section `lightmap:terrain`) and atlas light
+//! maps of the meshes placed at most `--lightmap-max-instances` times (`lightmap:<mesh>`).
 
 use super::{Global, Outcome};
 use crate::error::Result;
@@ -22,6 +23,15 @@ pub struct LightmapArgs {
     /// `physical` (visibility, true sun disc, one bounce) or `thesis` (seed 001's estimator).
     #[arg(long, value_enum, default_value_t = LightmapMode::Physical)]
     pub mode: LightmapMode,
+    /// Models placed at most this many times (the 3DS objects) get an atlas light map.
+    #[arg(long, default_value_t = 16)]
+    pub lightmap_max_instances: u32,
+    /// Texels per side of one instance's atlas tile (doubled while the charts do not fit).
+    #[arg(long, default_value_t = 64)]
+    pub atlas_tile: u32,
+    /// Gutter texels around every chart.
+    #[arg(long, default_value_t = 2)]
+    pub gutter: u32,
 }
 
 pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
@@ -31,6 +41,12 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
         resolution: args.resolution,
         samples: args.samples,
         mode: args.mode,
+        max_instances: args.lightmap_max_instances,
+        atlas: crate::lightmap::atlas::AtlasOptions {
+            tile: args.atlas_tile,
+            gutter: args.gutter.max(1),
+            ..Default::default()
+        },
         ..Default::default()
     };
     let start = std::time::Instant::now();
@@ -40,10 +56,12 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
     for s in sections {
         let v = crate::pack::section::SectionView::parse(&s.payload, 0)
             .map_err(|e| crate::error::Error::invalid(&output, e))?;
-        summaries.push(
+        let summary = if s.kind == crate::lightmap::atlas_section::KIND {
+            crate::lightmap::atlas_section::summary(&v)
+        } else {
             crate::lightmap::section::summary(&v)
-                .map_err(|e| crate::error::Error::invalid(&output, e))?,
-        );
+        };
+        summaries.push(summary.map_err(|e| crate::error::Error::invalid(&output, e))?);
         w.insert(s);
     }
     w.write(&output)?;
