@@ -370,16 +370,20 @@ fn no_bilinear_lookup_inside_a_triangle_reads_a_black_gutter() {
         &opts,
     );
     assert_eq!(cube_map.layout.charts.len(), 6);
-    assert!(cube_map.gutter_texels > 0);
     let (lo, hi) = worst_ratio(&box_mesh, &cube_map, &inst[..2], want);
     assert!(
         lo > 0.97 && hi < 1.03,
         "cube: sample/analytic in [{lo}, {hi}]"
     );
+    // The sphere (many charts, split vertices) under the sky alone: its facets tilt against its
+    // smooth normals by up to ~8°, so a few hemisphere rays hit the neighbouring facets (and sun
+    // rays near the terminator would too, hence no sun); a black texel in a lookup would pull
+    // the ratio towards 0.
+    let sky_only = Lighting { sun: None, ..light };
     let ball_map = bake_object_lightmap(
         &bvh,
         &albedo,
-        &light,
+        &sky_only,
         PlacedMesh {
             mesh: &ball,
             instances: &[2, 3],
@@ -392,11 +396,14 @@ fn no_bilinear_lookup_inside_a_triangle_reads_a_black_gutter() {
         ball_map.layout.uv.len() > ball.positions.len(),
         "chart borders split vertices"
     );
-    // The sphere's facets tilt against its smooth normals and bilinear lookups blend across a
-    // facet's texels, so the bound is looser; a black texel would give a ratio near 0.
-    let (lo, hi) = worst_ratio(&ball, &ball_map, &inst[2..], want);
+    let (lo, hi) = worst_ratio(&ball, &ball_map, &inst[2..], |_| PI * l);
+    eprintln!(
+        "sphere: {} charts, tile {}, ratio [{lo}, {hi}]",
+        ball_map.layout.charts.len(),
+        ball_map.layout.tile
+    );
     assert!(
-        lo > 0.8 && hi < 1.2,
+        lo > 0.9 && hi < 1.02,
         "sphere: sample/analytic in [{lo}, {hi}]"
     );
 }
