@@ -32,6 +32,8 @@ pub enum BenchWhat {
     Terrain(TerrainBenchArgs),
     /// Terrain rays/s: heightfield (min/max quadtree) against the triangle-mesh BVH.
     TerrainRays(crate::rt::bench::TerrainRaysBenchArgs),
+    /// Light maps of the fixture scene (or a pack): terrain and placed-object atlases.
+    Lightmap(super::lightmap::LightmapBenchArgs),
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -78,6 +80,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Textures(a) => crate::texture::bench::bench_textures(a),
         BenchWhat::Terrain(a) => crate::terrain::bench::bench_terrain(a),
         BenchWhat::TerrainRays(a) => crate::rt::bench::bench_terrain_rays(a),
+        BenchWhat::Lightmap(a) => super::lightmap::bench(a, g),
     }
 }
 

@@ -296,7 +296,7 @@ pub fn lightmap_sections(
 }
 
 /// The `lightmap_atlas` sections of the placed meshes.
-fn object_sections(
+pub fn object_sections(
     pack: &crate::pack::Pack,
     scene: &TraceScene,
     light: &Lighting,
