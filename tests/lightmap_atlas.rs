@@ -185,7 +185,7 @@ fn open_sky_plane_atlas_gets_the_analytic_irradiance() {
             mesh: &plane,
             instances: &[0, 1],
         };
-        let map = bake_object_lightmap(&bvh, &[[0.5; 3]; 2], &light, p, 1, &opts);
+        let map = bake_object_lightmap(&bvh, &[[0.5; 3]; 2], &light, p, 1, &opts).unwrap();
         assert_eq!(map.layout.charts.len(), 1, "a flat grid is one chart");
         let mut n = 0;
         for (slot, tr) in inst.iter().enumerate() {
@@ -252,7 +252,8 @@ fn plane_under_an_opaque_disc_gets_the_analytic_shadow_and_penumbra() {
         },
         3,
         &opts,
-    );
+    )
+    .unwrap();
     let a = (h * SUN_RADIUS.tan()) as f64;
     let (mut umbra, mut penumbra, mut lit) = (0, 0, 0);
     for (p, e) in covered_positions(&plane, &map, &inst[0], 0) {
@@ -368,7 +369,8 @@ fn no_bilinear_lookup_inside_a_triangle_reads_a_black_gutter() {
         },
         5,
         &opts,
-    );
+    )
+    .unwrap();
     assert_eq!(cube_map.layout.charts.len(), 6);
     let (lo, hi) = worst_ratio(&box_mesh, &cube_map, &inst[..2], want);
     assert!(
@@ -390,7 +392,8 @@ fn no_bilinear_lookup_inside_a_triangle_reads_a_black_gutter() {
         },
         6,
         &opts,
-    );
+    )
+    .unwrap();
     assert!(ball_map.layout.charts.len() > 6);
     assert!(
         ball_map.layout.uv.len() > ball.positions.len(),
@@ -448,6 +451,7 @@ fn atlas_bake_is_identical_across_thread_counts() {
                 9,
                 &opts,
             )
+            .unwrap()
         })
     };
     let (one, three) = (bake(1), bake(3));
@@ -492,7 +496,8 @@ fn atlas_section_round_trips_and_rejects_inconsistent_arrays() {
         },
         0,
         &opts,
-    );
+    )
+    .unwrap();
     assert_eq!(
         (map.columns, map.width, map.height),
         (2, 2 * map.layout.tile, 2 * map.layout.tile)

@@ -276,35 +276,44 @@ fn shelf_pack(sizes: &[(u32, u32)], tile: u32) -> Option<Vec<ChartRect>> {
     Some(rects)
 }
 
-/// Finds the tile size and density at which the charts fit.
-fn fit(bounds: &[(Vec2, Vec2)], area: f32, opts: &AtlasOptions) -> (u32, f32, Vec<ChartRect>) {
-    let mut tile = opts.tile.max(4);
+/// Largest tile side (texels) an atlas may grow to.
+pub const MAX_TILE: u32 = 4096;
+
+/// Finds the tile size and density at which the charts fit, if any tile up to [`MAX_TILE`] does.
+fn fit(
+    bounds: &[(Vec2, Vec2)],
+    area: f32,
+    opts: &AtlasOptions,
+) -> Option<(u32, f32, Vec<ChartRect>)> {
+    let mut tile = opts.tile.clamp(4, MAX_TILE);
     loop {
         // Start where the charts would fill about 60 % of the tile, shrink by 8 % steps.
         let mut density = (0.6 * (tile as f32).powi(2) / area.max(1e-12)).sqrt();
         for _ in 0..80 {
             if let Some(r) = shelf_pack(&rect_sizes(bounds, density, opts.gutter), tile) {
-                return (tile, density, r);
+                return Some((tile, density, r));
             }
             density *= 0.92;
         }
-        if tile >= 4096 {
-            // Every chart gets its minimum rectangle in a grid: always fits some square.
-            let sizes = rect_sizes(bounds, 0.0, opts.gutter);
-            let side = (sizes.len() as f64).sqrt().ceil() as u32 * (2 + 2 * opts.gutter);
-            let r = shelf_pack(&sizes, side.max(tile)).unwrap_or_default();
-            return (side.max(tile), 0.0, r);
+        if tile >= MAX_TILE {
+            return None;
         }
-        tile *= 2;
+        tile = (tile * 2).min(MAX_TILE);
     }
 }
 
-/// Builds the atlas of a mesh.
-pub fn build_atlas(mesh: &Mesh, opts: &AtlasOptions) -> AtlasLayout {
+/// Builds the atlas of a mesh; an error if its charts do not fit a [`MAX_TILE`]² tile.
+pub fn build_atlas(mesh: &Mesh, opts: &AtlasOptions) -> Result<AtlasLayout, String> {
     let charts = grow_charts(mesh, opts);
     let bounds: Vec<(Vec2, Vec2)> = charts.iter().map(chart_bounds).collect();
     let area: f32 = faces(mesh).iter().map(|f| f.1).sum();
-    let (tile, density, rects) = fit(&bounds, area, opts);
+    let (tile, density, rects) = fit(&bounds, area, opts).ok_or_else(|| {
+        format!(
+            "{} charts do not fit a {MAX_TILE}² light-map tile with {}-texel gutters",
+            charts.len(),
+            opts.gutter
+        )
+    })?;
     let mut triangle_chart = vec![0u32; mesh.indices.len()];
     let mut corner_uv = vec![[[0.0f32; 2]; 3]; mesh.indices.len()];
     for (c, chart) in charts.iter().enumerate() {
@@ -331,7 +340,7 @@ pub fn build_atlas(mesh: &Mesh, opts: &AtlasOptions) -> AtlasLayout {
             })
         }));
     }
-    AtlasLayout {
+    Ok(AtlasLayout {
         tile,
         gutter: opts.gutter,
         density,
@@ -340,7 +349,7 @@ pub fn build_atlas(mesh: &Mesh, opts: &AtlasOptions) -> AtlasLayout {
         vertex_source,
         uv,
         indices,
-    }
+    })
 }
 
 /// One covered texel of the G-buffer: a surface point in model space.
@@ -549,7 +558,7 @@ mod tests {
     fn cube_sides_become_six_charts_and_welded_vertices_split() {
         for welded in [false, true] {
             let m = cube(welded);
-            let l = build_atlas(&m, &AtlasOptions::default());
+            let l = build_atlas(&m, &AtlasOptions::default()).unwrap();
             assert_eq!(l.charts.len(), 6, "welded {welded}");
             // 4 atlas vertices per side either way: the welded cube's 8 vertices split.
             assert_eq!(l.uv.len(), 24);
@@ -569,7 +578,7 @@ mod tests {
     fn charts_are_isometric_and_do_not_overlap() {
         // Texel area of every triangle / world area = density² (flat sides: no projection loss).
         let m = cube(false);
-        let l = build_atlas(&m, &AtlasOptions::default());
+        let l = build_atlas(&m, &AtlasOptions::default()).unwrap();
         for (t, f) in faces(&m).iter().enumerate() {
             let [a, b, c] = tri_uv(&l, t);
             let area = 0.5 * (b - a).perp_dot(c - a);
@@ -603,7 +612,8 @@ mod tests {
                 tile: 32,
                 ..Default::default()
             },
-        );
+        )
+        .unwrap();
         let g = rasterize(&m, &l);
         let n = l.tile as usize;
         let mut touched = 0;
@@ -629,6 +639,17 @@ mod tests {
     }
 
     #[test]
+    fn charts_that_fit_no_tile_are_an_error() {
+        // Six charts of at least 2 + 2·1000 texels: four fit a 4096² tile, six do not.
+        let opts = AtlasOptions {
+            gutter: 1000,
+            ..Default::default()
+        };
+        let e = build_atlas(&cube(false), &opts).unwrap_err();
+        assert!(e.contains("6 charts"), "{e}");
+    }
+
+    #[test]
     fn overlapping_projection_starts_a_new_chart() {
         // Two coplanar, edge-connected triangles folded on top of each other (a zero-thickness
         // fold would be excluded by the cone; here the second is a flat triangle lying over the
@@ -645,7 +666,7 @@ mod tests {
         };
         m.normals = vec![[0.0, 0.0, 1.0]; 4];
         m.uvs = vec![[0.0; 2]; 4];
-        let l = build_atlas(&m, &AtlasOptions::default());
+        let l = build_atlas(&m, &AtlasOptions::default()).unwrap();
         assert_eq!(l.charts.len(), 2);
         assert!(!overlap(&tri_uv(&l, 0), &tri_uv(&l, 1)));
     }
@@ -653,7 +674,7 @@ mod tests {
     #[test]
     fn dilation_fills_the_gutter_from_its_own_chart() {
         let m = cube(false);
-        let l = build_atlas(&m, &AtlasOptions::default());
+        let l = build_atlas(&m, &AtlasOptions::default()).unwrap();
         let g = rasterize(&m, &l);
         let mut texels: Vec<[f32; 3]> = g
             .iter()

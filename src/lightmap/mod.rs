@@ -320,7 +320,8 @@ pub fn object_sections(
         };
         // Seeds above the terrain's texel indices (< 2³²), one stream family per model.
         let seed = crate::rt::mix64((m as u64 + 1) << 40);
-        let map = objects::bake_object_lightmap(&scene.bvh, &scene.albedo, light, p, seed, opts);
+        let map = objects::bake_object_lightmap(&scene.bvh, &scene.albedo, light, p, seed, opts)
+            .map_err(|e| crate::error::Error::runtime(format!("light map of {name}: {e}")))?;
         let meta = atlas_section::AtlasMeta {
             surface: name.clone(),
             instances: map.instances.clone(),

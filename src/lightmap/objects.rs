@@ -97,7 +97,8 @@ fn tile_rect(s: usize, columns: u32, tile: u32, width: u32, height: u32) -> [f32
 }
 
 /// Bakes the atlas light map of a placed mesh. `seed` separates the random streams of different
-/// meshes; texels are independent, so the result does not depend on the thread count.
+/// meshes; texels are independent, so the result does not depend on the thread count. An error
+/// if the mesh's charts do not fit the largest tile.
 pub fn bake_object_lightmap(
     bvh: &SceneBvh,
     albedo: &[[f32; 3]],
@@ -105,16 +106,11 @@ pub fn bake_object_lightmap(
     placed: PlacedMesh,
     seed: u64,
     opts: &LightmapOptions,
-) -> AtlasLightmap {
-    bake_with_layout(
-        bvh,
-        albedo,
-        light,
-        placed,
-        build_atlas(placed.mesh, &opts.atlas),
-        seed,
-        opts,
-    )
+) -> Result<AtlasLightmap, String> {
+    let layout = build_atlas(placed.mesh, &opts.atlas)?;
+    Ok(bake_with_layout(
+        bvh, albedo, light, placed, layout, seed, opts,
+    ))
 }
 
 /// [`bake_object_lightmap`] with a given layout.
@@ -202,4 +198,18 @@ pub fn placed_models(
         .filter(|(_, l)| !l.is_empty() && l.len() <= max_instances as usize)
         .map(|(m, l)| (m as u32, l))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn placed_models_are_those_with_one_to_max_instances() {
+        // Model 0 once, model 1 twice, model 2 twenty times, model 3 never, one bad index.
+        let mut models = vec![1, 0, 1];
+        models.extend([2; 20]);
+        models.push(9);
+        let p = super::placed_models(&models, 4, 16);
+        assert_eq!(p, vec![(0, vec![1]), (1, vec![0, 2])]);
+        assert_eq!(super::placed_models(&models, 4, 20).len(), 3);
+    }
 }
