@@ -504,6 +504,7 @@ fn atlas_section_round_trips_and_rejects_inconsistent_arrays() {
     );
     let meta = AtlasMeta {
         surface: "mesh:cube".into(),
+        mesh_vertices: m.positions.len() as u32,
         instances: map.instances.clone(),
         tile: map.layout.tile,
         columns: map.columns,
@@ -530,6 +531,12 @@ fn atlas_section_round_trips_and_rejects_inconsistent_arrays() {
     // A meta promising a bigger atlas than the arrays hold is an error, not a panic.
     let bad = AtlasMeta {
         height: meta.height * 2,
+        ..meta.clone()
+    };
+    let sec = to_section("x", &bad, &map);
+    assert!(from_section(&SectionView::parse(&sec.payload, 0).unwrap()).is_err());
+    let bad = AtlasMeta {
+        mesh_vertices: 20,
         ..meta.clone()
     };
     let sec = to_section("x", &bad, &map);
@@ -570,6 +577,7 @@ fn fixture_scene_bakes_an_atlas_for_its_objects_but_not_its_plants() {
     );
     let (_, mesh) =
         bake::pack::kinds::mesh::from_section(&pack.view_named(&meta.surface).unwrap()).unwrap();
+    assert_eq!(meta.mesh_vertices as usize, mesh.positions.len());
     let light = bake::lightmap::scene_lighting(&pack).unwrap();
     let (s, e_sun) = light.sun.unwrap();
     let (mut top, mut bottom) = (Vec::new(), Vec::new());

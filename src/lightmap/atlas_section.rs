@@ -17,6 +17,9 @@ pub const KIND: &str = "lightmap_atlas";
 pub struct AtlasMeta {
     /// The mesh section whose vertices `vertex_source` refers to.
     pub surface: String,
+    /// Vertex count of that mesh section when the atlas was made (a later vertex split, e.g. by
+    /// `bake material`, makes the atlas stale: readers compare).
+    pub mesh_vertices: u32,
     /// Scene instance (index into the `instances` section) of every tile.
     pub instances: Vec<u32>,
     /// Texels per tile side; tiles per atlas row; atlas size in texels.
@@ -88,6 +91,9 @@ pub fn from_section(v: &SectionView) -> Result<(AtlasMeta, AtlasLightmap), Parse
     let charts: Vec<[u32; 4]> = v.array_vec("charts")?;
     if uv.len() != vertex_source.len() {
         return Err(bad("lightmap_uv and vertex_source differ in length"));
+    }
+    if vertex_source.iter().any(|&i| i >= meta.mesh_vertices) {
+        return Err(bad("vertex_source refers past the mesh's vertices"));
     }
     if indices.iter().flatten().any(|&i| i as usize >= uv.len()) {
         return Err(bad("an index refers past the atlas vertices"));

@@ -324,6 +324,7 @@ pub fn object_sections(
             .map_err(|e| crate::error::Error::runtime(format!("light map of {name}: {e}")))?;
         let meta = atlas_section::AtlasMeta {
             surface: name.clone(),
+            mesh_vertices: mesh.positions.len() as u32,
             instances: map.instances.clone(),
             tile: map.layout.tile,
             columns: map.columns,
