@@ -382,7 +382,9 @@ fn barycentric(p: Vec2, a: Vec2, b: Vec2, c: Vec2) -> [f32; 3] {
 fn texel_of(mesh: &Mesh, layout: &AtlasLayout, t: usize, q: Vec2) -> Option<GTexel> {
     let tile = layout.tile as f32;
     let [a, b, c] = layout.indices[t].map(|v| Vec2::from(layout.uv[v as usize]) * tile);
-    if (b - a).perp_dot(c - a).abs() < 1e-9 {
+    // NaN (a mesh with non-finite positions) is rejected too.
+    let area2 = (b - a).perp_dot(c - a).abs();
+    if area2.is_nan() || area2 < 1e-9 {
         return None;
     }
     let l = barycentric(q, a, b, c);
@@ -399,7 +401,7 @@ fn texel_of(mesh: &Mesh, layout: &AtlasLayout, t: usize, q: Vec2) -> Option<GTex
             .min_by(|x, y| x.distance_squared(q).total_cmp(&y.distance_squared(q)))?;
         (best, best.distance(q))
     };
-    if distance > std::f32::consts::FRAC_1_SQRT_2 {
+    if distance.is_nan() || distance > std::f32::consts::FRAC_1_SQRT_2 {
         return None;
     }
     let l = barycentric(point, a, b, c).map(|x| x.clamp(0.0, 1.0));
@@ -647,6 +649,16 @@ mod tests {
         };
         let e = build_atlas(&cube(false), &opts).unwrap_err();
         assert!(e.contains("6 charts"), "{e}");
+    }
+
+    #[test]
+    fn non_finite_positions_give_no_texels() {
+        let mut m = cube(false);
+        m.positions[0] = [f32::NAN, 0.0, 0.0];
+        let l = build_atlas(&m, &AtlasOptions::default()).unwrap();
+        let g = rasterize(&m, &l);
+        assert!(g.iter().flatten().all(|t| t.position.is_finite()));
+        assert!(g.iter().flatten().count() > 0);
     }
 
     #[test]
