@@ -352,6 +352,45 @@ pub fn build_atlas(mesh: &Mesh, opts: &AtlasOptions) -> Result<AtlasLayout, Stri
     })
 }
 
+impl AtlasLayout {
+    /// The light-map UV of every mesh vertex when no vertex was split (every mesh vertex lies in
+    /// one chart): a renderer can then draw the mesh's own index buffer with this second UV set.
+    pub fn uv_per_mesh_vertex(&self, mesh_vertices: usize) -> Option<Vec<[f32; 2]>> {
+        if self.vertex_source.len() != mesh_vertices {
+            return None;
+        }
+        let mut out = vec![[f32::NAN; 2]; mesh_vertices];
+        for (&src, &uv) in self.vertex_source.iter().zip(&self.uv) {
+            out.get_mut(src as usize).map(|o| *o = uv)?;
+        }
+        out.iter().all(|u| !u[0].is_nan()).then_some(out)
+    }
+
+    /// The mesh with its vertices split like the atlas' (attributes gathered through
+    /// `vertex_source`, the atlas' indices) and the light-map UV of every vertex of it.
+    pub fn split_mesh(&self, mesh: &Mesh) -> Result<(Mesh, Vec<[f32; 2]>), String> {
+        let n = mesh.positions.len();
+        if self.vertex_source.iter().any(|&v| v as usize >= n)
+            || self.indices.len() != mesh.indices.len()
+        {
+            return Err("the atlas does not belong to this mesh".into());
+        }
+        let gather = |a: &[[f32; 3]]| self.vertex_source.iter().map(|&v| a[v as usize]).collect();
+        let out = Mesh {
+            positions: gather(&mesh.positions),
+            normals: gather(&mesh.normals),
+            uvs: self
+                .vertex_source
+                .iter()
+                .map(|&v| mesh.uvs[v as usize])
+                .collect(),
+            indices: self.indices.clone(),
+            ..mesh.clone()
+        };
+        Ok((out, self.uv.clone()))
+    }
+}
+
 /// One covered texel of the G-buffer: a surface point in model space.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GTexel {
@@ -659,6 +698,33 @@ mod tests {
         let g = rasterize(&m, &l);
         assert!(g.iter().flatten().all(|t| t.position.is_finite()));
         assert!(g.iter().flatten().count() > 0);
+    }
+
+    #[test]
+    fn split_mesh_keeps_every_triangle_and_per_vertex_uvs_only_without_splits() {
+        let flat = cube(false);
+        let l = build_atlas(&flat, &AtlasOptions::default()).unwrap();
+        let per_vertex = l.uv_per_mesh_vertex(flat.positions.len()).unwrap();
+        for (t, tri) in flat.indices.iter().enumerate() {
+            for k in 0..3 {
+                assert_eq!(per_vertex[tri[k] as usize], l.uv[l.indices[t][k] as usize]);
+            }
+        }
+        let welded = cube(true);
+        let l = build_atlas(&welded, &AtlasOptions::default()).unwrap();
+        assert!(l.uv_per_mesh_vertex(welded.positions.len()).is_none());
+        let (m, uv) = l.split_mesh(&welded).unwrap();
+        assert_eq!((m.positions.len(), uv.len()), (24, 24));
+        m.validate().unwrap();
+        for (t, tri) in welded.indices.iter().enumerate() {
+            for k in 0..3 {
+                assert_eq!(
+                    m.positions[m.indices[t][k] as usize],
+                    welded.positions[tri[k] as usize]
+                );
+            }
+        }
+        assert!(l.split_mesh(&Mesh::default()).is_err());
     }
 
     #[test]
