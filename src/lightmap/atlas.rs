@@ -706,8 +706,8 @@ mod tests {
         let l = build_atlas(&flat, &AtlasOptions::default()).unwrap();
         let per_vertex = l.uv_per_mesh_vertex(flat.positions.len()).unwrap();
         for (t, tri) in flat.indices.iter().enumerate() {
-            for k in 0..3 {
-                assert_eq!(per_vertex[tri[k] as usize], l.uv[l.indices[t][k] as usize]);
+            for (k, &v) in tri.iter().enumerate() {
+                assert_eq!(per_vertex[v as usize], l.uv[l.indices[t][k] as usize]);
             }
         }
         let welded = cube(true);
@@ -717,10 +717,10 @@ mod tests {
         assert_eq!((m.positions.len(), uv.len()), (24, 24));
         m.validate().unwrap();
         for (t, tri) in welded.indices.iter().enumerate() {
-            for k in 0..3 {
+            for (k, &v) in tri.iter().enumerate() {
                 assert_eq!(
                     m.positions[m.indices[t][k] as usize],
-                    welded.positions[tri[k] as usize]
+                    welded.positions[v as usize]
                 );
             }
         }
