@@ -36,11 +36,6 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         crate::lightmap::section::data,
     ),
     (
-        crate::lightmap::atlas_section::KIND,
-        crate::lightmap::atlas_section::summary,
-        crate::lightmap::atlas_section::data,
-    ),
-    (
         crate::envmap::section::ENVMAPS_KIND,
         crate::envmap::section::envmaps_summary,
         crate::envmap::section::envmaps_data,

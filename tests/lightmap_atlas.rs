@@ -202,6 +202,15 @@ fn open_sky_plane_atlas_gets_the_analytic_irradiance() {
         }
         assert_eq!(n as u64, map.covered);
         assert!(n > 500, "{n} texels covered");
+        // Without the direct sun (the renderer's ambient part): the sky's πa + 2πb/3 alone.
+        let sky = PI * a + 2.0 * PI * b / 3.0;
+        for (i, _) in map.coverage.iter().enumerate().filter(|(_, c)| **c == 1) {
+            let e = map.indirect[i];
+            assert!(
+                e.iter().all(|&v| (v - sky).abs() < 0.01 * sky),
+                "{mode:?}: indirect {e:?} vs {sky}"
+            );
+        }
     }
 }
 
@@ -470,7 +479,7 @@ fn atlas_bake_is_identical_across_thread_counts() {
 
 #[test]
 fn atlas_section_round_trips_and_rejects_inconsistent_arrays() {
-    use bake::lightmap::atlas_section::{AtlasMeta, from_section, summary, to_section};
+    use bake::lightmap::atlas_section::{AtlasMeta, from_section, to_section};
     use bake::pack::section::SectionView;
     let m = cube();
     let bvh = scene(&[&m], vec![place(0, [0.0; 3], 0.0); 3]);
@@ -522,7 +531,27 @@ fn atlas_section_round_trips_and_rejects_inconsistent_arrays() {
     let v = SectionView::parse(&sec.payload, 0).unwrap();
     let (meta2, map2) = from_section(&v).unwrap();
     assert_eq!((meta2, &map2), (meta.clone(), &map));
-    let js = summary(&v).unwrap();
+    // Generic readers: the metadata decodes as the terrain's LightmapMeta, and `lightmap_uv`
+    // holds atlas UVs per instance and mesh vertex (the cube's vertices are not split).
+    let generic: bake::lightmap::section::LightmapMeta = v.meta().unwrap();
+    assert_eq!(
+        (generic.surface.as_str(), generic.width, generic.height),
+        ("mesh:cube", map.width, map.height)
+    );
+    let uv: Vec<[f32; 2]> = v.array_vec("lightmap_uv").unwrap();
+    assert_eq!(uv.len(), 3 * m.positions.len());
+    for s in 0..3 {
+        for (t, tri) in m.indices.iter().enumerate() {
+            for (k, &vtx) in tri.iter().enumerate() {
+                let mut l = [0.0; 3];
+                l[k] = 1.0;
+                let want = map.triangle_uv(s, t, l);
+                let got = uv[s * m.positions.len() + vtx as usize];
+                assert!((got[0] - want[0]).abs() < 1e-6 && (got[1] - want[1]).abs() < 1e-6);
+            }
+        }
+    }
+    let js = bake::lightmap::section::summary(&v).unwrap();
     assert_eq!(js["charts"], 6);
     assert_eq!(js["texels_covered"], map.covered);
     // Every covered texel sees the whole sky: mean πL over covered texels.
@@ -551,7 +580,7 @@ fn fixture_scene_bakes_an_atlas_for_its_objects_but_not_its_plants() {
     // 12 benches (≤ 16 instances) get one atlas with 12 tiles; the 88 plants get none. The seat's
     // top (n = +z, mostly sunlit) must be far brighter than its underside (n = −z, facing the
     // ground): E_top ≥ ½·E_sun·cos θ_s, E_bottom < ½·E_top.
-    use bake::lightmap::atlas_section::{KIND, from_section};
+    use bake::lightmap::atlas_section::{KIND, from_section, is_atlas};
     use bake::pack::kinds::instances;
     let dir = tempfile::tempdir().unwrap();
     let pack = bake::cli::lightmap::fixture_pack(dir.path()).unwrap();
@@ -560,10 +589,12 @@ fn fixture_scene_bakes_an_atlas_for_its_objects_but_not_its_plants() {
         sun_samples: 4,
         ..Default::default()
     };
-    let sections = bake::lightmap::lightmap_sections(&pack, &opts).unwrap();
+    let sections = bake::lightmap::atlas_sections(&pack, &opts).unwrap();
     let atlases: Vec<_> = sections.iter().filter(|s| s.kind == KIND).collect();
+    assert_eq!(atlases.len(), sections.len());
     assert_eq!(atlases.len(), 1);
     let v = bake::pack::section::SectionView::parse(&atlases[0].payload, 0).unwrap();
+    assert!(is_atlas(&v));
     let (meta, map) = from_section(&v).unwrap();
     assert_eq!(atlases[0].name, format!("lightmap:{}", meta.surface));
     let (imeta, inst) = instances::from_section(&pack.view_named("instances").unwrap()).unwrap();

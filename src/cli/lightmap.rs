@@ -50,18 +50,17 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
         ..Default::default()
     };
     let start = std::time::Instant::now();
-    let sections = crate::lightmap::lightmap_sections(&pack, &opts)?;
+    let mut sections = crate::lightmap::lightmap_sections(&pack, &opts)?;
+    sections.extend(crate::lightmap::atlas_sections(&pack, &opts)?);
     let seconds = start.elapsed().as_secs_f64();
     let mut summaries = Vec::new();
     for s in sections {
         let v = crate::pack::section::SectionView::parse(&s.payload, 0)
             .map_err(|e| crate::error::Error::invalid(&output, e))?;
-        let summary = if s.kind == crate::lightmap::atlas_section::KIND {
-            crate::lightmap::atlas_section::summary(&v)
-        } else {
+        summaries.push(
             crate::lightmap::section::summary(&v)
-        };
-        summaries.push(summary.map_err(|e| crate::error::Error::invalid(&output, e))?);
+                .map_err(|e| crate::error::Error::invalid(&output, e))?,
+        );
         w.insert(s);
     }
     w.write(&output)?;

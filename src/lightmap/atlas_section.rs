@@ -1,6 +1,10 @@
-//! Kind `lightmap_atlas`: the light map of a placed mesh (section `lightmap:<mesh section>`):
-//! an irradiance atlas with one tile per instance, and the atlas' own vertex and index lists (a
+//! The light map of a placed mesh (kind `lightmap`, section `lightmap:<mesh section>`): an
+//! irradiance atlas with one tile per instance, and the atlas' own vertex and index lists (a
 //! second UV set; a mesh vertex on a chart border becomes several atlas vertices).
+//!
+//! The metadata starts with [`super::section::LightmapMeta`]'s fields, so readers of the terrain's
+//! light map read this one generically too (`irradiance` of width × height, `indirect`, and where
+//! no mesh vertex was split `lightmap_uv`: atlas UVs per instance and mesh vertex).
 
 use super::LightmapMode;
 use super::atlas::{AtlasLayout, ChartRect};
@@ -11,47 +15,67 @@ use crate::pack::{ArrayFormat, Section, SectionBuilder};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
-pub const KIND: &str = "lightmap_atlas";
+pub const KIND: &str = super::section::KIND;
+
+/// Whether a `lightmap` section is an object atlas (it has the atlas' vertex list).
+pub fn is_atlas(v: &SectionView) -> bool {
+    v.info("vertex_source").is_some()
+}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AtlasMeta {
     /// The mesh section whose vertices `vertex_source` refers to.
     pub surface: String,
+    /// Atlas size in texels.
+    pub width: u32,
+    pub height: u32,
+    pub mode: LightmapMode,
+    pub samples: u32,
+    pub sun_samples: u32,
     /// Vertex count of that mesh section when the atlas was made (a later vertex split, e.g. by
     /// `bake material`, makes the atlas stale: readers compare).
     pub mesh_vertices: u32,
     /// Scene instance (index into the `instances` section) of every tile.
     pub instances: Vec<u32>,
-    /// Texels per tile side; tiles per atlas row; atlas size in texels.
+    /// Texels per tile side; tiles per atlas row.
     pub tile: u32,
     pub columns: u32,
-    pub width: u32,
-    pub height: u32,
     pub gutter: u32,
     /// Texels per model unit.
     pub density: f32,
     pub texels_covered: u64,
     pub gutter_texels: u64,
-    pub mode: LightmapMode,
-    pub samples: u32,
-    pub sun_samples: u32,
 }
 
 pub fn to_section(name: &str, meta: &AtlasMeta, map: &AtlasLightmap) -> Section {
-    let texels: Vec<[f32; 4]> = map.texels.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect();
+    let rgba =
+        |t: &[[f32; 3]]| -> Vec<[f32; 4]> { t.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect() };
     let tiles: Vec<[f32; 4]> = (0..map.instances.len()).map(|s| map.tile_rect(s)).collect();
     let l = &map.layout;
     let charts: Vec<[u32; 4]> = l.charts.iter().map(|r| [r.x, r.y, r.w, r.h]).collect();
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
-        .array("irradiance", ArrayFormat::F32, 4, &texels)
+        .array("irradiance", ArrayFormat::F32, 4, &rgba(&map.texels))
+        .array("indirect", ArrayFormat::F32, 4, &rgba(&map.indirect))
         .array("coverage", ArrayFormat::U8, 1, &map.coverage)
         .array("tiles", ArrayFormat::F32, 4, &tiles)
-        .array("lightmap_uv", ArrayFormat::F32, 2, &l.uv)
+        .array("atlas_uv", ArrayFormat::F32, 2, &l.uv)
         .array("vertex_source", ArrayFormat::U32, 1, &l.vertex_source)
         .array("indices", ArrayFormat::U32, 3, &l.indices)
         .array("triangle_chart", ArrayFormat::U32, 1, &l.triangle_chart)
         .array("charts", ArrayFormat::U32, 4, &charts);
+    if let Some(per_vertex) = l.uv_per_mesh_vertex(meta.mesh_vertices as usize) {
+        // Atlas UVs per instance slot and mesh vertex: draw the mesh as it is.
+        let uv: Vec<[f32; 2]> = (0..map.instances.len())
+            .flat_map(|s| {
+                let r = map.tile_rect(s);
+                per_vertex
+                    .iter()
+                    .map(move |u| [r[0] + u[0] * r[2], r[1] + u[1] * r[3]])
+            })
+            .collect();
+        b.array("lightmap_uv", ArrayFormat::F32, 2, &uv);
+    }
     b.finish()
 }
 
@@ -81,16 +105,17 @@ pub fn from_section(v: &SectionView) -> Result<(AtlasMeta, AtlasLightmap), Parse
         return Err(bad("texel count does not match width × height"));
     }
     let coverage: Vec<u8> = v.array_vec("coverage")?;
-    if coverage.len() != t.len() {
-        return Err(bad("coverage and irradiance differ in length"));
+    let ind: &[[f32; 4]] = v.array("indirect")?;
+    if coverage.len() != t.len() || ind.len() != t.len() {
+        return Err(bad("coverage, indirect and irradiance differ in length"));
     }
-    let uv: Vec<[f32; 2]> = v.array_vec("lightmap_uv")?;
+    let uv: Vec<[f32; 2]> = v.array_vec("atlas_uv")?;
     let vertex_source: Vec<u32> = v.array_vec("vertex_source")?;
     let indices: Vec<[u32; 3]> = v.array_vec("indices")?;
     let triangle_chart: Vec<u32> = v.array_vec("triangle_chart")?;
     let charts: Vec<[u32; 4]> = v.array_vec("charts")?;
     if uv.len() != vertex_source.len() {
-        return Err(bad("lightmap_uv and vertex_source differ in length"));
+        return Err(bad("atlas_uv and vertex_source differ in length"));
     }
     if vertex_source.iter().any(|&i| i >= meta.mesh_vertices) {
         return Err(bad("vertex_source refers past the mesh's vertices"));
@@ -133,6 +158,7 @@ pub fn from_section(v: &SectionView) -> Result<(AtlasMeta, AtlasLightmap), Parse
         width: meta.width,
         height: meta.height,
         texels: t.iter().map(|x| [x[0], x[1], x[2]]).collect(),
+        indirect: ind.iter().map(|x| [x[0], x[1], x[2]]).collect(),
         coverage,
         covered: meta.texels_covered,
         gutter_texels: meta.gutter_texels,

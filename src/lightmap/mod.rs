@@ -16,7 +16,7 @@
 //!
 //! The terrain atlas is its grid, so it has no charts and no gutters. Meshes placed at most
 //! `max_instances` times (the 3DS objects) get a generated atlas with one tile per instance
-//! ([`atlas`], [`objects`], section kind `lightmap_atlas`).
+//! ([`atlas`], [`objects`], [`atlas_section`]).
 
 pub mod atlas;
 pub mod atlas_section;
@@ -271,31 +271,39 @@ pub fn scene_lighting(pack: &crate::pack::Pack) -> crate::error::Result<Lighting
     Ok(Lighting { sky, sun })
 }
 
-/// The light-map stage on a pack: a `lightmap` section for the terrain and a `lightmap_atlas`
-/// section `lightmap:<mesh section>` for every model placed at most `max_instances` times.
+/// The light-map stage on a pack: a `lightmap` section for the terrain.
 pub fn lightmap_sections(
     pack: &crate::pack::Pack,
     opts: &LightmapOptions,
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = scene_lighting(pack)?;
     let scene = crate::tracescene::trace_scene(pack)?;
-    let mut out = Vec::new();
-    if let Some(map) = bake_terrain_lightmap(&scene, &light, opts) {
-        let meta = section::LightmapMeta {
-            surface: "terrain".into(),
-            width: map.width,
-            height: map.height,
-            mode: opts.mode,
-            samples: opts.samples,
-            sun_samples: opts.sun_samples,
-        };
-        out.push(section::to_section("lightmap:terrain", &meta, &map));
-    }
-    out.extend(object_sections(pack, &scene, &light, opts)?);
-    Ok(out)
+    let Some(map) = bake_terrain_lightmap(&scene, &light, opts) else {
+        return Ok(Vec::new());
+    };
+    let meta = section::LightmapMeta {
+        surface: "terrain".into(),
+        width: map.width,
+        height: map.height,
+        mode: opts.mode,
+        samples: opts.samples,
+        sun_samples: opts.sun_samples,
+    };
+    Ok(vec![section::to_section("lightmap:terrain", &meta, &map)])
 }
 
-/// The `lightmap_atlas` sections of the placed meshes.
+/// The light maps of the placed meshes: a `lightmap` section `lightmap:<mesh section>` (an atlas,
+/// [`atlas_section`]) for every model placed at most `max_instances` times.
+pub fn atlas_sections(
+    pack: &crate::pack::Pack,
+    opts: &LightmapOptions,
+) -> crate::error::Result<Vec<crate::pack::Section>> {
+    let light = scene_lighting(pack)?;
+    let scene = crate::tracescene::trace_scene(pack)?;
+    object_sections(pack, &scene, &light, opts)
+}
+
+/// [`atlas_sections`] with the scene and its light at hand.
 pub fn object_sections(
     pack: &crate::pack::Pack,
     scene: &TraceScene,
@@ -324,19 +332,19 @@ pub fn object_sections(
             .map_err(|e| crate::error::Error::runtime(format!("light map of {name}: {e}")))?;
         let meta = atlas_section::AtlasMeta {
             surface: name.clone(),
+            width: map.width,
+            height: map.height,
+            mode: opts.mode,
+            samples: opts.samples,
+            sun_samples: opts.sun_samples,
             mesh_vertices: mesh.positions.len() as u32,
             instances: map.instances.clone(),
             tile: map.layout.tile,
             columns: map.columns,
-            width: map.width,
-            height: map.height,
             gutter: map.layout.gutter,
             density: map.layout.density,
             texels_covered: map.covered,
             gutter_texels: map.gutter_texels,
-            mode: opts.mode,
-            samples: opts.samples,
-            sun_samples: opts.sun_samples,
         };
         out.push(atlas_section::to_section(
             &format!("lightmap:{name}"),

@@ -36,6 +36,9 @@ pub struct AtlasLightmap {
     pub height: u32,
     /// Irradiance (linear RGB) per atlas texel, row-major, row 0 at v = 0.
     pub texels: Vec<[f32; 3]>,
+    /// The same without the direct sun (sky and bounced light): a renderer that draws the sun
+    /// itself adds this one.
+    pub indirect: Vec<[f32; 3]>,
     /// Per texel: 0 empty, 1 covered by a triangle, 2 a gutter texel filled by dilation.
     pub coverage: Vec<u8>,
     /// Texels the triangles cover (over all tiles).
@@ -133,26 +136,30 @@ pub fn bake_with_layout(
     let (width, height) = (columns * tile, rows * tile);
     let sky_irr = light.sky.to_irradiance();
     let mut texels = vec![[0.0f32; 3]; (width * height) as usize];
+    let mut indirect = vec![[0.0f32; 3]; (width * height) as usize];
     let mut coverage = vec![0u8; (width * height) as usize];
     let (mut covered, mut gutter_texels) = (0, 0);
     for (s, &inst) in placed.instances.iter().enumerate() {
         let tr = bvh.instances()[inst as usize];
         let slot_seed = crate::rt::mix64(seed ^ ((s as u64) << 32));
-        let mut tex: Vec<[f32; 3]> = g
+        let (mut tex, mut ind): (Vec<[f32; 3]>, Vec<[f32; 3]>) = g
             .par_iter()
             .enumerate()
             .map(|(k, t)| match t {
-                None => [0.0; 3],
+                None => ([0.0; 3], [0.0; 3]),
                 Some(t) => {
                     let p = tr.point_to_world(t.position);
                     let nrm = tr.normal_to_world(t.normal).normalize_or(Vec3A::Z);
                     let texel = crate::rt::mix64(slot_seed ^ k as u64);
-                    texel_irradiance(bvh, albedo, light, &sky_irr, p, nrm, texel, opts)
+                    let e = texel_irradiance(bvh, albedo, light, &sky_irr, p, nrm, texel, opts);
+                    let d = texel_direct_sun(bvh, light, p, nrm, texel, opts);
+                    (e, [0, 1, 2].map(|c| (e[c] - d[c]).max(0.0)))
                 }
             })
-            .collect();
+            .unzip();
         let mut filled: Vec<bool> = g.iter().map(Option::is_some).collect();
         covered += filled.iter().filter(|&&f| f).count() as u64;
+        dilate(&mut ind, &mut filled.clone(), &layout, layout.gutter + 1);
         gutter_texels += dilate(&mut tex, &mut filled, &layout, layout.gutter + 1);
         let cov: Vec<u8> = g
             .iter()
@@ -162,10 +169,10 @@ pub fn bake_with_layout(
         let (x0, y0) = ((s as u32 % columns) * tile, (s as u32 / columns) * tile);
         for y in 0..tile {
             let row = ((y0 + y) * width + x0) as usize;
-            texels[row..row + tile as usize]
-                .copy_from_slice(&tex[(y * tile) as usize..((y + 1) * tile) as usize]);
-            coverage[row..row + tile as usize]
-                .copy_from_slice(&cov[(y * tile) as usize..((y + 1) * tile) as usize]);
+            let src = (y * tile) as usize..((y + 1) * tile) as usize;
+            texels[row..row + tile as usize].copy_from_slice(&tex[src.clone()]);
+            indirect[row..row + tile as usize].copy_from_slice(&ind[src.clone()]);
+            coverage[row..row + tile as usize].copy_from_slice(&cov[src]);
         }
     }
     AtlasLightmap {
@@ -175,10 +182,38 @@ pub fn bake_with_layout(
         width,
         height,
         texels,
+        indirect,
         coverage,
         covered,
         gutter_texels,
     }
+}
+
+/// The direct-sun part of [`texel_irradiance`] at the same point with the same per-texel seed
+/// (so the same disc samples): `E_sun · max(0, n·s) · V`, V = 1 in thesis mode.
+pub fn texel_direct_sun(
+    bvh: &SceneBvh,
+    light: &Lighting,
+    p: Vec3A,
+    n: Vec3A,
+    texel: u64,
+    opts: &LightmapOptions,
+) -> [f32; 3] {
+    let Some((s, irr)) = light.sun else {
+        return [0.0; 3];
+    };
+    let s = Vec3A::from(s);
+    let cos = n.dot(s);
+    if cos <= 0.0 {
+        return [0.0; 3];
+    }
+    let vis = match opts.mode {
+        super::LightmapMode::Thesis => 1.0,
+        super::LightmapMode::Physical => {
+            super::sun_visibility(bvh, p + n * 1e-3, s, opts.sun_samples, texel)
+        }
+    };
+    irr.map(|e| e * cos * vis)
 }
 
 /// The models that get an atlas: placed at least once and at most `max_instances` times.
