@@ -37,7 +37,7 @@ enum Command {
     Cluster(cli::cluster::ClusterArgs),
     /// An HDR sky (or the built-in one) to a cube map, the sun and the sky's SH.
     Sky(cli::sky::SkyArgs),
-    /// Bake the terrain's light map.
+    /// Bake the light maps of the terrain and of the placed objects (atlases).
     Lightmap(cli::lightmap::LightmapArgs),
     /// Bake per-instance SH environment maps.
     Envmaps(cli::envmaps::EnvmapsArgs),

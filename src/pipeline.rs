@@ -169,6 +169,9 @@ pub fn build(opts: &BuildOptions) -> Result<BuildReport> {
     for s in crate::lightmap::lightmap_sections(&pack, &opts.lightmap)? {
         w.insert(s);
     }
+    for s in crate::lightmap::atlas_sections(&pack, &opts.lightmap)? {
+        w.insert(s);
+    }
     for s in crate::envmap::envmap_sections(&pack, &opts.envmaps)? {
         w.insert(s);
     }

@@ -34,6 +34,8 @@ pub enum BenchWhat {
     Ambient(crate::render::ambient_bench::AmbientBenchArgs),
     /// Terrain rays/s: heightfield (min/max quadtree) against the triangle-mesh BVH.
     TerrainRays(crate::rt::bench::TerrainRaysBenchArgs),
+    /// Light maps of the fixture scene (or a pack): terrain and placed-object atlases.
+    Lightmap(super::lightmap::LightmapBenchArgs),
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -81,6 +83,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Terrain(a) => crate::terrain::bench::bench_terrain(a),
         BenchWhat::Ambient(a) => crate::render::ambient_bench::bench_ambient(a),
         BenchWhat::TerrainRays(a) => crate::rt::bench::bench_terrain_rays(a),
+        BenchWhat::Lightmap(a) => super::lightmap::bench(a, g),
     }
 }
 

@@ -14,9 +14,13 @@
 //! `thesis` mode reproduces seed 001's estimator for comparison: one fixed Hammersley set for every
 //! texel, no visibility (neither for the sky nor the sun), no bounce.
 //!
-//! The terrain atlas is its grid, so it has no charts and no gutters; atlases for placed meshes
-//! (3DS objects) are not built yet.
+//! The terrain atlas is its grid, so it has no charts and no gutters. Meshes placed at most
+//! `max_instances` times (the 3DS objects) get a generated atlas with one tile per instance
+//! ([`atlas`], [`objects`], [`atlas_section`]).
 
+pub mod atlas;
+pub mod atlas_section;
+pub mod objects;
 pub mod section;
 
 use crate::rt::{Ray, SceneBvh};
@@ -43,6 +47,9 @@ pub struct LightmapOptions {
     pub samples: u32,
     pub sun_samples: u32,
     pub mode: LightmapMode,
+    /// Models placed at most this many times get an atlas light map (one tile per instance).
+    pub max_instances: u32,
+    pub atlas: atlas::AtlasOptions,
 }
 
 impl Default for LightmapOptions {
@@ -52,6 +59,8 @@ impl Default for LightmapOptions {
             samples: 64,
             sun_samples: 16,
             mode: LightmapMode::Physical,
+            max_instances: 16,
+            atlas: atlas::AtlasOptions::default(),
         }
     }
 }
@@ -330,4 +339,67 @@ pub fn terrain_direct_sun(
             irr.map(|e| e * cos * vis)
         })
         .collect()
+}
+
+/// The light maps of the placed meshes: a `lightmap` section `lightmap:<mesh section>` (an atlas,
+/// [`atlas_section`]) for every model placed at most `max_instances` times.
+pub fn atlas_sections(
+    pack: &crate::pack::Pack,
+    opts: &LightmapOptions,
+) -> crate::error::Result<Vec<crate::pack::Section>> {
+    let light = scene_lighting(pack)?;
+    let scene = crate::tracescene::trace_scene(pack)?;
+    object_sections(pack, &scene, &light, opts)
+}
+
+/// [`atlas_sections`] with the scene and its light at hand.
+pub fn object_sections(
+    pack: &crate::pack::Pack,
+    scene: &TraceScene,
+    light: &Lighting,
+    opts: &LightmapOptions,
+) -> crate::error::Result<Vec<crate::pack::Section>> {
+    use crate::pack::kinds;
+    let bad = |e| crate::error::Error::invalid(pack.path(), e);
+    let (imeta, _) = kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
+    let models: Vec<u32> = scene.instances.items.iter().map(|i| i.model).collect();
+    let placed = objects::placed_models(&models, imeta.mesh_sections.len(), opts.max_instances);
+    let mut out = Vec::new();
+    for (m, instances) in placed {
+        let name = &imeta.mesh_sections[m as usize];
+        let (_, mesh) = kinds::mesh::from_section(&pack.view_named(name)?).map_err(bad)?;
+        if mesh.indices.is_empty() {
+            continue;
+        }
+        let p = objects::PlacedMesh {
+            mesh: &mesh,
+            instances: &instances,
+        };
+        // Seeds above the terrain's texel indices (< 2³²), one stream family per model.
+        let seed = crate::rt::mix64((m as u64 + 1) << 40);
+        let map = objects::bake_object_lightmap(&scene.bvh, &scene.albedo, light, p, seed, opts)
+            .map_err(|e| crate::error::Error::runtime(format!("light map of {name}: {e}")))?;
+        let meta = atlas_section::AtlasMeta {
+            surface: name.clone(),
+            width: map.width,
+            height: map.height,
+            mode: opts.mode,
+            samples: opts.samples,
+            sun_samples: opts.sun_samples,
+            mesh_vertices: mesh.positions.len() as u32,
+            instances: map.instances.clone(),
+            tile: map.layout.tile,
+            columns: map.columns,
+            gutter: map.layout.gutter,
+            density: map.layout.density,
+            texels_covered: map.covered,
+            gutter_texels: map.gutter_texels,
+        };
+        out.push(atlas_section::to_section(
+            &format!("lightmap:{name}"),
+            &meta,
+            &map,
+        ));
+    }
+    Ok(out)
 }

@@ -63,6 +63,9 @@ pub fn from_section(v: &SectionView) -> Result<(LightmapMeta, Lightmap), ParseEr
 }
 
 pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
+    if super::atlas_section::is_atlas(v) {
+        return super::atlas_section::summary(v);
+    }
     let (m, map) = from_section(v)?;
     let n = map.texels.len().max(1) as f32;
     let mean = map.texels.iter().fold([0.0f32; 3], |a, t| {
@@ -75,6 +78,9 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
 }
 
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {
+    if super::atlas_section::is_atlas(v) {
+        return super::atlas_section::data(v);
+    }
     let (_, map) = from_section(v)?;
     Ok(json!({"irradiance": map.texels}))
 }
