@@ -278,8 +278,17 @@ fn a_flat_terrain_under_the_sun_has_the_analytic_radiance_on_both_paths() {
     }
 }
 
-/// A 2 m square leaf (OpenGL default material → the thesis' leaf: glossy wax over a white
-/// diffuse layer, translucence 0.3) at the origin, through the material stage.
+/// The leaf quad's material: OpenGL's default with a TXF translucence of 0.3 and no colour map
+/// (→ the thesis' leaf with a 0.8 grey bottom layer, see src/material/convert.rs).
+fn leaf_material() -> bake::model::Material {
+    bake::model::Material {
+        translucence: Some(0.3),
+        ..Default::default()
+    }
+}
+
+/// A 2 m square leaf ([`leaf_material`]: glossy wax over a diffuse layer, translucence 0.3) at
+/// the origin, through the material stage.
 fn leaf_quad_pack() -> Pack {
     let mesh = bake::model::Mesh {
         positions: vec![
@@ -292,7 +301,7 @@ fn leaf_quad_pack() -> Pack {
         uvs: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
         indices: vec![[0, 1, 2], [0, 2, 3]],
         triangle_materials: vec![0, 0],
-        materials: vec![bake::model::Material::default()],
+        materials: vec![leaf_material()],
         ..Default::default()
     };
     let mut w = PackWriter::new();
@@ -313,7 +322,8 @@ fn leaf_quad_pack() -> Pack {
 #[test]
 fn the_shader_evaluates_the_schlick_brdf_like_the_rust_code() {
     let pack = leaf_quad_pack();
-    let leaf = bake::material::convert::LEAF_DEFAULT;
+    let leaf = bake::material::convert::material_to_schlick(&leaf_material());
+    assert_eq!(leaf.translucence, 0.3);
     let (w, h) = (64u32, 48u32);
     let eye = Vec3::new(0.0, -3.0, 2.0);
     for sun in [
