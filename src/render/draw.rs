@@ -80,6 +80,17 @@ fn target(
     if copy {
         usage |= wgpu::TextureUsages::COPY_SRC;
     }
+    texture_2d(gpu, label, size, format, usage)
+}
+
+/// A single-level 2D texture (also the soft-shadow pass's targets).
+pub(crate) fn texture_2d(
+    gpu: &Gpu,
+    label: &str,
+    size: (u32, u32),
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
     gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: Some(label),
         size: wgpu::Extent3d {
@@ -96,7 +107,8 @@ fn target(
     })
 }
 
-fn globals_group(
+/// Group 0: the per-frame constants, the sky and the soft-shadow visibility.
+pub(crate) fn globals_group(
     gpu: &Gpu,
     pipes: &Pipelines,
     scene: &GpuScene,

@@ -126,29 +126,6 @@ pub fn sun_light(tree: &NTree, sun_direction: [f32; 3], samples: u32) -> AreaLig
     }
 }
 
-fn texture(
-    gpu: &Gpu,
-    label: &str,
-    size: (u32, u32),
-    format: wgpu::TextureFormat,
-    usage: wgpu::TextureUsages,
-) -> wgpu::Texture {
-    gpu.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size: wgpu::Extent3d {
-            width: size.0,
-            height: size.1,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format,
-        usage,
-        view_formats: &[],
-    })
-}
-
 /// A 1×1 visibility of 1 (the scene pass's binding when soft shadows are off).
 pub fn fully_lit(gpu: &Gpu) -> wgpu::TextureView {
     let t = gpu.device.create_texture_with_data(
@@ -294,40 +271,6 @@ impl WorldPipelines {
     }
 }
 
-fn globals_group(
-    gpu: &Gpu,
-    pipes: &Pipelines,
-    scene: &GpuScene,
-    globals: &Globals,
-) -> wgpu::BindGroup {
-    let buf = gpu
-        .device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("globals (world pass)"),
-            contents: bytemuck::bytes_of(globals),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-    let lit = fully_lit(gpu);
-    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("globals (world pass)"),
-        layout: &pipes.globals_layout,
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: buf.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: wgpu::BindingResource::TextureView(&scene.sky_view),
-            },
-            wgpu::BindGroupEntry {
-                binding: 2,
-                resource: wgpu::BindingResource::TextureView(&lit),
-            },
-        ],
-    })
-}
-
 /// Draws the receivers of every pixel into `target` (cleared to w = 0).
 fn world_pass(
     gpu: &Gpu,
@@ -339,8 +282,9 @@ fn world_pass(
     size: (u32, u32),
 ) {
     let wp = WorldPipelines::new(gpu, pipes);
-    let bg = globals_group(gpu, pipes, scene, globals);
-    let depth = texture(
+    let lit = fully_lit(gpu);
+    let bg = super::draw::globals_group(gpu, pipes, scene, globals, &lit);
+    let depth = super::draw::texture_2d(
         gpu,
         "world depth",
         size,
@@ -410,7 +354,7 @@ pub fn compute_visibility(
     let (_, box_size) = crate::linespace::gpu::root_box(tree);
     let offset = 1e-4 * box_size.iter().cloned().fold(0.0, f32::max);
     let dev = NTreeGpu::new(gpu, tree)?;
-    let world_tex = texture(
+    let world_tex = super::draw::texture_2d(
         gpu,
         "world positions",
         size,
@@ -445,7 +389,7 @@ pub fn compute_visibility(
     );
     dev.record_shadow_fractions(&mut enc, &queries, count, light, offset, &out)?;
     let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
-    let vis_tex = texture(gpu, "sun visibility", size, VISIBILITY_FORMAT, usage);
+    let vis_tex = super::draw::texture_2d(gpu, "sun visibility", size, VISIBILITY_FORMAT, usage);
     let dst = wgpu::TexelCopyBufferInfo {
         buffer: &out,
         layout: rows(4),
