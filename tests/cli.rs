@@ -1,24 +1,13 @@
 //! Black-box tests of the `bake` binary: exit codes, error messages, `dump --json` shape.
 
-use serde_json::Value;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn bake(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bake"))
-        .args(args)
-        .env("NODEVICE_SELECT", "1")
-        .output()
-        .expect("run bake")
-}
+mod common;
+use common::{bake, json};
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn json(o: &Output) -> Value {
-    assert!(o.status.success(), "bake failed: {}", stderr(o));
-    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
 }
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> String {

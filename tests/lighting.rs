@@ -9,6 +9,9 @@ use glam::Vec3A;
 use std::f32::consts::PI;
 use std::sync::Arc;
 
+mod common;
+use common::lens_area;
+
 fn mesh(positions: Vec<[f32; 3]>, indices: Vec<[u32; 3]>) -> Mesh {
     let n = positions.len();
     Mesh {
@@ -98,20 +101,6 @@ fn open_sky_plane_gets_the_analytic_irradiance() {
             }
         }
     }
-}
-
-/// Area of the intersection of two circles (radii r1, r2, centre distance d).
-fn lens_area(d: f64, r1: f64, r2: f64) -> f64 {
-    if d >= r1 + r2 {
-        return 0.0;
-    }
-    if d <= (r1 - r2).abs() {
-        return std::f64::consts::PI * r1.min(r2).powi(2);
-    }
-    let a1 = ((d * d + r1 * r1 - r2 * r2) / (2.0 * d * r1)).acos();
-    let a2 = ((d * d + r2 * r2 - r1 * r1) / (2.0 * d * r2)).acos();
-    r1 * r1 * a1 + r2 * r2 * a2
-        - 0.5 * ((-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2)).sqrt()
 }
 
 #[test]

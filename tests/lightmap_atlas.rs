@@ -12,6 +12,9 @@ use glam::Vec3A;
 use std::f32::consts::PI;
 use std::sync::Arc;
 
+mod common;
+use common::lens_area;
+
 fn finish(mut m: Mesh) -> Mesh {
     m.uvs = vec![[0.0; 2]; m.positions.len()];
     m.triangle_materials = vec![0; m.indices.len()];
@@ -212,20 +215,6 @@ fn open_sky_plane_atlas_gets_the_analytic_irradiance() {
             );
         }
     }
-}
-
-/// Area of the intersection of two circles (radii r1, r2, centre distance d).
-fn lens_area(d: f64, r1: f64, r2: f64) -> f64 {
-    if d >= r1 + r2 {
-        return 0.0;
-    }
-    if d <= (r1 - r2).abs() {
-        return std::f64::consts::PI * r1.min(r2).powi(2);
-    }
-    let a1 = ((d * d + r1 * r1 - r2 * r2) / (2.0 * d * r1)).acos();
-    let a2 = ((d * d + r2 * r2 - r1 * r1) / (2.0 * d * r2)).acos();
-    r1 * r1 * a1 + r2 * r2 * a2
-        - 0.5 * ((-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2)).sqrt()
 }
 
 #[test]

@@ -4,24 +4,9 @@ use bake::model::{Material, MaterialSource, Mesh, Rgba8Image, TextureRef};
 use bake::pack::{PackWriter, kinds};
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Command, Output};
 
-fn bake(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bake"))
-        .args(args)
-        .env("NODEVICE_SELECT", "1")
-        .output()
-        .expect("run bake")
-}
-
-fn json(o: &Output) -> Value {
-    assert!(
-        o.status.success(),
-        "bake failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
-}
+mod common;
+use common::{bake, json};
 
 fn section<'a>(doc: &'a Value, name: &str) -> &'a Value {
     doc["sections"]

@@ -12,6 +12,9 @@ use bake::render::{Lighting, RenderOptions, render_pack};
 use glam::{Mat4, Vec3, Vec4Swizzles};
 use std::f32::consts::PI;
 
+mod common;
+use common::{srgb_decode, srgb_encode};
+
 const W: u32 = 128;
 const H: u32 = 96;
 const EYE: [f32; 3] = [10.0, -10.0, 8.0];
@@ -261,23 +264,6 @@ impl Oracle {
             + self.right * (nx * self.tan_half * self.aspect)
             + self.up * (ny * self.tan_half))
             .normalize()
-    }
-}
-
-fn srgb_decode(c: u8) -> f32 {
-    let c = c as f32 / 255.0;
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-
-fn srgb_encode(l: f32) -> f32 {
-    if l <= 0.003_130_8 {
-        l * 12.92
-    } else {
-        1.055 * l.powf(1.0 / 2.4) - 0.055
     }
 }
 

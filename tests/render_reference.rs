@@ -12,6 +12,9 @@ use bake::render::{Lighting, RenderOptions, Terms, render_pack};
 use glam::Vec3;
 use std::f32::consts::PI;
 
+mod common;
+use common::{srgb_decode, srgb_encode};
+
 /// Bounds of the GPU–CPU comparison of the fixture view (8-bit steps). Measured on llvmpipe:
 /// mean absolute difference 2.2, 3.1 % of pixels over 24 (direct term alone). The differences
 /// are where the two methods differ by design: the shadow map's texels (3.4 cm here) and its
@@ -182,23 +185,6 @@ fn the_fixture_view_on_the_gpu_matches_the_cpu_reference() {
     let gpu = render_pack(&pack, &opts).unwrap();
     let cpu = render_reference(&pack, &opts).unwrap();
     assert_within_bounds(&gpu.image, &cpu.image, "all terms");
-}
-
-fn srgb_decode(c: u8) -> f32 {
-    let c = c as f32 / 255.0;
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
-
-fn srgb_encode(l: f32) -> f32 {
-    if l <= 0.003_130_8 {
-        l * 12.92
-    } else {
-        1.055 * l.powf(1.0 / 2.4) - 0.055
-    }
 }
 
 /// A flat terrain (prepared by the terrain stage) with a uniform colour map.

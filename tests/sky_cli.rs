@@ -4,24 +4,9 @@ use bake::ingest::skyimage::write_hdr;
 use bake::model::FloatImage;
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Command, Output};
 
-fn bake(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bake"))
-        .args(args)
-        .env("NODEVICE_SELECT", "1")
-        .output()
-        .expect("run bake")
-}
-
-fn json(o: &Output) -> Value {
-    assert!(
-        o.status.success(),
-        "bake failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
-}
+mod common;
+use common::{bake, json};
 
 /// A 512×256 lat-long sky with a bright 3×3-pixel sun at row 64 (θ = 45°), column 0 (φ ≈ 0).
 fn sky_file(dir: &Path) -> String {

@@ -2,26 +2,10 @@
 //! `bake svo` and `bake linespace`, then the GPU/CPU comparison (exit 0, every answer equal) and
 //! the error paths (exit 4 for a pack with nothing to validate or no line space to shade with).
 
-use serde_json::Value;
 use std::path::Path;
-use std::process::{Command, Output};
 
-fn bake(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bake"))
-        .args(args)
-        .env("NODEVICE_SELECT", "1")
-        .output()
-        .expect("run bake")
-}
-
-fn json(o: &Output) -> Value {
-    assert!(
-        o.status.success(),
-        "bake failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
-}
+mod common;
+use common::{bake, json};
 
 /// A unit cube over a ground quad, as OBJ text.
 fn scene_obj() -> String {

@@ -1,0 +1,60 @@
+//! Helpers shared by the integration tests (each test binary includes this module with
+//! `mod common;` and uses what it needs).
+#![allow(dead_code)]
+
+use serde_json::Value;
+use std::process::{Command, Output};
+
+/// Runs the `bake` binary built for these tests (Mesa's device-select layer silenced).
+pub fn bake(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bake"))
+        .args(args)
+        .env("NODEVICE_SELECT", "1")
+        .output()
+        .expect("run bake")
+}
+
+/// The JSON `bake` printed on stdout; fails the test with its stderr when it failed.
+pub fn json(o: &Output) -> Value {
+    assert!(
+        o.status.success(),
+        "bake failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&o.stdout).expect("stdout is JSON")
+}
+
+/// Area of the intersection of two circles (radii r1, r2, centre distance d): the part of the
+/// sun's disc an opaque disc hides, for the analytic penumbra tests.
+pub fn lens_area(d: f64, r1: f64, r2: f64) -> f64 {
+    if d >= r1 + r2 {
+        return 0.0;
+    }
+    if d <= (r1 - r2).abs() {
+        return std::f64::consts::PI * r1.min(r2).powi(2);
+    }
+    let a1 = ((d * d + r1 * r1 - r2 * r2) / (2.0 * d * r1)).acos();
+    let a2 = ((d * d + r2 * r2 - r1 * r1) / (2.0 * d * r2)).acos();
+    r1 * r1 * a1 + r2 * r2 * a2
+        - 0.5 * ((-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2)).sqrt()
+}
+
+/// sRGB 8-bit value to linear (the standard transfer function, written here independently of
+/// the renderer so the render tests have their own oracle).
+pub fn srgb_decode(c: u8) -> f32 {
+    let c = c as f32 / 255.0;
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Linear to sRGB-encoded in [0, 1] (see [`srgb_decode`]).
+pub fn srgb_encode(l: f32) -> f32 {
+    if l <= 0.003_130_8 {
+        l * 12.92
+    } else {
+        1.055 * l.powf(1.0 / 2.4) - 0.055
+    }
+}
