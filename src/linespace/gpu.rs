@@ -7,8 +7,9 @@
 use super::ntree::NTree;
 use super::query::{AreaLight, QueryStats, Segment};
 use crate::error::{Error, Result};
+use crate::fixtures::Rng;
 use crate::render::gpu::Gpu;
-use crate::voxel::compute::{self, Kernel, SplitMix};
+use crate::voxel::compute::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 
 const DDA_WGSL: &str = include_str!("../voxel/shaders/dda.wgsl");
@@ -258,7 +259,7 @@ pub fn light_above(t: &NTree, samples: u32) -> AreaLight {
 /// Random receivers: points on random triangles (where shadows and self-occlusion matter)
 /// and points anywhere in the box.
 pub fn random_receivers(t: &NTree, count: usize, seed: u64) -> Vec<[f32; 3]> {
-    let mut rng = SplitMix(seed);
+    let mut rng = Rng::new(seed);
     let (lo, size) = root_box(t);
     (0..count)
         .map(|i| {
@@ -378,7 +379,7 @@ mod tests {
 
     /// Small random triangles in [0, 10]³ over a ground quad at z = −0.5.
     fn scene(seed: u64, count: usize) -> Vec<[[f32; 3]; 3]> {
-        let mut rng = SplitMix(seed);
+        let mut rng = Rng::new(seed);
         let mut tris: Vec<[[f32; 3]; 3]> = (0..count)
             .map(|_| {
                 let c = [0, 1, 2].map(|_| rng.range(0.0, 10.0));

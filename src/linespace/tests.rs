@@ -71,7 +71,7 @@ fn filled(t: &NTree, g: u32) -> Vec<[i64; 3]> {
 
 #[test]
 fn linespaces_are_bit_exact_against_a_brute_force_full_matrix() {
-    let mut rng = Rng(17);
+    let mut rng = Rng::new(17);
     let tris = random_tris(&mut rng, 12, 2.0);
     let t = build(&tris, 3, 2);
     let layout = Layout::new(3);
@@ -101,7 +101,7 @@ fn linespaces_are_bit_exact_against_a_brute_force_full_matrix() {
 
 #[test]
 fn filled_cells_match_the_akenine_moller_test() {
-    let mut rng = Rng(4);
+    let mut rng = Rng::new(4);
     let tris = random_tris(&mut rng, 30, 1.5);
     let t = build(&tris, 4, 2);
     for (g, level, o, s) in inner_nodes(&t) {
@@ -132,7 +132,7 @@ fn filled_cells_match_the_akenine_moller_test() {
 
 #[test]
 fn linespaces_grow_monotonically_with_added_geometry() {
-    let mut rng = Rng(8);
+    let mut rng = Rng::new(8);
     let mut tris = frame();
     tris.extend(random_tris(&mut rng, 10, 1.0));
     let a = build(&tris, 4, 2);
@@ -181,7 +181,7 @@ fn hit_t(p: [f64; 3], d: [f64; 3], tri: &[[f32; 3]; 3]) -> Option<f64> {
 
 #[test]
 fn segments_between_patches_that_hit_geometry_land_in_set_bits() {
-    let mut rng = Rng(99);
+    let mut rng = Rng::new(99);
     let tris = random_tris(&mut rng, 25, 2.0);
     let t = build(&tris, 4, 2);
     let layout = Layout::new(4);
@@ -218,7 +218,7 @@ fn segments_between_patches_that_hit_geometry_land_in_set_bits() {
 
 #[test]
 fn linespace_shadow_is_never_brighter_than_exact_shadow_rays() {
-    let mut rng = Rng(123);
+    let mut rng = Rng::new(123);
     for (n, depth) in [(4, 2), (3, 3), (10, 2)] {
         let mut tris = random_tris(&mut rng, 200, 0.8);
         tris.push([[-2.0, -2.0, -0.5], [12.0, -2.0, -0.5], [12.0, 12.0, -0.5]]);
@@ -280,7 +280,7 @@ fn linespace_shadow_is_never_brighter_than_exact_shadow_rays() {
 
 #[test]
 fn section_round_trips() {
-    let mut rng = Rng(1);
+    let mut rng = Rng::new(1);
     let t = build(&random_tris(&mut rng, 20, 1.0), 4, 2);
     let mut w = crate::pack::PackWriter::new();
     w.insert(super::section::to_section("linespace", "test", &t));

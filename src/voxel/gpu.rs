@@ -3,10 +3,11 @@
 //! byte by byte from u32 words; 64-bit masks as (low, high) u32 pairs), traversed by `shaders/svo_trace.wgsl`, which follows [`super::traverse`]
 //! operation for operation. [`validate_svo`] compares it with the CPU on random rays.
 
-use super::compute::{self, Kernel, SplitMix};
+use super::compute::{self, Kernel};
 use super::svo::Svo;
 use super::traverse::{Hit, Ray, trace_svo};
 use crate::error::{Error, Result};
+use crate::fixtures::Rng;
 use crate::render::gpu::Gpu;
 use bytemuck::{Pod, Zeroable};
 
@@ -149,7 +150,7 @@ pub fn trace_svo_cpu(svo: &Svo, r: &Ray) -> Option<Hit> {
 /// Random rays in voxel units: half start inside the grid, half outside looking at it, with
 /// random directions and some t ranges cut short.
 pub fn random_rays(dims: [u32; 3], count: usize, seed: u64) -> Vec<Ray> {
-    let mut rng = SplitMix(seed);
+    let mut rng = Rng::new(seed);
     let d = dims.map(|x| x as f32);
     (0..count)
         .map(|i| {
@@ -263,7 +264,7 @@ mod tests {
     #[test]
     fn gpu_traversal_equals_cpu_on_every_ray() {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
-        let mut rng = Rng(5);
+        let mut rng = Rng::new(5);
         // 2 to 5 levels, non-cubic grids that are not multiples of 4.
         for dims in [[4, 4, 4], [37, 20, 45], [130, 17, 9], [300, 41, 22]] {
             let svo = voxels_to_svo(&random_voxels(&mut rng, dims));
@@ -277,7 +278,7 @@ mod tests {
     #[test]
     fn an_empty_octree_misses_everything_on_the_gpu() {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
-        let mut v = random_voxels(&mut Rng(1), [8, 8, 8]);
+        let mut v = random_voxels(&mut Rng::new(1), [8, 8, 8]);
         v.bricks.clear();
         v.colors.clear();
         v.normals.clear();

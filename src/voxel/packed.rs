@@ -100,7 +100,7 @@ mod tests {
     fn the_worked_example_packs_to_three_bytes() {
         let m = 1u64 | 1 << 9;
         assert_eq!(brick_bytes(m), 3);
-        let mut rng = Rng(3);
+        let mut rng = Rng::new(3);
         let mut svo = voxels_to_svo(&random_voxels(&mut rng, [8, 8, 8]));
         svo.bricks[0] = m;
         let (_, leaves) = pack_leaves(&svo);
@@ -109,7 +109,7 @@ mod tests {
 
     #[test]
     fn leaves_round_trip_and_offsets_point_at_bricks() {
-        let mut rng = Rng(8);
+        let mut rng = Rng::new(8);
         for dims in [[4, 4, 4], [37, 20, 45], [130, 17, 9]] {
             let svo = voxels_to_svo(&random_voxels(&mut rng, dims));
             let (nodes, leaves) = pack_leaves(&svo);
@@ -123,7 +123,7 @@ mod tests {
 
     #[test]
     fn corrupt_leaves_are_errors_naming_the_byte() {
-        let svo = voxels_to_svo(&random_voxels(&mut Rng(4), [16, 16, 16]));
+        let svo = voxels_to_svo(&random_voxels(&mut Rng::new(4), [16, 16, 16]));
         let (nodes, mut leaves) = pack_leaves(&svo);
         let err = unpack_leaves(&nodes, &svo.level_start, &leaves[..leaves.len() - 1]);
         assert!(err.unwrap_err().contains("truncated"));

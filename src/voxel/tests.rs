@@ -9,23 +9,7 @@ use super::*;
 use crate::model::{Material, Mesh, Rgba8Image};
 use std::collections::HashSet;
 
-/// A small deterministic generator (SplitMix64).
-pub struct Rng(pub u64);
-impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    pub fn f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.f32()
-    }
-}
+pub use crate::fixtures::Rng;
 
 fn brute_force(grid: &Grid, tris: &[[[f32; 3]; 3]]) -> HashSet<[u32; 3]> {
     let mut out = HashSet::new();
@@ -72,7 +56,7 @@ fn bricks_to_set(bricks: &[Brick]) -> HashSet<[u32; 3]> {
 
 #[test]
 fn voxelization_equals_brute_force_akenine_moller() {
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     for (dims, size) in [([12, 12, 12], 4.0), ([70, 9, 13], 12.0), ([5, 17, 3], 1.0)] {
         let grid = unit_grid(dims);
         let tris = random_tris(&mut rng, 40, dims, size);
@@ -221,7 +205,7 @@ fn solid_fill_adds_exactly_the_interior_voxel_centres() {
 
 #[test]
 fn voxelization_is_independent_of_thread_count() {
-    let mut rng = Rng(3);
+    let mut rng = Rng::new(3);
     let tris = random_tris(&mut rng, 300, [100, 60, 80], 10.0);
     let mut mesh = Mesh::default();
     for t in &tris {
@@ -290,7 +274,7 @@ pub(crate) fn random_voxels(rng: &mut Rng, dims: [u32; 3]) -> Voxels {
 
 #[test]
 fn leaf_set_round_trips_through_the_octree() {
-    let mut rng = Rng(11);
+    let mut rng = Rng::new(11);
     for dims in [[37, 20, 45], [4, 4, 4], [130, 17, 9]] {
         let v = random_voxels(&mut rng, dims);
         let svo = voxels_to_svo(&v);
@@ -321,7 +305,7 @@ fn premul(c: [f32; 4]) -> [f32; 4] {
 
 #[test]
 fn parents_hold_the_premultiplied_mean_of_their_cells() {
-    let mut rng = Rng(5);
+    let mut rng = Rng::new(5);
     let v = random_voxels(&mut rng, [40, 40, 40]);
     let svo = voxels_to_svo(&v);
     let mut at = 0;
@@ -352,7 +336,7 @@ fn parents_hold_the_premultiplied_mean_of_their_cells() {
 
 #[test]
 fn svo_traversal_equals_brute_force_dda() {
-    let mut rng = Rng(21);
+    let mut rng = Rng::new(21);
     for dims in [[37, 20, 45], [64, 64, 64], [130, 17, 9]] {
         let v = random_voxels(&mut rng, dims);
         let svo = voxels_to_svo(&v);
@@ -405,7 +389,7 @@ fn random_ray(rng: &mut Rng, dims: [u32; 3], inside: bool) -> Ray {
 
 #[test]
 fn section_round_trips_and_dump_lists_the_voxels() {
-    let mut rng = Rng(2);
+    let mut rng = Rng::new(2);
     let v = random_voxels(&mut rng, [20, 9, 14]);
     let svo = voxels_to_svo(&v);
     let sec = section::to_section("svo", "test", &svo, false);
