@@ -23,7 +23,7 @@
 //! data by [`estimate_noise`]) an instance passes when e² ≤ E² + σ²: the expected squared error
 //! against noisy data is the error against the noise-free field plus σ².
 
-use super::interp::{Interpolator, multiquadric_weights_with};
+use super::interp::{Interpolator, MultiquadricSolver};
 use super::kdtree::{KdTree, dist2};
 use rayon::prelude::*;
 
@@ -135,7 +135,7 @@ pub fn cluster_envmaps(
     let n = positions.len();
     let mut clusters: Vec<Vec<u32>> = Vec::new();
     let mut samples: Vec<u32> = Vec::new();
-    let mut cache = NeighbourCache::new(n, p.k);
+    let mut cache = NeighbourCache::new(p.positions, p.k);
     if n > 0 {
         let all: Vec<u32> = (0..n as u32).collect();
         samples.push(representative(positions, &all));
@@ -305,12 +305,21 @@ struct NeighbourCache {
     ill: Vec<bool>,
     /// Marks the removed samples of the current update (cleared after use).
     removed_mark: Vec<bool>,
+    /// Each instance's place on the Morton curve: evaluations run in this order, so that
+    /// consecutive ones share neighbour sets and factorizations.
+    rank: Vec<u32>,
     evaluations: usize,
 }
 
 impl NeighbourCache {
-    fn new(n: usize, k: usize) -> Self {
+    fn new(positions: &[[f32; 3]], k: usize) -> Self {
+        let n = positions.len();
+        let mut rank = vec![0u32; n];
+        for (z, &i) in super::kdtree::morton_order(positions).iter().enumerate() {
+            rank[i as usize] = z as u32;
+        }
         NeighbourCache {
+            rank,
             k,
             nbrs: vec![u32::MAX; n * k],
             kth: vec![f32::INFINITY; n],
@@ -328,14 +337,16 @@ impl NeighbourCache {
 
     /// Re-evaluates the instances whose neighbour lists can have changed.
     fn update(&mut self, p: &Problem, samples: &[u32], removed: &[u32], added: &[u32]) {
-        let dirty = self.dirty(p.positions, removed, added);
+        let mut dirty = self.dirty(p.positions, removed, added);
+        dirty.par_sort_unstable_by_key(|&i| self.rank[i as usize]);
         let tree = SampleTree::new(p.positions, samples);
         let k = self.k;
         let fresh: Vec<(Vec<u32>, f32, InstanceError)> = dirty
             .par_iter()
             .map_init(Scratch::default, |s, &i| {
                 let x = p.positions[i as usize];
-                let (ids, kth) = tree.nearest(x, k, &mut s.nb);
+                let (ids, kth) = tree.nearest(x, k, s.prev, &mut s.nb);
+                s.prev = s.nb.last().map(|&(d2, _)| (x, d2));
                 let e = instance_error(p, i as usize, &ids, s);
                 (ids, kth, e)
             })
@@ -401,9 +412,16 @@ impl SampleTree {
     }
 
     /// The k nearest samples (instance indices, nearest first) and the k-th squared distance
-    /// (infinite when there are fewer than k samples).
-    fn nearest(&self, x: [f32; 3], k: usize, nb: &mut Vec<(f32, u32)>) -> (Vec<u32>, f32) {
-        self.tree.nearest(x, k, nb);
+    /// (infinite when there are fewer than k samples); `prev` is the last query's point and
+    /// k-th squared distance, if any (see [`KdTree::nearest_after`]).
+    fn nearest(
+        &self,
+        x: [f32; 3],
+        k: usize,
+        prev: Option<([f32; 3], f32)>,
+        nb: &mut Vec<(f32, u32)>,
+    ) -> (Vec<u32>, f32) {
+        self.tree.nearest_after(x, k, prev, nb);
         let kth = if nb.len() < k {
             f32::INFINITY
         } else {
@@ -417,9 +435,10 @@ impl SampleTree {
 #[derive(Default)]
 pub(crate) struct Scratch {
     nb: Vec<(f32, u32)>,
-    xs: Vec<[f32; 3]>,
+    /// The previous query's point and k-th squared distance (a bound for the next search).
+    prev: Option<([f32; 3], f32)>,
+    solver: MultiquadricSolver,
     w: Vec<f64>,
-    a: Vec<f64>,
     acc: Vec<f64>,
 }
 
@@ -443,10 +462,12 @@ pub(crate) fn instance_error(p: &Problem, i: usize, nb: &[u32], s: &mut Scratch)
             ill: false,
         };
     }
-    s.xs.clear();
-    s.xs.extend(nb.iter().map(|&j| p.positions[j as usize]));
     let x = p.positions[i];
-    let ill = multiquadric_weights_with(&s.xs, x, p.radius, true, &mut s.w, &mut s.a).is_err();
+    let pos = |j: u32| p.positions[j as usize];
+    let ill = s
+        .solver
+        .weights(nb, pos, x, p.radius, true, &mut s.w)
+        .is_err();
     if ill {
         s.w.clear();
         s.w.resize(nb.len(), 0.0);

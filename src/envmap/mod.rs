@@ -41,8 +41,8 @@ pub fn cluster_and_weigh(
 
 /// The k sample neighbours (indices into `c.samples`, nearest first) and multiquadric weights of
 /// every instance, k per instance, padded with sample 0 and weight 0. One pass without
-/// allocations per instance. (Grouping instances that share a neighbour set and factorizing
-/// each set's matrix once was tried: no measurable gain at 200,000 instances.)
+/// allocations per instance, in Morton order so that consecutive instances with the same
+/// neighbour set reuse its factorization ([`interp::MultiquadricSolver`]).
 pub fn instance_weights(
     positions: &[[f32; 3]],
     _values: &[f32],
@@ -52,18 +52,27 @@ pub fn instance_weights(
     let pts: Vec<[f32; 3]> = c.samples.iter().map(|&s| positions[s as usize]).collect();
     let tree = kdtree::KdTree::build(&pts);
     let (k, n) = (c.k.max(1), positions.len());
-    let mut nb = vec![0u32; n * k];
-    let mut w = vec![0.0f32; n * k];
-    nb.par_chunks_mut(k)
-        .zip(w.par_chunks_mut(k))
-        .zip(positions.par_iter())
+    // Computed in Morton order (neighbouring instances share neighbour sets, and the solver
+    // keeps the last factorization), then put back in instance order.
+    let order = kdtree::morton_order(positions);
+    let mut nb_z = vec![0u32; n * k];
+    let mut w_z = vec![0.0f32; n * k];
+    nb_z.par_chunks_mut(k)
+        .zip(w_z.par_chunks_mut(k))
+        .zip(order.par_iter().map(|&i| positions[i as usize]))
         .for_each_init(
-            || (Vec::new(), Vec::new(), Vec::new(), Vec::new()),
-            |(near, xs, wt, a), ((nb_out, w_out), &x)| {
-                tree.nearest(x, k.min(pts.len()), near);
-                xs.clear();
-                xs.extend(near.iter().map(|&(_, i)| pts[i as usize]));
-                if interp::multiquadric_weights_with(xs, x, c.radius, true, wt, a).is_err() {
+            || {
+                let solver = interp::MultiquadricSolver::default();
+                (Vec::new(), Vec::new(), solver, Vec::new(), None)
+            },
+            |(near, ids, solver, wt, prev), ((nb_out, w_out), x)| {
+                tree.nearest_after(x, k.min(pts.len()), *prev, near);
+                *prev = near.last().map(|&(d2, _)| (x, d2));
+                // Solved under instance ids, as the clustering did (the same weights).
+                ids.clear();
+                ids.extend(near.iter().map(|&(_, i)| c.samples[i as usize]));
+                let pos = |id: u32| positions[id as usize];
+                if solver.weights(ids, pos, x, c.radius, true, wt).is_err() {
                     // Ill-conditioned (counted by the clustering): the nearest sample.
                     wt.clear();
                     wt.resize(near.len(), 0.0);
@@ -75,6 +84,13 @@ pub fn instance_weights(
                 }
             },
         );
+    let mut nb = vec![0u32; n * k];
+    let mut w = vec![0.0f32; n * k];
+    for (z, &i) in order.iter().enumerate() {
+        let (src, dst) = (z * k..(z + 1) * k, i as usize * k..(i as usize + 1) * k);
+        nb[dst.clone()].copy_from_slice(&nb_z[src.clone()]);
+        w[dst].copy_from_slice(&w_z[src]);
+    }
     (nb, w)
 }
 
@@ -92,21 +108,16 @@ pub fn apply_weights(
     let mut out = vec![0.0f32; neighbours.len() / k * dim];
     out.par_chunks_mut(dim.max(1))
         .zip(neighbours.par_chunks(k).zip(weights.par_chunks(k)))
-        .for_each_init(
-            || vec![0.0f64; dim],
-            |acc, (o, (nb, w))| {
-                acc.fill(0.0);
-                for (&j, &wj) in nb.iter().zip(w) {
-                    let s = samples[j as usize] as usize;
-                    for (a, &v) in acc.iter_mut().zip(&values[s * dim..(s + 1) * dim]) {
-                        *a += wj as f64 * v as f64;
-                    }
+        .for_each(|(o, (nb, w))| {
+            // f32 sums of k terms, as the runtime (the renderer) forms them from the stored f32
+            // weights; vectorized over the coefficients.
+            for (&j, &wj) in nb.iter().zip(w) {
+                let s = samples[j as usize] as usize;
+                for (a, &v) in o.iter_mut().zip(&values[s * dim..(s + 1) * dim]) {
+                    *a += wj * v;
                 }
-                for (o, a) in o.iter_mut().zip(acc.iter()) {
-                    *o = *a as f32;
-                }
-            },
-        );
+            }
+        });
     out
 }
 
