@@ -199,8 +199,9 @@ pub struct MultiquadricSolver {
     cache: Vec<Factored>,
     /// The slot the next new factorization replaces once the cache is full (round robin).
     next: usize,
-    /// (id, caller's slot) in id order; the right-hand side.
-    order: Vec<(u32, u32)>,
+    /// id << 32 | caller's slot, in id order (one integer compare per sorting step); the
+    /// right-hand side.
+    order: Vec<u64>,
     b: Vec<f64>,
     /// Solves that reused a cached factorization, and those that factored.
     pub reused: u64,
@@ -226,12 +227,16 @@ struct Factored {
 }
 
 impl Factored {
-    fn matches(&self, hash: u64, order: &[(u32, u32)], r: f32, constant_term: bool) -> bool {
+    fn matches(&self, hash: u64, order: &[u64], r: f32, constant_term: bool) -> bool {
         self.hash == hash
             && self.radius.to_bits() == r.to_bits()
             && self.constant_term == constant_term
             && self.key.len() == order.len()
-            && self.key.iter().zip(order).all(|(&k, &(id, _))| k == id)
+            && self
+                .key
+                .iter()
+                .zip(order)
+                .all(|(&k, &o)| k == (o >> 32) as u32)
     }
 }
 
@@ -253,16 +258,16 @@ impl MultiquadricSolver {
             return Ok(());
         }
         self.order.clear();
-        self.order
-            .extend(ids.iter().enumerate().map(|(s, &id)| (id, s as u32)));
+        self.order.extend(
+            ids.iter()
+                .enumerate()
+                .map(|(s, &id)| (id as u64) << 32 | s as u64),
+        );
         self.order.sort_unstable();
         // FNV-1a over the sorted ids: a cheap first test before comparing whole keys.
-        let hash = self
-            .order
-            .iter()
-            .fold(0xcbf2_9ce4_8422_2325u64, |h, &(id, _)| {
-                (h ^ id as u64).wrapping_mul(0x100_0000_01b3)
-            });
+        let hash = self.order.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &o| {
+            (h ^ (o >> 32)).wrapping_mul(0x100_0000_01b3)
+        });
         let m = if constant_term && n > 1 { n + 1 } else { n };
         let r2 = (r as f64) * (r as f64);
         let found = self
@@ -286,7 +291,7 @@ impl MultiquadricSolver {
                 let f = &mut self.cache[s];
                 f.hash = hash;
                 f.key.clear();
-                f.key.extend(self.order.iter().map(|&(id, _)| id));
+                f.key.extend(self.order.iter().map(|&o| (o >> 32) as u32));
                 f.xs.clear();
                 f.xs.extend(f.key.iter().map(|&id| pos(id)));
                 (f.radius, f.constant_term) = (r, constant_term);
@@ -301,8 +306,8 @@ impl MultiquadricSolver {
         fill_rhs(&f.xs, x, r2, m, &mut self.b);
         solve_factored(&f.lu, &f.piv, &mut self.b, m);
         w.resize(n, 0.0);
-        for (&(_, slot), &v) in self.order.iter().zip(&self.b) {
-            w[slot as usize] = v;
+        for (&o, &v) in self.order.iter().zip(&self.b) {
+            w[o as u32 as usize] = v;
         }
         Ok(())
     }
