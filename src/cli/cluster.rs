@@ -125,6 +125,21 @@ pub struct ClusterBenchArgs {
     /// Python interpreter for `--scipy`.
     #[arg(long, default_value = "python3")]
     pub python: String,
+    /// Runs of the interpolation (bake's neighbours, weights and reconstruction, and scipy's
+    /// fit and evaluation); the fastest of each is reported (the machine is shared).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub repeat: u32,
+}
+
+/// One timed run of the interpolation: wall and CPU seconds of the weights alone and with the
+/// reconstruction, the stored weights' size, the reconstructed maps.
+struct Interpolation {
+    t_weights: f64,
+    t_interp: f64,
+    cpu_weights: Option<f64>,
+    cpu_interp: Option<f64>,
+    weights_bytes: u64,
+    rec: Vec<f32>,
 }
 
 /// The maps of the benchmark scene: positions, values, the noise-free values if known.
@@ -148,14 +163,35 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
     let (t0, cpu0) = (std::time::Instant::now(), process_cpu_seconds());
     let c = crate::envmap::cluster::cluster_envmaps(&positions, &values, DIM, &opts);
     let t_cluster = t0.elapsed().as_secs_f64();
-    let (t1, cpu_t1) = (std::time::Instant::now(), process_cpu_seconds());
-    let (nb, w) = crate::envmap::instance_weights(&positions, &values, DIM, &c);
-    let t_weights = t1.elapsed().as_secs_f64();
-    let cpu1 = process_cpu_seconds();
-    let rec = crate::envmap::apply_weights(&values, DIM, &c.samples, c.k, &nb, &w);
-    let t_interp = t1.elapsed().as_secs_f64();
-    let cpu2 = process_cpu_seconds();
+    let cpu_cluster = process_cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
     let cpu = |a: Option<f64>, b: Option<f64>| a.zip(b).map(|(a, b)| b - a);
+    let mut best: Option<Interpolation> = None;
+    for _ in 0..a.repeat {
+        let (t1, cpu_t1) = (std::time::Instant::now(), process_cpu_seconds());
+        let (nb, w) = crate::envmap::instance_weights(&positions, &values, DIM, &c);
+        let t_weights = t1.elapsed().as_secs_f64();
+        let cpu1 = process_cpu_seconds();
+        let rec = crate::envmap::apply_weights(&values, DIM, &c.samples, c.k, &nb, &w);
+        let run = Interpolation {
+            t_weights,
+            t_interp: t1.elapsed().as_secs_f64(),
+            cpu_weights: cpu(cpu_t1, cpu1),
+            cpu_interp: cpu(cpu_t1, process_cpu_seconds()),
+            weights_bytes: (nb.len() * 4 + w.len() * 4) as u64,
+            rec,
+        };
+        if best.as_ref().is_none_or(|b| run.t_interp < b.t_interp) {
+            best = Some(run);
+        }
+    }
+    let Interpolation {
+        t_weights,
+        t_interp,
+        cpu_weights,
+        cpu_interp,
+        weights_bytes,
+        rec,
+    } = best.expect("repeat >= 1");
     let rel = |reference: &[f32]| relative_rms(&rec, reference, c.rms);
     let raw = (positions.len() * DIM * 4) as u64;
     let packed = c.samples.len() as u64 * (12 + 4 + DIM as u64 * 4);
@@ -169,10 +205,11 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         "weights_seconds": t_weights, "interpolation_seconds": t_interp,
         "interpolation_rms_error_relative": rel(&values),
         "cluster_and_weights_seconds": t_cluster + t_weights,
-        "cluster_and_weights_cpu_seconds": cpu(cpu0, cpu1),
-        "cluster_cpu_seconds": cpu(cpu0, cpu_t1), "interpolation_cpu_seconds": cpu(cpu_t1, cpu2),
+        "cluster_and_weights_cpu_seconds": cpu_cluster.zip(cpu_weights).map(|(a, b)| a + b),
+        "cluster_cpu_seconds": cpu_cluster, "interpolation_cpu_seconds": cpu_interp,
+        "repeat": a.repeat,
         "envmap_seconds": envmap_seconds, "synthetic": a.synthetic,
-        "weights_bytes": (nb.len() * 4 + w.len() * 4) as u64, "ill_conditioned": c.ill_conditioned,
+        "weights_bytes": weights_bytes, "ill_conditioned": c.ill_conditioned,
         "threads": rayon::current_num_threads(),
         "loo": c.loo.iter().map(|&(k, r, e)| serde_json::json!({"k": k, "radius": r, "rms_error_relative": e})).collect::<Vec<_>>(),
     });
@@ -189,7 +226,7 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         export(dir, &positions, &values, truth.as_deref(), &c)?;
     }
     if let (true, Some(dir)) = (a.scipy, &dir) {
-        let peer = run_scipy(&a.python, dir)?;
+        let peer = run_scipy(&a.python, dir, a.repeat)?;
         let speedup = peer["seconds"].as_f64().unwrap_or(0.0) / t_interp;
         doc["scipy"] = peer;
         doc["speedup_interpolation_vs_scipy"] = speedup.into();
@@ -249,11 +286,12 @@ fn export(
 }
 
 /// Runs the scipy peer on an exported folder; its last output line is a JSON object.
-fn run_scipy(python: &str, dir: &Path) -> Result<serde_json::Value> {
+fn run_scipy(python: &str, dir: &Path, repeat: u32) -> Result<serde_json::Value> {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/bench-scipy-rbf.py");
     let out = std::process::Command::new(python)
         .arg(&script)
         .arg(dir)
+        .arg(repeat.to_string())
         .output()
         .map_err(|e| Error::io(&script, e))?;
     let stdout = String::from_utf8_lossy(&out.stdout);
