@@ -7,7 +7,8 @@
 //! A renderer finds the light map of vertex `v` of instance slot `s` at
 //! `tiles[s].xy + lightmap_uv[v] · tiles[s].zw` (atlas UV, v = 0 at the top row) and samples it
 //! bilinearly with clamp-to-edge; [`AtlasLightmap::sample`] is that lookup on the CPU. Where chart
-//! borders split mesh vertices, [`AtlasLayout::split_mesh`] gives the mesh to draw; otherwise
+//! borders split mesh vertices, [`AtlasLayout::split_mesh`] gives the mesh to draw (the renderer
+//! does the same from the section's `vertex_source` and `indices`); otherwise
 //! [`AtlasLayout::uv_per_mesh_vertex`] is the second UV set of the mesh section as it is.
 
 use super::atlas::{AtlasLayout, build_atlas, dilate, rasterize};

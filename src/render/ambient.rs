@@ -535,18 +535,23 @@ fn load_prt(pack: &Pack, m: &ModelData, warnings: &mut Vec<String>) -> Result<Op
         return Ok(None);
     }
     let v = pack.view_named(&name)?;
-    let (meta, t) = crate::light::prt_pack::from_section(&v).map_err(bad(pack))?;
-    if t.vertices as usize != m.positions.len() || meta.mesh != m.section {
+    let (meta, mut t) = crate::light::prt_pack::from_section(&v).map_err(bad(pack))?;
+    // A model drawn with split vertices: the transfer of the mesh vertex each copies.
+    let source = m.vertex_source.as_deref();
+    let mesh_vertices = source.map_or(m.positions.len(), |_| {
+        pack.view_named(&m.section)
+            .ok()
+            .and_then(|s| s.info("positions").map(|i| i.count as usize))
+            .unwrap_or(0)
+    });
+    if t.vertices as usize != mesh_vertices || meta.mesh != m.section {
         warnings.push(format!(
             "{name}: {} vertices of {:?} for a mesh {:?} of {}: not used",
-            t.vertices,
-            meta.mesh,
-            m.section,
-            m.positions.len()
+            t.vertices, meta.mesh, m.section, mesh_vertices
         ));
         return Ok(None);
     }
-    let packed: Vec<[f32; 4]> = match v.info("gpu") {
+    let mut packed: Vec<[f32; 4]> = match v.info("gpu") {
         Some(_) => v.array_vec("gpu").map_err(bad(pack))?,
         None => crate::light::prt::pack_gpu(&t),
     };
@@ -556,6 +561,12 @@ fn load_prt(pack: &Pack, m: &ModelData, warnings: &mut Vec<String>) -> Result<Op
             format!("section {name:?} array \"gpu\""),
             format!("{} vec4 for {} vertices", packed.len(), t.vertices),
         ));
+    }
+    if let Some(source) = source {
+        packed = gather_rows(&packed, source, SIDES * GPU_VEC4_PER_SIDE);
+        let k = t.coeffs.len() / (t.vertices as usize).max(1);
+        t.coeffs = gather_rows(&t.coeffs, source, k);
+        t.vertices = source.len() as u32;
     }
     Ok(Some(PrtData {
         vertices: t.vertices as usize,
@@ -779,14 +790,18 @@ fn load_mesh_lightmap(
         return Ok(None);
     };
     let v = pack.view_named(&name)?;
-    if v.info("lightmap_uv").is_none() {
-        warnings.push(format!(
-            "{name}: no `lightmap_uv` array: light map not used"
-        ));
-        return Ok(None);
-    }
-    let uvs: Vec<[f32; 2]> = v.array_vec("lightmap_uv").map_err(bad(pack))?;
     let n = m.positions.len();
+    let uvs: Vec<[f32; 2]> = match (v.info("lightmap_uv"), &m.vertex_source) {
+        (Some(_), _) => v.array_vec("lightmap_uv").map_err(bad(pack))?,
+        // The model is drawn with the atlas' split vertices: each tile's UVs of them.
+        (None, Some(_)) => split_vertex_uvs(&v, n).map_err(bad(pack))?,
+        (None, None) => {
+            warnings.push(format!(
+                "{name}: no `lightmap_uv` array: light map not used"
+            ));
+            return Ok(None);
+        }
+    };
     let per_instance = match uvs.len() {
         l if l == n => false,
         l if l == n * m.instances.len() => true,
@@ -809,6 +824,39 @@ fn load_mesh_lightmap(
         uvs,
         per_instance,
     }))
+}
+
+/// Rows of `k` items of `a`, one per entry of `source` (the row it names).
+fn gather_rows<T: Copy>(a: &[T], source: &[u32], k: usize) -> Vec<T> {
+    source
+        .iter()
+        .flat_map(|&v| &a[v as usize * k..(v as usize + 1) * k])
+        .copied()
+        .collect()
+}
+
+/// Light-map UVs of an atlas' own vertices (which the model draws when its atlas split mesh
+/// vertices), per tile slot: `tiles[s].xy + atlas_uv[v] · tiles[s].zw`.
+fn split_vertex_uvs(
+    v: &crate::pack::section::SectionView,
+    vertices: usize,
+) -> std::result::Result<Vec<[f32; 2]>, crate::error::ParseError> {
+    let atlas_uv: Vec<[f32; 2]> = v.array_vec("atlas_uv")?;
+    let tiles: Vec<[f32; 4]> = v.array_vec("tiles")?;
+    if atlas_uv.len() != vertices {
+        return Err(crate::error::ParseError::new(
+            "lightmap array \"atlas_uv\"",
+            format!("{} UVs for {vertices} atlas vertices", atlas_uv.len()),
+        ));
+    }
+    Ok(tiles
+        .iter()
+        .flat_map(|r| {
+            atlas_uv
+                .iter()
+                .map(move |u| [r[0] + u[0] * r[2], r[1] + u[1] * r[3]])
+        })
+        .collect())
 }
 
 /// What [`AmbientScene`] resolved, for the render statistics.

@@ -63,9 +63,13 @@ pub struct DrawRange {
 pub struct ModelData<'a> {
     pub name: String,
     pub section: String,
-    pub positions: &'a [[f32; 3]],
-    pub normals: &'a [[f32; 3]],
-    pub uvs: &'a [[f32; 2]],
+    pub positions: Cow<'a, [[f32; 3]]>,
+    pub normals: Cow<'a, [[f32; 3]]>,
+    pub uvs: Cow<'a, [[f32; 2]]>,
+    /// Where the mesh's light-map atlas splits vertices at chart borders, the model is drawn
+    /// with the atlas' vertices and triangles: this is the mesh vertex of every drawn vertex
+    /// (None: the mesh's own vertices are drawn).
+    pub vertex_source: Option<Vec<u32>>,
     /// Per-vertex tangent `[x, y, z, w]` (bitangent `w·(n × t)`): the `tangents:<model>`
     /// section, or any tangent orthogonal to the normal where the pack has none.
     pub tangents: Cow<'a, [[f32; 4]]>,
@@ -338,21 +342,108 @@ fn load_model<'a>(
             ),
         ));
     }
-    let (indices, draws) = group_by_material(indices, tri_mats);
     let bounds = crate::model::bounds_of(positions).unwrap_or(([0.0; 3], [0.0; 3]));
-    Ok(ModelData {
+    let mut model = ModelData {
         name: name.to_string(),
         section: section.to_string(),
-        positions,
-        normals,
-        uvs,
+        positions: Cow::Borrowed(positions),
+        normals: Cow::Borrowed(normals),
+        uvs: Cow::Borrowed(uvs),
+        vertex_source: None,
         tangents,
-        indices,
-        draws,
+        indices: Cow::Borrowed(indices),
+        draws: Vec::new(),
         materials,
         instances,
         bounds,
-    })
+    };
+    if let Some((source, atlas_indices)) = atlas_split(pack, section, n, indices.len())? {
+        model.split_vertices(source, atlas_indices);
+    }
+    let (grouped, draws) = group_by_material(&model.indices, tri_mats);
+    let grouped = Cow::Owned(grouped.into_owned());
+    (model.indices, model.draws) = (grouped, draws);
+    Ok(model)
+}
+
+impl ModelData<'_> {
+    /// Draws the model with split vertices: vertex i becomes a copy of mesh vertex `source[i]`,
+    /// and `indices` (one triangle per mesh triangle, same order) replace the mesh's.
+    fn split_vertices(&mut self, source: Vec<u32>, indices: Vec<[u32; 3]>) {
+        fn gather<T: Copy>(a: &[T], source: &[u32]) -> Vec<T> {
+            source.iter().map(|&v| a[v as usize]).collect()
+        }
+        self.positions = Cow::Owned(gather(&self.positions, &source));
+        self.normals = Cow::Owned(gather(&self.normals, &source));
+        self.uvs = Cow::Owned(gather(&self.uvs, &source));
+        self.tangents = Cow::Owned(gather(&self.tangents, &source));
+        self.indices = Cow::Owned(indices);
+        self.vertex_source = Some(source);
+    }
+}
+
+/// The mesh vertex of every atlas vertex, and the atlas' triangles.
+type AtlasSplit = (Vec<u32>, Vec<[u32; 3]>);
+
+/// The atlas vertex list of the light map of `section` where it splits mesh vertices (an atlas
+/// section without `lightmap_uv`, made for this mesh of `vertices` vertices and `triangles`
+/// triangles): (mesh vertex of every atlas vertex, atlas triangles). None where the mesh has no
+/// atlas, or its atlas keeps the mesh's vertices.
+fn atlas_split(
+    pack: &Pack,
+    section: &str,
+    vertices: usize,
+    triangles: usize,
+) -> Result<Option<AtlasSplit>> {
+    use crate::lightmap::atlas_section::{AtlasMeta, is_atlas};
+    for e in pack.of_kind(crate::lightmap::section::KIND) {
+        let v = pack.view(e)?;
+        if !is_atlas(&v) || v.info("lightmap_uv").is_some() {
+            continue;
+        }
+        let meta: AtlasMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
+        if meta.surface != section || meta.mesh_vertices as usize != vertices {
+            continue;
+        }
+        let bad = |e| Error::invalid(pack.path(), e);
+        let source: Vec<u32> = v.array_vec("vertex_source").map_err(bad)?;
+        let indices: Vec<[u32; 3]> = v.array_vec("indices").map_err(bad)?;
+        if let Some(i) = source.iter().position(|&s| s as usize >= vertices) {
+            return Err(invalid(
+                pack,
+                &e.name,
+                format!(
+                    "atlas vertex {i}: mesh vertex {} past {vertices}",
+                    source[i]
+                ),
+            ));
+        }
+        if indices.len() != triangles {
+            return Err(invalid(
+                pack,
+                &e.name,
+                format!(
+                    "{} atlas triangles for {triangles} mesh triangles",
+                    indices.len()
+                ),
+            ));
+        }
+        if let Some(t) = indices
+            .iter()
+            .position(|t| t.iter().any(|&i| i as usize >= source.len()))
+        {
+            return Err(invalid(
+                pack,
+                &e.name,
+                format!(
+                    "atlas triangle {t} refers to a vertex past {}",
+                    source.len()
+                ),
+            ));
+        }
+        return Ok(Some((source, indices)));
+    }
+    Ok(None)
 }
 
 /// The preview's view of each material: diffuse colour decoded from sRGB, colour map section.

@@ -322,9 +322,9 @@ fn upload_model(
         },
     )?;
     use wgpu::BufferUsages as U;
-    let positions = up.buffer("positions", bytemuck::cast_slice(m.positions), U::VERTEX);
-    let normals = up.buffer("normals", bytemuck::cast_slice(m.normals), U::VERTEX);
-    let uvs = up.buffer("uvs", bytemuck::cast_slice(m.uvs), U::VERTEX);
+    let positions = up.buffer("positions", bytemuck::cast_slice(&m.positions), U::VERTEX);
+    let normals = up.buffer("normals", bytemuck::cast_slice(&m.normals), U::VERTEX);
+    let uvs = up.buffer("uvs", bytemuck::cast_slice(&m.uvs), U::VERTEX);
     let tangents = up.buffer("tangents", bytemuck::cast_slice(&m.tangents), U::VERTEX);
     let indices = up.buffer("indices", bytemuck::cast_slice(&m.indices), U::INDEX);
     let instances = up.buffer("instances", bytemuck::cast_slice(&m.instances), U::VERTEX);

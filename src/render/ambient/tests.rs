@@ -658,3 +658,92 @@ fn a_corrupt_clusters_section_is_an_error_naming_it() {
     let text = err.to_string();
     assert!(text.contains("clusters") && text.contains("1000"), "{text}");
 }
+
+/// The quad pack plus an atlas light map whose two triangles lie in different charts, so that
+/// the shared mesh vertices 0 and 2 are split: atlas vertices 0–2 are triangle (0, 1, 2) on
+/// texels 0, 1, 3 and atlas vertices 3–5 are triangle (0, 2, 3) on texels 2, 1, 0 of a 2×2 map
+/// with indirect irradiance (k + 1, 2(k + 1), 0.5) at texel k.
+fn split_atlas_pack() -> (Pack, Pack) {
+    let base = quad_pack(&constant_sky([1.0; 3]), 30.0);
+    let meta = crate::lightmap::atlas_section::AtlasMeta {
+        surface: "mesh:quad.obj".into(),
+        width: 2,
+        height: 2,
+        mode: crate::lightmap::LightmapMode::Physical,
+        samples: 1,
+        sun_samples: 1,
+        mesh_vertices: 4,
+        instances: vec![0],
+        tile: 2,
+        columns: 1,
+        gutter: 0,
+        density: 1.0,
+        texels_covered: 4,
+        gutter_texels: 0,
+    };
+    let total: Vec<[f32; 4]> = (0..4).map(|k| [100.0 + k as f32; 4]).collect();
+    let indirect: Vec<[f32; 4]> = (0..4)
+        .map(|k| [k as f32 + 1.0, 2.0 * (k as f32 + 1.0), 0.5, 1.0])
+        .collect();
+    let centre = |k: usize| [0.25 + 0.5 * (k % 2) as f32, 0.25 + 0.5 * (k / 2) as f32];
+    let atlas_uv: Vec<[f32; 2]> = [0, 1, 3, 2, 1, 0].map(centre).to_vec();
+    let mut b = SectionBuilder::new(crate::lightmap::section::KIND, "lightmap:mesh:quad.obj");
+    b.meta(&meta)
+        .array("irradiance", ArrayFormat::F32, 4, &total)
+        .array("indirect", ArrayFormat::F32, 4, &indirect)
+        .array("tiles", ArrayFormat::F32, 4, &[[0.0f32, 0.0, 1.0, 1.0]])
+        .array("atlas_uv", ArrayFormat::F32, 2, &atlas_uv)
+        .array("vertex_source", ArrayFormat::U32, 1, &[0u32, 1, 2, 0, 2, 3])
+        .array("indices", ArrayFormat::U32, 3, &[[0u32, 1, 2], [3, 4, 5]]);
+    let mut w = PackWriter::from_pack(&base);
+    w.insert(b.finish());
+    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "split.bake").unwrap();
+    (pack, base)
+}
+
+#[test]
+fn a_model_whose_atlas_splits_vertices_is_drawn_with_the_atlas_vertices() {
+    let (pack, base) = split_atlas_pack();
+    let scene = load_scene(&pack).unwrap();
+    let m = &scene.models[0];
+    assert_eq!(m.vertex_source.as_deref(), Some(&[0u32, 1, 2, 0, 2, 3][..]));
+    assert_eq!(m.positions.len(), 6);
+    assert_eq!(m.positions[3], [0.0, 0.0, 0.0]);
+    assert_eq!(m.positions[4], [1.0, 1.0, 0.0]);
+    assert_eq!(&m.indices[..], &[[0, 1, 2], [3, 4, 5]]);
+    let amb = load_ambient(&pack, &scene, PrtLayout::Full, None).unwrap();
+    assert!(amb.warnings.is_empty(), "{:?}", amb.warnings);
+    assert_eq!(amb.models[0].mode(), MeshAmbientMode::Lightmap);
+    // The same vertex of the mesh reads a different texel in each chart.
+    let albedo = [0.5, 0.25, 1.0];
+    for (v, texel) in [(0u32, 0.0f32), (2, 3.0), (3, 2.0), (4, 1.0), (5, 0.0)] {
+        let tri = if v < 3 { [0, 1, 2] } else { [3, 4, 5] };
+        let mut bary = [0.0; 3];
+        bary[(v % 3) as usize] = 1.0;
+        let got = amb.mesh_radiance(&hit(tri, bary, true, albedo));
+        let e = [texel + 1.0, 2.0 * (texel + 1.0), 0.5];
+        for c in 0..3 {
+            assert!(
+                (got[c] - albedo[c] * e[c] / PI).abs() < 1e-5,
+                "vertex {v}: {got:?}"
+            );
+        }
+    }
+    // PRT follows the split: drawn vertex i carries mesh vertex source[i]'s transfer.
+    let split = amb.models[0].prt.as_ref().expect("PRT of the split model");
+    let base_scene = load_scene(&base).unwrap();
+    let plain = load_ambient(&base, &base_scene, PrtLayout::Full, None).unwrap();
+    let orig = plain.models[0].prt.as_ref().unwrap();
+    assert_eq!((orig.vertices, split.vertices), (4, 6));
+    let (k, g) = (orig.transfer.len() / 4, orig.packed.len() / 4);
+    for (i, &src) in [0usize, 1, 2, 0, 2, 3].iter().enumerate() {
+        assert_eq!(
+            split.transfer[i * k..(i + 1) * k],
+            orig.transfer[src * k..(src + 1) * k]
+        );
+        assert_eq!(
+            split.packed[i * g..(i + 1) * g],
+            orig.packed[src * g..(src + 1) * g]
+        );
+    }
+}
