@@ -3,10 +3,11 @@
 use super::svo::load_geometry;
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
-use crate::linespace::ntree::{NTreeOptions, build_ntree};
+use crate::linespace::group::GroupStats;
+use crate::linespace::ntree::{NTree, NTreeOptions, build_ntree};
 use crate::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
 use crate::linespace::section;
-use crate::linespace::shaft::ChildMasks;
+use crate::linespace::shaft::{ChildMasks, ShaftCells};
 use crate::model::Mesh;
 use std::path::PathBuf;
 
@@ -135,13 +136,34 @@ fn receivers(tris: &[[[f32; 3]; 3]], count: u32) -> Vec<[f32; 3]> {
         .collect()
 }
 
-/// `bake bench linespace`: the same shadow segments through the line spaces and through exact
-/// obvhs any-hit rays; single-threaded timings.
-pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
-    let mut warnings = Vec::new();
+/// Runs `f` once and returns its result with the wall time in seconds.
+fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let t = std::time::Instant::now();
+    let out = f();
+    (out, t.elapsed().as_secs_f64())
+}
+
+/// Segments lit by `a` but blocked by `b` (`a` claims lit where `b` finds a blocker).
+fn lit_but_blocked(a: &[bool], b: &[bool]) -> usize {
+    a.iter().zip(b).filter(|(x, y)| !**x && **y).count()
+}
+
+/// The benchmark's scene, tree, light and receivers.
+struct BenchSetup {
+    name: String,
+    tris: Vec<[[f32; 3]; 3]>,
+    tree: NTree,
+    masks: ChildMasks,
+    build_seconds: f64,
+    light: AreaLight,
+    offset: f32,
+    receivers: Vec<[f32; 3]>,
+}
+
+fn bench_setup(a: &LinespaceBenchArgs, warnings: &mut Vec<String>) -> Result<BenchSetup> {
     let (tris, name) = match &a.model {
         Some(p) => (
-            world_triangles(&load_geometry(p, &mut warnings)?.0.mesh),
+            world_triangles(&load_geometry(p, warnings)?.0.mesh),
             p.display().to_string(),
         ),
         None => (
@@ -153,11 +175,12 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
         n: a.n,
         depth: a.depth,
     };
-    let t0 = std::time::Instant::now();
-    let masks = ChildMasks::build(opts.n);
-    let tree = build_ntree(&tris, &opts, &masks)?;
-    let build_seconds = t0.elapsed().as_secs_f64();
-    let exact = ExactShadow::new(&tris);
+    let ((masks, tree), build_seconds) = timed(|| {
+        let masks = ChildMasks::build(opts.n);
+        let tree = build_ntree(&tris, &opts, &masks);
+        (masks, tree)
+    });
+    let tree = tree?;
     let (lo, size) = (
         tree.origin,
         tree.leaf_size.map(|s| s * tree.n.pow(tree.depth) as f32),
@@ -173,29 +196,85 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
         samples: a.samples.max(1),
     };
     let offset = 1e-4 * size.iter().cloned().fold(0.0, f32::max);
-    let segs: Vec<Segment> = receivers(&tris, a.receivers)
+    let receivers = receivers(&tris, a.receivers);
+    Ok(BenchSetup {
+        name,
+        tris,
+        tree,
+        masks,
+        build_seconds,
+        light,
+        offset,
+        receivers,
+    })
+}
+
+/// `bake bench linespace`: the same shadow segments through exact obvhs any-hit rays, the
+/// per-segment line-space query (line-space pool, then the shared shaft table) and the grouped
+/// per-receiver query; single-threaded timings.
+pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
+    let mut warnings = Vec::new();
+    let BenchSetup {
+        name,
+        tris,
+        mut tree,
+        masks,
+        build_seconds,
+        light,
+        offset,
+        receivers,
+    } = bench_setup(a, &mut warnings)?;
+    let exact = ExactShadow::new(&tris);
+    let segs: Vec<Segment> = receivers
         .iter()
         .flat_map(|&p| {
             (0..light.samples.pow(2)).map(move |i| Segment::between(p, light.sample(i), offset))
         })
         .collect();
-    let t1 = std::time::Instant::now();
-    let exact_hits: Vec<bool> = segs.iter().map(|s| exact.occluded(s)).collect();
-    let exact_seconds = t1.elapsed().as_secs_f64();
+    let (exact_hits, exact_seconds) = timed(|| {
+        segs.iter()
+            .map(|s| exact.occluded(s))
+            .collect::<Vec<bool>>()
+    });
     let mut stats = QueryStats::default();
-    let t2 = std::time::Instant::now();
-    let ls_hits: Vec<bool> = segs
-        .iter()
-        .map(|s| tree.segment_occluded(s, &mut stats))
-        .collect();
-    let ls_seconds = t2.elapsed().as_secs_f64();
+    let (pool_hits, pool_seconds) = timed(|| {
+        segs.iter()
+            .map(|s| tree.segment_occluded(s, &mut stats))
+            .collect::<Vec<bool>>()
+    });
+    let (table, table_build_seconds) = timed(|| ShaftCells::from_masks(&masks));
+    drop(masks);
+    tree.use_shaft_table(std::sync::Arc::new(table))?;
+    let mut table_stats = QueryStats::default();
+    let (table_hits, table_seconds) = timed(|| {
+        segs.iter()
+            .map(|s| tree.segment_occluded(s, &mut table_stats))
+            .collect::<Vec<bool>>()
+    });
+    if table_hits != pool_hits {
+        warnings.push(
+            "per-segment answers differ between the line-space pool and the shaft table".into(),
+        );
+    }
+    let mut gs = GroupStats::default();
+    let (grouped, grouped_seconds) = timed(|| {
+        receivers
+            .iter()
+            .flat_map(|&p| tree.shadow_segments(p, &light, offset, &mut gs))
+            .collect::<Vec<bool>>()
+    });
+    let widened = lit_but_blocked(&pool_hits, &grouped);
+    if widened > 0 {
+        warnings.push(format!(
+            "{widened} segments lit per segment but blocked grouped"
+        ));
+    }
     let mut exact_stats = QueryStats::default();
-    let t3 = std::time::Instant::now();
-    let tree_exact: Vec<bool> = segs
-        .iter()
-        .map(|s| tree.segment_occluded_exact(s, &mut exact_stats))
-        .collect();
-    let ntree_exact_seconds = t3.elapsed().as_secs_f64();
+    let (tree_exact, ntree_exact_seconds) = timed(|| {
+        segs.iter()
+            .map(|s| tree.segment_occluded_exact(s, &mut exact_stats))
+            .collect::<Vec<bool>>()
+    });
     if tree_exact != exact_hits {
         let d = tree_exact
             .iter()
@@ -206,42 +285,52 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
             "{d} rays: exact N-tree traversal and obvhs disagree"
         ));
     }
-    let lit_but_shadowed = exact_hits
-        .iter()
-        .zip(&ls_hits)
-        .filter(|(e, l)| **e && !**l)
-        .count();
-    let over = exact_hits
-        .iter()
-        .zip(&ls_hits)
-        .filter(|(e, l)| !**e && **l)
-        .count();
+    let per = |x: f64| exact_seconds / x.max(1e-12);
     let json = serde_json::json!({
         "model": name, "triangles": tris.len(), "n": tree.n, "depth": tree.depth,
         "inner_nodes": tree.inner_nodes(), "build_seconds": build_seconds,
-        "rays": segs.len(), "exact_seconds": exact_seconds, "linespace_seconds": ls_seconds,
-        "speedup": exact_seconds / ls_seconds.max(1e-12),
+        "receivers": receivers.len(), "samples_per_receiver": light.samples.pow(2),
+        "rays": segs.len(), "exact_seconds": exact_seconds,
+        "linespace_seconds": grouped_seconds, "speedup": per(grouped_seconds),
+        "method": "grouped per receiver, shaft table",
+        "lit_but_shadowed": lit_but_blocked(&grouped, &exact_hits),
+        "shadowed_but_lit": lit_but_blocked(&exact_hits, &grouped),
+        "receivers_proven": gs.proven, "receivers_fallback": gs.fallbacks,
+        "pyramid_pair_lookups": gs.pair_lookups, "pyramid_exact_tests": gs.exact_tests,
+        "per_segment_seconds": pool_seconds, "per_segment_speedup": per(pool_seconds),
+        "per_segment_lit_but_shadowed": lit_but_blocked(&pool_hits, &exact_hits),
+        "per_segment_shadowed_but_lit": lit_but_blocked(&exact_hits, &pool_hits),
+        "per_segment_table_seconds": table_seconds, "per_segment_table_speedup": per(table_seconds),
+        "shaft_table_seconds": table_build_seconds,
         "ntree_exact_seconds": ntree_exact_seconds,
-        "speedup_vs_ntree_triangle_tests": ntree_exact_seconds / ls_seconds.max(1e-12),
-        "lit_but_shadowed": lit_but_shadowed, "shadowed_but_lit": over,
         "exact_occluded": exact_hits.iter().filter(|h| **h).count(),
-        "linespace_lookups": stats.linespace_lookups, "exact_triangle_tests": stats.exact_triangle_tests, "dda_steps": stats.dda_steps, "nodes_visited": stats.nodes_visited,
+        "linespace_lookups": stats.linespace_lookups, "exact_triangle_tests": stats.exact_triangle_tests,
+        "dda_steps": stats.dda_steps, "nodes_visited": stats.nodes_visited,
     });
     let text = format!(
-        "{name}: {} triangles, n = {} depth {} ({} inner nodes, built in {:.2} s)\n{} rays: exact obvhs {:.3} s, line space {:.3} s, speedup {:.2}× (same N-tree with exact triangle tests: {:.3} s, {:.2}×); lit but shadowed {}, over-occluded {}\n",
+        "{name}: {} triangles, n = {} depth {} ({} inner nodes, built in {:.2} s)\n{} rays ({} receivers × {}): exact obvhs {:.3} s; line space grouped {:.3} s ({:.2}×, {} of {} receivers proven in one traversal), per segment {:.3} s ({:.2}×), per segment with the shaft table {:.3} s ({:.2}×); N-tree with exact triangle tests {:.3} s\ngrouped: lit but shadowed {}, over-occluded {}; per segment: lit but shadowed {}, over-occluded {}\n",
         tris.len(),
         tree.n,
         tree.depth,
         tree.inner_nodes(),
         build_seconds,
         segs.len(),
+        receivers.len(),
+        light.samples.pow(2),
         exact_seconds,
-        ls_seconds,
-        exact_seconds / ls_seconds.max(1e-12),
+        grouped_seconds,
+        per(grouped_seconds),
+        gs.proven,
+        receivers.len(),
+        pool_seconds,
+        per(pool_seconds),
+        table_seconds,
+        per(table_seconds),
         ntree_exact_seconds,
-        ntree_exact_seconds / ls_seconds.max(1e-12),
-        lit_but_shadowed,
-        over
+        lit_but_blocked(&grouped, &exact_hits),
+        lit_but_blocked(&exact_hits, &grouped),
+        lit_but_blocked(&pool_hits, &exact_hits),
+        lit_but_blocked(&exact_hits, &pool_hits),
     );
     Ok(Outcome {
         json,
