@@ -3,7 +3,6 @@
 use super::svo::load_geometry;
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
-use crate::linespace::group::GroupStats;
 use crate::linespace::ntree::{NTree, NTreeOptions, build_ntree};
 use crate::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
 use crate::linespace::section;
@@ -210,8 +209,8 @@ fn bench_setup(a: &LinespaceBenchArgs, warnings: &mut Vec<String>) -> Result<Ben
 }
 
 /// `bake bench linespace`: the same shadow segments through exact obvhs any-hit rays, the
-/// per-segment line-space query (line-space pool, then the shared shaft table) and the grouped
-/// per-receiver query; single-threaded timings.
+/// per-segment line-space query (reading the line-space pool, then the shared shaft table);
+/// single-threaded timings.
 pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let BenchSetup {
@@ -256,19 +255,6 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
             "per-segment answers differ between the line-space pool and the shaft table".into(),
         );
     }
-    let mut gs = GroupStats::default();
-    let (grouped, grouped_seconds) = timed(|| {
-        receivers
-            .iter()
-            .flat_map(|&p| tree.shadow_segments(p, &light, offset, &mut gs))
-            .collect::<Vec<bool>>()
-    });
-    let widened = lit_but_blocked(&pool_hits, &grouped);
-    if widened > 0 {
-        warnings.push(format!(
-            "{widened} segments lit per segment but blocked grouped"
-        ));
-    }
     let mut exact_stats = QueryStats::default();
     let (tree_exact, ntree_exact_seconds) = timed(|| {
         segs.iter()
@@ -286,29 +272,30 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
         ));
     }
     let per = |x: f64| exact_seconds / x.max(1e-12);
+    let (lit_blocked, over) = (
+        lit_but_blocked(&table_hits, &exact_hits),
+        lit_but_blocked(&exact_hits, &table_hits),
+    );
     let json = serde_json::json!({
         "model": name, "triangles": tris.len(), "n": tree.n, "depth": tree.depth,
         "inner_nodes": tree.inner_nodes(), "build_seconds": build_seconds,
         "receivers": receivers.len(), "samples_per_receiver": light.samples.pow(2),
         "rays": segs.len(), "exact_seconds": exact_seconds,
-        "linespace_seconds": grouped_seconds, "speedup": per(grouped_seconds),
-        "method": "grouped per receiver, shaft table",
-        "lit_but_shadowed": lit_but_blocked(&grouped, &exact_hits),
-        "shadowed_but_lit": lit_but_blocked(&exact_hits, &grouped),
-        "receivers_proven": gs.proven, "receivers_fallback": gs.fallbacks,
-        "pyramid_pair_lookups": gs.pair_lookups, "pyramid_exact_tests": gs.exact_tests,
-        "per_segment_seconds": pool_seconds, "per_segment_speedup": per(pool_seconds),
-        "per_segment_lit_but_shadowed": lit_but_blocked(&pool_hits, &exact_hits),
-        "per_segment_shadowed_but_lit": lit_but_blocked(&exact_hits, &pool_hits),
-        "per_segment_table_seconds": table_seconds, "per_segment_table_speedup": per(table_seconds),
+        "linespace_seconds": table_seconds, "speedup": per(table_seconds),
+        "method": "per segment, line-space bits from the shared shaft table",
+        "lit_but_shadowed": lit_blocked, "shadowed_but_lit": over,
+        "pool_seconds": pool_seconds, "pool_speedup": per(pool_seconds),
         "shaft_table_seconds": table_build_seconds,
+        "shaft_table_bytes": 8 * tree.shafts.as_ref().map_or(0, |t| t.cells.len()),
+        "linespace_pool_bytes": 4 * tree.linespaces.len(),
         "ntree_exact_seconds": ntree_exact_seconds,
+        "speedup_vs_ntree_triangle_tests": ntree_exact_seconds / table_seconds.max(1e-12),
         "exact_occluded": exact_hits.iter().filter(|h| **h).count(),
         "linespace_lookups": stats.linespace_lookups, "exact_triangle_tests": stats.exact_triangle_tests,
         "dda_steps": stats.dda_steps, "nodes_visited": stats.nodes_visited,
     });
     let text = format!(
-        "{name}: {} triangles, n = {} depth {} ({} inner nodes, built in {:.2} s)\n{} rays ({} receivers × {}): exact obvhs {:.3} s; line space grouped {:.3} s ({:.2}×, {} of {} receivers proven in one traversal), per segment {:.3} s ({:.2}×), per segment with the shaft table {:.3} s ({:.2}×); N-tree with exact triangle tests {:.3} s\ngrouped: lit but shadowed {}, over-occluded {}; per segment: lit but shadowed {}, over-occluded {}\n",
+        "{name}: {} triangles, n = {} depth {} ({} inner nodes, built in {:.2} s)\n{} rays ({} receivers × {}): exact obvhs {:.3} s; line space {:.3} s ({:.2}×; reading the line-space pool: {:.3} s, {:.2}×); N-tree with exact triangle tests {:.3} s; lit but shadowed {}, over-occluded {}\n",
         tris.len(),
         tree.n,
         tree.depth,
@@ -318,19 +305,13 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
         receivers.len(),
         light.samples.pow(2),
         exact_seconds,
-        grouped_seconds,
-        per(grouped_seconds),
-        gs.proven,
-        receivers.len(),
-        pool_seconds,
-        per(pool_seconds),
         table_seconds,
         per(table_seconds),
+        pool_seconds,
+        per(pool_seconds),
         ntree_exact_seconds,
-        lit_but_blocked(&grouped, &exact_hits),
-        lit_but_blocked(&exact_hits, &grouped),
-        lit_but_blocked(&pool_hits, &exact_hits),
-        lit_but_blocked(&exact_hits, &pool_hits),
+        lit_blocked,
+        over,
     );
     Ok(Outcome {
         json,

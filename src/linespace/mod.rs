@@ -2,7 +2,6 @@
 //! GPU pools, [`shaft`] the exact shaft/box test and the per-child shaft masks, [`linespace`]
 //! the bit layout, [`query`] soft-shadow queries, [`section`] the `linespace` pack section.
 pub mod gpu;
-pub mod group;
 #[allow(clippy::module_inception)]
 pub mod linespace;
 pub mod ntree;

@@ -1,7 +1,6 @@
 //! Invariants of the N-tree and its line spaces against brute-force oracles: a full-matrix build
 //! with the separating-axis shaft test, random segments between patches, exact shadow rays.
 
-use super::group::GroupStats;
 use super::linespace::{FACES, Layout, get};
 use super::ntree::{NTree, NTreeOptions, build_ntree};
 use super::query::{AreaLight, ExactShadow, QueryStats, Segment};
@@ -384,50 +383,4 @@ fn shaft_table_queries_equal_pool_queries() {
         )))
         .is_err()
     );
-}
-
-#[test]
-fn grouped_answers_lie_between_per_segment_and_exact_answers() {
-    let mut rng = Rng::new(2024);
-    for (n, depth) in [(4, 3), (10, 2), (3, 3)] {
-        let mut tris = random_tris(&mut rng, 120, 0.6);
-        tris.push([[-2.0, -2.0, -0.5], [12.0, -2.0, -0.5], [12.0, 12.0, -0.5]]);
-        tris.push([[-2.0, -2.0, -0.5], [12.0, 12.0, -0.5], [-2.0, 12.0, -0.5]]);
-        let masks = ChildMasks::build(n);
-        let mut t = build_ntree(&tris, &NTreeOptions { n, depth }, &masks).unwrap();
-        t.use_shaft_table(std::sync::Arc::new(ShaftCells::from_masks(&masks)))
-            .unwrap();
-        let exact = ExactShadow::new(&tris);
-        let light = AreaLight {
-            corner: [2.0, 3.0, 14.0],
-            edge_u: [4.0, 0.0, 0.0],
-            edge_v: [0.0, 3.0, 1.0],
-            samples: 3,
-        };
-        let mut gs = GroupStats::default();
-        let mut qs = QueryStats::default();
-        let mut lit = 0;
-        for i in 0..400 {
-            let tri = &tris[rng.next_u64() as usize % tris.len()];
-            let (mut a, mut b) = (rng.f32(), rng.f32());
-            if a + b > 1.0 {
-                (a, b) = (1.0 - a, 1.0 - b);
-            }
-            let p = match i % 8 {
-                0 => [0, 1, 2].map(|_| rng.range(-3.0, 13.0)),
-                _ => [0, 1, 2]
-                    .map(|k| tri[0][k] + a * (tri[1][k] - tri[0][k]) + b * (tri[2][k] - tri[0][k])),
-            };
-            let grouped = t.shadow_segments(p, &light, 1e-3, &mut gs);
-            for (s, g) in grouped.iter().enumerate() {
-                let seg = Segment::between(p, light.sample(s as u32), 1e-3);
-                let (e, l) = (exact.occluded(&seg), t.segment_occluded(&seg, &mut qs));
-                assert!(!e || *g, "n {n}: grouped lit, exact blocked: {seg:?}");
-                assert!(l || !*g, "n {n}: per segment lit, grouped blocked: {seg:?}");
-                lit += !*g as usize;
-            }
-        }
-        assert!(gs.proven > 20 && gs.fallbacks > 20, "n {n}: {gs:?}");
-        assert!(lit > 500, "n {n}: {lit} lit");
-    }
 }
