@@ -119,6 +119,39 @@ impl NTree {
         }
     }
 
+    /// Only the exact test in the deepest-level node that holds the segment's start: the part
+    /// of every query here that decides self-occlusion near the receiver, for the benchmark's
+    /// lower bound (not an answer: blockers further away are ignored).
+    pub fn start_node_occluded(&self, s: &Segment, stats: &mut QueryStats) -> bool {
+        let r = self.grid_ray(s);
+        let Some(mut span) = self.root_span(&r) else {
+            return false;
+        };
+        if !span.start_inside {
+            return false;
+        }
+        let n = self.n as i64;
+        let mut at = self.root_at(false);
+        while at.level + 1 < self.depth {
+            let cell = at.side / self.n as f32;
+            let dda = Dda::new(&r, at.base, cell, [n; 3], span.t0);
+            let c = dda.c;
+            let slot = (c[0] + n * c[1] + n * n * c[2]) as usize;
+            if !self.filled(at.group, slot) {
+                return false;
+            }
+            span.t1 = span.t1.min(dda.exit());
+            at = At {
+                group: self.nodes[1 + at.group as usize * self.n3() + slot].group(),
+                level: at.level + 1,
+                base: [0, 1, 2].map(|k| at.base[k] + c[k] as f32 * cell),
+                side: cell,
+                linespaces: false,
+            };
+        }
+        self.exact_occluded(s, &r, at.group, at.base, at.side, span, stats)
+    }
+
     /// The root node as a traversal position.
     pub(super) fn root_at(&self, linespaces: bool) -> At {
         At {
