@@ -18,12 +18,13 @@
 //! never missed, which the line space's one-sided error relies on.
 
 use super::linespace::Layout;
-use super::shaft::ChildMasks;
+use super::shaft::{ChildMasks, ShaftCells};
 use crate::error::{Error, Result};
 use crate::voxel::Grid;
 use crate::voxel::voxelize::TriSetup;
 use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Margin of the triangle/cell tests, in cells.
 pub const CELL_MARGIN: f32 = 1e-3;
@@ -90,6 +91,10 @@ pub struct NTree {
     pub occupancy: Vec<u64>,
     /// The triangles, world space.
     pub triangles: Vec<[[f32; 3]; 3]>,
+    /// When set, CPU queries read line-space bits as `occupancy & shaft cells` from this shared
+    /// per-n table instead of the line-space pool (same bits, [`ShaftCells`]); the pool stays
+    /// the packed form the GPU reads.
+    pub shafts: Option<Arc<ShaftCells>>,
 }
 
 /// Path key of a cell at `levels` below the root: the base-n³ number of its child slots.
@@ -172,6 +177,7 @@ pub fn build_ntree(
         tri_indices: pairs.iter().map(|p| p.1).collect(),
         occupancy: Vec::new(),
         triangles: tris.to_vec(),
+        shafts: None,
     };
     tree.link_nodes(&prefixes, &pairs);
     tree.linespaces = build_linespaces(&prefixes, n, masks);
@@ -278,6 +284,32 @@ impl NTree {
             }
         }
         self.occupancy = occ;
+    }
+
+    /// Makes CPU queries read line-space bits from `table` (built for this n).
+    pub fn use_shaft_table(&mut self, table: Arc<ShaftCells>) -> Result<()> {
+        if table.layout.n != self.n {
+            return Err(Error::Runtime("shaft table built for another n".into()));
+        }
+        self.shafts = Some(table);
+        Ok(())
+    }
+
+    /// The occupancy words of group `g`.
+    #[inline]
+    pub fn occupancy_of(&self, g: u32) -> &[u64] {
+        let w = self.occupancy_words();
+        &self.occupancy[g as usize * w..(g as usize + 1) * w]
+    }
+
+    /// Line-space bit `bit` of group `g`: from the shared shaft table when one is set, else
+    /// from the line-space pool.
+    #[inline]
+    pub fn linespace_bit(&self, g: u32, bit: u64) -> bool {
+        match &self.shafts {
+            Some(t) => t.meets(bit, self.occupancy_of(g)),
+            None => super::linespace::get(self.linespace(g), bit),
+        }
     }
 
     /// Whether child `slot` of group `g` holds geometry.

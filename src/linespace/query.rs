@@ -15,7 +15,6 @@
 //! derives `endVec` from the end point), a node is skipped when the line-space test is *false*
 //! (Algorithm 1 skips on true), and bits are read with a right shift.
 
-use super::linespace::get;
 use super::ntree::NTree;
 use crate::voxel::traverse::{Dda, Ray, box_interval};
 use obvhs::ray::Ray as BvhRay;
@@ -92,7 +91,7 @@ pub fn to_bvh_triangle(t: &[[f32; 3]; 3]) -> Triangle {
 
 impl NTree {
     /// The segment in leaf-cell units.
-    fn grid_ray(&self, s: &Segment) -> Ray {
+    pub(super) fn grid_ray(&self, s: &Segment) -> Ray {
         Ray {
             origin: [0, 1, 2].map(|k| (s.from[k] - self.origin[k]) / self.leaf_size[k]),
             dir: [0, 1, 2].map(|k| s.dir[k] / self.leaf_size[k]),
@@ -114,26 +113,70 @@ impl NTree {
 
     fn segment_occluded_with(&self, s: &Segment, linespaces: bool, stats: &mut QueryStats) -> bool {
         let r = self.grid_ray(s);
-        let side = self.n.pow(self.depth) as f32;
-        let (te, tx) = box_interval(&r, [0.0; 3], [side; 3]);
-        let (t0, t1) = (te.max(r.t_min), tx.min(r.t_max));
-        if t0 > t1 || te.is_nan() || tx.is_nan() {
+        match self.root_span(&r) {
+            Some(span) => self.occluded_in(s, &r, self.root_at(linespaces), span, stats),
+            None => false,
+        }
+    }
+
+    /// Only the exact test in the deepest-level node that holds the segment's start: the part
+    /// of every query here that decides self-occlusion near the receiver, for the benchmark's
+    /// lower bound (not an answer: blockers further away are ignored).
+    pub fn start_node_occluded(&self, s: &Segment, stats: &mut QueryStats) -> bool {
+        let r = self.grid_ray(s);
+        let Some(mut span) = self.root_span(&r) else {
+            return false;
+        };
+        if !span.start_inside {
             return false;
         }
-        let span = Span {
+        let n = self.n as i64;
+        let mut at = self.root_at(false);
+        while at.level + 1 < self.depth {
+            let cell = at.side / self.n as f32;
+            let dda = Dda::new(&r, at.base, cell, [n; 3], span.t0);
+            let c = dda.c;
+            let slot = (c[0] + n * c[1] + n * n * c[2]) as usize;
+            if !self.filled(at.group, slot) {
+                return false;
+            }
+            span.t1 = span.t1.min(dda.exit());
+            at = At {
+                group: self.nodes[1 + at.group as usize * self.n3() + slot].group(),
+                level: at.level + 1,
+                base: [0, 1, 2].map(|k| at.base[k] + c[k] as f32 * cell),
+                side: cell,
+                linespaces: false,
+            };
+        }
+        self.exact_occluded(s, &r, at.group, at.base, at.side, span, stats)
+    }
+
+    /// The root node as a traversal position.
+    pub(super) fn root_at(&self, linespaces: bool) -> At {
+        At {
+            group: 0,
+            level: 0,
+            base: [0.0; 3],
+            side: self.n.pow(self.depth) as f32,
+            linespaces,
+        }
+    }
+
+    /// Where a grid-space segment lies in the root box; None when it misses it.
+    pub(super) fn root_span(&self, r: &Ray) -> Option<Span> {
+        let side = self.n.pow(self.depth) as f32;
+        let (te, tx) = box_interval(r, [0.0; 3], [side; 3]);
+        let (t0, t1) = (te.max(r.t_min), tx.min(r.t_max));
+        if t0 > t1 || te.is_nan() || tx.is_nan() {
+            return None;
+        }
+        Some(Span {
             t0,
             t1,
             start_inside: te <= r.t_min,
             end_inside: tx >= r.t_max,
-        };
-        let at = At {
-            group: 0,
-            level: 0,
-            base: [0.0; 3],
-            side,
-            linespaces,
-        };
-        self.occluded_in(s, &r, at, span, stats)
+        })
     }
 
     /// Fraction of the light's samples that reach `p` (1 = fully lit).
@@ -223,7 +266,7 @@ impl NTree {
 
     /// Whether any shaft the segment can lie in (entry and exit patches, widened by a margin
     /// near patch borders) is full; None where no line space applies (same face, node edges).
-    fn shaft_full(
+    pub(super) fn shaft_full(
         &self,
         r: &Ray,
         group: u32,
@@ -238,10 +281,12 @@ impl NTree {
             return None;
         }
         let layout = self.layout();
-        let ls = self.linespace(group);
         for pa in patch_range(ua, self.n) {
             for pb in patch_range(ub, self.n) {
-                if layout.bit(fa, pa, fb, pb).is_some_and(|b| get(ls, b)) {
+                if layout
+                    .bit(fa, pa, fb, pb)
+                    .is_some_and(|b| self.linespace_bit(group, b))
+                {
                     return Some(true);
                 }
             }
@@ -252,7 +297,7 @@ impl NTree {
     /// Exact test inside a deepest-level node: a DDA over its leaves, testing the triangles of
     /// each filled leaf the segment crosses.
     #[allow(clippy::too_many_arguments)]
-    fn exact_occluded(
+    pub(super) fn exact_occluded(
         &self,
         s: &Segment,
         r: &Ray,
@@ -289,21 +334,21 @@ impl NTree {
 
 /// A node being traversed: its group, level, minimum corner and side (leaf units).
 #[derive(Debug, Clone, Copy)]
-struct At {
-    group: u32,
-    level: u32,
-    base: [f32; 3],
-    side: f32,
-    linespaces: bool,
+pub(super) struct At {
+    pub(super) group: u32,
+    pub(super) level: u32,
+    pub(super) base: [f32; 3],
+    pub(super) side: f32,
+    pub(super) linespaces: bool,
 }
 
 /// Where a segment is within a node.
 #[derive(Debug, Clone, Copy)]
-struct Span {
-    t0: f32,
-    t1: f32,
-    start_inside: bool,
-    end_inside: bool,
+pub(super) struct Span {
+    pub(super) t0: f32,
+    pub(super) t1: f32,
+    pub(super) start_inside: bool,
+    pub(super) end_inside: bool,
 }
 
 /// Margin, in child cells, around patch borders and node edges.

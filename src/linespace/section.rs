@@ -56,6 +56,7 @@ pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseErro
         tri_indices: v.array_vec("tri_indices")?,
         triangles: v.array_vec("triangles")?,
         occupancy: Vec::new(),
+        shafts: None,
     };
     validate(&t).map_err(|m| ParseError::new("linespace section", m))?;
     t.fill_occupancy();

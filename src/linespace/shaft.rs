@@ -164,6 +164,65 @@ impl ChildMasks {
     }
 }
 
+/// The child masks transposed: for every shaft (line-space bit), the child cells it meets, as
+/// `words` u64 of n³ bits per shaft (cell x + n·y + n²·z at bit c % 64 of word c / 64, like
+/// [`super::ntree::NTree::occupancy`]). A node's line-space bit b is then
+/// `occupancy(node) & cells(b) ≠ 0`, bit for bit the OR of its filled children's masks: one table
+/// per n (19.2 MB at n = 10) answers every node's line space, instead of 18,752 B per node.
+#[derive(Clone, PartialEq)]
+pub struct ShaftCells {
+    pub layout: Layout,
+    /// u64 words per shaft: n³ / 64 rounded up.
+    pub words: usize,
+    pub cells: Vec<u64>,
+}
+
+impl std::fmt::Debug for ShaftCells {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "ShaftCells {{ n: {}, words: {} }}",
+            self.layout.n, self.words
+        )
+    }
+}
+
+impl ShaftCells {
+    /// Transposes the child masks (one pass over their set bits).
+    pub fn from_masks(m: &ChildMasks) -> ShaftCells {
+        let layout = m.layout;
+        let n3 = (layout.n * layout.n * layout.n) as usize;
+        let words = n3.div_ceil(64);
+        let mut cells = vec![0u64; layout.bits() as usize * words];
+        for c in 0..n3 {
+            for (i, &w) in m.mask(c).iter().enumerate() {
+                let mut w = w;
+                while w != 0 {
+                    let b = i * 32 + w.trailing_zeros() as usize;
+                    w &= w - 1;
+                    cells[b * words + c / 64] |= 1 << (c % 64);
+                }
+            }
+        }
+        ShaftCells {
+            layout,
+            words,
+            cells,
+        }
+    }
+
+    /// Whether shaft `bit` meets a cell set in `occupancy` (`words` u64).
+    #[inline]
+    pub fn meets(&self, bit: u64, occupancy: &[u64]) -> bool {
+        let at = bit as usize * self.words;
+        self.cells[at..at + self.words]
+            .iter()
+            .zip(occupancy)
+            .fold(0, |acc, (a, b)| acc | (a & b))
+            != 0
+    }
+}
+
 /// Linear indices of the cells whose interior the shaft's interior meets.
 pub fn cells_of_shaft(n: u32, a: &PatchBox, b: &PatchBox) -> Vec<u32> {
     let n = n as i64;

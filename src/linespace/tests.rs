@@ -4,7 +4,7 @@
 use super::linespace::{FACES, Layout, get};
 use super::ntree::{NTree, NTreeOptions, build_ntree};
 use super::query::{AreaLight, ExactShadow, QueryStats, Segment};
-use super::shaft::{ChildMasks, patch_box, shaft_meets_cell_sat};
+use super::shaft::{ChildMasks, ShaftCells, patch_box, shaft_meets_cell_sat};
 use crate::voxel::tests::Rng;
 use crate::voxel::voxelize::tri_box_overlap_reference;
 
@@ -293,4 +293,94 @@ fn section_round_trips() {
     assert_eq!(s["n"], 4);
     assert_eq!(s["bits_per_linespace"], 15 * 256);
     assert_eq!(s["inner_nodes"], t.inner_nodes());
+}
+
+/// Random segments of a scene: receivers on the triangles and some in free space, to the
+/// samples of a tilted quad light.
+fn scene_segments(rng: &mut Rng, tris: &[[[f32; 3]; 3]], count: usize) -> Vec<Segment> {
+    let light = AreaLight {
+        corner: [2.0, 3.0, 14.0],
+        edge_u: [4.0, 0.0, 0.0],
+        edge_v: [0.0, 3.0, 1.0],
+        samples: 4,
+    };
+    let mut out = Vec::new();
+    for i in 0..count {
+        let tri = &tris[rng.next_u64() as usize % tris.len()];
+        let (mut a, mut b) = (rng.f32(), rng.f32());
+        if a + b > 1.0 {
+            (a, b) = (1.0 - a, 1.0 - b);
+        }
+        let p = match i % 10 {
+            0 => [0, 1, 2].map(|_| rng.range(-5.0, 15.0)),
+            _ => [0, 1, 2]
+                .map(|k| tri[0][k] + a * (tri[1][k] - tri[0][k]) + b * (tri[2][k] - tri[0][k])),
+        };
+        out.extend((0..16).map(|s| Segment::between(p, light.sample(s), 1e-3)));
+    }
+    out
+}
+
+#[test]
+fn shaft_table_reads_every_bit_of_the_line_space_pool() {
+    let mut rng = Rng::new(31);
+    for (n, depth, stride) in [(3, 2, 1), (4, 2, 1), (5, 2, 7), (10, 2, 997)] {
+        let masks = ChildMasks::build(n);
+        let mut t = build_ntree(
+            &random_tris(&mut rng, 40, 1.5),
+            &NTreeOptions { n, depth },
+            &masks,
+        )
+        .unwrap();
+        let pool: Vec<Vec<bool>> = (0..t.inner_nodes() as u32)
+            .map(|g| {
+                (0..t.layout().bits())
+                    .step_by(stride)
+                    .map(|b| get(t.linespace(g), b))
+                    .collect()
+            })
+            .collect();
+        t.use_shaft_table(std::sync::Arc::new(ShaftCells::from_masks(&masks)))
+            .unwrap();
+        let mut ones = 0;
+        for (g, want) in pool.iter().enumerate() {
+            let bits = (0..t.layout().bits()).step_by(stride);
+            for (b, &w) in bits.zip(want) {
+                assert_eq!(t.linespace_bit(g as u32, b), w, "n {n} group {g} bit {b}");
+                ones += w as usize;
+            }
+        }
+        assert!(ones > 0, "n {n}: no full shaft to compare");
+    }
+}
+
+#[test]
+fn shaft_table_queries_equal_pool_queries() {
+    let mut rng = Rng::new(77);
+    let mut tris = random_tris(&mut rng, 150, 0.8);
+    tris.extend(frame());
+    let masks = ChildMasks::build(4);
+    let mut t = build_ntree(&tris, &NTreeOptions { n: 4, depth: 3 }, &masks).unwrap();
+    let segs = scene_segments(&mut rng, &tris, 300);
+    let mut stats = QueryStats::default();
+    let pool: Vec<bool> = segs
+        .iter()
+        .map(|s| t.segment_occluded(s, &mut stats))
+        .collect();
+    t.use_shaft_table(std::sync::Arc::new(ShaftCells::from_masks(&masks)))
+        .unwrap();
+    let mut table_stats = QueryStats::default();
+    let table: Vec<bool> = segs
+        .iter()
+        .map(|s| t.segment_occluded(s, &mut table_stats))
+        .collect();
+    assert_eq!(pool, table);
+    assert_eq!(stats, table_stats);
+    assert!(pool.iter().any(|h| *h) && pool.iter().any(|h| !*h));
+    assert!(
+        t.use_shaft_table(std::sync::Arc::new(ShaftCells::from_masks(
+            &ChildMasks::build(3)
+        )))
+        .is_err()
+    );
 }
