@@ -15,7 +15,7 @@ use bytemuck::{Pod, Zeroable};
 const DDA_WGSL: &str = include_str!("../voxel/shaders/dda.wgsl");
 const QUERY_WGSL: &str = include_str!("shaders/ls_query.wgsl");
 
-/// The shader's `Params` (64 bytes).
+/// The shader's `Params` (80 bytes).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 struct Params {
@@ -31,7 +31,18 @@ struct Params {
     seg_t_max: f32,
     samples: u32,
     flags: u32,
+    /// Node entries per node-pool window, u32 words per line-space window.
+    node_window: u32,
+    ls_window: u32,
+    pad: [u32; 2],
 }
+
+/// Storage bindings the node pool and the line-space pool are split over: a device binds at most
+/// `max_storage_buffer_binding_size` bytes per binding (128 MiB on lavapipe), less than the pools
+/// of the thesis' n = 10, depth 3 on a scene (258 MB of nodes and 600 MB of line spaces on the
+/// fixture), so each pool is uploaded as consecutive windows, one buffer each.
+const NODE_WINDOWS: usize = 4;
+const LS_WINDOWS: usize = 8;
 
 /// Output of the `shadow` kernel: counts of lit samples, or f32 fractions.
 const FLAG_FRACTION: u32 = 1;
@@ -44,27 +55,72 @@ pub struct NTreeGpu<'g> {
     gpu: &'g Gpu,
     segments: Kernel,
     shadow: Kernel,
-    pools: [wgpu::Buffer; 4],
+    /// Node windows, line-space windows, triangle indices, triangles (binding order).
+    pools: Vec<wgpu::Buffer>,
     base: Params,
 }
 
+/// Splits `bytes` (elements of `elem` bytes) into at most `windows` buffers of `per` elements;
+/// the unused windows get a small zero buffer.
+fn windows(
+    gpu: &Gpu,
+    label: &str,
+    bytes: &[u8],
+    elem: usize,
+    per: usize,
+    windows: usize,
+) -> Result<Vec<wgpu::Buffer>> {
+    let chunk = per * elem;
+    let needed = bytes.len().div_ceil(chunk).max(1);
+    if needed > windows {
+        return Err(Error::runtime(format!(
+            "{label}: {} bytes need {needed} storage bindings of at most {chunk} bytes, more than \
+             the {windows} the shader has (use a smaller --n or --depth)",
+            bytes.len()
+        )));
+    }
+    (0..windows)
+        .map(|w| {
+            let part = bytes.get(w * chunk..((w + 1) * chunk).min(bytes.len()));
+            compute::storage(gpu, label, part.unwrap_or(&[]))
+        })
+        .collect()
+}
+
 impl<'g> NTreeGpu<'g> {
-    /// Uploads the tree's pools as they are (the bytes of the `linespace` section's arrays).
+    /// Uploads the tree's pools as they are (the bytes of the `linespace` section's arrays), the
+    /// node and line-space pools in windows as large as the device binds.
     pub fn new(gpu: &'g Gpu, t: &NTree) -> Result<Self> {
+        let limit = gpu.device.limits().max_storage_buffer_binding_size;
+        Self::with_window_bytes(gpu, t, limit.min(u32::MAX as u64) as usize)
+    }
+
+    /// [`Self::new`] with pool windows of at most `window_bytes` bytes (tests use small ones).
+    pub fn with_window_bytes(gpu: &'g Gpu, t: &NTree, window_bytes: usize) -> Result<Self> {
         if t.depth as usize > 12 {
             return Err(Error::runtime("linespace: depth > 12"));
         }
         let parts = [DDA_WGSL, QUERY_WGSL];
-        let pools = [
-            compute::storage(gpu, "ntree nodes", bytemuck::cast_slice(&t.nodes))?,
-            compute::storage(gpu, "linespaces", bytemuck::cast_slice(&t.linespaces))?,
-            compute::storage(gpu, "tri indices", bytemuck::cast_slice(&t.tri_indices))?,
-            compute::storage(gpu, "triangles", bytemuck::cast_slice(&t.triangles))?,
-        ];
+        let (node_window, ls_window) = ((window_bytes / 8).max(1), (window_bytes / 4).max(1));
+        let nodes = bytemuck::cast_slice(&t.nodes);
+        let mut pools = windows(gpu, "ntree nodes", nodes, 8, node_window, NODE_WINDOWS)?;
+        let ls = bytemuck::cast_slice(&t.linespaces);
+        pools.extend(windows(gpu, "linespaces", ls, 4, ls_window, LS_WINDOWS)?);
+        pools.push(compute::storage(
+            gpu,
+            "tri indices",
+            bytemuck::cast_slice(&t.tri_indices),
+        )?);
+        pools.push(compute::storage(
+            gpu,
+            "triangles",
+            bytemuck::cast_slice(&t.triangles),
+        )?);
+        let inputs = pools.len() as u32 + 1;
         Ok(NTreeGpu {
             gpu,
-            segments: Kernel::new(gpu, "ntree segments", &parts, "segments", 5)?,
-            shadow: Kernel::new(gpu, "ntree shadow", &parts, "shadow", 5)?,
+            segments: Kernel::new(gpu, "ntree segments", &parts, "segments", inputs)?,
+            shadow: Kernel::new(gpu, "ntree shadow", &parts, "shadow", inputs)?,
             pools,
             base: Params {
                 origin: t.origin,
@@ -79,8 +135,16 @@ impl<'g> NTreeGpu<'g> {
                 seg_t_max: 1.0,
                 samples: 0,
                 flags: 0,
+                node_window: node_window as u32,
+                ls_window: ls_window as u32,
+                pad: [0; 2],
             },
         })
+    }
+
+    /// The pools and then `extra` as the kernel's inputs.
+    fn inputs<'a>(&'a self, extra: &'a wgpu::Buffer) -> Vec<&'a wgpu::Buffer> {
+        self.pools.iter().chain([extra]).collect()
     }
 
     fn run(&self, kernel: &Kernel, params: Params, queries: &[[f32; 4]]) -> Result<Vec<u32>> {
@@ -91,8 +155,7 @@ impl<'g> NTreeGpu<'g> {
         let input = compute::storage(g, "ntree queries", bytemuck::cast_slice(queries))?;
         let bytes = 4 * params.count as u64;
         let out = compute::output(g, "ntree results", bytes);
-        let [a, b, c, d] = &self.pools;
-        let raw = kernel.run(g, &uniform, &[a, b, c, d, &input], &out, grid, bytes)?;
+        let raw = kernel.run(g, &uniform, &self.inputs(&input), &out, grid, bytes)?;
         Ok(bytemuck::cast_slice(&raw).to_vec())
     }
 
@@ -178,9 +241,8 @@ impl<'g> NTreeGpu<'g> {
         g.queue
             .write_buffer(queries, 16 * count as u64, bytemuck::cast_slice(&q));
         let uniform = compute::uniform(g, "ntree params", bytemuck::bytes_of(&params));
-        let [a, b, c, d] = &self.pools;
         self.shadow
-            .record(g, enc, &uniform, &[a, b, c, d, queries], out, grid)
+            .record(g, enc, &uniform, &self.inputs(queries), out, grid)
     }
 
     /// Receivers then light samples (computed on the CPU, so both sides use the same points).
@@ -406,6 +468,49 @@ mod tests {
             );
             assert!(a.penumbra > 10, "n {n} depth {depth}: {a:?}");
         }
+    }
+
+    #[test]
+    fn pools_split_over_several_windows_give_the_cpu_answers() {
+        let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
+        let tris = scene(5, 300);
+        let t = build_ntree(
+            &tris,
+            &NTreeOptions { n: 4, depth: 3 },
+            &ChildMasks::build(4),
+        )
+        .unwrap();
+        let (node_bytes, ls_bytes) = (t.nodes.len() * 8, t.linespaces.len() * 4);
+        // Windows small enough that both pools span several of them.
+        let window = (node_bytes / 3).max(ls_bytes / 7).next_multiple_of(8);
+        assert!(node_bytes.div_ceil(window) >= 2 && ls_bytes.div_ceil(window) >= 2);
+        let light = light_above(&t, 4);
+        let segs: Vec<Segment> = random_receivers(&t, 300, 2)
+            .iter()
+            .flat_map(|&p| (0..16).map(move |i| Segment::between(p, light.sample(i), 1e-3)))
+            .collect();
+        let split = NTreeGpu::with_window_bytes(&gpu, &t, window).unwrap();
+        let whole = NTreeGpu::new(&gpu, &t).unwrap();
+        for linespaces in [true, false] {
+            let cpu: Vec<bool> = segs
+                .iter()
+                .map(|s| {
+                    let mut st = QueryStats::default();
+                    if linespaces {
+                        t.segment_occluded(s, &mut st)
+                    } else {
+                        t.segment_occluded_exact(s, &mut st)
+                    }
+                })
+                .collect();
+            assert_eq!(split.segments_occluded(&segs, linespaces).unwrap(), cpu);
+            assert_eq!(whole.segments_occluded(&segs, linespaces).unwrap(), cpu);
+            let blocked = cpu.iter().filter(|&&b| b).count();
+            assert!(blocked > 100 && blocked < segs.len() - 100, "{blocked}");
+        }
+        // Pools larger than the shader's windows: an error saying so, not a wrong answer.
+        let err = NTreeGpu::with_window_bytes(&gpu, &t, 64).err().unwrap();
+        assert!(err.to_string().contains("storage bindings"), "{err}");
     }
 
     #[test]

@@ -23,6 +23,11 @@ struct Params {
     seg_t_max: f32,
     samples: u32,
     flags: u32,
+    // Node entries per node-pool window, words per line-space window.
+    node_window: u32,
+    ls_window: u32,
+    pad0: u32,
+    pad1: u32,
 }
 
 struct Seg {
@@ -33,16 +38,27 @@ struct Seg {
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
-// `nodes`: u32×2 node pool.
-@group(0) @binding(1) var<storage, read> nodes: array<vec2<u32>>;
-@group(0) @binding(2) var<storage, read> linespaces: array<u32>;
-@group(0) @binding(3) var<storage, read> tri_indices: array<u32>;
+// `nodes`: u32×2 node pool, in windows of params.node_window entries (a binding holds at most
+// max_storage_buffer_binding_size bytes); `linespaces` in windows of params.ls_window words.
+@group(0) @binding(1) var<storage, read> nodes0: array<vec2<u32>>;
+@group(0) @binding(2) var<storage, read> nodes1: array<vec2<u32>>;
+@group(0) @binding(3) var<storage, read> nodes2: array<vec2<u32>>;
+@group(0) @binding(4) var<storage, read> nodes3: array<vec2<u32>>;
+@group(0) @binding(5) var<storage, read> ls0: array<u32>;
+@group(0) @binding(6) var<storage, read> ls1: array<u32>;
+@group(0) @binding(7) var<storage, read> ls2: array<u32>;
+@group(0) @binding(8) var<storage, read> ls3: array<u32>;
+@group(0) @binding(9) var<storage, read> ls4: array<u32>;
+@group(0) @binding(10) var<storage, read> ls5: array<u32>;
+@group(0) @binding(11) var<storage, read> ls6: array<u32>;
+@group(0) @binding(12) var<storage, read> ls7: array<u32>;
+@group(0) @binding(13) var<storage, read> tri_indices: array<u32>;
 // `triangles`: f32×9, world space.
-@group(0) @binding(4) var<storage, read> triangles: array<f32>;
+@group(0) @binding(14) var<storage, read> triangles: array<f32>;
 // `segments`: Seg per invocation; `shadow`: vec4 per receiver (w < 0.5: none, fully lit)
 // followed by vec4 per light sample.
-@group(0) @binding(5) var<storage, read> queries: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read_write> results: array<u32>;
+@group(0) @binding(15) var<storage, read> queries: array<vec4<f32>>;
+@group(0) @binding(16) var<storage, read_write> results: array<u32>;
 
 const MAX_DEPTH: u32 = 12u;
 const FLAG_FRACTION: u32 = 1u;
@@ -87,12 +103,36 @@ fn hits_triangle(s: Seg, t: u32) -> bool {
     return th >= s.t_min && th <= s.t_max;
 }
 
+fn node_at(i: u32) -> vec2<u32> {
+    let j = i % params.node_window;
+    switch (i / params.node_window) {
+        case 0u: { return nodes0[j]; }
+        case 1u: { return nodes1[j]; }
+        case 2u: { return nodes2[j]; }
+        default: { return nodes3[j]; }
+    }
+}
+
+fn ls_word(i: u32) -> u32 {
+    let j = i % params.ls_window;
+    switch (i / params.ls_window) {
+        case 0u: { return ls0[j]; }
+        case 1u: { return ls1[j]; }
+        case 2u: { return ls2[j]; }
+        case 3u: { return ls3[j]; }
+        case 4u: { return ls4[j]; }
+        case 5u: { return ls5[j]; }
+        case 6u: { return ls6[j]; }
+        default: { return ls7[j]; }
+    }
+}
+
 fn node_entry(group: u32, slot: u32) -> vec2<u32> {
-    return nodes[1u + group * params.n * params.n * params.n + slot];
+    return node_at(1u + group * params.n * params.n * params.n + slot);
 }
 
 fn ls_bit(group: u32, b: u32) -> bool {
-    let w = linespaces[group * params.words + (b >> 5u)];
+    let w = ls_word(group * params.words + (b >> 5u));
     return ((w >> (b & 31u)) & 1u) == 1u;
 }
 
