@@ -571,6 +571,15 @@ fn without_a_light_map_surfaces_take_the_sky_irradiance() {
     }
 }
 
+/// A 2×2 light map: total irradiance 100 + k and indirect (k + 1, 2(k + 1), 0.5) at texel k.
+fn texels_2x2() -> (Vec<[f32; 4]>, Vec<[f32; 4]>) {
+    let total = (0..4).map(|k| [100.0 + k as f32; 4]).collect();
+    let indirect = (0..4)
+        .map(|k| [k as f32 + 1.0, 2.0 * (k as f32 + 1.0), 0.5, 1.0])
+        .collect();
+    (total, indirect)
+}
+
 /// The quad pack plus a 2×2 light map for its mesh: total irradiance 100 + k, indirect k + 1 per
 /// texel k (row-major), light-map UVs at the texel centres (vertices 0–3 on texels 0, 1, 3, 2).
 pub(super) fn quad_lightmap_pack() -> Pack {
@@ -583,10 +592,7 @@ pub(super) fn quad_lightmap_pack() -> Pack {
         samples: 1,
         sun_samples: 1,
     };
-    let total: Vec<[f32; 4]> = (0..4).map(|k| [100.0 + k as f32; 4]).collect();
-    let indirect: Vec<[f32; 4]> = (0..4)
-        .map(|k| [k as f32 + 1.0, 2.0 * (k as f32 + 1.0), 0.5, 1.0])
-        .collect();
+    let (total, indirect) = texels_2x2();
     let uvs: Vec<[f32; 2]> = vec![[0.25, 0.25], [0.75, 0.25], [0.75, 0.75], [0.25, 0.75]];
     let mut b = SectionBuilder::new(crate::lightmap::section::KIND, "lightmap:quad.obj");
     b.meta(&meta)
@@ -681,10 +687,7 @@ fn split_atlas_pack() -> (Pack, Pack) {
         texels_covered: 4,
         gutter_texels: 0,
     };
-    let total: Vec<[f32; 4]> = (0..4).map(|k| [100.0 + k as f32; 4]).collect();
-    let indirect: Vec<[f32; 4]> = (0..4)
-        .map(|k| [k as f32 + 1.0, 2.0 * (k as f32 + 1.0), 0.5, 1.0])
-        .collect();
+    let (total, indirect) = texels_2x2();
     let centre = |k: usize| [0.25 + 0.5 * (k % 2) as f32, 0.25 + 0.5 * (k / 2) as f32];
     let atlas_uv: Vec<[f32; 2]> = [0, 1, 3, 2, 1, 0].map(centre).to_vec();
     let mut b = SectionBuilder::new(crate::lightmap::section::KIND, "lightmap:mesh:quad.obj");
