@@ -50,7 +50,7 @@ pub struct ClusterArgs {
 }
 
 pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
-    let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
+    let (w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let pack = Pack::open(&args.input)?;
     let opts = ClusterOptions {
         error: args.error,
@@ -62,11 +62,7 @@ pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
     let start = std::time::Instant::now();
     let (sections, c) = crate::envmap::cluster_sections(&pack, &opts, args.weights)?;
     let seconds = start.elapsed().as_secs_f64();
-    for s in sections {
-        w.insert(s);
-    }
-    let bytes = w.to_bytes()?;
-    crate::pack::write_atomic(&output, &bytes)?;
+    let bytes = super::write_pack(w, sections, &output)?;
     let out = Pack::from_bytes(&bytes, "out")?;
     let mut doc = section::clusters_summary(&out.view_named("clusters")?)
         .map_err(|e| Error::invalid(&output, e))?;

@@ -25,7 +25,7 @@ pub struct MaterialArgs {
 }
 
 pub fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
-    let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
+    let (w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let opts = MaterialOptions {
         transfer: args.transfer,
         preserve_coverage: !args.no_coverage,
@@ -34,11 +34,7 @@ pub fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
     let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
     let (sections, report) = bake_materials(&pack, &opts)?;
     bar.finish_and_clear();
-    for s in sections {
-        w.insert(s);
-    }
-    let bytes = w.to_bytes()?;
-    crate::pack::write_atomic(&output, &bytes)?;
+    let bytes = super::write_pack(w, sections, &output)?;
     let text = format!(
         "{}: {} materials ({} leaf defaults), {} textures, {} meshes with tangents ({} vertices split)\n",
         output.display(),

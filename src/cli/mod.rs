@@ -88,6 +88,22 @@ pub fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
     <[f32; 3]>::try_from(v).map_err(|_| format!("{s:?} is not x,y,z"))
 }
 
+/// The end of a stage command: adds `sections` to `w` (replacing sections of the same name) and
+/// writes the pack to `output` atomically (the previous file survives a failure); returns the
+/// bytes written.
+pub fn write_pack(
+    mut w: crate::pack::PackWriter,
+    sections: impl IntoIterator<Item = crate::pack::Section>,
+    output: &std::path::Path,
+) -> crate::error::Result<Vec<u8>> {
+    for s in sections {
+        w.insert(s);
+    }
+    let bytes = w.to_bytes()?;
+    crate::pack::write_atomic(output, &bytes)?;
+    Ok(bytes)
+}
+
 /// The starting point of a stage command: an existing pack (kept whole, output defaults to the
 /// pack itself) or any input file ingested first (output defaults to `<stem>.bake`).
 pub fn open_or_ingest(

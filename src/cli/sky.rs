@@ -105,16 +105,12 @@ pub fn run(args: &SkyArgs, g: &Global) -> Result<Outcome> {
             Some(p) => p.with_extension("bake"),
             None => PathBuf::from("sky.bake"),
         });
-    let mut w = if output.exists() {
+    let w = if output.exists() {
         PackWriter::from_pack(&Pack::open(&output)?)
     } else {
         PackWriter::new()
     };
-    for s in sky::sky_sections(&bake, &source_name) {
-        w.insert(s);
-    }
-    let bytes = w.to_bytes()?;
-    crate::pack::write_atomic(&output, &bytes)?;
+    let bytes = super::write_pack(w, sky::sky_sections(&bake, &source_name), &output)?;
     let mut json = report_json(&bake);
     json["output"] = json!(output);
     json["bytes"] = json!(bytes.len());

@@ -45,7 +45,7 @@ fn open(args: &TerrainArgs) -> Result<(PackWriter, PathBuf)> {
 }
 
 pub fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
-    let (mut w, output) = open(args)?;
+    let (w, output) = open(args)?;
     let bar = g.progress(1, "terrain");
     let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
     let (sections, report) = crate::terrain::bake_terrain(&pack)?;
@@ -58,11 +58,7 @@ pub fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
     } else {
         Vec::new()
     };
-    for s in sections {
-        w.insert(s);
-    }
-    let bytes = w.to_bytes()?;
-    crate::pack::write_atomic(&output, &bytes)?;
+    let bytes = super::write_pack(w, sections, &output)?;
     let text = format!(
         "{}: {} terrain(s), {} samples, quadtree levels {:?}\n",
         output.display(),
