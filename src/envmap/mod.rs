@@ -53,7 +53,7 @@ pub fn instance_weights(
     let tree = kdtree::KdTree::build(&pts);
     let (k, n) = (c.k.max(1), positions.len());
     // Computed in Morton order (neighbouring instances share neighbour sets, and the solver
-    // keeps the last factorization), then put back in instance order.
+    // keeps the factorizations of the last few), then put back in instance order.
     let order = kdtree::morton_order(positions);
     // Zeroed by writing on this thread (see `apply_weights`).
     let (mut nb_z, mut w_z) = (Vec::with_capacity(n * k), Vec::with_capacity(n * k));
