@@ -44,12 +44,11 @@ pub fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
         report.meshes,
         report.split_vertices
     );
-    let mut json = serde_json::to_value(&report).unwrap_or_default();
-    json["output"] = serde_json::json!(output);
-    json["bytes"] = serde_json::json!(bytes.len());
-    Ok(Outcome {
-        json,
+    Ok(Outcome::written(
+        &report,
+        &output,
+        bytes.len(),
         text,
-        warnings: report.warnings,
-    })
+        report.warnings.clone(),
+    ))
 }

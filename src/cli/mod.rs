@@ -43,6 +43,26 @@ pub struct Outcome {
     pub warnings: Vec<String>,
 }
 
+impl Outcome {
+    /// The outcome of a stage that wrote a pack: its report as JSON plus `output` and `bytes`.
+    pub fn written(
+        report: &impl serde::Serialize,
+        output: &std::path::Path,
+        bytes: usize,
+        text: String,
+        warnings: Vec<String>,
+    ) -> Outcome {
+        let mut json = serde_json::to_value(report).unwrap_or_default();
+        json["output"] = serde_json::json!(output);
+        json["bytes"] = serde_json::json!(bytes);
+        Outcome {
+            json,
+            text,
+            warnings,
+        }
+    }
+}
+
 impl Global {
     /// A progress bar on stderr, hidden with `--quiet`.
     pub fn progress(&self, len: u64, message: &str) -> indicatif::ProgressBar {

@@ -66,12 +66,11 @@ pub fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
         report.samples,
         report.quadtree_levels
     );
-    let mut json = serde_json::to_value(&report).unwrap_or_default();
-    json["output"] = serde_json::json!(output);
-    json["bytes"] = serde_json::json!(bytes.len());
-    Ok(Outcome {
-        json,
+    Ok(Outcome::written(
+        &report,
+        &output,
+        bytes.len(),
         text,
         warnings,
-    })
+    ))
 }
