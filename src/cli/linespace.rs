@@ -193,20 +193,8 @@ fn bench_setup(a: &LinespaceBenchArgs, warnings: &mut Vec<String>) -> Result<Ben
         (masks, tree)
     });
     let tree = tree?;
-    let (lo, size) = (
-        tree.origin,
-        tree.leaf_size.map(|s| s * tree.n.pow(tree.depth) as f32),
-    );
-    let light = AreaLight {
-        corner: [
-            lo[0] + 0.3 * size[0],
-            lo[1] + 0.3 * size[1],
-            lo[2] + 2.0 * size[2],
-        ],
-        edge_u: [0.4 * size[0], 0.0, 0.0],
-        edge_v: [0.0, 0.4 * size[1], 0.0],
-        samples: a.samples.max(1),
-    };
+    let (_, size) = crate::linespace::gpu::root_box(&tree);
+    let light = crate::linespace::gpu::light_above(&tree, a.samples.max(1));
     let offset = 1e-4 * size.iter().cloned().fold(0.0, f32::max);
     let receivers = receivers(&tris, a.receivers);
     Ok(BenchSetup {

@@ -129,26 +129,10 @@ impl LightTexture {
     /// Bilinear lookup at texture coordinates (u, v) ∈ [0, 1]² (v = 0 at row 0), texel centres at
     /// (i + ½)/W, clamped to the edge; the same arithmetic as `lightmap_bilinear` in the shader.
     pub fn sample(&self, u: f32, v: f32) -> [f32; 3] {
-        let (w, h) = (self.width as i32, self.height as i32);
-        let fx = u * w as f32 - 0.5;
-        let fy = v * h as f32 - 0.5;
-        let (x0, y0) = (fx.floor(), fy.floor());
-        let (ax, ay) = (fx - x0, fy - y0);
-        let at = |x: i32, y: i32| {
+        let (w, h) = (self.width as i64, self.height as i64);
+        super::reference::bilinear_with((self.width, self.height), [u, v], |x, y| {
             let t = self.texels[(y.clamp(0, h - 1) * w + x.clamp(0, w - 1)) as usize];
             [t[0], t[1], t[2]]
-        };
-        let (x0, y0) = (x0 as i32, y0 as i32);
-        let (a, b, c, d) = (
-            at(x0, y0),
-            at(x0 + 1, y0),
-            at(x0, y0 + 1),
-            at(x0 + 1, y0 + 1),
-        );
-        std::array::from_fn(|k| {
-            let top = a[k] + (b[k] - a[k]) * ax;
-            let bottom = c[k] + (d[k] - c[k]) * ax;
-            top + (bottom - top) * ay
         })
     }
 }

@@ -274,8 +274,14 @@ fn shadow_pass(
         pass.draw(0..t.vertex_count, 0..1);
     }
     pass.set_pipeline(&pipes.mesh_shadow);
+    draw_models(&mut pass, scene);
+}
+
+/// Every draw range of every model, with its material in bind group 1 (passes without the
+/// ambient term's group 3).
+pub(crate) fn draw_models(pass: &mut wgpu::RenderPass, scene: &GpuScene) {
     for m in &scene.models {
-        bind_model(&mut pass, m);
+        bind_model(pass, m);
         for d in &m.draws {
             pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
             pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, 0..m.instance_count);

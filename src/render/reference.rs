@@ -543,10 +543,6 @@ pub fn bilinear(
     decode: fn(&[u8; 4]) -> [f32; 4],
 ) -> [f32; 4] {
     let (w, h) = (img.width as i64, img.height as i64);
-    let x = uv[0] * w as f32 - 0.5;
-    let y = uv[1] * h as f32 - 0.5;
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
     let wrap = |i: i64, n: i64| {
         if repeat {
             i.rem_euclid(n)
@@ -554,7 +550,22 @@ pub fn bilinear(
             i.clamp(0, n - 1)
         }
     };
-    let at = |i: i64, j: i64| decode(&img.texels[(wrap(j, h) * w + wrap(i, w)) as usize]);
+    bilinear_with((img.width, img.height), uv, |i, j| {
+        decode(&img.texels[(wrap(j, h) * w + wrap(i, w)) as usize])
+    })
+}
+
+/// Bilinear filtering at `uv` of a `size` texture whose texel (i, j) `at` returns (any integer
+/// i, j: `at` wraps or clamps), texel centres at (i + ½)/W, lerped in x then y as the shaders do.
+pub fn bilinear_with<const N: usize>(
+    size: (u32, u32),
+    uv: [f32; 2],
+    at: impl Fn(i64, i64) -> [f32; N],
+) -> [f32; N] {
+    let x = uv[0] * size.0 as f32 - 0.5;
+    let y = uv[1] * size.1 as f32 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
     let (x0, y0) = (x0 as i64, y0 as i64);
     let (a, b, c, d) = (
         at(x0, y0),
@@ -562,7 +573,7 @@ pub fn bilinear(
         at(x0, y0 + 1),
         at(x0 + 1, y0 + 1),
     );
-    [0, 1, 2, 3].map(|k| {
+    std::array::from_fn(|k| {
         let top = a[k] + (b[k] - a[k]) * fx;
         let bottom = c[k] + (d[k] - c[k]) * fx;
         top + (bottom - top) * fy
@@ -579,20 +590,10 @@ pub fn sky_radiance(scene: &SceneData, d: Vec3) -> [f32; 3] {
     if phi < 0.0 {
         phi += 2.0 * PI;
     }
-    let x = phi / (2.0 * PI) * w as f32 - 0.5;
-    let y = theta / PI * h as f32 - 0.5;
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let i0 = (x0 as i64).rem_euclid(w);
-    let i1 = (i0 + 1) % w;
-    let j0 = (y0 as i64).clamp(0, h - 1);
-    let j1 = (y0 as i64 + 1).clamp(0, h - 1);
-    let at = |i: i64, j: i64| sky.texels[(j * w + i) as usize];
-    let (a, b, c, e) = (at(i0, j0), at(i1, j0), at(i0, j1), at(i1, j1));
-    [0, 1, 2].map(|k| {
-        let top = a[k] + (b[k] - a[k]) * fx;
-        let bottom = c[k] + (e[k] - c[k]) * fx;
-        top + (bottom - top) * fy
+    let uv = [phi / (2.0 * PI), theta / PI];
+    bilinear_with((sky.width, sky.height), uv, |i, j| {
+        let t = sky.texels[(j.clamp(0, h - 1) * w + i.rem_euclid(w)) as usize];
+        [t[0], t[1], t[2]]
     })
 }
 

@@ -322,18 +322,7 @@ fn world_pass(
         pass.draw(0..t.vertex_count, 0..1);
     }
     pass.set_pipeline(&wp.mesh);
-    for m in &scene.models {
-        pass.set_vertex_buffer(0, m.positions.slice(..));
-        pass.set_vertex_buffer(1, m.normals.slice(..));
-        pass.set_vertex_buffer(2, m.uvs.slice(..));
-        pass.set_vertex_buffer(3, m.instances.slice(..));
-        pass.set_vertex_buffer(4, m.tangents.slice(..));
-        pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
-        for d in &m.draws {
-            pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
-            pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, 0..m.instance_count);
-        }
-    }
+    super::draw::draw_models(&mut pass, scene);
 }
 
 /// The soft-shadow visibility of every pixel of the view in `globals`.
