@@ -3,14 +3,13 @@
 use bake::envmap::bake::{EnvmapOptions, EnvmapScene, bake_envmaps};
 use bake::lightmap::{Lighting, LightmapMode, LightmapOptions, SUN_RADIUS, texel_irradiance};
 use bake::model::{Material, Mesh, Terrain};
-use bake::rt::{BuildPreset, InstanceTransform, ModelBvh, SceneBvh};
+use bake::rt::{InstanceTransform, SceneBvh};
 use bake::sh::ShRadiance;
 use glam::Vec3A;
 use std::f32::consts::PI;
-use std::sync::Arc;
 
 mod common;
-use common::lens_area;
+use common::{lens_area, linear_sky, place, scene_bvh};
 
 fn mesh(positions: Vec<[f32; 3]>, indices: Vec<[u32; 3]>) -> Mesh {
     let n = positions.len();
@@ -38,29 +37,12 @@ fn disc(r: f32, segments: u32) -> Mesh {
     mesh(p, idx)
 }
 
-/// Sky radiance a + b·z as SH: L00 = a·√(4π), L_{1,0} = b·√(4π/3).
-fn linear_sky(a: f32, b: f32) -> ShRadiance {
-    let mut s = ShRadiance::default();
-    s.coeffs[0] = [a * (4.0 * PI).sqrt(); 3];
-    s.coeffs[2] = [b * (4.0 * PI / 3.0).sqrt(); 3];
-    s
-}
-
 fn scene(models: Vec<Mesh>, inst: Vec<InstanceTransform>) -> SceneBvh {
-    let bvhs = models
-        .iter()
-        .map(|m| Arc::new(ModelBvh::build(m, &[], BuildPreset::Medium).unwrap()))
-        .collect();
-    SceneBvh::build(bvhs, inst).unwrap()
+    scene_bvh(&models.iter().collect::<Vec<_>>(), inst)
 }
 
 fn at(model: u32, t: [f32; 3]) -> InstanceTransform {
-    InstanceTransform {
-        model,
-        translation: t,
-        scale: 1.0,
-        rotation_deg: 0.0,
-    }
+    place(model, t, 0.0)
 }
 
 #[test]

@@ -6,14 +6,13 @@ use bake::lightmap::atlas::{AtlasOptions, rasterize};
 use bake::lightmap::objects::{AtlasLightmap, PlacedMesh, bake_object_lightmap};
 use bake::lightmap::{Lighting, LightmapMode, LightmapOptions, SUN_RADIUS};
 use bake::model::{Material, Mesh};
-use bake::rt::{BuildPreset, InstanceTransform, ModelBvh, SceneBvh};
+use bake::rt::InstanceTransform;
 use bake::sh::ShRadiance;
 use glam::Vec3A;
 use std::f32::consts::PI;
-use std::sync::Arc;
 
 mod common;
-use common::lens_area;
+use common::{lens_area, linear_sky, place, scene_bvh as scene};
 
 fn finish(mut m: Mesh) -> Mesh {
     m.uvs = vec![[0.0; 2]; m.positions.len()];
@@ -108,31 +107,6 @@ fn sphere(nu: u32, nv: u32) -> Mesh {
         }
     }
     finish(m)
-}
-
-fn scene(models: &[&Mesh], inst: Vec<InstanceTransform>) -> SceneBvh {
-    let bvhs = models
-        .iter()
-        .map(|m| Arc::new(ModelBvh::build(m, &[], BuildPreset::Medium).unwrap()))
-        .collect();
-    SceneBvh::build(bvhs, inst).unwrap()
-}
-
-fn place(model: u32, t: [f32; 3], rotation_deg: f32) -> InstanceTransform {
-    InstanceTransform {
-        model,
-        translation: t,
-        scale: 1.0,
-        rotation_deg,
-    }
-}
-
-/// Sky radiance a + b·z as SH.
-fn linear_sky(a: f32, b: f32) -> ShRadiance {
-    let mut s = ShRadiance::default();
-    s.coeffs[0] = [a * (4.0 * PI).sqrt(); 3];
-    s.coeffs[2] = [b * (4.0 * PI / 3.0).sqrt(); 3];
-    s
 }
 
 /// World position of every covered texel of tile slot `s` (from the G-buffer).

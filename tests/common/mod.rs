@@ -58,3 +58,34 @@ pub fn srgb_encode(l: f32) -> f32 {
         1.055 * l.powf(1.0 / 2.4) - 0.055
     }
 }
+
+/// Sky radiance a + b·z as SH: L00 = a·√(4π), L_{1,0} = b·√(4π/3).
+pub fn linear_sky(a: f32, b: f32) -> bake::sh::ShRadiance {
+    let mut s = bake::sh::ShRadiance::default();
+    s.coeffs[0] = [a * (4.0 * std::f32::consts::PI).sqrt(); 3];
+    s.coeffs[2] = [b * (4.0 * std::f32::consts::PI / 3.0).sqrt(); 3];
+    s
+}
+
+/// A scene BVH of `models` placed by `inst`.
+pub fn scene_bvh(
+    models: &[&bake::model::Mesh],
+    inst: Vec<bake::rt::InstanceTransform>,
+) -> bake::rt::SceneBvh {
+    use bake::rt::{BuildPreset, ModelBvh};
+    let bvhs = models
+        .iter()
+        .map(|m| std::sync::Arc::new(ModelBvh::build(m, &[], BuildPreset::Medium).unwrap()))
+        .collect();
+    bake::rt::SceneBvh::build(bvhs, inst).unwrap()
+}
+
+/// Instance of `model` at `t`, rotated about z by `rotation_deg`, scale 1.
+pub fn place(model: u32, t: [f32; 3], rotation_deg: f32) -> bake::rt::InstanceTransform {
+    bake::rt::InstanceTransform {
+        model,
+        translation: t,
+        scale: 1.0,
+        rotation_deg,
+    }
+}
