@@ -13,7 +13,7 @@ use glam::Vec3;
 use std::f32::consts::PI;
 
 mod common;
-use common::{srgb_decode, srgb_encode};
+use common::{bake, json, srgb_decode, srgb_encode};
 
 /// Bounds of the GPU–CPU comparison of the fixture view (8-bit steps). Measured on llvmpipe:
 /// mean absolute difference 2.2, 3.1 % of pixels over 24 (direct term alone). The differences
@@ -375,24 +375,27 @@ fn the_cli_writes_the_reference_and_reports_the_difference() {
     let bytes = PackWriter::from_pack(&pack).to_bytes().unwrap();
     std::fs::write(&pack_path, bytes).unwrap();
     let (gpu, cpu) = (dir.path().join("gpu.png"), dir.path().join("cpu.png"));
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_bake"))
-        .args(["--json", "render", "--width", "64", "--height", "48"])
-        .args([
-            "--eye", "0,-30,12", "--target", "0,0,2", "--terms", "direct",
-        ])
-        .arg(&pack_path)
-        .arg("-o")
-        .arg(&gpu)
-        .arg("--reference")
-        .arg(&cpu)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let (pack_arg, gpu_arg, cpu_arg) = (path(&pack_path), path(&gpu), path(&cpu));
+    let doc = json(&bake(&[
+        "--json",
+        "render",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--eye",
+        "0,-30,12",
+        "--target",
+        "0,0,2",
+        "--terms",
+        "direct",
+        &pack_arg,
+        "-o",
+        &gpu_arg,
+        "--reference",
+        &cpu_arg,
+    ]));
     let r = &doc["reference"];
     assert!(r["mad"].as_f64().unwrap() < 1.0, "{doc}");
     assert_eq!(r["threshold"], 24);
