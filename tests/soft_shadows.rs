@@ -6,7 +6,7 @@
 
 use bake::linespace::ntree::{NTreeOptions, build_ntree};
 use bake::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
-use bake::linespace::shaft::ChildMasks;
+use bake::linespace::shaft::ShaftCells;
 use bake::model::{Instance, Instances, Material, Mesh, Terrain};
 use bake::pack::kinds::{self, instances, mesh, terrain};
 use bake::pack::{Pack, PackWriter};
@@ -65,7 +65,7 @@ fn build_pack() -> Pack {
     let tris = bake::cli::linespace::world_triangles(&geo.mesh);
     assert!(tris.len() >= 4, "terrain and plate triangles");
     let opts = NTreeOptions { n: 4, depth: 3 };
-    let tree = build_ntree(&tris, &opts, &ChildMasks::build(4)).unwrap();
+    let tree = build_ntree(&tris, &opts, &std::sync::Arc::new(ShaftCells::build(4))).unwrap();
     w.insert(bake::linespace::section::to_section(
         "linespace",
         "test",
@@ -99,6 +99,7 @@ fn options(soft: bool) -> RenderOptions {
         soft_shadows: soft.then_some(SoftShadows {
             area_light: Some(light()),
             samples: 4,
+            refine: Default::default(),
         }),
         ..RenderOptions::default()
     }

@@ -47,6 +47,10 @@ pub struct RenderArgs {
     /// Light samples per side of the soft shadows (samples² shadow segments per pixel).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub shadow_samples: u32,
+    /// Deepest-level refinement of the soft shadows' line-space query (shaft: the thesis;
+    /// cells: leaf cells on the segment; exact: their triangles).
+    #[arg(long, value_enum, default_value_t = crate::linespace::ntree::Refine::default())]
+    pub shadow_refine: crate::linespace::ntree::Refine,
     /// Light terms to draw: all (direct sun + ambient), direct or ambient alone.
     #[arg(long, value_enum, default_value_t = Terms::All)]
     pub terms: Terms,
@@ -86,6 +90,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
             .then_some(crate::render::soft_shadow::SoftShadows {
                 area_light: args.area_light,
                 samples: args.shadow_samples,
+                refine: args.shadow_refine,
             }),
         terms: args.terms,
     };

@@ -169,6 +169,7 @@ impl ChildMasks {
 /// [`super::ntree::NTree::occupancy`]). A node's line-space bit b is then
 /// `occupancy(node) & cells(b) ≠ 0`, bit for bit the OR of its filled children's masks: one table
 /// per n (19.2 MB at n = 10) answers every node's line space, instead of 18,752 B per node.
+/// This is the form the `linespace` section stores (array `shaft_cells`) and the GPU reads.
 #[derive(Clone, PartialEq)]
 pub struct ShaftCells {
     pub layout: Layout,
@@ -209,6 +210,42 @@ impl ShaftCells {
             words,
             cells,
         }
+    }
+
+    /// Builds the table directly: each shaft walks only the cells of its bounding box (the same
+    /// cells as [`ChildMasks::build`], transposed; test `shaft_table_equals_the_transposed_child_masks`).
+    pub fn build(n: u32) -> ShaftCells {
+        let layout = Layout::new(n);
+        let pp = layout.patches() as u32;
+        let n3 = (n * n * n) as usize;
+        let words = n3.div_ceil(64);
+        let mut cells = vec![0u64; layout.bits() as usize * words];
+        // Bit b = pair·n⁴ + pa·n² + pb (fa < fb), so chunk b of `cells` is shaft b.
+        let pairs: Vec<(usize, usize)> = (0..FACES)
+            .flat_map(|fa| (fa + 1..FACES).map(move |fb| (fa, fb)))
+            .collect();
+        cells
+            .par_chunks_mut(words)
+            .enumerate()
+            .for_each(|(b, out)| {
+                let b = b as u64;
+                let pp2 = pp as u64 * pp as u64;
+                let (fa, fb) = pairs[(b / pp2) as usize];
+                let (pa, pb) = ((b % pp2 / pp as u64) as u32, (b % pp as u64) as u32);
+                for c in cells_of_shaft(n, &patch_box(n, fa, pa), &patch_box(n, fb, pb)) {
+                    out[c as usize / 64] |= 1 << (c % 64);
+                }
+            });
+        ShaftCells {
+            layout,
+            words,
+            cells,
+        }
+    }
+
+    /// Bytes of the table.
+    pub fn bytes(&self) -> usize {
+        8 * self.cells.len()
     }
 
     /// Whether shaft `bit` meets a cell set in `occupancy` (`words` u64).

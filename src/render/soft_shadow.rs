@@ -16,7 +16,7 @@ use super::pipelines::{DEPTH_FORMAT, Pipelines};
 use super::upload::GpuScene;
 use crate::error::{Error, Result};
 use crate::linespace::gpu::NTreeGpu;
-use crate::linespace::ntree::NTree;
+use crate::linespace::ntree::{NTree, Refine};
 use crate::linespace::query::AreaLight;
 use crate::pack::Pack;
 use crate::pack::kinds::instances::InstanceRecord;
@@ -47,6 +47,8 @@ pub struct SoftShadows {
     pub area_light: Option<AreaLight>,
     /// Light samples per side (samples² segments per pixel).
     pub samples: u32,
+    /// Deepest-level refinement of the line-space query.
+    pub refine: Refine,
 }
 
 impl Default for SoftShadows {
@@ -54,6 +56,7 @@ impl Default for SoftShadows {
         SoftShadows {
             area_light: None,
             samples: 4,
+            refine: Refine::default(),
         }
     }
 }
@@ -449,7 +452,8 @@ pub fn for_render(
     lighting: &super::Lighting,
     opts: &SoftShadows,
 ) -> Result<Visibility> {
-    let tree = load_tree(pack)?;
+    let mut tree = load_tree(pack)?;
+    tree.refine = opts.refine;
     let samples = opts.samples.clamp(1, 64);
     let light = match opts.area_light {
         Some(l) => AreaLight { samples, ..l },
