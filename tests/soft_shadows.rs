@@ -64,7 +64,11 @@ fn build_pack() -> Pack {
     let geo = bake::voxel::geometry::pack_geometry(&first).unwrap();
     let tris = bake::cli::linespace::world_triangles(&geo.mesh);
     assert!(tris.len() >= 4, "terrain and plate triangles");
-    let opts = NTreeOptions { n: 4, depth: 3 };
+    let opts = NTreeOptions {
+        n: 4,
+        depth: 3,
+        cubic_cells: true,
+    };
     let tree = build_ntree(&tris, &opts, &std::sync::Arc::new(ShaftCells::build(4))).unwrap();
     w.insert(bake::linespace::section::to_section(
         "linespace",
@@ -100,6 +104,7 @@ fn options(soft: bool) -> RenderOptions {
             area_light: Some(light()),
             samples: 4,
             refine: Default::default(),
+            compare_exact: false,
         }),
         ..RenderOptions::default()
     }

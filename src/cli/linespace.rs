@@ -28,6 +28,10 @@ pub struct LinespaceArgs {
     /// Levels below the root.
     #[arg(long, default_value_t = 3)]
     pub depth: u32,
+    /// Split each axis of the scene's bounds n^depth times (flat cells for a flat scene)
+    /// instead of a cube of its longest extent.
+    #[arg(long)]
+    pub flat_cells: bool,
 }
 
 /// World-space triangles of a mesh.
@@ -52,6 +56,7 @@ pub fn run(args: &LinespaceArgs, _g: &Global) -> Result<Outcome> {
     let opts = NTreeOptions {
         n: args.n,
         depth: args.depth,
+        cubic_cells: !args.flat_cells,
     };
     let start = std::time::Instant::now();
     let shafts = Arc::new(ShaftCells::build(opts.n));
@@ -98,6 +103,9 @@ pub struct LinespaceBenchArgs {
     pub n: u32,
     #[arg(long, default_value_t = 3)]
     pub depth: u32,
+    /// Flat cells (see `bake linespace --flat-cells`).
+    #[arg(long)]
+    pub flat_cells: bool,
     /// Receivers (points on the geometry); each sends samples² shadow rays.
     #[arg(long, default_value_t = 20000)]
     pub receivers: u32,
@@ -214,6 +222,7 @@ fn bench_setup(a: &LinespaceBenchArgs, warnings: &mut Vec<String>) -> Result<Ben
     let opts = NTreeOptions {
         n: a.n,
         depth: a.depth,
+        cubic_cells: !a.flat_cells,
     };
     let (tree, build_seconds) =
         timed(|| build_ntree(&tris, &opts, &Arc::new(ShaftCells::build(opts.n))));
@@ -315,6 +324,7 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
         let opts = NTreeOptions {
             n: tree.n,
             depth: tree.depth,
+            cubic_cells: !a.flat_cells,
         };
         let (d, dense_build) = timed(|| build_dense(&tris, &opts, &ChildMasks::build(tree.n)));
         let d = d?;

@@ -51,6 +51,10 @@ pub struct RenderArgs {
     /// cells: leaf cells on the segment; exact: their triangles).
     #[arg(long, value_enum, default_value_t = crate::linespace::ntree::Refine::default())]
     pub shadow_refine: crate::linespace::ntree::Refine,
+    /// Also run the soft shadows as exact ray-traced visibility (same receivers and samples,
+    /// no line spaces) and report both passes' GPU times and their difference.
+    #[arg(long, requires = "soft_shadows")]
+    pub shadow_compare: bool,
     /// Light terms to draw: all (direct sun + ambient), direct or ambient alone.
     #[arg(long, value_enum, default_value_t = Terms::All)]
     pub terms: Terms,
@@ -91,6 +95,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
                 area_light: args.area_light,
                 samples: args.shadow_samples,
                 refine: args.shadow_refine,
+                compare_exact: args.shadow_compare,
             }),
         terms: args.terms,
     };
@@ -115,6 +120,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         "adapter": out.adapter,
         "stats": out.stats,
         "soft_shadows": out.soft_shadows.as_ref().map(|s| s.stats),
+        "soft_shadow_comparison": out.soft_shadows.as_ref().and_then(|s| s.comparison),
     });
     if let Some(path) = &args.reference {
         let r = crate::render::reference::render_reference(&pack, &opts)?;

@@ -199,7 +199,11 @@ mod tests {
         let tris: Vec<[[f32; 3]; 3]> = quad(ground).into_iter().chain(quad(plate)).collect();
         let mut t = build_ntree(
             &tris,
-            &NTreeOptions { n: 4, depth: 2 },
+            &NTreeOptions {
+                n: 4,
+                depth: 2,
+                cubic_cells: true,
+            },
             &Arc::new(ShaftCells::build(4)),
         )
         .unwrap();

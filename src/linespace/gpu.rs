@@ -177,9 +177,22 @@ impl<'g> NTreeGpu<'g> {
         light: &AreaLight,
         offset: f32,
     ) -> Result<Vec<f32>> {
+        self.shadow_fractions_with(receivers, light, offset, true)
+    }
+
+    /// [`Self::shadow_fractions`], or with `linespaces == false` the exact N-tree traversal
+    /// (every filled leaf on the way tested exactly: ray-traced visibility, same segments).
+    pub fn shadow_fractions_with(
+        &self,
+        receivers: &[Receiver],
+        light: &AreaLight,
+        offset: f32,
+        linespaces: bool,
+    ) -> Result<Vec<f32>> {
         let (queries, params) = self.shadow_setup(receivers, light, offset)?;
         let params = Params {
             flags: FLAG_FRACTION,
+            use_linespaces: linespaces as u32,
             ..params
         };
         let raw = self.run(&self.shadow, params, &queries)?;
@@ -434,7 +447,16 @@ mod tests {
         for (n, depth, seed) in [(4, 2, 1), (3, 3, 2), (10, 2, 3), (2, 5, 4)] {
             let tris = scene(seed, 200);
             let shafts = Arc::new(ShaftCells::build(n));
-            let mut t = build_ntree(&tris, &NTreeOptions { n, depth }, &shafts).unwrap();
+            let mut t = build_ntree(
+                &tris,
+                &NTreeOptions {
+                    n,
+                    depth,
+                    cubic_cells: true,
+                },
+                &shafts,
+            )
+            .unwrap();
             t.refine = Refine::Shaft;
             let a = validate_linespace(&gpu, &t, 400, 4, seed).unwrap();
             assert!(a.agrees(), "n {n} depth {depth}: {a:?}");
@@ -451,7 +473,11 @@ mod tests {
     fn gpu_compact_pools_equal_the_cpu_on_the_dense_reference_in_every_refine_mode() {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
         let tris = scene(5, 300);
-        let opts = NTreeOptions { n: 4, depth: 3 };
+        let opts = NTreeOptions {
+            n: 4,
+            depth: 3,
+            cubic_cells: true,
+        };
         let mut t = build_ntree(&tris, &opts, &Arc::new(ShaftCells::build(4))).unwrap();
         // The CPU reads its line-space bits from the thesis' dense pool, built independently.
         let dense = build_dense(&tris, &opts, &ChildMasks::build(4)).unwrap();
@@ -501,7 +527,11 @@ mod tests {
         let tris = scene(9, 100);
         let t = build_ntree(
             &tris,
-            &NTreeOptions { n: 4, depth: 2 },
+            &NTreeOptions {
+                n: 4,
+                depth: 2,
+                cubic_cells: true,
+            },
             &Arc::new(ShaftCells::build(4)),
         )
         .unwrap();

@@ -39,12 +39,20 @@ pub struct NTreeOptions {
     pub n: u32,
     /// Levels below the root (≥ 1); n^depth ≤ 4096 leaf cells per axis.
     pub depth: u32,
+    /// Cubic cells: the root box is a cube of the scene's longest extent (the thesis' N-tree).
+    /// Without, each axis of the scene's bounds is split n^depth times, so a flat scene gets
+    /// flat cells (the fixture's 100 × 100 × 12 m: 10 × 10 × 1.2 cm leaves, 2.5× as many).
+    pub cubic_cells: bool,
 }
 
 impl NTreeOptions {
     /// The thesis' configuration: n = 10, depth 3.
     pub const fn thesis() -> Self {
-        Self { n: 10, depth: 3 }
+        Self {
+            n: 10,
+            depth: 3,
+            cubic_cells: true,
+        }
     }
 }
 
@@ -130,13 +138,15 @@ fn check_options(o: &NTreeOptions) -> Result<()> {
     Ok(())
 }
 
-/// The root box: the triangles' bounds, padded by a thousandth on each side.
-fn root_box(tris: &[[[f32; 3]; 3]]) -> Result<([f32; 3], [f32; 3])> {
+/// The root box: the triangles' bounds (or the cube of their longest extent from the same
+/// minimum corner), padded by a thousandth on each side.
+fn root_box(tris: &[[[f32; 3]; 3]], cubic: bool) -> Result<([f32; 3], [f32; 3])> {
     let pts: Vec<[f32; 3]> = tris.iter().flatten().copied().collect();
     let (lo, hi) = crate::model::bounds_of(&pts)
         .ok_or_else(|| Error::Runtime("no triangles for the N-tree".into()))?;
     let ext = [0, 1, 2].map(|k| (hi[k] - lo[k]).max(1e-6 * (1.0 + lo[k].abs())));
     let longest = ext.iter().cloned().fold(0.0, f32::max);
+    let ext = if cubic { [longest; 3] } else { ext };
     let pad = ext.map(|e| e * 1e-3 + longest * 1e-6);
     Ok((
         [0, 1, 2].map(|k| lo[k] - pad[k]),
@@ -156,7 +166,7 @@ pub(super) struct Cells {
 /// Marks the leaf cells every triangle touches.
 pub(super) fn mark_cells(tris: &[[[f32; 3]; 3]], opts: &NTreeOptions) -> Result<Cells> {
     check_options(opts)?;
-    let (origin, size) = root_box(tris)?;
+    let (origin, size) = root_box(tris, opts.cubic_cells)?;
     let (n, depth) = (opts.n, opts.depth);
     let res = n.pow(depth);
     let leaf_size = size.map(|s| s / res as f32);

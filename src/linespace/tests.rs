@@ -34,14 +34,27 @@ fn frame() -> Vec<[[f32; 3]; 3]> {
 fn build(tris: &[[[f32; 3]; 3]], n: u32, depth: u32) -> NTree {
     build_ntree(
         tris,
-        &NTreeOptions { n, depth },
+        &NTreeOptions {
+            n,
+            depth,
+            cubic_cells: true,
+        },
         &Arc::new(ShaftCells::build(n)),
     )
     .unwrap()
 }
 
 fn dense(tris: &[[[f32; 3]; 3]], n: u32, depth: u32) -> DenseNTree {
-    build_dense(tris, &NTreeOptions { n, depth }, &ChildMasks::build(n)).unwrap()
+    build_dense(
+        tris,
+        &NTreeOptions {
+            n,
+            depth,
+            cubic_cells: true,
+        },
+        &ChildMasks::build(n),
+    )
+    .unwrap()
 }
 
 /// Every inner node: (group, level, world minimum corner, world size).
@@ -431,7 +444,18 @@ fn shaft_table_queries_equal_dense_pool_queries_in_every_refine_mode() {
         assert!(pool.iter().any(|h| *h) && pool.iter().any(|h| !*h));
     }
     let other = Arc::new(ShaftCells::build(3));
-    assert!(build_ntree(&tris, &NTreeOptions { n: 4, depth: 3 }, &other).is_err());
+    assert!(
+        build_ntree(
+            &tris,
+            &NTreeOptions {
+                n: 4,
+                depth: 3,
+                cubic_cells: true
+            },
+            &other
+        )
+        .is_err()
+    );
 }
 
 #[test]
