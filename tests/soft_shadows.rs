@@ -6,7 +6,7 @@
 
 use bake::linespace::ntree::{NTreeOptions, build_ntree};
 use bake::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
-use bake::linespace::shaft::ShaftCells;
+use bake::linespace::shaft::ShaftTable;
 use bake::model::{Instance, Instances, Material, Mesh, Terrain};
 use bake::pack::kinds::{self, instances, mesh, terrain};
 use bake::pack::{Pack, PackWriter};
@@ -69,7 +69,7 @@ fn build_pack() -> Pack {
         depth: 3,
         cubic_cells: true,
     };
-    let tree = build_ntree(&tris, &opts, &std::sync::Arc::new(ShaftCells::build(4))).unwrap();
+    let tree = build_ntree(&tris, &opts, &std::sync::Arc::new(ShaftTable::build(4))).unwrap();
     w.insert(bake::linespace::section::to_section(
         "linespace",
         "test",

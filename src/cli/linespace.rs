@@ -10,7 +10,7 @@ use crate::linespace::dense::build_dense;
 use crate::linespace::ntree::{NTree, NTreeOptions, Refine, build_ntree};
 use crate::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
 use crate::linespace::section;
-use crate::linespace::shaft::{ChildMasks, ShaftCells};
+use crate::linespace::shaft::{ChildMasks, ShaftTable};
 use crate::model::Mesh;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -59,7 +59,7 @@ pub fn run(args: &LinespaceArgs, _g: &Global) -> Result<Outcome> {
         cubic_cells: !args.flat_cells,
     };
     let start = std::time::Instant::now();
-    let shafts = Arc::new(ShaftCells::build(opts.n));
+    let shafts = Arc::new(ShaftTable::build(opts.n));
     let tree = build_ntree(&tris, &opts, &shafts)?;
     let seconds = start.elapsed().as_secs_f64();
     let output = args.output.clone().unwrap_or_else(|| match &pack {
@@ -225,7 +225,7 @@ fn bench_setup(a: &LinespaceBenchArgs, warnings: &mut Vec<String>) -> Result<Ben
         cubic_cells: !a.flat_cells,
     };
     let (tree, build_seconds) =
-        timed(|| build_ntree(&tris, &opts, &Arc::new(ShaftCells::build(opts.n))));
+        timed(|| build_ntree(&tris, &opts, &Arc::new(ShaftTable::build(opts.n))));
     let mut tree = tree?;
     tree.refine = a.refine;
     let (_, size) = crate::linespace::gpu::root_box(&tree);

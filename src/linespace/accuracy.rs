@@ -158,7 +158,7 @@ pub fn compare(v: &Visibilities, light_samples: usize) -> AccuracyReport {
 mod tests {
     use super::*;
     use crate::linespace::ntree::{NTreeOptions, Refine, build_ntree};
-    use crate::linespace::shaft::ShaftCells;
+    use crate::linespace::shaft::ShaftTable;
     use std::sync::Arc;
 
     #[test]
@@ -204,7 +204,7 @@ mod tests {
                 depth: 2,
                 cubic_cells: true,
             },
-            &Arc::new(ShaftCells::build(4)),
+            &Arc::new(ShaftTable::build(4)),
         )
         .unwrap();
         let light = AreaLight {

@@ -51,20 +51,22 @@ pub struct NTreeGpu<'g> {
     gpu: &'g Gpu,
     segments: Kernel,
     shadow: Kernel,
-    /// occupancy, first_child, leaf_tris, tri_indices, triangles, shaft_cells (binding order).
+    /// occupancy, first_child, leaf_tris, tri_indices, triangles, shaft_cells (the section's
+    /// arrays), then the reversed occupancy derived from it (binding order).
     pools: Vec<wgpu::Buffer>,
     base: Params,
 }
 
 impl<'g> NTreeGpu<'g> {
-    /// Uploads the tree's arrays as they are (the bytes of the `linespace` section), one storage
-    /// binding each; a pool larger than the device binds fails with its name and size.
+    /// Uploads the tree's arrays as they are (the bytes of the `linespace` section) and the
+    /// reversed occupancy, one storage binding each; a pool larger than the device binds fails
+    /// with its name and size.
     pub fn new(gpu: &'g Gpu, t: &NTree) -> Result<Self> {
         if t.depth as usize > 12 {
             return Err(Error::runtime("linespace: depth > 12"));
         }
         let parts = [DDA_WGSL, QUERY_WGSL];
-        let arrays: [(&str, &[u8]); 6] = [
+        let arrays: [(&str, &[u8]); 7] = [
             ("linespace occupancy", bytemuck::cast_slice(&t.occupancy)),
             (
                 "linespace first_child",
@@ -79,6 +81,10 @@ impl<'g> NTreeGpu<'g> {
             (
                 "linespace shaft_cells",
                 bytemuck::cast_slice(&t.shafts.cells),
+            ),
+            (
+                "linespace occupancy reversed",
+                bytemuck::cast_slice(&t.occupancy_rev),
             ),
         ];
         let pools = arrays
@@ -423,7 +429,7 @@ mod tests {
     use super::*;
     use crate::linespace::dense::build_dense;
     use crate::linespace::ntree::{NTreeOptions, Refine, build_ntree};
-    use crate::linespace::shaft::{ChildMasks, ShaftCells};
+    use crate::linespace::shaft::{ChildMasks, ShaftTable};
     use crate::render::{BackendChoice, gpu::init_gpu};
     use std::sync::Arc;
 
@@ -446,7 +452,7 @@ mod tests {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
         for (n, depth, seed) in [(4, 2, 1), (3, 3, 2), (10, 2, 3), (2, 5, 4)] {
             let tris = scene(seed, 200);
-            let shafts = Arc::new(ShaftCells::build(n));
+            let shafts = Arc::new(ShaftTable::build(n));
             let mut t = build_ntree(
                 &tris,
                 &NTreeOptions {
@@ -478,7 +484,7 @@ mod tests {
             depth: 3,
             cubic_cells: true,
         };
-        let mut t = build_ntree(&tris, &opts, &Arc::new(ShaftCells::build(4))).unwrap();
+        let mut t = build_ntree(&tris, &opts, &Arc::new(ShaftTable::build(4))).unwrap();
         // The CPU reads its line-space bits from the thesis' dense pool, built independently.
         let dense = build_dense(&tris, &opts, &ChildMasks::build(4)).unwrap();
         let light = light_above(&t, 4);
@@ -532,7 +538,7 @@ mod tests {
                 depth: 2,
                 cubic_cells: true,
             },
-            &Arc::new(ShaftCells::build(4)),
+            &Arc::new(ShaftTable::build(4)),
         )
         .unwrap();
         let light = light_above(&t, 3);

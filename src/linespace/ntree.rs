@@ -13,7 +13,9 @@
 //!   inner level (depth − 1) it is a leaf, whose triangles are
 //!   `tri_indices[leaf_tris[leaf] .. leaf_tris[leaf + 1]]`.
 //! - Line spaces: bit b of group g is `occupancy(g) & cells(b) ≠ 0`, with cells(b) the child
-//!   cells shaft b meets ([`ShaftCells`], one table per n, stored once per section): the same
+//!   cells shaft b meets ([`ShaftTable`], one table per n, stored once per section; 6 of the 15
+//!   face pairs are read as point reflections of stored ones, against the group's occupancy
+//!   reversed, which is derived at load time): the same
 //!   bits as the thesis' per-node pool (the OR of the filled children's shaft masks), which is
 //!   kept as a reference only ([`super::dense`]).
 //!
@@ -22,7 +24,7 @@
 //! line space.
 //!
 use super::linespace::Layout;
-use super::shaft::ShaftCells;
+use super::shaft::{ShaftTable, reverse_slots};
 use crate::error::{Error, Result};
 use crate::voxel::Grid;
 use crate::voxel::voxelize::TriSetup;
@@ -77,8 +79,11 @@ pub struct NTree {
     pub tri_indices: Vec<u32>,
     /// The triangles, world space.
     pub triangles: Vec<[[f32; 3]; 3]>,
+    /// `occupancy` with each group's slots reversed (bit s = slot n³ − 1 − s): what the
+    /// reflected face pairs of the shaft table are read against. Derived, not stored.
+    pub occupancy_rev: Vec<u64>,
     /// The shared shaft table of this n: line-space bits are `occupancy & cells(shaft)`.
-    pub shafts: Arc<ShaftCells>,
+    pub shafts: Arc<ShaftTable>,
     /// Reference only: when set, queries read line-space bits from this dense per-node pool
     /// ([`super::dense`], `Layout::words()` u32 per group) instead of the shaft table.
     pub dense_linespaces: Option<Arc<Vec<u32>>>,
@@ -195,7 +200,7 @@ pub(super) fn mark_cells(tris: &[[[f32; 3]; 3]], opts: &NTreeOptions) -> Result<
 pub fn build_ntree(
     tris: &[[[f32; 3]; 3]],
     opts: &NTreeOptions,
-    shafts: &Arc<ShaftCells>,
+    shafts: &Arc<ShaftTable>,
 ) -> Result<NTree> {
     if shafts.layout.n != opts.n {
         return Err(Error::Runtime("shaft table built for another n".into()));
@@ -209,6 +214,7 @@ pub fn build_ntree(
         leaf_size: cells.leaf_size,
         level_groups: Vec::new(),
         occupancy: Vec::new(),
+        occupancy_rev: Vec::new(),
         first_child: Vec::new(),
         leaf_tris: Vec::new(),
         tri_indices: cells.pairs.iter().map(|p| p.1).collect(),
@@ -218,6 +224,7 @@ pub fn build_ntree(
         refine: Refine::default(),
     };
     tree.link_groups(&cells.prefixes);
+    tree.fill_reversed();
     tree.leaf_tris = leaf_runs(&cells.prefixes[depth as usize], &cells.pairs);
     Ok(tree)
 }
@@ -316,6 +323,16 @@ impl NTree {
         self.first_child = first;
     }
 
+    /// Derives [`Self::occupancy_rev`] from the occupancy.
+    pub fn fill_reversed(&mut self) {
+        let (w, n3) = (self.occupancy_words(), self.n3());
+        self.occupancy_rev = self
+            .occupancy
+            .chunks(w)
+            .flat_map(|g| reverse_slots(g, n3))
+            .collect();
+    }
+
     /// u64 words of one group's occupancy bits.
     pub fn occupancy_words(&self) -> usize {
         self.n3().div_ceil(64)
@@ -333,7 +350,11 @@ impl NTree {
     #[inline]
     pub fn linespace_bit(&self, g: u32, bit: u64) -> bool {
         match &self.dense_linespaces {
-            None => self.shafts.meets(bit, self.occupancy_of(g)),
+            None => {
+                let w = self.occupancy_words();
+                let rev = &self.occupancy_rev[g as usize * w..(g as usize + 1) * w];
+                self.shafts.meets(bit, self.occupancy_of(g), rev)
+            }
             Some(pool) => {
                 let w = self.layout().words();
                 super::linespace::get(&pool[g as usize * w..(g as usize + 1) * w], bit)

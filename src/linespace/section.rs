@@ -5,7 +5,7 @@
 //! docs/FORMAT.md.
 
 use super::ntree::{NTree, Refine};
-use super::shaft::ShaftCells;
+use super::shaft::ShaftTable;
 use crate::error::ParseError;
 use crate::pack::section::SectionView;
 use crate::pack::{ArrayFormat, Section, SectionBuilder};
@@ -67,15 +67,15 @@ pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseErro
     let layout = super::linespace::Layout::new(meta.n);
     let words = ((meta.n * meta.n * meta.n) as usize).div_ceil(64);
     let cells: Vec<u64> = v.array_vec("shaft_cells")?;
-    if cells.len() as u64 != layout.bits() * words as u64 {
+    let need = ShaftTable::rows(layout) * words as u64;
+    if cells.len() as u64 != need {
         return Err(bad(format!(
-            "shaft_cells holds {} words, n = {} needs {}",
+            "shaft_cells holds {} words, n = {} needs {need}",
             cells.len(),
             meta.n,
-            layout.bits() * words as u64
         )));
     }
-    let t = NTree {
+    let mut t = NTree {
         n: meta.n,
         depth: meta.depth,
         origin: meta.origin,
@@ -86,7 +86,8 @@ pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseErro
         leaf_tris: v.array_vec("leaf_tris")?,
         tri_indices: v.array_vec("tri_indices")?,
         triangles: v.array_vec("triangles")?,
-        shafts: Arc::new(ShaftCells {
+        occupancy_rev: Vec::new(),
+        shafts: Arc::new(ShaftTable {
             layout,
             words,
             cells,
@@ -95,6 +96,7 @@ pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseErro
         refine: Refine::default(),
     };
     validate(&t).map_err(bad)?;
+    t.fill_reversed();
     Ok((meta, t))
 }
 

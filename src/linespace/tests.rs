@@ -5,7 +5,7 @@ use super::dense::{DenseNTree, build_dense};
 use super::linespace::{FACES, Layout, get};
 use super::ntree::{NTree, NTreeOptions, Refine, build_ntree};
 use super::query::{AreaLight, ExactShadow, QueryStats, Segment};
-use super::shaft::{ChildMasks, ShaftCells, patch_box, shaft_meets_cell_sat};
+use super::shaft::{ChildMasks, ShaftCells, ShaftTable, patch_box, shaft_meets_cell_sat};
 use crate::voxel::tests::Rng;
 use crate::voxel::voxelize::tri_box_overlap_reference;
 use std::sync::Arc;
@@ -39,7 +39,7 @@ fn build(tris: &[[[f32; 3]; 3]], n: u32, depth: u32) -> NTree {
             depth,
             cubic_cells: true,
         },
-        &Arc::new(ShaftCells::build(n)),
+        &Arc::new(ShaftTable::build(n)),
     )
     .unwrap()
 }
@@ -443,7 +443,7 @@ fn shaft_table_queries_equal_dense_pool_queries_in_every_refine_mode() {
         assert_eq!(stats, ref_stats);
         assert!(pool.iter().any(|h| *h) && pool.iter().any(|h| !*h));
     }
-    let other = Arc::new(ShaftCells::build(3));
+    let other = Arc::new(ShaftTable::build(3));
     assert!(
         build_ntree(
             &tris,
@@ -490,7 +490,7 @@ fn corrupt_sections_are_rejected_with_a_message() {
     let mut bad_leaf = t.clone();
     *bad_leaf.leaf_tris.last_mut().unwrap() += 1;
     let mut bad_table = t.clone();
-    bad_table.shafts = Arc::new(ShaftCells::build(3));
+    bad_table.shafts = Arc::new(ShaftTable::build(3));
     for (what, t) in [
         ("children", bad_child),
         ("leaf_tris", bad_leaf),

@@ -49,12 +49,16 @@ struct Seg {
 @group(0) @binding(4) var<storage, read> tri_indices: array<u32>;
 // `triangles`: f32×9, world space.
 @group(0) @binding(5) var<storage, read> triangles: array<f32>;
-// `shaft_cells`: per shaft (line-space bit), occ_words u32 of the child cells it meets.
+// `shaft_cells`: per stored shaft (9n⁴: shaft::ShaftTable), occ_words u32 of the child cells
+// it meets.
 @group(0) @binding(6) var<storage, read> shaft_cells: array<u32>;
+// The occupancy with each group's slots reversed (bit s = slot n³ − 1 − s), for the 6 face
+// pairs stored as point reflections.
+@group(0) @binding(7) var<storage, read> occupancy_rev: array<u32>;
 // `segments`: Seg per invocation; `shadow`: vec4 per receiver (w < 0.5: none, fully lit)
 // followed by vec4 per light sample.
-@group(0) @binding(7) var<storage, read> queries: array<vec4<f32>>;
-@group(0) @binding(8) var<storage, read_write> results: array<u32>;
+@group(0) @binding(8) var<storage, read> queries: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read_write> results: array<u32>;
 
 const MAX_DEPTH: u32 = 12u;
 const FLAG_FRACTION: u32 = 1u;
@@ -116,10 +120,48 @@ fn child(group: u32, slot: u32) -> u32 {
     return first_child[group] + rank;
 }
 
-// Line-space bit b of a group: its occupancy meets the cells of shaft b (ShaftCells::meets).
-fn ls_bit(group: u32, b: u32) -> bool {
+// shaft::PAIR_ROWS: the stored block of face pair p (pair_index order) | 16 if it is read as
+// the point reflection of that block.
+fn pair_row(p: u32) -> u32 {
+    switch (p) {
+        case 0u: { return 0u; }
+        case 1u: { return 1u; }
+        case 2u: { return 2u; }
+        case 3u: { return 3u; }
+        case 4u: { return 4u; }
+        case 5u: { return 2u | 16u; }
+        case 6u: { return 1u | 16u; }
+        case 7u: { return 4u | 16u; }
+        case 8u: { return 3u | 16u; }
+        case 9u: { return 5u; }
+        case 10u: { return 6u; }
+        case 11u: { return 7u; }
+        case 12u: { return 7u | 16u; }
+        case 13u: { return 6u | 16u; }
+        default: { return 8u; }
+    }
+}
+
+// Line-space bit of the shaft between patch pa of face fa and patch pb of face fb (fa < fb): the
+// group's occupancy meets the shaft's cells (ShaftTable::meets).
+fn ls_bit(group: u32, fa: u32, pa: u32, fb: u32, pb: u32) -> bool {
+    let pp = params.n * params.n;
+    let r = pair_row(pair_index(fa, fb));
+    let block = r & 15u;
+    var row = block * pp * pp + pa * pp + pb;
+    if ((r & 16u) != 0u) {
+        row = block * pp * pp + (pp - 1u - pa) * pp + (pp - 1u - pb);
+    }
     let at = group * params.occ_words;
-    let cb = b * params.occ_words;
+    let cb = row * params.occ_words;
+    if ((r & 16u) != 0u) {
+        for (var i = 0u; i < params.occ_words; i++) {
+            if ((occupancy_rev[at + i] & shaft_cells[cb + i]) != 0u) {
+                return true;
+            }
+        }
+        return false;
+    }
     for (var i = 0u; i < params.occ_words; i++) {
         if ((occupancy[at + i] & shaft_cells[cb + i]) != 0u) {
             return true;
@@ -190,7 +232,6 @@ fn shaft_full(o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f32>, side: f32
     let fa = u32(a.x);
     let fb = u32(b.x);
     let n = params.n;
-    let pp = n * n;
     let ua = patch_lo_hi(a.y);
     let va = patch_lo_hi(a.z);
     let ub = patch_lo_hi(b.y);
@@ -201,13 +242,13 @@ fn shaft_full(o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f32>, side: f32
             for (var bv = vb.x; bv <= vb.y; bv++) {
                 for (var bu = ub.x; bu <= ub.y; bu++) {
                     let pb = bu + n * bv;
-                    var bit: u32;
+                    var full: bool;
                     if (fa < fb) {
-                        bit = pair_index(fa, fb) * pp * pp + pa * pp + pb;
+                        full = ls_bit(group, fa, pa, fb, pb);
                     } else {
-                        bit = pair_index(fb, fa) * pp * pp + pb * pp + pa;
+                        full = ls_bit(group, fb, pb, fa, pa);
                     }
-                    if (ls_bit(group, bit)) {
+                    if (full) {
                         return 1u;
                     }
                 }
