@@ -176,6 +176,37 @@ fn soft_shadows_have_a_penumbra_and_are_never_brighter_than_exact_shadow_rays() 
     assert_eq!(s.stats.penumbra_pixels, penumbra as u64);
 }
 
+/// `--shadow-compare`: the GPU pass against exact ray-traced visibility of the same receivers
+/// and samples. The thesis' refinement is darker somewhere and never brighter; the exact
+/// refinement matches the ray-traced pass on every pixel.
+#[test]
+fn soft_shadow_comparison_with_exact_rays_is_one_sided_per_refinement() {
+    use bake::linespace::ntree::Refine;
+    let pack = build_pack();
+    let mut errors = Vec::new();
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Exact] {
+        let mut opts = options(true);
+        opts.soft_shadows = Some(SoftShadows {
+            area_light: Some(light()),
+            samples: 4,
+            refine,
+            compare_exact: true,
+        });
+        let out = render_pack(&pack, &opts).unwrap();
+        let s = out.soft_shadows.unwrap();
+        let c = s.comparison.expect("the comparison ran");
+        assert_eq!(c.refine, refine);
+        assert_eq!(c.samples, 16);
+        assert_eq!(c.receivers, s.stats.receivers);
+        assert_eq!(c.brighter_pixels, 0, "{refine:?}: {c:?}");
+        assert!(c.linespace_seconds > 0.0 && c.exact_seconds > 0.0);
+        errors.push(c.mean_abs_error);
+    }
+    assert!(errors[0] >= errors[1] && errors[1] >= errors[2], "{errors:?}");
+    assert!(errors[0] > 0.0, "{errors:?}");
+    assert_eq!(errors[2], 0.0);
+}
+
 #[test]
 fn soft_shadows_need_a_linespace_section() {
     let mut w = PackWriter::new();
