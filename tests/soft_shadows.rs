@@ -202,7 +202,10 @@ fn soft_shadow_comparison_with_exact_rays_is_one_sided_per_refinement() {
         assert!(c.linespace_seconds > 0.0 && c.exact_seconds > 0.0);
         errors.push(c.mean_abs_error);
     }
-    assert!(errors[0] >= errors[1] && errors[1] >= errors[2], "{errors:?}");
+    assert!(
+        errors[0] >= errors[1] && errors[1] >= errors[2],
+        "{errors:?}"
+    );
     assert!(errors[0] > 0.0, "{errors:?}");
     assert_eq!(errors[2], 0.0);
 }

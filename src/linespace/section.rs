@@ -117,7 +117,7 @@ pub fn validate(t: &NTree) -> Result<(), String> {
         return Err("first_child size does not match the groups".into());
     }
     let n3 = t.n3();
-    if n3 % 64 != 0 {
+    if !n3.is_multiple_of(64) {
         let spare = !0u64 << (n3 % 64);
         let w = t.occupancy_words();
         if (0..groups).any(|g| t.occupancy[g * w + w - 1] & spare != 0) {

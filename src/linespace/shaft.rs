@@ -268,7 +268,7 @@ pub const PAIR_ROWS: [(u32, bool); 15] = pair_rows();
 /// The 9 stored face pairs: the 3 opposite pairs and the 6 adjacent pairs whose first face is a
 /// minimum face (even f), in ascending order.
 const fn stored_pair(fa: usize, fb: usize) -> bool {
-    fa / 2 == fb / 2 || fa % 2 == 0
+    fa / 2 == fb / 2 || fa & 1 == 0
 }
 
 const fn pair_rows() -> [(u32, bool); 15] {
@@ -467,7 +467,7 @@ mod tests {
                     rng ^= rng << 13;
                     rng ^= rng >> 7;
                     rng ^= rng << 17;
-                    if rng % 11 == 0 {
+                    if rng.is_multiple_of(11) {
                         occ[s / 64] |= 1 << (s % 64);
                     }
                 }
