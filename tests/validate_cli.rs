@@ -115,6 +115,54 @@ fn validate_agrees_on_svo_and_linespace_of_a_model() {
     assert!(Path::new(&png).exists());
 }
 
+/// The thesis' default, n = 10 and depth 3, in the compact form: GPU = CPU in every
+/// refinement, and the section and GPU pools a fraction of the dense pools.
+#[test]
+fn validate_agrees_at_n10_depth3_with_the_compact_form() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = path(dir.path(), "scene.obj");
+    std::fs::write(&obj, scene_obj()).unwrap();
+    let pack = path(dir.path(), "scene.bake");
+    let l = json(&bake(&[
+        "linespace",
+        &obj,
+        "-o",
+        &pack,
+        "--n",
+        "10",
+        "--depth",
+        "3",
+        "--json",
+    ]));
+    // A 7 × 7 m ground in 7 mm leaves: 2.1 million leaves, 30 MB (the dense pools: 305 MB).
+    let bytes = l["bytes"].as_u64().unwrap();
+    assert!(8 * bytes < l["dense_bytes"].as_u64().unwrap(), "{l}");
+    let occupancy = l["occupancy_bytes"].as_u64().unwrap();
+    assert_eq!(l["shaft_table_bytes"], 9 * 10_000 * 16 * 8);
+    for refine in ["shaft", "cells", "exact"] {
+        let v = json(&bake(&[
+            "validate",
+            &pack,
+            "--receivers",
+            "200",
+            "--refine",
+            refine,
+            "--json",
+        ]));
+        assert_eq!(v["agree"], true, "{v}");
+        let ls = &v["linespace"];
+        assert_eq!(ls["segment_mismatches"], 0, "{v}");
+        assert_eq!(ls["fraction_mismatches"], 0, "{v}");
+        assert!(ls["occluded"].as_u64().unwrap() > 50, "{v}");
+        // The section's arrays plus the reversed occupancy (buffers padded to 16 B at most).
+        let pools = ls["gpu_pool_bytes"].as_u64().unwrap();
+        assert!(
+            pools >= bytes + occupancy && pools <= bytes + occupancy + 7 * 16,
+            "{v}"
+        );
+    }
+}
+
 #[test]
 fn validate_and_soft_shadows_need_their_sections() {
     let dir = tempfile::tempdir().unwrap();

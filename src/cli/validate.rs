@@ -98,8 +98,10 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
         let a = validate_linespace(&gpu, &tree, args.receivers, args.samples, args.seed)?;
         ok &= a.agrees();
         text += &format!(
-            "linespace: {} segments ({} occluded), {} mismatches ({} without line spaces); \
+            "linespace (refine {:?}, {} bytes on the GPU): {} segments ({} occluded), {} mismatches ({} without line spaces); \
              {} receivers × {} samples, {} shadow-fraction mismatches, {} in penumbra\n",
+            a.refine,
+            a.gpu_pool_bytes,
             a.segments,
             a.occluded,
             a.segment_mismatches,

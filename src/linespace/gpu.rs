@@ -349,6 +349,10 @@ pub struct LinespaceAgreement {
     pub penumbra: usize,
     /// Up to 5 disagreeing segment indices.
     pub examples: Vec<usize>,
+    /// Bytes of the pools bound on the GPU (the section's arrays plus the reversed occupancy).
+    pub gpu_pool_bytes: u64,
+    /// What the query did in a deepest-level node with a full shaft (both sides).
+    pub refine: super::ntree::Refine,
     /// Wall time of the line-space segments on the GPU (upload, dispatch, read-back) and on
     /// the CPU (one thread).
     pub gpu_seconds: f64,
@@ -403,6 +407,8 @@ pub fn validate_linespace(
         occluded: cpu.iter().filter(|&&o| o).count(),
         receivers: points.len(),
         samples: k,
+        gpu_pool_bytes: dev.pool_bytes(),
+        refine: t.refine,
         cpu_seconds: (t1 - t0).as_secs_f64(),
         gpu_seconds: (t3 - t2).as_secs_f64(),
         ..Default::default()
