@@ -116,7 +116,8 @@ pub struct LinespaceBenchArgs {
     #[arg(long, default_value_t = 1)]
     pub repeat: u32,
     /// What a full shaft at the deepest level means (shaft: the thesis' hit; cells: a leaf with
-    /// geometry on the segment; exact: the triangles of those leaves).
+    /// geometry on the segment; exact: the triangles of those leaves; near: exact within one
+    /// deepest-node side of the receiver, the thesis' hit beyond).
     #[arg(long, value_enum, default_value_t = Refine::default())]
     pub refine: Refine,
     /// Also time the thesis' dense line-space pool (built beside the compact tree; large).
@@ -296,7 +297,7 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
     let per = |x: f64| exact_seconds / x.max(1e-12);
     let mut modes = Vec::new();
     let mut chosen = None;
-    for refine in [Refine::Shaft, Refine::Cells, Refine::Exact] {
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Near, Refine::Exact] {
         tree.refine = refine;
         let (hits, seconds, stats) = time_queries(&tree, &segs, runs);
         let lit_blocked = lit_but_blocked(&hits, &exact_hits);
@@ -441,7 +442,7 @@ fn bench_accuracy(
     let (exact_fractions, exact_seconds) = exact_visibility(&exact, &receivers, &points, offset);
     let mut modes = Vec::new();
     let mut headline = serde_json::Value::Null;
-    for refine in [Refine::Shaft, Refine::Cells, Refine::Exact] {
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Near, Refine::Exact] {
         tree.refine = refine;
         let (linespace, linespace_seconds, stats) =
             linespace_visibility(&tree, &receivers, &points, offset);

@@ -48,7 +48,8 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub shadow_samples: u32,
     /// Deepest-level refinement of the soft shadows' line-space query (shaft: the thesis;
-    /// cells: leaf cells on the segment; exact: their triangles).
+    /// cells: leaf cells on the segment; exact: their triangles; near: exact within one
+    /// deepest-node side of the receiver).
     #[arg(long, value_enum, default_value_t = crate::linespace::ntree::Refine::default())]
     pub shadow_refine: crate::linespace::ntree::Refine,
     /// Also run the soft shadows as exact ray-traced visibility (same receivers and samples,

@@ -499,7 +499,7 @@ mod tests {
             .flat_map(|&p| (0..16).map(move |i| Segment::between(p, light.sample(i), 1e-3)))
             .collect();
         let mut blocked = Vec::new();
-        for refine in [Refine::Shaft, Refine::Cells, Refine::Exact] {
+        for refine in [Refine::Shaft, Refine::Cells, Refine::Exact, Refine::Near] {
             t.refine = refine;
             let dev = NTreeGpu::new(&gpu, &t).unwrap();
             let mut reference = t.clone();

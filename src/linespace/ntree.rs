@@ -104,6 +104,10 @@ pub enum Refine {
     /// reads the triangles).
     #[default]
     Exact,
+    /// `Shaft`, except in nodes the segment enters within one deepest-node side of its start,
+    /// where `Exact` decides: the receiver's own surface continuing into the next node is what
+    /// makes the thesis' rule speckle (docs/PERFORMANCE.md, issue 15).
+    Near,
 }
 
 impl Refine {
@@ -113,6 +117,7 @@ impl Refine {
             Refine::Shaft => 0,
             Refine::Cells => 1,
             Refine::Exact => 2,
+            Refine::Near => 3,
         }
     }
 }

@@ -220,7 +220,10 @@ impl NTree {
                 Some(false) => return false,
                 Some(true) if deepest => {
                     return match self.refine {
-                        Refine::Shaft => true,
+                        Refine::Near if near_start(r, span.t0, side) => {
+                            self.exact_occluded(s, r, group, base, side, span, stats)
+                        }
+                        Refine::Shaft | Refine::Near => true,
                         Refine::Cells => self.cells_crossed(r, group, base, side, span, stats),
                         Refine::Exact => self.exact_occluded(s, r, group, base, side, span, stats),
                     };
@@ -360,6 +363,12 @@ impl NTree {
             }
         }
     }
+}
+
+/// Whether the point at `t` lies within `side` (grid units) of the segment's start.
+fn near_start(r: &Ray, t: f32, side: f32) -> bool {
+    let len = (r.dir[0] * r.dir[0] + r.dir[1] * r.dir[1] + r.dir[2] * r.dir[2]).sqrt();
+    (t - r.t_min) * len < side
 }
 
 /// A node being traversed: its group, level, minimum corner and side (leaf units).

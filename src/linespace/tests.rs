@@ -249,7 +249,7 @@ fn linespace_shadow_is_never_brighter_than_exact_shadow_rays() {
         tris.push([[-2.0, -2.0, -0.5], [12.0, -2.0, -0.5], [12.0, 12.0, -0.5]]);
         tris.push([[-2.0, -2.0, -0.5], [12.0, 12.0, -0.5], [-2.0, 12.0, -0.5]]);
         let mut t = build(&tris, n, depth);
-        t.refine = [Refine::Shaft, Refine::Cells, Refine::Exact][(n % 3) as usize];
+        t.refine = [Refine::Shaft, Refine::Cells, Refine::Exact, Refine::Near][(n % 4) as usize];
         let exact = ExactShadow::new(&tris);
         let light = AreaLight {
             corner: [2.0, 3.0, 14.0],
@@ -426,7 +426,7 @@ fn shaft_table_queries_equal_dense_pool_queries_in_every_refine_mode() {
     let mut t = build(&tris, 4, 3);
     let d = dense(&tris, 4, 3);
     let segs = scene_segments(&mut rng, &tris, 300);
-    for refine in [Refine::Shaft, Refine::Cells, Refine::Exact] {
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Exact, Refine::Near] {
         t.refine = refine;
         let mut reference = t.clone();
         reference.dense_linespaces = Some(Arc::new(d.linespaces.clone()));

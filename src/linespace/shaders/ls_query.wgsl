@@ -25,7 +25,7 @@ struct Params {
     seg_t_max: f32,
     samples: u32,
     flags: u32,
-    // query::Refine at the deepest level: 0 shaft, 1 cells, 2 exact.
+    // query::Refine at the deepest level: 0 shaft, 1 cells, 2 exact, 3 near.
     refine: u32,
     pad0: u32,
     pad1: u32,
@@ -345,7 +345,11 @@ fn occluded(s: Seg) -> bool {
                 if (full == 0u) {
                     mode = 3u;
                 } else if (full == 1u && deepest) {
-                    if (params.refine == 0u) {
+                    // Refine::Near: the thesis' hit unless the node is entered within one
+                    // deepest-node side of the segment's start (query::near_start).
+                    let len = sqrt(d.x * d.x + d.y * d.y + d.z * d.z);
+                    let near = (f.t0 - s.t_min) * len < f.side;
+                    if (params.refine == 0u || (params.refine == 3u && !near)) {
                         return true;
                     }
                     var hit = false;
