@@ -40,7 +40,8 @@ pub enum LightmapMode {
     Thesis,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LightmapOptions {
     /// Texels per side (the terrain grid size by default).
     pub resolution: Option<u32>,
@@ -52,16 +53,21 @@ pub struct LightmapOptions {
     pub atlas: atlas::AtlasOptions,
 }
 
+impl LightmapOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: LightmapOptions = LightmapOptions {
+        resolution: None,
+        samples: 64,
+        sun_samples: 16,
+        mode: LightmapMode::Physical,
+        max_instances: 16,
+        atlas: atlas::AtlasOptions::DEFAULT,
+    };
+}
+
 impl Default for LightmapOptions {
     fn default() -> Self {
-        LightmapOptions {
-            resolution: None,
-            samples: 64,
-            sun_samples: 16,
-            mode: LightmapMode::Physical,
-            max_instances: 16,
-            atlas: atlas::AtlasOptions::default(),
-        }
+        Self::DEFAULT
     }
 }
 
@@ -278,8 +284,17 @@ pub fn lightmap_sections(
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = scene_lighting(pack)?;
     let scene = crate::tracescene::trace_scene(pack)?;
-    let Some(map) = bake_terrain_lightmap(&scene, &light, opts) else {
-        return Ok(Vec::new());
+    Ok(terrain_sections(&scene, &light, opts))
+}
+
+/// [`lightmap_sections`] with the scene and its light at hand (empty without a terrain).
+pub fn terrain_sections(
+    scene: &TraceScene,
+    light: &Lighting,
+    opts: &LightmapOptions,
+) -> Vec<crate::pack::Section> {
+    let Some(map) = bake_terrain_lightmap(scene, light, opts) else {
+        return Vec::new();
     };
     let meta = section::LightmapMeta {
         surface: "terrain".into(),
@@ -289,19 +304,19 @@ pub fn lightmap_sections(
         samples: opts.samples,
         sun_samples: opts.sun_samples,
     };
-    let direct = terrain_direct_sun(&scene, &light, &meta);
+    let direct = terrain_direct_sun(scene, light, &meta);
     let indirect: Vec<[f32; 3]> = map
         .texels
         .iter()
         .zip(&direct)
         .map(|(e, d)| std::array::from_fn(|c| (e[c] - d[c]).max(0.0)))
         .collect();
-    Ok(vec![section::to_section_with_indirect(
+    vec![section::to_section_with_indirect(
         "lightmap:terrain",
         &meta,
         &map,
         &indirect,
-    )])
+    )]
 }
 
 /// The direct-sun part of every texel of a terrain light map, exactly as

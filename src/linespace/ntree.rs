@@ -57,12 +57,19 @@ impl NodeEntry {
 }
 
 /// Options of [`build_ntree`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct NTreeOptions {
     /// Children per axis (2..=12).
     pub n: u32,
     /// Levels below the root (≥ 1); n^depth ≤ 4096 leaf cells per axis.
     pub depth: u32,
+}
+
+impl Default for NTreeOptions {
+    fn default() -> Self {
+        Self::thesis()
+    }
 }
 
 impl NTreeOptions {
