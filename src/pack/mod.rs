@@ -73,7 +73,7 @@ impl Payload {
 
     /// Takes an aligned buffer holding `len` bytes.
     pub fn from_aligned(buf: Vec<u128>, len: usize) -> Payload {
-        let hash = *blake3::hash(&bytemuck::cast_slice::<u128, u8>(&buf)[..len]).as_bytes();
+        let hash = hash_bytes(&bytemuck::cast_slice::<u128, u8>(&buf)[..len]);
         Payload {
             data: std::sync::Arc::new(PayloadData::Owned(buf, len)),
             hash,
@@ -129,6 +129,18 @@ impl std::fmt::Debug for Payload {
             self.len(),
             hex(&self.hash[..8])
         )
+    }
+}
+
+/// BLAKE3 of `bytes`, on all threads for large inputs (the same hash either way).
+pub fn hash_bytes(bytes: &[u8]) -> [u8; 32] {
+    if bytes.len() > (1 << 20) {
+        *blake3::Hasher::new()
+            .update_rayon(bytes)
+            .finalize()
+            .as_bytes()
+    } else {
+        *blake3::hash(bytes).as_bytes()
     }
 }
 
@@ -640,7 +652,7 @@ impl Pack {
     pub fn checksum_ok(&self, e: &SectionEntry) -> bool {
         match &self.storage {
             Storage::Sections(v) => v[e.offset as usize].hash() == &e.checksum,
-            _ => blake3::hash(self.payload(e)).as_bytes() == &e.checksum,
+            _ => hash_bytes(self.payload(e)) == e.checksum,
         }
     }
 
