@@ -429,7 +429,7 @@ fn assemble(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
 }
 
 /// Decodes `%XX` escapes of a URI (invalid escapes are kept as written).
-fn percent_decode(s: &str) -> String {
+pub(crate) fn percent_decode(s: &str) -> String {
     let b = s.as_bytes();
     let mut out = Vec::with_capacity(b.len());
     let mut i = 0;

@@ -35,7 +35,8 @@ use std::sync::Arc;
 pub const CELL_MARGIN: f32 = 1e-3;
 
 /// Options of [`build_ntree`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct NTreeOptions {
     /// Children per axis (2..=12).
     pub n: u32,
@@ -45,6 +46,12 @@ pub struct NTreeOptions {
     /// Without, each axis of the scene's bounds is split n^depth times, so a flat scene gets
     /// flat cells (the fixture's 100 × 100 × 12 m: 10 × 10 × 1.2 cm leaves, 2.5× as many).
     pub cubic_cells: bool,
+}
+
+impl Default for NTreeOptions {
+    fn default() -> Self {
+        Self::thesis()
+    }
 }
 
 impl NTreeOptions {
