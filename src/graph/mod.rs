@@ -49,7 +49,8 @@ pub mod versions {
     pub const CLUSTER: u32 = 1;
     pub const BITTREE: u32 = 1;
     pub const SVO: u32 = 1;
-    pub const LINESPACE: u32 = 1;
+    /// 2: the compact section layout (issue 15).
+    pub const LINESPACE: u32 = 2;
 }
 
 /// Where stage units are cached.
@@ -721,8 +722,9 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
             }
             let out = g.unit("linespace", "scene", k.finish(), None, |_| {
                 let tris = crate::cli::linespace::world_triangles(&geo()?.mesh);
-                let masks = crate::linespace::shaft::ChildMasks::build(p.linespace.n);
-                let tree = crate::linespace::ntree::build_ntree(&tris, &p.linespace, &masks)?;
+                let shafts =
+                    std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(p.linespace.n));
+                let tree = crate::linespace::ntree::build_ntree(&tris, &p.linespace, &shafts)?;
                 Ok(Output {
                     report: crate::linespace::section::summary_of(&tree),
                     sections: vec![crate::linespace::section::to_section(
