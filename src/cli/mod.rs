@@ -18,6 +18,7 @@ pub mod sky;
 pub mod svo;
 pub mod terrain;
 pub mod validate;
+pub mod verify;
 
 use serde_json::Value;
 

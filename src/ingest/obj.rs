@@ -44,6 +44,14 @@ pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
     parse_with(bytes, |_| Err(tobj::LoadError::OpenFileFailed))
 }
 
+/// Parses an OBJ held in memory with `mtl` as the text of every MTL file it names (fuzzing,
+/// tests).
+pub fn parse_with_mtl(obj: &[u8], mtl: &[u8]) -> Result<Mesh, ParseError> {
+    parse_with(obj, |_| {
+        tobj::load_mtl_buf(&mut std::io::BufReader::new(mtl))
+    })
+}
+
 fn parse_with(
     bytes: &[u8],
     loader: impl Fn(&Path) -> tobj::MTLLoadResult,
