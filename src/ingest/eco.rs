@@ -255,6 +255,8 @@ pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
     let first = paths
         .first()
         .ok_or_else(|| Error::usage("no ECO file given"))?;
+    let policy = scene_policy(first, opts);
+    check_further_eco_files(&paths[1..], &policy.roots)?;
     let mut files = Vec::new();
     for p in paths {
         let eco = parse(&crate::error::read_file(p)?).map_err(|e| Error::invalid(p, e))?;
@@ -285,11 +287,7 @@ pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
         origin: head.georef.terrain.origin,
         extent: head.georef.terrain.extent,
     };
-    let terrain = super::raw::load(
-        &dir(first).join(&head.terrain.file),
-        &spec,
-        opts.color_map.as_deref(),
-    )?;
+    let terrain = load_terrain(first, &head.terrain.file, &spec, opts, &policy)?;
 
     // Resolve every model name once, in order of first appearance.
     let mut index: HashMap<PathBuf, u32> = HashMap::new();
@@ -305,6 +303,16 @@ pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
             Some(b) => union(a, b),
         });
         for inst in &eco.instances {
+            if items.len() as u64 >= policy.limits.max_instances {
+                return Err(Error::invalid_at(
+                    p,
+                    format!("line {}", inst.line),
+                    format!(
+                        "more than {} instances in the scene (the limit)",
+                        policy.limits.max_instances
+                    ),
+                ));
+            }
             let path = resolve_model(&inst.model, &dir(p), &opts.model_dirs).map_err(|tried| {
                 let list: Vec<String> = tried.iter().map(|t| t.display().to_string()).collect();
                 Error::invalid_at(
@@ -317,6 +325,13 @@ pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
                     ),
                 )
             })?;
+            let (inside, resolved) = policy.roots.resolve(&path);
+            if !inside {
+                let place = format!("line {}", inst.line);
+                return Err(policy
+                    .roots
+                    .refusal(p, place, "model", &inst.model, &resolved));
+            }
             let next = model_paths.len() as u32;
             let model = *index.entry(path.clone()).or_insert_with(|| {
                 let name = path
@@ -340,7 +355,7 @@ pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
     }
     let meshes: Vec<Result<crate::model::Mesh>> = model_paths
         .par_iter()
-        .map(|(_, path)| super::load_mesh(path))
+        .map(|(_, path)| super::load_mesh_in(path, &policy))
         .collect();
     let mut models = Vec::with_capacity(meshes.len());
     for ((name, path), mesh) in model_paths.iter().zip(meshes) {
@@ -368,6 +383,80 @@ pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
         sky: None,
         warnings,
     })
+}
+
+/// The roots of a scene: the first ECO file's folder, the `--models` and `--allow-path`
+/// folders; and the limits.
+fn scene_policy(first: &Path, opts: &IngestOptions) -> super::ReadPolicy {
+    let extra: Vec<PathBuf> = opts
+        .model_dirs
+        .iter()
+        .chain(&opts.allow_paths)
+        .cloned()
+        .collect();
+    super::ReadPolicy {
+        roots: super::confine::Roots::around(first, &extra),
+        limits: opts.limits,
+    }
+}
+
+/// The further ECO files of a scene lie inside its roots too.
+fn check_further_eco_files(paths: &[PathBuf], roots: &super::confine::Roots) -> Result<()> {
+    for p in paths {
+        let (inside, resolved) = roots.resolve(p);
+        if !inside {
+            let name = p.display().to_string();
+            return Err(roots.refusal(
+                p,
+                "command line".into(),
+                "further ECO file",
+                &name,
+                &resolved,
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The terrain named by the ECO file, and its colour map (given, or found beside it), inside
+/// the roots and within the memory budget.
+fn load_terrain(
+    eco: &Path,
+    name: &str,
+    spec: &RawSpec,
+    opts: &IngestOptions,
+    policy: &super::ReadPolicy,
+) -> Result<crate::model::Terrain> {
+    let dir = eco.parent().map(Path::to_path_buf).unwrap_or_default();
+    let path = dir.join(name);
+    policy.roots.check(eco, "terrain", name, &path)?;
+    let decoded = spec.width as u64 * spec.height as u64 * 4;
+    policy
+        .limits
+        .check_memory(eco, "terrain line", "the terrain", decoded)?;
+    let color = match &opts.color_map {
+        Some(c) => Some(c.clone()),
+        None => super::raw::find_color_map(&path),
+    };
+    if let Some(c) = &color {
+        if opts.color_map.is_none() {
+            let (inside, resolved) = policy.roots.resolve(c);
+            if !inside {
+                let c_name = c.file_name().map(|f| f.to_string_lossy().into_owned());
+                let place =
+                    super::confine::place_of(&std::fs::read(eco).unwrap_or_default(), name, false);
+                return Err(policy.roots.refusal(
+                    eco,
+                    place.unwrap_or_else(|| "terrain line".into()),
+                    "terrain colour map",
+                    &c_name.unwrap_or_default(),
+                    &resolved,
+                ));
+            }
+        }
+        super::check_image_header(c, "colour map", &policy.limits)?;
+    }
+    super::raw::load(&path, spec, color.as_deref())
 }
 
 fn union(a: Rect, b: Rect) -> Rect {

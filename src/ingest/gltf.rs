@@ -33,8 +33,25 @@ use std::path::{Path, PathBuf};
 /// Reads a `.gltf` or `.glb` file; external buffers and texture URIs are resolved against the
 /// file's folder.
 pub fn load(path: &Path) -> Result<Mesh> {
+    load_in(path, &super::confine::Roots::around(path, &[]))
+}
+
+/// Reads a `.gltf` or `.glb` file whose external buffers must lie inside `roots`: they are
+/// checked before any is opened (`data:` URIs and the GLB blob read no file).
+pub fn load_in(path: &Path, roots: &super::confine::Roots) -> Result<Mesh> {
     let bytes = crate::error::read_file(path)?;
     let dir = path.parent().unwrap_or(Path::new(""));
+    let mut warnings = Vec::new();
+    if let Ok((doc, _)) = read_document(&bytes, &mut warnings) {
+        for b in doc.buffers() {
+            if let gltf::buffer::Source::Uri(uri) = b.source()
+                && !uri.starts_with("data:")
+            {
+                let name = percent_decode(uri);
+                roots.check(path, "buffer", uri, &dir.join(&name))?;
+            }
+        }
+    }
     parse_with_base(&bytes, Some(dir)).map_err(|e| Error::invalid(path, e))
 }
 

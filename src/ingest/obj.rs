@@ -22,20 +22,49 @@ use glam::Vec3;
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
 
-/// Reads an `.obj` file and the MTL files it names (relative to the OBJ's folder).
+/// Reads an `.obj` file and the MTL files it names (relative to the OBJ's folder, which they
+/// must not leave).
 pub fn load(path: &Path) -> Result<Mesh> {
+    load_in(path, &super::confine::Roots::around(path, &[]))
+}
+
+/// Reads an `.obj` file; its MTL libraries must lie inside `roots` (a library outside is
+/// refused before it is opened).
+pub fn load_in(path: &Path, roots: &super::confine::Roots) -> Result<Mesh> {
     let bytes = crate::error::read_file(path)?;
     let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+    let refused = std::cell::RefCell::new(None);
     let loader = |mtl: &Path| {
         let p = dir.join(mtl);
+        if refused.borrow().is_none()
+            && let Err(e) = roots.check(path, "MTL library", &mtl.to_string_lossy(), &p)
+        {
+            *refused.borrow_mut() = Some(e);
+        }
+        if refused.borrow().is_some() {
+            return Err(tobj::LoadError::OpenFileFailed);
+        }
         let f = std::fs::File::open(&p).map_err(|_| tobj::LoadError::OpenFileFailed)?;
         tobj::load_mtl_buf(&mut std::io::BufReader::new(f))
     };
-    let mut mesh = parse_with(&bytes, loader).map_err(|e| Error::invalid(path, e))?;
+    let parsed = parse_with(&bytes, loader).map_err(|e| Error::invalid(path, e));
+    if let Some(e) = refused.into_inner() {
+        return Err(e);
+    }
+    let mut mesh = parsed?;
     for t in &mut mesh.textures {
         t.path = super::max3ds::resolve_texture(&dir, &t.name);
     }
     Ok(mesh)
+}
+
+/// The names after `mtllib` in an OBJ file's text.
+pub fn mtl_names(bytes: &[u8]) -> Vec<String> {
+    let text = String::from_utf8_lossy(bytes);
+    text.lines()
+        .filter_map(|l| l.trim_start().strip_prefix("mtllib"))
+        .flat_map(|rest| rest.split_whitespace().map(str::to_string))
+        .collect()
 }
 
 /// Parses an OBJ held in memory; `mtllib` lines cannot be followed (no folder), so faces get

@@ -109,7 +109,7 @@ fn check_header(b: &[u8], sink: &mut Sink) -> Option<usize> {
             None,
             None,
             8,
-            format!("pack format version {version}; this bake reads version {VERSION}"),
+            format!("pack format version {version}, this bake reads version {VERSION}"),
         );
         return None;
     }

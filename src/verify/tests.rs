@@ -236,6 +236,6 @@ fn a_future_version_is_refused_naming_the_version_read() {
     assert_eq!(checks_of(&r), ["header.version"]);
     assert_eq!(
         r.violations[0].message,
-        "pack format version 2; this bake reads version 1"
+        "pack format version 2, this bake reads version 1"
     );
 }
