@@ -10,6 +10,8 @@ use bake::model::{FloatImage, Instance, Instances, Material, Mesh, Rect, Rgba8Im
 use bake::pack::{PackWriter, kinds};
 use std::path::{Path, PathBuf};
 
+mod common;
+
 fn corpus(target: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("fuzz/corpus")
@@ -238,45 +240,6 @@ fn seeds() -> Vec<(&'static str, &'static str, Vec<u8>)> {
     s
 }
 
-/// Whether the target's reader accepts a seed (the same entry points as fuzz/fuzz_targets/).
-fn accepts(target: &str, data: &[u8]) -> Result<(), String> {
-    let e = |e: bake::error::ParseError| e.to_string();
-    match target {
-        "txf" => bake::ingest::txf::parse(data).map(drop).map_err(e),
-        "max3ds" => bake::ingest::max3ds::parse(data).map(drop).map_err(e),
-        "eco" => bake::ingest::eco::parse(data).map(drop).map_err(e),
-        "sgi" => bake::ingest::texture::decode(data).map(drop).map_err(e),
-        "hdr" => bake::ingest::skyimage::parse_hdr(data).map(drop).map_err(e),
-        "exr" => bake::ingest::skyimage::parse_exr(data).map(drop).map_err(e),
-        "gltf" => bake::ingest::gltf::parse(data).map(drop).map_err(e),
-        "obj" => {
-            let k = data.iter().position(|&b| b == 0).unwrap_or(data.len());
-            let mtl = data.get(k + 1..).unwrap_or_default();
-            let m = bake::ingest::obj::parse_with_mtl(&data[..k], mtl).map_err(e)?;
-            (m.materials.len() >= 2)
-                .then_some(())
-                .ok_or("MTL not read".into())
-        }
-        "raw" => {
-            let spec = bake::ingest::raw::RawSpec {
-                width: u16::from_le_bytes([data[0], data[1]]) as u32,
-                height: u16::from_le_bytes([data[2], data[3]]) as u32,
-                scale: 0.05,
-                origin: [0.0, 0.0],
-                extent: [1.0, 1.0],
-            };
-            bake::ingest::raw::parse(&data[4..], &spec)
-                .map(drop)
-                .map_err(e)
-        }
-        "pack" => {
-            let r = bake::verify::verify_bytes(data);
-            r.ok().then_some(()).ok_or(format!("{:?}", r.violations))
-        }
-        other => Err(format!("no such target {other}")),
-    }
-}
-
 const TARGETS: [&str; 10] = [
     "txf", "max3ds", "eco", "sgi", "obj", "gltf", "raw", "hdr", "exr", "pack",
 ];
@@ -291,7 +254,7 @@ fn seeds_match_their_generators_and_are_accepted() {
         }
     }
     committed_seeds_match_the_generators();
-    for target in TARGETS {
+    for target in common::FUZZ_TARGETS {
         let dir = corpus(target);
         let mut files: Vec<_> = std::fs::read_dir(&dir)
             .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
@@ -306,7 +269,7 @@ fn seeds_match_their_generators_and_are_accepted() {
                 "{}: seeds stay under 64 KiB",
                 f.display()
             );
-            if let Err(e) = accepts(target, &data) {
+            if let Err(e) = common::fuzz_entry(target, &data) {
                 panic!("{}: not accepted by the {target} reader: {e}", f.display());
             }
         }

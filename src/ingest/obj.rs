@@ -44,8 +44,8 @@ pub fn load_in(path: &Path, roots: &super::confine::Roots) -> Result<Mesh> {
         if refused.borrow().is_some() {
             return Err(tobj::LoadError::OpenFileFailed);
         }
-        let f = std::fs::File::open(&p).map_err(|_| tobj::LoadError::OpenFileFailed)?;
-        tobj::load_mtl_buf(&mut std::io::BufReader::new(f))
+        let bytes = std::fs::read(&p).map_err(|_| tobj::LoadError::OpenFileFailed)?;
+        load_mtl(&bytes)
     };
     let parsed = parse_with(&bytes, loader).map_err(|e| Error::invalid(path, e));
     if let Some(e) = refused.into_inner() {
@@ -76,9 +76,22 @@ pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
 /// Parses an OBJ held in memory with `mtl` as the text of every MTL file it names (fuzzing,
 /// tests).
 pub fn parse_with_mtl(obj: &[u8], mtl: &[u8]) -> Result<Mesh, ParseError> {
-    parse_with(obj, |_| {
-        tobj::load_mtl_buf(&mut std::io::BufReader::new(mtl))
-    })
+    parse_with(obj, |_| load_mtl(mtl))
+}
+
+/// Reads MTL text through tobj, after the checks tobj lacks: `tobj` 4.0 panics (an `unwrap` in
+/// `parse_float3`) on a colour line (`Ka`/`Kd`/`Ks`/`Ke`) with fewer than three numbers, so such
+/// a file is refused here as a broken MTL (a warning, like any other broken MTL).
+fn load_mtl(mtl: &[u8]) -> tobj::MTLLoadResult {
+    let text = String::from_utf8_lossy(mtl);
+    let short_colour = text.lines().any(|l| {
+        let mut w = l.split_whitespace();
+        matches!(w.next(), Some("Ka" | "Kd" | "Ks" | "Ke")) && w.count() < 3
+    });
+    if short_colour {
+        return Err(tobj::LoadError::MaterialParseError);
+    }
+    tobj::load_mtl_buf(&mut std::io::BufReader::new(mtl))
 }
 
 fn parse_with(
@@ -371,6 +384,22 @@ impl BufRead for LineCounter<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression (found by tests/fuzz_smoke.rs): `Kd 0.4` made tobj panic in `parse_float3`.
+    #[test]
+    fn mtl_colour_with_fewer_than_three_numbers_is_a_broken_mtl_not_a_panic() {
+        let obj = b"mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n";
+        for line in ["Kd 0.4", "Ka", "Ks 1 2", "Ke 0.1 x"] {
+            let mtl = format!("newmtl a\n{line}\n");
+            let m = parse_with_mtl(obj, mtl.as_bytes()).unwrap();
+            assert_eq!(m.indices.len(), 1);
+            assert!(
+                m.warnings.iter().any(|w| w.contains("MTL")),
+                "{line}: {:?}",
+                m.warnings
+            );
+        }
+    }
 
     const OBJ: &str = "# a quad and a triangle, two materials\n\
 mtllib two.mtl\n\
