@@ -48,18 +48,25 @@ pub fn init() {}
 /// of a payload reach the section decoders instead of stopping at the checksum.
 pub fn with_valid_checksums(bytes: &[u8]) -> Vec<u8> {
     let mut b = bytes.to_vec();
-    let u32_at = |b: &[u8], at: usize| b.get(at..at + 4).map(|s| u32::from_le_bytes(s.try_into().unwrap()));
-    let u64_at = |b: &[u8], at: usize| b.get(at..at + 8).map(|s| u64::from_le_bytes(s.try_into().unwrap()));
+    let u32_at = |b: &[u8], at: usize| b.get(at..at.checked_add(4)?).map(|s| u32::from_le_bytes(s.try_into().unwrap()));
+    let u64_at = |b: &[u8], at: usize| b.get(at..at.checked_add(8)?).map(|s| u64::from_le_bytes(s.try_into().unwrap()));
     let (Some(count), Some(table)) = (u32_at(&b, 16), u64_at(&b, 24)) else {
         return b;
     };
     for k in 0..count.min(4096) as u64 {
-        let e = table.saturating_add(k * 168) as usize;
-        let (Some(off), Some(size)) = (u64_at(&b, e + 112), u64_at(&b, e + 120)) else {
+        // Checked: a mutated table offset may put an entry anywhere (regression test
+        // tests/fuzz_smoke.rs `crash_c61e4abc_table_offset_near_the_end_of_the_address_space`).
+        let Some(e) = table.checked_add(k * 168).and_then(|e| usize::try_from(e).ok()) else {
+            break;
+        };
+        let (Some(off), Some(size)) = (
+            e.checked_add(112).and_then(|a| u64_at(&b, a)),
+            e.checked_add(120).and_then(|a| u64_at(&b, a)),
+        ) else {
             break;
         };
         let end = off.saturating_add(size);
-        if end > b.len() as u64 || e + 168 > b.len() {
+        if end > b.len() as u64 || e.checked_add(168).is_none_or(|x| x > b.len()) {
             continue;
         }
         let hash = blake3::hash(&b[off as usize..end as usize]);

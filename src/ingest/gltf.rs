@@ -45,10 +45,9 @@ pub fn load_in(path: &Path, roots: &super::confine::Roots) -> Result<Mesh> {
     if let Ok((doc, _)) = read_document(&bytes, &mut warnings) {
         for b in doc.buffers() {
             if let gltf::buffer::Source::Uri(uri) = b.source()
-                && !uri.starts_with("data:")
+                && let Ok(Some(file)) = buffer_file(uri)
             {
-                let name = percent_decode(uri);
-                roots.check(path, "buffer", uri, &dir.join(&name))?;
+                roots.check(path, "buffer", uri, &dir.join(file))?;
             }
         }
     }
@@ -64,6 +63,12 @@ pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
 fn parse_with_base(bytes: &[u8], base: Option<&Path>) -> Result<Mesh, ParseError> {
     let mut warnings = Vec::new();
     let (doc, blob) = read_document(bytes, &mut warnings)?;
+    for b in doc.buffers() {
+        if let gltf::buffer::Source::Uri(uri) = b.source() {
+            buffer_file(uri)
+                .map_err(|m| ParseError::new(format!("buffers[{}].uri", b.index()), m))?;
+        }
+    }
     let buffers = gltf::import_buffers(&doc, base, blob)
         .map_err(|e| ParseError::new("buffers", format!("cannot load buffer data: {e}")))?;
     let doc = &doc;
@@ -596,7 +601,36 @@ fn assemble(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
 }
 
 /// Decodes `%XX` escapes of a URI (invalid escapes are kept as written).
+/// The file a buffer URI reads, as `gltf::import_buffers` will read it: `None` for a `data:`
+/// URI, the percent-decoded relative path, or the path of a `file:` URI (absolute ones are then
+/// refused by confinement). Other schemes, and percent-escapes that do not decode to UTF-8
+/// (`gltf` 1.4 unwraps that decoding), are errors.
+fn buffer_file(uri: &str) -> Result<Option<PathBuf>, String> {
+    if uri.starts_with("data:") {
+        return Ok(None);
+    }
+    if let Some(rest) = uri
+        .strip_prefix("file://")
+        .or_else(|| uri.strip_prefix("file:"))
+    {
+        return Ok(Some(PathBuf::from(rest)));
+    }
+    if uri.contains(':') {
+        return Err(format!(
+            "unsupported URI scheme in {uri:?} (data: or a relative path expected)"
+        ));
+    }
+    let decoded = percent_decode_bytes(uri);
+    String::from_utf8(decoded)
+        .map(|s| Some(PathBuf::from(s)))
+        .map_err(|_| format!("URI {uri:?} does not percent-decode to UTF-8"))
+}
+
 fn percent_decode(s: &str) -> String {
+    String::from_utf8_lossy(&percent_decode_bytes(s)).into_owned()
+}
+
+fn percent_decode_bytes(s: &str) -> Vec<u8> {
     let b = s.as_bytes();
     let mut out = Vec::with_capacity(b.len());
     let mut i = 0;
@@ -612,7 +646,7 @@ fn percent_decode(s: &str) -> String {
         out.push(b[i]);
         i += 1;
     }
-    String::from_utf8_lossy(&out).into_owned()
+    out
 }
 
 #[cfg(test)]
@@ -656,6 +690,41 @@ mod tests {
             let e = parse(doc(acc).as_bytes()).unwrap_err();
             assert!(e.message.contains(msg), "{acc}: {e}");
         }
+    }
+
+    /// Regression (cargo-fuzz gltf, crash-d46bcd94): a buffer URI whose percent-escapes do not
+    /// decode to UTF-8 panicked in `gltf::import` (`urlencoding::decode(..).unwrap()`); a
+    /// `file:` URI would have been read from anywhere.
+    #[test]
+    fn crash_d46bcd94_buffer_uris_that_do_not_decode_are_errors() {
+        let doc = |uri: &str| {
+            format!(
+                r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"byteLength":4,"uri":"{uri}"}}]}}"#
+            )
+        };
+        for (uri, msg) in [
+            ("a%AB.bin", "percent-decode"),
+            ("http://x/b.bin", "unsupported URI scheme"),
+        ] {
+            let e = parse(doc(uri).as_bytes()).unwrap_err();
+            assert_eq!(e.place, "buffers[0].uri", "{e}");
+            assert!(e.message.contains(msg), "{e}");
+        }
+        let crash = include_bytes!(
+            "../../tests/data/fuzz/gltf/crash-d46bcd943fe4b7f738cab0ee7f75cb198d056cc5"
+        );
+        assert!(parse(crash).is_err());
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("sub/m.gltf");
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(dir.path().join("b.bin"), [0u8; 4]).unwrap();
+        let abs = format!("file://{}", dir.path().join("b.bin").display());
+        std::fs::write(&p, doc(&abs)).unwrap();
+        let e = load(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("outside the scene") && e.contains("--allow-path"),
+            "{e}"
+        );
     }
 
     /// Regression (found by tests/fuzz_smoke.rs): a GLB whose header length is under 12
