@@ -9,6 +9,7 @@ pub mod dump;
 pub mod envmap;
 pub mod error;
 pub mod fixtures;
+pub mod graph;
 pub mod ingest;
 pub mod light;
 pub mod lightmap;

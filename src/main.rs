@@ -23,6 +23,10 @@ const EXIT_CODES: &str =
 enum Command {
     /// Ingest a whole ECO scene into one pack (the default command).
     Build(cli::build::BuildArgs),
+    /// The stage cache: `stats`, `gc --max-size SIZE`.
+    Cache(cli::cache::CacheArgs),
+    /// The pipeline presets and files: `list`, `show PRESET`, `check FILE`.
+    Pipeline(cli::pipeline::PipelineArgs),
     /// Ingest any single input file into a pack.
     Ingest(cli::ingest::IngestArgs),
     /// Per-vertex PRT (SH transfer) for every mesh of a pack or model file.
@@ -64,6 +68,8 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
     match &cli.command {
         Command::Build(a) => cli::build::run(a, g),
         Command::Ingest(a) => cli::ingest::run(a, g),
+        Command::Cache(a) => cli::cache::run(a, g),
+        Command::Pipeline(a) => cli::pipeline::run(a, g),
         Command::Prt(a) => cli::prt::run(a, g),
         Command::Dump(a) => cli::dump::run(a, g),
         Command::Sky(a) => cli::sky::run(a, g),

@@ -1,27 +1,13 @@
-//! The orchestrator: a flat list of stage calls from inputs to a pack.
-//!
-//! Each function takes the model (or a pack) and options and returns the pack sections; file
-//! writing happens only in [`crate::pack::PackWriter::write`].
+//! Building blocks of the orchestrator ([`crate::graph`]): a scene's sections from the model,
+//! single inputs into packs, the BitTree's area.
 
 use crate::error::Result;
 use crate::ingest::{self, IngestOptions, Ingested};
 use crate::model::{Mesh, Scene, Terrain};
+use crate::pack::PackWriter;
 use crate::pack::kinds::{self, fit_name};
-use crate::pack::{Pack, PackWriter};
 use rayon::prelude::*;
-use std::path::{Path, PathBuf};
-
-/// What a build did, for the report printed by the CLI.
-#[derive(Debug, Clone, Default, serde::Serialize)]
-pub struct BuildReport {
-    pub output: PathBuf,
-    pub sections: usize,
-    pub bytes: u64,
-    pub models: usize,
-    pub instances: usize,
-    pub triangles: u64,
-    pub warnings: Vec<String>,
-}
+use std::path::Path;
 
 /// Adds a model's mesh and its decoded textures. Missing or undecodable textures become warnings
 /// (the mesh still renders, untextured).
@@ -66,21 +52,30 @@ pub fn add_mesh(
 
 /// Adds a terrain and its colour map.
 pub fn add_terrain(w: &mut PackWriter, source: &Path, t: &Terrain) {
+    for s in terrain_sections(source, t) {
+        w.insert(s);
+    }
+}
+
+/// The sections of an ingested terrain: its colour map (if any) and the terrain.
+pub fn terrain_sections(source: &Path, t: &Terrain) -> Vec<crate::pack::Section> {
+    let mut out = Vec::new();
     let color = t.color.as_ref().map(|img| {
         let name = kinds::texture_section_name("terrain", "color");
-        w.insert(kinds::texture::to_section(
+        out.push(kinds::texture::to_section(
             &name,
             &source.display().to_string(),
             img,
         ));
         name
     });
-    w.insert(kinds::terrain::to_section(
+    out.push(kinds::terrain::to_section(
         "terrain",
         &source.display().to_string(),
         t,
         color,
     ));
+    out
 }
 
 /// Every section of a scene.
@@ -106,105 +101,7 @@ pub fn scene_to_pack(scene: &Scene, eco: &Path) -> (PackWriter, Vec<String>) {
     (w, warnings)
 }
 
-/// Options of `bake build`.
-#[derive(Debug, Clone, Default)]
-pub struct BuildOptions {
-    pub scenes: Vec<PathBuf>,
-    pub output: Option<PathBuf>,
-    pub sky: Option<PathBuf>,
-    pub ingest: IngestOptions,
-    pub prt: crate::light::prt::PrtOptions,
-    pub lightmap: crate::lightmap::LightmapOptions,
-    pub envmaps: crate::envmap::bake::EnvmapOptions,
-    pub cluster: crate::envmap::cluster::ClusterOptions,
-}
-
-impl BuildOptions {
-    /// Quick, noisy lighting for previews.
-    pub fn preview(mut self) -> Self {
-        self.prt = crate::light::prt::PrtOptions::preview();
-        self.envmaps.samples = 64;
-        self.lightmap.samples = 16;
-        self.lightmap.sun_samples = 4;
-        self
-    }
-}
-
-/// `bake SCENE.eco`: every stage, in data-flow order, into one pack.
-pub fn build(opts: &BuildOptions) -> Result<BuildReport> {
-    let first = opts
-        .scenes
-        .first()
-        .ok_or_else(|| crate::error::Error::usage("no scene given"))?;
-    let mut scene = ingest::eco::load_scene(&opts.scenes, &opts.ingest)?;
-    if let Some(sky) = &opts.sky {
-        scene.sky = Some(ingest::skyimage::load(sky)?);
-    }
-    let output = opts
-        .output
-        .clone()
-        .unwrap_or_else(|| first.with_extension("bake"));
-    let name = first.display().to_string();
-    let (mut w, mut warnings) = scene_to_pack(&scene, first);
-    // Materials, processed textures, tangents (which may split mesh vertices) and the prepared
-    // terrain before any stage reads the meshes.
-    warnings.extend(prepare_assets(
-        &mut w,
-        &crate::material::MaterialOptions::default(),
-    )?);
-    // The sky first: every lighting stage reads its sun and SH (the built-in sky if none given).
-    for s in crate::sky::scene_sky_sections(
-        scene.sky.as_ref(),
-        &crate::sky::builtin::BuiltinSky::default(),
-        &crate::sky::SkyOptions::default(),
-    )? {
-        w.insert(s);
-    }
-    // Per-model transfer, then the scene-level lighting that traces the placed models.
-    let pack = Pack::from_bytes(&w.to_bytes()?, &name)?;
-    let (pw, _, prt_warnings) = crate::light::prt_pack::prt_pack(&pack, &opts.prt, &|_| {})?;
-    w = pw;
-    warnings.extend(prt_warnings);
-    let pack = Pack::from_bytes(&w.to_bytes()?, &name)?;
-    for s in crate::lightmap::lightmap_sections(&pack, &opts.lightmap)? {
-        w.insert(s);
-    }
-    for s in crate::lightmap::atlas_sections(&pack, &opts.lightmap)? {
-        w.insert(s);
-    }
-    for s in crate::envmap::envmap_sections(&pack, &opts.envmaps)? {
-        w.insert(s);
-    }
-    let pack = Pack::from_bytes(&w.to_bytes()?, &name)?;
-    let (sections, _) = crate::envmap::cluster_sections(&pack, &opts.cluster, false)?;
-    for s in sections {
-        w.insert(s);
-    }
-    match crate::bittree::section::to_section(
-        "bittree",
-        &scene.instances,
-        instance_area(&scene),
-        &Default::default(),
-    ) {
-        Ok(s) => w.insert(s),
-        Err(e) => warnings.push(format!("no BitTree: {e}")),
-    }
-    let bytes = w.to_bytes()?;
-    crate::pack::write_atomic(&output, &bytes)?;
-    Ok(BuildReport {
-        output,
-        sections: w.sections().len(),
-        bytes: bytes.len() as u64,
-        models: scene.models.len(),
-        instances: scene.instances.items.len(),
-        triangles: scene
-            .models
-            .iter()
-            .map(|m| m.mesh.indices.len() as u64)
-            .sum(),
-        warnings,
-    })
-}
+pub use crate::graph::{BuildOptions, BuildReport, build};
 
 /// The area the BitTree discretizes: the scene's area of interest, widened to hold every instance.
 pub fn instance_area(scene: &Scene) -> crate::model::Rect {
@@ -256,7 +153,7 @@ pub fn prepare_assets(
     w: &mut PackWriter,
     opts: &crate::material::MaterialOptions,
 ) -> Result<Vec<String>> {
-    let pack = crate::pack::Pack::from_bytes(&w.to_bytes()?, "(pack being built)")?;
+    let pack = w.view("(pack being built)");
     let (sections, report) = crate::material::bake_materials(&pack, opts)?;
     let (terrain, _) = crate::terrain::bake_terrain(&pack)?;
     for s in sections.into_iter().chain(terrain) {

@@ -71,7 +71,7 @@ fn raw_terrain_round_trips_through_dump() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let doc = json(&bake(&["dump", out.to_str().unwrap(), "--json", "--full"]));
-    assert_eq!(doc["version"], 1);
+    assert_eq!(doc["version"], bake::pack::VERSION);
     let s = &doc["sections"][0];
     assert_eq!(s["kind"], "terrain");
     assert_eq!(s["checksum_ok"], true);

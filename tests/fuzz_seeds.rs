@@ -240,10 +240,6 @@ fn seeds() -> Vec<(&'static str, &'static str, Vec<u8>)> {
     s
 }
 
-const TARGETS: [&str; 10] = [
-    "txf", "max3ds", "eco", "sgi", "obj", "gltf", "raw", "hdr", "exr", "pack",
-];
-
 /// One test, so that blessing happens before the corpus is read.
 #[test]
 fn seeds_match_their_generators_and_are_accepted() {

@@ -609,9 +609,11 @@ fn the_fixture_scene_renders_with_its_sky_and_every_instance_in_place() {
             scenes: vec![dir.path().join("scene.eco")],
             output: Some(out_path.clone()),
             sky: Some(dir.path().join("sky.hdr")),
+            cache: bake::graph::CacheMode::Off,
             ..Default::default()
         }
         .preview(),
+        &bake::graph::progress::Silent,
     )
     .unwrap();
     let pack = Pack::open(&out_path).unwrap();

@@ -18,9 +18,11 @@ fn fixture_pack(dir: &std::path::Path) -> Pack {
             scenes: vec![dir.join("scene.eco")],
             output: Some(out.clone()),
             sky: Some(dir.join("sky.hdr")),
+            cache: bake::graph::CacheMode::Off,
             ..Default::default()
         }
         .preview(),
+        &bake::graph::progress::Silent,
     )
     .unwrap();
     Pack::open(&out).unwrap()

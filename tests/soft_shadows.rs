@@ -6,7 +6,7 @@
 
 use bake::linespace::ntree::{NTreeOptions, build_ntree};
 use bake::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
-use bake::linespace::shaft::ChildMasks;
+use bake::linespace::shaft::ShaftTable;
 use bake::model::{Instance, Instances, Material, Mesh, Terrain};
 use bake::pack::kinds::{self, instances, mesh, terrain};
 use bake::pack::{Pack, PackWriter};
@@ -64,8 +64,12 @@ fn build_pack() -> Pack {
     let geo = bake::voxel::geometry::pack_geometry(&first).unwrap();
     let tris = bake::cli::linespace::world_triangles(&geo.mesh);
     assert!(tris.len() >= 4, "terrain and plate triangles");
-    let opts = NTreeOptions { n: 4, depth: 3 };
-    let tree = build_ntree(&tris, &opts, &ChildMasks::build(4)).unwrap();
+    let opts = NTreeOptions {
+        n: 4,
+        depth: 3,
+        cubic_cells: true,
+    };
+    let tree = build_ntree(&tris, &opts, &std::sync::Arc::new(ShaftTable::build(4))).unwrap();
     w.insert(bake::linespace::section::to_section(
         "linespace",
         "test",
@@ -99,6 +103,8 @@ fn options(soft: bool) -> RenderOptions {
         soft_shadows: soft.then_some(SoftShadows {
             area_light: Some(light()),
             samples: 4,
+            refine: Default::default(),
+            compare_exact: false,
         }),
         ..RenderOptions::default()
     }
@@ -168,6 +174,40 @@ fn soft_shadows_have_a_penumbra_and_are_never_brighter_than_exact_shadow_rays() 
     );
     assert!(lit >= 20, "lit {lit}");
     assert_eq!(s.stats.penumbra_pixels, penumbra as u64);
+}
+
+/// `--shadow-compare`: the GPU pass against exact ray-traced visibility of the same receivers
+/// and samples. The thesis' refinement is darker somewhere and never brighter; the exact
+/// refinement matches the ray-traced pass on every pixel.
+#[test]
+fn soft_shadow_comparison_with_exact_rays_is_one_sided_per_refinement() {
+    use bake::linespace::ntree::Refine;
+    let pack = build_pack();
+    let mut errors = Vec::new();
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Exact] {
+        let mut opts = options(true);
+        opts.soft_shadows = Some(SoftShadows {
+            area_light: Some(light()),
+            samples: 4,
+            refine,
+            compare_exact: true,
+        });
+        let out = render_pack(&pack, &opts).unwrap();
+        let s = out.soft_shadows.unwrap();
+        let c = s.comparison.expect("the comparison ran");
+        assert_eq!(c.refine, refine);
+        assert_eq!(c.samples, 16);
+        assert_eq!(c.receivers, s.stats.receivers);
+        assert_eq!(c.brighter_pixels, 0, "{refine:?}: {c:?}");
+        assert!(c.linespace_seconds > 0.0 && c.exact_seconds > 0.0);
+        errors.push(c.mean_abs_error);
+    }
+    assert!(
+        errors[0] >= errors[1] && errors[1] >= errors[2],
+        "{errors:?}"
+    );
+    assert!(errors[0] > 0.0, "{errors:?}");
+    assert_eq!(errors[2], 0.0);
 }
 
 #[test]

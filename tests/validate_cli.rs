@@ -1,6 +1,7 @@
 //! Black-box tests of `bake validate` and `bake render --soft-shadows`: a small OBJ through
 //! `bake svo` and `bake linespace`, then the GPU/CPU comparison (exit 0, every answer equal) and
-//! the error paths (exit 4 for a pack with nothing to validate or no line space to shade with).
+//! the error paths (exit 4 for a pack with nothing to validate or no line space to shade with);
+//! `bake bench linespace --accuracy` on the same scene.
 
 use std::path::Path;
 
@@ -113,6 +114,100 @@ fn validate_agrees_on_svo_and_linespace_of_a_model() {
     assert!(s["receivers"].as_u64().unwrap() > 1000, "{r}");
     assert!(s["shadowed_pixels"].as_u64().unwrap() > 0, "{r}");
     assert!(Path::new(&png).exists());
+}
+
+/// The thesis' default, n = 10 and depth 3, in the compact form: GPU = CPU in every
+/// refinement, and the section and GPU pools a fraction of the dense pools.
+#[test]
+fn validate_agrees_at_n10_depth3_with_the_compact_form() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = path(dir.path(), "scene.obj");
+    std::fs::write(&obj, scene_obj()).unwrap();
+    let pack = path(dir.path(), "scene.bake");
+    let l = json(&bake(&[
+        "linespace",
+        &obj,
+        "-o",
+        &pack,
+        "--n",
+        "10",
+        "--depth",
+        "3",
+        "--json",
+    ]));
+    // A 7 × 7 m ground in 7 mm leaves: 2.1 million leaves, 30 MB (the dense pools: 305 MB).
+    let bytes = l["bytes"].as_u64().unwrap();
+    assert!(8 * bytes < l["dense_bytes"].as_u64().unwrap(), "{l}");
+    let occupancy = l["occupancy_bytes"].as_u64().unwrap();
+    assert_eq!(l["shaft_table_bytes"], 9 * 10_000 * 16 * 8);
+    for refine in ["shaft", "cells", "exact"] {
+        let v = json(&bake(&[
+            "validate",
+            &pack,
+            "--receivers",
+            "200",
+            "--refine",
+            refine,
+            "--json",
+        ]));
+        assert_eq!(v["agree"], true, "{v}");
+        let ls = &v["linespace"];
+        assert_eq!(ls["segment_mismatches"], 0, "{v}");
+        assert_eq!(ls["fraction_mismatches"], 0, "{v}");
+        assert!(ls["occluded"].as_u64().unwrap() > 50, "{v}");
+        // The section's arrays plus the reversed occupancy (buffers padded to 16 B at most).
+        let pools = ls["gpu_pool_bytes"].as_u64().unwrap();
+        assert!(
+            pools >= bytes + occupancy && pools <= bytes + occupancy + 7 * 16,
+            "{v}"
+        );
+    }
+}
+
+/// `bake bench linespace --accuracy --json`: the documented keys, never brighter than exact,
+/// and the exact refinement without error against obvhs rays to the same light points.
+#[test]
+fn bench_accuracy_reports_one_sided_errors_with_stable_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = path(dir.path(), "scene.obj");
+    std::fs::write(&obj, scene_obj()).unwrap();
+    let v = json(&bake(&[
+        "bench",
+        "linespace",
+        &obj,
+        "--accuracy",
+        "--n",
+        "4",
+        "--depth",
+        "3",
+        "--receivers",
+        "300",
+        "--accuracy-samples",
+        "16",
+        "--area-light",
+        "0,0,6,1,0,0,0,1,0",
+        "--json",
+    ]));
+    for key in [
+        "receivers",
+        "light_samples",
+        "mean_abs_error",
+        "darker_share",
+        "brighter_than_exact",
+    ] {
+        assert!(v.get(key).is_some(), "{key} missing: {v}");
+    }
+    assert_eq!(v["receivers"], 300);
+    assert_eq!(v["light_samples"], 256);
+    assert_eq!(v["refine"], "Exact");
+    assert_eq!(v["brighter_than_exact"], 0, "{v}");
+    let modes = v["modes"].as_array().unwrap();
+    assert_eq!(modes.len(), 4);
+    for m in modes {
+        assert_eq!(m["brighter_than_exact"], 0, "{m}");
+    }
+    assert!(v["mean_abs_error"].as_f64().unwrap() < 1e-3, "{v}");
+    assert!(modes[0]["mean_abs_error"].as_f64().unwrap() >= v["mean_abs_error"].as_f64().unwrap());
 }
 
 #[test]

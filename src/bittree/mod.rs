@@ -14,7 +14,8 @@ pub mod section;
 use crate::model::Rect;
 
 /// Options of the BitTree encoder.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct BitTreeOptions {
     /// Children per level: 4, 16 or 64.
     pub children: u32,
@@ -22,12 +23,17 @@ pub struct BitTreeOptions {
     pub max_levels: u32,
 }
 
+impl BitTreeOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: BitTreeOptions = BitTreeOptions {
+        children: 16,
+        max_levels: 24,
+    };
+}
+
 impl Default for BitTreeOptions {
     fn default() -> Self {
-        BitTreeOptions {
-            children: 16,
-            max_levels: 24,
-        }
+        Self::DEFAULT
     }
 }
 

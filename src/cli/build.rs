@@ -1,10 +1,22 @@
-//! `bake build SCENE.eco...` (also plain `bake SCENE.eco`): the whole scene into one pack.
+//! `bake build SCENE.eco...` (also plain `bake SCENE.eco`): the whole scene into one pack,
+//! through the cached stage graph ([`crate::graph`]).
 
 use super::{Global, Outcome};
-use crate::error::Result;
+use crate::error::{Error, Result};
+use crate::graph::{BuildOptions, CacheMode, Pipeline, build, progress};
 use crate::ingest::IngestOptions;
-use crate::pipeline::{BuildOptions, build};
 use std::path::PathBuf;
+
+/// How progress is shown.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum ProgressMode {
+    /// Bars on a terminal, nothing otherwise.
+    #[default]
+    Auto,
+    /// One JSON event per line on stderr.
+    Ndjson,
+    None,
+}
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct BuildArgs {
@@ -23,15 +35,65 @@ pub struct BuildArgs {
     /// Colour map of the terrain (default: beside the RAW file).
     #[arg(long)]
     pub color_map: Option<PathBuf>,
-    /// Quick, noisy lighting (PRT 64 paths, 64 environment-map rays, 16 light-map rays).
-    #[arg(long)]
+    /// The stages and their options: a TOML file (see pipelines/) or a preset name
+    /// (default, preview, final, ci). Default: the `default` preset.
+    #[arg(long, value_name = "FILE|PRESET")]
+    pub pipeline: Option<String>,
+    /// Override one pipeline option, e.g. `--set prt.samples=256` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Short for `--pipeline preview` (quick, noisy lighting).
+    #[arg(long, conflicts_with = "pipeline")]
     pub preview: bool,
+    /// Stage cache folder (default: $BAKE_CACHE, else $XDG_CACHE_HOME/bake, else ~/.cache/bake).
+    #[arg(long, value_name = "DIR")]
+    pub cache: Option<PathBuf>,
+    /// Compute every unit, use and fill no cache, rewrite an up-to-date output.
+    #[arg(long, conflicts_with = "cache")]
+    pub no_cache: bool,
+    /// Write every file the bake read as a Makefile rule (for Ninja, Make, cargo).
+    #[arg(long, value_name = "FILE")]
+    pub depfile: Option<PathBuf>,
+    /// Progress display on stderr.
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+    pub progress: ProgressMode,
     /// Render the baked pack to this PNG afterwards (default camera).
     #[arg(long, value_name = "PNG")]
     pub render: Option<PathBuf>,
 }
 
+/// The pipeline of `--pipeline`/`--preview`/`--set`, and the file it came from.
+pub fn resolve_pipeline(
+    pipeline: Option<&str>,
+    preview: bool,
+    set: &[String],
+) -> Result<(Pipeline, Option<PathBuf>)> {
+    let (mut p, file) = match (pipeline, preview) {
+        (_, true) => (Pipeline::preview(), None),
+        (None, false) => (Pipeline::default_pipeline(), None),
+        (Some(name), false) => match Pipeline::preset(name) {
+            Some(p) if !std::path::Path::new(name).exists() => (p, None),
+            _ => {
+                let path = PathBuf::from(name);
+                if !path.exists() {
+                    return Err(Error::usage(format!(
+                        "--pipeline {name}: no such file, and not a preset (one of {})",
+                        crate::graph::preset::PRESETS.join(", ")
+                    )));
+                }
+                (Pipeline::load(&path)?, Some(path))
+            }
+        },
+    };
+    for s in set {
+        p.set(s)?;
+    }
+    Ok((p, file))
+}
+
 pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
+    let (pipeline, pipeline_file) =
+        resolve_pipeline(args.pipeline.as_deref(), args.preview, &args.set)?;
     let opts = BuildOptions {
         scenes: args.scenes.clone(),
         output: args.output.clone(),
@@ -41,23 +103,53 @@ pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
             color_map: args.color_map.clone(),
             ..g.ingest_defaults()
         },
-        ..Default::default()
+        pipeline,
+        pipeline_file,
+        cache: match (&args.cache, args.no_cache) {
+            (_, true) => CacheMode::Off,
+            (Some(d), false) => CacheMode::Dir(d.clone()),
+            (None, false) => CacheMode::Default,
+        },
+        depfile: args.depfile.clone(),
+        bake_version: None,
     };
-    let opts = if args.preview { opts.preview() } else { opts };
-    let bar = g.progress(1, "build");
-    let report = build(&opts)?;
-    bar.finish_and_clear();
+    let report = match (args.progress, g.quiet) {
+        (ProgressMode::Ndjson, _) => build(&opts, &progress::Ndjson::default())?,
+        (ProgressMode::None, _) | (_, true) => build(&opts, &progress::Silent)?,
+        (ProgressMode::Auto, false) => {
+            if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+                build(&opts, &progress::Terminal::default())?
+            } else {
+                build(&opts, &progress::Silent)?
+            }
+        }
+    };
     let mut text = format!(
-        "{}: {} sections, {} bytes; {} models ({} triangles), {} instances\n",
+        "{}: {} sections, {} bytes; {} models ({} triangles), {} instances{}\n",
         report.output.display(),
         report.sections,
         report.bytes,
         report.models,
         report.triangles,
-        report.instances
+        report.instances,
+        if report.up_to_date {
+            " (up to date)".to_string()
+        } else {
+            format!(
+                "; {:.2} s ({:.2} CPU s), {} units ({} cached)",
+                report.wall_seconds,
+                report.cpu_seconds,
+                report.stages.len(),
+                report.cache_hits
+            )
+        }
     );
     let mut json = serde_json::to_value(&report).unwrap_or_default();
-    let mut warnings = report.warnings;
+    let mut warnings: Vec<String> = report
+        .warnings
+        .iter()
+        .map(|w| format!("{}: {}", w.place, w.message))
+        .collect();
     if let Some(png) = &args.render {
         let pack = crate::pack::Pack::open(&report.output)?;
         let out = crate::render::render_pack(&pack, &crate::render::RenderOptions::default())?;

@@ -3,12 +3,17 @@
 use super::svo::load_geometry;
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
-use crate::linespace::ntree::{NTree, NTreeOptions, build_ntree};
+use crate::linespace::accuracy::{
+    Visibilities, compare, exact_visibility, linespace_visibility, stratified_points,
+};
+use crate::linespace::dense::build_dense;
+use crate::linespace::ntree::{NTree, NTreeOptions, Refine, build_ntree};
 use crate::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
 use crate::linespace::section;
-use crate::linespace::shaft::{ChildMasks, ShaftCells};
+use crate::linespace::shaft::{ChildMasks, ShaftTable};
 use crate::model::Mesh;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct LinespaceArgs {
@@ -23,6 +28,10 @@ pub struct LinespaceArgs {
     /// Levels below the root.
     #[arg(long, default_value_t = 3)]
     pub depth: u32,
+    /// Split each axis of the scene's bounds n^depth times (flat cells for a flat scene)
+    /// instead of a cube of its longest extent.
+    #[arg(long)]
+    pub flat_cells: bool,
 }
 
 /// World-space triangles of a mesh.
@@ -47,10 +56,11 @@ pub fn run(args: &LinespaceArgs, _g: &Global) -> Result<Outcome> {
     let opts = NTreeOptions {
         n: args.n,
         depth: args.depth,
+        cubic_cells: !args.flat_cells,
     };
     let start = std::time::Instant::now();
-    let masks = ChildMasks::build(opts.n);
-    let tree = build_ntree(&tris, &opts, &masks)?;
+    let shafts = Arc::new(ShaftTable::build(opts.n));
+    let tree = build_ntree(&tris, &opts, &shafts)?;
     let seconds = start.elapsed().as_secs_f64();
     let output = args.output.clone().unwrap_or_else(|| match &pack {
         Some(_) => args.input.clone(),
@@ -67,13 +77,15 @@ pub fn run(args: &LinespaceArgs, _g: &Global) -> Result<Outcome> {
     json["output"] = serde_json::json!(output);
     json["seconds"] = serde_json::json!(seconds);
     let text = format!(
-        "{}: N-tree n = {}, depth {}: {} inner nodes, {} bits per line space, {} bytes ({:.3} s)\n",
+        "{}: N-tree n = {}, depth {}: {} inner nodes, {} leaves, {} bytes (shaft table {}; the dense layout would take {}) ({:.3} s)\n",
         output.display(),
         tree.n,
         tree.depth,
         tree.inner_nodes(),
-        tree.layout().bits(),
+        tree.leaves(),
         json["bytes"],
+        json["shaft_table_bytes"],
+        json["dense_bytes"],
         seconds
     );
     Ok(Outcome {
@@ -91,6 +103,9 @@ pub struct LinespaceBenchArgs {
     pub n: u32,
     #[arg(long, default_value_t = 3)]
     pub depth: u32,
+    /// Flat cells (see `bake linespace --flat-cells`).
+    #[arg(long)]
+    pub flat_cells: bool,
     /// Receivers (points on the geometry); each sends samples² shadow rays.
     #[arg(long, default_value_t = 20000)]
     pub receivers: u32,
@@ -100,6 +115,24 @@ pub struct LinespaceBenchArgs {
     /// Runs of each timed query set; the fastest run is reported (the machine is shared).
     #[arg(long, default_value_t = 1)]
     pub repeat: u32,
+    /// What a full shaft at the deepest level means (shaft: the thesis' hit; cells: a leaf with
+    /// geometry on the segment; exact: the triangles of those leaves; near: exact within one
+    /// deepest-node side of the receiver, the thesis' hit beyond).
+    #[arg(long, value_enum, default_value_t = Refine::default())]
+    pub refine: Refine,
+    /// Also time the thesis' dense line-space pool (built beside the compact tree; large).
+    #[arg(long)]
+    pub dense: bool,
+    /// Instead of speed: per receiver, line-space visibility against exact visibility from
+    /// obvhs rays to the same stratified light points, for every refinement.
+    #[arg(long)]
+    pub accuracy: bool,
+    /// Light points per side for --accuracy (per_side² stratified points).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub accuracy_samples: u32,
+    /// Quad light (cx,cy,cz,ux,uy,uz,vx,vy,vz; default: a quad above the scene's box).
+    #[arg(long, value_parser = crate::render::soft_shadow::parse_area_light, allow_hyphen_values = true)]
+    pub area_light: Option<AreaLight>,
 }
 
 /// The default benchmark scene: the blob standing on a ground quad.
@@ -165,7 +198,6 @@ struct BenchSetup {
     name: String,
     tris: Vec<[[f32; 3]; 3]>,
     tree: NTree,
-    masks: ChildMasks,
     build_seconds: f64,
     light: AreaLight,
     offset: f32,
@@ -183,25 +215,34 @@ fn bench_setup(a: &LinespaceBenchArgs, warnings: &mut Vec<String>) -> Result<Ben
             "procedural blob (70,000 triangles) on a ground quad".to_string(),
         ),
     };
+    if tris.is_empty() {
+        return Err(Error::runtime(
+            "bench linespace: the model has no triangles",
+        ));
+    }
     let opts = NTreeOptions {
         n: a.n,
         depth: a.depth,
+        cubic_cells: !a.flat_cells,
     };
-    let ((masks, tree), build_seconds) = timed(|| {
-        let masks = ChildMasks::build(opts.n);
-        let tree = build_ntree(&tris, &opts, &masks);
-        (masks, tree)
-    });
-    let tree = tree?;
+    let (tree, build_seconds) =
+        timed(|| build_ntree(&tris, &opts, &Arc::new(ShaftTable::build(opts.n))));
+    let mut tree = tree?;
+    tree.refine = a.refine;
     let (_, size) = crate::linespace::gpu::root_box(&tree);
-    let light = crate::linespace::gpu::light_above(&tree, a.samples.max(1));
+    let light = match a.area_light {
+        Some(l) => AreaLight {
+            samples: a.samples.max(1),
+            ..l
+        },
+        None => crate::linespace::gpu::light_above(&tree, a.samples.max(1)),
+    };
     let offset = 1e-4 * size.iter().cloned().fold(0.0, f32::max);
     let receivers = receivers(&tris, a.receivers);
     Ok(BenchSetup {
         name,
         tris,
         tree,
-        masks,
         build_seconds,
         light,
         offset,
@@ -209,21 +250,37 @@ fn bench_setup(a: &LinespaceBenchArgs, warnings: &mut Vec<String>) -> Result<Ben
     })
 }
 
-/// `bake bench linespace`: the same shadow segments through exact obvhs any-hit rays, the
-/// per-segment line-space query (reading the line-space pool, then the shared shaft table);
-/// single-threaded timings.
+/// Timed answers of every segment through `tree` (single thread, fastest of `runs`).
+fn time_queries(tree: &NTree, segs: &[Segment], runs: u32) -> (Vec<bool>, f64, QueryStats) {
+    let mut stats = QueryStats::default();
+    let (hits, seconds) = best_of(runs, || {
+        stats = QueryStats::default();
+        segs.iter()
+            .map(|s| tree.segment_occluded(s, &mut stats))
+            .collect::<Vec<bool>>()
+    });
+    (hits, seconds, stats)
+}
+
+/// `bake bench linespace`: the same shadow segments through exact obvhs any-hit rays and the
+/// per-segment line-space query in every refinement (compact storage; with `--dense` also
+/// reading the thesis' dense line-space pool); single-threaded timings. With `--accuracy`, the
+/// visibility comparison of [`bench_accuracy`] instead.
 pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
+    let setup = bench_setup(a, &mut warnings)?;
+    if a.accuracy {
+        return bench_accuracy(a, setup, warnings);
+    }
     let BenchSetup {
         name,
         tris,
         mut tree,
-        masks,
         build_seconds,
         light,
         offset,
         receivers,
-    } = bench_setup(a, &mut warnings)?;
+    } = setup;
     let exact = ExactShadow::new(&tris);
     let segs: Vec<Segment> = receivers
         .iter()
@@ -237,27 +294,52 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
             .map(|s| exact.occluded(s))
             .collect::<Vec<bool>>()
     });
-    let mut stats = QueryStats::default();
-    let (pool_hits, pool_seconds) = best_of(runs, || {
-        stats = QueryStats::default();
-        segs.iter()
-            .map(|s| tree.segment_occluded(s, &mut stats))
-            .collect::<Vec<bool>>()
-    });
-    let (table, table_build_seconds) = timed(|| ShaftCells::from_masks(&masks));
-    drop(masks);
-    tree.use_shaft_table(std::sync::Arc::new(table))?;
-    let mut table_stats = QueryStats::default();
-    let (table_hits, table_seconds) = best_of(runs, || {
-        table_stats = QueryStats::default();
-        segs.iter()
-            .map(|s| tree.segment_occluded(s, &mut table_stats))
-            .collect::<Vec<bool>>()
-    });
-    if table_hits != pool_hits {
-        warnings.push(
-            "per-segment answers differ between the line-space pool and the shaft table".into(),
-        );
+    let per = |x: f64| exact_seconds / x.max(1e-12);
+    let mut modes = Vec::new();
+    let mut chosen = None;
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Near, Refine::Exact] {
+        tree.refine = refine;
+        let (hits, seconds, stats) = time_queries(&tree, &segs, runs);
+        let lit_blocked = lit_but_blocked(&hits, &exact_hits);
+        if lit_blocked > 0 {
+            warnings.push(format!(
+                "{refine:?}: {lit_blocked} rays lit that obvhs finds blocked"
+            ));
+        }
+        modes.push(serde_json::json!({
+            "refine": refine, "seconds": seconds, "speedup": per(seconds),
+            "lit_but_shadowed": lit_blocked,
+            "over_occluded": lit_but_blocked(&exact_hits, &hits),
+            "linespace_lookups": stats.linespace_lookups,
+            "exact_triangle_tests": stats.exact_triangle_tests,
+            "dda_steps": stats.dda_steps, "nodes_visited": stats.nodes_visited,
+        }));
+        if refine == a.refine {
+            chosen = Some((hits, seconds, stats));
+        }
+    }
+    tree.refine = a.refine;
+    let (hits, seconds, stats) = chosen.unwrap_or_default();
+    let mut dense_json = serde_json::Value::Null;
+    if a.dense {
+        let opts = NTreeOptions {
+            n: tree.n,
+            depth: tree.depth,
+            cubic_cells: !a.flat_cells,
+        };
+        let (d, dense_build) = timed(|| build_dense(&tris, &opts, &ChildMasks::build(tree.n)));
+        let d = d?;
+        let mut reference = tree.clone();
+        reference.dense_linespaces = Some(Arc::new(d.linespaces));
+        let (dense_hits, dense_seconds, _) = time_queries(&reference, &segs, runs);
+        if dense_hits != hits {
+            warnings.push("answers differ between the dense pool and the shaft table".into());
+        }
+        let (node_bytes, _) = (8 * d.nodes.len(), 0);
+        dense_json = serde_json::json!({
+            "seconds": dense_seconds, "speedup": per(dense_seconds), "build_seconds": dense_build,
+            "node_bytes": node_bytes, "linespace_bytes": 4 * reference.dense_linespaces.as_ref().map_or(0, |p| p.len()),
+        });
     }
     let mut floor_stats = QueryStats::default();
     let (_, floor_seconds) = best_of(runs, || {
@@ -283,51 +365,137 @@ pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
             "{d} rays: exact N-tree traversal and obvhs disagree"
         ));
     }
-    let per = |x: f64| exact_seconds / x.max(1e-12);
     let (lit_blocked, over) = (
-        lit_but_blocked(&table_hits, &exact_hits),
-        lit_but_blocked(&exact_hits, &table_hits),
+        lit_but_blocked(&hits, &exact_hits),
+        lit_but_blocked(&exact_hits, &hits),
     );
     let json = serde_json::json!({
         "model": name, "triangles": tris.len(), "n": tree.n, "depth": tree.depth,
-        "inner_nodes": tree.inner_nodes(), "build_seconds": build_seconds,
+        "inner_nodes": tree.inner_nodes(), "leaves": tree.leaves(), "build_seconds": build_seconds,
+        "bytes": tree.bytes(), "shaft_table_bytes": tree.shafts.bytes(),
+        "dense_bytes": section::dense_bytes(&tree),
         "receivers": receivers.len(), "samples_per_receiver": light.samples.pow(2),
         "rays": segs.len(), "exact_seconds": exact_seconds,
-        "linespace_seconds": table_seconds, "speedup": per(table_seconds),
-        "method": "per segment, line-space bits from the shared shaft table",
+        "refine": a.refine, "linespace_seconds": seconds, "speedup": per(seconds),
+        "method": "per segment, compact tree, line-space bits from the shared shaft table",
         "lit_but_shadowed": lit_blocked, "shadowed_but_lit": over,
-        "pool_seconds": pool_seconds, "pool_speedup": per(pool_seconds),
-        "shaft_table_seconds": table_build_seconds,
-        "shaft_table_bytes": 8 * tree.shafts.as_ref().map_or(0, |t| t.cells.len()),
-        "linespace_pool_bytes": 4 * tree.linespaces.len(),
+        "modes": modes, "dense": dense_json,
         "ntree_exact_seconds": ntree_exact_seconds,
         "start_node_seconds": floor_seconds,
         "start_node_triangle_tests": floor_stats.exact_triangle_tests,
-        "speedup_vs_ntree_triangle_tests": ntree_exact_seconds / table_seconds.max(1e-12),
+        "speedup_vs_ntree_triangle_tests": ntree_exact_seconds / seconds.max(1e-12),
         "exact_occluded": exact_hits.iter().filter(|h| **h).count(),
         "linespace_lookups": stats.linespace_lookups, "exact_triangle_tests": stats.exact_triangle_tests,
         "dda_steps": stats.dda_steps, "nodes_visited": stats.nodes_visited,
     });
-    let text = format!(
-        "{name}: {} triangles, n = {} depth {} ({} inner nodes, built in {:.2} s)\n{} rays ({} receivers × {}): exact obvhs {:.3} s; line space {:.3} s ({:.2}×; reading the line-space pool: {:.3} s, {:.2}×); N-tree with exact triangle tests {:.3} s; the exact tests in the start node alone {:.3} s; lit but shadowed {}, over-occluded {}\n",
+    let mut text = format!(
+        "{name}: {} triangles, n = {} depth {} ({} inner nodes, {} bytes, built in {:.2} s)\n{} rays ({} receivers × {}): exact obvhs {:.3} s; N-tree with exact triangle tests {:.3} s; the exact tests in the start node alone {:.3} s\n",
         tris.len(),
         tree.n,
         tree.depth,
         tree.inner_nodes(),
+        tree.bytes(),
         build_seconds,
         segs.len(),
         receivers.len(),
         light.samples.pow(2),
         exact_seconds,
-        table_seconds,
-        per(table_seconds),
-        pool_seconds,
-        per(pool_seconds),
         ntree_exact_seconds,
         floor_seconds,
-        lit_blocked,
-        over,
     );
+    for m in &json["modes"].as_array().cloned().unwrap_or_default() {
+        text += &format!(
+            "  line space, refine {}: {:.3} s ({:.2}× obvhs), lit but shadowed {}, over-occluded {}\n",
+            m["refine"].as_str().unwrap_or("?"),
+            m["seconds"].as_f64().unwrap_or(0.0),
+            m["speedup"].as_f64().unwrap_or(0.0),
+            m["lit_but_shadowed"],
+            m["over_occluded"]
+        );
+    }
+    Ok(Outcome {
+        json,
+        text,
+        warnings,
+    })
+}
+
+/// `bake bench linespace --accuracy`: per receiver, the line-space visibility (each
+/// refinement) against exact obvhs visibility to the same `accuracy_samples²` stratified light
+/// points ([`crate::linespace::accuracy`]); both sides on all threads.
+fn bench_accuracy(
+    a: &LinespaceBenchArgs,
+    setup: BenchSetup,
+    warnings: Vec<String>,
+) -> Result<Outcome> {
+    let BenchSetup {
+        name,
+        tris,
+        mut tree,
+        build_seconds,
+        light,
+        offset,
+        receivers,
+    } = setup;
+    let exact = ExactShadow::new(&tris);
+    let points = stratified_points(&light, a.accuracy_samples, 0x5eed);
+    let (exact_fractions, exact_seconds) = exact_visibility(&exact, &receivers, &points, offset);
+    let mut modes = Vec::new();
+    let mut headline = serde_json::Value::Null;
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Near, Refine::Exact] {
+        tree.refine = refine;
+        let (linespace, linespace_seconds, stats) =
+            linespace_visibility(&tree, &receivers, &points, offset);
+        let v = Visibilities {
+            linespace,
+            exact: exact_fractions.clone(),
+            linespace_seconds,
+            exact_seconds,
+            stats,
+        };
+        let r = compare(&v, points.len());
+        let mut m = serde_json::json!(r);
+        m["refine"] = serde_json::json!(refine);
+        m["linespace_seconds"] = serde_json::json!(v.linespace_seconds);
+        m["exact_seconds"] = serde_json::json!(v.exact_seconds);
+        m["time_ratio_vs_exact"] =
+            serde_json::json!(v.linespace_seconds / v.exact_seconds.max(1e-12));
+        m["segments"] = serde_json::json!(receivers.len() * points.len());
+        if refine == a.refine {
+            headline = m.clone();
+        }
+        modes.push(m);
+    }
+    let mut json = headline;
+    json["model"] = serde_json::json!(name);
+    json["triangles"] = serde_json::json!(tris.len());
+    json["n"] = serde_json::json!(tree.n);
+    json["depth"] = serde_json::json!(tree.depth);
+    json["bytes"] = serde_json::json!(tree.bytes());
+    json["build_seconds"] = serde_json::json!(build_seconds);
+    json["threads"] = serde_json::json!(rayon::current_num_threads());
+    json["light"] =
+        serde_json::json!({"corner": light.corner, "edge_u": light.edge_u, "edge_v": light.edge_v});
+    json["modes"] = serde_json::json!(modes);
+    let mut text = format!(
+        "{name}: n = {} depth {}, {} receivers × {} stratified light points, exact obvhs as reference\n",
+        tree.n,
+        tree.depth,
+        receivers.len(),
+        points.len()
+    );
+    for m in &modes {
+        text += &format!(
+            "  refine {}: mean |error| {:.4}, darker than exact by > 0.1: {:.2} %, brighter than exact: {}; {:.2} s ({:.2}× the exact rays' {:.2} s)\n",
+            m["refine"].as_str().unwrap_or("?"),
+            m["mean_abs_error"].as_f64().unwrap_or(0.0),
+            100.0 * m["darker_share"].as_f64().unwrap_or(0.0),
+            m["brighter_than_exact"],
+            m["linespace_seconds"].as_f64().unwrap_or(0.0),
+            m["time_ratio_vs_exact"].as_f64().unwrap_or(0.0),
+            m["exact_seconds"].as_f64().unwrap_or(0.0),
+        );
+    }
     Ok(Outcome {
         json,
         text,

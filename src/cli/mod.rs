@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod bittree;
 pub mod build;
+pub mod cache;
 pub mod cluster;
 pub mod dump;
 pub mod envmaps;
@@ -12,6 +13,7 @@ pub mod ingest;
 pub mod lightmap;
 pub mod linespace;
 pub mod material;
+pub mod pipeline;
 pub mod prt;
 pub mod render;
 pub mod sky;

@@ -47,6 +47,15 @@ pub struct RenderArgs {
     /// Light samples per side of the soft shadows (samples² shadow segments per pixel).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub shadow_samples: u32,
+    /// Deepest-level refinement of the soft shadows' line-space query (shaft: the thesis;
+    /// cells: leaf cells on the segment; exact: their triangles; near: exact within one
+    /// deepest-node side of the receiver).
+    #[arg(long, value_enum, default_value_t = crate::linespace::ntree::Refine::default())]
+    pub shadow_refine: crate::linespace::ntree::Refine,
+    /// Also run the soft shadows as exact ray-traced visibility (same receivers and samples,
+    /// no line spaces) and report both passes' GPU times and their difference.
+    #[arg(long, requires = "soft_shadows")]
+    pub shadow_compare: bool,
     /// Light terms to draw: all (direct sun + ambient), direct or ambient alone.
     #[arg(long, value_enum, default_value_t = Terms::All)]
     pub terms: Terms,
@@ -86,6 +95,8 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
             .then_some(crate::render::soft_shadow::SoftShadows {
                 area_light: args.area_light,
                 samples: args.shadow_samples,
+                refine: args.shadow_refine,
+                compare_exact: args.shadow_compare,
             }),
         terms: args.terms,
     };
@@ -110,6 +121,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         "adapter": out.adapter,
         "stats": out.stats,
         "soft_shadows": out.soft_shadows.as_ref().map(|s| s.stats),
+        "soft_shadow_comparison": out.soft_shadows.as_ref().and_then(|s| s.comparison),
     });
     if let Some(path) = &args.reference {
         let r = crate::render::reference::render_reference(&pack, &opts)?;

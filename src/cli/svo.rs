@@ -245,6 +245,7 @@ mod tests {
             output: None,
             n: 4,
             depth: 2,
+            flat_cells: false,
         };
         crate::cli::linespace::run(&la, &g).unwrap();
         let pack = Pack::open(&path).unwrap();

@@ -27,6 +27,9 @@ pub struct ValidateArgs {
     /// Seed of the random batches.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Deepest-level refinement of the line-space queries compared (both sides).
+    #[arg(long, value_enum, default_value_t = crate::linespace::ntree::Refine::default())]
+    pub refine: crate::linespace::ntree::Refine,
     /// Graphics API.
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
     pub backend: BackendChoice,
@@ -89,13 +92,16 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
         json["svo"]["agree"] = json!(a.agrees());
     }
     if let Some(e) = ls_entry {
-        let (_, tree) = crate::linespace::section::from_section(&pack.view(e)?)
+        let (_, mut tree) = crate::linespace::section::from_section(&pack.view(e)?)
             .map_err(|err| Error::invalid(&args.pack, err))?;
+        tree.refine = args.refine;
         let a = validate_linespace(&gpu, &tree, args.receivers, args.samples, args.seed)?;
         ok &= a.agrees();
         text += &format!(
-            "linespace: {} segments ({} occluded), {} mismatches ({} without line spaces); \
+            "linespace (refine {:?}, {} bytes on the GPU): {} segments ({} occluded), {} mismatches ({} without line spaces); \
              {} receivers × {} samples, {} shadow-fraction mismatches, {} in penumbra\n",
+            a.refine,
+            a.gpu_pool_bytes,
             a.segments,
             a.occluded,
             a.segment_mismatches,

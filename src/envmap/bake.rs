@@ -48,18 +48,24 @@ pub struct EnvmapScene<'a> {
     pub sun: Option<SunLight>,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct EnvmapOptions {
     pub samples: u32,
     pub seed: u64,
 }
 
+impl EnvmapOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: EnvmapOptions = EnvmapOptions {
+        samples: 256,
+        seed: 0x00e0_2005,
+    };
+}
+
 impl Default for EnvmapOptions {
     fn default() -> Self {
-        EnvmapOptions {
-            samples: 256,
-            seed: 0x00e0_2005,
-        }
+        Self::DEFAULT
     }
 }
 
@@ -68,8 +74,18 @@ pub type InstanceMaps = ([[f32; 3]; 16], [[f32; 3]; 16]);
 
 /// Bakes the maps of every instance (parallel, deterministic).
 pub fn bake_envmaps(scene: &EnvmapScene, opts: &EnvmapOptions) -> Vec<InstanceMaps> {
+    bake_envmaps_range(scene, opts, 0..scene.count)
+}
+
+/// The maps of instances `range` (clamped to the scene's count).
+pub fn bake_envmaps_range(
+    scene: &EnvmapScene,
+    opts: &EnvmapOptions,
+    range: std::ops::Range<usize>,
+) -> Vec<InstanceMaps> {
     let sky_irr = scene.sky.to_irradiance();
-    (0..scene.count)
+    let range = range.start.min(scene.count)..range.end.min(scene.count);
+    range
         .into_par_iter()
         .map(|i| bake_one(scene, &sky_irr, i, opts))
         .collect()

@@ -28,7 +28,8 @@ use super::kdtree::{KdTree, dist2};
 use rayon::prelude::*;
 
 /// How much Monte-Carlo noise the bound allows for (see the module doc).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase", deny_unknown_fields)]
 pub enum Noise {
     /// The maps are exact: the bound applies to the error itself.
     #[default]
@@ -40,7 +41,8 @@ pub enum Noise {
 }
 
 /// Options of [`cluster_envmaps`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct ClusterOptions {
     /// Bound on every instance's error: RMS over its coefficients of (reconstruction − original),
     /// relative to the RMS of all original coefficients.
@@ -55,15 +57,20 @@ pub struct ClusterOptions {
     pub noise: Noise,
 }
 
+impl ClusterOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: ClusterOptions = ClusterOptions {
+        error: 0.02,
+        k: None,
+        radius: None,
+        split_fraction: 0.5,
+        noise: Noise::None,
+    };
+}
+
 impl Default for ClusterOptions {
     fn default() -> Self {
-        ClusterOptions {
-            error: 0.02,
-            k: None,
-            radius: None,
-            split_fraction: 0.5,
-            noise: Noise::None,
-        }
+        Self::DEFAULT
     }
 }
 

@@ -171,6 +171,18 @@ pub fn envmap_sections(
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = crate::lightmap::scene_lighting(pack)?;
     let scene = crate::tracescene::trace_scene(pack)?;
+    let maps = instance_maps(&scene, &light, opts, 0..scene.instance_count);
+    Ok(vec![envmaps_section(&maps, opts)])
+}
+
+/// The maps of the instances in `range` (a shard; every instance's maps depend on its index
+/// and the scene only, so shards concatenate to the maps of the whole range).
+pub fn instance_maps(
+    scene: &crate::tracescene::TraceScene,
+    light: &crate::lightmap::Lighting,
+    opts: &bake::EnvmapOptions,
+    range: std::ops::Range<usize>,
+) -> Vec<bake::InstanceMaps> {
     let probe_height = scene
         .instances
         .items
@@ -188,7 +200,14 @@ pub fn envmap_sections(
             irradiance,
         }),
     };
-    let maps = bake::bake_envmaps(&es, opts);
+    bake::bake_envmaps_range(&es, opts, range)
+}
+
+/// The `envmaps` section of every instance's maps.
+pub fn envmaps_section(
+    maps: &[bake::InstanceMaps],
+    opts: &bake::EnvmapOptions,
+) -> crate::pack::Section {
     let sky: Vec<[[f32; 3]; 16]> = maps.iter().map(|m| m.0).collect();
     let sun: Vec<[[f32; 3]; 16]> = maps.iter().map(|m| m.1).collect();
     let meta = section::EnvmapsMeta {
@@ -199,9 +218,7 @@ pub fn envmap_sections(
             "spherical Fibonacci rays from a probe at half the model height; one diffuse bounce"
                 .into(),
     };
-    Ok(vec![section::envmaps_to_section(
-        "envmaps", &meta, &sky, &sun,
-    )])
+    section::envmaps_to_section("envmaps", &meta, &sky, &sun)
 }
 
 /// The clustering stage on a pack with `instances` and `envmaps`: the `clusters` section, whose

@@ -252,6 +252,42 @@ pub fn resolve_model(
 
 /// Reads one or more ECO files into a scene: terrain, models (loaded once), instances.
 pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
+    let plan = scene_plan(paths, opts)?;
+    let policy = scene_policy(&paths[0], opts);
+    let meshes: Vec<Result<crate::model::Mesh>> = plan
+        .models
+        .par_iter()
+        .map(|(_, path)| super::load_mesh_in(path, &policy))
+        .collect();
+    let mut scene = plan.scene;
+    for ((name, path), mesh) in plan.models.iter().zip(meshes) {
+        let mesh = mesh?;
+        scene.warnings.extend(
+            mesh.warnings
+                .iter()
+                .map(|w| format!("{}: {w}", path.display())),
+        );
+        scene.models.push(Model {
+            name: name.clone(),
+            path: path.clone(),
+            mesh,
+        });
+    }
+    Ok(scene)
+}
+
+/// A scene before its models are read: the terrain, the instances and the resolved model files
+/// (name, path) in order of first appearance (`scene.models` is empty).
+#[derive(Debug, Clone)]
+pub struct ScenePlan {
+    pub scene: Scene,
+    pub models: Vec<(String, PathBuf)>,
+    /// Every ECO file, the RAW file and the colour map read.
+    pub files: Vec<PathBuf>,
+}
+
+/// Reads the ECO files and the terrain and resolves every model name, without reading models.
+pub fn scene_plan(paths: &[PathBuf], opts: &IngestOptions) -> Result<ScenePlan> {
     let first = paths
         .first()
         .ok_or_else(|| Error::usage("no ECO file given"))?;
@@ -353,35 +389,33 @@ pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
             });
         }
     }
-    let meshes: Vec<Result<crate::model::Mesh>> = model_paths
-        .par_iter()
-        .map(|(_, path)| super::load_mesh_in(path, &policy))
-        .collect();
-    let mut models = Vec::with_capacity(meshes.len());
-    for ((name, path), mesh) in model_paths.iter().zip(meshes) {
-        let mesh = mesh?;
-        warnings.extend(
-            mesh.warnings
-                .iter()
-                .map(|w| format!("{}: {w}", path.display())),
-        );
-        models.push(Model {
-            name: name.clone(),
-            path: path.clone(),
-            mesh,
-        });
+    let names = model_paths.iter().map(|m| m.0.clone()).collect();
+    let raw = dir(first).join(&head.terrain.file);
+    let mut read: Vec<PathBuf> = paths.to_vec();
+    if let Some(c) = opts
+        .color_map
+        .clone()
+        .or_else(|| super::raw::find_color_map(&raw))
+    {
+        read.push(raw);
+        read.push(c);
+    } else {
+        read.push(raw);
     }
-    let names = models.iter().map(|m| m.name.clone()).collect();
-    Ok(Scene {
-        terrain: Some(terrain),
-        models,
-        instances: Instances {
-            models: names,
-            items,
+    Ok(ScenePlan {
+        scene: Scene {
+            terrain: Some(terrain),
+            models: Vec::new(),
+            instances: Instances {
+                models: names,
+                items,
+            },
+            aoi: aoi.unwrap_or_default(),
+            sky: None,
+            warnings,
         },
-        aoi: aoi.unwrap_or_default(),
-        sky: None,
-        warnings,
+        models: model_paths,
+        files: read,
     })
 }
 

@@ -626,7 +626,7 @@ fn buffer_file(uri: &str) -> Result<Option<PathBuf>, String> {
         .map_err(|_| format!("URI {uri:?} does not percent-decode to UTF-8"))
 }
 
-fn percent_decode(s: &str) -> String {
+pub(crate) fn percent_decode(s: &str) -> String {
     String::from_utf8_lossy(&percent_decode_bytes(s)).into_owned()
 }
 

@@ -237,3 +237,41 @@ pub fn ingest_file(path: &Path, opts: &IngestOptions) -> Result<Ingested> {
         None => Err(unknown_kind(path)),
     }
 }
+
+/// The files a model file makes its reader open besides itself and its texture images (which
+/// are in `Mesh::textures`): the MTL files of an OBJ, the external buffers of a glTF. Only files
+/// that exist are listed (a missing one is the reader's error or warning). For dependency lists.
+pub fn mesh_side_files(path: &Path) -> Vec<PathBuf> {
+    let dir = path.parent().unwrap_or(Path::new(""));
+    let Ok(bytes) = std::fs::read(path) else {
+        return Vec::new();
+    };
+    let names: Vec<String> = match InputKind::of(path) {
+        Some(InputKind::Obj) => String::from_utf8_lossy(&bytes)
+            .lines()
+            .filter_map(|l| l.trim_start().strip_prefix("mtllib"))
+            .flat_map(|rest| rest.split_whitespace().map(str::to_string))
+            .collect(),
+        Some(InputKind::Gltf) => ::gltf::Gltf::from_slice_without_validation(&bytes)
+            .map(|g| {
+                g.document
+                    .buffers()
+                    .filter_map(|b| match b.source() {
+                        ::gltf::buffer::Source::Uri(u) if !u.starts_with("data:") => {
+                            Some(gltf::percent_decode(u))
+                        }
+                        _ => None,
+                    })
+                    .collect()
+            })
+            .unwrap_or_default(),
+        _ => Vec::new(),
+    };
+    let mut out: Vec<PathBuf> = names
+        .iter()
+        .map(|n| dir.join(n))
+        .filter(|p| p.is_file())
+        .collect();
+    out.dedup();
+    out
+}

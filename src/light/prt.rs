@@ -49,7 +49,8 @@ pub const SETS: usize = 2;
 pub const PER_VERTEX: usize = SIDES * SETS * COEFFS;
 
 /// Options of the PRT stage.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct PrtOptions {
     /// Paths per vertex side.
     pub samples: u32,
@@ -89,13 +90,20 @@ impl PrtOptions {
     }
 }
 
-impl Default for PrtOptions {
-    fn default() -> Self {
+impl PrtOptions {
+    /// The default: 256 paths per side, 3 bounces.
+    pub const fn standard() -> Self {
         PrtOptions {
             samples: 256,
             bounces: 3,
             ..Self::preview()
         }
+    }
+}
+
+impl Default for PrtOptions {
+    fn default() -> Self {
+        Self::standard()
     }
 }
 

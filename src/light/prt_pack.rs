@@ -190,44 +190,58 @@ pub fn prt_pack(
     let mut warnings = Vec::new();
     let meshes: Vec<_> = pack.of_kind(kinds::mesh::KIND).cloned().collect();
     for e in &meshes {
-        let start = std::time::Instant::now();
-        let view = pack.view(e)?;
-        let (meta, mesh) =
-            kinds::mesh::from_section(&view).map_err(|err| Error::invalid(pack.path(), err))?;
-        let textures = mesh_textures(pack, &e.name, &meta, &mut warnings);
-        let is_txf = meta.source.to_ascii_lowercase().ends_with(".txf");
-        let o = PrtOptions {
-            default_translucence: if is_txf {
-                opts.default_translucence
-            } else {
-                0.0
-            },
-            ..opts.clone()
-        };
-        let mats = prt::prt_materials(&mesh, &textures, o.default_translucence);
-        let masks = prt::alpha_masks(&mesh, &textures);
-        let bvh = ModelBvh::build_split(&mesh, &masks, o.preset, o.alpha_split)?;
-        if bvh.skipped_triangles() > 0 {
-            warnings.push(format!(
-                "{}: {} triangles with non-finite positions left out of the BVH",
-                e.name,
-                bvh.skipped_triangles()
-            ));
-        }
-        let t = prt::bake_prt_with(&bvh, &mesh, &mats, &o, progress);
-        let name = section_name(&e.name);
-        w.insert(to_section(&name, &e.name, &t, &mats));
-        reports.push(MeshPrtReport {
-            mesh: e.name.clone(),
-            section: name,
-            vertices: t.vertices,
-            triangles: mesh.indices.len(),
-            rays: t.rays,
-            seconds: start.elapsed().as_secs_f64(),
-            skipped_vertices: t.skipped_vertices,
-        });
+        let (section, report) = prt_mesh(pack, &e.name, opts, progress, &mut warnings)?;
+        w.insert(section);
+        reports.push(report);
     }
     Ok((w, reports, warnings))
+}
+
+/// The `prt` section of one mesh section of `pack` (reads the mesh and its textures only).
+pub fn prt_mesh(
+    pack: &Pack,
+    mesh_section: &str,
+    opts: &PrtOptions,
+    progress: &(dyn Fn(u64) + Sync),
+    warnings: &mut Vec<String>,
+) -> Result<(Section, MeshPrtReport)> {
+    let start = std::time::Instant::now();
+    let view = pack.view_named(mesh_section)?;
+    let (meta, mesh) =
+        kinds::mesh::from_section(&view).map_err(|err| Error::invalid(pack.path(), err))?;
+    let textures = mesh_textures(pack, mesh_section, &meta, warnings);
+    let is_txf = meta.source.to_ascii_lowercase().ends_with(".txf");
+    let o = PrtOptions {
+        default_translucence: if is_txf {
+            opts.default_translucence
+        } else {
+            0.0
+        },
+        ..opts.clone()
+    };
+    let mats = prt::prt_materials(&mesh, &textures, o.default_translucence);
+    let masks = prt::alpha_masks(&mesh, &textures);
+    let bvh = ModelBvh::build_split(&mesh, &masks, o.preset, o.alpha_split)?;
+    if bvh.skipped_triangles() > 0 {
+        warnings.push(format!(
+            "{}: {} triangles with non-finite positions left out of the BVH",
+            mesh_section,
+            bvh.skipped_triangles()
+        ));
+    }
+    let t = prt::bake_prt_with(&bvh, &mesh, &mats, &o, progress);
+    let name = section_name(mesh_section);
+    let section = to_section(&name, mesh_section, &t, &mats);
+    let report = MeshPrtReport {
+        mesh: mesh_section.to_string(),
+        section: name,
+        vertices: t.vertices,
+        triangles: mesh.indices.len(),
+        rays: t.rays,
+        seconds: start.elapsed().as_secs_f64(),
+        skipped_vertices: t.skipped_vertices,
+    };
+    Ok((section, report))
 }
 
 /// The decoded textures a mesh section refers to (`None` where there is no usable section).

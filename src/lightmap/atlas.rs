@@ -20,7 +20,8 @@ use glam::{Vec2, Vec3A};
 use std::collections::{HashMap, VecDeque};
 
 /// How the atlas is laid out.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct AtlasOptions {
     /// Texels per side of the tile (grown by doubling up to 4096 if the charts do not fit).
     pub tile: u32,
@@ -32,14 +33,19 @@ pub struct AtlasOptions {
     pub max_chart_triangles: usize,
 }
 
+impl AtlasOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: AtlasOptions = AtlasOptions {
+        tile: 64,
+        gutter: 2,
+        cone_cos: 0.866,
+        max_chart_triangles: 256,
+    };
+}
+
 impl Default for AtlasOptions {
     fn default() -> Self {
-        AtlasOptions {
-            tile: 64,
-            gutter: 2,
-            cone_cos: 0.866,
-            max_chart_triangles: 256,
-        }
+        Self::DEFAULT
     }
 }
 

@@ -40,7 +40,8 @@ pub enum LightmapMode {
     Thesis,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LightmapOptions {
     /// Texels per side (the terrain grid size by default).
     pub resolution: Option<u32>,
@@ -52,16 +53,21 @@ pub struct LightmapOptions {
     pub atlas: atlas::AtlasOptions,
 }
 
+impl LightmapOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: LightmapOptions = LightmapOptions {
+        resolution: None,
+        samples: 64,
+        sun_samples: 16,
+        mode: LightmapMode::Physical,
+        max_instances: 16,
+        atlas: atlas::AtlasOptions::DEFAULT,
+    };
+}
+
 impl Default for LightmapOptions {
     fn default() -> Self {
-        LightmapOptions {
-            resolution: None,
-            samples: 64,
-            sun_samples: 16,
-            mode: LightmapMode::Physical,
-            max_instances: 16,
-            atlas: atlas::AtlasOptions::default(),
-        }
+        Self::DEFAULT
     }
 }
 
@@ -88,11 +94,21 @@ pub fn bake_terrain_lightmap(
     light: &Lighting,
     opts: &LightmapOptions,
 ) -> Option<Lightmap> {
+    bake_terrain_lightmap_parts(scene, light, opts).map(|(m, _)| m)
+}
+
+/// [`bake_terrain_lightmap`] and the direct-sun part of every texel (equal to
+/// [`terrain_direct_sun`]'s, from the same pass).
+pub fn bake_terrain_lightmap_parts(
+    scene: &TraceScene,
+    light: &Lighting,
+    opts: &LightmapOptions,
+) -> Option<(Lightmap, Vec<[f32; 3]>)> {
     let t = scene.terrain.as_ref()?;
     let res = opts.resolution.unwrap_or(t.width.max(t.height)).max(1);
     let (w, h) = (res, res);
     let sky_irr = light.sky.to_irradiance();
-    let texels = (0..w * h)
+    let (texels, direct): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..w * h)
         .into_par_iter()
         .map(|k| {
             let (i, j) = (k % w, k / w);
@@ -101,7 +117,7 @@ pub fn bake_terrain_lightmap(
             let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / h as f32) * t.extent[1];
             let p = Vec3A::new(x, y, t.height_at(x, y));
             let n = Vec3A::from(height_normal(t, x, y));
-            texel_irradiance(
+            texel_irradiance_parts(
                 &scene.bvh,
                 &scene.albedo,
                 light,
@@ -112,12 +128,15 @@ pub fn bake_terrain_lightmap(
                 opts,
             )
         })
-        .collect();
-    Some(Lightmap {
-        width: w,
-        height: h,
-        texels,
-    })
+        .unzip();
+    Some((
+        Lightmap {
+            width: w,
+            height: h,
+            texels,
+        },
+        direct,
+    ))
 }
 
 /// Normal of the bilinear height field at (x, y) by central differences over one grid step.
@@ -141,9 +160,26 @@ pub fn texel_irradiance(
     texel: u64,
     opts: &LightmapOptions,
 ) -> [f32; 3] {
+    texel_irradiance_parts(bvh, albedo, light, sky_irr, p, n, texel, opts).0
+}
+
+/// [`texel_irradiance`] and its direct-sun part `E_sun · max(0, n·s) · V` (what
+/// [`terrain_direct_sun`] recomputes), from one pass.
+#[allow(clippy::too_many_arguments)]
+pub fn texel_irradiance_parts(
+    bvh: &SceneBvh,
+    albedo: &[[f32; 3]],
+    light: &Lighting,
+    sky_irr: &ShIrradiance,
+    p: Vec3A,
+    n: Vec3A,
+    texel: u64,
+    opts: &LightmapOptions,
+) -> ([f32; 3], [f32; 3]) {
     let thesis = opts.mode == LightmapMode::Thesis;
     let origin = p + n * 1e-3;
     let mut e = [0.0f64; 3];
+    let mut direct = [0.0f32; 3];
     if let Some((s, irr)) = light.sun {
         let s = Vec3A::from(s);
         let cos = n.dot(s);
@@ -153,8 +189,9 @@ pub fn texel_irradiance(
             } else {
                 sun_visibility(bvh, origin, s, opts.sun_samples, texel)
             };
+            direct = irr.map(|e| e * cos * vis);
             for k in 0..3 {
-                e[k] += (irr[k] * cos * vis) as f64;
+                e[k] += direct[k] as f64;
             }
         }
     }
@@ -184,7 +221,7 @@ pub fn texel_irradiance(
             e[c] += (l[c].max(0.0) * std::f32::consts::PI / nsamp as f32) as f64;
         }
     }
-    e.map(|v| v as f32)
+    (e.map(|v| v as f32), direct)
 }
 
 /// Outgoing diffuse radiance of a hit surface lit by the sun (shadowed) and the unoccluded sky.
@@ -278,8 +315,17 @@ pub fn lightmap_sections(
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = scene_lighting(pack)?;
     let scene = crate::tracescene::trace_scene(pack)?;
-    let Some(map) = bake_terrain_lightmap(&scene, &light, opts) else {
-        return Ok(Vec::new());
+    Ok(terrain_sections(&scene, &light, opts))
+}
+
+/// [`lightmap_sections`] with the scene and its light at hand (empty without a terrain).
+pub fn terrain_sections(
+    scene: &TraceScene,
+    light: &Lighting,
+    opts: &LightmapOptions,
+) -> Vec<crate::pack::Section> {
+    let Some((map, direct)) = bake_terrain_lightmap_parts(scene, light, opts) else {
+        return Vec::new();
     };
     let meta = section::LightmapMeta {
         surface: "terrain".into(),
@@ -289,19 +335,18 @@ pub fn lightmap_sections(
         samples: opts.samples,
         sun_samples: opts.sun_samples,
     };
-    let direct = terrain_direct_sun(&scene, &light, &meta);
     let indirect: Vec<[f32; 3]> = map
         .texels
         .iter()
         .zip(&direct)
         .map(|(e, d)| std::array::from_fn(|c| (e[c] - d[c]).max(0.0)))
         .collect();
-    Ok(vec![section::to_section_with_indirect(
+    vec![section::to_section_with_indirect(
         "lightmap:terrain",
         &meta,
         &map,
         &indirect,
-    )])
+    )]
 }
 
 /// The direct-sun part of every texel of a terrain light map, exactly as

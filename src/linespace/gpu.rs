@@ -1,8 +1,10 @@
 //! GPU soft-shadow queries through the N-tree with line spaces: the `linespace` section's
-//! `nodes`, `linespaces`, `tri_indices` and `triangles` arrays bound as storage buffers exactly
-//! as packed, traversed by `shaders/ls_query.wgsl`, which follows [`super::query`] operation for
-//! operation (DDA, line-space termination, exact Möller–Trumbore tests as obvhs writes them).
-//! [`validate_linespace`] compares it with the CPU on random segments and shadow queries.
+//! arrays (`occupancy`, `first_child`, `leaf_tris`, `tri_indices`, `triangles`, `shaft_cells`)
+//! bound as storage buffers exactly as packed, traversed by `shaders/ls_query.wgsl`, which
+//! follows [`super::query`] operation for operation (DDA, rank-compacted children, line-space
+//! bits as occupancy & shaft cells, the deepest level's refinement, exact Möller–Trumbore tests
+//! as obvhs writes them). [`validate_linespace`] compares it with the CPU on random segments and
+//! shadow queries.
 
 use super::ntree::NTree;
 use super::query::{AreaLight, QueryStats, Segment};
@@ -25,24 +27,18 @@ struct Params {
     depth: u32,
     count: u32,
     stride: u32,
-    words: u32,
+    /// u32 words of a group's occupancy and of a shaft's cells.
+    occ_words: u32,
     use_linespaces: u32,
     offset: f32,
     seg_t_max: f32,
     samples: u32,
     flags: u32,
-    /// Node entries per node-pool window, u32 words per line-space window.
-    node_window: u32,
-    ls_window: u32,
-    pad: [u32; 2],
+    /// [`super::ntree::Refine::code`].
+    refine: u32,
+    pad: [u32; 3],
 }
-
-/// Storage bindings the node pool and the line-space pool are split over: a device binds at most
-/// `max_storage_buffer_binding_size` bytes per binding (128 MiB on lavapipe), less than the pools
-/// of the thesis' n = 10, depth 3 on a scene (258 MB of nodes and 600 MB of line spaces on the
-/// fixture), so each pool is uploaded as consecutive windows, one buffer each.
-const NODE_WINDOWS: usize = 4;
-const LS_WINDOWS: usize = 8;
+const _: () = assert!(size_of::<Params>() == 80);
 
 /// Output of the `shadow` kernel: counts of lit samples, or f32 fractions.
 const FLAG_FRACTION: u32 = 1;
@@ -55,67 +51,46 @@ pub struct NTreeGpu<'g> {
     gpu: &'g Gpu,
     segments: Kernel,
     shadow: Kernel,
-    /// Node windows, line-space windows, triangle indices, triangles (binding order).
+    /// occupancy, first_child, leaf_tris, tri_indices, triangles, shaft_cells (the section's
+    /// arrays), then the reversed occupancy derived from it (binding order).
     pools: Vec<wgpu::Buffer>,
     base: Params,
 }
 
-/// Splits `bytes` (elements of `elem` bytes) into at most `windows` buffers of `per` elements;
-/// the unused windows get a small zero buffer.
-fn windows(
-    gpu: &Gpu,
-    label: &str,
-    bytes: &[u8],
-    elem: usize,
-    per: usize,
-    windows: usize,
-) -> Result<Vec<wgpu::Buffer>> {
-    let chunk = per * elem;
-    let needed = bytes.len().div_ceil(chunk).max(1);
-    if needed > windows {
-        return Err(Error::runtime(format!(
-            "{label}: {} bytes need {needed} storage bindings of at most {chunk} bytes, more than \
-             the {windows} the shader has (use a smaller --n or --depth)",
-            bytes.len()
-        )));
-    }
-    (0..windows)
-        .map(|w| {
-            let part = bytes.get(w * chunk..((w + 1) * chunk).min(bytes.len()));
-            compute::storage(gpu, label, part.unwrap_or(&[]))
-        })
-        .collect()
-}
-
 impl<'g> NTreeGpu<'g> {
-    /// Uploads the tree's pools as they are (the bytes of the `linespace` section's arrays), the
-    /// node and line-space pools in windows as large as the device binds.
+    /// Uploads the tree's arrays as they are (the bytes of the `linespace` section) and the
+    /// reversed occupancy, one storage binding each; a pool larger than the device binds fails
+    /// with its name and size.
     pub fn new(gpu: &'g Gpu, t: &NTree) -> Result<Self> {
-        let limit = gpu.device.limits().max_storage_buffer_binding_size;
-        Self::with_window_bytes(gpu, t, limit.min(u32::MAX as u64) as usize)
-    }
-
-    /// [`Self::new`] with pool windows of at most `window_bytes` bytes (tests use small ones).
-    pub fn with_window_bytes(gpu: &'g Gpu, t: &NTree, window_bytes: usize) -> Result<Self> {
         if t.depth as usize > 12 {
             return Err(Error::runtime("linespace: depth > 12"));
         }
         let parts = [DDA_WGSL, QUERY_WGSL];
-        let (node_window, ls_window) = ((window_bytes / 8).max(1), (window_bytes / 4).max(1));
-        let nodes = bytemuck::cast_slice(&t.nodes);
-        let mut pools = windows(gpu, "ntree nodes", nodes, 8, node_window, NODE_WINDOWS)?;
-        let ls = bytemuck::cast_slice(&t.linespaces);
-        pools.extend(windows(gpu, "linespaces", ls, 4, ls_window, LS_WINDOWS)?);
-        pools.push(compute::storage(
-            gpu,
-            "tri indices",
-            bytemuck::cast_slice(&t.tri_indices),
-        )?);
-        pools.push(compute::storage(
-            gpu,
-            "triangles",
-            bytemuck::cast_slice(&t.triangles),
-        )?);
+        let arrays: [(&str, &[u8]); 7] = [
+            ("linespace occupancy", bytemuck::cast_slice(&t.occupancy)),
+            (
+                "linespace first_child",
+                bytemuck::cast_slice(&t.first_child),
+            ),
+            ("linespace leaf_tris", bytemuck::cast_slice(&t.leaf_tris)),
+            (
+                "linespace tri_indices",
+                bytemuck::cast_slice(&t.tri_indices),
+            ),
+            ("linespace triangles", bytemuck::cast_slice(&t.triangles)),
+            (
+                "linespace shaft_cells",
+                bytemuck::cast_slice(&t.shafts.cells),
+            ),
+            (
+                "linespace occupancy reversed",
+                bytemuck::cast_slice(&t.occupancy_rev),
+            ),
+        ];
+        let pools = arrays
+            .iter()
+            .map(|(label, bytes)| compute::storage(gpu, label, bytes))
+            .collect::<Result<Vec<_>>>()?;
         let inputs = pools.len() as u32 + 1;
         Ok(NTreeGpu {
             gpu,
@@ -129,17 +104,21 @@ impl<'g> NTreeGpu<'g> {
                 depth: t.depth,
                 count: 0,
                 stride: 0,
-                words: t.layout().words() as u32,
+                occ_words: 2 * t.occupancy_words() as u32,
                 use_linespaces: 1,
                 offset: 0.0,
                 seg_t_max: 1.0,
                 samples: 0,
                 flags: 0,
-                node_window: node_window as u32,
-                ls_window: ls_window as u32,
-                pad: [0; 2],
+                refine: t.refine.code(),
+                pad: [0; 3],
             },
         })
+    }
+
+    /// Bytes uploaded (the pools as bound).
+    pub fn pool_bytes(&self) -> u64 {
+        self.pools.iter().map(|b| b.size()).sum()
     }
 
     /// The pools and then `extra` as the kernel's inputs.
@@ -204,9 +183,22 @@ impl<'g> NTreeGpu<'g> {
         light: &AreaLight,
         offset: f32,
     ) -> Result<Vec<f32>> {
+        self.shadow_fractions_with(receivers, light, offset, true)
+    }
+
+    /// [`Self::shadow_fractions`], or with `linespaces == false` the exact N-tree traversal
+    /// (every filled leaf on the way tested exactly: ray-traced visibility, same segments).
+    pub fn shadow_fractions_with(
+        &self,
+        receivers: &[Receiver],
+        light: &AreaLight,
+        offset: f32,
+        linespaces: bool,
+    ) -> Result<Vec<f32>> {
         let (queries, params) = self.shadow_setup(receivers, light, offset)?;
         let params = Params {
             flags: FLAG_FRACTION,
+            use_linespaces: linespaces as u32,
             ..params
         };
         let raw = self.run(&self.shadow, params, &queries)?;
@@ -357,6 +349,10 @@ pub struct LinespaceAgreement {
     pub penumbra: usize,
     /// Up to 5 disagreeing segment indices.
     pub examples: Vec<usize>,
+    /// Bytes of the pools bound on the GPU (the section's arrays plus the reversed occupancy).
+    pub gpu_pool_bytes: u64,
+    /// What the query did in a deepest-level node with a full shaft (both sides).
+    pub refine: super::ntree::Refine,
     /// Wall time of the line-space segments on the GPU (upload, dispatch, read-back) and on
     /// the CPU (one thread).
     pub gpu_seconds: f64,
@@ -411,6 +407,8 @@ pub fn validate_linespace(
         occluded: cpu.iter().filter(|&&o| o).count(),
         receivers: points.len(),
         samples: k,
+        gpu_pool_bytes: dev.pool_bytes(),
+        refine: t.refine,
         cpu_seconds: (t1 - t0).as_secs_f64(),
         gpu_seconds: (t3 - t2).as_secs_f64(),
         ..Default::default()
@@ -435,9 +433,11 @@ pub fn validate_linespace(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::linespace::ntree::{NTreeOptions, build_ntree};
-    use crate::linespace::shaft::ChildMasks;
+    use crate::linespace::dense::build_dense;
+    use crate::linespace::ntree::{NTreeOptions, Refine, build_ntree};
+    use crate::linespace::shaft::{ChildMasks, ShaftTable};
     use crate::render::{BackendChoice, gpu::init_gpu};
+    use std::sync::Arc;
 
     /// Small random triangles in [0, 10]³ over a ground quad at z = −0.5.
     fn scene(seed: u64, count: usize) -> Vec<[[f32; 3]; 3]> {
@@ -458,7 +458,18 @@ mod tests {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
         for (n, depth, seed) in [(4, 2, 1), (3, 3, 2), (10, 2, 3), (2, 5, 4)] {
             let tris = scene(seed, 200);
-            let t = build_ntree(&tris, &NTreeOptions { n, depth }, &ChildMasks::build(n)).unwrap();
+            let shafts = Arc::new(ShaftTable::build(n));
+            let mut t = build_ntree(
+                &tris,
+                &NTreeOptions {
+                    n,
+                    depth,
+                    cubic_cells: true,
+                },
+                &shafts,
+            )
+            .unwrap();
+            t.refine = Refine::Shaft;
             let a = validate_linespace(&gpu, &t, 400, 4, seed).unwrap();
             assert!(a.agrees(), "n {n} depth {depth}: {a:?}");
             assert_eq!(a.segments, 400 * 16);
@@ -471,46 +482,55 @@ mod tests {
     }
 
     #[test]
-    fn pools_split_over_several_windows_give_the_cpu_answers() {
+    fn gpu_compact_pools_equal_the_cpu_on_the_dense_reference_in_every_refine_mode() {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
         let tris = scene(5, 300);
-        let t = build_ntree(
-            &tris,
-            &NTreeOptions { n: 4, depth: 3 },
-            &ChildMasks::build(4),
-        )
-        .unwrap();
-        let (node_bytes, ls_bytes) = (t.nodes.len() * 8, t.linespaces.len() * 4);
-        // Windows small enough that both pools span several of them.
-        let window = (node_bytes / 3).max(ls_bytes / 7).next_multiple_of(8);
-        assert!(node_bytes.div_ceil(window) >= 2 && ls_bytes.div_ceil(window) >= 2);
+        let opts = NTreeOptions {
+            n: 4,
+            depth: 3,
+            cubic_cells: true,
+        };
+        let mut t = build_ntree(&tris, &opts, &Arc::new(ShaftTable::build(4))).unwrap();
+        // The CPU reads its line-space bits from the thesis' dense pool, built independently.
+        let dense = build_dense(&tris, &opts, &ChildMasks::build(4)).unwrap();
         let light = light_above(&t, 4);
         let segs: Vec<Segment> = random_receivers(&t, 300, 2)
             .iter()
             .flat_map(|&p| (0..16).map(move |i| Segment::between(p, light.sample(i), 1e-3)))
             .collect();
-        let split = NTreeGpu::with_window_bytes(&gpu, &t, window).unwrap();
-        let whole = NTreeGpu::new(&gpu, &t).unwrap();
-        for linespaces in [true, false] {
-            let cpu: Vec<bool> = segs
-                .iter()
-                .map(|s| {
-                    let mut st = QueryStats::default();
-                    if linespaces {
-                        t.segment_occluded(s, &mut st)
-                    } else {
-                        t.segment_occluded_exact(s, &mut st)
-                    }
-                })
-                .collect();
-            assert_eq!(split.segments_occluded(&segs, linespaces).unwrap(), cpu);
-            assert_eq!(whole.segments_occluded(&segs, linespaces).unwrap(), cpu);
-            let blocked = cpu.iter().filter(|&&b| b).count();
-            assert!(blocked > 100 && blocked < segs.len() - 100, "{blocked}");
+        let mut blocked = Vec::new();
+        for refine in [Refine::Shaft, Refine::Cells, Refine::Exact, Refine::Near] {
+            t.refine = refine;
+            let dev = NTreeGpu::new(&gpu, &t).unwrap();
+            let mut reference = t.clone();
+            reference.dense_linespaces = Some(Arc::new(dense.linespaces.clone()));
+            for linespaces in [true, false] {
+                let cpu: Vec<bool> = segs
+                    .iter()
+                    .map(|s| {
+                        let mut st = QueryStats::default();
+                        if linespaces {
+                            reference.segment_occluded(s, &mut st)
+                        } else {
+                            reference.segment_occluded_exact(s, &mut st)
+                        }
+                    })
+                    .collect();
+                assert_eq!(dev.segments_occluded(&segs, linespaces).unwrap(), cpu);
+                if linespaces {
+                    blocked.push(cpu.iter().filter(|&&b| b).count());
+                }
+            }
         }
-        // Pools larger than the shader's windows: an error saying so, not a wrong answer.
-        let err = NTreeGpu::with_window_bytes(&gpu, &t, 64).err().unwrap();
-        assert!(err.to_string().contains("storage bindings"), "{err}");
+        // Each finer refinement blocks no more segments, and some blocked ones remain.
+        assert!(
+            blocked[0] >= blocked[1] && blocked[1] >= blocked[2],
+            "{blocked:?}"
+        );
+        assert!(
+            blocked[2] > 100 && blocked[0] < segs.len() - 100,
+            "{blocked:?}"
+        );
     }
 
     #[test]
@@ -519,8 +539,12 @@ mod tests {
         let tris = scene(9, 100);
         let t = build_ntree(
             &tris,
-            &NTreeOptions { n: 4, depth: 2 },
-            &ChildMasks::build(4),
+            &NTreeOptions {
+                n: 4,
+                depth: 2,
+                cubic_cells: true,
+            },
+            &Arc::new(ShaftTable::build(4)),
         )
         .unwrap();
         let light = light_above(&t, 3);

@@ -15,7 +15,7 @@
 //! derives `endVec` from the end point), a node is skipped when the line-space test is *false*
 //! (Algorithm 1 skips on true), and bits are read with a right shift.
 
-use super::ntree::NTree;
+use super::ntree::{NTree, Refine};
 use crate::voxel::traverse::{Dda, Ray, box_interval};
 use obvhs::ray::Ray as BvhRay;
 use obvhs::triangle::Triangle;
@@ -142,7 +142,7 @@ impl NTree {
             }
             span.t1 = span.t1.min(dda.exit());
             at = At {
-                group: self.nodes[1 + at.group as usize * self.n3() + slot].group(),
+                group: self.child(at.group, slot),
                 level: at.level + 1,
                 base: [0, 1, 2].map(|k| at.base[k] + c[k] as f32 * cell),
                 side: cell,
@@ -218,7 +218,16 @@ impl NTree {
             stats.linespace_lookups += 1;
             match self.shaft_full(r, group, base, side, span) {
                 Some(false) => return false,
-                Some(true) if deepest => return true,
+                Some(true) if deepest => {
+                    return match self.refine {
+                        Refine::Near if near_start(r, span.t0, side) => {
+                            self.exact_occluded(s, r, group, base, side, span, stats)
+                        }
+                        Refine::Shaft | Refine::Near => true,
+                        Refine::Cells => self.cells_crossed(r, group, base, side, span, stats),
+                        Refine::Exact => self.exact_occluded(s, r, group, base, side, span, stats),
+                    };
+                }
                 _ => {}
             }
         }
@@ -235,10 +244,8 @@ impl NTree {
             let c = dda.c;
             let slot = (c[0] + n * c[1] + n * n * c[2]) as usize;
             // The group's occupancy bits (in cache) before the 8-byte entry (often not).
-            if self.filled(group, slot)
-                && self.nodes[1 + group as usize * self.n3() + slot].children()
-            {
-                let e = self.nodes[1 + group as usize * self.n3() + slot];
+            // Above the deepest inner level every filled child is an inner node.
+            if self.filled(group, slot) {
                 let child = Span {
                     t0: t,
                     t1: exit,
@@ -247,7 +254,7 @@ impl NTree {
                 };
                 let cb = [0, 1, 2].map(|k| base[k] + c[k] as f32 * cell);
                 let at = At {
-                    group: e.group(),
+                    group: self.child(group, slot),
                     level: level + 1,
                     base: cb,
                     side: cell,
@@ -315,8 +322,7 @@ impl NTree {
             let c = dda.c;
             let slot = (c[0] + n * c[1] + n * n * c[2]) as usize;
             if self.filled(group, slot) {
-                let e = self.nodes[1 + group as usize * self.n3() + slot];
-                let tris = self.leaf_triangles(&e);
+                let tris = self.leaf_triangles(self.child(group, slot));
                 stats.exact_triangle_tests += tris.len() as u64;
                 let hit = tris.iter().any(|&t| {
                     to_bvh_triangle(&self.triangles[t as usize]).intersect(&ray) <= ray.tmax
@@ -330,6 +336,39 @@ impl NTree {
             }
         }
     }
+}
+
+impl NTree {
+    /// [`Refine::Cells`] inside a deepest-level node: whether the segment crosses a leaf that
+    /// holds geometry (a DDA over the node's leaves, occupancy bits only).
+    pub(super) fn cells_crossed(
+        &self,
+        r: &Ray,
+        group: u32,
+        base: [f32; 3],
+        side: f32,
+        span: Span,
+        stats: &mut QueryStats,
+    ) -> bool {
+        let n = self.n as i64;
+        let mut dda = Dda::new(r, base, side / self.n as f32, [n; 3], span.t0);
+        loop {
+            stats.dda_steps += 1;
+            let c = dda.c;
+            if self.filled(group, (c[0] + n * c[1] + n * n * c[2]) as usize) {
+                return true;
+            }
+            if dda.exit() >= span.t1 || !dda.advance(n) {
+                return false;
+            }
+        }
+    }
+}
+
+/// Whether the point at `t` lies within `side` (grid units) of the segment's start.
+fn near_start(r: &Ray, t: f32, side: f32) -> bool {
+    let len = (r.dir[0] * r.dir[0] + r.dir[1] * r.dir[1] + r.dir[2] * r.dir[2]).sqrt();
+    (t - r.t_min) * len < side
 }
 
 /// A node being traversed: its group, level, minimum corner and side (leaf units).

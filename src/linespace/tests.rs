@@ -1,12 +1,14 @@
 //! Invariants of the N-tree and its line spaces against brute-force oracles: a full-matrix build
 //! with the separating-axis shaft test, random segments between patches, exact shadow rays.
 
+use super::dense::{DenseNTree, build_dense};
 use super::linespace::{FACES, Layout, get};
-use super::ntree::{NTree, NTreeOptions, build_ntree};
+use super::ntree::{NTree, NTreeOptions, Refine, build_ntree};
 use super::query::{AreaLight, ExactShadow, QueryStats, Segment};
-use super::shaft::{ChildMasks, ShaftCells, patch_box, shaft_meets_cell_sat};
+use super::shaft::{ChildMasks, ShaftCells, ShaftTable, patch_box, shaft_meets_cell_sat};
 use crate::voxel::tests::Rng;
 use crate::voxel::voxelize::tri_box_overlap_reference;
+use std::sync::Arc;
 
 fn random_tris(rng: &mut Rng, count: usize, size: f32) -> Vec<[[f32; 3]; 3]> {
     (0..count)
@@ -30,7 +32,29 @@ fn frame() -> Vec<[[f32; 3]; 3]> {
 }
 
 fn build(tris: &[[[f32; 3]; 3]], n: u32, depth: u32) -> NTree {
-    build_ntree(tris, &NTreeOptions { n, depth }, &ChildMasks::build(n)).unwrap()
+    build_ntree(
+        tris,
+        &NTreeOptions {
+            n,
+            depth,
+            cubic_cells: true,
+        },
+        &Arc::new(ShaftTable::build(n)),
+    )
+    .unwrap()
+}
+
+fn dense(tris: &[[[f32; 3]; 3]], n: u32, depth: u32) -> DenseNTree {
+    build_dense(
+        tris,
+        &NTreeOptions {
+            n,
+            depth,
+            cubic_cells: true,
+        },
+        &ChildMasks::build(n),
+    )
+    .unwrap()
 }
 
 /// Every inner node: (group, level, world minimum corner, world size).
@@ -42,15 +66,14 @@ fn inner_nodes(t: &NTree) -> Vec<(u32, u32, [f32; 3], [f32; 3])> {
         let (g, l, o, s) = out[i];
         let cs = s.map(|x| x / t.n as f32);
         for slot in 0..t.n3() {
-            let e = t.nodes[1 + g as usize * t.n3() + slot];
-            if e.children() {
+            if l + 1 < t.depth && t.filled(g, slot) {
                 let c = [
                     slot as u32 % t.n,
                     slot as u32 / t.n % t.n,
                     slot as u32 / (t.n * t.n),
                 ];
                 let co = [0, 1, 2].map(|k| o[k] + c[k] as f32 * cs[k]);
-                out.push((e.group(), l + 1, co, cs));
+                out.push((t.child(g, slot), l + 1, co, cs));
             }
         }
         i += 1;
@@ -61,7 +84,7 @@ fn inner_nodes(t: &NTree) -> Vec<(u32, u32, [f32; 3], [f32; 3])> {
 /// Filled children of group g.
 fn filled(t: &NTree, g: u32) -> Vec<[i64; 3]> {
     (0..t.n3())
-        .filter(|&s| t.nodes[1 + g as usize * t.n3() + s].geometry())
+        .filter(|&s| t.filled(g, s))
         .map(|s| {
             let n = t.n as usize;
             [s % n, s / n % n, s / (n * n)].map(|x| x as i64)
@@ -74,11 +97,12 @@ fn linespaces_are_bit_exact_against_a_brute_force_full_matrix() {
     let mut rng = Rng::new(17);
     let tris = random_tris(&mut rng, 12, 2.0);
     let t = build(&tris, 3, 2);
+    let d = dense(&tris, 3, 2);
     let layout = Layout::new(3);
     let pp = 9u32;
     for (g, _, _, _) in inner_nodes(&t) {
         let kids = filled(&t, g);
-        let full = layout.expand_full(t.linespace(g));
+        let full = layout.expand_full(d.linespace(g));
         for fa in 0..FACES {
             for pa in 0..pp {
                 for fb in 0..FACES {
@@ -87,6 +111,9 @@ fn linespaces_are_bit_exact_against_a_brute_force_full_matrix() {
                         let want = kids.iter().any(|&c| shaft_meets_cell_sat(&a, &b, c));
                         let got = get(&full, layout.full_index(fa, pa, fb, pb));
                         assert_eq!(got, want, "group {g}: {fa}:{pa} → {fb}:{pb}");
+                        if let Some(b) = layout.bit(fa, pa, fb, pb) {
+                            assert_eq!(t.linespace_bit(g, b), want, "compact, group {g}");
+                        }
                         // Symmetry and same-face emptiness of the full matrix.
                         assert_eq!(got, get(&full, layout.full_index(fb, pb, fa, pa)));
                         if fa == fb {
@@ -119,7 +146,7 @@ fn filled_cells_match_the_akenine_moller_test() {
                 tris.iter()
                     .any(|tr| tri_box_overlap_reference(center, h, tr.map(|p| p.map(|v| v as f64))))
             };
-            let got = t.nodes[1 + g as usize * 64 + slot].geometry();
+            let got = t.filled(g, slot);
             if over(half_in) {
                 assert!(got, "group {g} slot {slot} misses a triangle");
             }
@@ -145,11 +172,9 @@ fn linespaces_grow_monotonically_with_added_geometry() {
             .iter()
             .find(|(_, lb, ob, _)| *lb == la && *ob == oa)
             .expect("a node of the smaller scene is missing");
-        let (sa, sb) = (a.linespace(ga), b.linespace(*gb));
-        assert!(
-            sa.iter().zip(sb).all(|(x, y)| x & !y == 0),
-            "node {ga} lost bits"
-        );
+        let lost = (0..a.layout().bits())
+            .find(|&bit| a.linespace_bit(ga, bit) && !b.linespace_bit(*gb, bit));
+        assert_eq!(lost, None, "node {ga} lost a bit");
     }
 }
 
@@ -207,7 +232,7 @@ fn segments_between_patches_that_hit_geometry_land_in_set_bits() {
                 hits += 1;
                 let bit = layout.bit(fa, pa, fb, pb).unwrap();
                 assert!(
-                    get(t.linespace(g), bit),
+                    t.linespace_bit(g, bit),
                     "node {g}: {fa}:{pa} → {fb}:{pb} hits geometry but reads empty"
                 );
             }
@@ -223,7 +248,8 @@ fn linespace_shadow_is_never_brighter_than_exact_shadow_rays() {
         let mut tris = random_tris(&mut rng, 200, 0.8);
         tris.push([[-2.0, -2.0, -0.5], [12.0, -2.0, -0.5], [12.0, 12.0, -0.5]]);
         tris.push([[-2.0, -2.0, -0.5], [12.0, 12.0, -0.5], [-2.0, 12.0, -0.5]]);
-        let t = build(&tris, n, depth);
+        let mut t = build(&tris, n, depth);
+        t.refine = [Refine::Shaft, Refine::Cells, Refine::Exact, Refine::Near][(n % 4) as usize];
         let exact = ExactShadow::new(&tris);
         let light = AreaLight {
             corner: [2.0, 3.0, 14.0],
@@ -322,32 +348,29 @@ fn scene_segments(rng: &mut Rng, tris: &[[[f32; 3]; 3]], count: usize) -> Vec<Se
 }
 
 #[test]
-fn shaft_table_reads_every_bit_of_the_line_space_pool() {
+fn shaft_table_equals_the_transposed_child_masks() {
+    for n in 2..=5 {
+        assert_eq!(
+            ShaftCells::build(n),
+            ShaftCells::from_masks(&ChildMasks::build(n)),
+            "n {n}"
+        );
+    }
+}
+
+#[test]
+fn compact_line_spaces_read_every_bit_of_the_dense_pool() {
     let mut rng = Rng::new(31);
     for (n, depth, stride) in [(3, 2, 1), (4, 2, 1), (5, 2, 7), (10, 2, 997)] {
-        let masks = ChildMasks::build(n);
-        let mut t = build_ntree(
-            &random_tris(&mut rng, 40, 1.5),
-            &NTreeOptions { n, depth },
-            &masks,
-        )
-        .unwrap();
-        let pool: Vec<Vec<bool>> = (0..t.inner_nodes() as u32)
-            .map(|g| {
-                (0..t.layout().bits())
-                    .step_by(stride)
-                    .map(|b| get(t.linespace(g), b))
-                    .collect()
-            })
-            .collect();
-        t.use_shaft_table(std::sync::Arc::new(ShaftCells::from_masks(&masks)))
-            .unwrap();
+        let tris = random_tris(&mut rng, 40, 1.5);
+        let t = build(&tris, n, depth);
+        let d = dense(&tris, n, depth);
         let mut ones = 0;
-        for (g, want) in pool.iter().enumerate() {
-            let bits = (0..t.layout().bits()).step_by(stride);
-            for (b, &w) in bits.zip(want) {
-                assert_eq!(t.linespace_bit(g as u32, b), w, "n {n} group {g} bit {b}");
-                ones += w as usize;
+        for g in 0..t.inner_nodes() as u32 {
+            for b in (0..t.layout().bits()).step_by(stride) {
+                let want = get(d.linespace(g), b);
+                assert_eq!(t.linespace_bit(g, b), want, "n {n} group {g} bit {b}");
+                ones += want as usize;
             }
         }
         assert!(ones > 0, "n {n}: no full shaft to compare");
@@ -355,32 +378,128 @@ fn shaft_table_reads_every_bit_of_the_line_space_pool() {
 }
 
 #[test]
-fn shaft_table_queries_equal_pool_queries() {
+fn compact_children_equal_the_dense_node_pool() {
+    let mut rng = Rng::new(12);
+    for (n, depth) in [(3, 3), (4, 2), (10, 2), (2, 5)] {
+        let mut tris = random_tris(&mut rng, 60, 1.0);
+        tris.extend(frame());
+        let t = build(&tris, n, depth);
+        let d = dense(&tris, n, depth);
+        assert_eq!(t.level_groups, d.level_groups);
+        let deepest = t.level_groups[depth as usize - 1];
+        let mut leaves = 0;
+        for g in 0..t.inner_nodes() as u32 {
+            for slot in 0..t.n3() {
+                let e = d.entry(g, slot);
+                assert_eq!(
+                    t.filled(g, slot),
+                    e.geometry(),
+                    "n {n} group {g} slot {slot}"
+                );
+                if !e.geometry() {
+                    continue;
+                }
+                assert_eq!(e.children(), g < deepest);
+                if e.children() {
+                    assert_eq!(t.child(g, slot), e.group(), "group {g} slot {slot}");
+                } else {
+                    let (a, k) = e.leaf_triangles();
+                    let want = &d.tri_indices[a as usize..(a + k) as usize];
+                    assert_eq!(t.leaf_triangles(t.child(g, slot)), want);
+                    leaves += 1;
+                }
+            }
+        }
+        assert_eq!(leaves, t.leaves());
+        assert_eq!(t.tri_indices, d.tri_indices);
+        // The compact form is smaller than the dense pools (both exclude the triangles).
+        let (nodes, ls) = d.bytes();
+        assert!(8 * t.occupancy.len() + 4 * t.first_child.len() < nodes + ls);
+    }
+}
+
+#[test]
+fn shaft_table_queries_equal_dense_pool_queries_in_every_refine_mode() {
     let mut rng = Rng::new(77);
     let mut tris = random_tris(&mut rng, 150, 0.8);
     tris.extend(frame());
-    let masks = ChildMasks::build(4);
-    let mut t = build_ntree(&tris, &NTreeOptions { n: 4, depth: 3 }, &masks).unwrap();
+    let mut t = build(&tris, 4, 3);
+    let d = dense(&tris, 4, 3);
     let segs = scene_segments(&mut rng, &tris, 300);
-    let mut stats = QueryStats::default();
-    let pool: Vec<bool> = segs
-        .iter()
-        .map(|s| t.segment_occluded(s, &mut stats))
-        .collect();
-    t.use_shaft_table(std::sync::Arc::new(ShaftCells::from_masks(&masks)))
-        .unwrap();
-    let mut table_stats = QueryStats::default();
-    let table: Vec<bool> = segs
-        .iter()
-        .map(|s| t.segment_occluded(s, &mut table_stats))
-        .collect();
-    assert_eq!(pool, table);
-    assert_eq!(stats, table_stats);
-    assert!(pool.iter().any(|h| *h) && pool.iter().any(|h| !*h));
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Exact, Refine::Near] {
+        t.refine = refine;
+        let mut reference = t.clone();
+        reference.dense_linespaces = Some(Arc::new(d.linespaces.clone()));
+        let (mut stats, mut ref_stats) = (QueryStats::default(), QueryStats::default());
+        let compact: Vec<bool> = segs
+            .iter()
+            .map(|s| t.segment_occluded(s, &mut stats))
+            .collect();
+        let pool: Vec<bool> = segs
+            .iter()
+            .map(|s| reference.segment_occluded(s, &mut ref_stats))
+            .collect();
+        assert_eq!(compact, pool, "{refine:?}");
+        assert_eq!(stats, ref_stats);
+        assert!(pool.iter().any(|h| *h) && pool.iter().any(|h| !*h));
+    }
+    let other = Arc::new(ShaftTable::build(3));
     assert!(
-        t.use_shaft_table(std::sync::Arc::new(ShaftCells::from_masks(
-            &ChildMasks::build(3)
-        )))
+        build_ntree(
+            &tris,
+            &NTreeOptions {
+                n: 4,
+                depth: 3,
+                cubic_cells: true
+            },
+            &other
+        )
         .is_err()
     );
+}
+
+#[test]
+fn exact_refinement_gives_the_exact_answers() {
+    let mut rng = Rng::new(5);
+    let mut tris = random_tris(&mut rng, 200, 0.8);
+    tris.extend(frame());
+    let mut t = build(&tris, 5, 2);
+    t.refine = Refine::Exact;
+    let exact = ExactShadow::new(&tris);
+    let segs = scene_segments(&mut rng, &tris, 400);
+    let mut stats = QueryStats::default();
+    let differ = segs
+        .iter()
+        .filter(|s| t.segment_occluded(s, &mut stats) != exact.occluded_brute_force(s))
+        .count();
+    assert_eq!(differ, 0);
+    assert!(stats.linespace_lookups > 0);
+}
+
+#[test]
+fn corrupt_sections_are_rejected_with_a_message() {
+    let mut rng = Rng::new(1);
+    let t = build(&random_tris(&mut rng, 20, 1.0), 4, 2);
+    let bytes_of = |t: &NTree| {
+        let mut w = crate::pack::PackWriter::new();
+        w.insert(super::section::to_section("linespace", "test", t));
+        w.to_bytes().unwrap()
+    };
+    let mut bad_child = t.clone();
+    bad_child.first_child[0] = 1 << 30;
+    let mut bad_leaf = t.clone();
+    *bad_leaf.leaf_tris.last_mut().unwrap() += 1;
+    let mut bad_table = t.clone();
+    bad_table.shafts = Arc::new(ShaftTable::build(3));
+    for (what, t) in [
+        ("children", bad_child),
+        ("leaf_tris", bad_leaf),
+        ("shaft_cells", bad_table),
+    ] {
+        let bytes = bytes_of(&t);
+        let pack = crate::pack::Pack::from_bytes(&bytes, "mem").unwrap();
+        let view = pack.view_named("linespace").unwrap();
+        let err = super::section::from_section(&view).unwrap_err().to_string();
+        assert!(err.contains(what), "{err}");
+    }
 }

@@ -21,19 +21,25 @@ use rayon::prelude::*;
 use schlick::{NormalMap, SchlickMaterial};
 
 /// Options of [`bake_materials`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct MaterialOptions {
     pub transfer: crate::texture::linear::Transfer,
     /// Scale mip alpha to keep the alpha-tested area (Castaño); off = the thesis' plain mean.
     pub preserve_coverage: bool,
 }
 
+impl MaterialOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: MaterialOptions = MaterialOptions {
+        transfer: crate::texture::linear::Transfer::Srgb,
+        preserve_coverage: true,
+    };
+}
+
 impl Default for MaterialOptions {
     fn default() -> Self {
-        Self {
-            transfer: crate::texture::linear::Transfer::Srgb,
-            preserve_coverage: true,
-        }
+        Self::DEFAULT
     }
 }
 

@@ -21,8 +21,13 @@ pub use section::{ArrayFormat, SectionBuilder};
 
 /// File magic, 8 bytes.
 pub const MAGIC: [u8; 8] = *b"BAKEPAK\0";
-/// Format version; bumped on any layout change.
-pub const VERSION: u32 = 1;
+/// Format version written; bumped on any layout change (2: the table follows the payloads).
+pub const VERSION: u32 = 2;
+/// Versions this bake reads (1 had the table right after the header; the reader follows the
+/// header's table offset either way).
+pub const READ_VERSIONS: [u32; 2] = [1, 2];
+/// Alignment of the section table.
+pub const TABLE_ALIGN: usize = 16;
 /// Size of the file header.
 pub const HEADER_SIZE: usize = 64;
 /// Size of one section-table entry.
@@ -40,7 +45,108 @@ pub struct Section {
     pub kind: String,
     pub name: String,
     /// The encoded payload (sub-header, directory, metadata, arrays).
-    pub payload: Vec<u8>,
+    pub payload: Payload,
+}
+
+/// A section payload: 16-byte aligned bytes in memory or mapped from a file, shared (a clone
+/// is a reference count), with its BLAKE3 hash computed once when it is made.
+#[derive(Clone)]
+pub struct Payload {
+    data: std::sync::Arc<PayloadData>,
+    hash: [u8; 32],
+}
+
+enum PayloadData {
+    /// Owned bytes in a u128 buffer so that arrays stay 16-byte aligned.
+    Owned(Vec<u128>, usize),
+    /// `len` bytes at `start` of a shared map (a pack file, a cache entry, a streamed output).
+    Mapped(std::sync::Arc<Mmap>, usize, usize),
+}
+
+impl Payload {
+    /// Copies `bytes` into aligned memory and hashes them.
+    pub fn from_slice(bytes: &[u8]) -> Payload {
+        let mut buf = vec![0u128; bytes.len().div_ceil(16)];
+        bytemuck::cast_slice_mut::<u128, u8>(&mut buf)[..bytes.len()].copy_from_slice(bytes);
+        Payload::from_aligned(buf, bytes.len())
+    }
+
+    /// Takes an aligned buffer holding `len` bytes.
+    pub fn from_aligned(buf: Vec<u128>, len: usize) -> Payload {
+        let hash = hash_bytes(&bytemuck::cast_slice::<u128, u8>(&buf)[..len]);
+        Payload {
+            data: std::sync::Arc::new(PayloadData::Owned(buf, len)),
+            hash,
+        }
+    }
+
+    /// `len` bytes at `start` of `map` whose BLAKE3 is already known to be `hash`.
+    pub(crate) fn mapped(
+        map: std::sync::Arc<Mmap>,
+        start: usize,
+        len: usize,
+        hash: [u8; 32],
+    ) -> Payload {
+        Payload {
+            data: std::sync::Arc::new(PayloadData::Mapped(map, start, len)),
+            hash,
+        }
+    }
+
+    /// The BLAKE3 hash of the bytes.
+    pub fn hash(&self) -> &[u8; 32] {
+        &self.hash
+    }
+}
+
+impl std::ops::Deref for Payload {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match &*self.data {
+            PayloadData::Owned(v, n) => &bytemuck::cast_slice(v)[..*n],
+            PayloadData::Mapped(m, start, len) => &m[*start..*start + *len],
+        }
+    }
+}
+
+impl From<Vec<u8>> for Payload {
+    fn from(v: Vec<u8>) -> Payload {
+        Payload::from_slice(&v)
+    }
+}
+
+impl PartialEq for Payload {
+    fn eq(&self, other: &Payload) -> bool {
+        self.hash == other.hash && **self == **other
+    }
+}
+
+impl std::fmt::Debug for Payload {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "Payload({} bytes, blake3 {})",
+            self.len(),
+            hex(&self.hash[..8])
+        )
+    }
+}
+
+/// BLAKE3 of `bytes`, on all threads for large inputs (the same hash either way).
+pub fn hash_bytes(bytes: &[u8]) -> [u8; 32] {
+    if bytes.len() > (1 << 20) {
+        *blake3::Hasher::new()
+            .update_rayon(bytes)
+            .finalize()
+            .as_bytes()
+    } else {
+        *blake3::hash(bytes).as_bytes()
+    }
+}
+
+/// Lower-case hex of `bytes`.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// Collects sections and writes a pack atomically.
@@ -54,7 +160,8 @@ impl PackWriter {
         Self::default()
     }
 
-    /// Starts from every section of an existing pack (stages that read a pack and add to it).
+    /// Starts from every section of an existing pack (stages that read a pack and add to it);
+    /// the payloads stay shared with `pack`'s memory map.
     pub fn from_pack(pack: &Pack) -> Self {
         let sections = pack
             .sections()
@@ -62,7 +169,7 @@ impl PackWriter {
             .map(|s| Section {
                 kind: s.kind.clone(),
                 name: s.name.clone(),
-                payload: pack.payload(s).to_vec(),
+                payload: pack.shared_payload(s),
             })
             .collect();
         Self { sections }
@@ -85,56 +192,261 @@ impl PackWriter {
         &self.sections
     }
 
-    /// Encodes the whole file in memory.
+    /// A pack view of the sections so far, sharing their payloads (no copy, no encoding).
+    pub fn view(&self, name: &str) -> Pack {
+        Pack::from_sections(&self.sections, name)
+    }
+
+    /// Encodes the whole file in memory (the same bytes [`StreamWriter`] writes).
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
-        for s in &self.sections {
-            check_label(&s.kind, KIND_LEN, "kind")?;
-            check_label(&s.name, NAME_LEN, "name")?;
-        }
-        let table_end = HEADER_SIZE + self.sections.len() * ENTRY_SIZE;
-        let mut offsets = Vec::with_capacity(self.sections.len());
-        let mut cursor = table_end;
-        for s in &self.sections {
-            cursor = align_up(cursor, SECTION_ALIGN);
-            offsets.push(cursor);
-            cursor += s.payload.len();
-        }
-        let file_size = cursor;
-        let mut out = vec![0u8; file_size];
-        out[0..8].copy_from_slice(&MAGIC);
-        put_u32(&mut out, 8, VERSION);
-        put_u32(&mut out, 12, 0);
-        put_u32(&mut out, 16, self.sections.len() as u32);
-        put_u32(&mut out, 20, HEADER_SIZE as u32);
-        put_u64(&mut out, 24, HEADER_SIZE as u64);
-        put_u32(&mut out, 32, ENTRY_SIZE as u32);
-        put_u64(&mut out, 40, file_size as u64);
-        for (k, (s, &off)) in self.sections.iter().zip(&offsets).enumerate() {
-            let e = HEADER_SIZE + k * ENTRY_SIZE;
-            out[e..e + s.kind.len()].copy_from_slice(s.kind.as_bytes());
-            out[e + 16..e + 16 + s.name.len()].copy_from_slice(s.name.as_bytes());
-            put_u64(&mut out, e + 112, off as u64);
-            put_u64(&mut out, e + 120, s.payload.len() as u64);
-            put_u32(&mut out, e + 128, SECTION_ALIGN as u32);
-            out[e + 136..e + 168].copy_from_slice(blake3::hash(&s.payload).as_bytes());
+        let layout = Layout::of(
+            self.sections
+                .iter()
+                .map(|s| (s.kind.as_str(), s.name.as_str(), s.payload.len())),
+        )?;
+        let mut out = vec![0u8; layout.file_size];
+        for (s, &off) in self.sections.iter().zip(&layout.offsets) {
             out[off..off + s.payload.len()].copy_from_slice(&s.payload);
         }
+        let entries: Vec<TableEntry> = self
+            .sections
+            .iter()
+            .zip(&layout.offsets)
+            .map(|(s, &off)| TableEntry::of(s, off as u64))
+            .collect();
+        let (head, table) = header_and_table(&entries, layout.table, layout.file_size);
+        out[..HEADER_SIZE].copy_from_slice(&head);
+        out[layout.table..].copy_from_slice(&table);
         Ok(out)
     }
 
     /// Writes the pack to `path` atomically (temporary file in the same folder, then rename).
     pub fn write(&self, path: &Path) -> Result<()> {
-        let bytes = self.to_bytes()?;
-        write_atomic(path, &bytes)
+        let mut s = StreamWriter::create(path)?;
+        for sec in &self.sections {
+            s.push(sec)?;
+        }
+        s.finish()
+    }
+}
+
+/// Where the payloads and the table of a file go (format version 2: payloads first, each
+/// 256-aligned from byte 256, the table after the last payload, 16-aligned).
+struct Layout {
+    offsets: Vec<usize>,
+    table: usize,
+    file_size: usize,
+}
+
+impl Layout {
+    fn of<'a>(sections: impl Iterator<Item = (&'a str, &'a str, usize)>) -> Result<Layout> {
+        let mut offsets = Vec::new();
+        let mut cursor = HEADER_SIZE;
+        for (kind, name, len) in sections {
+            check_label(kind, KIND_LEN, "kind")?;
+            check_label(name, NAME_LEN, "name")?;
+            cursor = align_up(cursor, SECTION_ALIGN);
+            offsets.push(cursor);
+            cursor += len;
+        }
+        let table = align_up(cursor, TABLE_ALIGN);
+        let file_size = table + offsets.len() * ENTRY_SIZE;
+        Ok(Layout {
+            offsets,
+            table,
+            file_size,
+        })
+    }
+}
+
+/// One row of the section table, as written.
+struct TableEntry {
+    kind: String,
+    name: String,
+    offset: u64,
+    size: u64,
+    hash: [u8; 32],
+}
+
+impl TableEntry {
+    fn of(s: &Section, offset: u64) -> TableEntry {
+        TableEntry {
+            kind: s.kind.clone(),
+            name: s.name.clone(),
+            offset,
+            size: s.payload.len() as u64,
+            hash: *s.payload.hash(),
+        }
+    }
+}
+
+/// The 64-byte header and the encoded table.
+fn header_and_table(
+    entries: &[TableEntry],
+    table: usize,
+    file_size: usize,
+) -> ([u8; HEADER_SIZE], Vec<u8>) {
+    let mut head = [0u8; HEADER_SIZE];
+    head[0..8].copy_from_slice(&MAGIC);
+    put_u32(&mut head, 8, VERSION);
+    put_u32(&mut head, 12, 0);
+    put_u32(&mut head, 16, entries.len() as u32);
+    put_u32(&mut head, 20, HEADER_SIZE as u32);
+    put_u64(&mut head, 24, table as u64);
+    put_u32(&mut head, 32, ENTRY_SIZE as u32);
+    put_u64(&mut head, 40, file_size as u64);
+    let mut out = vec![0u8; entries.len() * ENTRY_SIZE];
+    for (k, s) in entries.iter().enumerate() {
+        let e = k * ENTRY_SIZE;
+        out[e..e + s.kind.len()].copy_from_slice(s.kind.as_bytes());
+        out[e + 16..e + 16 + s.name.len()].copy_from_slice(s.name.as_bytes());
+        put_u64(&mut out, e + 112, s.offset);
+        put_u64(&mut out, e + 120, s.size);
+        put_u32(&mut out, e + 128, SECTION_ALIGN as u32);
+        out[e + 136..e + 168].copy_from_slice(&s.hash);
+    }
+    (head, out)
+}
+
+/// Writes a pack section by section into a temporary file beside the target: each payload goes
+/// to disk as soon as it is pushed (and can be read back through a memory map of that file, so
+/// a bake holds no finished section in memory), the table last, then the rename. Dropping the
+/// writer without [`StreamWriter::finish`] removes the temporary file; the previous target
+/// survives either way.
+pub struct StreamWriter {
+    target: PathBuf,
+    tmp: tempfile::NamedTempFile,
+    cursor: u64,
+    entries: Vec<TableEntry>,
+}
+
+impl StreamWriter {
+    /// Opens the temporary file in `target`'s folder (created if missing).
+    pub fn create(target: &Path) -> Result<StreamWriter> {
+        let dir = parent_dir(target);
+        std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        let tmp = tempfile::Builder::new()
+            .prefix(".bake-tmp-")
+            .tempfile_in(&dir)
+            .map_err(|e| Error::io(&dir, e))?;
+        Ok(StreamWriter {
+            target: target.to_path_buf(),
+            tmp,
+            cursor: HEADER_SIZE as u64,
+            entries: Vec::new(),
+        })
+    }
+
+    /// Appends one section's payload (a section of the same name pushed before is an error:
+    /// the streamed file cannot replace it).
+    pub fn push(&mut self, s: &Section) -> Result<()> {
+        self.push_at(s).map(|_| ())
+    }
+
+    /// [`StreamWriter::push`], returning the payload's offset in the file.
+    fn push_at(&mut self, s: &Section) -> Result<u64> {
+        use std::io::{Seek, SeekFrom};
+        check_label(&s.kind, KIND_LEN, "kind")?;
+        check_label(&s.name, NAME_LEN, "name")?;
+        if self.entries.iter().any(|e| e.name == s.name) {
+            return Err(Error::runtime(format!(
+                "section {:?} written twice to {}",
+                s.name,
+                self.target.display()
+            )));
+        }
+        let off = align_up(self.cursor as usize, SECTION_ALIGN) as u64;
+        let path = self.tmp.path().to_path_buf();
+        let f = self.tmp.as_file_mut();
+        f.seek(SeekFrom::Start(off))
+            .map_err(|e| Error::io(&path, e))?;
+        f.write_all(&s.payload).map_err(|e| Error::io(&path, e))?;
+        self.cursor = off + s.payload.len() as u64;
+        self.entries.push(TableEntry::of(s, off));
+        Ok(off)
+    }
+
+    /// Appends `s` and returns it with its payload mapped from the written file instead of
+    /// memory (the owned copy can then be dropped).
+    pub fn push_mapped(&mut self, s: Section) -> Result<Section> {
+        let off = self.push_at(&s)? as usize;
+        let len = s.payload.len();
+        if len == 0 {
+            return Ok(s);
+        }
+        let path = self.tmp.path().to_path_buf();
+        let page = page_size();
+        let start = off / page * page;
+        // SAFETY: the mapped range is never written again (sections are appended after it and
+        // the table after the last one), and the file is only renamed, never truncated.
+        let map = unsafe {
+            memmap2::MmapOptions::new()
+                .offset(start as u64)
+                .len(off - start + len)
+                .map(self.tmp.as_file())
+        }
+        .map_err(|e| Error::io(&path, e))?;
+        let payload = Payload::mapped(
+            std::sync::Arc::new(map),
+            off - start,
+            len,
+            *s.payload.hash(),
+        );
+        Ok(Section {
+            kind: s.kind,
+            name: s.name,
+            payload,
+        })
+    }
+
+    /// Names of the sections written so far.
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.entries.iter().map(|e| e.name.as_str())
+    }
+
+    /// Bytes the finished file will have.
+    pub fn file_size(&self) -> u64 {
+        (align_up(self.cursor as usize, TABLE_ALIGN) + self.entries.len() * ENTRY_SIZE) as u64
+    }
+
+    /// Writes the table and the header, syncs and renames over the target.
+    pub fn finish(mut self) -> Result<()> {
+        use std::io::{Seek, SeekFrom};
+        let table = align_up(self.cursor as usize, TABLE_ALIGN);
+        let file_size = table + self.entries.len() * ENTRY_SIZE;
+        let (head, tab) = header_and_table(&self.entries, table, file_size);
+        let path = self.tmp.path().to_path_buf();
+        let f = self.tmp.as_file_mut();
+        let io = |e| Error::io(&path, e);
+        f.seek(SeekFrom::Start(table as u64)).map_err(io)?;
+        f.write_all(&tab).map_err(io)?;
+        f.seek(SeekFrom::Start(0)).map_err(io)?;
+        f.write_all(&head).map_err(io)?;
+        f.set_len(file_size as u64).map_err(io)?;
+        f.sync_all().map_err(io)?;
+        set_output_permissions(self.tmp.as_file(), &self.target);
+        self.tmp
+            .persist(&self.target)
+            .map_err(|e| Error::io(&self.target, e.error))?;
+        Ok(())
+    }
+}
+
+fn page_size() -> usize {
+    // Every platform bake runs on maps at 4 KiB or a multiple of it; 64 KiB covers them all.
+    65536
+}
+
+fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
     }
 }
 
 /// Writes `bytes` to `path` through a temporary file and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
+    let dir = parent_dir(path);
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let mut tmp = tempfile::Builder::new()
         .prefix(".bake-tmp-")
@@ -199,9 +511,12 @@ pub struct SectionEntry {
 }
 
 enum Storage {
-    Mapped(Mmap),
+    Mapped(std::sync::Arc<Mmap>),
     /// Owned bytes, kept in a u128 buffer so payloads stay 16-byte aligned.
     Owned(Vec<u128>, usize),
+    /// Sections of a pack being built, not encoded as a file: entry `k` has offset `k` and its
+    /// payload is `sections[k]` (checksums were computed when the payloads were made).
+    Sections(Vec<Payload>),
 }
 
 /// A pack opened for reading; payloads are borrowed from the memory map.
@@ -231,7 +546,7 @@ impl Pack {
         let (version, entries) = parse_table(&map).map_err(|e| Error::invalid(path, e))?;
         Ok(Pack {
             path: path.to_path_buf(),
-            storage: Storage::Mapped(map),
+            storage: Storage::Mapped(std::sync::Arc::new(map)),
             version,
             entries,
         })
@@ -250,6 +565,63 @@ impl Pack {
         })
     }
 
+    /// A view of sections in memory (a pack being built): no encoding, payloads shared. Names
+    /// should be unique (a [`PackWriter`] keeps them so); lookups find the first.
+    pub fn from_sections(sections: &[Section], name: &str) -> Pack {
+        let entries = sections
+            .iter()
+            .enumerate()
+            .map(|(k, s)| SectionEntry {
+                kind: s.kind.clone(),
+                name: s.name.clone(),
+                offset: k as u64,
+                size: s.payload.len() as u64,
+                alignment: SECTION_ALIGN as u32,
+                checksum: *s.payload.hash(),
+            })
+            .collect();
+        Pack {
+            path: PathBuf::from(name),
+            storage: Storage::Sections(sections.iter().map(|s| s.payload.clone()).collect()),
+            version: VERSION,
+            entries,
+        }
+    }
+
+    /// The section as a [`Section`] sharing this pack's memory (map or buffers), its hash taken
+    /// from the table (check it with [`Pack::checksum_ok`] first where the file is untrusted).
+    pub fn shared_payload(&self, e: &SectionEntry) -> Payload {
+        match &self.storage {
+            Storage::Sections(v) => v[e.offset as usize].clone(),
+            Storage::Mapped(m) => {
+                Payload::mapped(m.clone(), e.offset as usize, e.size as usize, e.checksum)
+            }
+            Storage::Owned(..) => Payload::from_slice(self.payload(e)),
+        }
+    }
+
+    /// Every section whose payload matches its table checksum, sharing this pack's memory;
+    /// an error naming the first that does not.
+    pub fn checked_sections(&self) -> Result<Vec<Section>> {
+        self.entries
+            .iter()
+            .map(|e| {
+                if !self.checksum_ok(e) {
+                    return Err(Error::invalid_at(
+                        &self.path,
+                        format!("section {:?} at byte {}", e.name, e.offset),
+                        "checksum mismatch: the pack is corrupt",
+                    ));
+                }
+                Ok(Section {
+                    kind: e.kind.clone(),
+                    name: e.name.clone(),
+                    payload: self.shared_payload(e),
+                })
+            })
+            .collect()
+    }
+
     pub fn path(&self) -> &Path {
         &self.path
     }
@@ -264,17 +636,24 @@ impl Pack {
         match &self.storage {
             Storage::Mapped(m) => m,
             Storage::Owned(v, n) => &bytemuck::cast_slice(v)[..*n],
+            Storage::Sections(_) => &[],
         }
     }
 
     /// The raw payload of a section.
     pub fn payload(&self, e: &SectionEntry) -> &[u8] {
-        &self.bytes()[e.offset as usize..(e.offset + e.size) as usize]
+        match &self.storage {
+            Storage::Sections(v) => &v[e.offset as usize],
+            _ => &self.bytes()[e.offset as usize..(e.offset + e.size) as usize],
+        }
     }
 
     /// Whether the payload's BLAKE3 matches the table.
     pub fn checksum_ok(&self, e: &SectionEntry) -> bool {
-        blake3::hash(self.payload(e)).as_bytes() == &e.checksum
+        match &self.storage {
+            Storage::Sections(v) => v[e.offset as usize].hash() == &e.checksum,
+            _ => hash_bytes(self.payload(e)) == e.checksum,
+        }
     }
 
     /// The first section with this name.
@@ -296,7 +675,11 @@ impl Pack {
                 "checksum mismatch: the pack is corrupt",
             ));
         }
-        section::SectionView::parse(self.payload(e), e.offset as usize)
+        let base = match self.storage {
+            Storage::Sections(_) => 0,
+            _ => e.offset as usize,
+        };
+        section::SectionView::parse(self.payload(e), base)
             .map_err(|err| Error::invalid(&self.path, err))
     }
 
@@ -330,10 +713,13 @@ fn parse_table(b: &[u8]) -> Result<(u32, Vec<SectionEntry>), ParseError> {
         ));
     }
     let version = get_u32(b, 8);
-    if version != VERSION {
+    if !READ_VERSIONS.contains(&version) {
         return Err(ParseError::at_byte(
             8,
-            format!("pack format version {version}, this bake reads version {VERSION}"),
+            format!(
+                "pack format version {version}, this bake reads versions {} to {VERSION}",
+                READ_VERSIONS[0]
+            ),
         ));
     }
     let count = get_u32(b, 16) as usize;
@@ -485,6 +871,84 @@ mod tests {
         for cut in [0, 10, 63, 64 + 100, bytes.len() - 1] {
             assert!(Pack::from_bytes(&bytes[..cut], "mem").is_err(), "cut {cut}");
         }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(48))]
+        /// The streamed file (payloads written one by one, read back through maps, table last)
+        /// has exactly the bytes of the in-memory encoder, and reads back.
+        #[test]
+        fn streamed_packs_equal_the_in_memory_encoding(
+            sizes in proptest::collection::vec(0usize..3000, 0..12),
+            seed in 0u8..255,
+        ) {
+            let mut w = PackWriter::new();
+            for (k, n) in sizes.iter().enumerate() {
+                let mut b = SectionBuilder::new("test", &format!("s{k}"));
+                let data: Vec<u8> = (0..*n).map(|i| (i as u8).wrapping_mul(seed).wrapping_add(k as u8)).collect();
+                b.meta(&(k as u32, "meta".to_string()));
+                b.array("data", ArrayFormat::U8, 1, &data);
+                w.insert(b.finish());
+            }
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("s.bake");
+            let mut s = StreamWriter::create(&path).unwrap();
+            let mut mapped = Vec::new();
+            for sec in w.sections() {
+                mapped.push(s.push_mapped(sec.clone()).unwrap());
+            }
+            let size = s.file_size();
+            s.finish().unwrap();
+            let bytes = std::fs::read(&path).unwrap();
+            proptest::prop_assert_eq!(bytes.len() as u64, size);
+            proptest::prop_assert!(bytes == w.to_bytes().unwrap());
+            proptest::prop_assert_eq!(&mapped, &w.sections().to_vec());
+            let pack = Pack::open(&path).unwrap();
+            proptest::prop_assert_eq!(pack.checked_sections().unwrap(), w.sections().to_vec());
+            // The in-memory view reads the same sections without encoding.
+            let view = w.view("mem");
+            for e in view.sections() {
+                proptest::prop_assert_eq!(view.payload(e), pack.payload(pack.find(&e.name).unwrap()));
+            }
+        }
+    }
+
+    #[test]
+    fn version_1_packs_with_the_table_after_the_header_still_read() {
+        // Rewrite a version-2 pack into the version-1 layout: table at 64, payloads after it.
+        let w = sample();
+        let v2 = w.to_bytes().unwrap();
+        let p2 = Pack::from_bytes(&v2, "v2").unwrap();
+        let n = p2.sections().len();
+        let mut out = vec![0u8; 64 + n * ENTRY_SIZE];
+        out[..64].copy_from_slice(&v2[..64]);
+        put_u32(&mut out, 8, 1);
+        put_u64(&mut out, 24, 64);
+        let mut cursor = out.len();
+        for (k, e) in p2.sections().iter().enumerate() {
+            cursor = align_up(cursor, SECTION_ALIGN);
+            out.resize(cursor, 0);
+            let t = 64 + k * ENTRY_SIZE;
+            let row = &v2[get_u64(&v2, 24) as usize + k * ENTRY_SIZE..][..ENTRY_SIZE];
+            out[t..t + ENTRY_SIZE].copy_from_slice(row);
+            put_u64(&mut out, t + 112, cursor as u64);
+            out.extend_from_slice(p2.payload(e));
+            cursor = out.len();
+        }
+        let len = out.len() as u64;
+        put_u64(&mut out, 40, len);
+        let p1 = Pack::from_bytes(&out, "v1").unwrap();
+        assert_eq!(p1.version(), 1);
+        assert_eq!(
+            p1.checked_sections().unwrap(),
+            p2.checked_sections().unwrap()
+        );
+        put_u32(&mut out, 8, 3);
+        let e = Pack::from_bytes(&out, "v3").unwrap_err().to_string();
+        assert!(
+            e.contains("version 3") && e.contains("versions 1 to 2"),
+            "{e}"
+        );
     }
 
     #[test]

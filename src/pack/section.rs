@@ -143,24 +143,25 @@ impl SectionBuilder {
             offsets.push(cursor);
             cursor += a.bytes.len();
         }
-        let mut out = vec![0u8; cursor];
-        put_u32(&mut out, 0, meta_offset as u32);
-        put_u32(&mut out, 4, self.meta.len() as u32);
-        put_u32(&mut out, 8, self.arrays.len() as u32);
+        let mut buf = vec![0u128; cursor.div_ceil(16)];
+        let out = &mut bytemuck::cast_slice_mut::<u128, u8>(&mut buf)[..cursor];
+        put_u32(out, 0, meta_offset as u32);
+        put_u32(out, 4, self.meta.len() as u32);
+        put_u32(out, 8, self.arrays.len() as u32);
         for (k, (a, &off)) in self.arrays.iter().zip(&offsets).enumerate() {
             let d = SUB_HEADER + k * DIR_ENTRY;
             out[d..d + a.name.len()].copy_from_slice(a.name.as_bytes());
-            put_u32(&mut out, d + 24, a.format as u32);
-            put_u32(&mut out, d + 28, a.components);
-            put_u64(&mut out, d + 32, a.count);
-            put_u64(&mut out, d + 40, off as u64);
+            put_u32(out, d + 24, a.format as u32);
+            put_u32(out, d + 28, a.components);
+            put_u64(out, d + 32, a.count);
+            put_u64(out, d + 40, off as u64);
             out[off..off + a.bytes.len()].copy_from_slice(&a.bytes);
         }
         out[meta_offset..meta_offset + self.meta.len()].copy_from_slice(&self.meta);
         Section {
             kind: self.kind.clone(),
             name: self.name.clone(),
-            payload: out,
+            payload: super::Payload::from_aligned(buf, cursor),
         }
     }
 }

@@ -16,7 +16,7 @@ use super::pipelines::{DEPTH_FORMAT, Pipelines};
 use super::upload::GpuScene;
 use crate::error::{Error, Result};
 use crate::linespace::gpu::NTreeGpu;
-use crate::linespace::ntree::NTree;
+use crate::linespace::ntree::{NTree, Refine};
 use crate::linespace::query::AreaLight;
 use crate::pack::Pack;
 use crate::pack::kinds::instances::InstanceRecord;
@@ -47,6 +47,11 @@ pub struct SoftShadows {
     pub area_light: Option<AreaLight>,
     /// Light samples per side (samples² segments per pixel).
     pub samples: u32,
+    /// Deepest-level refinement of the line-space query.
+    pub refine: Refine,
+    /// Also compute the exact ray-traced visibility of the same receivers and light samples on
+    /// the GPU, and report both passes' times and the difference ([`SoftShadowComparison`]).
+    pub compare_exact: bool,
 }
 
 impl Default for SoftShadows {
@@ -54,6 +59,8 @@ impl Default for SoftShadows {
         SoftShadows {
             area_light: None,
             samples: 4,
+            refine: Refine::default(),
+            compare_exact: false,
         }
     }
 }
@@ -71,6 +78,29 @@ pub struct SoftShadowImage {
     /// Segment offset at the receiver (metres), as in `Segment::between`.
     pub offset: f32,
     pub stats: SoftShadowStats,
+    /// With `compare_exact`: the line-space pass against exact ray-traced visibility.
+    pub comparison: Option<SoftShadowComparison>,
+}
+
+/// The GPU soft-shadow pass (line-space visibility per pixel) against an exact per-pixel
+/// ray-traced soft shadow with the same light samples: the same `shadow` kernel over the same
+/// receivers without line spaces, so every segment walks the N-tree's filled leaves and tests
+/// their triangles exactly (the traversal `bake validate` checks against the CPU, whose exact
+/// mode agrees with obvhs). Times are wall seconds of one kernel run each, upload of the
+/// receivers and read-back included.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SoftShadowComparison {
+    pub refine: Refine,
+    pub receivers: u64,
+    pub samples: u32,
+    pub linespace_seconds: f64,
+    pub exact_seconds: f64,
+    /// Mean and largest |line space − exact| over the drawn pixels.
+    pub mean_abs_error: f64,
+    pub max_abs_error: f64,
+    /// Pixels darker than exact by more than 0.1, and brighter than exact at all.
+    pub darker_pixels: u64,
+    pub brighter_pixels: u64,
 }
 
 /// Counts for the render report.
@@ -434,6 +464,7 @@ fn unpad(
         light: *light,
         offset,
         stats,
+        comparison: None,
     }
 }
 
@@ -449,13 +480,57 @@ pub fn for_render(
     lighting: &super::Lighting,
     opts: &SoftShadows,
 ) -> Result<Visibility> {
-    let tree = load_tree(pack)?;
+    let mut tree = load_tree(pack)?;
+    tree.refine = opts.refine;
     let samples = opts.samples.clamp(1, 64);
     let light = match opts.area_light {
         Some(l) => AreaLight { samples, ..l },
         None => sun_light(&tree, lighting.sun_direction, samples),
     };
-    compute_visibility(gpu, pipes, scene, globals, size, &tree, &light)
+    let mut v = compute_visibility(gpu, pipes, scene, globals, size, &tree, &light)?;
+    if opts.compare_exact {
+        v.image.comparison = Some(compare_with_exact(gpu, &tree, &v.image)?);
+    }
+    Ok(v)
+}
+
+/// Runs the `shadow` kernel over the image's receivers with line spaces and without (exact),
+/// timing each, and compares the fractions.
+pub fn compare_with_exact(
+    gpu: &Gpu,
+    tree: &NTree,
+    image: &SoftShadowImage,
+) -> Result<SoftShadowComparison> {
+    let receivers: Vec<crate::linespace::gpu::Receiver> = image
+        .world
+        .iter()
+        .map(|p| (p[3] > 0.5).then_some([p[0], p[1], p[2]]))
+        .collect();
+    let dev = NTreeGpu::new(gpu, tree)?;
+    let (light, offset) = (&image.light, image.offset);
+    let t0 = std::time::Instant::now();
+    let ls = dev.shadow_fractions_with(&receivers, light, offset, true)?;
+    let t1 = std::time::Instant::now();
+    let exact = dev.shadow_fractions_with(&receivers, light, offset, false)?;
+    let t2 = std::time::Instant::now();
+    let drawn: Vec<(f64, f64)> = receivers
+        .iter()
+        .zip(ls.iter().zip(&exact))
+        .filter(|(r, _)| r.is_some())
+        .map(|(_, (&l, &e))| (l as f64, e as f64))
+        .collect();
+    let n = drawn.len().max(1) as f64;
+    Ok(SoftShadowComparison {
+        refine: tree.refine,
+        receivers: drawn.len() as u64,
+        samples: light.samples.max(1).pow(2),
+        linespace_seconds: (t1 - t0).as_secs_f64(),
+        exact_seconds: (t2 - t1).as_secs_f64(),
+        mean_abs_error: drawn.iter().map(|(l, e)| (l - e).abs()).sum::<f64>() / n,
+        max_abs_error: drawn.iter().map(|(l, e)| (l - e).abs()).fold(0.0, f64::max),
+        darker_pixels: drawn.iter().filter(|(l, e)| e - l > 0.1).count() as u64,
+        brighter_pixels: drawn.iter().filter(|(l, e)| l > e).count() as u64,
+    })
 }
 
 /// Parses `--area-light cx,cy,cz,ux,uy,uz,vx,vy,vz` (corner, edge u, edge v; metres).

@@ -29,7 +29,18 @@ use rayon::prelude::*;
 
 /// obvhs build presets, fastest build first. The default was chosen by `bake bench rays`
 /// (docs/PERFORMANCE.md, "Ray tracing and PRT").
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    clap::ValueEnum,
+    serde::Serialize,
+    serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum BuildPreset {
     Fastest,
     #[default]

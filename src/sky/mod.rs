@@ -49,7 +49,8 @@ pub enum SkySource {
 }
 
 /// Options of [`bake_sky`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SkyOptions {
     /// Texels per cube face edge; `None` picks one matching the source's resolution.
     pub face_size: Option<u32>,
@@ -58,13 +59,18 @@ pub struct SkyOptions {
     pub sun: SunOptions,
 }
 
+impl SkyOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: SkyOptions = SkyOptions {
+        face_size: None,
+        rotate_deg: 0.0,
+        sun: SunOptions::DEFAULT,
+    };
+}
+
 impl Default for SkyOptions {
     fn default() -> Self {
-        SkyOptions {
-            face_size: None,
-            rotate_deg: 0.0,
-            sun: SunOptions::default(),
-        }
+        Self::DEFAULT
     }
 }
 

@@ -37,17 +37,23 @@ const MAX_SUN_AREA: f64 = 0.04 * std::f64::consts::PI;
 const PLATEAU_MIN_TEXELS: u32 = 5;
 
 /// Options of [`extract_sun`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SunOptions {
     /// Factor on the sun's solid angle `π r²` covered by the extracted texels.
     pub enlargement: f64,
 }
 
+impl SunOptions {
+    /// The defaults, as a constant (the pipeline presets are built from it).
+    pub const DEFAULT: SunOptions = SunOptions {
+        enlargement: DEFAULT_ENLARGEMENT,
+    };
+}
+
 impl Default for SunOptions {
     fn default() -> Self {
-        SunOptions {
-            enlargement: DEFAULT_ENLARGEMENT,
-        }
+        Self::DEFAULT
     }
 }
 

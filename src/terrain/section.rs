@@ -1,5 +1,6 @@
 //! The prepared terrain in its kind `terrain` section: the ingest arrays (metadata, `heights`)
-//! plus `four_tap` f32×4 and `normals` u8×4 per sample, `quadtree` f32×2 (`[min, max]` per node,
+//! plus `normals` u8×4 per sample (the four-tap texture is not stored: it repeats the heights
+//! four times, so readers derive it, [`super::prepare::four_tap`]), `quadtree` f32×2 (`[min, max]` per node,
 //! all levels finest first) and `quadtree_levels` u32×4 (`width, height, first node, 0` per
 //! level). Readers of the ingest layout keep working; `bake dump` adds `quadtree_levels`.
 
@@ -29,7 +30,6 @@ pub fn to_section(
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
         .array("heights", ArrayFormat::F32, 1, &t.heights)
-        .array("four_tap", ArrayFormat::F32, 4, &p.four_tap)
         .array("normals", ArrayFormat::U8, 4, &p.normals)
         .array("quadtree", ArrayFormat::F32, 2, p.quadtree.nodes())
         .array("quadtree_levels", ArrayFormat::U32, 4, &levels);
@@ -62,14 +62,14 @@ pub fn from_section(
     v: &SectionView,
 ) -> Result<(TerrainMeta, Terrain, PreparedTerrain), ParseError> {
     let (meta, t) = crate::pack::kinds::terrain::from_section(v)?;
-    let four_tap: Vec<[f32; 4]> = v.array_vec("four_tap")?;
     let normals: Vec<[u8; 4]> = v.array_vec("normals")?;
-    if four_tap.len() != t.heights.len() || normals.len() != t.heights.len() {
+    if normals.len() != t.heights.len() {
         return Err(ParseError::new(
-            "terrain section",
-            "four_tap or normals is not one texel per sample",
+            "terrain section, array normals",
+            "normals is not one texel per sample",
         ));
     }
+    let four_tap = super::prepare::four_tap(&t.heights, t.width, t.height);
     let quadtree = quadtree_from_section(v)?;
     let l0 = quadtree.level(0);
     if (l0.width, l0.height) != (t.width.max(2) - 1, t.height.max(2) - 1) {

@@ -4,7 +4,9 @@
 
 use super::Sink;
 use crate::pack::section::{ARRAY_ALIGN, ARRAY_NAME_LEN, ArrayFormat, DIR_ENTRY, SUB_HEADER};
-use crate::pack::{ENTRY_SIZE, HEADER_SIZE, KIND_LEN, MAGIC, NAME_LEN, SECTION_ALIGN, VERSION};
+use crate::pack::{
+    ENTRY_SIZE, HEADER_SIZE, KIND_LEN, MAGIC, NAME_LEN, READ_VERSIONS, SECTION_ALIGN,
+};
 
 /// One section-table entry as read, with what the container checks concluded.
 #[derive(Debug, Clone)]
@@ -49,7 +51,7 @@ fn first_nonzero(b: &[u8], from: usize, to: usize) -> Option<usize> {
 
 /// Checks the header and the table; `None` when the table cannot be located or trusted.
 pub fn check_container(b: &[u8], sink: &mut Sink) -> Option<Table> {
-    let table = check_header(b, sink)?;
+    let (version, table) = check_header(b, sink)?;
     let count = u32_at(b, 16) as usize;
     let end = count
         .checked_mul(ENTRY_SIZE)
@@ -69,15 +71,13 @@ pub fn check_container(b: &[u8], sink: &mut Sink) -> Option<Table> {
     }
     let entries: Vec<Entry> = (0..count).map(|k| read_entry(b, table, k, sink)).collect();
     check_names_unique(&entries, sink);
-    check_layout(b, table + count * ENTRY_SIZE, &entries, sink);
-    Some(Table {
-        version: VERSION,
-        entries,
-    })
+    check_layout(b, (table, table + count * ENTRY_SIZE), &entries, sink);
+    Some(Table { version, entries })
 }
 
-/// The 64-byte header; returns the table offset when the table can be located.
-fn check_header(b: &[u8], sink: &mut Sink) -> Option<usize> {
+/// The 64-byte header; returns the version and the table offset when the table can be located
+/// (version 1: right after the header; version 2: last, at a multiple of 16).
+fn check_header(b: &[u8], sink: &mut Sink) -> Option<(u32, usize)> {
     if b.len() < HEADER_SIZE {
         sink.push(
             "header.truncated",
@@ -103,13 +103,14 @@ fn check_header(b: &[u8], sink: &mut Sink) -> Option<usize> {
         return None;
     }
     let version = u32_at(b, 8);
-    if version != VERSION {
+    if !READ_VERSIONS.contains(&version) {
+        let (first, last) = (READ_VERSIONS[0], READ_VERSIONS[READ_VERSIONS.len() - 1]);
         sink.push(
             "header.version",
             None,
             None,
             8,
-            format!("pack format version {version}, this bake reads version {VERSION}"),
+            format!("pack format version {version}, this bake reads versions {first} to {last}"),
         );
         return None;
     }
@@ -157,19 +158,28 @@ fn check_header(b: &[u8], sink: &mut Sink) -> Option<usize> {
         return None;
     }
     let table = u64_at(b, 24);
-    if table != HEADER_SIZE as u64 {
+    let ok = match version {
+        1 => table == HEADER_SIZE as u64,
+        _ => table >= HEADER_SIZE as u64 && table.is_multiple_of(16),
+    };
+    if !ok || table > b.len() as u64 {
         sink.push(
             "header.table_offset",
             None,
             None,
             24,
             format!(
-                "section table at byte {table}, expected {HEADER_SIZE} (right after the header)"
+                "section table at byte {table}: version {version} puts it {}",
+                if version == 1 {
+                    "right after the header (64)"
+                } else {
+                    "last, at a multiple of 16 inside the file"
+                }
             ),
         );
         return None;
     }
-    Some(HEADER_SIZE)
+    Some((version, table as usize))
 }
 
 /// A NUL-padded UTF-8 label: non-empty, valid, zero after the first NUL.
@@ -313,38 +323,55 @@ fn check_names_unique(entries: &[Entry], sink: &mut Sink) {
     }
 }
 
-/// Payloads in file order after the table, without overlaps, with zero gaps (and nothing but
-/// zeros after the last one).
-fn check_layout(b: &[u8], table_end: usize, entries: &[Entry], sink: &mut Sink) {
-    let mut spans: Vec<&Entry> = entries
+/// Header, table and payloads do not overlap; every gap between them is zero (and nothing but
+/// zeros follows the last); in version 2 the table comes after every payload.
+fn check_layout(b: &[u8], table: (usize, usize), entries: &[Entry], sink: &mut Sink) {
+    let mut spans: Vec<(u64, u64, Option<&Entry>)> = entries
         .iter()
         .filter(|e| {
             e.offset
                 .checked_add(e.size)
                 .is_some_and(|end| end <= b.len() as u64)
         })
+        .map(|e| (e.offset, e.offset + e.size, Some(e)))
         .collect();
-    spans.sort_by_key(|e| (e.offset, e.index));
-    let mut cursor = table_end as u64;
-    for e in spans {
-        if e.offset < cursor {
+    let last_payload = spans.iter().map(|s| s.1).max().unwrap_or(0);
+    if table.0 > HEADER_SIZE && last_payload > table.0 as u64 {
+        sink.push(
+            "layout.table_last",
+            None,
+            None,
+            24,
+            format!(
+                "a payload ends at byte {last_payload}, after the table (byte {})",
+                table.0
+            ),
+        );
+    }
+    spans.push((0, HEADER_SIZE as u64, None));
+    spans.push((table.0 as u64, table.1 as u64, None));
+    spans.sort_by_key(|s| (s.0, s.2.map_or(0, |e| e.index + 1)));
+    let mut cursor = 0u64;
+    for (start, end, e) in spans {
+        let name = e.map(|e| e.name.as_str());
+        if start < cursor && start != end {
             sink.push(
                 "layout.overlap",
-                Some(&e.name),
+                name,
                 None,
-                e.offset,
-                format!("payload starts at byte {} inside the table or the previous payload (ends at {cursor})", e.offset),
+                start,
+                format!("bytes {start}..{end} overlap the header, the table or another payload (ends at {cursor})"),
             );
-        } else if let Some(at) = first_nonzero(b, cursor as usize, e.offset as usize) {
+        } else if let Some(at) = first_nonzero(b, cursor as usize, start as usize) {
             sink.push(
                 "layout.gap",
-                Some(&e.name),
+                name,
                 None,
                 at as u64,
-                "padding before this payload is not zero",
+                "padding before this part of the file is not zero",
             );
         }
-        cursor = cursor.max(e.offset + e.size);
+        cursor = cursor.max(end);
     }
     if let Some(at) = first_nonzero(b, cursor as usize, b.len()) {
         sink.push(
@@ -352,7 +379,7 @@ fn check_layout(b: &[u8], table_end: usize, entries: &[Entry], sink: &mut Sink) 
             None,
             None,
             at as u64,
-            "bytes after the last payload are not zero",
+            "bytes after the last payload or the table are not zero",
         );
     }
 }

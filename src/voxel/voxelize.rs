@@ -26,7 +26,8 @@ pub struct Brick {
 }
 
 /// Options of [`mesh_to_voxels`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct VoxelizeOptions {
     /// Voxels along the longest axis of the mesh bounds.
     pub resolution: u32,
@@ -34,6 +35,13 @@ pub struct VoxelizeOptions {
     pub solid: bool,
     /// Texel alpha below this is a hole (alpha test, as the renderer does for leaves).
     pub alpha_cutoff: f32,
+}
+
+impl Default for VoxelizeOptions {
+    /// Surface voxels at 256 along the longest axis (`bake svo`'s default).
+    fn default() -> Self {
+        Self::surface(256)
+    }
 }
 
 impl VoxelizeOptions {

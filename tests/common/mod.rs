@@ -135,3 +135,25 @@ pub fn fuzz_entry(target: &str, data: &[u8]) -> Result<(), String> {
         other => Err(format!("no such target {other}")),
     }
 }
+
+/// The `bake` binary built for these tests.
+pub fn bake_bin() -> std::path::PathBuf {
+    std::path::PathBuf::from(env!("CARGO_BIN_EXE_bake"))
+}
+
+/// Whether a peer tool is on PATH. Missing under CI (`CI` set) it fails the test, so that a
+/// check cannot pass by not running; elsewhere it prints a visible skip and returns false.
+pub fn tool_available(tool: &str, why: &str) -> bool {
+    let found = Command::new("sh")
+        .args(["-c", &format!("command -v {tool}")])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !found {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "{tool} ({why}) is not installed; .ci/run installs it"
+        );
+        eprintln!("SKIPPED: {tool} ({why}) is not installed");
+    }
+    found
+}

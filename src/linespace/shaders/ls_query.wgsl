@@ -1,7 +1,9 @@
-// Shadow segments through the packed N-tree with line spaces (the `linespace` section's arrays
-// bound as they are, layout in src/linespace/ntree.rs): query::NTree::occluded_in with an
-// explicit stack, the line-space termination (shaft_full), and exact Möller–Trumbore tests in
-// deepest-level nodes written like obvhs' Triangle::intersect (the CPU's exact test).
+// Shadow segments through the packed N-tree in its compact form (the `linespace` section's
+// arrays bound as they are, layout in src/linespace/ntree.rs and docs/FORMAT.md):
+// query::NTree::occluded_in with an explicit stack, children found by rank over the occupancy
+// bits, line-space bits as occupancy & shaft cells (shaft_full), the deepest level's refinement
+// (query::Refine), and exact Möller–Trumbore tests in deepest-level nodes written like obvhs'
+// Triangle::intersect (the CPU's exact test).
 // Entry points: `segments` (one segment per invocation, output 1 = occluded, 0 = clear) and
 // `shadow` (one receiver per invocation against every light sample; output the number of lit
 // samples, or with FLAG_FRACTION the f32 bits of lit / samples).
@@ -14,8 +16,8 @@ struct Params {
     depth: u32,
     count: u32,
     stride: u32,
-    // u32 words per line space.
-    words: u32,
+    // u32 words of one group's occupancy (and of one shaft's cells): 2·⌈n³/64⌉.
+    occ_words: u32,
     // 0: no line spaces (exact N-tree traversal), 1: line-space termination.
     use_linespaces: u32,
     // Segment::between: offset at the receiver, and the end t.
@@ -23,11 +25,11 @@ struct Params {
     seg_t_max: f32,
     samples: u32,
     flags: u32,
-    // Node entries per node-pool window, words per line-space window.
-    node_window: u32,
-    ls_window: u32,
+    // query::Refine at the deepest level: 0 shaft, 1 cells, 2 exact, 3 near.
+    refine: u32,
     pad0: u32,
     pad1: u32,
+    pad2: u32,
 }
 
 struct Seg {
@@ -38,27 +40,25 @@ struct Seg {
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
-// `nodes`: u32×2 node pool, in windows of params.node_window entries (a binding holds at most
-// max_storage_buffer_binding_size bytes); `linespaces` in windows of params.ls_window words.
-@group(0) @binding(1) var<storage, read> nodes0: array<vec2<u32>>;
-@group(0) @binding(2) var<storage, read> nodes1: array<vec2<u32>>;
-@group(0) @binding(3) var<storage, read> nodes2: array<vec2<u32>>;
-@group(0) @binding(4) var<storage, read> nodes3: array<vec2<u32>>;
-@group(0) @binding(5) var<storage, read> ls0: array<u32>;
-@group(0) @binding(6) var<storage, read> ls1: array<u32>;
-@group(0) @binding(7) var<storage, read> ls2: array<u32>;
-@group(0) @binding(8) var<storage, read> ls3: array<u32>;
-@group(0) @binding(9) var<storage, read> ls4: array<u32>;
-@group(0) @binding(10) var<storage, read> ls5: array<u32>;
-@group(0) @binding(11) var<storage, read> ls6: array<u32>;
-@group(0) @binding(12) var<storage, read> ls7: array<u32>;
-@group(0) @binding(13) var<storage, read> tri_indices: array<u32>;
+// `occupancy`: u64 per 64 child slots read as u32 pairs (low word first): occ_words per group.
+@group(0) @binding(1) var<storage, read> occupancy: array<u32>;
+// `first_child`: per group, the number of its first filled child (group or leaf).
+@group(0) @binding(2) var<storage, read> first_child: array<u32>;
+// `leaf_tris`: per leaf, its first entry in tri_indices; plus the end.
+@group(0) @binding(3) var<storage, read> leaf_tris: array<u32>;
+@group(0) @binding(4) var<storage, read> tri_indices: array<u32>;
 // `triangles`: f32×9, world space.
-@group(0) @binding(14) var<storage, read> triangles: array<f32>;
+@group(0) @binding(5) var<storage, read> triangles: array<f32>;
+// `shaft_cells`: per stored shaft (9n⁴: shaft::ShaftTable), occ_words u32 of the child cells
+// it meets.
+@group(0) @binding(6) var<storage, read> shaft_cells: array<u32>;
+// The occupancy with each group's slots reversed (bit s = slot n³ − 1 − s), for the 6 face
+// pairs stored as point reflections.
+@group(0) @binding(7) var<storage, read> occupancy_rev: array<u32>;
 // `segments`: Seg per invocation; `shadow`: vec4 per receiver (w < 0.5: none, fully lit)
 // followed by vec4 per light sample.
-@group(0) @binding(15) var<storage, read> queries: array<vec4<f32>>;
-@group(0) @binding(16) var<storage, read_write> results: array<u32>;
+@group(0) @binding(8) var<storage, read> queries: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read_write> results: array<u32>;
 
 const MAX_DEPTH: u32 = 12u;
 const FLAG_FRACTION: u32 = 1u;
@@ -103,37 +103,71 @@ fn hits_triangle(s: Seg, t: u32) -> bool {
     return th >= s.t_min && th <= s.t_max;
 }
 
-fn node_at(i: u32) -> vec2<u32> {
-    let j = i % params.node_window;
-    switch (i / params.node_window) {
-        case 0u: { return nodes0[j]; }
-        case 1u: { return nodes1[j]; }
-        case 2u: { return nodes2[j]; }
-        default: { return nodes3[j]; }
+fn filled(group: u32, slot: u32) -> bool {
+    let w = occupancy[group * params.occ_words + (slot >> 5u)];
+    return ((w >> (slot & 31u)) & 1u) == 1u;
+}
+
+// NTree::child: first_child + the filled slots below `slot` (a popcount per word).
+fn child(group: u32, slot: u32) -> u32 {
+    let at = group * params.occ_words;
+    var rank = 0u;
+    for (var i = 0u; i < (slot >> 5u); i++) {
+        rank += countOneBits(occupancy[at + i]);
+    }
+    let below = (1u << (slot & 31u)) - 1u;
+    rank += countOneBits(occupancy[at + (slot >> 5u)] & below);
+    return first_child[group] + rank;
+}
+
+// shaft::PAIR_ROWS: the stored block of face pair p (pair_index order) | 16 if it is read as
+// the point reflection of that block.
+fn pair_row(p: u32) -> u32 {
+    switch (p) {
+        case 0u: { return 0u; }
+        case 1u: { return 1u; }
+        case 2u: { return 2u; }
+        case 3u: { return 3u; }
+        case 4u: { return 4u; }
+        case 5u: { return 2u | 16u; }
+        case 6u: { return 1u | 16u; }
+        case 7u: { return 4u | 16u; }
+        case 8u: { return 3u | 16u; }
+        case 9u: { return 5u; }
+        case 10u: { return 6u; }
+        case 11u: { return 7u; }
+        case 12u: { return 7u | 16u; }
+        case 13u: { return 6u | 16u; }
+        default: { return 8u; }
     }
 }
 
-fn ls_word(i: u32) -> u32 {
-    let j = i % params.ls_window;
-    switch (i / params.ls_window) {
-        case 0u: { return ls0[j]; }
-        case 1u: { return ls1[j]; }
-        case 2u: { return ls2[j]; }
-        case 3u: { return ls3[j]; }
-        case 4u: { return ls4[j]; }
-        case 5u: { return ls5[j]; }
-        case 6u: { return ls6[j]; }
-        default: { return ls7[j]; }
+// Line-space bit of the shaft between patch pa of face fa and patch pb of face fb (fa < fb): the
+// group's occupancy meets the shaft's cells (ShaftTable::meets).
+fn ls_bit(group: u32, fa: u32, pa: u32, fb: u32, pb: u32) -> bool {
+    let pp = params.n * params.n;
+    let r = pair_row(pair_index(fa, fb));
+    let block = r & 15u;
+    var row = block * pp * pp + pa * pp + pb;
+    if ((r & 16u) != 0u) {
+        row = block * pp * pp + (pp - 1u - pa) * pp + (pp - 1u - pb);
     }
-}
-
-fn node_entry(group: u32, slot: u32) -> vec2<u32> {
-    return node_at(1u + group * params.n * params.n * params.n + slot);
-}
-
-fn ls_bit(group: u32, b: u32) -> bool {
-    let w = ls_word(group * params.words + (b >> 5u));
-    return ((w >> (b & 31u)) & 1u) == 1u;
+    let at = group * params.occ_words;
+    let cb = row * params.occ_words;
+    if ((r & 16u) != 0u) {
+        for (var i = 0u; i < params.occ_words; i++) {
+            if ((occupancy_rev[at + i] & shaft_cells[cb + i]) != 0u) {
+                return true;
+            }
+        }
+        return false;
+    }
+    for (var i = 0u; i < params.occ_words; i++) {
+        if ((occupancy[at + i] & shaft_cells[cb + i]) != 0u) {
+            return true;
+        }
+    }
+    return false;
 }
 
 fn pair_index(a: u32, b: u32) -> u32 {
@@ -198,7 +232,6 @@ fn shaft_full(o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f32>, side: f32
     let fa = u32(a.x);
     let fb = u32(b.x);
     let n = params.n;
-    let pp = n * n;
     let ua = patch_lo_hi(a.y);
     let va = patch_lo_hi(a.z);
     let ub = patch_lo_hi(b.y);
@@ -209,13 +242,13 @@ fn shaft_full(o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f32>, side: f32
             for (var bv = vb.x; bv <= vb.y; bv++) {
                 for (var bu = ub.x; bu <= ub.y; bu++) {
                     let pb = bu + n * bv;
-                    var bit: u32;
+                    var full: bool;
                     if (fa < fb) {
-                        bit = pair_index(fa, fb) * pp * pp + pa * pp + pb;
+                        full = ls_bit(group, fa, pa, fb, pb);
                     } else {
-                        bit = pair_index(fb, fa) * pp * pp + pb * pp + pa;
+                        full = ls_bit(group, fb, pb, fa, pa);
                     }
-                    if (ls_bit(group, bit)) {
+                    if (full) {
                         return 1u;
                     }
                 }
@@ -233,15 +266,30 @@ fn exact_occluded(s: Seg, o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f32
     loop {
         let c = dda.c;
         let slot = u32(c.x + n * c.y + n * n * c.z);
-        let e = node_entry(group, slot);
-        if ((e.x & 1u) == 1u) {
-            let first = e.y;
-            let count = e.x >> 2u;
-            for (var i = 0u; i < count; i++) {
-                if (hits_triangle(s, tri_indices[first + i])) {
+        if (filled(group, slot)) {
+            let leaf = child(group, slot);
+            let end = leaf_tris[leaf + 1u];
+            for (var i = leaf_tris[leaf]; i < end; i++) {
+                if (hits_triangle(s, tri_indices[i])) {
                     return true;
                 }
             }
+        }
+        if (dda_exit(dda) >= t1 || !dda_advance(&dda, n)) {
+            return false;
+        }
+    }
+    return false;
+}
+
+// query::NTree::cells_crossed: whether the segment crosses a leaf of the node with geometry.
+fn cells_crossed(o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f32>, side: f32, t0: f32, t1: f32) -> bool {
+    let n = i32(params.n);
+    var dda = dda_new(o, d, base, side / f32(params.n), vec3<i32>(n), t0);
+    loop {
+        let c = dda.c;
+        if (filled(group, u32(c.x + n * c.y + n * n * c.z))) {
+            return true;
         }
         if (dda_exit(dda) >= t1 || !dda_advance(&dda, n)) {
             return false;
@@ -297,7 +345,23 @@ fn occluded(s: Seg) -> bool {
                 if (full == 0u) {
                     mode = 3u;
                 } else if (full == 1u && deepest) {
-                    return true;
+                    // Refine::Near: the thesis' hit unless the node is entered within one
+                    // deepest-node side of the segment's start (query::near_start).
+                    let len = sqrt(d.x * d.x + d.y * d.y + d.z * d.z);
+                    let near = (f.t0 - s.t_min) * len < f.side;
+                    if (params.refine == 0u || (params.refine == 3u && !near)) {
+                        return true;
+                    }
+                    var hit = false;
+                    if (params.refine == 1u) {
+                        hit = cells_crossed(o, d, f.group, f.base, f.side, f.t0, f.t1);
+                    } else {
+                        hit = exact_occluded(s, o, d, f.group, f.base, f.side, f.t0, f.t1);
+                    }
+                    if (hit) {
+                        return true;
+                    }
+                    mode = 3u;
                 }
             }
             if (mode == 1u && deepest) {
@@ -324,9 +388,9 @@ fn occluded(s: Seg) -> bool {
             let exit = min(e, f.t1);
             let c = f.dda.c;
             let slot = u32(c.x + n * c.y + n * n * c.z);
-            let entry = node_entry(f.group, slot);
             mode = 2u;
-            if ((entry.x & 3u) == 3u) {
+            // Above the deepest inner level every filled child is an inner node.
+            if (filled(f.group, slot)) {
                 let cell = f.side / f32(params.n);
                 var inside = 0u;
                 if ((f.inside & 1u) != 0u && f.t == f.t0) {
@@ -335,7 +399,7 @@ fn occluded(s: Seg) -> bool {
                 if ((f.inside & 2u) != 0u && e >= f.t1) {
                     inside |= 2u;
                 }
-                st[lv + 1u].group = entry.x >> 2u;
+                st[lv + 1u].group = child(f.group, slot);
                 st[lv + 1u].inside = inside;
                 st[lv + 1u].base = f.base + vec3<f32>(c) * cell;
                 st[lv + 1u].side = cell;

@@ -1,0 +1,897 @@
+//! The bake as a flat graph of cached stage units (`bake SCENE.eco`).
+//!
+//! Units run in data-flow order: the scene plan (ECO files, terrain, model names; always read),
+//! then per model `ingest` → `material` → `prt`, the `terrain` preparation, the `sky`, and the
+//! per-scene units `lightmap`, `atlas`, `envmaps` (in shards of instances), `cluster`,
+//! `bittree`, `svo` and `linespace`. Each unit is a pure function of the sections (or files) it
+//! reads and its options; its key ([`cache::KeyBuilder`]) hashes exactly those, so a hit in the
+//! stage cache ([`cache::Cache`]) maps the stored sections instead of computing them. Stages
+//! share one in-memory view of the sections produced so far ([`crate::pack::Pack::from_sections`],
+//! no encoding), the scene's trace structures are built once per bake and only if a lighting
+//! unit misses, and finished sections stream to the output's temporary file
+//! ([`crate::pack::StreamWriter`]) and are read back through its memory map, so the bake never
+//! holds the pack in memory. The output also records a `build` section (the build key and every
+//! file read with its hash): a run whose inputs and options hash the same leaves the output
+//! alone without reading anything else.
+
+pub mod cache;
+pub mod preset;
+pub mod progress;
+
+use crate::error::{Error, Result};
+use crate::ingest::{self, IngestOptions};
+use crate::pack::kinds::{self, fit_name};
+use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder, StreamWriter, hex};
+use cache::{Cache, EntryMeta, FileDep, Key, KeyBuilder, Lookup, Warning};
+pub use preset::Pipeline;
+use progress::Observer;
+use serde::Serialize;
+use serde_json::{Value, json};
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The bake version that enters every cache key (the crate version).
+pub const BAKE_VERSION: &str = env!("CARGO_PKG_VERSION");
+/// Version of the `--json` build report (docs/REPORT.md).
+pub const REPORT_SCHEMA: &str = "bake.build/1";
+
+/// Version constants of the stages: bump one when its output changes for the same inputs.
+pub mod versions {
+    pub const INGEST: u32 = 1;
+    pub const MATERIAL: u32 = 1;
+    pub const TERRAIN: u32 = 1;
+    pub const SKY: u32 = 1;
+    pub const PRT: u32 = 1;
+    pub const LIGHTMAP: u32 = 1;
+    pub const ATLAS: u32 = 1;
+    pub const ENVMAPS: u32 = 1;
+    pub const CLUSTER: u32 = 1;
+    pub const BITTREE: u32 = 1;
+    pub const SVO: u32 = 1;
+    /// 2: the compact section layout (issue 15).
+    pub const LINESPACE: u32 = 2;
+}
+
+/// Where stage units are cached.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub enum CacheMode {
+    /// [`cache::default_dir`].
+    #[default]
+    Default,
+    Dir(PathBuf),
+    /// Compute everything (and do not skip an up-to-date output).
+    Off,
+}
+
+/// Options of [`build`].
+#[derive(Debug, Clone, Default)]
+pub struct BuildOptions {
+    pub scenes: Vec<PathBuf>,
+    pub output: Option<PathBuf>,
+    pub sky: Option<PathBuf>,
+    pub ingest: IngestOptions,
+    pub pipeline: Pipeline,
+    /// The pipeline file the options came from (a dependency of the output).
+    pub pipeline_file: Option<PathBuf>,
+    pub cache: CacheMode,
+    /// Write the files read as a Makefile rule here.
+    pub depfile: Option<PathBuf>,
+    /// Overrides [`BAKE_VERSION`] in the keys (tests of key invalidation).
+    pub bake_version: Option<String>,
+}
+
+impl BuildOptions {
+    /// The options of `bake SCENE... ` with the preview pipeline.
+    pub fn preview(mut self) -> Self {
+        self.pipeline = Pipeline::preview();
+        self
+    }
+}
+
+/// One stage unit's record in the report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StageRecord {
+    pub stage: String,
+    pub unit: String,
+    /// "hit", "miss" or "off".
+    pub cache: &'static str,
+    pub wall_seconds: f64,
+    pub cpu_seconds: f64,
+    pub outputs: Vec<String>,
+    /// The stage's own report (counts).
+    pub report: Value,
+}
+
+/// What a build did (`--json`; docs/REPORT.md).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct BuildReport {
+    pub schema: &'static str,
+    pub output: PathBuf,
+    /// The output was up to date and left as it was.
+    pub up_to_date: bool,
+    pub sections: usize,
+    pub bytes: u64,
+    pub models: usize,
+    pub instances: usize,
+    pub triangles: u64,
+    pub warnings: Vec<Warning>,
+    pub wall_seconds: f64,
+    pub cpu_seconds: f64,
+    pub peak_rss_bytes: u64,
+    pub cache: Option<PathBuf>,
+    pub cache_hits: usize,
+    pub cache_misses: usize,
+    pub stages: Vec<StageRecord>,
+    /// Every file the bake read (what `--depfile` writes).
+    pub files: Vec<PathBuf>,
+}
+
+/// CPU seconds (user + system, all threads) of this process so far, and its peak resident set.
+pub fn process_usage() -> (f64, u64) {
+    // SAFETY: getrusage fills the struct it is given.
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) } != 0 {
+        return (0.0, 0);
+    }
+    let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    (tv(u.ru_utime) + tv(u.ru_stime), u.ru_maxrss as u64 * 1024)
+}
+
+/// What a unit computed: sections, the stage's report, warnings, files read beyond its key.
+#[derive(Default)]
+struct Output {
+    sections: Vec<Section>,
+    report: Value,
+    warnings: Vec<String>,
+    files: Vec<FileDep>,
+}
+
+/// The running bake.
+struct Graph<'a> {
+    cache: Option<Cache>,
+    version: String,
+    observer: &'a dyn Observer,
+    records: Vec<StageRecord>,
+    warnings: Vec<Warning>,
+    files: BTreeSet<PathBuf>,
+    /// Every finished section, mapped from the output being written.
+    done: Vec<Section>,
+    out: StreamWriter,
+    name: String,
+}
+
+impl Graph<'_> {
+    fn key(&self, stage: &str, version: u32, unit: &str) -> KeyBuilder {
+        KeyBuilder::new(&self.version, stage, version, unit)
+    }
+
+    /// Runs one unit: a cache hit (its files still hashing as recorded) maps the stored
+    /// sections; a miss computes them and stores them.
+    fn unit(
+        &mut self,
+        stage: &str,
+        unit: &str,
+        key: Key,
+        total: Option<u64>,
+        compute: impl FnOnce(&(dyn Fn(u64) + Sync)) -> Result<Output>,
+    ) -> Result<Vec<Section>> {
+        let t0 = Instant::now();
+        let (c0, _) = process_usage();
+        self.observer.start(stage, unit, total);
+        let mut status = "off";
+        let mut hit = None;
+        if let Some(cache) = &self.cache {
+            status = "miss";
+            match cache.get(&key) {
+                Lookup::Hit(e) if files_unchanged(&e.meta.files) => hit = Some(e),
+                Lookup::Hit(_) | Lookup::Miss => {}
+                Lookup::Corrupt(why) => self.warnings.push(Warning {
+                    id: "cache.corrupt-entry".into(),
+                    place: format!("{stage} {unit}"),
+                    message: why,
+                }),
+            }
+        }
+        let (sections, report, warnings, files) = match hit {
+            Some(e) => {
+                status = "hit";
+                (e.sections, e.meta.report, e.meta.warnings, e.meta.files)
+            }
+            None => {
+                let obs = self.observer;
+                let progress = |n: u64| obs.progress(stage, unit, n);
+                let o = compute(&progress)?;
+                let warnings: Vec<Warning> = o
+                    .warnings
+                    .into_iter()
+                    .map(|m| Warning {
+                        id: format!("{stage}.warning"),
+                        place: unit.to_string(),
+                        message: m,
+                    })
+                    .collect();
+                if let Some(cache) = &self.cache {
+                    let meta = EntryMeta {
+                        stage: stage.into(),
+                        unit: unit.into(),
+                        report: o.report.clone(),
+                        warnings: warnings.clone(),
+                        files: o.files.clone(),
+                        sections: o.sections.iter().map(|s| s.name.clone()).collect(),
+                    };
+                    if let Err(e) = cache.put(&key, &o.sections, &meta) {
+                        self.warnings.push(Warning {
+                            id: "cache.write-failed".into(),
+                            place: format!("{stage} {unit}"),
+                            message: e.to_string(),
+                        });
+                    }
+                }
+                (o.sections, o.report, warnings, o.files)
+            }
+        };
+        self.files.extend(
+            files
+                .iter()
+                .filter(|f| f.blake3.is_some())
+                .map(|f| f.path.clone()),
+        );
+        self.warnings.extend(warnings);
+        let (c1, _) = process_usage();
+        let record = StageRecord {
+            stage: stage.into(),
+            unit: unit.into(),
+            cache: status,
+            wall_seconds: t0.elapsed().as_secs_f64(),
+            cpu_seconds: c1 - c0,
+            outputs: sections.iter().map(|s| s.name.clone()).collect(),
+            report,
+        };
+        self.observer.end(&record);
+        self.records.push(record);
+        Ok(sections)
+    }
+
+    /// Writes finished sections to the output and keeps them (mapped) in the view.
+    fn finish_sections(&mut self, sections: Vec<Section>) -> Result<()> {
+        for s in sections {
+            let m = self.out.push_mapped(s)?;
+            self.done.push(m);
+        }
+        Ok(())
+    }
+
+    fn view(&self) -> Pack {
+        Pack::from_sections(&self.done, &self.name)
+    }
+
+    fn hash_of(&self, name: &str) -> Option<[u8; 32]> {
+        self.done
+            .iter()
+            .find(|s| s.name == name)
+            .map(|s| *s.payload.hash())
+    }
+}
+
+/// Replaces sections of the same name (keeping their place) and appends the rest.
+fn merge(into: &mut Vec<Section>, new: Vec<Section>) {
+    for s in new {
+        match into.iter_mut().find(|t| t.name == s.name) {
+            Some(t) => *t = s,
+            None => into.push(s),
+        }
+    }
+}
+
+/// Whether every recorded file still hashes as recorded (or is still absent).
+fn files_unchanged(files: &[FileDep]) -> bool {
+    files
+        .iter()
+        .all(|f| match (&f.blake3, cache::hash_file(&f.path)) {
+            (Some(h), Ok(now)) => *h == hex(&now),
+            (None, Err(_)) => !f.path.exists(),
+            _ => false,
+        })
+}
+
+fn file_dep(path: &Path) -> FileDep {
+    FileDep {
+        path: path.to_path_buf(),
+        blake3: cache::hash_file(path).ok().map(|h| hex(&h)),
+    }
+}
+
+fn report_of(r: &impl Serialize) -> Value {
+    serde_json::to_value(r).unwrap_or(Value::Null)
+}
+
+/// `bake SCENE.eco`: every unit of the pipeline, cached, streamed into one pack.
+pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport> {
+    let t0 = Instant::now();
+    let (c0, _) = process_usage();
+    let first = opts
+        .scenes
+        .first()
+        .ok_or_else(|| Error::usage("no scene given"))?;
+    opts.pipeline
+        .check()
+        .map_err(|m| Error::usage(format!("pipeline: {m}")))?;
+    let output = opts
+        .output
+        .clone()
+        .unwrap_or_else(|| first.with_extension("bake"));
+    let version = opts
+        .bake_version
+        .clone()
+        .unwrap_or_else(|| BAKE_VERSION.to_string());
+    let cache_dir = match &opts.cache {
+        CacheMode::Default => Some(cache::default_dir(&output)),
+        CacheMode::Dir(d) => Some(d.clone()),
+        CacheMode::Off => None,
+    };
+    let finish = |mut r: BuildReport| {
+        let (c1, rss) = process_usage();
+        r.schema = REPORT_SCHEMA;
+        r.wall_seconds = t0.elapsed().as_secs_f64();
+        r.cpu_seconds = c1 - c0;
+        r.peak_rss_bytes = rss;
+        r.cache = cache_dir.clone();
+        r.cache_hits = r.stages.iter().filter(|s| s.cache == "hit").count();
+        r.cache_misses = r.stages.iter().filter(|s| s.cache == "miss").count();
+        r
+    };
+    if opts.cache != CacheMode::Off
+        && let Some(r) = up_to_date(opts, &output, &version)
+    {
+        if let Some(d) = &opts.depfile {
+            write_depfile(d, &output, &r.files)?;
+        }
+        return Ok(finish(r));
+    }
+
+    let plan = ingest::eco::scene_plan(&opts.scenes, &opts.ingest)?;
+    let mut g = Graph {
+        cache: cache_dir.clone().map(Cache::new),
+        version,
+        observer,
+        records: Vec::new(),
+        warnings: Vec::new(),
+        files: BTreeSet::new(),
+        done: Vec::new(),
+        out: StreamWriter::create(&output)?,
+        name: first.display().to_string(),
+    };
+    g.files.extend(plan.files.iter().cloned());
+    g.files.extend(opts.pipeline_file.iter().cloned());
+    g.warnings
+        .extend(plan.scene.warnings.iter().map(|m| Warning {
+            id: "ingest.eco".into(),
+            place: first.display().to_string(),
+            message: m.clone(),
+        }));
+    let p = &opts.pipeline;
+
+    // The terrain: its sections from the plan, then the prepared terrain.
+    if let Some(t) = &plan.scene.terrain {
+        let mut sections = crate::pipeline::terrain_sections(first, t);
+        if p.stages.terrain {
+            let mut k = g.key("terrain", versions::TERRAIN, "terrain");
+            for s in &sections {
+                k.input(&s.name, s.payload.hash());
+            }
+            let view = Pack::from_sections(&sections, &g.name);
+            let out = g.unit("terrain", "terrain", k.finish(), None, |_| {
+                let (s, r) = crate::terrain::bake_terrain(&view)?;
+                Ok(Output {
+                    sections: s,
+                    report: report_of(&r),
+                    ..Default::default()
+                })
+            })?;
+            merge(&mut sections, out);
+        }
+        g.finish_sections(sections)?;
+    }
+
+    // Per model: ingest, material, PRT.
+    let mut mesh_sections = Vec::new();
+    let mut triangles = 0u64;
+    for (name, path) in &plan.models {
+        let mesh_name = fit_name(kinds::mesh_section_name(name));
+        mesh_sections.push(mesh_name.clone());
+        let source = path.display().to_string();
+        let model_hash = cache::hash_file(path)?;
+        g.files.insert(path.clone());
+        let mut k = g.key("ingest", versions::INGEST, name);
+        k.input(&source, &model_hash);
+        let mut sections = g.unit("ingest", name, k.finish(), None, |_| {
+            ingest_model(name, path)
+        })?;
+        if p.stages.material {
+            let mut k = g.key("material", versions::MATERIAL, name);
+            k.options(&p.material);
+            for s in &sections {
+                k.input(&s.name, s.payload.hash());
+            }
+            let view = Pack::from_sections(&sections, &g.name);
+            let out = g.unit("material", name, k.finish(), None, |_| {
+                let (s, mut r) = crate::material::bake_materials(&view, &p.material)?;
+                let warnings = std::mem::take(&mut r.warnings);
+                Ok(Output {
+                    sections: s,
+                    report: report_of(&r),
+                    warnings,
+                    ..Default::default()
+                })
+            })?;
+            merge(&mut sections, out);
+        }
+        // The mesh and its textures are final now (only the material stage replaces them).
+        let prt_inputs: Vec<(String, [u8; 32])> = sections
+            .iter()
+            .filter(|s| s.kind == kinds::mesh::KIND || s.kind == kinds::texture::KIND)
+            .map(|s| (s.name.clone(), *s.payload.hash()))
+            .collect();
+        let view = Pack::from_sections(&sections, &g.name);
+        let vertices = view
+            .find(&mesh_name)
+            .and_then(|e| view.view(e).ok())
+            .and_then(|v| v.info("positions").map(|a| a.count));
+        triangles += view
+            .find(&mesh_name)
+            .and_then(|e| view.view(e).ok())
+            .and_then(|v| v.info("indices").map(|a| a.count))
+            .unwrap_or(0);
+        g.finish_sections(sections)?;
+        if p.stages.prt {
+            let mut k = g.key("prt", versions::PRT, name);
+            k.options(&p.prt);
+            for (n, h) in &prt_inputs {
+                k.input(n, h);
+            }
+            let out = g.unit("prt", name, k.finish(), vertices, |progress| {
+                let mut warnings = Vec::new();
+                let (s, r) = crate::light::prt_pack::prt_mesh(
+                    &view,
+                    &mesh_name,
+                    &p.prt,
+                    progress,
+                    &mut warnings,
+                )?;
+                Ok(Output {
+                    sections: vec![s],
+                    report: report_of(&r),
+                    warnings,
+                    ..Default::default()
+                })
+            })?;
+            g.finish_sections(out)?;
+        }
+    }
+    let instances = plan.scene.instances.items.len();
+    g.finish_sections(vec![kinds::instances::to_section(
+        "instances",
+        &plan.scene.instances,
+        mesh_sections,
+    )])?;
+
+    // The sky (the built-in clear sky without --sky).
+    if p.stages.sky {
+        let mut k = g.key("sky", versions::SKY, "sky");
+        k.options(&p.sky);
+        match &opts.sky {
+            Some(path) => {
+                k.input(&path.display().to_string(), &cache::hash_file(path)?);
+                g.files.insert(path.clone());
+            }
+            None => {
+                k.options(&format!("{:?}", crate::sky::builtin::BuiltinSky::default()));
+            }
+        }
+        let out = g.unit("sky", "sky", k.finish(), None, |_| {
+            let img = opts
+                .sky
+                .as_deref()
+                .map(ingest::skyimage::load)
+                .transpose()?;
+            let s = crate::sky::scene_sky_sections(
+                img.as_ref(),
+                &crate::sky::builtin::BuiltinSky::default(),
+                &p.sky,
+            )?;
+            Ok(Output {
+                report: json!({"sections": s.len()}),
+                sections: s,
+                ..Default::default()
+            })
+        })?;
+        g.finish_sections(out)?;
+    }
+
+    scene_units(&mut g, p, &plan.scene)?;
+
+    // The record of this build: its key and every file read.
+    let files: Vec<PathBuf> = g.files.iter().cloned().collect();
+    let deps: Vec<FileDep> = files.iter().map(|f| file_dep(f)).collect();
+    let build_key = build_key(opts, &g.version, &deps);
+    g.finish_sections(vec![build_section(&BuildMeta {
+        key: build_key.hex(),
+        files: deps,
+        models: plan.models.len() as u64,
+        instances: instances as u64,
+        triangles,
+    })])?;
+    let sections = g.done.len();
+    let bytes = g.out.file_size();
+    drop(g.done);
+    g.out.finish()?;
+    if let Some(d) = &opts.depfile {
+        write_depfile(d, &output, &files)?;
+    }
+    Ok(finish(BuildReport {
+        output,
+        sections,
+        bytes,
+        models: plan.models.len(),
+        instances,
+        triangles,
+        warnings: g.warnings,
+        stages: g.records,
+        files,
+        ..Default::default()
+    }))
+}
+
+/// The per-scene units: light maps, environment maps, clustering, BitTree, SVO, line space.
+fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Result<()> {
+    let s = &p.stages;
+    // What the lighting units read: the placed models with their textures, the terrain, the
+    // sky's sun and SH (not the PRT, materials or tangents).
+    let trace_inputs: Vec<(String, [u8; 32])> = g
+        .done
+        .iter()
+        .filter(|x| {
+            matches!(
+                x.kind.as_str(),
+                "instances" | "mesh" | "texture" | "terrain"
+            ) || x.name == crate::sky::SUN_SECTION
+                || x.name == crate::sky::SH_SECTION
+        })
+        .map(|x| (x.name.clone(), *x.payload.hash()))
+        .collect();
+    let keyed = |g: &Graph, stage: &str, v: u32, unit: &str, opts: &Value| {
+        let mut k = g.key(stage, v, unit);
+        k.options(opts);
+        for (n, h) in &trace_inputs {
+            k.input(n, h);
+        }
+        k.finish()
+    };
+    let view = g.view();
+    let trace = std::cell::OnceCell::new();
+    let traced = || -> Result<&(crate::tracescene::TraceScene, crate::lightmap::Lighting)> {
+        if trace.get().is_none() {
+            let light = crate::lightmap::scene_lighting(&view)?;
+            let ts = crate::tracescene::trace_scene(&view)?;
+            let _ = trace.set((ts, light));
+        }
+        Ok(trace.get().expect("set above"))
+    };
+    let lm = &p.lightmap;
+    if s.lightmap {
+        let o = json!({"resolution": lm.resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode});
+        let key = keyed(g, "lightmap", versions::LIGHTMAP, "terrain", &o);
+        let out = g.unit("lightmap", "terrain", key, None, |_| {
+            let (ts, light) = traced()?;
+            let s = crate::lightmap::terrain_sections(ts, light, lm);
+            Ok(Output {
+                report: json!({"texels": texels(&s)}),
+                sections: s,
+                ..Default::default()
+            })
+        })?;
+        g.finish_sections(out)?;
+    }
+    if s.atlas {
+        let o = json!({"samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode, "max_instances": lm.max_instances, "atlas": lm.atlas});
+        let key = keyed(g, "atlas", versions::ATLAS, "objects", &o);
+        let out = g.unit("atlas", "objects", key, None, |_| {
+            let (ts, light) = traced()?;
+            let s = crate::lightmap::object_sections(&view, ts, light, lm)?;
+            Ok(Output {
+                report: json!({"atlases": s.len()}),
+                sections: s,
+                ..Default::default()
+            })
+        })?;
+        g.finish_sections(out)?;
+    }
+    if s.envmaps {
+        let n = scene.instances.items.len();
+        let shard = p.units.envmap_shard_instances.max(1) as usize;
+        let mut maps: Vec<crate::envmap::bake::InstanceMaps> = Vec::with_capacity(n);
+        let o = report_of(&p.envmaps);
+        for start in (0..n.max(1)).step_by(shard) {
+            let range = start..(start + shard).min(n);
+            let unit = format!("instances {}..{}", range.start, range.end);
+            let key = keyed(g, "envmaps", versions::ENVMAPS, &unit, &o);
+            let r = range.clone();
+            let out = g.unit("envmaps", &unit, key, Some(range.len() as u64), |_| {
+                let (ts, light) = traced()?;
+                let m = crate::envmap::instance_maps(ts, light, &p.envmaps, r.clone());
+                Ok(Output {
+                    report: json!({"instances": m.len(), "rays": m.len() as u64 * p.envmaps.samples as u64}),
+                    sections: vec![shard_section(&m)],
+                    ..Default::default()
+                })
+            })?;
+            maps.extend(shard_maps(&out, range.len())?);
+        }
+        g.finish_sections(vec![crate::envmap::envmaps_section(&maps, &p.envmaps)])?;
+    }
+    drop(trace);
+    let view = g.view();
+    if s.cluster {
+        let mut k = g.key("cluster", versions::CLUSTER, "scene");
+        k.options(&p.cluster);
+        for n in ["instances", "envmaps"] {
+            if let Some(h) = g.hash_of(n) {
+                k.input(n, &h);
+            }
+        }
+        let out = g.unit("cluster", "scene", k.finish(), None, |_| {
+            let (s, c) = crate::envmap::cluster_sections(&view, &p.cluster, false)?;
+            Ok(Output {
+                report: json!({"clusters": c.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error()}),
+                sections: s,
+                ..Default::default()
+            })
+        })?;
+        g.finish_sections(out)?;
+    }
+    if s.bittree {
+        let area = crate::pipeline::instance_area(scene);
+        let mut k = g.key("bittree", versions::BITTREE, "scene");
+        k.options(&p.bittree);
+        k.options(&(area.origin, area.extent));
+        if let Some(h) = g.hash_of("instances") {
+            k.input("instances", &h);
+        }
+        let out = g.unit("bittree", "scene", k.finish(), None, |_| {
+            Ok(
+                match crate::bittree::section::to_section(
+                    "bittree",
+                    &scene.instances,
+                    area,
+                    &p.bittree,
+                ) {
+                    Ok(s) => Output {
+                        report: json!({"instances": scene.instances.items.len()}),
+                        sections: vec![s],
+                        ..Default::default()
+                    },
+                    Err(e) => Output {
+                        report: json!({"instances": scene.instances.items.len()}),
+                        warnings: vec![format!("no BitTree: {e}")],
+                        ..Default::default()
+                    },
+                },
+            )
+        })?;
+        g.finish_sections(out)?;
+    }
+    if s.svo || s.linespace {
+        let geo_inputs: Vec<(String, [u8; 32])> = trace_inputs
+            .iter()
+            .filter(|(n, _)| n != crate::sky::SUN_SECTION && n != crate::sky::SH_SECTION)
+            .cloned()
+            .collect();
+        let geometry = std::cell::OnceCell::new();
+        let geo = || -> Result<&crate::voxel::geometry::Geometry> {
+            if geometry.get().is_none() {
+                let _ = geometry.set(crate::voxel::geometry::pack_geometry(&view)?);
+            }
+            Ok(geometry.get().expect("set above"))
+        };
+        let source = g.name.clone();
+        if s.svo {
+            let mut k = g.key("svo", versions::SVO, "scene");
+            k.options(&p.svo);
+            for (n, h) in &geo_inputs {
+                k.input(n, h);
+            }
+            let out = g.unit("svo", "scene", k.finish(), None, |_| {
+                let geo = geo()?;
+                let v = crate::voxel::voxelize::mesh_to_voxels(&geo.mesh, &geo.textures, &p.svo)?;
+                let svo = crate::voxel::svo::voxels_to_svo(&v);
+                let sec = crate::voxel::section::to_section("svo", &source, &svo, p.svo.solid);
+                Ok(Output {
+                    report: crate::voxel::section::summary_of(&svo),
+                    sections: vec![sec],
+                    ..Default::default()
+                })
+            })?;
+            g.finish_sections(out)?;
+        }
+        if s.linespace {
+            let mut k = g.key("linespace", versions::LINESPACE, "scene");
+            k.options(&p.linespace);
+            for (n, h) in &geo_inputs {
+                k.input(n, h);
+            }
+            let out = g.unit("linespace", "scene", k.finish(), None, |_| {
+                let tris = crate::cli::linespace::world_triangles(&geo()?.mesh);
+                let shafts =
+                    std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(p.linespace.n));
+                let tree = crate::linespace::ntree::build_ntree(&tris, &p.linespace, &shafts)?;
+                Ok(Output {
+                    report: crate::linespace::section::summary_of(&tree),
+                    sections: vec![crate::linespace::section::to_section(
+                        "linespace",
+                        &source,
+                        &tree,
+                    )],
+                    ..Default::default()
+                })
+            })?;
+            g.finish_sections(out)?;
+        }
+    }
+    Ok(())
+}
+
+fn texels(sections: &[Section]) -> u64 {
+    sections
+        .iter()
+        .filter_map(|s| crate::pack::section::SectionView::parse(&s.payload, 0).ok())
+        .filter_map(|v| v.arrays.first().map(|a| a.count))
+        .sum()
+}
+
+/// Kind of the cache-only section that holds one shard's environment maps.
+const SHARD_KIND: &str = "envmaps-shard";
+
+fn shard_section(maps: &[crate::envmap::bake::InstanceMaps]) -> Section {
+    let flat: Vec<[f32; 3]> = maps
+        .iter()
+        .flat_map(|(h, s)| h.iter().chain(s.iter()).copied())
+        .collect();
+    let mut b = SectionBuilder::new(SHARD_KIND, SHARD_KIND);
+    b.array("maps", ArrayFormat::F32, 3, &flat);
+    b.finish()
+}
+
+fn shard_maps(sections: &[Section], n: usize) -> Result<Vec<crate::envmap::bake::InstanceMaps>> {
+    let bad = || Error::runtime("environment-map shard: unexpected cache entry contents");
+    let s = sections
+        .first()
+        .filter(|s| s.kind == SHARD_KIND)
+        .ok_or_else(bad)?;
+    let v = crate::pack::section::SectionView::parse(&s.payload, 0).map_err(|_| bad())?;
+    let flat: &[[f32; 3]] = v.array("maps").map_err(|_| bad())?;
+    if flat.len() != n * 32 {
+        return Err(bad());
+    }
+    Ok(flat
+        .chunks_exact(32)
+        .map(|c| {
+            (
+                std::array::from_fn(|i| c[i]),
+                std::array::from_fn(|i| c[16 + i]),
+            )
+        })
+        .collect())
+}
+
+/// Reads one model and its textures into `texture:<model>/...` and `mesh:<model>` sections.
+fn ingest_model(name: &str, path: &Path) -> Result<Output> {
+    let mesh = ingest::load_mesh(path)?;
+    let mut warnings: Vec<String> = mesh.warnings.clone();
+    let mut w = crate::pack::PackWriter::new();
+    crate::pipeline::add_mesh(&mut w, name, path, &mesh, &mut warnings);
+    let mut files: Vec<FileDep> = ingest::mesh_side_files(path)
+        .iter()
+        .map(|p| file_dep(p))
+        .collect();
+    for t in &mesh.textures {
+        files.push(file_dep(&t.path));
+    }
+    files.sort_by(|a, b| a.path.cmp(&b.path));
+    files.dedup();
+    Ok(Output {
+        report: json!({
+            "vertices": mesh.positions.len(),
+            "triangles": mesh.indices.len(),
+            "materials": mesh.materials.len(),
+            "textures": mesh.textures.len(),
+        }),
+        sections: w.sections().to_vec(),
+        warnings,
+        files,
+    })
+}
+
+/// The key of a whole build: version, pipeline, command-line inputs and every file's content.
+fn build_key(opts: &BuildOptions, version: &str, files: &[FileDep]) -> Key {
+    let mut k = KeyBuilder::new(version, "build", 1, "");
+    k.options(&opts.pipeline);
+    k.options(&(
+        &opts.scenes,
+        &opts.sky,
+        &opts.ingest.model_dirs,
+        &opts.ingest.color_map,
+    ));
+    for f in files {
+        let h = f.blake3.as_deref().unwrap_or("absent");
+        k.input(
+            &f.path.display().to_string(),
+            blake3::hash(h.as_bytes()).as_bytes(),
+        );
+    }
+    k.finish()
+}
+
+/// Kind and name of the section recording the build.
+pub const BUILD_KIND: &str = "build";
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+struct BuildMeta {
+    key: String,
+    files: Vec<FileDep>,
+    models: u64,
+    instances: u64,
+    triangles: u64,
+}
+
+fn build_section(meta: &BuildMeta) -> Section {
+    let mut b = SectionBuilder::new(BUILD_KIND, BUILD_KIND);
+    b.meta(meta);
+    b.finish()
+}
+
+/// The report of a build whose output is up to date: its recorded key equals the key of the
+/// files it lists as they are now. `None` when anything differs or cannot be read.
+fn up_to_date(opts: &BuildOptions, output: &Path, version: &str) -> Option<BuildReport> {
+    let pack = Pack::open(output).ok()?;
+    let e = pack.of_kind(BUILD_KIND).next()?;
+    let meta: BuildMeta = pack.view(e).ok()?.meta().ok()?;
+    let now: Vec<FileDep> = {
+        use rayon::prelude::*;
+        meta.files.par_iter().map(|f| file_dep(&f.path)).collect()
+    };
+    if now != meta.files || build_key(opts, version, &now).hex() != meta.key {
+        return None;
+    }
+    let bytes = std::fs::metadata(output).ok()?.len();
+    Some(BuildReport {
+        output: output.to_path_buf(),
+        up_to_date: true,
+        sections: pack.sections().len(),
+        bytes,
+        models: meta.models as usize,
+        instances: meta.instances as usize,
+        triangles: meta.triangles,
+        files: meta.files.iter().map(|f| f.path.clone()).collect(),
+        ..Default::default()
+    })
+}
+
+/// Writes `target: dep dep ...` (Makefile syntax; spaces, `#` and `$` escaped) atomically.
+pub fn write_depfile(path: &Path, target: &Path, files: &[PathBuf]) -> Result<()> {
+    let esc = |p: &Path| {
+        p.display()
+            .to_string()
+            .replace('\\', "\\\\")
+            .replace(' ', "\\ ")
+            .replace('#', "\\#")
+            .replace('$', "$$")
+    };
+    let mut text = format!("{}:", esc(target));
+    for f in files {
+        text.push_str(" \\\n  ");
+        text.push_str(&esc(f));
+    }
+    text.push('\n');
+    crate::pack::write_atomic(path, text.as_bytes())
+}

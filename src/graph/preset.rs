@@ -1,0 +1,403 @@
+//! Pipeline files (`pipelines/*.toml`): which stages a bake runs and every option of each.
+//!
+//! A file is the TOML form of [`Pipeline`]: a `[stages]` table of switches and one table per
+//! stage holding that stage's option struct. Unknown keys and wrong types are errors that name
+//! the file, the line and the key; a key left out takes the default pipeline's value. The
+//! presets are `const fn`s here; `pipelines/{default,preview,final,ci}.toml` spell them out and a
+//! test keeps the two equal.
+
+use crate::bittree::BitTreeOptions;
+use crate::envmap::bake::EnvmapOptions;
+use crate::envmap::cluster::ClusterOptions;
+use crate::error::{Error, Result};
+use crate::light::prt::PrtOptions;
+use crate::lightmap::LightmapOptions;
+use crate::linespace::ntree::NTreeOptions;
+use crate::material::MaterialOptions;
+use crate::sky::SkyOptions;
+use crate::voxel::voxelize::VoxelizeOptions;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Which stages run. Ingest always runs; the others may be switched off (a stage whose input
+/// is switched off is an error, see [`Pipeline::check`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Stages {
+    /// Materials to two-layer Schlick, texture mips, tangents (per model).
+    pub material: bool,
+    /// Four-tap heights, normal map, min/max quadtree (per terrain).
+    pub terrain: bool,
+    /// Cube map, sun, SH of the sky (the built-in clear sky without `--sky`).
+    pub sky: bool,
+    /// Per-vertex PRT transfer (per model).
+    pub prt: bool,
+    /// The terrain light map (per scene).
+    pub lightmap: bool,
+    /// Atlas light maps of rarely placed models (per scene).
+    pub atlas: bool,
+    /// Per-instance SH environment maps (per scene, in shards of instances).
+    pub envmaps: bool,
+    /// Clustering and multiquadric interpolation of the environment maps (per scene).
+    pub cluster: bool,
+    /// Implicit instance positions (per scene).
+    pub bittree: bool,
+    /// Sparse voxel octree of the whole scene's geometry (per scene; optional).
+    pub svo: bool,
+    /// N-tree with line spaces for soft shadows (per scene; optional).
+    pub linespace: bool,
+}
+
+impl Default for Stages {
+    fn default() -> Self {
+        Pipeline::default_pipeline().stages
+    }
+}
+
+/// How the graph splits the per-scene work into cache units.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Units {
+    /// Instances per environment-map shard (one cache unit each; the maps do not depend on it).
+    pub envmap_shard_instances: u32,
+}
+
+impl Default for Units {
+    fn default() -> Self {
+        Pipeline::default_pipeline().units
+    }
+}
+
+/// A whole bake: the stages and their options.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Pipeline {
+    pub stages: Stages,
+    pub units: Units,
+    pub material: MaterialOptions,
+    pub sky: SkyOptions,
+    pub prt: PrtOptions,
+    pub lightmap: LightmapOptions,
+    pub envmaps: EnvmapOptions,
+    pub cluster: ClusterOptions,
+    pub bittree: BitTreeOptions,
+    pub svo: VoxelizeOptions,
+    pub linespace: NTreeOptions,
+}
+
+impl Default for Pipeline {
+    fn default() -> Self {
+        Pipeline::default_pipeline()
+    }
+}
+
+/// The names of the presets, in the order `bake pipeline --list` shows them.
+pub const PRESETS: [&str; 4] = ["default", "preview", "final", "ci"];
+
+impl Pipeline {
+    /// `pipelines/default.toml`: every lighting stage at the stages' default quality; SVO and
+    /// line space off.
+    pub const fn default_pipeline() -> Pipeline {
+        Pipeline {
+            stages: Stages {
+                material: true,
+                terrain: true,
+                sky: true,
+                prt: true,
+                lightmap: true,
+                atlas: true,
+                envmaps: true,
+                cluster: true,
+                bittree: true,
+                svo: false,
+                linespace: false,
+            },
+            units: Units {
+                envmap_shard_instances: 25_000,
+            },
+            material: MaterialOptions::DEFAULT,
+            sky: SkyOptions::DEFAULT,
+            prt: PrtOptions::standard(),
+            lightmap: LightmapOptions::DEFAULT,
+            envmaps: EnvmapOptions::DEFAULT,
+            cluster: ClusterOptions::DEFAULT,
+            bittree: BitTreeOptions::DEFAULT,
+            svo: VoxelizeOptions::surface(256),
+            linespace: NTreeOptions::thesis(),
+        }
+    }
+
+    /// `pipelines/preview.toml` (`--preview`): quick, noisy lighting (PRT 64 paths, 64
+    /// environment-map rays, 16 light-map rays with 4 sun rays).
+    pub const fn preview() -> Pipeline {
+        let d = Pipeline::default_pipeline();
+        Pipeline {
+            prt: PrtOptions::preview(),
+            lightmap: LightmapOptions {
+                samples: 16,
+                sun_samples: 4,
+                ..d.lightmap
+            },
+            envmaps: EnvmapOptions {
+                samples: 64,
+                ..d.envmaps
+            },
+            ..d
+        }
+    }
+
+    /// `pipelines/final.toml`: PRT 1,024 paths and 4 bounces, 256 light-map rays, 1,024
+    /// environment-map rays, clustering at 1 %; SVO and line space on.
+    pub const fn final_quality() -> Pipeline {
+        let d = Pipeline::default_pipeline();
+        Pipeline {
+            stages: Stages {
+                svo: true,
+                linespace: true,
+                ..d.stages
+            },
+            prt: PrtOptions::final_quality(),
+            lightmap: LightmapOptions {
+                samples: 256,
+                sun_samples: 32,
+                ..d.lightmap
+            },
+            envmaps: EnvmapOptions {
+                samples: 1024,
+                ..d.envmaps
+            },
+            cluster: ClusterOptions {
+                error: 0.01,
+                ..d.cluster
+            },
+            ..d
+        }
+    }
+
+    /// `pipelines/ci.toml`: the preview's quality with the stages a CI job checks each commit
+    /// (all but the optional SVO and line space), the env maps in small shards so that the
+    /// cache is exercised unit by unit.
+    pub const fn ci() -> Pipeline {
+        let p = Pipeline::preview();
+        Pipeline {
+            units: Units {
+                envmap_shard_instances: 64,
+            },
+            ..p
+        }
+    }
+
+    /// A preset by name.
+    pub fn preset(name: &str) -> Option<Pipeline> {
+        Some(match name {
+            "default" => Pipeline::default_pipeline(),
+            "preview" => Pipeline::preview(),
+            "final" => Pipeline::final_quality(),
+            "ci" => Pipeline::ci(),
+            _ => return None,
+        })
+    }
+
+    /// Reads a pipeline file; errors name the file, the line and the key.
+    pub fn load(path: &Path) -> Result<Pipeline> {
+        let bytes = crate::error::read_file(path)?;
+        let text = std::str::from_utf8(&bytes).map_err(|e| {
+            Error::invalid_at(
+                path,
+                format!("byte {}", e.valid_up_to()),
+                "a pipeline file is UTF-8 TOML",
+            )
+        })?;
+        Pipeline::parse(text, &path.display().to_string())
+    }
+
+    /// Parses pipeline TOML; `name` is the file named in errors.
+    pub fn parse(text: &str, name: &str) -> Result<Pipeline> {
+        let p: Pipeline = toml::from_str(text).map_err(|e| toml_error(name, text, &e))?;
+        p.check()
+            .map_err(|m| Error::invalid_at(name, "[stages]", m))?;
+        Ok(p)
+    }
+
+    /// The TOML text of this pipeline (every option; `None` options are left out).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a pipeline serializes to TOML")
+    }
+
+    /// Applies `--set KEY=VALUE` (KEY a dotted path such as `prt.samples`; VALUE a TOML value,
+    /// or a bare word taken as a string).
+    pub fn set(&mut self, assignment: &str) -> Result<()> {
+        let bad = |m: String| Error::usage(format!("--set {assignment}: {m}"));
+        let (key, value) = assignment
+            .split_once('=')
+            .ok_or_else(|| bad("expected KEY=VALUE, e.g. prt.samples=256".into()))?;
+        let key = key.trim();
+        let value = value.trim();
+        let parsed: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .unwrap_or_else(|| toml::Value::String(value.to_string()));
+        let mut root = toml::Value::try_from(&*self).map_err(|e| bad(e.to_string()))?;
+        let parts: Vec<&str> = key.split('.').collect();
+        let (last, path) = parts.split_last().ok_or_else(|| bad("empty key".into()))?;
+        let mut node = &mut root;
+        for (depth, p) in path.iter().enumerate() {
+            let table = node
+                .as_table_mut()
+                .ok_or_else(|| bad(format!("{} is not a table", parts[..depth].join("."))))?;
+            node = table
+                .entry(p.to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        }
+        node.as_table_mut()
+            .ok_or_else(|| bad(format!("{} is not a table", path.join("."))))?
+            .insert(last.to_string(), parsed);
+        let p: Pipeline = root
+            .try_into()
+            .map_err(|e: toml::de::Error| bad(e.message().to_string()))?;
+        p.check().map_err(bad)?;
+        *self = p;
+        Ok(())
+    }
+
+    /// Every stage's inputs are switched on.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        let s = &self.stages;
+        let needs = [
+            (s.lightmap, "lightmap", s.sky, "sky"),
+            (s.atlas, "atlas", s.sky, "sky"),
+            (s.envmaps, "envmaps", s.sky, "sky"),
+            (s.cluster, "cluster", s.envmaps, "envmaps"),
+        ];
+        for (on, stage, input, what) in needs {
+            if on && !input {
+                return Err(format!(
+                    "stage {stage} is on but reads the output of {what}, which is off"
+                ));
+            }
+        }
+        if self.units.envmap_shard_instances == 0 {
+            return Err("units.envmap_shard_instances must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// A TOML error as the project's invalid-input error: file, line and column, the line's text
+/// (which names the key) and what was expected.
+fn toml_error(name: &str, text: &str, e: &toml::de::Error) -> Error {
+    let (place, line_text) = match e.span() {
+        Some(span) => {
+            let start = span.start.min(text.len());
+            let line = text[..start].matches('\n').count() + 1;
+            let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
+            let col = text[line_start..start].chars().count() + 1;
+            let line_end = text[start..].find('\n').map_or(text.len(), |i| start + i);
+            (
+                format!("line {line}, column {col}"),
+                text[line_start..line_end].trim().to_string(),
+            )
+        }
+        None => ("pipeline".to_string(), String::new()),
+    };
+    let msg = e.message().trim().to_string();
+    let msg = if line_text.is_empty() {
+        msg
+    } else {
+        format!("{msg} (at `{line_text}`)")
+    };
+    Error::invalid_at(name, place, msg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn repo_file(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("pipelines")
+            .join(format!("{name}.toml"))
+    }
+
+    #[test]
+    fn pipeline_files_equal_the_code_presets() {
+        for name in PRESETS {
+            let file = Pipeline::load(&repo_file(name)).unwrap();
+            let code = Pipeline::preset(name).unwrap();
+            assert_eq!(
+                file, code,
+                "pipelines/{name}.toml differs from Pipeline::preset({name:?})"
+            );
+        }
+        assert_ne!(Pipeline::preview(), Pipeline::default_pipeline());
+        assert_ne!(Pipeline::final_quality(), Pipeline::default_pipeline());
+        assert!(Pipeline::final_quality().stages.svo && !Pipeline::default_pipeline().stages.svo);
+    }
+
+    #[test]
+    fn serialized_presets_read_back_equal() {
+        for name in PRESETS {
+            let p = Pipeline::preset(name).unwrap();
+            assert_eq!(Pipeline::parse(&p.to_toml(), name).unwrap(), p, "{name}");
+        }
+    }
+
+    #[test]
+    fn an_unknown_key_names_the_file_line_and_key() {
+        let text = "[stages]\nprt = true\n\n[prt]\nsamples = 64\nsampels = 3\n";
+        let e = Pipeline::parse(text, "my.toml").unwrap_err().to_string();
+        assert!(e.contains("my.toml"), "{e}");
+        assert!(e.contains("line 6"), "{e}");
+        assert!(e.contains("sampels"), "{e}");
+        assert_eq!(
+            Error::exit_code(&Pipeline::parse(text, "x").unwrap_err()),
+            4
+        );
+    }
+
+    #[test]
+    fn a_wrong_type_names_the_file_line_and_key() {
+        let text = "[lightmap]\nsamples = \"many\"\n";
+        let e = Pipeline::parse(text, "p.toml").unwrap_err().to_string();
+        assert!(
+            e.contains("p.toml") && e.contains("line 2") && e.contains("samples"),
+            "{e}"
+        );
+        let text = "[stages]\nsky = 3\n";
+        let e = Pipeline::parse(text, "p.toml").unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("sky"), "{e}");
+    }
+
+    #[test]
+    fn a_missing_key_takes_the_default_and_set_overrides() {
+        let p = Pipeline::parse("[prt]\nsamples = 32\n", "p.toml").unwrap();
+        assert_eq!(p.prt.samples, 32);
+        assert_eq!(p.prt.bounces, PrtOptions::standard().bounces);
+        assert_eq!(p.lightmap, LightmapOptions::DEFAULT);
+        let mut q = p.clone();
+        q.set("prt.samples=256").unwrap();
+        q.set("lightmap.mode=Thesis").unwrap();
+        q.set("lightmap.resolution = 129").unwrap();
+        q.set("stages.svo=true").unwrap();
+        assert_eq!(q.prt.samples, 256);
+        assert_eq!(q.lightmap.mode, crate::lightmap::LightmapMode::Thesis);
+        assert_eq!(q.lightmap.resolution, Some(129));
+        assert!(q.stages.svo);
+        for bad in [
+            "prt.sampels=3",
+            "prt.samples=many",
+            "prt",
+            "stages.cluster=1",
+        ] {
+            let e = q.clone().set(bad).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_stage_without_its_input_is_refused() {
+        let text = "[stages]\nenvmaps = false\n";
+        let e = Pipeline::parse(text, "p.toml").unwrap_err().to_string();
+        assert!(e.contains("cluster") && e.contains("envmaps"), "{e}");
+    }
+}
