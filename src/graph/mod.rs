@@ -394,7 +394,10 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         g.finish_sections(sections)?;
     }
 
-    // Per model: ingest, material, PRT.
+    // Per model: ingest, material, PRT. Models read under the scene's policy (roots and
+    // limits), which enters the ingest keys so that a hit never skips a refusal.
+    let policy = ingest::eco::scene_policy(first, &opts.ingest);
+    let policy_key = format!("{policy:?}");
     let mut mesh_sections = Vec::new();
     let mut triangles = 0u64;
     for (name, path) in &plan.models {
@@ -404,9 +407,10 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         let model_hash = cache::hash_file(path)?;
         g.files.insert(path.clone());
         let mut k = g.key("ingest", versions::INGEST, name);
+        k.options(&policy_key);
         k.input(&source, &model_hash);
         let mut sections = g.unit("ingest", name, k.finish(), None, |_| {
-            ingest_model(name, path)
+            ingest_model(name, path, &policy)
         })?;
         if p.stages.material {
             let mut k = g.key("material", versions::MATERIAL, name);
@@ -785,8 +789,8 @@ fn shard_maps(sections: &[Section], n: usize) -> Result<Vec<crate::envmap::bake:
 }
 
 /// Reads one model and its textures into `texture:<model>/...` and `mesh:<model>` sections.
-fn ingest_model(name: &str, path: &Path) -> Result<Output> {
-    let mesh = ingest::load_mesh(path)?;
+fn ingest_model(name: &str, path: &Path, policy: &ingest::ReadPolicy) -> Result<Output> {
+    let mesh = ingest::load_mesh_in(path, policy)?;
     let mut warnings: Vec<String> = mesh.warnings.clone();
     let mut w = crate::pack::PackWriter::new();
     crate::pipeline::add_mesh(&mut w, name, path, &mesh, &mut warnings);

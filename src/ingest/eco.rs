@@ -421,7 +421,7 @@ pub fn scene_plan(paths: &[PathBuf], opts: &IngestOptions) -> Result<ScenePlan> 
 
 /// The roots of a scene: the first ECO file's folder, the `--models` and `--allow-path`
 /// folders; and the limits.
-fn scene_policy(first: &Path, opts: &IngestOptions) -> super::ReadPolicy {
+pub fn scene_policy(first: &Path, opts: &IngestOptions) -> super::ReadPolicy {
     let extra: Vec<PathBuf> = opts
         .model_dirs
         .iter()
