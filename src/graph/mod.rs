@@ -41,7 +41,8 @@ pub mod versions {
     pub const INGEST: u32 = 1;
     pub const MATERIAL: u32 = 1;
     pub const TERRAIN: u32 = 1;
-    pub const SKY: u32 = 1;
+    /// 2: the sun's energy kept through resampling, the ring-mean replacement (issue 16).
+    pub const SKY: u32 = 2;
     pub const PRT: u32 = 1;
     pub const LIGHTMAP: u32 = 1;
     pub const ATLAS: u32 = 1;
