@@ -26,4 +26,5 @@ pub mod sky;
 pub mod terrain;
 pub mod texture;
 pub mod tracescene;
+pub mod verify;
 pub mod voxel;

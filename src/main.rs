@@ -59,6 +59,8 @@ enum Command {
     Linespace(cli::linespace::LinespaceArgs),
     /// Check the GPU traversal of a pack's svo and linespace sections against the CPU.
     Validate(cli::validate::ValidateArgs),
+    /// Check a pack against docs/FORMAT.md: container, checksums, every section's invariants.
+    Verify(cli::verify::VerifyArgs),
 }
 
 fn run(cli: &Cli) -> Result<Outcome, Error> {
@@ -83,6 +85,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Svo(a) => cli::svo::run(a, g),
         Command::Linespace(a) => cli::linespace::run(a, g),
         Command::Validate(a) => cli::validate::run(a, g),
+        Command::Verify(a) => cli::verify::run(a, g),
     }
 }
 

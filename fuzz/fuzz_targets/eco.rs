@@ -3,5 +3,8 @@
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let _ = bake::ingest::eco::parse(data);
+    bake_fuzz::init();
+    if let Ok(eco) = bake::ingest::eco::parse(data) {
+        assert!(eco.terrain.width >= 2 && eco.terrain.height >= 2);
+    }
 });

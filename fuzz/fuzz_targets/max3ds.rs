@@ -3,6 +3,7 @@
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
+    bake_fuzz::init();
     if let Ok(mesh) = bake::ingest::max3ds::parse(data) {
         assert_eq!(mesh.validate(), Ok(()));
     }

@@ -101,7 +101,7 @@ pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
         ingest: IngestOptions {
             model_dirs: args.models.clone(),
             color_map: args.color_map.clone(),
-            ..Default::default()
+            ..g.ingest_defaults()
         },
         pipeline,
         pipeline_file,

@@ -23,12 +23,13 @@ pub struct IngestArgs {
     pub models: Vec<PathBuf>,
 }
 
-pub fn run(args: &IngestArgs, _g: &Global) -> Result<Outcome> {
+pub fn run(args: &IngestArgs, g: &Global) -> Result<Outcome> {
     let opts = IngestOptions {
         size: args.size,
         scale: args.scale,
         model_dirs: args.models.clone(),
         color_map: None,
+        ..g.ingest_defaults()
     };
     let (w, warnings) = crate::pipeline::ingest_to_pack(&args.input, &opts)?;
     let output = args

@@ -20,6 +20,7 @@ pub mod sky;
 pub mod svo;
 pub mod terrain;
 pub mod validate;
+pub mod verify;
 
 use serde_json::Value;
 
@@ -35,6 +36,13 @@ pub struct Global {
     /// Treat warnings (dropped or repaired data) as errors.
     #[arg(long, global = true)]
     pub warnings_as_errors: bool,
+    /// A further folder scenes may read files from (repeatable; by default only the scene's
+    /// folder and the --models folders).
+    #[arg(long = "allow-path", value_name = "DIR", global = true)]
+    pub allow_paths: Vec<std::path::PathBuf>,
+    /// Budget for the decoded size of one input file, e.g. 512M or 8G [default: 4G].
+    #[arg(long, value_name = "BYTES", global = true, value_parser = crate::ingest::limits::parse_bytes)]
+    pub max_memory: Option<u64>,
 }
 
 /// What a command produced: JSON for `--json`, text for people, warnings for stderr.
@@ -66,6 +74,18 @@ impl Outcome {
 }
 
 impl Global {
+    /// Ingest options carrying the global --allow-path and --max-memory.
+    pub fn ingest_defaults(&self) -> crate::ingest::IngestOptions {
+        crate::ingest::IngestOptions {
+            allow_paths: self.allow_paths.clone(),
+            limits: self.max_memory.map_or(
+                crate::ingest::limits::Limits::DEFAULT,
+                crate::ingest::limits::Limits::with_memory,
+            ),
+            ..Default::default()
+        }
+    }
+
     /// A progress bar on stderr, hidden with `--quiet`.
     pub fn progress(&self, len: u64, message: &str) -> indicatif::ProgressBar {
         if self.quiet {

@@ -582,7 +582,7 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
     };
     let lm = &p.lightmap;
     if s.lightmap {
-        let o = json!({"resolution": lm.resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode});
+        let o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode});
         let key = keyed(g, "lightmap", versions::LIGHTMAP, "terrain", &o);
         let out = g.unit("lightmap", "terrain", key, None, |_| {
             let (ts, light) = traced()?;

@@ -128,12 +128,14 @@ impl Pipeline {
     }
 
     /// `pipelines/preview.toml` (`--preview`): quick, noisy lighting (PRT 64 paths, 64
-    /// environment-map rays, 16 light-map rays with 4 sun rays).
+    /// environment-map rays, 16 light-map rays with 4 sun rays, the terrain's light map at most
+    /// 1025² texels).
     pub const fn preview() -> Pipeline {
         let d = Pipeline::default_pipeline();
         Pipeline {
             prt: PrtOptions::preview(),
             lightmap: LightmapOptions {
+                max_resolution: Some(1025),
                 samples: 16,
                 sun_samples: 4,
                 ..d.lightmap

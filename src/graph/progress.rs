@@ -100,14 +100,23 @@ impl Observer for Terminal {
             .lock()
             .ok()
             .and_then(|mut m| m.remove(&(r.stage.clone(), r.unit.clone())));
-        if let Some(b) = bar {
-            b.finish_and_clear();
-            self.multi.remove(&b);
+        let line = format!(
+            "{:24} {:>8.2} s {:>8.2} CPU s  {}",
+            r.unit, r.wall_seconds, r.cpu_seconds, r.cache
+        );
+        match bar {
+            // The unit's own line becomes its summary.
+            Some(b) => {
+                b.set_style(
+                    indicatif::ProgressStyle::with_template("{prefix:>10} {msg}")
+                        .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+                );
+                b.finish_with_message(line);
+            }
+            None => {
+                let _ = self.multi.println(format!("{:>10} {line}", r.stage));
+            }
         }
-        let _ = self.multi.println(format!(
-            "{:>10} {:24} {:>8.2} s  {:>8.2} CPU s  {}",
-            r.stage, r.unit, r.wall_seconds, r.cpu_seconds, r.cache
-        ));
     }
 }
 

@@ -253,10 +253,11 @@ pub fn resolve_model(
 /// Reads one or more ECO files into a scene: terrain, models (loaded once), instances.
 pub fn load_scene(paths: &[PathBuf], opts: &IngestOptions) -> Result<Scene> {
     let plan = scene_plan(paths, opts)?;
+    let policy = scene_policy(&paths[0], opts);
     let meshes: Vec<Result<crate::model::Mesh>> = plan
         .models
         .par_iter()
-        .map(|(_, path)| super::load_mesh(path))
+        .map(|(_, path)| super::load_mesh_in(path, &policy))
         .collect();
     let mut scene = plan.scene;
     for ((name, path), mesh) in plan.models.iter().zip(meshes) {
@@ -290,6 +291,8 @@ pub fn scene_plan(paths: &[PathBuf], opts: &IngestOptions) -> Result<ScenePlan> 
     let first = paths
         .first()
         .ok_or_else(|| Error::usage("no ECO file given"))?;
+    let policy = scene_policy(first, opts);
+    check_further_eco_files(&paths[1..], &policy.roots)?;
     let mut files = Vec::new();
     for p in paths {
         let eco = parse(&crate::error::read_file(p)?).map_err(|e| Error::invalid(p, e))?;
@@ -320,11 +323,7 @@ pub fn scene_plan(paths: &[PathBuf], opts: &IngestOptions) -> Result<ScenePlan> 
         origin: head.georef.terrain.origin,
         extent: head.georef.terrain.extent,
     };
-    let terrain = super::raw::load(
-        &dir(first).join(&head.terrain.file),
-        &spec,
-        opts.color_map.as_deref(),
-    )?;
+    let terrain = load_terrain(first, &head.terrain.file, &spec, opts, &policy)?;
 
     // Resolve every model name once, in order of first appearance.
     let mut index: HashMap<PathBuf, u32> = HashMap::new();
@@ -340,6 +339,16 @@ pub fn scene_plan(paths: &[PathBuf], opts: &IngestOptions) -> Result<ScenePlan> 
             Some(b) => union(a, b),
         });
         for inst in &eco.instances {
+            if items.len() as u64 >= policy.limits.max_instances {
+                return Err(Error::invalid_at(
+                    p,
+                    format!("line {}", inst.line),
+                    format!(
+                        "more than {} instances in the scene (the limit)",
+                        policy.limits.max_instances
+                    ),
+                ));
+            }
             let path = resolve_model(&inst.model, &dir(p), &opts.model_dirs).map_err(|tried| {
                 let list: Vec<String> = tried.iter().map(|t| t.display().to_string()).collect();
                 Error::invalid_at(
@@ -352,6 +361,13 @@ pub fn scene_plan(paths: &[PathBuf], opts: &IngestOptions) -> Result<ScenePlan> 
                     ),
                 )
             })?;
+            let (inside, resolved) = policy.roots.resolve(&path);
+            if !inside {
+                let place = format!("line {}", inst.line);
+                return Err(policy
+                    .roots
+                    .refusal(p, place, "model", &inst.model, &resolved));
+            }
             let next = model_paths.len() as u32;
             let model = *index.entry(path.clone()).or_insert_with(|| {
                 let name = path
@@ -401,6 +417,80 @@ pub fn scene_plan(paths: &[PathBuf], opts: &IngestOptions) -> Result<ScenePlan> 
         models: model_paths,
         files: read,
     })
+}
+
+/// The roots of a scene: the first ECO file's folder, the `--models` and `--allow-path`
+/// folders; and the limits.
+fn scene_policy(first: &Path, opts: &IngestOptions) -> super::ReadPolicy {
+    let extra: Vec<PathBuf> = opts
+        .model_dirs
+        .iter()
+        .chain(&opts.allow_paths)
+        .cloned()
+        .collect();
+    super::ReadPolicy {
+        roots: super::confine::Roots::around(first, &extra),
+        limits: opts.limits,
+    }
+}
+
+/// The further ECO files of a scene lie inside its roots too.
+fn check_further_eco_files(paths: &[PathBuf], roots: &super::confine::Roots) -> Result<()> {
+    for p in paths {
+        let (inside, resolved) = roots.resolve(p);
+        if !inside {
+            let name = p.display().to_string();
+            return Err(roots.refusal(
+                p,
+                "command line".into(),
+                "further ECO file",
+                &name,
+                &resolved,
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The terrain named by the ECO file, and its colour map (given, or found beside it), inside
+/// the roots and within the memory budget.
+fn load_terrain(
+    eco: &Path,
+    name: &str,
+    spec: &RawSpec,
+    opts: &IngestOptions,
+    policy: &super::ReadPolicy,
+) -> Result<crate::model::Terrain> {
+    let dir = eco.parent().map(Path::to_path_buf).unwrap_or_default();
+    let path = dir.join(name);
+    policy.roots.check(eco, "terrain", name, &path)?;
+    let decoded = spec.width as u64 * spec.height as u64 * 4;
+    policy
+        .limits
+        .check_memory(eco, "terrain line", "the terrain", decoded)?;
+    let color = match &opts.color_map {
+        Some(c) => Some(c.clone()),
+        None => super::raw::find_color_map(&path),
+    };
+    if let Some(c) = &color {
+        if opts.color_map.is_none() {
+            let (inside, resolved) = policy.roots.resolve(c);
+            if !inside {
+                let c_name = c.file_name().map(|f| f.to_string_lossy().into_owned());
+                let place =
+                    super::confine::place_of(&std::fs::read(eco).unwrap_or_default(), name, false);
+                return Err(policy.roots.refusal(
+                    eco,
+                    place.unwrap_or_else(|| "terrain line".into()),
+                    "terrain colour map",
+                    &c_name.unwrap_or_default(),
+                    &resolved,
+                ));
+            }
+        }
+        super::check_image_header(c, "colour map", &policy.limits)?;
+    }
+    super::raw::load(&path, spec, color.as_deref())
 }
 
 fn union(a: Rect, b: Rect) -> Rect {

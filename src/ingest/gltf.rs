@@ -33,8 +33,24 @@ use std::path::{Path, PathBuf};
 /// Reads a `.gltf` or `.glb` file; external buffers and texture URIs are resolved against the
 /// file's folder.
 pub fn load(path: &Path) -> Result<Mesh> {
+    load_in(path, &super::confine::Roots::around(path, &[]))
+}
+
+/// Reads a `.gltf` or `.glb` file whose external buffers must lie inside `roots`: they are
+/// checked before any is opened (`data:` URIs and the GLB blob read no file).
+pub fn load_in(path: &Path, roots: &super::confine::Roots) -> Result<Mesh> {
     let bytes = crate::error::read_file(path)?;
     let dir = path.parent().unwrap_or(Path::new(""));
+    let mut warnings = Vec::new();
+    if let Ok((doc, _)) = read_document(&bytes, &mut warnings) {
+        for b in doc.buffers() {
+            if let gltf::buffer::Source::Uri(uri) = b.source()
+                && let Ok(Some(file)) = buffer_file(uri)
+            {
+                roots.check(path, "buffer", uri, &dir.join(file))?;
+            }
+        }
+    }
     parse_with_base(&bytes, Some(dir)).map_err(|e| Error::invalid(path, e))
 }
 
@@ -47,6 +63,12 @@ pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
 fn parse_with_base(bytes: &[u8], base: Option<&Path>) -> Result<Mesh, ParseError> {
     let mut warnings = Vec::new();
     let (doc, blob) = read_document(bytes, &mut warnings)?;
+    for b in doc.buffers() {
+        if let gltf::buffer::Source::Uri(uri) = b.source() {
+            buffer_file(uri)
+                .map_err(|m| ParseError::new(format!("buffers[{}].uri", b.index()), m))?;
+        }
+    }
     let buffers = gltf::import_buffers(&doc, base, blob)
         .map_err(|e| ParseError::new("buffers", format!("cannot load buffer data: {e}")))?;
     let doc = &doc;
@@ -95,12 +117,15 @@ fn read_document(
         ParseError::new("document", format!("not a valid glTF 2.0 file: {e}"))
     };
     let (json, blob) = if bytes.starts_with(b"glTF") {
+        check_glb_length(bytes)?;
         let glb = gltf::binary::Glb::from_slice(bytes).map_err(|e| bad(&e))?;
         (glb.json.into_owned(), glb.bin.map(|b| b.into_owned()))
     } else {
         (bytes.to_vec(), None)
     };
     let root = gltf::json::Root::from_slice(&json).map_err(|e| bad(&e))?;
+    check_position_accessors(&root)?;
+    check_image_sources(&root)?;
     let mut errors = Vec::new();
     let mut unsupported = Vec::new();
     let mut no_min_max = 0;
@@ -144,6 +169,152 @@ fn read_document(
         )));
     }
     Ok((gltf::Document::from_json_without_validation(root), blob))
+}
+
+/// The GLB header's total length covers at least the header: `gltf` 1.4 subtracts the header
+/// size from it unchecked (an overflow panic in debug builds).
+fn check_glb_length(bytes: &[u8]) -> Result<(), ParseError> {
+    let length = bytes
+        .get(8..12)
+        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize);
+    match length {
+        Some(l) if l >= 12 => Ok(()),
+        _ => Err(ParseError::at_byte(
+            8,
+            "GLB header: total length missing or shorter than the 12-byte header",
+        )),
+    }
+}
+
+/// An image has a `uri` or a `bufferView` with a `mimeType` (glTF 2.0, 5.18): `gltf` 1.4's
+/// `Image::source` unwraps both, and its validation does not check them.
+fn check_image_sources(root: &gltf::json::Root) -> Result<(), ParseError> {
+    for (k, img) in root.images.iter().enumerate() {
+        let ok = match (&img.uri, &img.buffer_view) {
+            (Some(_), None) => true,
+            (None, Some(v)) => img.mime_type.is_some() && v.value() < root.buffer_views.len(),
+            _ => false,
+        };
+        if !ok {
+            return Err(ParseError::new(
+                format!("images[{k}]"),
+                "an image needs a uri, or a bufferView with a mimeType",
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The accessors a primitive is read through, checked before `gltf`'s reader touches them:
+/// type and component type as the semantic requires (the reader asserts or panics otherwise),
+/// a count from 1 to the limit, and every byte inside its view and buffer (checked arithmetic:
+/// the reader's own bounds arithmetic overflows). Sparse accessors are not supported.
+fn check_primitive_accessors(
+    p: &gltf::Primitive,
+    buffers: &[gltf::buffer::Data],
+    place: &str,
+) -> Result<(), ParseError> {
+    use gltf::accessor::{DataType as D, Dimensions as N};
+    use gltf::mesh::Semantic as S;
+    let limit = super::limits::Limits::DEFAULT;
+    let vertices = limit.max_vertices as usize;
+    for (sem, a) in p.attributes() {
+        let (ok, what) = match sem {
+            S::Positions => (
+                a.dimensions() == N::Vec3 && a.data_type() == D::F32,
+                "POSITION: VEC3 float",
+            ),
+            S::Normals => (
+                a.dimensions() == N::Vec3 && a.data_type() == D::F32,
+                "NORMAL: VEC3 float",
+            ),
+            S::TexCoords(0) => (
+                a.dimensions() == N::Vec2 && matches!(a.data_type(), D::F32 | D::U8 | D::U16),
+                "TEXCOORD_0: VEC2 float, unsigned byte or unsigned short",
+            ),
+            _ => continue, // not read
+        };
+        if !ok {
+            return Err(ParseError::new(
+                place,
+                format!("accessor {}: expected {what}", a.index()),
+            ));
+        }
+        check_accessor_bytes(&a, buffers, vertices, place)?;
+    }
+    if let Some(a) = p.indices() {
+        if a.dimensions() != N::Scalar || !matches!(a.data_type(), D::U8 | D::U16 | D::U32) {
+            let msg = format!(
+                "indices accessor {}: expected SCALAR unsigned byte, short or int",
+                a.index()
+            );
+            return Err(ParseError::new(place, msg));
+        }
+        check_accessor_bytes(&a, buffers, 3 * limit.max_triangles as usize, place)?;
+    }
+    Ok(())
+}
+
+/// One accessor's count against `max` and its bytes against its view and buffer.
+fn check_accessor_bytes(
+    a: &gltf::Accessor,
+    buffers: &[gltf::buffer::Data],
+    max: usize,
+    place: &str,
+) -> Result<(), ParseError> {
+    let bad = |m: String| ParseError::new(place, format!("accessor {}: {m}", a.index()));
+    if a.sparse().is_some() {
+        return Err(bad("sparse accessors are not supported".into()));
+    }
+    if a.count() == 0 || a.count() > max {
+        return Err(bad(format!("count {} outside 1..={max}", a.count())));
+    }
+    let Some(view) = a.view() else {
+        return Err(bad("no bufferView".into()));
+    };
+    let size = a.size();
+    let stride = view.stride().unwrap_or(size);
+    let end = (a.count() - 1)
+        .checked_mul(stride)
+        .and_then(|n| n.checked_add(size))
+        .and_then(|n| n.checked_add(a.offset()));
+    let view_end = view.offset().checked_add(view.length());
+    let buffer_len = buffers.get(view.buffer().index()).map_or(0, |d| d.0.len());
+    match (end, view_end) {
+        (Some(e), Some(ve)) if stride >= size && e <= view.length() && ve <= buffer_len => Ok(()),
+        _ => Err(bad(format!(
+            "{} elements of {size} bytes (stride {stride}) at offset {} do not fit bufferView {} ({} bytes at {} in a {buffer_len}-byte buffer)",
+            a.count(),
+            a.offset(),
+            view.index(),
+            view.length(),
+            view.offset()
+        ))),
+    }
+}
+
+/// `gltf-json` 1.4's validation indexes `accessors` with each primitive's POSITION accessor
+/// unchecked (a panic on a dangling index): check those indices first.
+fn check_position_accessors(root: &gltf::json::Root) -> Result<(), ParseError> {
+    use gltf::json::validation::Checked;
+    let pos = Checked::Valid(gltf::json::mesh::Semantic::Positions);
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            if let Some(a) = prim.attributes.get(&pos)
+                && a.value() >= root.accessors.len()
+            {
+                return Err(ParseError::new(
+                    format!("meshes[{m}].primitives[{p}].attributes.POSITION"),
+                    format!(
+                        "accessor {} does not exist ({} accessors)",
+                        a.value(),
+                        root.accessors.len()
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The extension named by a validation path like `extensionsRequired[0]` (the path may carry
@@ -236,6 +407,7 @@ impl Ctx<'_> {
         world: Mat4,
         place: &str,
     ) -> Result<(), ParseError> {
+        check_primitive_accessors(p, self.buffers, place)?;
         let reader = p.reader(|b| self.buffers.get(b.index()).map(|d| &d.0[..]));
         let err = |what: &str| ParseError::new(place, what.to_string());
         let positions: Vec<[f32; 3]> = reader
@@ -429,7 +601,36 @@ fn assemble(mode: Mode, idx: &[u32]) -> Vec<[u32; 3]> {
 }
 
 /// Decodes `%XX` escapes of a URI (invalid escapes are kept as written).
+/// The file a buffer URI reads, as `gltf::import_buffers` will read it: `None` for a `data:`
+/// URI, the percent-decoded relative path, or the path of a `file:` URI (absolute ones are then
+/// refused by confinement). Other schemes, and percent-escapes that do not decode to UTF-8
+/// (`gltf` 1.4 unwraps that decoding), are errors.
+fn buffer_file(uri: &str) -> Result<Option<PathBuf>, String> {
+    if uri.starts_with("data:") {
+        return Ok(None);
+    }
+    if let Some(rest) = uri
+        .strip_prefix("file://")
+        .or_else(|| uri.strip_prefix("file:"))
+    {
+        return Ok(Some(PathBuf::from(rest)));
+    }
+    if uri.contains(':') {
+        return Err(format!(
+            "unsupported URI scheme in {uri:?} (data: or a relative path expected)"
+        ));
+    }
+    let decoded = percent_decode_bytes(uri);
+    String::from_utf8(decoded)
+        .map(|s| Some(PathBuf::from(s)))
+        .map_err(|_| format!("URI {uri:?} does not percent-decode to UTF-8"))
+}
+
 pub(crate) fn percent_decode(s: &str) -> String {
+    String::from_utf8_lossy(&percent_decode_bytes(s)).into_owned()
+}
+
+fn percent_decode_bytes(s: &str) -> Vec<u8> {
     let b = s.as_bytes();
     let mut out = Vec::with_capacity(b.len());
     let mut i = 0;
@@ -445,12 +646,127 @@ pub(crate) fn percent_decode(s: &str) -> String {
         out.push(b[i]);
         i += 1;
     }
-    String::from_utf8_lossy(&out).into_owned()
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression (found by tests/fuzz_smoke.rs): a POSITION accessor of another type tripped
+    /// an assertion in `gltf`'s reader ("left: 12, right: 2"); counts past the view, or 0,
+    /// overflowed its bounds arithmetic.
+    #[test]
+    fn accessors_of_the_wrong_type_or_size_are_errors_not_panics() {
+        let buf = "data:application/octet-stream;base64,".to_string() + &"A".repeat(48);
+        let doc = |acc: &str| {
+            format!(
+                r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}}}}]}}],
+"buffers":[{{"byteLength":36,"uri":"{buf}"}}],"bufferViews":[{{"buffer":0,"byteLength":36}}],
+"accessors":[{acc}]}}"#
+            )
+        };
+        let ok = r#"{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[0,0,0]}"#;
+        assert!(parse(doc(ok).as_bytes()).is_ok());
+        for (acc, msg) in [
+            (
+                r#"{"bufferView":0,"componentType":5123,"count":3,"type":"SCALAR"}"#,
+                "expected POSITION",
+            ),
+            (
+                r#"{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3"}"#,
+                "do not fit",
+            ),
+            (
+                r#"{"bufferView":0,"componentType":5126,"count":0,"type":"VEC3"}"#,
+                "count 0",
+            ),
+            (
+                r#"{"bufferView":0,"byteOffset":4294967295,"componentType":5126,"count":3,"type":"VEC3"}"#,
+                "do not fit",
+            ),
+        ] {
+            let e = parse(doc(acc).as_bytes()).unwrap_err();
+            assert!(e.message.contains(msg), "{acc}: {e}");
+        }
+    }
+
+    /// Regression (cargo-fuzz gltf, crash-d46bcd94): a buffer URI whose percent-escapes do not
+    /// decode to UTF-8 panicked in `gltf::import` (`urlencoding::decode(..).unwrap()`); a
+    /// `file:` URI would have been read from anywhere.
+    #[test]
+    fn crash_d46bcd94_buffer_uris_that_do_not_decode_are_errors() {
+        let doc = |uri: &str| {
+            format!(
+                r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"byteLength":4,"uri":"{uri}"}}]}}"#
+            )
+        };
+        for (uri, msg) in [
+            ("a%AB.bin", "percent-decode"),
+            ("http://x/b.bin", "unsupported URI scheme"),
+        ] {
+            let e = parse(doc(uri).as_bytes()).unwrap_err();
+            assert_eq!(e.place, "buffers[0].uri", "{e}");
+            assert!(e.message.contains(msg), "{e}");
+        }
+        let crash = include_bytes!(
+            "../../tests/data/fuzz/gltf/crash-d46bcd943fe4b7f738cab0ee7f75cb198d056cc5"
+        );
+        assert!(parse(crash).is_err());
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("sub/m.gltf");
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(dir.path().join("b.bin"), [0u8; 4]).unwrap();
+        let abs = format!("file://{}", dir.path().join("b.bin").display());
+        std::fs::write(&p, doc(&abs)).unwrap();
+        let e = load(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("outside the scene") && e.contains("--allow-path"),
+            "{e}"
+        );
+    }
+
+    /// Regression (found by tests/fuzz_smoke.rs): a GLB whose header length is under 12
+    /// overflowed a subtraction in `gltf::binary::Glb::from_slice` (a panic in debug builds).
+    #[test]
+    fn glb_length_under_the_header_size_is_an_error_not_a_panic() {
+        for len in [0u32, 11] {
+            let mut b = b"glTF".to_vec();
+            b.extend(2u32.to_le_bytes());
+            b.extend(len.to_le_bytes());
+            let e = parse(&b).unwrap_err();
+            assert_eq!(e.place, "byte 8", "{e}");
+        }
+        assert!(parse(b"glTF\x02\0\0").is_err());
+    }
+
+    /// Regression (found by tests/fuzz_smoke.rs): an image with neither uri nor bufferView
+    /// panicked in `gltf::Image::source` (`Option::unwrap()` on a `None` value).
+    #[test]
+    fn image_without_a_source_is_an_error_not_a_panic() {
+        for img in [
+            r#"{}"#,
+            r#"{"bufferView":0}"#,
+            r#"{"uri":"a.png","bufferView":0}"#,
+        ] {
+            let doc = format!(
+                r#"{{"asset":{{"version":"2.0"}},"images":[{img}],"buffers":[{{"byteLength":4,"uri":"data:application/octet-stream;base64,AAAAAA=="}}],"bufferViews":[{{"buffer":0,"byteLength":4}}]}}"#
+            );
+            let e = parse(doc.as_bytes()).unwrap_err();
+            assert_eq!(e.place, "images[0]", "{img}: {e}");
+        }
+    }
+
+    /// Regression (found by tests/fuzz_smoke.rs): a POSITION accessor index past the accessor
+    /// list panicked inside gltf-json's validation ("index out of bounds: the len is 0").
+    #[test]
+    fn dangling_position_accessor_is_an_error_not_a_panic() {
+        let doc = br#"{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}]}"#;
+        let e = parse(doc).unwrap_err();
+        assert_eq!(e.place, "meshes[0].primitives[0].attributes.POSITION");
+        assert!(e.message.contains("accessor 0 does not exist"), "{e}");
+    }
 
     fn base64(data: &[u8]) -> String {
         const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";

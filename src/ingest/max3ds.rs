@@ -111,7 +111,11 @@ pub fn resolve_texture(dir: &Path, name: &str) -> PathBuf {
     if exact.is_file() {
         return exact;
     }
-    let folder = exact.parent().map(Path::to_path_buf).unwrap_or_default();
+    // A bare name's parent is "", which `read_dir` refuses: that is the current folder.
+    let folder = match exact.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
     let Some(file) = exact.file_name().and_then(|f| f.to_str()) else {
         return exact;
     };
@@ -123,7 +127,7 @@ pub fn resolve_texture(dir: &Path, name: &str) -> PathBuf {
             .min()
     });
     match found {
-        Some(f) => folder.join(f),
+        Some(f) => exact.with_file_name(f),
         None => exact,
     }
 }
@@ -1248,6 +1252,32 @@ mod tests {
         }
         let m = load(&dir.path().join("object.3ds")).unwrap();
         assert_eq!(m.textures[0].path, dir.path().join("objwood.png"));
+    }
+
+    /// Regression: with a model named by a bare relative path (`bake ingest scene.eco` run in
+    /// the scene's folder) the texture's folder was "", `read_dir("")` failed, and the
+    /// case-insensitive match was skipped ("OBJWOOD.PNG: No such file or directory").
+    #[test]
+    fn bare_relative_texture_name_resolves_case_insensitively() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("objwood.png"), b"x").unwrap();
+        let here = std::env::current_dir().unwrap();
+        let rel = pathdiff(dir.path(), &here);
+        let found = resolve_texture(&rel, "OBJWOOD.PNG");
+        assert_eq!(found, rel.join("objwood.png"));
+        assert_eq!(
+            resolve_texture(Path::new(""), "Cargo.TOML"),
+            PathBuf::from("Cargo.toml")
+        );
+    }
+
+    /// `to` relative to `from` through `..` (both absolute).
+    fn pathdiff(to: &Path, from: &Path) -> PathBuf {
+        let mut p = PathBuf::new();
+        for _ in from.components().skip(1) {
+            p.push("..");
+        }
+        p.join(to.strip_prefix("/").unwrap())
     }
 
     fn one_box(matrix: Option<[f32; 12]>) -> Object3ds {

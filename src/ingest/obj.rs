@@ -22,26 +22,76 @@ use glam::Vec3;
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
 
-/// Reads an `.obj` file and the MTL files it names (relative to the OBJ's folder).
+/// Reads an `.obj` file and the MTL files it names (relative to the OBJ's folder, which they
+/// must not leave).
 pub fn load(path: &Path) -> Result<Mesh> {
+    load_in(path, &super::confine::Roots::around(path, &[]))
+}
+
+/// Reads an `.obj` file; its MTL libraries must lie inside `roots` (a library outside is
+/// refused before it is opened).
+pub fn load_in(path: &Path, roots: &super::confine::Roots) -> Result<Mesh> {
     let bytes = crate::error::read_file(path)?;
     let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+    let refused = std::cell::RefCell::new(None);
     let loader = |mtl: &Path| {
         let p = dir.join(mtl);
-        let f = std::fs::File::open(&p).map_err(|_| tobj::LoadError::OpenFileFailed)?;
-        tobj::load_mtl_buf(&mut std::io::BufReader::new(f))
+        if refused.borrow().is_none()
+            && let Err(e) = roots.check(path, "MTL library", &mtl.to_string_lossy(), &p)
+        {
+            *refused.borrow_mut() = Some(e);
+        }
+        if refused.borrow().is_some() {
+            return Err(tobj::LoadError::OpenFileFailed);
+        }
+        let bytes = std::fs::read(&p).map_err(|_| tobj::LoadError::OpenFileFailed)?;
+        load_mtl(&bytes)
     };
-    let mut mesh = parse_with(&bytes, loader).map_err(|e| Error::invalid(path, e))?;
+    let parsed = parse_with(&bytes, loader).map_err(|e| Error::invalid(path, e));
+    if let Some(e) = refused.into_inner() {
+        return Err(e);
+    }
+    let mut mesh = parsed?;
     for t in &mut mesh.textures {
         t.path = super::max3ds::resolve_texture(&dir, &t.name);
     }
     Ok(mesh)
 }
 
+/// The names after `mtllib` in an OBJ file's text.
+pub fn mtl_names(bytes: &[u8]) -> Vec<String> {
+    let text = String::from_utf8_lossy(bytes);
+    text.lines()
+        .filter_map(|l| l.trim_start().strip_prefix("mtllib"))
+        .flat_map(|rest| rest.split_whitespace().map(str::to_string))
+        .collect()
+}
+
 /// Parses an OBJ held in memory; `mtllib` lines cannot be followed (no folder), so faces get
 /// default materials.
 pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
     parse_with(bytes, |_| Err(tobj::LoadError::OpenFileFailed))
+}
+
+/// Parses an OBJ held in memory with `mtl` as the text of every MTL file it names (fuzzing,
+/// tests).
+pub fn parse_with_mtl(obj: &[u8], mtl: &[u8]) -> Result<Mesh, ParseError> {
+    parse_with(obj, |_| load_mtl(mtl))
+}
+
+/// Reads MTL text through tobj, after the checks tobj lacks: `tobj` 4.0 panics (an `unwrap` in
+/// `parse_float3`) on a colour line (`Ka`/`Kd`/`Ks`/`Ke`) with fewer than three numbers, so such
+/// a file is refused here as a broken MTL (a warning, like any other broken MTL).
+fn load_mtl(mtl: &[u8]) -> tobj::MTLLoadResult {
+    let text = String::from_utf8_lossy(mtl);
+    let short_colour = text.lines().any(|l| {
+        let mut w = l.split_whitespace();
+        matches!(w.next(), Some("Ka" | "Kd" | "Ks" | "Ke")) && w.count() < 3
+    });
+    if short_colour {
+        return Err(tobj::LoadError::MaterialParseError);
+    }
+    tobj::load_mtl_buf(&mut std::io::BufReader::new(mtl))
 }
 
 fn parse_with(
@@ -334,6 +384,22 @@ impl BufRead for LineCounter<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression (found by tests/fuzz_smoke.rs): `Kd 0.4` made tobj panic in `parse_float3`.
+    #[test]
+    fn mtl_colour_with_fewer_than_three_numbers_is_a_broken_mtl_not_a_panic() {
+        let obj = b"mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n";
+        for line in ["Kd 0.4", "Ka", "Ks 1 2", "Ke 0.1 x"] {
+            let mtl = format!("newmtl a\n{line}\n");
+            let m = parse_with_mtl(obj, mtl.as_bytes()).unwrap();
+            assert_eq!(m.indices.len(), 1);
+            assert!(
+                m.warnings.iter().any(|w| w.contains("MTL")),
+                "{line}: {:?}",
+                m.warnings
+            );
+        }
+    }
 
     const OBJ: &str = "# a quad and a triangle, two materials\n\
 mtllib two.mtl\n\

@@ -10,8 +10,8 @@ use crate::model::FloatImage;
 use std::io::Cursor;
 use std::path::Path;
 
-/// Largest image accepted, in pixels (a 16k × 8k lat-long is 128 Mpixel).
-pub const MAX_PIXELS: u64 = 1 << 28;
+/// Largest image accepted, in pixels: a 16k × 8k lat-long (128 Mpixel, 1.5 GiB as f32 RGB).
+pub const MAX_PIXELS: u64 = 1 << 27;
 
 /// Reads an HDR sky image (.hdr/.pic or .exr) as a linear float image.
 pub fn load(path: &Path) -> Result<FloatImage> {
@@ -57,6 +57,11 @@ pub fn parse_hdr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
 /// Decodes the first RGB(A) layer of an OpenEXR image (any compression the `exr` crate reads).
 pub fn parse_exr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
     use exr::prelude::*;
+    // The pixel buffer is allocated from the header's size before any pixel is read: check
+    // every layer's size first, so a lying header cannot make us allocate.
+    for (w, h) in exr_layer_sizes(bytes)? {
+        check_size(w.min(u32::MAX as u64) as u32, h.min(u32::MAX as u64) as u32)?;
+    }
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -80,6 +85,25 @@ pub fn parse_exr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
     })
 }
 
+/// Size of every layer of an OpenEXR file, from its header alone.
+fn exr_layer_sizes(bytes: &[u8]) -> Result<Vec<(u64, u64)>, ParseError> {
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+        .map_err(|e| ParseError::new("OpenEXR header", exr_message(e)))?;
+    Ok(meta
+        .headers
+        .iter()
+        .map(|h| (h.layer_size.0 as u64, h.layer_size.1 as u64))
+        .collect())
+}
+
+/// The largest layer of an OpenEXR file, from its header alone.
+pub fn exr_dimensions(bytes: &[u8]) -> Result<(u64, u64), ParseError> {
+    exr_layer_sizes(bytes)?
+        .into_iter()
+        .max_by_key(|(w, h)| w * h)
+        .ok_or_else(|| ParseError::new("OpenEXR header", "no layers"))
+}
+
 fn exr_message(e: exr::error::Error) -> String {
     match e {
         exr::error::Error::NotSupported(m) => {
@@ -91,6 +115,7 @@ fn exr_message(e: exr::error::Error) -> String {
 
 fn check_size(width: u32, height: u32) -> Result<(), ParseError> {
     if width == 0 || height == 0 || width as u64 * height as u64 > MAX_PIXELS {
+        // (u32::MAX stands for sizes past u32; they fail here too.)
         return Err(ParseError::new(
             "image size",
             format!("{width}×{height} pixels; expected 1 to {MAX_PIXELS} pixels"),

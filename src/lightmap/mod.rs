@@ -45,6 +45,8 @@ pub enum LightmapMode {
 pub struct LightmapOptions {
     /// Texels per side (the terrain grid size by default).
     pub resolution: Option<u32>,
+    /// At most this many texels per side (the preview caps a 4097² terrain's map at 1025²).
+    pub max_resolution: Option<u32>,
     pub samples: u32,
     pub sun_samples: u32,
     pub mode: LightmapMode,
@@ -57,6 +59,7 @@ impl LightmapOptions {
     /// The defaults, as a constant (the pipeline presets are built from it).
     pub const DEFAULT: LightmapOptions = LightmapOptions {
         resolution: None,
+        max_resolution: None,
         samples: 64,
         sun_samples: 16,
         mode: LightmapMode::Physical,
@@ -105,7 +108,11 @@ pub fn bake_terrain_lightmap_parts(
     opts: &LightmapOptions,
 ) -> Option<(Lightmap, Vec<[f32; 3]>)> {
     let t = scene.terrain.as_ref()?;
-    let res = opts.resolution.unwrap_or(t.width.max(t.height)).max(1);
+    let res = opts
+        .resolution
+        .unwrap_or(t.width.max(t.height))
+        .min(opts.max_resolution.unwrap_or(u32::MAX))
+        .max(1);
     let (w, h) = (res, res);
     let sky_irr = light.sky.to_irradiance();
     let (texels, direct): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..w * h)

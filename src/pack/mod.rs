@@ -326,9 +326,11 @@ impl StreamWriter {
         let dir = parent_dir(target);
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
         let tmp = tempfile::Builder::new()
-            .prefix(".bake-tmp-")
+            .prefix(TMP_PREFIX)
             .tempfile_in(&dir)
             .map_err(|e| Error::io(&dir, e))?;
+        lock(tmp.as_file(), true);
+        remove_stale_temporaries(&dir);
         Ok(StreamWriter {
             target: target.to_path_buf(),
             tmp,
@@ -432,6 +434,50 @@ impl StreamWriter {
     }
 }
 
+/// Name prefix of the temporary files a write goes through.
+pub const TMP_PREFIX: &str = ".bake-tmp-";
+
+/// Takes an exclusive advisory lock on `f` (held until the file is closed): blocking, or
+/// returns whether it was free. Every temporary file of a write in progress is locked, so one
+/// that can be locked was left by a killed bake.
+#[cfg(unix)]
+fn lock(f: &std::fs::File, block: bool) -> bool {
+    use std::os::unix::io::AsRawFd;
+    let op = if block {
+        libc::LOCK_EX
+    } else {
+        libc::LOCK_EX | libc::LOCK_NB
+    };
+    // SAFETY: flock on a file descriptor this process holds open.
+    unsafe { libc::flock(f.as_raw_fd(), op) == 0 }
+}
+#[cfg(not(unix))]
+fn lock(_f: &std::fs::File, _block: bool) -> bool {
+    false
+}
+
+/// Removes the temporary files of killed bakes in `dir`: those whose lock is free. Returns how
+/// many were removed.
+pub fn remove_stale_temporaries(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.filter_map(|e| e.ok()) {
+        if !e.file_name().to_string_lossy().starts_with(TMP_PREFIX) {
+            continue;
+        }
+        let path = e.path();
+        if let Ok(f) = std::fs::File::open(&path)
+            && lock(&f, false)
+            && std::fs::remove_file(&path).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 fn page_size() -> usize {
     // Every platform bake runs on maps at 4 KiB or a multiple of it; 64 KiB covers them all.
     65536
@@ -449,9 +495,10 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let dir = parent_dir(path);
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let mut tmp = tempfile::Builder::new()
-        .prefix(".bake-tmp-")
+        .prefix(TMP_PREFIX)
         .tempfile_in(&dir)
         .map_err(|e| Error::io(&dir, e))?;
+    lock(tmp.as_file(), true);
     tmp.write_all(bytes).map_err(|e| Error::io(tmp.path(), e))?;
     tmp.as_file()
         .sync_all()
@@ -949,6 +996,38 @@ mod tests {
             e.contains("version 3") && e.contains("versions 1 to 2"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_killed_writers_temporary_file_is_removed_by_the_next_write() {
+        let dir = tempfile::tempdir().unwrap();
+        // A temporary file nobody holds (as a killed bake leaves it) and one a live writer holds.
+        std::fs::write(dir.path().join(".bake-tmp-killed"), b"half a pack").unwrap();
+        let live = StreamWriter::create(&dir.path().join("a.bake")).unwrap();
+        let names = || -> Vec<String> {
+            let mut v: Vec<String> = std::fs::read_dir(dir.path())
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            v.sort();
+            v
+        };
+        assert_eq!(
+            names().len(),
+            1,
+            "the stale file is gone, the live one stays: {:?}",
+            names()
+        );
+        let mut other = StreamWriter::create(&dir.path().join("b.bake")).unwrap();
+        assert_eq!(
+            names().len(),
+            2,
+            "a live writer's file survives another writer"
+        );
+        other.push(&sample().sections()[0]).unwrap();
+        other.finish().unwrap();
+        live.finish().unwrap();
+        assert_eq!(names(), vec!["a.bake".to_string(), "b.bake".to_string()]);
     }
 
     #[test]

@@ -90,6 +90,52 @@ pub fn place(model: u32, t: [f32; 3], rotation_deg: f32) -> bake::rt::InstanceTr
     }
 }
 
+/// The fuzz targets of fuzz/fuzz_targets/, by name.
+pub const FUZZ_TARGETS: [&str; 10] = [
+    "txf", "max3ds", "eco", "sgi", "obj", "gltf", "raw", "hdr", "exr", "pack",
+];
+
+/// One input through a fuzz target's entry point (the same calls as fuzz/fuzz_targets/):
+/// `Ok` when the reader accepts it. For `pack`, accepted means `verify` finds nothing.
+pub fn fuzz_entry(target: &str, data: &[u8]) -> Result<(), String> {
+    let e = |e: bake::error::ParseError| e.to_string();
+    match target {
+        "txf" => bake::ingest::txf::parse(data).map(drop).map_err(e),
+        "max3ds" => bake::ingest::max3ds::parse(data).map(drop).map_err(e),
+        "eco" => bake::ingest::eco::parse(data).map(drop).map_err(e),
+        "sgi" => bake::ingest::texture::decode(data).map(drop).map_err(e),
+        "hdr" => bake::ingest::skyimage::parse_hdr(data).map(drop).map_err(e),
+        "exr" => bake::ingest::skyimage::parse_exr(data).map(drop).map_err(e),
+        "gltf" => bake::ingest::gltf::parse(data).map(drop).map_err(e),
+        "obj" => {
+            let k = data.iter().position(|&b| b == 0).unwrap_or(data.len());
+            let mtl = data.get(k + 1..).unwrap_or_default();
+            let m = bake::ingest::obj::parse_with_mtl(&data[..k], mtl).map_err(e)?;
+            (m.materials.len() >= 2)
+                .then_some(())
+                .ok_or("MTL not read".into())
+        }
+        "raw" if data.len() < 4 => Err("shorter than the size prefix".into()),
+        "raw" => {
+            let spec = bake::ingest::raw::RawSpec {
+                width: u16::from_le_bytes([data[0], data[1]]) as u32,
+                height: u16::from_le_bytes([data[2], data[3]]) as u32,
+                scale: 0.05,
+                origin: [0.0, 0.0],
+                extent: [1.0, 1.0],
+            };
+            bake::ingest::raw::parse(&data[4..], &spec)
+                .map(drop)
+                .map_err(e)
+        }
+        "pack" => {
+            let r = bake::verify::verify_bytes(data);
+            r.ok().then_some(()).ok_or(format!("{:?}", r.violations))
+        }
+        other => Err(format!("no such target {other}")),
+    }
+}
+
 /// The `bake` binary built for these tests.
 pub fn bake_bin() -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_BIN_EXE_bake"))

@@ -7,6 +7,13 @@ fn main() {
     let sections: usize = env!("SCENE_SECTIONS").parse().unwrap();
     assert_eq!(&PACK[..8], b"BAKEPAK\0", "the embedded file is a bake pack");
     let count = u32::from_le_bytes(PACK[16..20].try_into().unwrap()) as usize;
-    assert_eq!(count, sections, "section count of the header and of the build report");
-    println!("{}: {} bytes, {sections} sections", env!("SCENE_PACK"), PACK.len());
+    assert_eq!(
+        count, sections,
+        "section count of the header and of the build report"
+    );
+    println!(
+        "{}: {} bytes, {sections} sections",
+        env!("SCENE_PACK"),
+        PACK.len()
+    );
 }
