@@ -39,9 +39,11 @@ pub const REPORT_SCHEMA: &str = "bake.build/1";
 /// Version constants of the stages: bump one when its output changes for the same inputs.
 pub mod versions {
     pub const INGEST: u32 = 1;
-    pub const MATERIAL: u32 = 1;
+    /// 2: Xfrog's default material gets the thesis' leaf (issue 16).
+    pub const MATERIAL: u32 = 2;
     pub const TERRAIN: u32 = 1;
-    pub const SKY: u32 = 1;
+    /// 2: the sun's energy kept through resampling, the ring-mean replacement (issue 16).
+    pub const SKY: u32 = 2;
     pub const PRT: u32 = 1;
     pub const LIGHTMAP: u32 = 1;
     pub const ATLAS: u32 = 1;

@@ -1063,6 +1063,54 @@ mod tests {
         assert_eq!(m.textures[0].name, "bark.png");
     }
 
+    /// A TXF written like seed 000 3.1.1's listing (its `<Colors>` block verbatim, a set header
+    /// with Xfrog's `translucence 0.000000`) maps to Table 3.1's leaf defaults.
+    #[test]
+    fn the_seeds_xfrog_default_maps_to_the_leaf_defaults() {
+        use crate::material::convert::material_to_schlick;
+        use crate::material::schlick::NormalMap;
+        let head = "<?txf_version='0.91'?>\n<Textures>\n<tex_number>0</tex_number><tex_name>beispiel.rgb</tex_name>\n</Textures>\n<Colors>\n<col_number> 0 </col_number> <col_name> Default </col_name>\n<diff> 0.70 0.70 0.70 1.00 </diff>\n<ambi> 0.10 0.10 0.10 1.00 </ambi>\n<spec> 0.00 0.00 0.00 1.00 </spec>\n<emis> 0.00 0.00 0.00 1.00 </emis>\n<shin> 0.00 </shin>\n</Colors>\n<Infos>\n</Infos>\n";
+        // The set header (text, before any binary payload) with Xfrog's unset translucence.
+        let set = |tc: &str, ix: &[u32]| {
+            let b = set_bytes(tc, &quad(), ix, false);
+            let at = b.windows(5).position(|w| w == b"0.25 ").unwrap();
+            [&b[..at], b"0.000000 ".as_slice(), &b[at + 5..]].concat()
+        };
+        let mut b = head.as_bytes().to_vec();
+        b.extend(set("0 0", &[0, 1, 2]));
+        b.extend(set("-1 0", &[0, 2, 3]));
+        let m = parse(&b).unwrap();
+        assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+        assert_eq!(m.materials.len(), 2, "{:?}", m.materials);
+        let textured = m.materials.iter().find(|x| x.color_map.is_some()).unwrap();
+        let s = material_to_schlick(textured);
+        let [top, bottom] = s.layers;
+        assert_eq!(
+            (
+                top.roughness,
+                top.isotropy,
+                top.diffuse,
+                top.glossy,
+                top.specular
+            ),
+            (0.1, 1.0, 0.0, 1.0, 0.0)
+        );
+        assert_eq!(top.color, [0.075; 3]);
+        assert_eq!(
+            (bottom.diffuse, bottom.glossy, bottom.specular),
+            (1.0, 0.0, 0.0)
+        );
+        assert_eq!(bottom.color, [1.0; 3]);
+        assert_eq!((s.bump_height, s.translucence), (0.001, 0.3));
+        assert!(matches!(s.normal_map, NormalMap::FromColor(_)));
+        // The untextured set: the stem rule on top (Xfrog's 0.7 grey, the set's τ of 0).
+        let untextured = m.materials.iter().find(|x| x.color_map.is_none()).unwrap();
+        let s = material_to_schlick(untextured);
+        assert_eq!(s.layers[0], top);
+        assert_eq!(s.layers[1].color, [0.7; 3]);
+        assert_eq!((s.bump_height, s.translucence), (0.0, 0.0));
+    }
+
     #[test]
     fn both_payload_placements_and_indentation_agree() {
         let tight = parse(&tiny(true)).unwrap();

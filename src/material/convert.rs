@@ -3,12 +3,14 @@
 //!
 //! The mapping (docs/MATERIALS.md repeats it):
 //!
-//! * **Default OpenGL material** (diffuse 0.8 grey, specular and emission black, shininess 0, as
-//!   every Xfrog export carries it; seed 000 3.1.2): the thesis' leaf, [`LEAF_DEFAULT`]. Top
-//!   (wax): roughness 0.1, isotropy 1, glossy 1, reflectivity 0.075 grey. Bottom: diffuse 1,
-//!   colour (1, 1, 1) × colour map. Bump ±1 mm, translucence 0.3 (or the TXF set's own value).
-//!   Without a colour map (Xfrog's untextured stems) the bottom is OpenGL's 0.8 grey and the
-//!   translucence the TXF set's value, else 0.
+//! * **Default material**: OpenGL's (diffuse 0.8 grey, specular and emission black, shininess
+//!   0) or Xfrog's, which real TXF plant files carry (seed 000 3.1.1: diffuse 0.7 grey, ambient
+//!   0.1 grey, specular and emission black, shininess 0); seed 000 3.1.2 gives both the
+//!   thesis' leaf, [`LEAF_DEFAULT`]. Top (wax): roughness 0.1, isotropy 1, glossy 1,
+//!   reflectivity 0.075 grey. Bottom: diffuse 1, colour (1, 1, 1) × colour map. Bump ±1 mm,
+//!   translucence 0.3 (or the TXF set's own value). Without a colour map (Xfrog's untextured
+//!   stems) the bottom is the default's own grey (0.8 or 0.7) and the translucence the TXF
+//!   set's value, else 0.
 //! * **Authored fixed-function material**: the Phong exponent `n = shininess` becomes the top
 //!   layer's roughness `r = 2 / (n + 2)` (Blinn-Phong ↔ Beckmann/GGX: `α² = 2/(n + 2)`, and
 //!   Schlick's `Z/π` is GGX with `α² = r`); the top layer is glossy with reflectivity
@@ -60,27 +62,50 @@ pub const BUMP_HEIGHT_M: f32 = 0.001;
 
 /// Whether `m` is OpenGL's default material (ambient and alpha ignored).
 pub fn is_default_opengl(m: &Material) -> bool {
-    let close = |a: &[f32; 4], v: f32| a[..3].iter().all(|&c| (c - v).abs() < 1e-3);
     m.source == MaterialSource::FixedFunction
-        && close(&m.diffuse, 0.8)
-        && close(&m.specular, 0.0)
-        && close(&m.emission, 0.0)
+        && grey(&m.diffuse, 0.8)
+        && grey(&m.specular, 0.0)
+        && grey(&m.emission, 0.0)
         && m.shininess.abs() < 1e-3
+}
+
+/// Whether `m` is the Xfrog default that real TXF plant files carry (seed 000 3.1.1's listing:
+/// `diff 0.70 0.70 0.70 1.00`, `ambi 0.10 0.10 0.10 1.00`, `spec 0 0 0 1`, `emis 0 0 0 1`,
+/// `shin 0.00`; alpha ignored). The ambient 0.1 is part of the signature: an authored 0.7 grey
+/// with another ambient is taken as authored.
+pub fn is_default_xfrog(m: &Material) -> bool {
+    m.source == MaterialSource::FixedFunction
+        && grey(&m.diffuse, 0.7)
+        && grey(&m.ambient, 0.1)
+        && grey(&m.specular, 0.0)
+        && grey(&m.emission, 0.0)
+        && m.shininess.abs() < 1e-3
+}
+
+/// Whether `m` is a default material (OpenGL's or Xfrog's) and so gets the thesis' leaf.
+pub fn is_default_material(m: &Material) -> bool {
+    is_default_opengl(m) || is_default_xfrog(m)
+}
+
+/// Whether the RGB of `a` is `v` grey (to 1e-3; TXF writes two decimals).
+fn grey(a: &[f32; 4], v: f32) -> bool {
+    a[..3].iter().all(|&c| (c - v).abs() < 1e-3)
 }
 
 /// Converts one input material; see the module documentation for the mapping.
 pub fn material_to_schlick(m: &Material) -> SchlickMaterial {
     let mut out = match m.source {
         // A TXF set header's translucence of 0 means "not set" (Xfrog writes 0): the leaf's 0.3.
-        _ if is_default_opengl(m) && m.color_map.is_some() => SchlickMaterial {
+        _ if is_default_material(m) && m.color_map.is_some() => SchlickMaterial {
             translucence: m.translucence.filter(|&t| t > 0.0).map_or(0.3, unit),
             ..LEAF_DEFAULT
         },
         // Without a colour map the part is no leaf blade (Xfrog's untextured stems carry the
-        // default material too): the wax top layer stays, the bottom keeps OpenGL's 0.8 grey
-        // instead of the white that only makes sense under a leaf texture, and it transmits
-        // only what the TXF set says (a closed stem lit through its back faces would glow).
-        _ if is_default_opengl(m) => {
+        // default material too): the wax top layer stays, the bottom keeps the default's own
+        // grey (OpenGL's 0.8, Xfrog's 0.7) instead of the white that only makes sense under a
+        // leaf texture, and it transmits only what the TXF set says (a closed stem lit through
+        // its back faces would glow).
+        _ if is_default_material(m) => {
             let mut leaf = LEAF_DEFAULT;
             leaf.layers[1].color = rgb(&m.diffuse);
             leaf.translucence = m.translucence.map_or(0.0, unit);
@@ -245,6 +270,86 @@ mod tests {
             ..Material::default()
         };
         assert_eq!(material_to_schlick(&set).translucence, 0.2);
+    }
+
+    /// Seed 000 3.1.1's listing, as the TXF reader stores it.
+    fn xfrog_default() -> Material {
+        Material {
+            name: "Default".into(),
+            diffuse: [0.7, 0.7, 0.7, 1.0],
+            ambient: [0.1, 0.1, 0.1, 1.0],
+            specular: [0.0, 0.0, 0.0, 1.0],
+            emission: [0.0, 0.0, 0.0, 1.0],
+            shininess: 0.0,
+            transparency: 0.0,
+            translucence: Some(0.0),
+            color_map: Some(1),
+            normal_map: None,
+            source: MaterialSource::FixedFunction,
+        }
+    }
+
+    #[test]
+    fn xfrog_default_material_becomes_the_leaf() {
+        let m = xfrog_default();
+        assert!(is_default_xfrog(&m) && is_default_material(&m));
+        assert!(!is_default_opengl(&m));
+        let s = material_to_schlick(&m);
+        s.validate().unwrap();
+        // Table 3.1's leaf, written out (not through LEAF_DEFAULT): wax r 0.1, p 1, glossy 1,
+        // 0.075 grey; cell layer diffuse 1, white × colour map; ±1 mm; τ 0.3 (TXF 0 = unset).
+        let [top, bottom] = s.layers;
+        assert_eq!(
+            (
+                top.roughness,
+                top.isotropy,
+                top.diffuse,
+                top.glossy,
+                top.specular
+            ),
+            (0.1, 1.0, 0.0, 1.0, 0.0)
+        );
+        assert_eq!(top.color, [0.075; 3]);
+        assert_eq!(
+            (bottom.diffuse, bottom.glossy, bottom.specular),
+            (1.0, 0.0, 0.0)
+        );
+        assert_eq!(bottom.color, [1.0; 3]);
+        assert_eq!((s.bump_height, s.translucence), (0.001, 0.3));
+        assert_eq!(s.color_map, Some(1));
+        assert_eq!(s.normal_map, NormalMap::FromColor(1));
+        assert_eq!((s.emission, s.opacity), ([0.0; 3], 1.0));
+        // The untextured-stem rule on top: the default's own 0.7 grey, τ from the set or 0.
+        let stem = material_to_schlick(&Material {
+            color_map: None,
+            translucence: None,
+            ..m.clone()
+        });
+        assert_eq!(stem.layers[0], top);
+        assert_eq!(stem.layers[1].color, [0.7; 3]);
+        assert_eq!((stem.translucence, stem.bump_height), (0.0, 0.0));
+        assert_eq!(stem.normal_map, NormalMap::None);
+        // Near misses stay authored: another ambient, a highlight, a tint.
+        for other in [
+            Material {
+                ambient: [0.2, 0.2, 0.2, 1.0],
+                ..m.clone()
+            },
+            Material {
+                shininess: 10.0,
+                ..m.clone()
+            },
+            Material {
+                diffuse: [0.7, 0.6, 0.7, 1.0],
+                ..m.clone()
+            },
+        ] {
+            assert!(!is_default_material(&other), "{other:?}");
+            assert_eq!(
+                material_to_schlick(&other).layers[1].color,
+                rgb(&other.diffuse)
+            );
+        }
     }
 
     #[test]

@@ -116,7 +116,7 @@ fn bake_mesh(
     report.leaf_defaults += mesh
         .materials
         .iter()
-        .filter(|m| convert::is_default_opengl(m))
+        .filter(|m| convert::is_default_material(m))
         .count();
     let tex_section = |i: u32| {
         meta.textures

@@ -10,7 +10,11 @@
 //!   texels differ by up to 5.2× between a face's centre and its corners); a sun larger than
 //!   that (blurred, painted, or at low resolution) is taken whole: texels still 100× brighter
 //!   than the median sky join it, up to 1% of the sphere;
-//! - the sun irradiance is the energy actually removed, `Σ (T_i − T_{n+1}) · ω_i` (the thesis'
+//! - the texels are replaced by the local sky, the mean of a ring two texels wide around them,
+//!   not by T_{n+1}: the map's (n+1)-th brightest texel is the sky beside the sun only when the
+//!   circumsolar sky is the brightest part of the map (a bright ground, cloud or a steep aureole
+//!   biased the sun by percents);
+//! - the sun irradiance is the energy actually removed, `Σ (T_i − T_ring) · ω_i` (the thesis'
 //!   mean × a undercounts by the enlargement factor), so sky + sun conserve the map's energy;
 //! - the direction is the energy-weighted centroid of the removed excess, not the brightest texel;
 //! - a plateau at the map's maximum (a clipped sun, common in real HDRIs) is reported;
@@ -64,7 +68,7 @@ pub struct Sun {
     pub direction: [f32; 3],
     /// Direction of the brightest texel (the thesis' choice).
     pub direction_brightest: [f32; 3],
-    /// Irradiance on a surface facing the sun: `Σ (T_i − T_{n+1}) ω_i` (RGB).
+    /// Irradiance on a surface facing the sun: `Σ (T_i − T_ring) ω_i` (RGB).
     pub irradiance: [f32; 3],
     /// The thesis' eq. 3.2: `Σ (T_i − T_{n+1}) / n · π r²` (RGB).
     pub irradiance_thesis: [f32; 3],
@@ -72,7 +76,8 @@ pub struct Sun {
     pub texels: u32,
     /// Their total solid angle (sr).
     pub solid_angle: f64,
-    /// The replacement value T_{n+1} (RGB radiance).
+    /// The replacement value T_ring, the sky around the sun (RGB radiance; T_{n+1} when the
+    /// ring is empty).
     pub replacement: [f32; 3],
     /// Largest radiance (luminance) of the map.
     pub peak_luminance: f32,
@@ -160,32 +165,63 @@ pub fn texel_index_direction(size: u32, i: usize) -> [f64; 3] {
     cube::texel_direction(size, face, col, row)
 }
 
+/// Cosine of the angle from the sun's direction within which texels belong to the sun: the
+/// radius of [`MAX_SUN_AREA`]. (The n brightest texels that fill the enlarged disc's area also
+/// take the brightest sky texels elsewhere when the sun covers fewer texels than that area.)
+fn cos_near_sun() -> f64 {
+    (MAX_SUN_AREA / std::f64::consts::PI).sqrt().cos()
+}
+
+/// The sky around the sun: the solid-angle-weighted mean of the texels in a ring two centre
+/// texels wide just outside the sun's texels `sun` near `dir` (angles beyond the farthest one's
+/// within the radius of [`MAX_SUN_AREA`]), or `None` when the ring is empty. It replaces the sun's texels: the (n+1)-th
+/// brightest texel of the whole map (the thesis' T_{n+1}) is the local sky only when the
+/// circumsolar sky is the brightest; elsewhere (a bright ground or cloud, a steep aureole whose
+/// ring value is below the sky under the disc) it biased the sun's irradiance by percents.
+fn ring_mean(cube: &CubeMap, omega: &[f64], sun: &[usize], dir: [f64; 3]) -> Option<[f32; 3]> {
+    let n2 = omega.len();
+    let dot = |d: [f64; 3]| d[0] * dir[0] + d[1] * dir[1] + d[2] * dir[2];
+    let cos_in = sun
+        .iter()
+        .map(|&i| dot(texel_index_direction(cube.size, i)))
+        .filter(|&c| c >= cos_near_sun())
+        .fold(1.0f64, f64::min);
+    let inner = cos_in.clamp(-1.0, 1.0).acos();
+    let cos_out = (inner + 2.0 * 2.0 / cube.size as f64)
+        .min(std::f64::consts::PI)
+        .cos();
+    let mut in_sun = sun.to_vec();
+    in_sun.sort_unstable();
+    let (mut acc, mut wsum) = ([0.0f64; 3], 0.0);
+    for (i, t) in cube.texels.iter().enumerate() {
+        let c = dot(texel_index_direction(cube.size, i));
+        if c < cos_out || c > cos_in || in_sun.binary_search(&i).is_ok() {
+            continue;
+        }
+        let w = omega[i % n2];
+        for k in 0..3 {
+            acc[k] += t[k] as f64 * w;
+        }
+        wsum += w;
+    }
+    (wsum > 0.0).then(|| acc.map(|v| (v / wsum) as f32))
+}
+
 /// Separates the sun from the sky: returns the sun-free cube map and the sun.
 pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
     let omega = cube::solid_angle_table(cube.size);
     let n2 = omega.len();
     let a = std::f64::consts::PI * SUN_ANGULAR_RADIUS * SUN_ANGULAR_RADIUS;
     let (order, n) = brightest_covering(cube, &omega, opts.enlargement.max(0.0) * a);
-    let replacement = cube.texels[order[n]];
-    let rep_lum = luminance(replacement) as f64;
-    let mut out = cube.clone();
-    let (mut irr, mut mean_excess) = ([0.0f64; 3], [0.0f64; 3]);
-    let (mut centroid, mut solid_angle) = ([0.0f64; 3], 0.0);
+    // The direction: the centroid of the excess over T_{n+1}.
+    let next_lum = luminance(cube.texels[order[n]]) as f64;
+    let mut centroid = [0.0f64; 3];
     for &i in &order[..n] {
-        let t = cube.texels[i];
-        let w = omega[i % n2];
-        for k in 0..3 {
-            let excess = (t[k] - replacement[k]) as f64;
-            irr[k] += excess * w;
-            mean_excess[k] += excess / n as f64;
-        }
         let d = texel_index_direction(cube.size, i);
-        let e = (luminance(t) as f64 - rep_lum).max(0.0) * w;
+        let e = (luminance(cube.texels[i]) as f64 - next_lum).max(0.0) * omega[i % n2];
         for k in 0..3 {
             centroid[k] += e * d[k];
         }
-        solid_angle += w;
-        out.texels[i] = replacement;
     }
     let brightest = texel_index_direction(cube.size, order[0]);
     let direction = if centroid.iter().any(|&c| c != 0.0) {
@@ -193,6 +229,27 @@ pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
     } else {
         brightest
     };
+    let replacement =
+        ring_mean(cube, &omega, &order[..n], direction).unwrap_or(cube.texels[order[n]]);
+    let next = cube.texels[order[n]];
+    let mut out = cube.clone();
+    let (mut irr, mut mean_excess, mut solid_angle) = ([0.0f64; 3], [0.0f64; 3], 0.0);
+    for &i in &order[..n] {
+        let t = cube.texels[i];
+        let w = omega[i % n2];
+        // Far texels (the brightest sky elsewhere, filling the area) keep T_{n+1}: a ring value
+        // there would punch a hole in the sky.
+        let d = texel_index_direction(cube.size, i);
+        let near =
+            d[0] * direction[0] + d[1] * direction[1] + d[2] * direction[2] >= cos_near_sun();
+        let rep = if near { replacement } else { next };
+        for k in 0..3 {
+            irr[k] += (t[k] - rep[k]) as f64 * w;
+            mean_excess[k] += (t[k] - next[k]) as f64 / n as f64;
+        }
+        solid_angle += w;
+        out.texels[i] = rep;
+    }
     let peak = luminance(cube.texels[order[0]]);
     // Over the whole map: a clipped region can be larger than the sun's enlarged area.
     let plateau = cube
