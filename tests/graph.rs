@@ -119,6 +119,10 @@ fn a_cached_rebuild_is_byte_identical_to_an_uncached_bake() {
     let pack = bake::pack::Pack::open(&dir.path().join("hit.bake")).unwrap();
     assert!(pack.sections().iter().all(|e| pack.checksum_ok(e)));
     bake::dump::dump_json(&pack, &Default::default()).unwrap();
+    // `bake verify` finds nothing wrong with a graph-built pack, its build record included.
+    let v = bake::verify::verify_file(&dir.path().join("hit.bake")).unwrap();
+    assert!(v.violations.is_empty(), "{:?}", v.violations);
+    assert_eq!(v.decoded, pack.sections().len());
 }
 
 #[test]

@@ -850,6 +850,20 @@ struct BuildMeta {
     triangles: u64,
 }
 
+/// Decodes a `build` section (for `bake verify`).
+pub fn check_build_section(
+    v: &crate::pack::section::SectionView,
+) -> std::result::Result<(), crate::error::ParseError> {
+    let m: BuildMeta = v.meta()?;
+    if m.key.len() != 64 || !m.key.bytes().all(|c| c.is_ascii_hexdigit()) {
+        return Err(crate::error::ParseError::new(
+            "build section",
+            "the build key is not 64 hex digits",
+        ));
+    }
+    Ok(())
+}
+
 fn build_section(meta: &BuildMeta) -> Section {
     let mut b = SectionBuilder::new(BUILD_KIND, BUILD_KIND);
     b.meta(meta);

@@ -95,6 +95,7 @@ fn schema(kind: &str) -> Option<Schema> {
         "prt" => &[("transfer", &[F32], 3), ("gpu", &[F32], 4)],
         "svo" => SVO,
         "linespace" => LINESPACE,
+        "build" => &[],
         _ => return None,
     })
 }
@@ -134,6 +135,7 @@ pub fn decode(kind: &str, v: &SectionView) -> Result<(), crate::error::ParseErro
         "prt" => crate::light::prt_pack::from_section(v).map(drop),
         "svo" => crate::voxel::section::from_section(v).map(drop),
         "linespace" => crate::linespace::section::from_section(v).map(drop),
+        "build" => crate::graph::check_build_section(v),
         other => Err(crate::error::ParseError::new(
             "section kind",
             format!("unknown kind {other:?}"),
