@@ -221,19 +221,16 @@ impl Cache {
         s
     }
 
-    /// Removes stale temporary files (older than an hour: a bake still writing one is younger)
-    /// and then the least recently used entries until the cache holds at most `max_bytes`.
+    /// Removes stale temporary files (those no live write holds locked) and then the least recently used entries until the cache holds at most `max_bytes`.
     pub fn gc(&self, max_bytes: u64) -> CacheStats {
-        let mut files = self.files();
-        let hour = std::time::Duration::from_secs(3600);
-        let now = std::time::SystemTime::now();
-        files.retain(|(p, _, t, tmp)| {
-            if *tmp && now.duration_since(*t).unwrap_or_default() > hour {
-                let _ = std::fs::remove_file(p);
-                return false;
+        // Temporary files whose lock is free were left by killed bakes (pack::StreamWriter).
+        if let Ok(dirs) = std::fs::read_dir(self.root()) {
+            for d in dirs.filter_map(|d| d.ok()) {
+                crate::pack::remove_stale_temporaries(&d.path());
             }
-            !*tmp
-        });
+        }
+        let mut files = self.files();
+        files.retain(|f| !f.3);
         // Oldest first; ties by path so that the order is the same on every run.
         files.sort_by(|a, b| a.2.cmp(&b.2).then_with(|| a.0.cmp(&b.0)));
         let mut total: u64 = files.iter().map(|f| f.1).sum();
@@ -264,7 +261,7 @@ impl Cache {
                     continue;
                 }
                 let name = f.file_name().to_string_lossy().into_owned();
-                let tmp = name.starts_with(".bake-tmp-");
+                let tmp = name.starts_with(crate::pack::TMP_PREFIX);
                 let t = m.modified().unwrap_or(std::time::UNIX_EPOCH);
                 out.push((f.path(), m.len(), t, tmp));
             }
@@ -302,18 +299,13 @@ fn read_entry(path: &Path) -> std::result::Result<Entry, String> {
 pub fn hash_file(path: &Path) -> Result<[u8; 32]> {
     let f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let len = f.metadata().map_err(|e| Error::io(path, e))?.len();
-    let mut h = blake3::Hasher::new();
-    if len > 0 {
-        // SAFETY: read-only map of an input file; a file changed under the bake is the user's
-        // race, and the hash then simply describes neither version.
-        let map = unsafe { memmap2::Mmap::map(&f) }.map_err(|e| Error::io(path, e))?;
-        if map.len() > (1 << 20) {
-            h.update_rayon(&map);
-        } else {
-            h.update(&map);
-        }
+    if len == 0 {
+        return Ok(crate::pack::hash_bytes(&[]));
     }
-    Ok(*h.finalize().as_bytes())
+    // SAFETY: read-only map of an input file; a file changed under the bake is the user's
+    // race, and the hash then simply describes neither version.
+    let map = unsafe { memmap2::Mmap::map(&f) }.map_err(|e| Error::io(path, e))?;
+    Ok(crate::pack::hash_bytes(&map))
 }
 
 #[cfg(test)]

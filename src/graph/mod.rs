@@ -440,15 +440,15 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             .map(|s| (s.name.clone(), *s.payload.hash()))
             .collect();
         let view = Pack::from_sections(&sections, &g.name);
-        let vertices = view
-            .find(&mesh_name)
-            .and_then(|e| view.view(e).ok())
-            .and_then(|v| v.info("positions").map(|a| a.count));
-        triangles += view
-            .find(&mesh_name)
-            .and_then(|e| view.view(e).ok())
-            .and_then(|v| v.info("indices").map(|a| a.count))
-            .unwrap_or(0);
+        let mesh_view = view.find(&mesh_name).and_then(|e| view.view(e).ok());
+        let count = |array: &str| {
+            mesh_view
+                .as_ref()
+                .and_then(|v| v.info(array))
+                .map(|a| a.count)
+        };
+        let vertices = count("positions");
+        triangles += count("indices").unwrap_or(0);
         g.finish_sections(sections)?;
         if p.stages.prt {
             let mut k = g.key("prt", versions::PRT, name);
