@@ -99,6 +99,7 @@ fn parse_with(
     loader: impl Fn(&Path) -> tobj::MTLLoadResult,
 ) -> Result<Mesh, ParseError> {
     let text = to_utf8(bytes);
+    check_face_indices(&text)?;
     let opts = tobj::LoadOptions {
         single_index: true,
         triangulate: true,
@@ -170,6 +171,67 @@ fn parse_with(
         ));
     }
     Ok(mesh)
+}
+
+/// Refuses face, line and point indices that resolve outside the file's vertex lists, naming
+/// the line: `tobj` 4.0 resolves a relative index past the start (`-12` with one normal) or the
+/// index 0 to a huge `usize` and then multiplies it (`vn * 3`), which overflows (a panic with
+/// overflow checks, silently wrong data without). A positive index is checked against the whole
+/// file's count (tobj allows references forward within a group), a negative one against the
+/// vertices read so far, as tobj resolves it. Components that are not integers are left to
+/// tobj, which reports them.
+fn check_face_indices(text: &[u8]) -> Result<(), ParseError> {
+    const KINDS: [&str; 3] = ["position", "texture coordinate", "normal"];
+    let lines = || text.split(|&b| b == b'\n').map(String::from_utf8_lossy);
+    let kind_of = |l: &str| match l.split_whitespace().next() {
+        Some("v") => Some(0),
+        Some("vt") => Some(1),
+        Some("vn") => Some(2),
+        _ => None,
+    };
+    let mut total = [0i64; 3];
+    for l in lines() {
+        if let Some(k) = kind_of(&l) {
+            total[k] += 1;
+        }
+    }
+    let mut so_far = [0i64; 3];
+    for (n, l) in lines().enumerate() {
+        if let Some(k) = kind_of(&l) {
+            so_far[k] += 1;
+            continue;
+        }
+        let mut words = l.split_whitespace();
+        if !matches!(words.next(), Some("f" | "l" | "p")) {
+            continue;
+        }
+        for vertex in words {
+            for (k, part) in vertex.split('/').take(3).enumerate() {
+                let Ok(x) = part.parse::<i64>() else { continue };
+                if k > 0 && total[k] == 0 {
+                    continue; // tobj ignores texture and normal indices when there are none
+                }
+                let ok = if x < 0 {
+                    so_far[k].checked_add(x).is_some_and(|i| i >= 0)
+                } else {
+                    x >= 1 && x <= total[k]
+                };
+                if !ok {
+                    let count = if x < 0 { so_far[k] } else { total[k] };
+                    return Err(ParseError::at_line(
+                        n + 1,
+                        format!(
+                            "OBJ: {} index {x} in `{vertex}` is outside the {count} {}s {}",
+                            KINDS[k],
+                            KINDS[k],
+                            if x < 0 { "read so far" } else { "of the file" }
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// One tobj model as a mesh (materials index into the file's list).
@@ -484,6 +546,45 @@ map_Kd -bm 1 LEAF.png\nmap_Bump leaf_n.png\n\nnewmtl Stone\nKd 0.5 0.5 0.5\nTr 0
             "{:?}",
             m.warnings
         );
+    }
+
+    #[test]
+    fn face_indices_outside_the_vertex_lists_name_the_line_instead_of_overflowing() {
+        // The fuzzer's find (tests/data/fuzz/obj/): `3/3/-12` with one normal made tobj 4.0.5
+        // multiply a wrapped index (lib.rs:860).
+        let crash = include_bytes!(
+            "../../tests/data/fuzz/obj/crash-2673e795bd24076f3ffd99bffedba6733414d8f7"
+        );
+        let e = parse(crash).unwrap_err().to_string();
+        assert!(
+            e.contains("line 13") && e.contains("normal index -12"),
+            "{e}"
+        );
+        let quad = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+        for (face, what) in [
+            ("f 1 2 0", "position index 0"),
+            ("f 1 2 4", "position index 4"),
+            ("f 1 2 -4", "position index -4"),
+            ("vt 0 0\nf 1/1 2/1 3/2", "texture coordinate index 2"),
+            (
+                "f 1 2 9223372036854775807",
+                "position index 9223372036854775807",
+            ),
+        ] {
+            let e = parse(format!("{quad}{face}\n").as_bytes())
+                .unwrap_err()
+                .to_string();
+            let line = 4 + face.matches('\n').count();
+            assert!(
+                e.contains(&format!("line {line}")) && e.contains(what),
+                "{face}: {e}"
+            );
+        }
+        // In range, relative and forward references (within the file) still read.
+        let m = parse(format!("{quad}f -3 -2 -1\nf 1 2 4\nv 1 1 0\n").as_bytes()).unwrap();
+        assert_eq!(m.indices.len(), 2, "two triangles");
+        // Texture indices with no texture coordinates are ignored, as before.
+        assert!(parse(format!("{quad}f 1/1 2/1 3/1\n").as_bytes()).is_ok());
     }
 
     #[test]

@@ -62,13 +62,19 @@ pub fn parse_exr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
     for (w, h) in exr_layer_sizes(bytes)? {
         check_size(w.min(u32::MAX as u64) as u32, h.min(u32::MAX as u64) as u32)?;
     }
+    exr_check_blocks(bytes)?;
+    // The pixel buffer is allocated when the first pixel has been decoded, not from the header
+    // alone: a file whose chunks are missing fails before the buffer exists.
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
         .rgba_channels(
-            |size, _| (size.0, size.1, vec![[0.0f32; 3]; size.0 * size.1]),
+            |size, _| (size.0, size.1, Vec::new()),
             |px: &mut (usize, usize, Vec<[f32; 3]>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
                 let w = px.0;
+                if px.2.is_empty() {
+                    px.2 = vec![[0.0f32; 3]; px.0 * px.1];
+                }
                 px.2[pos.1 * w + pos.0] = [r, g, b];
             },
         )
@@ -76,8 +82,9 @@ pub fn parse_exr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
         .all_attributes()
         .from_buffered(Cursor::new(bytes))
         .map_err(|e| ParseError::new("OpenEXR file", exr_message(e)))?;
-    let (w, h, pixels) = image.layer_data.channel_data.pixels;
+    let (w, h, mut pixels) = image.layer_data.channel_data.pixels;
     check_size(w as u32, h as u32)?;
+    pixels.resize(w * h, [0.0; 3]); // (no pixel decoded: cannot happen for a valid layer)
     Ok(FloatImage {
         width: w as u32,
         height: h as u32,
@@ -94,6 +101,42 @@ fn exr_layer_sizes(bytes: &[u8]) -> Result<Vec<(u64, u64)>, ParseError> {
         .iter()
         .map(|h| (h.layer_size.0 as u64, h.layer_size.1 as u64))
         .collect())
+}
+
+/// Checks the block layout of an OpenEXR header against the file before anything is
+/// allocated: every chunk has an 8-byte entry in the offset tables after the header, so a
+/// header that declares more chunks than the file can list is refused; and a tile larger than
+/// its layer (the `exr` crate allocates a whole tile per block: a 533-byte file from the fuzzer
+/// declared 536,870,976×64-pixel tiles for an 8×4 image and cost 1.9 GB) is refused too.
+fn exr_check_blocks(bytes: &[u8]) -> Result<(), ParseError> {
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+        .map_err(|e| ParseError::new("OpenEXR header", exr_message(e)))?;
+    let chunks: u64 = meta.headers.iter().map(|h| h.chunk_count as u64).sum();
+    if chunks.saturating_mul(8) > bytes.len() as u64 {
+        return Err(ParseError::new(
+            "OpenEXR offset table",
+            format!(
+                "the header declares {chunks} chunks, whose offset table alone needs {} bytes; the file has {}",
+                chunks.saturating_mul(8),
+                bytes.len()
+            ),
+        ));
+    }
+    for h in &meta.headers {
+        if let exr::meta::BlockDescription::Tiles(t) = &h.blocks {
+            let (tw, th) = (t.tile_size.0 as u64, t.tile_size.1 as u64);
+            let (w, h) = (h.layer_size.0 as u64, h.layer_size.1 as u64);
+            if tw.saturating_mul(th) > (w * h).max(1 << 16) {
+                return Err(ParseError::new(
+                    "OpenEXR header",
+                    format!(
+                        "tiles of {tw}×{th} pixels for a {w}×{h} layer; expected tiles no larger than the layer"
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The largest layer of an OpenEXR file, from its header alone.
@@ -222,6 +265,16 @@ mod tests {
         assert!(e.place.contains("Radiance"), "{e}");
         let e = parse_exr(b"not an exr file at all").unwrap_err();
         assert!(e.place.contains("OpenEXR"), "{e}");
+        // The fuzzer's slow find (tests/data/fuzz/exr/): 533 bytes whose header promised a
+        // large image; the pixel buffer (and 1.9 GB of memory) came before the missing chunks.
+        let timeout = include_bytes!(
+            "../../tests/data/fuzz/exr/timeout-a83436e6ce6042c8e1b2cf087c4edf4a407900a2"
+        );
+        let e = parse_exr(timeout).unwrap_err().to_string();
+        assert!(
+            e.contains("tiles of 536870976×64 pixels for a 8×4 layer"),
+            "{e}"
+        );
         let e = load(Path::new("/nonexistent/sky.hdr")).unwrap_err();
         assert_eq!(e.exit_code(), crate::error::exit::IO);
     }
