@@ -4,10 +4,10 @@
 //! (the translucence and folded albedo differ per material); the big arrays are shared.
 
 use super::ambient::{AmbientScene, LightTexture, MeshAmbientMode, PrtLayout};
-use super::gpu::Gpu;
 use super::pipelines::Pipelines;
 use super::scene::SceneData;
 use crate::error::{Error, Result};
+use crate::gpu::Gpu;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 

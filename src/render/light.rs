@@ -182,10 +182,7 @@ pub fn split_sun(texels: &[[f32; 4]], width: u32, height: u32) -> Option<SkySun>
     })
 }
 
-/// Rec. 709 luminance.
-pub fn luminance(c: &[f32]) -> f32 {
-    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
-}
+use crate::color::luminance;
 
 /// The default light. A pack's sky: the sun split from it ([`split_sun`]) and the sun-free sky
 /// as ambient; no sun found (overcast) means ambient only. The analytic sky (`analytic`): its

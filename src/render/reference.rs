@@ -4,7 +4,7 @@
 //!
 //! One primary ray per pixel centre (the rasterizer samples there too) through a two-level BVH
 //! (src/rt: one alpha-tested BVH per model, the terrain as one more instance built by
-//! [`crate::tracescene::terrain_mesh`]); the hit becomes a [`HitRecord`] (instance, model,
+//! [`crate::trace::pack_scene::terrain_mesh`]); the hit becomes a [`HitRecord`] (instance, model,
 //! triangle, barycentrics, world position, interpolated normal/tangent/uv, material) and is
 //! shaded by the terms of the shading contract: [`Reference::direct_term`] (sun irradiance ×
 //! an exact shadow ray × BRDF × cos) and [`Reference::ambient_term`]. Misses show the sky,
@@ -13,12 +13,13 @@
 //! on the terrain. Rows are shaded in parallel and collected in order (deterministic).
 
 use super::camera::Camera;
-use super::scene::{ImageData, ModelData, SceneData, TerrainData, srgb_to_linear};
+use super::scene::{ImageData, ModelData, SceneData, TerrainData};
 use super::{RenderOptions, Terms, View};
+use crate::color::srgb_to_linear;
 use crate::error::Result;
 use crate::model::{Material, Mesh, Rgba8Image, Terrain};
 use crate::pack::Pack;
-use crate::rt::{AlphaMask, BuildPreset, InstanceTransform, ModelBvh, Ray, SceneBvh};
+use crate::trace::{AlphaMask, BuildPreset, InstanceTransform, ModelBvh, Ray, SceneBvh};
 use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 use std::f32::consts::PI;
@@ -185,7 +186,7 @@ impl<'s, 'a> Reference<'s, 'a> {
         }
         let terrain_model = scene.terrain.as_ref().map(terrain_model);
         if let Some(t) = &terrain_model {
-            let mesh = crate::tracescene::terrain_mesh(t);
+            let mesh = crate::trace::pack_scene::terrain_mesh(t);
             models.push(Arc::new(ModelBvh::build(&mesh, &[], BuildPreset::Medium)?));
             transforms.push(InstanceTransform {
                 model: (models.len() - 1) as u32,
@@ -213,7 +214,7 @@ impl<'s, 'a> Reference<'s, 'a> {
     pub fn instance_record(
         &self,
         hit: &HitRecord,
-    ) -> Option<&crate::pack::kinds::instances::InstanceRecord> {
+    ) -> Option<&crate::ingest::instances_section::InstanceRecord> {
         let m = self.scene.models.get(hit.model? as usize)?;
         m.instances.get(self.slot[hit.instance as usize] as usize)
     }
@@ -597,14 +598,7 @@ pub fn sky_radiance(scene: &SceneData, d: Vec3) -> [f32; 3] {
     })
 }
 
-/// sRGB transfer function, encoding.
-pub fn linear_to_srgb(l: f32) -> f32 {
-    if l <= 0.003_130_8 {
-        l * 12.92
-    } else {
-        1.055 * l.powf(1.0 / 2.4) - 0.055
-    }
-}
+pub use crate::color::linear_to_srgb;
 
 /// The display value of radiance `l`: `1 − exp(−L·s)`, sRGB-encoded, rounded to 8 bits (what
 /// the tone-map pass writes into the `Rgba8UnormSrgb` target).

@@ -2,7 +2,7 @@
 #![allow(clippy::needless_range_loop)] // index loops mirror the formulas
 
 use super::*;
-use crate::sky::cube::CubeMap;
+use crate::cube::CubeMap;
 
 /// A small deterministic generator (SplitMix64) for test inputs.
 struct Rng(u64);
