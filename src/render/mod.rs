@@ -14,6 +14,7 @@ pub mod draw;
 pub mod light;
 pub mod pipelines;
 pub mod reference;
+pub mod sample;
 pub mod scene;
 pub mod shadow;
 pub mod soft_shadow;

@@ -246,6 +246,46 @@ fn shadow_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     )
 }
 
+/// Layout entries of group 3, the ambient term (see ambient.wgsl, [`super::ambient_gpu`]).
+pub fn ambient_layout_entries() -> [wgpu::BindGroupLayoutEntry; 5] {
+    use wgpu::ShaderStages as S;
+    let storage = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: S::VERTEX,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: true },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    };
+    [
+        wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: S::VERTEX | S::FRAGMENT,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        },
+        wgpu::BindGroupLayoutEntry {
+            binding: 1,
+            visibility: S::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        },
+        storage(2),
+        storage(3),
+        storage(4),
+    ]
+}
+
 /// Phase 1 of [`Pipelines::new`]: the bind-group layouts.
 struct Layouts {
     globals: wgpu::BindGroupLayout,
@@ -301,7 +341,7 @@ impl Layouts {
                 uniform_entry(1, S::FRAGMENT),
             ],
         );
-        let ambient = layout(device, "ambient", &super::ambient_gpu::layout_entries());
+        let ambient = layout(device, "ambient", &ambient_layout_entries());
         Layouts {
             globals,
             terrain,

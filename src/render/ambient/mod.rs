@@ -130,7 +130,7 @@ impl LightTexture {
     /// (i + ½)/W, clamped to the edge; the same arithmetic as `lightmap_bilinear` in the shader.
     pub fn sample(&self, u: f32, v: f32) -> [f32; 3] {
         let (w, h) = (self.width as i64, self.height as i64);
-        super::reference::bilinear_with((self.width, self.height), [u, v], |x, y| {
+        crate::render::sample::bilinear_with((self.width, self.height), [u, v], |x, y| {
             let t = self.texels[(y.clamp(0, h - 1) * w + x.clamp(0, w - 1)) as usize];
             [t[0], t[1], t[2]]
         })
