@@ -12,7 +12,7 @@ use crate::render::ambient::{InstanceEnv, PrtData, PrtLayout, instance_maps, sid
 use serde_json::json;
 
 fn scene(n: usize) -> (Vec<InstanceRecord>, Vec<f32>) {
-    let mut rng = crate::fixtures::Rng::new(2005);
+    let mut rng = crate::rng::Rng::new(2005);
     let recs: Vec<InstanceRecord> = (0..n)
         .map(|_| {
             let (x, y) = (rng.f32() * 1024.0, rng.f32() * 1024.0);
@@ -72,7 +72,7 @@ pub fn bench_ambient(instances: usize, error: f32) -> Result<Report> {
         doc[key] = json!({"seconds": secs, "bake_seconds": bake, "maps": maps.len()});
     }
     // Eq. 4.8 for a 10,000-vertex transfer under 100 instances' maps (the reference's work).
-    let mut rng = crate::fixtures::Rng::new(7);
+    let mut rng = crate::rng::Rng::new(7);
     let v = 10_000usize;
     let prt = PrtData {
         vertices: v,

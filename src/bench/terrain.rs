@@ -8,7 +8,7 @@ use std::time::Instant;
 
 /// A generated terrain: rolling hills plus per-sample noise, 1 m spacing.
 pub fn generated_terrain(size: u32) -> Terrain {
-    let mut rng = crate::fixtures::Rng::new(4096);
+    let mut rng = crate::rng::Rng::new(4096);
     let heights = (0..size as u64 * size as u64)
         .map(|k| {
             let (x, y) = ((k % size as u64) as f32, (k / size as u64) as f32);

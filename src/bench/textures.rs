@@ -8,7 +8,7 @@ use std::time::Instant;
 
 /// A generated leaf-like texture: alpha-tested leaf shapes with veins and noise, as PNG bytes.
 pub fn generated_png(size: u32) -> Result<Vec<u8>> {
-    let mut rng = crate::fixtures::Rng::new(31);
+    let mut rng = crate::rng::Rng::new(31);
     let s = size as f32;
     let mut img = image::RgbaImage::new(size, size);
     for (x, y, p) in img.enumerate_pixels_mut() {

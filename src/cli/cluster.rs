@@ -299,7 +299,7 @@ fn run_scipy(python: &str, dir: &Path, repeat: u32) -> Result<serde_json::Value>
 fn synthetic_scene(a: &ClusterBenchArgs) -> BenchScene {
     use crate::envmap::synthetic::{bench_terrain_height, synthetic_envmaps};
     let extent = (a.terrain.max(2) - 1) as f32;
-    let mut rng = crate::fixtures::Rng::new(2005);
+    let mut rng = crate::rng::Rng::new(2005);
     let positions: Vec<[f32; 3]> = (0..a.instances)
         .map(|_| {
             let (x, y) = (rng.f32() * extent, rng.f32() * extent);
@@ -336,7 +336,7 @@ fn traced_scene(a: &ClusterBenchArgs) -> Result<BenchScene> {
         &[],
         BuildPreset::Fast,
     )?);
-    let mut rng = crate::fixtures::Rng::new(2005);
+    let mut rng = crate::rng::Rng::new(2005);
     let mut transforms = Vec::with_capacity(a.instances + 1);
     for _ in 0..a.instances {
         let (x, y) = (rng.f32() * extent, rng.f32() * extent);

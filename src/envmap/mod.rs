@@ -261,7 +261,7 @@ mod tests {
 
     #[test]
     fn stored_weights_reproduce_the_interpolator_and_the_clustering_errors() {
-        let mut rng = crate::fixtures::Rng::new(31);
+        let mut rng = crate::rng::Rng::new(31);
         let pos: Vec<[f32; 3]> = (0..1500)
             .map(|_| [rng.f32() * 200.0, rng.f32() * 200.0, rng.f32()])
             .collect();

@@ -12,7 +12,7 @@
 //! what the smooth model lacks (occlusion by neighbouring plants).
 
 use super::section::{COEFFS, DIM};
-use crate::fixtures::Rng;
+use crate::rng::Rng;
 use rayon::prelude::*;
 
 /// Directions of the projection.

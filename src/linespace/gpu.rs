@@ -9,8 +9,8 @@
 use super::ntree::NTree;
 use super::query::{AreaLight, QueryStats, Segment};
 use crate::error::{Error, Result};
-use crate::fixtures::Rng;
 use crate::gpu::Gpu;
+use crate::rng::Rng;
 use crate::voxel::compute::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 

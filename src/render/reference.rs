@@ -3,7 +3,7 @@
 //! (`SchlickMaterial::eval`, the tone map), so a GPU image can be checked pixel by pixel.
 //!
 //! One primary ray per pixel centre (the rasterizer samples there too) through a two-level BVH
-//! (src/rt: one alpha-tested BVH per model, the terrain as one more instance built by
+//! (src/trace: one alpha-tested BVH per model, the terrain as one more instance built by
 //! [`crate::trace::pack_scene::terrain_mesh`]); the hit becomes a [`HitRecord`] (instance, model,
 //! triangle, barycentrics, world position, interpolated normal/tangent/uv, material) and is
 //! shaded by the terms of the shading contract: [`Reference::direct_term`] (sun irradiance ×

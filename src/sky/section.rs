@@ -2,7 +2,7 @@
 //!
 //! - kind `sky`, layout `cube`: the sun-free sky as a cube map, `texels` = 6·size² × RGBA half
 //!   floats (f16 bits, alpha 1), faces +X, −X, +Y, −Y, +Z, −Z, each row-major from row 0 (the
-//!   layout `crate::sky::cube` documents), ready for a `Rgba16Float` cube texture upload. The
+//!   layout `crate::cube` documents), ready for a `Rgba16Float` cube texture upload. The
 //!   metadata starts with the same fields as the lat-long `sky` kind (`sky::source_section`), so one
 //!   summary serves both. Radiance above the f16 maximum (65504) is clamped and counted.
 //! - kind `sun`: the extracted sun ([`Sun`]), metadata only.

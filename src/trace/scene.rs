@@ -386,7 +386,7 @@ mod tests {
     #[test]
     fn heightfield_terrain_equals_terrain_mesh_instance() {
         // Oracle: the same scene with the terrain as a triangle-mesh instance (the switch kept
-        // in `tracescene`); the terrain is the last instance in both.
+        // in `pack_scene`); the terrain is the last instance in both.
         let (s, _) = scene();
         let t = ground();
         let hf = Arc::new(crate::trace::Heightfield::new(&t).unwrap());

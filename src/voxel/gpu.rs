@@ -7,8 +7,8 @@ use super::compute::{self, Kernel};
 use super::svo::Svo;
 use super::traverse::{Hit, VoxelRay, trace_svo};
 use crate::error::{Error, Result};
-use crate::fixtures::Rng;
 use crate::gpu::Gpu;
+use crate::rng::Rng;
 use bytemuck::{Pod, Zeroable};
 
 const DDA_WGSL: &str = include_str!("shaders/dda.wgsl");

@@ -9,7 +9,7 @@ use super::*;
 use crate::model::{Material, Mesh, Rgba8Image};
 use std::collections::HashSet;
 
-pub use crate::fixtures::Rng;
+pub use crate::rng::Rng;
 
 fn brute_force(grid: &Grid, tris: &[[[f32; 3]; 3]]) -> HashSet<[u32; 3]> {
     let mut out = HashSet::new();

@@ -3,7 +3,7 @@
 //! the noise estimate and noise-aware bound.
 
 use super::*;
-use crate::fixtures::Rng;
+use crate::rng::Rng;
 
 /// A smooth field with a sharp feature: 96 coefficients per instance.
 pub fn synthetic(n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<f32>) {

@@ -423,7 +423,7 @@ fn not_a_3ds_file_and_no_triangles_are_errors() {
 #[test]
 fn random_mutations_never_panic() {
     let base = bench_3ds();
-    let mut rng = crate::fixtures::Rng::new(7);
+    let mut rng = crate::rng::Rng::new(7);
     for _ in 0..3000 {
         let mut b = base.clone();
         for _ in 0..1 + rng.next_u64() % 4 {

@@ -23,7 +23,7 @@
 //!   (`ShRadiance::rotated_z(−θ)`, src/envmap/bake.rs); the `clusters` samples are in the world
 //!   frame (only world-frame maps vary smoothly between instances of unrelated rotations), so the
 //!   interpolated map is turned into the instance's frame here ([`to_instance_frame`]).
-//! - Albedo: the transfer has the receiving vertex's albedo folded in (src/light/prt.rs: the
+//! - Albedo: the transfer has the receiving vertex's albedo folded in (src/prt/transfer.rs: the
 //!   material's sRGB-decoded diffuse colour × the mean linear colour of its colour map's opaque
 //!   texels, and the 1/π). The runtime restores the texture detail by multiplying with
 //!   `base_colour × texel / albedo_folded` ([`PrtData::albedo_scale`]), which is 1 on average
