@@ -1,5 +1,7 @@
 //! Top-down clustering of per-instance environment maps (seed 000, 4.6.3.1, after Heckel et al.
 //! 1999) with multiquadric reconstruction (4.6.3.2).
+//! The clustering loop is here; `error.rs` holds the per-instance error, `split.rs` the
+//! cluster split, `params.rs` the choice of (k, R).
 //!
 //! Start with one cluster of all instances. Each cluster is represented by one sample: the member
 //! nearest to the cluster's mean position, stored exactly. Every instance is reconstructed from the
@@ -26,6 +28,16 @@
 use super::interp::{Interpolator, MultiquadricSolver};
 use super::kdtree::{KdTree, dist2};
 use rayon::prelude::*;
+
+mod error;
+mod params;
+mod split;
+#[cfg(test)]
+mod tests;
+
+pub use error::*;
+use params::*;
+pub use split::*;
 
 /// How much Monte-Carlo noise the bound allows for (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
@@ -298,13 +310,3 @@ fn finish(
         loo,
     }
 }
-
-mod error;
-mod params;
-mod split;
-#[cfg(test)]
-mod tests;
-
-pub use error::*;
-use params::*;
-pub use split::*;

@@ -1,5 +1,7 @@
 //! Autodesk 3D Studio (`.3ds`) reader: our own chunk reader, several objects merged into one
 //! mesh in model space, materials and texture file names.
+//! Phases, one file each: `chunks.rs` (the chunk reader and parser), `keyframer.rs` (the
+//! node hierarchy and object placement), `mesh.rs` (one mesh from the placed objects).
 //!
 //! # Chunks read
 //! A 3DS file is a little-endian tree of chunks `{u16 id, u32 length (including the 6-byte
@@ -46,6 +48,16 @@ use crate::error::{Error, ParseError, Result};
 use crate::model::{Material, Mesh, TextureRef};
 use glam::{Mat3, Mat4, Vec3};
 use std::path::{Path, PathBuf};
+
+mod chunks;
+mod keyframer;
+mod mesh;
+#[cfg(test)]
+mod tests;
+
+use chunks::*;
+use keyframer::*;
+use mesh::*;
 
 /// At most this many warnings are kept verbatim; the rest are counted.
 const MAX_WARNINGS: usize = 32;
@@ -127,13 +139,3 @@ pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
         ..mesh
     })
 }
-
-mod chunks;
-mod keyframer;
-mod mesh;
-#[cfg(test)]
-mod tests;
-
-use chunks::*;
-use keyframer::*;
-use mesh::*;

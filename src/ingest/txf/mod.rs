@@ -1,4 +1,6 @@
 //! TXF plant models (Xfrog via the University of Konstanz player; seed 000, 3.1.1).
+//! Phases, one file each: `tokens.rs` (the tokenizer), `blocks.rs` (blocks and binary arrays),
+//! `mesh.rs` (one mesh from the sets).
 //!
 //! A TXF file is XML-like text with binary blocks. Line 1 is `<?txf_version='0.91'?>`, then
 //! blocks `<Textures>`, `<Colors>`, `<Infos>` and `<Set>`. The format is not context-free:
@@ -45,6 +47,16 @@ use crate::model::{Material, Mesh, TextureRef};
 use std::collections::HashMap;
 use std::path::Path;
 
+mod blocks;
+mod mesh;
+#[cfg(test)]
+mod tests;
+mod tokens;
+
+use blocks::*;
+use mesh::*;
+use tokens::*;
+
 /// Bytes of one binary vertex.
 pub const VERTEX_BYTES: usize = 36;
 
@@ -87,13 +99,3 @@ pub fn parse(bytes: &[u8]) -> Result<Mesh, ParseError> {
     }
     build_mesh(file)
 }
-
-mod blocks;
-mod mesh;
-#[cfg(test)]
-mod tests;
-mod tokens;
-
-use blocks::*;
-use mesh::*;
-use tokens::*;

@@ -1,6 +1,8 @@
 //! The renderer's ambient term L_ambient (seed 000 4.6, 4.7.2, 4.7.3): everything but the direct
 //! sun. Resolved here on the CPU once per pack, then used both by the GPU upload
 //! (`shaders/ambient.wgsl` evaluates the same formulas) and by the CPU reference.
+//! The light per instance is in `env.rs`, eq. 4.8 per vertex in `prt_eval.rs`, the light maps
+//! in `lightmaps.rs`.
 //!
 //! # Models with a `prt:<model>` section: eq. 4.8 per vertex
 //! Per vertex and side s ∈ {F, B}, with the transfer sets 0 (all paths) and 1 (≥ 1 bounce):
@@ -51,6 +53,16 @@ use crate::pack::Pack;
 use crate::prt::transfer::{COEFFS, GPU_VEC4_PER_SIDE, PER_VERTEX, PrtMaterial, SETS, SIDES};
 use crate::sh::{ShIrradiance, ShRadiance};
 use std::f32::consts::PI;
+
+mod env;
+mod lightmaps;
+mod prt_eval;
+#[cfg(test)]
+mod tests;
+
+pub use env::*;
+pub use lightmaps::*;
+pub use prt_eval::*;
 
 /// RGB SH coefficients of order 4.
 pub type Sh16 = [[f32; 3]; COEFFS];
@@ -379,13 +391,3 @@ impl ModelAmbient {
         self.envs.len().max(1)
     }
 }
-
-mod env;
-mod lightmaps;
-mod prt_eval;
-#[cfg(test)]
-mod tests;
-
-pub use env::*;
-pub use lightmaps::*;
-pub use prt_eval::*;
