@@ -7,6 +7,9 @@
 //! dumps), and collects every `crate::x` path (including `use crate::{x, y::z}` groups). The
 //! layer order is the `layers` block of docs/ARCHITECTURE.md, highest layer first.
 //!
+//! A second test keeps clap in the front end: no library file outside `src/cli/` names it (the
+//! command-line values of library enums are implemented in `cli/values.rs`).
+//!
 //! [`KNOWN_UPWARD`] lists the edges that still point up, each with its reason; the test fails on
 //! any other upward edge, on a listed edge that has gone (so the list only shrinks), and on any
 //! cycle left once the listed edges are removed.
@@ -492,4 +495,36 @@ fn top_level_modules_follow_the_layer_order_without_cycles() {
         "the layer rule (docs/ARCHITECTURE.md) is broken:\n{}",
         problems.join("\n")
     );
+}
+
+#[test]
+fn clap_lives_only_in_the_cli() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut stack = vec![src.clone()];
+    let mut found = Vec::new();
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            let rel = path.strip_prefix(&src).unwrap().to_path_buf();
+            if path.is_dir() {
+                if rel != Path::new("cli") {
+                    stack.push(path);
+                }
+            } else if path.extension().is_some_and(|e| e == "rs") && rel != Path::new("main.rs") {
+                let code = drop_test_items(&strip(&std::fs::read_to_string(&path).unwrap()));
+                let b = code.as_bytes();
+                let mut from = 0;
+                while let Some(k) = code[from..].find("clap").map(|k| from + k) {
+                    from = k + 4;
+                    let before = k > 0 && is_ident(b[k - 1]);
+                    let after = b.get(k + 4).is_some_and(|&c| is_ident(c));
+                    if !before && !after {
+                        found.push(rel.display().to_string());
+                        break;
+                    }
+                }
+            }
+        }
+    }
+    assert!(found.is_empty(), "clap outside src/cli/: {found:?}");
 }
