@@ -5,7 +5,6 @@
 
 use crate::error::{ParseError, Result};
 use crate::pack::Pack;
-use crate::pack::kinds;
 use crate::pack::section::SectionView;
 use serde_json::{Value, json};
 
@@ -13,23 +12,31 @@ type ViewFn = fn(&SectionView) -> Result<Value, ParseError>;
 
 /// Kind name, summary view, full-data view.
 pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
-    (kinds::mesh::KIND, kinds::mesh::summary, kinds::mesh::data),
     (
-        kinds::terrain::KIND,
-        kinds::terrain::summary,
-        kinds::terrain::data,
+        crate::mesh::section::KIND,
+        crate::mesh::section::summary,
+        crate::mesh::section::data,
     ),
     (
-        kinds::instances::KIND,
-        kinds::instances::summary,
-        kinds::instances::data,
+        crate::terrain::source_section::KIND,
+        crate::terrain::source_section::summary,
+        crate::terrain::source_section::data,
     ),
     (
-        kinds::texture::KIND,
-        kinds::texture::summary,
-        kinds::texture::data,
+        crate::ingest::instances_section::KIND,
+        crate::ingest::instances_section::summary,
+        crate::ingest::instances_section::data,
     ),
-    (kinds::sky::KIND, kinds::sky::summary, kinds::sky::data),
+    (
+        crate::texture::source_section::KIND,
+        crate::texture::source_section::summary,
+        crate::texture::source_section::data,
+    ),
+    (
+        crate::sky::source_section::KIND,
+        crate::sky::source_section::summary,
+        crate::sky::source_section::data,
+    ),
     (
         crate::lightmap::section::KIND,
         crate::lightmap::section::summary,
@@ -51,9 +58,9 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         crate::bittree::section::data,
     ),
     (
-        crate::light::prt_pack::KIND,
-        crate::light::prt_pack::summary,
-        crate::light::prt_pack::data,
+        crate::prt::pack::KIND,
+        crate::prt::pack::summary,
+        crate::prt::pack::data,
     ),
     (
         crate::sky::section::SUN_KIND,

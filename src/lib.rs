@@ -2,16 +2,20 @@
 //!
 //! Data flow (see ../shared/brief/BRIEF.md and docs/): [`ingest`] reads every input into the
 //! [`model`]; stages turn the model into GPU-ready data; [`pack`] stores it; [`dump`] shows it;
-//! `render` proves it with wgpu. [`pipeline`] is the orchestrator, [`cli`] the subcommands.
+//! `render` proves it with wgpu. [`graph`] is the orchestrator, [`cli`] the subcommands; the
+//! layers and what may import what: docs/ARCHITECTURE.md.
+pub mod bench;
 pub mod bittree;
 pub mod cli;
+pub mod color;
+pub mod cube;
 pub mod dump;
 pub mod envmap;
 pub mod error;
 pub mod fixtures;
+pub mod gpu;
 pub mod graph;
 pub mod ingest;
-pub mod light;
 pub mod lightmap;
 pub mod linespace;
 pub mod material;
@@ -19,12 +23,13 @@ pub mod mesh;
 pub mod model;
 pub mod pack;
 pub mod pipeline;
+pub mod prt;
 pub mod render;
-pub mod rt;
+pub mod rng;
 pub mod sh;
 pub mod sky;
 pub mod terrain;
 pub mod texture;
-pub mod tracescene;
+pub mod trace;
 pub mod verify;
 pub mod voxel;

@@ -5,7 +5,7 @@ use crate::error::Result;
 use crate::ingest::{self, IngestOptions, Ingested};
 use crate::model::{Mesh, Scene, Terrain};
 use crate::pack::PackWriter;
-use crate::pack::kinds::{self, fit_name};
+use crate::pack::fit_name;
 use rayon::prelude::*;
 use std::path::Path;
 
@@ -27,8 +27,10 @@ pub fn add_mesh(
     for (t, img) in mesh.textures.iter().zip(decoded) {
         match img {
             Ok(img) => {
-                let name = fit_name(kinds::texture_section_name(model, &t.name));
-                w.insert(kinds::texture::to_section(
+                let name = fit_name(crate::texture::source_section::texture_section_name(
+                    model, &t.name,
+                ));
+                w.insert(crate::texture::source_section::to_section(
                     &name,
                     &t.path.display().to_string(),
                     &img,
@@ -41,8 +43,8 @@ pub fn add_mesh(
             }
         }
     }
-    let name = fit_name(kinds::mesh_section_name(model));
-    w.insert(kinds::mesh::to_section(
+    let name = fit_name(crate::mesh::section::mesh_section_name(model));
+    w.insert(crate::mesh::section::to_section(
         &name,
         &source.display().to_string(),
         mesh,
@@ -61,15 +63,15 @@ pub fn add_terrain(w: &mut PackWriter, source: &Path, t: &Terrain) {
 pub fn terrain_sections(source: &Path, t: &Terrain) -> Vec<crate::pack::Section> {
     let mut out = Vec::new();
     let color = t.color.as_ref().map(|img| {
-        let name = kinds::texture_section_name("terrain", "color");
-        out.push(kinds::texture::to_section(
+        let name = crate::texture::source_section::texture_section_name("terrain", "color");
+        out.push(crate::texture::source_section::to_section(
             &name,
             &source.display().to_string(),
             img,
         ));
         name
     });
-    out.push(kinds::terrain::to_section(
+    out.push(crate::terrain::source_section::to_section(
         "terrain",
         &source.display().to_string(),
         t,
@@ -88,20 +90,18 @@ pub fn scene_to_pack(scene: &Scene, eco: &Path) -> (PackWriter, Vec<String>) {
     let mut mesh_sections = Vec::new();
     for m in &scene.models {
         add_mesh(&mut w, &m.name, &m.path, &m.mesh, &mut warnings);
-        mesh_sections.push(fit_name(kinds::mesh_section_name(&m.name)));
+        mesh_sections.push(fit_name(crate::mesh::section::mesh_section_name(&m.name)));
     }
-    w.insert(kinds::instances::to_section(
+    w.insert(crate::ingest::instances_section::to_section(
         "instances",
         &scene.instances,
         mesh_sections,
     ));
     if let Some(sky) = &scene.sky {
-        w.insert(kinds::sky::to_section("sky", "", sky));
+        w.insert(crate::sky::source_section::to_section("sky", "", sky));
     }
     (w, warnings)
 }
-
-pub use crate::graph::{BuildOptions, BuildReport, build};
 
 /// The area the BitTree discretizes: the scene's area of interest, widened to hold every instance.
 pub fn instance_area(scene: &Scene) -> crate::model::Rect {
@@ -132,7 +132,7 @@ pub fn ingest_to_pack(input: &Path, opts: &IngestOptions) -> Result<(PackWriter,
             add_mesh(&mut w, &name, input, &mesh, &mut warnings);
         }
         Ingested::Terrain(t) => add_terrain(&mut w, input, &t),
-        Ingested::Sky(img) => w.insert(kinds::sky::to_section(
+        Ingested::Sky(img) => w.insert(crate::sky::source_section::to_section(
             "sky",
             &input.display().to_string(),
             &img,

@@ -24,8 +24,8 @@
 //! the clamped-cosine convolution (Ramamoorthi & Hanrahan 2001) scales band l by `Â_l` (π, 2π/3,
 //! π/4, 0, …) and the two must never be mixed.
 
+use crate::cube::{self, CubeMap, Face};
 use crate::model::FloatImage;
-use crate::sky::cube::{self, CubeMap, Face};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;

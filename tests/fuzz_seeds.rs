@@ -7,7 +7,7 @@
 //! `BAKE_BLESS=1 cargo test --test fuzz_seeds`; review the diff before committing it.
 
 use bake::model::{FloatImage, Instance, Instances, Material, Mesh, Rect, Rgba8Image, TextureRef};
-use bake::pack::{PackWriter, kinds};
+use bake::pack::PackWriter;
 use std::path::{Path, PathBuf};
 
 mod common;
@@ -173,27 +173,29 @@ fn small_pack() -> Vec<u8> {
         pixels: vec![[1.0, 0.5, 0.25]; 8],
     };
     let mut w = PackWriter::new();
-    w.insert(kinds::texture::to_section(
+    w.insert(bake::texture::source_section::to_section(
         "texture:tri.obj/leaf.png",
         "leaf.png",
         &img,
     ));
     let tex = [Some("texture:tri.obj/leaf.png".to_string())];
-    w.insert(kinds::mesh::to_section(
+    w.insert(bake::mesh::section::to_section(
         "mesh:tri.obj",
         "tri.obj",
         &mesh,
         &tex,
     ));
-    w.insert(kinds::terrain::to_section(
+    w.insert(bake::terrain::source_section::to_section(
         "terrain", "t.raw", &terrain, None,
     ));
-    w.insert(kinds::instances::to_section(
+    w.insert(bake::ingest::instances_section::to_section(
         "instances",
         &inst,
         vec!["mesh:tri.obj".into()],
     ));
-    w.insert(kinds::sky::to_section("sky", "sky.hdr", &sky));
+    w.insert(bake::sky::source_section::to_section(
+        "sky", "sky.hdr", &sky,
+    ));
     let sh = bake::sh::ShRadiance {
         coeffs: [[0.1, 0.2, 0.3]; bake::sh::COEFFS],
     };

@@ -1,10 +1,10 @@
 //! Light maps and environment maps against analytic answers.
 
 use bake::envmap::bake::{EnvmapOptions, EnvmapScene, bake_envmaps};
-use bake::lightmap::{Lighting, LightmapMode, LightmapOptions, SUN_RADIUS, texel_irradiance};
+use bake::lightmap::{BakeLight, LightmapMode, LightmapOptions, SUN_RADIUS, texel_irradiance};
 use bake::model::{Material, Mesh, Terrain};
-use bake::rt::{InstanceTransform, SceneBvh};
 use bake::sh::ShRadiance;
+use bake::trace::{InstanceTransform, SceneBvh};
 use glam::Vec3A;
 use std::f32::consts::PI;
 
@@ -51,7 +51,7 @@ fn open_sky_plane_gets_the_analytic_irradiance() {
     let far = scene(vec![disc(1.0, 16)], vec![at(0, [0.0, 0.0, -50.0])]);
     let (a, b) = (0.7, 0.4);
     let s = Vec3A::new(0.3, 0.2, 0.9).normalize();
-    let light = Lighting {
+    let light = BakeLight {
         sky: linear_sky(a, b),
         sun: Some((s.to_array(), [100.0, 90.0, 80.0])),
     };
@@ -91,7 +91,7 @@ fn opaque_disc_casts_the_analytic_umbra_and_penumbra_of_the_real_sun() {
     // the sun at horizontal distance ρ from the axis is 1 − lens(ρ, h·tan r, D) / (π (h·tan r)²).
     let (radius, h) = (2.0f32, 1.0f32);
     let bvh = scene(vec![disc(radius, 4096)], vec![at(0, [0.0, 0.0, h])]);
-    let light = Lighting {
+    let light = BakeLight {
         sky: ShRadiance::default(),
         sun: Some(([0.0, 0.0, 1.0], [1000.0; 3])),
     };
@@ -149,7 +149,7 @@ fn flat_terrain(extent: f32) -> Mesh {
         extent: [extent; 2],
         color: None,
     };
-    bake::tracescene::terrain_mesh(&t)
+    bake::trace::pack_scene::terrain_mesh(&t)
 }
 
 #[test]

@@ -4,10 +4,10 @@
 
 use bake::lightmap::atlas::{AtlasOptions, rasterize};
 use bake::lightmap::objects::{AtlasLightmap, PlacedMesh, bake_object_lightmap};
-use bake::lightmap::{Lighting, LightmapMode, LightmapOptions, SUN_RADIUS};
+use bake::lightmap::{BakeLight, LightmapMode, LightmapOptions, SUN_RADIUS};
 use bake::model::{Material, Mesh};
-use bake::rt::InstanceTransform;
 use bake::sh::ShRadiance;
+use bake::trace::InstanceTransform;
 use glam::Vec3A;
 use std::f32::consts::PI;
 
@@ -146,7 +146,7 @@ fn open_sky_plane_atlas_gets_the_analytic_irradiance() {
     let bvh = scene(&[&plane], inst.clone());
     let (a, b) = (0.7, 0.4);
     let s = Vec3A::new(0.3, 0.2, 0.9).normalize();
-    let light = Lighting {
+    let light = BakeLight {
         sky: linear_sky(a, b),
         sun: Some((s.to_array(), [100.0, 90.0, 80.0])),
     };
@@ -201,7 +201,7 @@ fn plane_under_an_opaque_disc_gets_the_analytic_shadow_and_penumbra() {
     let occluder = disc(radius, 256);
     let inst = vec![place(0, [0.0; 3], 0.0), place(1, [0.0, 0.0, h], 0.0)];
     let bvh = scene(&[&plane, &occluder], inst.clone());
-    let light = Lighting {
+    let light = BakeLight {
         sky: ShRadiance::default(),
         sun: Some(([0.0, 0.0, 1.0], [1000.0; 3])),
     };
@@ -308,7 +308,7 @@ fn no_bilinear_lookup_inside_a_triangle_reads_a_black_gutter() {
     // the black between charts.
     let s = Vec3A::new(0.4, -0.3, 0.8).normalize();
     let (l, es) = (1.0f32, 10.0f32);
-    let light = Lighting {
+    let light = BakeLight {
         sky: linear_sky(l, 0.0),
         sun: Some((s.to_array(), [es; 3])),
     };
@@ -353,7 +353,7 @@ fn no_bilinear_lookup_inside_a_triangle_reads_a_black_gutter() {
     // smooth normals by up to ~8°, so a few hemisphere rays hit the neighbouring facets (and sun
     // rays near the terminator would too, hence no sun); a black texel in a lookup would pull
     // the ratio towards 0.
-    let sky_only = Lighting { sun: None, ..light };
+    let sky_only = BakeLight { sun: None, ..light };
     let ball_map = bake_object_lightmap(
         &bvh,
         &albedo,
@@ -393,7 +393,7 @@ fn atlas_bake_is_identical_across_thread_counts() {
         place(0, [3.0, 0.0, 1.0], 50.0),
     ];
     let bvh = scene(&[&ball, &ground], inst);
-    let light = Lighting {
+    let light = BakeLight {
         sky: linear_sky(0.5, 0.3),
         sun: Some((Vec3A::new(0.3, 0.1, 0.9).normalize().to_array(), [50.0; 3])),
     };
@@ -446,7 +446,7 @@ fn atlas_section_round_trips_and_rejects_inconsistent_arrays() {
     use bake::pack::section::SectionView;
     let m = cube();
     let bvh = scene(&[&m], vec![place(0, [0.0; 3], 0.0); 3]);
-    let light = Lighting {
+    let light = BakeLight {
         sky: linear_sky(1.0, 0.0),
         sun: None,
     };
@@ -543,8 +543,8 @@ fn fixture_scene_bakes_an_atlas_for_its_objects_but_not_its_plants() {
     // 12 benches (≤ 16 instances) get one atlas with 12 tiles; the 88 plants get none. The seat's
     // top (n = +z, mostly sunlit) must be far brighter than its underside (n = −z, facing the
     // ground): E_top ≥ ½·E_sun·cos θ_s, E_bottom < ½·E_top.
+    use bake::ingest::instances_section as instances;
     use bake::lightmap::atlas_section::{KIND, from_section, is_atlas};
-    use bake::pack::kinds::instances;
     let dir = tempfile::tempdir().unwrap();
     let pack = bake::cli::lightmap::fixture_pack(dir.path()).unwrap();
     let opts = LightmapOptions {
@@ -570,7 +570,7 @@ fn fixture_scene_bakes_an_atlas_for_its_objects_but_not_its_plants() {
             .all(|&i| inst.items[i as usize].model as usize == model)
     );
     let (_, mesh) =
-        bake::pack::kinds::mesh::from_section(&pack.view_named(&meta.surface).unwrap()).unwrap();
+        bake::mesh::section::from_section(&pack.view_named(&meta.surface).unwrap()).unwrap();
     assert_eq!(meta.mesh_vertices as usize, mesh.positions.len());
     let light = bake::lightmap::scene_lighting(&pack).unwrap();
     let (s, e_sun) = light.sun.unwrap();

@@ -1,7 +1,7 @@
 //! Black-box tests of `bake material` and `bake terrain`: outputs, `dump --json` keys, errors.
 
 use bake::model::{Material, MaterialSource, Mesh, Rgba8Image, TextureRef};
-use bake::pack::{PackWriter, kinds};
+use bake::pack::PackWriter;
 use serde_json::Value;
 use std::path::Path;
 
@@ -69,9 +69,13 @@ fn write_plant_pack(path: &Path) {
         ..Default::default()
     };
     let mut w = PackWriter::new();
-    let tex = kinds::texture_section_name("plant.txf", "leaf.png");
-    w.insert(kinds::texture::to_section(&tex, "leaf.png", &leaf_image()));
-    w.insert(kinds::mesh::to_section(
+    let tex = bake::texture::source_section::texture_section_name("plant.txf", "leaf.png");
+    w.insert(bake::texture::source_section::to_section(
+        &tex,
+        "leaf.png",
+        &leaf_image(),
+    ));
+    w.insert(bake::mesh::section::to_section(
         "mesh:plant.txf",
         "plant.txf",
         &mesh,

@@ -3,12 +3,16 @@
 //! flat terrain, the tone map 1 − exp(−L·s) and the sRGB encoding. Runs on any wgpu adapter,
 //! including Mesa's lavapipe (Vulkan) or llvmpipe (GL) on a machine without a GPU.
 
+use bake::ingest::instances_section as instances;
+use bake::mesh::section as mesh;
 use bake::model::{
     FloatImage, Instance, Instances, Material, Mesh, Rgba8Image, Terrain, TextureRef,
 };
-use bake::pack::kinds::{self, instances, mesh, sky, terrain, texture};
 use bake::pack::{Pack, PackWriter};
 use bake::render::{Lighting, RenderOptions, render_pack};
+use bake::sky::source_section as sky;
+use bake::terrain::source_section as terrain;
+use bake::texture::source_section as texture;
 use glam::{Mat4, Vec3, Vec4Swizzles};
 use std::f32::consts::PI;
 
@@ -162,12 +166,12 @@ fn build_pack(with_sky: bool) -> Pack {
         extent: [20.0, 20.0],
         color: None,
     };
-    let color = kinds::texture_section_name("terrain", "color");
+    let color = bake::texture::source_section::texture_section_name("terrain", "color");
     w.insert(texture::to_section(&color, "test", &terrain_colors()));
     w.insert(terrain::to_section("terrain", "test", &t, Some(color)));
-    let leaf = kinds::texture_section_name("quad", "leaf.png");
+    let leaf = bake::texture::source_section::texture_section_name("quad", "leaf.png");
     w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
-    let mesh_name = kinds::mesh_section_name("quad");
+    let mesh_name = bake::mesh::section::mesh_section_name("quad");
     w.insert(mesh::to_section(
         &mesh_name,
         "test",
@@ -505,10 +509,10 @@ fn default_camera_frames_every_instance() {
 #[test]
 fn a_pack_with_only_a_mesh_renders_it_at_the_origin() {
     let mut w = PackWriter::new();
-    let leaf = kinds::texture_section_name("quad", "leaf.png");
+    let leaf = bake::texture::source_section::texture_section_name("quad", "leaf.png");
     w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
     w.insert(mesh::to_section(
-        &kinds::mesh_section_name("quad"),
+        &bake::mesh::section::mesh_section_name("quad"),
         "test",
         &quad_mesh(),
         &[Some(leaf)],
@@ -539,10 +543,10 @@ fn a_corrupt_instance_record_is_an_invalid_input_error() {
     w.insert(instances::to_section(
         "instances",
         &inst,
-        vec![kinds::mesh_section_name("quad")],
+        vec![bake::mesh::section::mesh_section_name("quad")],
     ));
     w.insert(mesh::to_section(
-        &kinds::mesh_section_name("quad"),
+        &bake::mesh::section::mesh_section_name("quad"),
         "test",
         &quad_mesh(),
         &[None],
@@ -604,8 +608,8 @@ fn the_fixture_scene_renders_with_its_sky_and_every_instance_in_place() {
     let dir = tempfile::tempdir().unwrap();
     bake::fixtures::write_all(dir.path()).unwrap();
     let out_path = dir.path().join("scene.bake");
-    bake::pipeline::build(
-        &bake::pipeline::BuildOptions {
+    bake::graph::build(
+        &bake::graph::BuildOptions {
             scenes: vec![dir.path().join("scene.eco")],
             output: Some(out_path.clone()),
             sky: Some(dir.path().join("sky.hdr")),
@@ -664,7 +668,7 @@ fn the_fixture_scene_renders_with_its_sky_and_every_instance_in_place() {
         .items
         .iter()
         .map(|i| {
-            let section = kinds::mesh_section_name(&inst.models[i.model as usize]);
+            let section = bake::mesh::section::mesh_section_name(&inst.models[i.model as usize]);
             let (_, m) = mesh::from_section(&pack.view_named(&section).unwrap()).unwrap();
             instance_screen_box(&o, i, &m)
         })

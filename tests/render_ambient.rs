@@ -13,8 +13,8 @@ const THRESHOLD: u8 = 24;
 fn fixture_pack(dir: &std::path::Path) -> Pack {
     bake::fixtures::write_all(dir).unwrap();
     let out = dir.join("scene.bake");
-    bake::pipeline::build(
-        &bake::pipeline::BuildOptions {
+    bake::graph::build(
+        &bake::graph::BuildOptions {
             scenes: vec![dir.join("scene.eco")],
             output: Some(out.clone()),
             sky: Some(dir.join("sky.hdr")),
@@ -31,7 +31,8 @@ fn fixture_pack(dir: &std::path::Path) -> Pack {
 /// A close view of the plant instance nearest the terrain's centre.
 fn close_view(pack: &Pack, terms: Terms) -> RenderOptions {
     let (_, inst) =
-        bake::pack::kinds::instances::from_section(&pack.view_named("instances").unwrap()).unwrap();
+        bake::ingest::instances_section::from_section(&pack.view_named("instances").unwrap())
+            .unwrap();
     let plant = inst
         .models
         .iter()
@@ -172,8 +173,9 @@ fn the_packed_prt_layout_loss_is_measured_on_the_fixture_plant() {
 /// A 4 m quad at the origin, turned 30° about +Z, with an 8×8 light map of a smooth irradiance
 /// ramp (its `indirect` array) and light-map UVs at its corners, under a constant sky.
 fn light_mapped_quad() -> Pack {
+    use bake::ingest::instances_section as instances;
+    use bake::mesh::section as mesh;
     use bake::model::{Instance, Instances, Material, Mesh};
-    use bake::pack::kinds::{instances, mesh};
     use bake::pack::{ArrayFormat, SectionBuilder};
     let mut m = Mesh {
         materials: vec![Material::default()],

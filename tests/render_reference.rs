@@ -5,10 +5,11 @@
 //! analytic L = albedo · E · cos θ / π.
 
 use bake::model::{Rgba8Image, Terrain};
-use bake::pack::kinds::{self, terrain, texture};
 use bake::pack::{Pack, PackWriter};
 use bake::render::reference::{Reference, image_difference, render_reference, tone_map_image};
 use bake::render::{Lighting, RenderOptions, Terms, render_pack};
+use bake::terrain::source_section as terrain;
+use bake::texture::source_section as texture;
 use glam::Vec3;
 use std::f32::consts::PI;
 
@@ -91,7 +92,7 @@ fn classify(pack: &Pack, view: &bake::render::View) -> (Vec<u8>, Vec<u32>) {
                 (x as f32 + 0.5) / SIZE.0 as f32 * 2.0 - 1.0,
                 1.0 - (y as f32 + 0.5) / SIZE.1 as f32 * 2.0,
             );
-            let ray = bake::rt::Ray::new(view.camera.eye.into(), d.into(), view.camera.near);
+            let ray = bake::trace::Ray::new(view.camera.eye.into(), d.into(), view.camera.near);
             class.push(match r.trace(&ray) {
                 None => 0,
                 Some(h) => match h.model {
@@ -203,7 +204,7 @@ fn flat_terrain_pack(color: [u8; 3]) -> Pack {
         pixels: vec![[color[0], color[1], color[2], 255]; 16],
     };
     let mut w = PackWriter::new();
-    let name = kinds::texture_section_name("terrain", "color");
+    let name = bake::texture::source_section::texture_section_name("terrain", "color");
     w.insert(texture::to_section(&name, "test", &img));
     w.insert(terrain::to_section("terrain", "test", &t, Some(name)));
     let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "flat.bake").unwrap();
@@ -291,7 +292,12 @@ fn leaf_quad_pack() -> Pack {
         ..Default::default()
     };
     let mut w = PackWriter::new();
-    w.insert(kinds::mesh::to_section("mesh:leaf", "test", &mesh, &[]));
+    w.insert(bake::mesh::section::to_section(
+        "mesh:leaf",
+        "test",
+        &mesh,
+        &[],
+    ));
     let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "leaf.bake").unwrap();
     let (sections, _) = bake::material::bake_materials(&pack, &Default::default()).unwrap();
     let mut w = PackWriter::from_pack(&pack);

@@ -4,14 +4,16 @@
 //! line-space query (the GPU computes the same fraction), and the image itself (terrain in the
 //! umbra looks as with the ambient term alone; lit terrain is brighter). Runs on any wgpu adapter, lavapipe included.
 
+use bake::ingest::instances_section as instances;
 use bake::linespace::ntree::{NTreeOptions, build_ntree};
 use bake::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
 use bake::linespace::shaft::ShaftTable;
+use bake::mesh::section as mesh;
 use bake::model::{Instance, Instances, Material, Mesh, Terrain};
-use bake::pack::kinds::{self, instances, mesh, terrain};
 use bake::pack::{Pack, PackWriter};
 use bake::render::soft_shadow::SoftShadows;
 use bake::render::{Lighting, RenderOptions, Terms, render_pack};
+use bake::terrain::source_section as terrain;
 
 /// A 4 × 4 m plate, horizontal, centred on its origin.
 fn plate() -> Mesh {
@@ -46,7 +48,7 @@ fn build_pack() -> Pack {
         color: None,
     };
     w.insert(terrain::to_section("terrain", "test", &t, None));
-    let name = kinds::mesh_section_name("plate");
+    let name = bake::mesh::section::mesh_section_name("plate");
     w.insert(mesh::to_section(&name, "test", &plate(), &[]));
     let items = vec![Instance {
         model: 0,

@@ -295,7 +295,7 @@ impl BitReader<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fixtures::Rng;
+    use crate::rng::Rng;
 
     fn area() -> Rect {
         Rect {

@@ -172,7 +172,7 @@ mod tests {
 
     #[test]
     fn section_round_trip_keeps_attributes_in_leaf_order() {
-        let mut rng = crate::fixtures::Rng::new(5);
+        let mut rng = crate::rng::Rng::new(5);
         let items: Vec<Instance> = (0..300)
             .map(|k| Instance {
                 model: k % 3,

@@ -31,13 +31,34 @@ pub enum BenchWhat {
     /// Terrain preparation (four-tap texture, normals, min/max quadtree) of a generated grid.
     Terrain(TerrainBenchArgs),
     /// The renderer's ambient term at load time: cluster maps per instance, eq. 4.8 per vertex.
-    Ambient(crate::render::ambient_bench::AmbientBenchArgs),
+    Ambient(AmbientBenchArgs),
     /// Terrain rays/s: heightfield (min/max quadtree) against the triangle-mesh BVH.
-    TerrainRays(crate::rt::bench::TerrainRaysBenchArgs),
+    TerrainRays(TerrainRaysBenchArgs),
     /// Light maps of the fixture scene (or a pack): terrain and placed-object atlases.
     Lightmap(super::lightmap::LightmapBenchArgs),
     /// The stage graph on a generated scene: full bake, no-op, one model touched, sky changed.
     Incremental(IncrementalBenchArgs),
+}
+
+/// Options of [`crate::bench::ambient::bench_ambient`].
+#[derive(Debug, Clone, clap::Args)]
+pub struct AmbientBenchArgs {
+    /// Instances on a 1024 m square (random positions and rotations).
+    #[arg(long, default_value_t = 200_000)]
+    pub instances: usize,
+    /// Clustering error bound (relative RMS).
+    #[arg(long, default_value_t = 0.02)]
+    pub error: f32,
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct TerrainRaysBenchArgs {
+    /// Grid size in samples (square, 1 m apart).
+    #[arg(long, default_value_t = 1024)]
+    pub size: u32,
+    /// Rays per set.
+    #[arg(long, default_value_t = 200_000)]
+    pub rays: usize,
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -97,13 +118,28 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Svo(a) => crate::cli::svo::bench(a, g),
         BenchWhat::Linespace(a) => crate::cli::linespace::bench(a, g),
         BenchWhat::Sky(a) => super::sky::bench(a, g),
-        BenchWhat::Textures(a) => crate::texture::bench::bench_textures(a),
-        BenchWhat::Terrain(a) => crate::terrain::bench::bench_terrain(a),
-        BenchWhat::Ambient(a) => crate::render::ambient_bench::bench_ambient(a),
-        BenchWhat::TerrainRays(a) => crate::rt::bench::bench_terrain_rays(a),
+        BenchWhat::Textures(a) => report(crate::bench::textures::bench_textures(
+            &a.files, a.size, a.repeat,
+        )?),
+        BenchWhat::Terrain(a) => report(crate::bench::terrain::bench_terrain(a.size, a.repeat)?),
+        BenchWhat::Ambient(a) => {
+            report(crate::bench::ambient::bench_ambient(a.instances, a.error)?)
+        }
+        BenchWhat::TerrainRays(a) => report(crate::bench::terrain_rays::bench_terrain_rays(
+            a.size, a.rays,
+        )?),
         BenchWhat::Lightmap(a) => super::lightmap::bench(a, g),
         BenchWhat::Incremental(a) => incremental(a, g),
     }
+}
+
+/// A benchmark's report as the command's outcome.
+fn report(r: crate::bench::Report) -> Result<Outcome> {
+    Ok(Outcome {
+        json: r.json,
+        text: r.text,
+        warnings: Vec::new(),
+    })
 }
 
 fn ingest(a: &IngestBenchArgs, _g: &Global) -> Result<Outcome> {

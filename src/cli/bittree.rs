@@ -23,7 +23,7 @@ pub fn run(args: &BitTreeArgs, _g: &Global) -> Result<Outcome> {
     let bytes = w.to_bytes()?;
     let pack = Pack::from_bytes(&bytes, &args.input.display().to_string())?;
     let v = pack.view_named("instances")?;
-    let (_, inst) = crate::pack::kinds::instances::from_section(&v)
+    let (_, inst) = crate::ingest::instances_section::from_section(&v)
         .map_err(|e| Error::invalid(&args.input, e))?;
     let area = instance_area(&inst);
     let opts = BitTreeOptions {

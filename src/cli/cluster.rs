@@ -156,23 +156,23 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         radius: a.radius,
         noise: a.noise,
     };
-    let (t0, cpu0) = (std::time::Instant::now(), process_cpu_seconds());
+    let (t0, cpu0) = (std::time::Instant::now(), crate::bench::cpu_seconds());
     let c = crate::envmap::cluster::cluster_envmaps(&positions, &values, DIM, &opts);
     let t_cluster = t0.elapsed().as_secs_f64();
-    let cpu_cluster = process_cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
+    let cpu_cluster = crate::bench::cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
     let cpu = |a: Option<f64>, b: Option<f64>| a.zip(b).map(|(a, b)| b - a);
     let mut best: Option<Interpolation> = None;
     for _ in 0..a.repeat {
-        let (t1, cpu_t1) = (std::time::Instant::now(), process_cpu_seconds());
+        let (t1, cpu_t1) = (std::time::Instant::now(), crate::bench::cpu_seconds());
         let (nb, w) = crate::envmap::instance_weights(&positions, &values, DIM, &c);
         let t_weights = t1.elapsed().as_secs_f64();
-        let cpu1 = process_cpu_seconds();
+        let cpu1 = crate::bench::cpu_seconds();
         let rec = crate::envmap::apply_weights(&values, DIM, &c.samples, c.k, &nb, &w);
         let run = Interpolation {
             t_weights,
             t_interp: t1.elapsed().as_secs_f64(),
             cpu_weights: cpu(cpu_t1, cpu1),
-            cpu_interp: cpu(cpu_t1, process_cpu_seconds()),
+            cpu_interp: cpu(cpu_t1, crate::bench::cpu_seconds()),
             weights_bytes: (nb.len() * 4 + w.len() * 4) as u64,
             rec,
         };
@@ -232,19 +232,6 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         json: doc,
         warnings: Vec::new(),
     })
-}
-
-/// CPU time (user + system, all threads) of this process so far, from /proc/self/stat (Linux,
-/// where its unit USER_HZ is 100); None elsewhere. On the shared machine the wall-clock times
-/// depend on other jobs; CPU time does not.
-fn process_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which may contain spaces) start at field 3, the state;
-    // utime and stime are fields 14 and 15.
-    let rest = stat.get(stat.rfind(')')? + 1..)?;
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0)
 }
 
 /// RMS of (a − b) relative to `rms`.
@@ -312,7 +299,7 @@ fn run_scipy(python: &str, dir: &Path, repeat: u32) -> Result<serde_json::Value>
 fn synthetic_scene(a: &ClusterBenchArgs) -> BenchScene {
     use crate::envmap::synthetic::{bench_terrain_height, synthetic_envmaps};
     let extent = (a.terrain.max(2) - 1) as f32;
-    let mut rng = crate::fixtures::Rng::new(2005);
+    let mut rng = crate::rng::Rng::new(2005);
     let positions: Vec<[f32; 3]> = (0..a.instances)
         .map(|_| {
             let (x, y) = (rng.f32() * extent, rng.f32() * extent);
@@ -326,7 +313,7 @@ fn synthetic_scene(a: &ClusterBenchArgs) -> BenchScene {
 /// A generated scene (procedural alpha-tested plant on a hilly terrain, built-in sky) and its
 /// traced environment maps, in the world frame unless `--instance-frame`.
 fn traced_scene(a: &ClusterBenchArgs) -> Result<BenchScene> {
-    use crate::rt::{AlphaMask, BuildPreset, InstanceTransform, ModelBvh, SceneBvh};
+    use crate::trace::{AlphaMask, BuildPreset, InstanceTransform, ModelBvh, SceneBvh};
     use std::sync::Arc;
     let n = a.terrain.max(2);
     let extent = (n - 1) as f32;
@@ -341,15 +328,15 @@ fn traced_scene(a: &ClusterBenchArgs) -> Result<BenchScene> {
         extent: [extent; 2],
         color: None,
     };
-    let (plant, leaf) = crate::light::plant::procedural_plant(300, 7);
+    let (plant, leaf) = crate::prt::plant::procedural_plant(300, 7);
     let masks = vec![Some(AlphaMask::from_rgba8(&leaf)); plant.materials.len()];
     let plant_bvh = Arc::new(ModelBvh::build(&plant, &masks, BuildPreset::Medium)?);
     let ground = Arc::new(ModelBvh::build(
-        &crate::tracescene::terrain_mesh(&terrain),
+        &crate::trace::pack_scene::terrain_mesh(&terrain),
         &[],
         BuildPreset::Fast,
     )?);
-    let mut rng = crate::fixtures::Rng::new(2005);
+    let mut rng = crate::rng::Rng::new(2005);
     let mut transforms = Vec::with_capacity(a.instances + 1);
     for _ in 0..a.instances {
         let (x, y) = (rng.f32() * extent, rng.f32() * extent);

@@ -128,8 +128,8 @@ pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
         }
         Ok(best)
     };
-    let scene_s = best(&mut || crate::tracescene::trace_scene(&pack).map(|_| ()))?;
-    let scene = crate::tracescene::trace_scene(&pack)?;
+    let scene_s = best(&mut || crate::trace::pack_scene::trace_scene(&pack).map(|_| ()))?;
+    let scene = crate::trace::pack_scene::trace_scene(&pack)?;
     let terrain_s = best(&mut || {
         crate::lightmap::bake_terrain_lightmap(&scene, &light, &opts);
         Ok(())

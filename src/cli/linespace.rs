@@ -11,7 +11,6 @@ use crate::linespace::ntree::{NTree, NTreeOptions, Refine, build_ntree};
 use crate::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
 use crate::linespace::section;
 use crate::linespace::shaft::{ChildMasks, ShaftTable};
-use crate::model::Mesh;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -34,13 +33,7 @@ pub struct LinespaceArgs {
     pub flat_cells: bool,
 }
 
-/// World-space triangles of a mesh.
-pub fn world_triangles(m: &Mesh) -> Vec<[[f32; 3]; 3]> {
-    m.indices
-        .iter()
-        .map(|t| t.map(|i| m.positions[i as usize]))
-        .collect()
-}
+pub use crate::linespace::world_triangles;
 
 pub fn run(args: &LinespaceArgs, _g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();

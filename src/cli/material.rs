@@ -6,7 +6,7 @@ use super::{Global, Outcome};
 use crate::error::Result;
 use crate::material::{MaterialOptions, bake_materials};
 use crate::pack::Pack;
-use crate::texture::linear::Transfer;
+use crate::texture::linear::TransferFunction;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
@@ -17,8 +17,8 @@ pub struct MaterialArgs {
     #[arg(short, long)]
     pub output: Option<PathBuf>,
     /// Transfer curve of the colour maps' 8-bit values.
-    #[arg(long, value_enum, default_value_t = Transfer::Srgb)]
-    pub transfer: Transfer,
+    #[arg(long, value_enum, default_value_t = TransferFunction::Srgb)]
+    pub transfer: TransferFunction,
     /// Keep the thesis' plain mean alpha in mips (no coverage-preserving scale).
     #[arg(long)]
     pub no_coverage: bool,

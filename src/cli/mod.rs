@@ -20,6 +20,7 @@ pub mod sky;
 pub mod svo;
 pub mod terrain;
 pub mod validate;
+pub mod values;
 pub mod verify;
 
 use serde_json::Value;

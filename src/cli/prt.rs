@@ -2,13 +2,13 @@
 //! `bake bench rays`: raw obvhs traversal against PRT ray throughput (docs/PERFORMANCE.md).
 
 use super::{Global, Outcome};
+use crate::bench::rays::{RaysBenchOptions, bench_rays};
 use crate::error::{Error, Result};
 use crate::ingest::{IngestOptions, InputKind};
-use crate::light::bench::{RaysBenchOptions, bench_rays};
-use crate::light::prt::{self, PrtOptions};
-use crate::light::prt_pack::{mesh_textures, mesh_vertex_count, prt_pack};
 use crate::pack::Pack;
-use crate::rt::BuildPreset;
+use crate::prt::pack::{mesh_textures, mesh_vertex_count, prt_pack};
+use crate::prt::transfer::{self as prt, PrtOptions};
+use crate::trace::BuildPreset;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, clap::Args)]
@@ -77,12 +77,7 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
     let is_pack = InputKind::of(&args.input).is_none();
     let (pack, mut warnings) = open_or_ingest(&args.input)?;
     let total = mesh_vertex_count(&pack);
-    if total == 0
-        && pack
-            .of_kind(crate::pack::kinds::mesh::KIND)
-            .next()
-            .is_none()
-    {
+    if total == 0 && pack.of_kind(crate::mesh::section::KIND).next().is_none() {
         return Err(Error::invalid_at(
             &args.input,
             "section table",
@@ -144,7 +139,7 @@ pub struct RaysBenchArgs {
     #[arg(long)]
     pub all_presets: bool,
     /// Subdivision depth of the alpha-aware BVH build (0: one box per triangle).
-    #[arg(long, default_value_t = crate::rt::bvh::ALPHA_SPLIT_DEPTH)]
+    #[arg(long, default_value_t = crate::trace::bvh::ALPHA_SPLIT_DEPTH)]
     pub alpha_split: u32,
     /// Also bake every vertex with this many samples per side and report the time.
     #[arg(long)]
@@ -156,7 +151,7 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let (mesh, textures, source) = match &a.model {
         None => {
-            let (mesh, tex) = crate::light::plant::procedural_plant(a.triangles, 1);
+            let (mesh, tex) = crate::prt::plant::procedural_plant(a.triangles, 1);
             (
                 mesh,
                 vec![Some(tex)],
@@ -167,12 +162,12 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
             let (pack, w) = open_or_ingest(path)?;
             warnings.extend(w);
             let e = pack
-                .of_kind(crate::pack::kinds::mesh::KIND)
+                .of_kind(crate::mesh::section::KIND)
                 .next()
                 .cloned()
                 .ok_or_else(|| Error::invalid_at(path, "section table", "no mesh section"))?;
             let view = pack.view(&e)?;
-            let (meta, mesh) = crate::pack::kinds::mesh::from_section(&view)
+            let (meta, mesh) = crate::mesh::section::from_section(&view)
                 .map_err(|err| Error::invalid(path, err))?;
             let textures = mesh_textures(&pack, &e.name, &meta, &mut warnings);
             (mesh, textures, path.display().to_string())

@@ -224,7 +224,7 @@ mod tests {
         let path = dir.path().join("box.bake");
         let mesh = crate::voxel::tests::box_mesh([0.0, 0.0, 0.0], [2.0, 1.0, 1.0]);
         let mut w = PackWriter::new();
-        w.insert(crate::pack::kinds::mesh::to_section(
+        w.insert(crate::mesh::section::to_section(
             "mesh:box",
             "box",
             &mesh,

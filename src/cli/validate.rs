@@ -37,7 +37,7 @@ pub struct ValidateArgs {
 
 /// Traces the `svo` section: GPU buffers straight from the section's arrays.
 fn validate_svo_section(
-    gpu: &crate::render::gpu::Gpu,
+    gpu: &crate::gpu::Gpu,
     view: &crate::pack::section::SectionView,
     args: &ValidateArgs,
     path: &std::path::Path,
@@ -77,7 +77,7 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
             "no svo or linespace section to validate (run `bake svo` or `bake linespace`)",
         ));
     }
-    let gpu = crate::render::gpu::init_gpu(args.backend)?;
+    let gpu = crate::gpu::init_gpu(args.backend)?;
     let mut json = json!({ "pack": args.pack, "adapter": gpu.adapter });
     let mut text = format!("{}: on {}\n", args.pack.display(), gpu.adapter);
     let mut ok = true;

@@ -19,8 +19,8 @@
 //! Both maps are finally rotated into the instance's frame (rotation about +Z, seed 000 4.7.3).
 //! Unbiased for that light model; it converges to the brute-force answer as samples grow.
 
-use crate::rt::{Ray, SceneBvh};
 use crate::sh::{self, ShIrradiance, ShRadiance};
+use crate::trace::{Ray, SceneBvh};
 use glam::Vec3A;
 use rayon::prelude::*;
 
@@ -101,7 +101,7 @@ fn bake_one(
     let p = Vec3A::from(inst.translation) + Vec3A::Z * scene.probe_height[i];
     let n = opts.samples.max(1);
     let w = 4.0 * std::f64::consts::PI / n as f64;
-    let rot = random_rotation(crate::rt::mix64(
+    let rot = random_rotation(crate::trace::mix64(
         opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
     ));
     let mut ch = [[0.0f64; 3]; 16];
@@ -178,8 +178,8 @@ pub fn fibonacci_direction(k: u32, n: u32) -> Vec3A {
 
 /// A uniformly random rotation from a seed (Shoemake's quaternion method).
 fn random_rotation(seed: u64) -> glam::Mat3A {
-    let mut rng = crate::rt::Rng::new(seed);
-    let (u1, u2, u3) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
+    let mut rng = crate::trace::Rng::hashed(seed);
+    let (u1, u2, u3) = (rng.f32(), rng.f32(), rng.f32());
     let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
     let t = std::f32::consts::TAU;
     let q = glam::Quat::from_xyzw(

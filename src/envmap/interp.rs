@@ -391,7 +391,7 @@ impl<'a> Interpolator<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fixtures::Rng;
+    use crate::rng::Rng;
 
     #[test]
     fn solver_matches_a_known_system() {

@@ -213,7 +213,7 @@ pub fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fixtures::Rng;
+    use crate::rng::Rng;
 
     #[test]
     fn morton_order_is_a_permutation_following_the_z_curve() {

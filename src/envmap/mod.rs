@@ -170,7 +170,7 @@ pub fn envmap_sections(
     opts: &bake::EnvmapOptions,
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = crate::lightmap::scene_lighting(pack)?;
-    let scene = crate::tracescene::trace_scene(pack)?;
+    let scene = crate::trace::pack_scene::trace_scene(pack)?;
     let maps = instance_maps(&scene, &light, opts, 0..scene.instance_count);
     Ok(vec![envmaps_section(&maps, opts)])
 }
@@ -178,8 +178,8 @@ pub fn envmap_sections(
 /// The maps of the instances in `range` (a shard; every instance's maps depend on its index
 /// and the scene only, so shards concatenate to the maps of the whole range).
 pub fn instance_maps(
-    scene: &crate::tracescene::TraceScene,
-    light: &crate::lightmap::Lighting,
+    scene: &crate::trace::pack_scene::TraceScene,
+    light: &crate::lightmap::BakeLight,
     opts: &bake::EnvmapOptions,
     range: std::ops::Range<usize>,
 ) -> Vec<bake::InstanceMaps> {
@@ -229,8 +229,8 @@ pub fn cluster_sections(
     store_weights: bool,
 ) -> crate::error::Result<(Vec<crate::pack::Section>, Clustering)> {
     let bad = |e| crate::error::Error::invalid(pack.path(), e);
-    let (_, inst) =
-        crate::pack::kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
+    let (_, inst) = crate::ingest::instances_section::from_section(&pack.view_named("instances")?)
+        .map_err(bad)?;
     let (_, sky, sun) = section::envmaps_from_section(&pack.view_named("envmaps")?).map_err(bad)?;
     if sky.len() != inst.items.len() {
         return Err(crate::error::Error::invalid_at(
@@ -261,7 +261,7 @@ mod tests {
 
     #[test]
     fn stored_weights_reproduce_the_interpolator_and_the_clustering_errors() {
-        let mut rng = crate::fixtures::Rng::new(31);
+        let mut rng = crate::rng::Rng::new(31);
         let pos: Vec<[f32; 3]> = (0..1500)
             .map(|_| [rng.f32() * 200.0, rng.f32() * 200.0, rng.f32()])
             .collect();

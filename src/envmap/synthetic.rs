@@ -12,7 +12,7 @@
 //! what the smooth model lacks (occlusion by neighbouring plants).
 
 use super::section::{COEFFS, DIM};
-use crate::fixtures::Rng;
+use crate::rng::Rng;
 use rayon::prelude::*;
 
 /// Directions of the projection.
@@ -59,7 +59,7 @@ pub fn synthetic_envmaps(
         .par_chunks(DIM)
         .enumerate()
         .flat_map_iter(|(i, m)| {
-            let mut rng = Rng::new(crate::rt::mix64(
+            let mut rng = Rng::new(crate::trace::mix64(
                 seed ^ (i as u64).wrapping_mul(0x9E37_79B9),
             ));
             m.iter()

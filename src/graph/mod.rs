@@ -20,7 +20,7 @@ pub mod progress;
 
 use crate::error::{Error, Result};
 use crate::ingest::{self, IngestOptions};
-use crate::pack::kinds::{self, fit_name};
+use crate::pack::fit_name;
 use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder, StreamWriter, hex};
 use cache::{Cache, EntryMeta, FileDep, Key, KeyBuilder, Lookup, Warning};
 pub use preset::Pipeline;
@@ -403,7 +403,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     let mut mesh_sections = Vec::new();
     let mut triangles = 0u64;
     for (name, path) in &plan.models {
-        let mesh_name = fit_name(kinds::mesh_section_name(name));
+        let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
         mesh_sections.push(mesh_name.clone());
         let source = path.display().to_string();
         let model_hash = cache::hash_file(path)?;
@@ -436,7 +436,10 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         // The mesh and its textures are final now (only the material stage replaces them).
         let prt_inputs: Vec<(String, [u8; 32])> = sections
             .iter()
-            .filter(|s| s.kind == kinds::mesh::KIND || s.kind == kinds::texture::KIND)
+            .filter(|s| {
+                s.kind == crate::mesh::section::KIND
+                    || s.kind == crate::texture::source_section::KIND
+            })
             .map(|s| (s.name.clone(), *s.payload.hash()))
             .collect();
         let view = Pack::from_sections(&sections, &g.name);
@@ -458,13 +461,8 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             }
             let out = g.unit("prt", name, k.finish(), vertices, |progress| {
                 let mut warnings = Vec::new();
-                let (s, r) = crate::light::prt_pack::prt_mesh(
-                    &view,
-                    &mesh_name,
-                    &p.prt,
-                    progress,
-                    &mut warnings,
-                )?;
+                let (s, r) =
+                    crate::prt::pack::prt_mesh(&view, &mesh_name, &p.prt, progress, &mut warnings)?;
                 Ok(Output {
                     sections: vec![s],
                     report: report_of(&r),
@@ -476,7 +474,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         }
     }
     let instances = plan.scene.instances.items.len();
-    g.finish_sections(vec![kinds::instances::to_section(
+    g.finish_sections(vec![crate::ingest::instances_section::to_section(
         "instances",
         &plan.scene.instances,
         mesh_sections,
@@ -576,10 +574,10 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
     };
     let view = g.view();
     let trace = std::cell::OnceCell::new();
-    let traced = || -> Result<&(crate::tracescene::TraceScene, crate::lightmap::Lighting)> {
+    let traced = || -> Result<&(crate::trace::pack_scene::TraceScene, crate::lightmap::BakeLight)> {
         if trace.get().is_none() {
             let light = crate::lightmap::scene_lighting(&view)?;
-            let ts = crate::tracescene::trace_scene(&view)?;
+            let ts = crate::trace::pack_scene::trace_scene(&view)?;
             let _ = trace.set((ts, light));
         }
         Ok(trace.get().expect("set above"))
@@ -727,7 +725,7 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
                 k.input(n, h);
             }
             let out = g.unit("linespace", "scene", k.finish(), None, |_| {
-                let tris = crate::cli::linespace::world_triangles(&geo()?.mesh);
+                let tris = crate::linespace::world_triangles(&geo()?.mesh);
                 let shafts =
                     std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(p.linespace.n));
                 let tree = crate::linespace::ntree::build_ntree(&tris, &p.linespace, &shafts)?;

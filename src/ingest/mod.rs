@@ -6,6 +6,7 @@
 pub mod confine;
 pub mod eco;
 pub mod gltf;
+pub mod instances_section;
 pub mod limits;
 pub mod max3ds;
 pub mod obj;

@@ -184,7 +184,7 @@ fn grow_charts(mesh: &Mesh, opts: &AtlasOptions) -> Vec<Chart2d> {
         } else {
             Vec3A::Z
         };
-        let (tx, bx) = crate::rt::frame(n0);
+        let (tx, bx) = crate::trace::frame(n0);
         let project = |t: usize| {
             mesh.indices[t].map(|i| {
                 let p = Vec3A::from(mesh.positions[i as usize]);

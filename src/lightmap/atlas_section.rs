@@ -15,7 +15,8 @@ use crate::pack::{ArrayFormat, Section, SectionBuilder};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
-pub const KIND: &str = super::section::KIND;
+/// The terrain map's kind (`section::KIND`): readers tell the two apart by [`is_atlas`].
+pub const KIND: &str = "lightmap";
 
 /// Whether a `lightmap` section is an object atlas (it has the atlas' vertex list).
 pub fn is_atlas(v: &SectionView) -> bool {

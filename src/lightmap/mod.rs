@@ -23,18 +23,16 @@ pub mod atlas_section;
 pub mod objects;
 pub mod section;
 
-use crate::rt::{Ray, SceneBvh};
 use crate::sh::{ShIrradiance, ShRadiance};
-use crate::tracescene::TraceScene;
+use crate::trace::pack_scene::TraceScene;
+use crate::trace::{Ray, SceneBvh};
 use glam::Vec3A;
 use rayon::prelude::*;
 
 /// The sun's angular radius in radians (seed 000, eq. 3.1).
 pub const SUN_RADIUS: f32 = 0.004_65;
 
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum LightmapMode {
     Physical,
     Thesis,
@@ -76,7 +74,7 @@ impl Default for LightmapOptions {
 
 /// The light that reaches the scene.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Lighting {
+pub struct BakeLight {
     /// Sun-free sky radiance.
     pub sky: ShRadiance,
     /// Unit direction to the sun and its irradiance (RGB), if any.
@@ -94,7 +92,7 @@ pub struct Lightmap {
 /// Bakes the terrain light map of a scene.
 pub fn bake_terrain_lightmap(
     scene: &TraceScene,
-    light: &Lighting,
+    light: &BakeLight,
     opts: &LightmapOptions,
 ) -> Option<Lightmap> {
     bake_terrain_lightmap_parts(scene, light, opts).map(|(m, _)| m)
@@ -104,7 +102,7 @@ pub fn bake_terrain_lightmap(
 /// [`terrain_direct_sun`]'s, from the same pass).
 pub fn bake_terrain_lightmap_parts(
     scene: &TraceScene,
-    light: &Lighting,
+    light: &BakeLight,
     opts: &LightmapOptions,
 ) -> Option<(Lightmap, Vec<[f32; 3]>)> {
     let t = scene.terrain.as_ref()?;
@@ -160,7 +158,7 @@ pub fn height_normal(t: &crate::model::Terrain, x: f32, y: f32) -> [f32; 3] {
 pub fn texel_irradiance(
     bvh: &SceneBvh,
     albedo: &[[f32; 3]],
-    light: &Lighting,
+    light: &BakeLight,
     sky_irr: &ShIrradiance,
     p: Vec3A,
     n: Vec3A,
@@ -176,7 +174,7 @@ pub fn texel_irradiance(
 pub fn texel_irradiance_parts(
     bvh: &SceneBvh,
     albedo: &[[f32; 3]],
-    light: &Lighting,
+    light: &BakeLight,
     sky_irr: &ShIrradiance,
     p: Vec3A,
     n: Vec3A,
@@ -203,7 +201,7 @@ pub fn texel_irradiance_parts(
         }
     }
     let nsamp = opts.samples.max(1);
-    let (tx, bx) = crate::rt::frame(n);
+    let (tx, bx) = crate::trace::frame(n);
     let shift = if thesis {
         (0.0, 0.0)
     } else {
@@ -235,9 +233,9 @@ pub fn texel_irradiance_parts(
 fn bounce_radiance(
     bvh: &SceneBvh,
     albedo: &[[f32; 3]],
-    light: &Lighting,
+    light: &BakeLight,
     sky_irr: &ShIrradiance,
-    hit: &crate::rt::SceneHit,
+    hit: &crate::trace::SceneHit,
     d: Vec3A,
 ) -> [f32; 3] {
     let surf = bvh.surface(hit);
@@ -265,7 +263,7 @@ fn bounce_radiance(
 /// Fraction of the sun's disc visible from p: stratified points on the disc, one shadow ray each.
 pub fn sun_visibility(bvh: &SceneBvh, p: Vec3A, s: Vec3A, samples: u32, texel: u64) -> f32 {
     let n = samples.max(1);
-    let (tx, bx) = crate::rt::frame(s);
+    let (tx, bx) = crate::trace::frame(s);
     let shift = cp_rotation(texel ^ 0x5u64 << 60);
     let mut visible = 0;
     for k in 0..n {
@@ -292,7 +290,7 @@ pub fn hammersley(k: u32, n: u32) -> (f32, f32) {
 
 /// A per-texel Cranley–Patterson shift, from a hash of the texel index.
 fn cp_rotation(texel: u64) -> (f32, f32) {
-    let h = crate::rt::mix64(texel.wrapping_add(0x1234_5678));
+    let h = crate::trace::mix64(texel.wrapping_add(0x1234_5678));
     (
         (h >> 40) as f32 / (1u64 << 24) as f32,
         ((h >> 16) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32,
@@ -300,7 +298,7 @@ fn cp_rotation(texel: u64) -> (f32, f32) {
 }
 
 /// The scene's light from its `sh` (sun-free sky) and `sun` sections.
-pub fn scene_lighting(pack: &crate::pack::Pack) -> crate::error::Result<Lighting> {
+pub fn scene_lighting(pack: &crate::pack::Pack) -> crate::error::Result<BakeLight> {
     let bad = |e| crate::error::Error::invalid(pack.path(), e);
     let (_, sky, _) =
         crate::sky::section::sh_from_section(&pack.view_named(crate::sky::SH_SECTION)?)
@@ -312,7 +310,7 @@ pub fn scene_lighting(pack: &crate::pack::Pack) -> crate::error::Result<Lighting
         }
         None => None,
     };
-    Ok(Lighting { sky, sun })
+    Ok(BakeLight { sky, sun })
 }
 
 /// The light-map stage on a pack: a `lightmap` section for the terrain.
@@ -321,14 +319,14 @@ pub fn lightmap_sections(
     opts: &LightmapOptions,
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = scene_lighting(pack)?;
-    let scene = crate::tracescene::trace_scene(pack)?;
+    let scene = crate::trace::pack_scene::trace_scene(pack)?;
     Ok(terrain_sections(&scene, &light, opts))
 }
 
 /// [`lightmap_sections`] with the scene and its light at hand (empty without a terrain).
 pub fn terrain_sections(
     scene: &TraceScene,
-    light: &Lighting,
+    light: &BakeLight,
     opts: &LightmapOptions,
 ) -> Vec<crate::pack::Section> {
     let Some((map, direct)) = bake_terrain_lightmap_parts(scene, light, opts) else {
@@ -362,7 +360,7 @@ pub fn terrain_sections(
 /// The renderer's ambient term is the light map without it (the direct term draws the sun).
 pub fn terrain_direct_sun(
     scene: &TraceScene,
-    light: &Lighting,
+    light: &BakeLight,
     meta: &section::LightmapMeta,
 ) -> Vec<[f32; 3]> {
     let (w, h) = (meta.width, meta.height);
@@ -400,7 +398,7 @@ pub fn atlas_sections(
     opts: &LightmapOptions,
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = scene_lighting(pack)?;
-    let scene = crate::tracescene::trace_scene(pack)?;
+    let scene = crate::trace::pack_scene::trace_scene(pack)?;
     object_sections(pack, &scene, &light, opts)
 }
 
@@ -408,18 +406,18 @@ pub fn atlas_sections(
 pub fn object_sections(
     pack: &crate::pack::Pack,
     scene: &TraceScene,
-    light: &Lighting,
+    light: &BakeLight,
     opts: &LightmapOptions,
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
-    use crate::pack::kinds;
     let bad = |e| crate::error::Error::invalid(pack.path(), e);
-    let (imeta, _) = kinds::instances::from_section(&pack.view_named("instances")?).map_err(bad)?;
+    let (imeta, _) = crate::ingest::instances_section::from_section(&pack.view_named("instances")?)
+        .map_err(bad)?;
     let models: Vec<u32> = scene.instances.items.iter().map(|i| i.model).collect();
     let placed = objects::placed_models(&models, imeta.mesh_sections.len(), opts.max_instances);
     let mut out = Vec::new();
     for (m, instances) in placed {
         let name = &imeta.mesh_sections[m as usize];
-        let (_, mesh) = kinds::mesh::from_section(&pack.view_named(name)?).map_err(bad)?;
+        let (_, mesh) = crate::mesh::section::from_section(&pack.view_named(name)?).map_err(bad)?;
         if mesh.indices.is_empty() {
             continue;
         }
@@ -428,7 +426,7 @@ pub fn object_sections(
             instances: &instances,
         };
         // Seeds above the terrain's texel indices (< 2³²), one stream family per model.
-        let seed = crate::rt::mix64((m as u64 + 1) << 40);
+        let seed = crate::trace::mix64((m as u64 + 1) << 40);
         let map = objects::bake_object_lightmap(&scene.bvh, &scene.albedo, light, p, seed, opts)
             .map_err(|e| crate::error::Error::runtime(format!("light map of {name}: {e}")))?;
         let meta = atlas_section::AtlasMeta {

@@ -12,9 +12,9 @@
 //! [`AtlasLayout::uv_per_mesh_vertex`] is the second UV set of the mesh section as it is.
 
 use super::atlas::{AtlasLayout, build_atlas, dilate, rasterize};
-use super::{Lighting, LightmapOptions, texel_irradiance};
+use super::{BakeLight, LightmapOptions, texel_irradiance};
 use crate::model::Mesh;
-use crate::rt::SceneBvh;
+use crate::trace::SceneBvh;
 use glam::Vec3A;
 use rayon::prelude::*;
 
@@ -108,7 +108,7 @@ fn tile_rect(s: usize, columns: u32, tile: u32, width: u32, height: u32) -> [f32
 pub fn bake_object_lightmap(
     bvh: &SceneBvh,
     albedo: &[[f32; 3]],
-    light: &Lighting,
+    light: &BakeLight,
     placed: PlacedMesh,
     seed: u64,
     opts: &LightmapOptions,
@@ -123,7 +123,7 @@ pub fn bake_object_lightmap(
 pub fn bake_with_layout(
     bvh: &SceneBvh,
     albedo: &[[f32; 3]],
-    light: &Lighting,
+    light: &BakeLight,
     placed: PlacedMesh,
     layout: AtlasLayout,
     seed: u64,
@@ -142,7 +142,7 @@ pub fn bake_with_layout(
     let (mut covered, mut gutter_texels) = (0, 0);
     for (s, &inst) in placed.instances.iter().enumerate() {
         let tr = bvh.instances()[inst as usize];
-        let slot_seed = crate::rt::mix64(seed ^ ((s as u64) << 32));
+        let slot_seed = crate::trace::mix64(seed ^ ((s as u64) << 32));
         let (mut tex, mut ind): (Vec<[f32; 3]>, Vec<[f32; 3]>) = g
             .par_iter()
             .enumerate()
@@ -151,7 +151,7 @@ pub fn bake_with_layout(
                 Some(t) => {
                     let p = tr.point_to_world(t.position);
                     let nrm = tr.normal_to_world(t.normal).normalize_or(Vec3A::Z);
-                    let texel = crate::rt::mix64(slot_seed ^ k as u64);
+                    let texel = crate::trace::mix64(slot_seed ^ k as u64);
                     let e = texel_irradiance(bvh, albedo, light, &sky_irr, p, nrm, texel, opts);
                     let d = texel_direct_sun(bvh, light, p, nrm, texel, opts);
                     (e, [0, 1, 2].map(|c| (e[c] - d[c]).max(0.0)))
@@ -194,7 +194,7 @@ pub fn bake_with_layout(
 /// (so the same disc samples): `E_sun · max(0, n·s) · V`, V = 1 in thesis mode.
 pub fn texel_direct_sun(
     bvh: &SceneBvh,
-    light: &Lighting,
+    light: &BakeLight,
     p: Vec3A,
     n: Vec3A,
     texel: u64,

@@ -10,7 +10,7 @@
 
 use super::ntree::NTree;
 use super::query::{AreaLight, ExactShadow, QueryStats, Segment};
-use crate::fixtures::Rng;
+use crate::rng::Rng;
 use rayon::prelude::*;
 
 /// `per_side²` stratified points of the light: one uniformly jittered point per cell of a

@@ -66,7 +66,7 @@ impl DenseNTree {
 
     /// The line space of group `g`.
     pub fn linespace(&self, g: u32) -> &[u32] {
-        let w = super::linespace::Layout::new(self.n).words();
+        let w = super::layout::Layout::new(self.n).words();
         &self.linespaces[g as usize * w..(g as usize + 1) * w]
     }
 

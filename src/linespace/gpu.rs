@@ -9,8 +9,8 @@
 use super::ntree::NTree;
 use super::query::{AreaLight, QueryStats, Segment};
 use crate::error::{Error, Result};
-use crate::fixtures::Rng;
-use crate::render::gpu::Gpu;
+use crate::gpu::Gpu;
+use crate::rng::Rng;
 use crate::voxel::compute::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 
@@ -433,10 +433,10 @@ pub fn validate_linespace(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gpu::{BackendChoice, init_gpu};
     use crate::linespace::dense::build_dense;
     use crate::linespace::ntree::{NTreeOptions, Refine, build_ntree};
     use crate::linespace::shaft::{ChildMasks, ShaftTable};
-    use crate::render::{BackendChoice, gpu::init_gpu};
     use std::sync::Arc;
 
     /// Small random triangles in [0, 10]³ over a ground quad at z = −0.5.

@@ -1,17 +1,24 @@
 //! The N-tree with a line space per inner node (seed 002): [`ntree`] builds the tree and its
-//! GPU pools, [`shaft`] the exact shaft/box test and the per-child shaft masks, [`linespace`]
-//! the bit layout, [`query`] soft-shadow queries, [`section`] the `linespace` pack section,
+//! GPU pools, [`shaft`] the exact shaft/box test and the per-child shaft masks, [`layout`]
+//! the line-space bit layout, [`query`] soft-shadow queries, [`section`] the `linespace` pack section,
 //! [`accuracy`] line-space against exact area-light visibility, [`dense`] the thesis' dense
 //! pools as a reference.
 pub mod accuracy;
 pub mod dense;
 pub mod gpu;
-#[allow(clippy::module_inception)]
-pub mod linespace;
+pub mod layout;
 pub mod ntree;
 pub mod query;
 pub mod section;
 pub mod shaft;
+
+/// World-space triangles of a mesh.
+pub fn world_triangles(m: &crate::model::Mesh) -> Vec<[[f32; 3]; 3]> {
+    m.indices
+        .iter()
+        .map(|t| t.map(|i| m.positions[i as usize]))
+        .collect()
+}
 
 #[cfg(test)]
 mod tests;

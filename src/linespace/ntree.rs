@@ -23,7 +23,7 @@
 //! and 4 B of `first_child`, where the dense layout spent 8,000 B of node entries and 18,752 B of
 //! line space.
 //!
-use super::linespace::Layout;
+use super::layout::Layout;
 use super::shaft::{ShaftTable, reverse_slots};
 use crate::error::{Error, Result};
 use crate::voxel::Grid;
@@ -100,7 +100,7 @@ pub struct NTree {
 
 /// What a query does in a deepest-level node (its children are leaves) whose line space says
 /// the segment's shaft is full. Each choice is one-sided: never lit where a triangle blocks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 pub enum Refine {
     /// The thesis: a full shaft is a hit (cheapest; over-occludes by up to a shaft's width).
     Shaft,
@@ -369,7 +369,7 @@ impl NTree {
             }
             Some(pool) => {
                 let w = self.layout().words();
-                super::linespace::get(&pool[g as usize * w..(g as usize + 1) * w], bit)
+                super::layout::get(&pool[g as usize * w..(g as usize + 1) * w], bit)
             }
         }
     }

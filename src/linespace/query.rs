@@ -16,7 +16,7 @@
 //! (Algorithm 1 skips on true), and bits are read with a right shift.
 
 use super::ntree::{NTree, Refine};
-use crate::voxel::traverse::{Dda, Ray, box_interval};
+use crate::voxel::traverse::{Dda, VoxelRay, box_interval};
 use obvhs::ray::Ray as BvhRay;
 use obvhs::triangle::Triangle;
 
@@ -91,8 +91,8 @@ pub fn to_bvh_triangle(t: &[[f32; 3]; 3]) -> Triangle {
 
 impl NTree {
     /// The segment in leaf-cell units.
-    pub(super) fn grid_ray(&self, s: &Segment) -> Ray {
-        Ray {
+    pub(super) fn grid_ray(&self, s: &Segment) -> VoxelRay {
+        VoxelRay {
             origin: [0, 1, 2].map(|k| (s.from[k] - self.origin[k]) / self.leaf_size[k]),
             dir: [0, 1, 2].map(|k| s.dir[k] / self.leaf_size[k]),
             t_min: s.t_min,
@@ -164,7 +164,7 @@ impl NTree {
     }
 
     /// Where a grid-space segment lies in the root box; None when it misses it.
-    pub(super) fn root_span(&self, r: &Ray) -> Option<Span> {
+    pub(super) fn root_span(&self, r: &VoxelRay) -> Option<Span> {
         let side = self.n.pow(self.depth) as f32;
         let (te, tx) = box_interval(r, [0.0; 3], [side; 3]);
         let (t0, t1) = (te.max(r.t_min), tx.min(r.t_max));
@@ -200,7 +200,7 @@ impl NTree {
     fn occluded_in(
         &self,
         s: &Segment,
-        r: &Ray,
+        r: &VoxelRay,
         at: At,
         span: Span,
         stats: &mut QueryStats,
@@ -275,7 +275,7 @@ impl NTree {
     /// near patch borders) is full; None where no line space applies (same face, node edges).
     pub(super) fn shaft_full(
         &self,
-        r: &Ray,
+        r: &VoxelRay,
         group: u32,
         base: [f32; 3],
         side: f32,
@@ -307,7 +307,7 @@ impl NTree {
     pub(super) fn exact_occluded(
         &self,
         s: &Segment,
-        r: &Ray,
+        r: &VoxelRay,
         group: u32,
         base: [f32; 3],
         side: f32,
@@ -343,7 +343,7 @@ impl NTree {
     /// holds geometry (a DDA over the node's leaves, occupancy bits only).
     pub(super) fn cells_crossed(
         &self,
-        r: &Ray,
+        r: &VoxelRay,
         group: u32,
         base: [f32; 3],
         side: f32,
@@ -366,7 +366,7 @@ impl NTree {
 }
 
 /// Whether the point at `t` lies within `side` (grid units) of the segment's start.
-fn near_start(r: &Ray, t: f32, side: f32) -> bool {
+fn near_start(r: &VoxelRay, t: f32, side: f32) -> bool {
     let len = (r.dir[0] * r.dir[0] + r.dir[1] * r.dir[1] + r.dir[2] * r.dir[2]).sqrt();
     (t - r.t_min) * len < side
 }
@@ -398,7 +398,7 @@ const PATCH_MARGIN: f32 = 1e-3;
 /// may belong to two faces.
 #[allow(clippy::needless_range_loop)]
 fn face_patches(
-    r: &Ray,
+    r: &VoxelRay,
     base: [f32; 3],
     cell: f32,
     n: u32,

@@ -64,7 +64,7 @@ pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseErro
     if !(2..=12).contains(&meta.n) {
         return Err(bad(format!("bad n {}", meta.n)));
     }
-    let layout = super::linespace::Layout::new(meta.n);
+    let layout = super::layout::Layout::new(meta.n);
     let words = ((meta.n * meta.n * meta.n) as usize).div_ceil(64);
     let cells: Vec<u64> = v.array_vec("shaft_cells")?;
     let need = ShaftTable::rows(layout) * words as u64;

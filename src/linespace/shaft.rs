@@ -14,7 +14,7 @@
 //! [`shaft_meets_cell_sat`] is the brute-force oracle: separating axes over all edge-direction
 //! cross products, in integers.
 
-use super::linespace::{FACES, Layout, face_axis, face_side, set};
+use super::layout::{FACES, Layout, face_axis, face_side, set};
 use rayon::prelude::*;
 
 /// A patch as a degenerate box: integer bounds per axis in node-local units.
@@ -290,7 +290,7 @@ const fn pair_rows() -> [(u32, bool); 15] {
     while fa < FACES {
         let mut fb = fa + 1;
         while fb < FACES {
-            let p = super::linespace::pair_index(fa, fb);
+            let p = super::layout::pair_index(fa, fb);
             out[p] = if stored_pair(fa, fb) {
                 (stored[fa][fb], false)
             } else {

@@ -2,7 +2,7 @@
 //! with the separating-axis shaft test, random segments between patches, exact shadow rays.
 
 use super::dense::{DenseNTree, build_dense};
-use super::linespace::{FACES, Layout, get};
+use super::layout::{FACES, Layout, get};
 use super::ntree::{NTree, NTreeOptions, Refine, build_ntree};
 use super::query::{AreaLight, ExactShadow, QueryStats, Segment};
 use super::shaft::{ChildMasks, ShaftCells, ShaftTable, patch_box, shaft_meets_cell_sat};

@@ -57,8 +57,7 @@ pub const LEAF_DEFAULT: SchlickMaterial = SchlickMaterial {
     opacity: 1.0,
 };
 
-/// The bump amplitude used wherever a normal map exists (seed 000: ±1 mm).
-pub const BUMP_HEIGHT_M: f32 = 0.001;
+pub use crate::texture::BUMP_HEIGHT_M;
 
 /// Whether `m` is OpenGL's default material (ambient and alpha ignored).
 pub fn is_default_opengl(m: &Material) -> bool {

@@ -12,9 +12,9 @@ pub mod schlick;
 pub mod section;
 
 use crate::error::{Error, ParseError, Result};
+use crate::mesh::section::MeshMeta;
 use crate::mesh::tangents;
 use crate::model::Mesh;
-use crate::pack::kinds::{self, mesh::MeshMeta};
 use crate::pack::{Pack, Section};
 use crate::texture::{TextureOptions, TextureRole, process_texture};
 use rayon::prelude::*;
@@ -24,7 +24,7 @@ use schlick::{NormalMap, SchlickMaterial};
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MaterialOptions {
-    pub transfer: crate::texture::linear::Transfer,
+    pub transfer: crate::texture::linear::TransferFunction,
     /// Scale mip alpha to keep the alpha-tested area (Castaño); off = the thesis' plain mean.
     pub preserve_coverage: bool,
 }
@@ -32,7 +32,7 @@ pub struct MaterialOptions {
 impl MaterialOptions {
     /// The defaults, as a constant (the pipeline presets are built from it).
     pub const DEFAULT: MaterialOptions = MaterialOptions {
-        transfer: crate::texture::linear::Transfer::Srgb,
+        transfer: crate::texture::linear::TransferFunction::Srgb,
         preserve_coverage: true,
     };
 }
@@ -70,10 +70,10 @@ pub fn bake_materials(
 ) -> Result<(Vec<Section>, MaterialReport)> {
     let mut out = Vec::new();
     let mut report = MaterialReport::default();
-    for e in pack.of_kind(kinds::mesh::KIND) {
+    for e in pack.of_kind(crate::mesh::section::KIND) {
         let view = pack.view(e)?;
         let (meta, mesh) =
-            kinds::mesh::from_section(&view).map_err(|m| in_section(pack, &e.name, m))?;
+            crate::mesh::section::from_section(&view).map_err(|m| in_section(pack, &e.name, m))?;
         let model = e.name.strip_prefix("mesh:").unwrap_or(&e.name).to_string();
         bake_mesh(
             pack,
@@ -141,7 +141,7 @@ fn bake_mesh(
         let sections: Vec<Option<String>> =
             meta.textures.iter().map(|t| t.section.clone()).collect();
         let source = meta.source.clone();
-        out.push(kinds::mesh::to_section(
+        out.push(crate::mesh::section::to_section(
             mesh_section,
             &source,
             &frames.mesh,
@@ -253,13 +253,13 @@ fn process_job(
     opts: &MaterialOptions,
 ) -> Result<Option<(Section, u64)>> {
     let view = pack.view_named(&j.section)?;
-    let meta: kinds::texture::TextureMeta =
+    let meta: crate::texture::source_section::TextureMeta =
         view.meta().map_err(|m| in_section(pack, &j.section, m))?;
     if crate::texture::section::is_processed(&meta.format) {
         return Ok(None);
     }
-    let (meta, img) =
-        kinds::texture::from_section(&view).map_err(|m| in_section(pack, &j.section, m))?;
+    let (meta, img) = crate::texture::source_section::from_section(&view)
+        .map_err(|m| in_section(pack, &j.section, m))?;
     let mut topts = TextureOptions::for_size(img.width, img.height);
     topts.transfer = opts.transfer;
     topts.mips.preserve_coverage = opts.preserve_coverage;
@@ -286,7 +286,7 @@ mod tests {
         let leaf = crate::texture::mips::tests::leaf(64);
         let pixels = crate::texture::linear::encode_rgba8(
             &leaf.texels,
-            crate::texture::linear::Transfer::Srgb,
+            crate::texture::linear::TransferFunction::Srgb,
         );
         let img = crate::model::Rgba8Image {
             width: 64,
@@ -327,9 +327,11 @@ mod tests {
             ..Default::default()
         };
         let mut w = PackWriter::new();
-        let tex = kinds::texture_section_name("plant.txf", "leaf.png");
-        w.insert(kinds::texture::to_section(&tex, "leaf.png", &img));
-        w.insert(kinds::mesh::to_section(
+        let tex = crate::texture::source_section::texture_section_name("plant.txf", "leaf.png");
+        w.insert(crate::texture::source_section::to_section(
+            &tex, "leaf.png", &img,
+        ));
+        w.insert(crate::mesh::section::to_section(
             "mesh:plant.txf",
             "plant.txf",
             &mesh,

@@ -16,7 +16,7 @@ pub const KIND: &str = "material";
 
 /// Section name of material `index` of `model`.
 pub fn material_section_name(model: &str, index: usize) -> String {
-    crate::pack::kinds::fit_name(format!("material:{model}/{index}"))
+    crate::pack::fit_name(format!("material:{model}/{index}"))
 }
 
 /// Metadata of a material section.

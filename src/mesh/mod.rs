@@ -1,3 +1,5 @@
-//! Mesh processing stages that work on [`crate::model::Mesh`]: tangent frames.
+//! A model's mesh: its pack section (kind `mesh`, [`section`]) and the tangent frames of
+//! [`crate::model::Mesh`] ([`tangents`]).
 
+pub mod section;
 pub mod tangents;

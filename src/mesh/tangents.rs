@@ -160,7 +160,7 @@ pub struct TangentsMeta {
 
 /// Section name of a model's tangents.
 pub fn tangents_section_name(model: &str) -> String {
-    crate::pack::kinds::fit_name(format!("tangents:{model}"))
+    crate::pack::fit_name(format!("tangents:{model}"))
 }
 
 pub fn to_section(name: &str, mesh_section: &str, f: &TangentFrames) -> Section {

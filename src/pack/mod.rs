@@ -15,7 +15,6 @@ use serde::{Serialize, de::DeserializeOwned};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-pub mod kinds;
 pub mod section;
 pub use section::{ArrayFormat, SectionBuilder};
 
@@ -850,6 +849,19 @@ pub fn encode_meta<T: Serialize>(meta: &T) -> Vec<u8> {
 pub fn decode_meta<T: DeserializeOwned>(bytes: &[u8], at: usize) -> Result<T, ParseError> {
     postcard::from_bytes(bytes)
         .map_err(|e| ParseError::at_byte(at, format!("section metadata does not decode: {e}")))
+}
+
+/// Truncates a section name to what the table holds, keeping it unique with a hash suffix.
+pub fn fit_name(name: String) -> String {
+    if name.len() <= NAME_LEN {
+        return name;
+    }
+    let hash = blake3::hash(name.as_bytes()).to_hex();
+    let mut cut = NAME_LEN - 9;
+    while !name.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    format!("{}~{}", &name[..cut], &hash[..8])
 }
 
 #[cfg(test)]

@@ -4,10 +4,10 @@
 //! (the translucence and folded albedo differ per material); the big arrays are shared.
 
 use super::ambient::{AmbientScene, LightTexture, MeshAmbientMode, PrtLayout};
-use super::gpu::Gpu;
 use super::pipelines::Pipelines;
 use super::scene::SceneData;
 use crate::error::{Error, Result};
+use crate::gpu::Gpu;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
@@ -28,46 +28,6 @@ pub struct AmbientGpu {
     /// Per model, one bind group per material.
     pub models: Vec<Vec<wgpu::BindGroup>>,
     pub bytes: u64,
-}
-
-/// Layout entries of group 3 (see ambient.wgsl).
-pub fn layout_entries() -> [wgpu::BindGroupLayoutEntry; 5] {
-    use wgpu::ShaderStages as S;
-    let storage = |binding| wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: S::VERTEX,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only: true },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    };
-    [
-        wgpu::BindGroupLayoutEntry {
-            binding: 0,
-            visibility: S::VERTEX | S::FRAGMENT,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        },
-        wgpu::BindGroupLayoutEntry {
-            binding: 1,
-            visibility: S::FRAGMENT,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                view_dimension: wgpu::TextureViewDimension::D2,
-                multisampled: false,
-            },
-            count: None,
-        },
-        storage(2),
-        storage(3),
-        storage(4),
-    ]
 }
 
 struct Up<'g> {

@@ -3,12 +3,12 @@
 //! tone-map pass into the sRGB output, and the readback.
 
 use super::camera::Camera;
-use super::gpu::Gpu;
 use super::light::Lighting;
 use super::pipelines::{DEPTH_FORMAT, HDR_FORMAT, OUTPUT_FORMAT, Pipelines, SHADOW_FORMAT};
 use super::shadow::{SHADOW_MAP_SIZE, ShadowParams};
 use super::upload::GpuScene;
 use crate::error::Result;
+use crate::gpu::Gpu;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 

@@ -170,7 +170,7 @@ pub fn split_sun(texels: &[[f32; 4]], width: u32, height: u32) -> Option<SkySun>
                 let excess = [t[0] - r[0], t[1] - r[1], t[2] - r[2]];
                 (0..3).for_each(|c| irr[c] += excess[c].max(0.0) as f64 * w);
                 let d = latlong_direction(i as u32, j, width, height).as_dvec3();
-                centroid += d * (luminance(&excess).max(0.0) as f64 * w);
+                centroid += d * (luminance(excess).max(0.0) as f64 * w);
             }
         }
     }
@@ -182,10 +182,7 @@ pub fn split_sun(texels: &[[f32; 4]], width: u32, height: u32) -> Option<SkySun>
     })
 }
 
-/// Rec. 709 luminance.
-pub fn luminance(c: &[f32]) -> f32 {
-    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
-}
+use crate::color::luminance;
 
 /// The default light. A pack's sky: the sun split from it ([`split_sun`]) and the sun-free sky
 /// as ambient; no sun found (overcast) means ambient only. The analytic sky (`analytic`): its
@@ -195,7 +192,7 @@ pub fn default_lighting(texels: &[[f32; 4]], width: u32, height: u32, analytic: 
     let default_dir = direction_from_angles(DEFAULT_SUN_AZIMUTH_DEG, DEFAULT_SUN_ELEVATION_DEG);
     if analytic {
         let ambient = sky_irradiance(texels, width, height);
-        let e = luminance(&ambient) * SUN_TO_SKY_RATIO;
+        let e = luminance(ambient) * SUN_TO_SKY_RATIO;
         return Lighting {
             sun_direction: default_dir.to_array(),
             sun_irradiance: [e; 3],
@@ -219,7 +216,7 @@ pub fn default_lighting(texels: &[[f32; 4]], width: u32, height: u32, analytic: 
 /// Exposure that maps an 18 % grey card facing the sun to 0.5 before gamma:
 /// `1 − exp(−L·s) = 0.5` with `L = 0.18 (E_sun + E_sky)/π`.
 pub fn auto_exposure(light: &Lighting) -> f32 {
-    let e = luminance(&light.sun_irradiance) + luminance(&light.ambient);
+    let e = luminance(light.sun_irradiance) + luminance(light.ambient);
     let l = 0.18 * e / PI;
     if l > 0.0 && l.is_finite() {
         std::f32::consts::LN_2 / l

@@ -8,24 +8,23 @@
 //! (1 − exp(−L·s), then sRGB) into the output. [`light`] and [`camera`] hold the conventions.
 
 pub mod ambient;
-pub mod ambient_bench;
 pub mod ambient_gpu;
 pub mod camera;
 pub mod draw;
-pub mod gpu;
 pub mod light;
 pub mod pipelines;
 pub mod reference;
+pub mod sample;
 pub mod scene;
 pub mod shadow;
 pub mod soft_shadow;
 pub mod upload;
 
 use crate::error::{Error, Result};
+pub use crate::gpu::{AdapterSummary, BackendChoice};
 use crate::model::Rgba8Image;
 use crate::pack::Pack;
 use glam::Vec3;
-pub use gpu::{AdapterSummary, BackendChoice};
 pub use light::Lighting;
 
 /// Options of [`render_pack`].
@@ -53,7 +52,7 @@ pub struct RenderOptions {
 }
 
 /// Which terms of `L = L_direct + L_ambient` a render draws (the sky background is always drawn).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Terms {
     #[default]
@@ -191,7 +190,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     } = resolve_view(pack, &scene, opts);
 
     let t0 = std::time::Instant::now();
-    let gpu = gpu::init_gpu(opts.backend)?;
+    let gpu = crate::gpu::init_gpu(opts.backend)?;
     let pipes = pipelines::Pipelines::new(&gpu.device);
     gpu.check()?;
     let t1 = std::time::Instant::now();

@@ -4,7 +4,7 @@
 //! scene passes. Replacing the shading (PRT, Schlick, shadow maps) means a new pipeline here and
 //! a new shader, nothing else.
 
-use crate::pack::kinds::instances::InstanceRecord;
+use crate::ingest::instances_section::InstanceRecord;
 
 /// Format of the HDR scene target.
 pub const HDR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
@@ -246,11 +246,61 @@ fn shadow_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     )
 }
 
-impl Pipelines {
-    pub fn new(device: &wgpu::Device) -> Pipelines {
+/// Layout entries of group 3, the ambient term (see ambient.wgsl, [`super::ambient_gpu`]).
+pub fn ambient_layout_entries() -> [wgpu::BindGroupLayoutEntry; 5] {
+    use wgpu::ShaderStages as S;
+    let storage = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: S::VERTEX,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: true },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    };
+    [
+        wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: S::VERTEX | S::FRAGMENT,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        },
+        wgpu::BindGroupLayoutEntry {
+            binding: 1,
+            visibility: S::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        },
+        storage(2),
+        storage(3),
+        storage(4),
+    ]
+}
+
+/// Phase 1 of [`Pipelines::new`]: the bind-group layouts.
+struct Layouts {
+    globals: wgpu::BindGroupLayout,
+    terrain: wgpu::BindGroupLayout,
+    material: wgpu::BindGroupLayout,
+    tonemap: wgpu::BindGroupLayout,
+    shadow: wgpu::BindGroupLayout,
+    ambient: wgpu::BindGroupLayout,
+}
+
+impl Layouts {
+    fn new(device: &wgpu::Device) -> Layouts {
         use wgpu::ShaderStages as S;
         let vf = S::VERTEX | S::FRAGMENT;
-        let globals_layout = layout(
+        let globals = layout(
             device,
             "globals",
             &[
@@ -260,7 +310,7 @@ impl Pipelines {
                 texture_entry(2, S::FRAGMENT, false),
             ],
         );
-        let terrain_layout = layout(
+        let terrain = layout(
             device,
             "terrain",
             &[
@@ -271,7 +321,7 @@ impl Pipelines {
                 texture_entry(4, S::FRAGMENT, true),
             ],
         );
-        let material_layout = layout(
+        let material = layout(
             device,
             "material",
             &[
@@ -282,8 +332,8 @@ impl Pipelines {
                 texture_entry(4, S::FRAGMENT, true),
             ],
         );
-        let shadow_layout = shadow_layout(device);
-        let tonemap_layout = layout(
+        let shadow = shadow_layout(device);
+        let tonemap = layout(
             device,
             "tonemap",
             &[
@@ -291,112 +341,140 @@ impl Pipelines {
                 uniform_entry(1, S::FRAGMENT),
             ],
         );
-        let sky_module = shader(device, "sky", &[COMMON_WGSL, SKY_WGSL]);
-        let ambient_layout = layout(device, "ambient", &super::ambient_gpu::layout_entries());
-        let terrain_module = shader(
-            device,
-            "terrain",
-            &[COMMON_WGSL, DIRECT_WGSL, AMBIENT_WGSL, TERRAIN_WGSL],
-        );
-        let mesh_module = shader(
-            device,
-            "mesh",
-            &[COMMON_WGSL, DIRECT_WGSL, AMBIENT_WGSL, MESH_WGSL],
-        );
-        let tonemap_module = shader(device, "tonemap", &[TONEMAP_WGSL]);
-        let mesh_buffers = [
-            Some(wgpu::VertexBufferLayout {
-                array_stride: 12,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &MESH_ATTRS_POS,
-            }),
-            Some(wgpu::VertexBufferLayout {
-                array_stride: 12,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &MESH_ATTRS_NRM,
-            }),
-            Some(wgpu::VertexBufferLayout {
-                array_stride: 8,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &MESH_ATTRS_UV,
-            }),
-            Some(wgpu::VertexBufferLayout {
-                array_stride: size_of::<InstanceRecord>() as u64,
-                step_mode: wgpu::VertexStepMode::Instance,
-                attributes: &INSTANCE_ATTRS,
-            }),
-            Some(wgpu::VertexBufferLayout {
-                array_stride: 16,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &MESH_ATTRS_TAN,
-            }),
-        ];
+        let ambient = layout(device, "ambient", &ambient_layout_entries());
+        Layouts {
+            globals,
+            terrain,
+            material,
+            tonemap,
+            shadow,
+            ambient,
+        }
+    }
+}
+
+/// Phase 2 of [`Pipelines::new`]: the shader modules (`common.wgsl` prepended to the scene
+/// passes; the lit passes also get the direct and ambient terms).
+struct Modules {
+    sky: wgpu::ShaderModule,
+    terrain: wgpu::ShaderModule,
+    mesh: wgpu::ShaderModule,
+    tonemap: wgpu::ShaderModule,
+}
+
+impl Modules {
+    fn new(device: &wgpu::Device) -> Modules {
+        Modules {
+            sky: shader(device, "sky", &[COMMON_WGSL, SKY_WGSL]),
+            terrain: shader(
+                device,
+                "terrain",
+                &[COMMON_WGSL, DIRECT_WGSL, AMBIENT_WGSL, TERRAIN_WGSL],
+            ),
+            mesh: shader(
+                device,
+                "mesh",
+                &[COMMON_WGSL, DIRECT_WGSL, AMBIENT_WGSL, MESH_WGSL],
+            ),
+            tonemap: shader(device, "tonemap", &[TONEMAP_WGSL]),
+        }
+    }
+}
+
+/// The vertex buffers of the mesh passes (see [`MESH_ATTRS_POS`]): positions, normals, UVs,
+/// instances, tangents.
+fn mesh_buffers() -> [Option<wgpu::VertexBufferLayout<'static>>; 5] {
+    let per_vertex = |array_stride, attributes| {
+        Some(wgpu::VertexBufferLayout {
+            array_stride,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes,
+        })
+    };
+    [
+        per_vertex(12, &MESH_ATTRS_POS),
+        per_vertex(12, &MESH_ATTRS_NRM),
+        per_vertex(8, &MESH_ATTRS_UV),
+        Some(wgpu::VertexBufferLayout {
+            array_stride: size_of::<InstanceRecord>() as u64,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &INSTANCE_ATTRS,
+        }),
+        per_vertex(16, &MESH_ATTRS_TAN),
+    ]
+}
+
+/// A pass into the HDR target.
+fn hdr_pass<'a>(
+    label: &'a str,
+    module: &'a wgpu::ShaderModule,
+    layouts: &'a [Option<&'a wgpu::BindGroupLayout>],
+    buffers: &'a [Option<wgpu::VertexBufferLayout<'a>>],
+    depth: Option<bool>,
+) -> PassDesc<'a> {
+    PassDesc {
+        label,
+        module,
+        layouts,
+        buffers,
+        target: HDR_FORMAT,
+        depth,
+    }
+}
+
+impl Pipelines {
+    /// Layouts, then shader modules, then the scene passes (sky, terrain, meshes), the
+    /// depth-only shadow passes and the tone map.
+    pub fn new(device: &wgpu::Device) -> Pipelines {
+        let l = Layouts::new(device);
+        let m = Modules::new(device);
+        let mesh_buffers = mesh_buffers();
         let sky = pipeline(
             device,
-            &PassDesc {
-                label: "sky",
-                module: &sky_module,
-                layouts: &[Some(&globals_layout)],
-                buffers: &[],
-                target: HDR_FORMAT,
-                depth: Some(false),
-            },
+            &hdr_pass("sky", &m.sky, &[Some(&l.globals)], &[], Some(false)),
         );
+        let lit = [Some(&l.shadow), Some(&l.ambient)];
         let terrain = pipeline(
             device,
-            &PassDesc {
-                label: "terrain",
-                module: &terrain_module,
-                layouts: &[
-                    Some(&globals_layout),
-                    Some(&terrain_layout),
-                    Some(&shadow_layout),
-                    Some(&ambient_layout),
-                ],
-                buffers: &[],
-                target: HDR_FORMAT,
-                depth: Some(true),
-            },
+            &hdr_pass(
+                "terrain",
+                &m.terrain,
+                &[Some(&l.globals), Some(&l.terrain), lit[0], lit[1]],
+                &[],
+                Some(true),
+            ),
         );
         let mesh = pipeline(
             device,
-            &PassDesc {
-                label: "mesh",
-                module: &mesh_module,
-                layouts: &[
-                    Some(&globals_layout),
-                    Some(&material_layout),
-                    Some(&shadow_layout),
-                    Some(&ambient_layout),
-                ],
-                buffers: &mesh_buffers,
-                target: HDR_FORMAT,
-                depth: Some(true),
-            },
+            &hdr_pass(
+                "mesh",
+                &m.mesh,
+                &[Some(&l.globals), Some(&l.material), lit[0], lit[1]],
+                &mesh_buffers,
+                Some(true),
+            ),
         );
         let terrain_shadow = shadow_pipeline(
             device,
-            &PassDesc {
-                label: "terrain shadow",
-                module: &terrain_module,
-                layouts: &[Some(&globals_layout), Some(&terrain_layout)],
-                buffers: &[],
-                target: HDR_FORMAT,
-                depth: Some(true),
-            },
+            &hdr_pass(
+                "terrain shadow",
+                &m.terrain,
+                &[Some(&l.globals), Some(&l.terrain)],
+                &[],
+                Some(true),
+            ),
             "vs_main",
             None,
         );
         let mesh_shadow = shadow_pipeline(
             device,
-            &PassDesc {
-                label: "mesh shadow",
-                module: &mesh_module,
-                layouts: &[Some(&globals_layout), Some(&material_layout)],
-                buffers: &mesh_buffers,
-                target: HDR_FORMAT,
-                depth: Some(true),
-            },
+            &hdr_pass(
+                "mesh shadow",
+                &m.mesh,
+                &[Some(&l.globals), Some(&l.material)],
+                &mesh_buffers,
+                Some(true),
+            ),
             "vs_shadow",
             Some("fs_shadow"),
         );
@@ -404,20 +482,20 @@ impl Pipelines {
             device,
             &PassDesc {
                 label: "tonemap",
-                module: &tonemap_module,
-                layouts: &[Some(&tonemap_layout)],
+                module: &m.tonemap,
+                layouts: &[Some(&l.tonemap)],
                 buffers: &[],
                 target: OUTPUT_FORMAT,
                 depth: None,
             },
         );
         Pipelines {
-            globals_layout,
-            terrain_layout,
-            material_layout,
-            tonemap_layout,
-            shadow_layout,
-            ambient_layout,
+            globals_layout: l.globals,
+            terrain_layout: l.terrain,
+            material_layout: l.material,
+            tonemap_layout: l.tonemap,
+            shadow_layout: l.shadow,
+            ambient_layout: l.ambient,
             sky,
             terrain,
             mesh,

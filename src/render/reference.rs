@@ -3,8 +3,8 @@
 //! (`SchlickMaterial::eval`, the tone map), so a GPU image can be checked pixel by pixel.
 //!
 //! One primary ray per pixel centre (the rasterizer samples there too) through a two-level BVH
-//! (src/rt: one alpha-tested BVH per model, the terrain as one more instance built by
-//! [`crate::tracescene::terrain_mesh`]); the hit becomes a [`HitRecord`] (instance, model,
+//! (src/trace: one alpha-tested BVH per model, the terrain as one more instance built by
+//! [`crate::trace::pack_scene::terrain_mesh`]); the hit becomes a [`HitRecord`] (instance, model,
 //! triangle, barycentrics, world position, interpolated normal/tangent/uv, material) and is
 //! shaded by the terms of the shading contract: [`Reference::direct_term`] (sun irradiance ×
 //! an exact shadow ray × BRDF × cos) and [`Reference::ambient_term`]. Misses show the sky,
@@ -13,12 +13,14 @@
 //! on the terrain. Rows are shaded in parallel and collected in order (deterministic).
 
 use super::camera::Camera;
-use super::scene::{ImageData, ModelData, SceneData, TerrainData, srgb_to_linear};
+use super::sample::bilinear_with;
+use super::scene::{ImageData, ModelData, SceneData, TerrainData};
 use super::{RenderOptions, Terms, View};
+use crate::color::srgb_to_linear;
 use crate::error::Result;
 use crate::model::{Material, Mesh, Rgba8Image, Terrain};
 use crate::pack::Pack;
-use crate::rt::{AlphaMask, BuildPreset, InstanceTransform, ModelBvh, Ray, SceneBvh};
+use crate::trace::{AlphaMask, BuildPreset, InstanceTransform, ModelBvh, Ray, SceneBvh};
 use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 use std::f32::consts::PI;
@@ -185,7 +187,7 @@ impl<'s, 'a> Reference<'s, 'a> {
         }
         let terrain_model = scene.terrain.as_ref().map(terrain_model);
         if let Some(t) = &terrain_model {
-            let mesh = crate::tracescene::terrain_mesh(t);
+            let mesh = crate::trace::pack_scene::terrain_mesh(t);
             models.push(Arc::new(ModelBvh::build(&mesh, &[], BuildPreset::Medium)?));
             transforms.push(InstanceTransform {
                 model: (models.len() - 1) as u32,
@@ -213,7 +215,7 @@ impl<'s, 'a> Reference<'s, 'a> {
     pub fn instance_record(
         &self,
         hit: &HitRecord,
-    ) -> Option<&crate::pack::kinds::instances::InstanceRecord> {
+    ) -> Option<&crate::ingest::instances_section::InstanceRecord> {
         let m = self.scene.models.get(hit.model? as usize)?;
         m.instances.get(self.slot[hit.instance as usize] as usize)
     }
@@ -555,31 +557,6 @@ pub fn bilinear(
     })
 }
 
-/// Bilinear filtering at `uv` of a `size` texture whose texel (i, j) `at` returns (any integer
-/// i, j: `at` wraps or clamps), texel centres at (i + ½)/W, lerped in x then y as the shaders do.
-pub fn bilinear_with<const N: usize>(
-    size: (u32, u32),
-    uv: [f32; 2],
-    at: impl Fn(i64, i64) -> [f32; N],
-) -> [f32; N] {
-    let x = uv[0] * size.0 as f32 - 0.5;
-    let y = uv[1] * size.1 as f32 - 0.5;
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let (x0, y0) = (x0 as i64, y0 as i64);
-    let (a, b, c, d) = (
-        at(x0, y0),
-        at(x0 + 1, y0),
-        at(x0, y0 + 1),
-        at(x0 + 1, y0 + 1),
-    );
-    std::array::from_fn(|k| {
-        let top = a[k] + (b[k] - a[k]) * fx;
-        let bottom = c[k] + (d[k] - c[k]) * fx;
-        top + (bottom - top) * fy
-    })
-}
-
 /// The sky along unit `d`: the lat-long image, bilinear with wrap in u and clamp in v
 /// (shaders/sky.wgsl `sky_radiance`).
 pub fn sky_radiance(scene: &SceneData, d: Vec3) -> [f32; 3] {
@@ -597,14 +574,7 @@ pub fn sky_radiance(scene: &SceneData, d: Vec3) -> [f32; 3] {
     })
 }
 
-/// sRGB transfer function, encoding.
-pub fn linear_to_srgb(l: f32) -> f32 {
-    if l <= 0.003_130_8 {
-        l * 12.92
-    } else {
-        1.055 * l.powf(1.0 / 2.4) - 0.055
-    }
-}
+pub use crate::color::linear_to_srgb;
 
 /// The display value of radiance `l`: `1 − exp(−L·s)`, sRGB-encoded, rounded to 8 bits (what
 /// the tone-map pass writes into the `Rgba8UnormSrgb` target).

@@ -4,13 +4,16 @@
 
 use super::light;
 use crate::error::{Error, Result};
+use crate::ingest::instances_section as instances;
+use crate::ingest::instances_section::{InstanceRecord, InstancesMeta};
+use crate::mesh::section as mesh;
+use crate::mesh::section::MeshMeta;
 use crate::pack::Pack;
-use crate::pack::kinds::instances::{InstanceRecord, InstancesMeta};
-use crate::pack::kinds::mesh::MeshMeta;
-use crate::pack::kinds::sky::SkyMeta;
-use crate::pack::kinds::terrain::TerrainMeta;
-use crate::pack::kinds::texture::TextureMeta;
-use crate::pack::kinds::{instances, mesh, sky, terrain};
+use crate::sky::source_section as sky;
+use crate::sky::source_section::SkyMeta;
+use crate::terrain::source_section as terrain;
+use crate::terrain::source_section::TerrainMeta;
+use crate::texture::source_section::TextureMeta;
 use std::borrow::Cow;
 
 /// Size of the analytic sky used when the pack has none.
@@ -700,14 +703,7 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
     })
 }
 
-/// sRGB transfer function, decoding.
-pub fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
+pub use crate::color::srgb_to_linear;
 
 impl SceneData<'_> {
     /// Bounds of what the default camera frames: every instance's model bounds (turned about Z,

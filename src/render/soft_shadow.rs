@@ -11,15 +11,15 @@
 //! their distance to the eye, against self-shadowing from the rasterizer's depth precision.
 
 use super::draw::Globals;
-use super::gpu::Gpu;
 use super::pipelines::{DEPTH_FORMAT, Pipelines};
 use super::upload::GpuScene;
 use crate::error::{Error, Result};
+use crate::gpu::Gpu;
+use crate::ingest::instances_section::InstanceRecord;
 use crate::linespace::gpu::NTreeGpu;
 use crate::linespace::ntree::{NTree, Refine};
 use crate::linespace::query::AreaLight;
 use crate::pack::Pack;
-use crate::pack::kinds::instances::InstanceRecord;
 use wgpu::util::DeviceExt;
 
 const COMMON_WGSL: &str = include_str!("shaders/common.wgsl");

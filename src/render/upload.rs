@@ -3,10 +3,10 @@
 //! index buffers, `InstanceRecord`s an instance buffer per model, terrain heights an `R32Float`
 //! texture, colour maps `Rgba8UnormSrgb` textures, the sky an `Rgba32Float` texture.
 
-use super::gpu::Gpu;
 use super::pipelines::Pipelines;
 use super::scene::{DrawRange, ImageData, SceneData};
 use crate::error::{Error, Result};
+use crate::gpu::Gpu;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 

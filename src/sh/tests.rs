@@ -2,17 +2,18 @@
 #![allow(clippy::needless_range_loop)] // index loops mirror the formulas
 
 use super::*;
-use crate::sky::cube::CubeMap;
+use crate::cube::CubeMap;
 
 /// A small deterministic generator (SplitMix64) for test inputs.
-struct Rng(u64);
+/// The crate's generator ([`crate::rng::Rng`], seeded with `Rng::new`) with the uniform
+/// directions these tests draw.
+struct Rng(crate::rng::Rng);
 impl Rng {
+    fn new(seed: u64) -> Self {
+        Rng(crate::rng::Rng::new(seed))
+    }
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        self.0.f64()
     }
     fn dir(&mut self) -> [f64; 3] {
         let z = 2.0 * self.next() - 1.0;
@@ -32,7 +33,7 @@ fn mat_vec(r: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
 
 #[test]
 fn fast_path_matches_the_legendre_recursion() {
-    let mut rng = Rng(1);
+    let mut rng = Rng::new(1);
     for _ in 0..200 {
         let d = rng.dir();
         let mut reference = [0.0; 16];
@@ -50,7 +51,7 @@ fn fast_path_matches_the_legendre_recursion() {
 #[test]
 fn low_bands_match_the_textbook_formulas_with_condon_shortley_phase() {
     // Independent closed forms (K and P written out by hand, CS phase included).
-    let mut rng = Rng(2);
+    let mut rng = Rng::new(2);
     let c1 = (3.0 / (4.0 * PI)).sqrt();
     for _ in 0..20 {
         let [x, y, z] = rng.dir();
@@ -139,7 +140,7 @@ fn white_furnace() {
             assert!(c.iter().all(|v| v.abs() < 1e-5), "{size}: {c:?}");
         }
         let e = sh.to_irradiance();
-        let mut rng = Rng(3);
+        let mut rng = Rng::new(3);
         for _ in 0..10 {
             let got = e.eval(f32v(rng.dir()));
             for k in 0..3 {
@@ -152,7 +153,7 @@ fn white_furnace() {
 #[test]
 fn clamped_cosine_lobe_projects_to_its_analytic_coefficients() {
     // f(ω) = max(0, n·ω): by Funk–Hecke its coefficients are Â_l · y_lm(n).
-    let mut rng = Rng(4);
+    let mut rng = Rng::new(4);
     for n in [[0.0, 0.0, 1.0], rng.dir(), rng.dir()] {
         let cube = CubeMap::from_fn(128, |d| {
             let c = (d[0] * n[0] + d[1] * n[1] + d[2] * n[2]).max(0.0) as f32;
@@ -216,7 +217,7 @@ fn random_sh(rng: &mut Rng) -> ShRadiance {
 
 #[test]
 fn rotation_is_equivariant() {
-    let mut rng = Rng(5);
+    let mut rng = Rng::new(5);
     for _ in 0..10 {
         let f = random_sh(&mut rng);
         let axis = rng.dir();
@@ -236,7 +237,7 @@ fn rotation_is_equivariant() {
 
 #[test]
 fn rotation_about_z_closed_form_matches_the_general_rotation() {
-    let mut rng = Rng(6);
+    let mut rng = Rng::new(6);
     let f = random_sh(&mut rng);
     for angle in [0.3, -1.2, PI, 5.0] {
         let general = f.rotated(&ShRotation::from_axis_angle(4, [0.0, 0.0, 1.0], angle));
@@ -257,7 +258,7 @@ fn rotation_about_z_closed_form_matches_the_general_rotation() {
 
 #[test]
 fn rotation_preserves_band_energy_and_composes() {
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     let f = random_sh(&mut rng);
     let r1 = axis_angle_matrix(rng.dir(), 0.7);
     let r2 = axis_angle_matrix(rng.dir(), -2.1);
@@ -351,7 +352,7 @@ fn gauss_legendre_integrates_polynomials_exactly() {
 #[test]
 fn separable_latlong_projection_matches_the_per_pixel_sum_and_the_exact_integral() {
     let (w, h) = (128u32, 64u32);
-    let mut rng = Rng(9);
+    let mut rng = Rng::new(9);
     let pixels = (0..w * h)
         .map(|_| [rng.next() as f32, rng.next() as f32 * 3.0, 1.0])
         .collect();

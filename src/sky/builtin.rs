@@ -177,7 +177,7 @@ pub fn builtin_sky_latlong(p: &BuiltinSky, width: u32, height: u32) -> crate::mo
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sky::cube;
+    use crate::cube;
 
     #[test]
     fn zenith_luminance_matches_the_papers_formula_values() {

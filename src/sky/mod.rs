@@ -25,8 +25,9 @@
 //! azimuth φ ends up at φ + rotate_deg.
 
 pub mod builtin;
-pub mod cube;
+pub use crate::cube;
 pub mod section;
+pub mod source_section;
 pub mod sun;
 
 use crate::error::{Error, ParseError, Result};
@@ -405,7 +406,7 @@ pub fn sky_sections(b: &SkyBake, source: &str) -> Vec<crate::pack::Section> {
 }
 
 /// The sky sections of a scene: its sky if it has one, else the built-in clear sky, so every
-/// scene bakes (for `pipeline::build`).
+/// scene bakes (for `graph::build`).
 pub fn scene_sky_sections(
     sky: Option<&FloatImage>,
     builtin: &builtin::BuiltinSky,

@@ -2,8 +2,8 @@
 //!
 //! - kind `sky`, layout `cube`: the sun-free sky as a cube map, `texels` = 6·size² × RGBA half
 //!   floats (f16 bits, alpha 1), faces +X, −X, +Y, −Y, +Z, −Z, each row-major from row 0 (the
-//!   layout `crate::sky::cube` documents), ready for a `Rgba16Float` cube texture upload. The
-//!   metadata starts with the same fields as the lat-long `sky` kind (`pack::kinds::sky`), so one
+//!   layout `crate::cube` documents), ready for a `Rgba16Float` cube texture upload. The
+//!   metadata starts with the same fields as the lat-long `sky` kind (`sky::source_section`), so one
 //!   summary serves both. Radiance above the f16 maximum (65504) is clamped and counted.
 //! - kind `sun`: the extracted sun ([`Sun`]), metadata only.
 //! - kind `sh`: the sun-free sky's order-4 SH, `radiance` and `irradiance` (16 × RGB f32 each).
@@ -18,7 +18,7 @@ use exr::prelude::f16;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
-pub const SKY_KIND: &str = crate::pack::kinds::sky::KIND;
+pub const SKY_KIND: &str = crate::sky::source_section::KIND;
 pub const SUN_KIND: &str = "sun";
 pub const SH_KIND: &str = "sh";
 /// The `layout` of a cube-map sky section.
@@ -26,7 +26,7 @@ pub const CUBE_LAYOUT: &str = "cube";
 /// Largest finite half float.
 const F16_MAX: f32 = 65504.0;
 
-/// Metadata of a cube-map sky section (the first four fields are `kinds::sky::SkyMeta`'s).
+/// Metadata of a cube-map sky section (the first four fields are `source_section::SkyMeta`'s).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CubeSkyMeta {
     /// Face size (texels per edge).
@@ -109,7 +109,7 @@ pub fn cube_from_section(v: &SectionView) -> Result<(CubeSkyMeta, CubeMap), Pars
     Ok((meta, CubeMap { size, texels }))
 }
 
-/// Summary of a cube-map sky section (called by `kinds::sky::summary` for layout `cube`).
+/// Summary of a cube-map sky section (called by `source_section::summary` for layout `cube`).
 pub fn cube_summary(v: &SectionView) -> Result<Value, ParseError> {
     let (meta, cube) = cube_from_section(v)?;
     let max = cube.texels.iter().flatten().fold(0.0f32, |a, &b| a.max(b));

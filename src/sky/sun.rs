@@ -101,10 +101,7 @@ pub struct SkyIrradiance {
     pub thesis: [f32; 3],
 }
 
-/// Rec. 709 luminance of a linear RGB value.
-pub fn luminance(c: [f32; 3]) -> f32 {
-    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
-}
+pub use crate::color::luminance;
 
 /// Median luminance of the upper hemisphere's texels (the sky's typical brightness).
 fn median_sky_luminance(cube: &CubeMap, lum: &[f32]) -> f32 {

@@ -2,7 +2,7 @@
 #![allow(clippy::needless_range_loop)] // index loops mirror the formulas
 
 use super::*;
-use crate::sky::cube::{latlong_direction, texel_direction};
+use crate::cube::{latlong_direction, texel_direction};
 
 fn smooth(d: [f64; 3]) -> [f32; 3] {
     let v = 1.0 + 0.5 * d[0] + 0.3 * d[1] * d[2] + 0.4 * d[2] * d[2];

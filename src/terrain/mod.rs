@@ -2,16 +2,16 @@
 //! data. [`prepare`] makes the four-tap texture and the normal map, [`quadtree`] the min/max
 //! quadtree other stages query, [`section`] stores them in the terrain's section.
 
-pub mod bench;
 pub mod prepare;
 pub mod quadtree;
 pub mod section;
+pub mod source_section;
 
 pub use prepare::{PreparedTerrain, prepare_terrain};
 pub use quadtree::MinMaxQuadtree;
 
 use crate::error::{Error, ParseError, Result};
-use crate::pack::{Pack, Section, kinds};
+use crate::pack::{Pack, Section};
 
 /// What the terrain stage did.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
@@ -25,7 +25,7 @@ pub struct TerrainReport {
 pub fn bake_terrain(pack: &Pack) -> Result<(Vec<Section>, TerrainReport)> {
     let mut out = Vec::new();
     let mut report = TerrainReport::default();
-    for e in pack.of_kind(kinds::terrain::KIND) {
+    for e in pack.of_kind(crate::terrain::source_section::KIND) {
         let place = |m: String| {
             Error::invalid(
                 pack.path(),
@@ -33,7 +33,8 @@ pub fn bake_terrain(pack: &Pack) -> Result<(Vec<Section>, TerrainReport)> {
             )
         };
         let view = pack.view(e)?;
-        let (meta, t) = kinds::terrain::from_section(&view).map_err(|m| place(m.to_string()))?;
+        let (meta, t) = crate::terrain::source_section::from_section(&view)
+            .map_err(|m| place(m.to_string()))?;
         let p = prepare_terrain(&t).map_err(place)?;
         out.push(section::to_section(&e.name, &meta, &t, &p).map_err(place)?);
         report.terrains += 1;

@@ -186,20 +186,7 @@ fn reduce_level(child: &[[f32; 2]], c: QuadLevel, p: QuadLevel) -> Vec<[f32; 2]>
 mod tests {
     use super::*;
 
-    /// A small deterministic generator (splitmix64) so the test needs no crate.
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        }
-        fn below(&mut self, n: u32) -> u32 {
-            (self.next() % n as u64) as u32
-        }
-    }
+    use crate::rng::Rng;
 
     fn brute(h: &[f32], w: u32, x0: u32, y0: u32, x1: u32, y1: u32) -> [f32; 2] {
         let mut m = [f32::INFINITY, f32::NEG_INFINITY];
@@ -214,7 +201,7 @@ mod tests {
 
     #[test]
     fn queries_equal_brute_force_on_random_windows() {
-        let mut rng = Rng(7);
+        let mut rng = Rng::new(7);
         for &(w, h) in &[(2u32, 2u32), (17, 9), (64, 64), (33, 100)] {
             let heights: Vec<f32> = (0..w * h)
                 .map(|_| rng.below(10_000) as f32 * 0.01 - 20.0)

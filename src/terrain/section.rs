@@ -8,9 +8,9 @@ use super::prepare::PreparedTerrain;
 use super::quadtree::{MinMaxQuadtree, QuadLevel};
 use crate::error::ParseError;
 use crate::model::Terrain;
-use crate::pack::kinds::terrain::{KIND, TerrainMeta};
 use crate::pack::section::SectionView;
 use crate::pack::{ArrayFormat, Section, SectionBuilder};
+use crate::terrain::source_section::{KIND, TerrainMeta};
 
 /// Encodes the terrain with its prepared arrays. Fails when the quadtree has more nodes than a
 /// u32 offset holds (a grid past 2^31 samples).
@@ -61,7 +61,7 @@ pub fn quadtree_from_section(v: &SectionView) -> Result<MinMaxQuadtree, ParseErr
 pub fn from_section(
     v: &SectionView,
 ) -> Result<(TerrainMeta, Terrain, PreparedTerrain), ParseError> {
-    let (meta, t) = crate::pack::kinds::terrain::from_section(v)?;
+    let (meta, t) = crate::terrain::source_section::from_section(v)?;
     let normals: Vec<[u8; 4]> = v.array_vec("normals")?;
     if normals.len() != t.heights.len() {
         return Err(ParseError::new(
@@ -121,7 +121,7 @@ mod tests {
         let (_, t2, p2) = from_section(&v).unwrap();
         assert_eq!(t2.heights, t.heights);
         assert_eq!(p2, p);
-        let s = crate::pack::kinds::terrain::summary(&v).unwrap();
+        let s = crate::terrain::source_section::summary(&v).unwrap();
         assert_eq!(s["quadtree_levels"], p.quadtree.levels());
         assert_eq!(p.quadtree.levels(), 6); // 32×16 cells → 16×8 → 8×4 → 4×2 → 2×1 → 1×1
     }

@@ -8,8 +8,8 @@
 use serde::{Deserialize, Serialize};
 
 /// Which transfer curve the 8-bit values carry.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
-pub enum Transfer {
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum TransferFunction {
     /// The sRGB curve (what PNG/JPEG files without a profile mean).
     #[default]
     Srgb,
@@ -19,15 +19,14 @@ pub enum Transfer {
     Linear,
 }
 
-impl Transfer {
+impl TransferFunction {
     /// Encoded value in [0, 1] to linear.
     pub fn to_linear(self, e: f32) -> f32 {
         let e = e.clamp(0.0, 1.0);
         match self {
-            Transfer::Srgb if e <= 0.04045 => e / 12.92,
-            Transfer::Srgb => ((e + 0.055) / 1.055).powf(2.4),
-            Transfer::Gamma22 => e.powf(2.2),
-            Transfer::Linear => e,
+            TransferFunction::Srgb => crate::color::srgb_to_linear(e),
+            TransferFunction::Gamma22 => e.powf(2.2),
+            TransferFunction::Linear => e,
         }
     }
 
@@ -35,10 +34,9 @@ impl Transfer {
     pub fn from_linear(self, l: f32) -> f32 {
         let l = l.clamp(0.0, 1.0);
         match self {
-            Transfer::Srgb if l <= 0.0031308 => l * 12.92,
-            Transfer::Srgb => 1.055 * l.powf(1.0 / 2.4) - 0.055,
-            Transfer::Gamma22 => l.powf(1.0 / 2.2),
-            Transfer::Linear => l,
+            TransferFunction::Srgb => crate::color::linear_to_srgb(l),
+            TransferFunction::Gamma22 => l.powf(1.0 / 2.2),
+            TransferFunction::Linear => l,
         }
     }
 
@@ -49,7 +47,7 @@ impl Transfer {
 }
 
 /// RGBA8 texels to linear RGBA f32 (alpha divided by 255, not transformed).
-pub fn linearize_rgba8(texels: &[[u8; 4]], transfer: Transfer) -> Vec<[f32; 4]> {
+pub fn linearize_rgba8(texels: &[[u8; 4]], transfer: TransferFunction) -> Vec<[f32; 4]> {
     let lut = transfer.table();
     texels
         .iter()
@@ -65,7 +63,7 @@ pub fn linearize_rgba8(texels: &[[u8; 4]], transfer: Transfer) -> Vec<[f32; 4]> 
 }
 
 /// Linear RGBA f32 back to 8-bit codes (rounded to nearest).
-pub fn encode_rgba8(texels: &[[f32; 4]], transfer: Transfer) -> Vec<[u8; 4]> {
+pub fn encode_rgba8(texels: &[[f32; 4]], transfer: TransferFunction) -> Vec<[u8; 4]> {
     let q = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
     texels
         .iter()
@@ -86,7 +84,11 @@ mod tests {
 
     #[test]
     fn every_code_round_trips_through_linear() {
-        for t in [Transfer::Srgb, Transfer::Gamma22, Transfer::Linear] {
+        for t in [
+            TransferFunction::Srgb,
+            TransferFunction::Gamma22,
+            TransferFunction::Linear,
+        ] {
             let codes: Vec<[u8; 4]> = (0..=255u8).map(|c| [c, 255 - c, c / 2, c]).collect();
             let lin = linearize_rgba8(&codes, t);
             assert_eq!(encode_rgba8(&lin, t), codes, "{t:?}");
@@ -96,11 +98,11 @@ mod tests {
     #[test]
     fn srgb_matches_published_values() {
         // Independent oracle: the sRGB standard's reference points.
-        let t = Transfer::Srgb;
+        let t = TransferFunction::Srgb;
         assert!((t.to_linear(0.5) - 0.214_041).abs() < 1e-5);
         assert!((t.to_linear(0.04045) - 0.003_130_8).abs() < 1e-6);
         assert!((t.to_linear(1.0) - 1.0).abs() < 1e-6);
-        assert!((Transfer::Gamma22.to_linear(0.5) - 0.5f32.powf(2.2)).abs() < 1e-7);
+        assert!((TransferFunction::Gamma22.to_linear(0.5) - 0.5f32.powf(2.2)).abs() < 1e-7);
         // The two branches meet (continuity at the toe).
         let below = t.to_linear(0.04045 - 1e-6);
         let above = t.to_linear(0.04045 + 1e-6);

@@ -6,14 +6,14 @@
 //! the Toksvig factor. An authored normal map is only decoded and filtered. [`section`] stores
 //! the result as a kind `texture` section with format `rgba16f_linear` or `normal_rgba8`.
 
-pub mod bench;
 pub mod linear;
 pub mod mips;
 pub mod normalmap;
 pub mod section;
+pub mod source_section;
 
 use crate::model::Rgba8Image;
-use linear::Transfer;
+use linear::TransferFunction;
 use mips::{ColorMips, MipLevel, MipOptions};
 use normalmap::NormalMips;
 use serde::{Deserialize, Serialize};
@@ -30,12 +30,15 @@ pub enum TextureRole {
 /// Options of [`process_texture`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TextureOptions {
-    pub transfer: Transfer,
+    pub transfer: TransferFunction,
     pub mips: MipOptions,
     /// Tangent-space slope of a height step of 1 over one texel (see
     /// [`normalmap::normals_from_height`]); [`TextureOptions::slope_for`] derives it.
     pub slope: f32,
 }
+
+/// The bump amplitude used wherever a normal map exists (seed 000: ±1 mm).
+pub const BUMP_HEIGHT_M: f32 = 0.001;
 
 /// Texture size in metres assumed when no mesh tells (a leaf texture about 10 cm across).
 pub const DEFAULT_TEXTURE_SPAN_M: f32 = 0.1;
@@ -54,9 +57,9 @@ impl TextureOptions {
     pub fn for_size(width: u32, height: u32) -> Self {
         let texel = DEFAULT_TEXTURE_SPAN_M / (width as f32 * height as f32).sqrt().max(1.0);
         TextureOptions {
-            transfer: Transfer::Srgb,
+            transfer: TransferFunction::Srgb,
             mips: MipOptions::default(),
-            slope: Self::slope_for(crate::material::convert::BUMP_HEIGHT_M, texel),
+            slope: Self::slope_for(BUMP_HEIGHT_M, texel),
         }
     }
 }

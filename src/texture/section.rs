@@ -1,5 +1,5 @@
 //! Processed textures as kind `texture` sections (the same kind and metadata as ingested
-//! textures, told apart by `format`; see src/pack/kinds/texture.rs).
+//! textures, told apart by `format`; see src/texture/source_section.rs).
 //!
 //! Formats and arrays (all levels concatenated, level 0 first, each row-major, row 0 at the top):
 //!
@@ -16,9 +16,9 @@ use super::normalmap::{NormalMips, encode_normal, normalize};
 use super::{ProcessedTexture, TextureRole};
 use crate::error::ParseError;
 use crate::model::Rgba8Image;
-use crate::pack::kinds::texture::{KIND, TextureMeta};
 use crate::pack::section::SectionView;
 use crate::pack::{ArrayFormat, Section, SectionBuilder};
+use crate::texture::source_section::{KIND, TextureMeta};
 use half::f16;
 use rayon::prelude::*;
 use serde_json::{Value, json};
@@ -201,7 +201,9 @@ pub fn from_section(v: &SectionView) -> Result<(TextureMeta, ProcessedTexture), 
 pub fn level0_rgba8(v: &SectionView) -> Result<(TextureMeta, Rgba8Image), ParseError> {
     let (meta, t) = from_section(v)?;
     let pixels = match &t.color {
-        Some(c) => super::linear::encode_rgba8(&c.levels[0].texels, super::linear::Transfer::Srgb),
+        Some(c) => {
+            super::linear::encode_rgba8(&c.levels[0].texels, super::linear::TransferFunction::Srgb)
+        }
         None => t.normals.levels[0]
             .texels
             .iter()
@@ -266,7 +268,7 @@ mod tests {
         let leaf = crate::texture::mips::tests::leaf(64);
         let pixels = crate::texture::linear::encode_rgba8(
             &leaf.texels,
-            crate::texture::linear::Transfer::Srgb,
+            crate::texture::linear::TransferFunction::Srgb,
         );
         Rgba8Image {
             width: 64,
@@ -295,7 +297,7 @@ mod tests {
             }
         }
         // The shared `texture` kind's summary carries mips and coverage.
-        let sum = crate::pack::kinds::texture::summary(&view).unwrap();
+        let sum = crate::texture::source_section::summary(&view).unwrap();
         assert_eq!(sum["mips"], 7);
         assert_eq!(sum["coverage"].as_array().unwrap().len(), 7);
         // Level 0 back to sRGB equals the input, and the ingest texels are kept as they were.

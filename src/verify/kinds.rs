@@ -103,24 +103,25 @@ fn schema(kind: &str) -> Option<Schema> {
 /// Runs a section through its kind's decoder (which checks lengths against counts and the
 /// kind's structure); an unknown kind is an error.
 pub fn decode(kind: &str, v: &SectionView) -> Result<(), crate::error::ParseError> {
-    use crate::pack::kinds as k;
     match kind {
-        "mesh" => k::mesh::from_section(v).map(drop),
+        "mesh" => crate::mesh::section::from_section(v).map(drop),
         "terrain" if crate::terrain::section::is_prepared(v) => {
             crate::terrain::section::from_section(v).map(drop)
         }
-        "terrain" => k::terrain::from_section(v).map(drop),
-        "instances" => k::instances::from_section(v).map(drop),
+        "terrain" => crate::terrain::source_section::from_section(v).map(drop),
+        "instances" => crate::ingest::instances_section::from_section(v).map(drop),
         "texture" => {
-            let meta: k::texture::TextureMeta = v.meta()?;
+            let meta: crate::texture::source_section::TextureMeta = v.meta()?;
             if crate::texture::section::is_processed(&meta.format) {
                 crate::texture::section::from_section(v).map(drop)
             } else {
-                k::texture::from_section(v).map(drop)
+                crate::texture::source_section::from_section(v).map(drop)
             }
         }
-        "sky" if k::sky::is_cube(v)? => crate::sky::section::cube_from_section(v).map(drop),
-        "sky" => k::sky::from_section(v).map(drop),
+        "sky" if crate::sky::source_section::is_cube(v)? => {
+            crate::sky::section::cube_from_section(v).map(drop)
+        }
+        "sky" => crate::sky::source_section::from_section(v).map(drop),
         "sun" => crate::sky::section::sun_from_section(v).map(drop),
         "sh" => crate::sky::section::sh_from_section(v).map(drop),
         "material" => crate::material::section::from_section(v).map(drop),
@@ -132,7 +133,7 @@ pub fn decode(kind: &str, v: &SectionView) -> Result<(), crate::error::ParseErro
         "envmaps" => crate::envmap::section::envmaps_from_section(v).map(drop),
         "clusters" => crate::envmap::section::clusters_summary(v).map(drop),
         "bittree" => crate::bittree::section::from_section(v).map(drop),
-        "prt" => crate::light::prt_pack::from_section(v).map(drop),
+        "prt" => crate::prt::pack::from_section(v).map(drop),
         "svo" => crate::voxel::section::from_section(v).map(drop),
         "linespace" => crate::linespace::section::from_section(v).map(drop),
         "build" => crate::graph::check_build_section(v),
@@ -315,7 +316,7 @@ impl Check<'_, '_> {
     }
 
     fn mesh(&mut self, facts: &Facts) {
-        let Ok((meta, _)) = crate::pack::kinds::mesh::from_section(self.v) else {
+        let Ok((meta, _)) = crate::mesh::section::from_section(self.v) else {
             return;
         };
         if let Some((a, normals)) = self.f32s::<3>("normals") {
@@ -349,7 +350,7 @@ impl Check<'_, '_> {
     }
 
     fn terrain(&mut self, facts: &Facts) {
-        let Ok(meta) = self.v.meta::<crate::pack::kinds::terrain::TerrainMeta>() else {
+        let Ok(meta) = self.v.meta::<crate::terrain::source_section::TerrainMeta>() else {
             return;
         };
         if let Some(s) = &meta.color_section {
@@ -358,7 +359,7 @@ impl Check<'_, '_> {
     }
 
     fn instances(&mut self, facts: &Facts) {
-        let Ok((meta, _)) = crate::pack::kinds::instances::from_section(self.v) else {
+        let Ok((meta, _)) = crate::ingest::instances_section::from_section(self.v) else {
             return;
         };
         if meta.mesh_sections.len() != meta.models.len() {
@@ -372,7 +373,7 @@ impl Check<'_, '_> {
         for s in &meta.mesh_sections {
             self.reference(facts, "mesh_sections", s, "mesh");
         }
-        type Rec = crate::pack::kinds::instances::InstanceRecord;
+        type Rec = crate::ingest::instances_section::InstanceRecord;
         let (Some(a), Ok(recs)) = (
             self.v.info("instances").cloned(),
             self.v.array_vec::<Rec>("instances"),
@@ -423,7 +424,7 @@ impl Check<'_, '_> {
     }
 
     fn prt(&mut self, facts: &Facts) {
-        let Ok(meta) = self.v.meta::<crate::light::prt_pack::PrtMeta>() else {
+        let Ok(meta) = self.v.meta::<crate::prt::pack::PrtMeta>() else {
             return;
         };
         self.reference(facts, "mesh", &meta.mesh, "mesh");

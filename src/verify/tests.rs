@@ -4,7 +4,6 @@
 
 use super::*;
 use crate::model::{Instance, Instances, Material, Mesh, Rgba8Image, TextureRef};
-use crate::pack::kinds;
 use crate::pack::{ArrayFormat, PackWriter, SectionBuilder};
 
 fn mesh() -> Mesh {
@@ -35,13 +34,18 @@ fn small_pack(m: &Mesh) -> PackWriter {
         height: 1,
         pixels: vec![[1, 2, 3, 255], [4, 5, 6, 255]],
     };
-    w.insert(kinds::texture::to_section(
+    w.insert(crate::texture::source_section::to_section(
         "texture:tri.obj/leaf.png",
         "leaf.png",
         &img,
     ));
     let tex = [Some("texture:tri.obj/leaf.png".to_string())];
-    w.insert(kinds::mesh::to_section("mesh:tri.obj", "tri.obj", m, &tex));
+    w.insert(crate::mesh::section::to_section(
+        "mesh:tri.obj",
+        "tri.obj",
+        m,
+        &tex,
+    ));
     let inst = Instances {
         models: vec!["tri.obj".into()],
         items: vec![Instance {
@@ -52,7 +56,7 @@ fn small_pack(m: &Mesh) -> PackWriter {
             layer: 1,
         }],
     };
-    w.insert(kinds::instances::to_section(
+    w.insert(crate::ingest::instances_section::to_section(
         "instances",
         &inst,
         vec!["mesh:tri.obj".into()],
@@ -165,7 +169,7 @@ fn dangling_references_are_caught() {
         models: vec!["gone.obj".into()],
         items: vec![],
     };
-    w.insert(kinds::instances::to_section(
+    w.insert(crate::ingest::instances_section::to_section(
         "instances",
         &inst,
         vec!["mesh:gone.obj".into()],

@@ -4,7 +4,7 @@
 //! dispatch grid for batches larger than 65,535 workgroups.
 
 use crate::error::{Error, Result};
-use crate::render::gpu::Gpu;
+use crate::gpu::Gpu;
 use wgpu::util::DeviceExt;
 
 /// Invocations per workgroup (`@workgroup_size(64)` in the shaders).

@@ -5,7 +5,6 @@
 use crate::error::{ParseError, Result};
 use crate::model::{Instance, Material, Mesh, Rgba8Image, Terrain};
 use crate::pack::Pack;
-use crate::pack::kinds;
 
 /// A world-space mesh and the decoded images of its `textures` (same indices; None = missing).
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -94,14 +93,14 @@ fn invalid(pack: &Pack, e: ParseError) -> crate::error::Error {
 /// A mesh section and its texture sections.
 pub fn mesh_from_pack(pack: &Pack, name: &str) -> Result<Geometry> {
     let view = pack.view_named(name)?;
-    let (meta, mesh) = kinds::mesh::from_section(&view).map_err(|e| invalid(pack, e))?;
+    let (meta, mesh) = crate::mesh::section::from_section(&view).map_err(|e| invalid(pack, e))?;
     let mut textures = Vec::with_capacity(meta.textures.len());
     for t in &meta.textures {
         let img = match &t.section {
             Some(s) if pack.find(s).is_some() => {
                 let v = pack.view_named(s)?;
                 Some(
-                    kinds::texture::from_section(&v)
+                    crate::texture::source_section::from_section(&v)
                         .map_err(|e| invalid(pack, e))?
                         .1,
                 )
@@ -117,9 +116,10 @@ pub fn mesh_from_pack(pack: &Pack, name: &str) -> Result<Geometry> {
 /// instances); otherwise every mesh section (and the terrain, if any) as it is.
 pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
     let mut g = Geometry::default();
-    if let Some(e) = pack.of_kind(kinds::terrain::KIND).next() {
+    if let Some(e) = pack.of_kind(crate::terrain::source_section::KIND).next() {
         let view = pack.view(e)?;
-        let (meta, mut t) = kinds::terrain::from_section(&view).map_err(|e| invalid(pack, e))?;
+        let (meta, mut t) =
+            crate::terrain::source_section::from_section(&view).map_err(|e| invalid(pack, e))?;
         if let Some(cs) = meta
             .color_section
             .as_deref()
@@ -127,16 +127,17 @@ pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
         {
             let v = pack.view_named(cs)?;
             t.color = Some(
-                kinds::texture::from_section(&v)
+                crate::texture::source_section::from_section(&v)
                     .map_err(|e| invalid(pack, e))?
                     .1,
             );
         }
         g.append(terrain_mesh(&t));
     }
-    if let Some(e) = pack.of_kind(kinds::instances::KIND).next() {
+    if let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() {
         let view = pack.view(e)?;
-        let (meta, inst) = kinds::instances::from_section(&view).map_err(|e| invalid(pack, e))?;
+        let (meta, inst) =
+            crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
         let models: Vec<Option<Geometry>> = meta
             .mesh_sections
             .iter()
@@ -149,7 +150,7 @@ pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
         }
     } else {
         let names: Vec<String> = pack
-            .of_kind(kinds::mesh::KIND)
+            .of_kind(crate::mesh::section::KIND)
             .map(|e| e.name.clone())
             .collect();
         for n in names {

@@ -5,10 +5,10 @@
 
 use super::compute::{self, Kernel};
 use super::svo::Svo;
-use super::traverse::{Hit, Ray, trace_svo};
+use super::traverse::{Hit, VoxelRay, trace_svo};
 use crate::error::{Error, Result};
-use crate::fixtures::Rng;
-use crate::render::gpu::Gpu;
+use crate::gpu::Gpu;
+use crate::rng::Rng;
 use bytemuck::{Pod, Zeroable};
 
 const DDA_WGSL: &str = include_str!("shaders/dda.wgsl");
@@ -91,7 +91,7 @@ impl<'g> SvoGpu<'g> {
     }
 
     /// First hit of each ray (voxel units), as [`trace_svo`] computes it.
-    pub fn trace(&self, rays: &[Ray]) -> Result<Vec<Option<Hit>>> {
+    pub fn trace(&self, rays: &[VoxelRay]) -> Result<Vec<Option<Hit>>> {
         let count = u32::try_from(rays.len())
             .map_err(|_| Error::runtime("svo trace: more than 2³² rays"))?;
         let (grid, stride) = compute::grid_for(count);
@@ -139,7 +139,7 @@ impl<'g> SvoGpu<'g> {
 }
 
 /// Traversal on the CPU that tolerates an empty octree (no root node).
-pub fn trace_svo_cpu(svo: &Svo, r: &Ray) -> Option<Hit> {
+pub fn trace_svo_cpu(svo: &Svo, r: &VoxelRay) -> Option<Hit> {
     if svo.nodes.is_empty() {
         None
     } else {
@@ -149,7 +149,7 @@ pub fn trace_svo_cpu(svo: &Svo, r: &Ray) -> Option<Hit> {
 
 /// Random rays in voxel units: half start inside the grid, half outside looking at it, with
 /// random directions and some t ranges cut short.
-pub fn random_rays(dims: [u32; 3], count: usize, seed: u64) -> Vec<Ray> {
+pub fn random_rays(dims: [u32; 3], count: usize, seed: u64) -> Vec<VoxelRay> {
     let mut rng = Rng::new(seed);
     let d = dims.map(|x| x as f32);
     (0..count)
@@ -173,7 +173,7 @@ pub fn random_rays(dims: [u32; 3], count: usize, seed: u64) -> Vec<Ray> {
             } else {
                 f32::INFINITY
             };
-            Ray {
+            VoxelRay {
                 origin,
                 dir,
                 t_min: 0.0,
@@ -257,7 +257,7 @@ pub fn validate_svo(gpu: &Gpu, svo: &Svo, rays: usize, seed: u64) -> Result<SvoA
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::{BackendChoice, gpu::init_gpu};
+    use crate::gpu::{BackendChoice, init_gpu};
     use crate::voxel::svo::voxels_to_svo;
     use crate::voxel::tests::{Rng, random_voxels};
 

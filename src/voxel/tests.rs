@@ -3,13 +3,13 @@
 //! ray traversal.
 
 use super::svo::{unpack_rgba8, voxels_to_svo};
-use super::traverse::{Ray, trace_dda, trace_svo, voxel_entry_t};
+use super::traverse::{VoxelRay, trace_dda, trace_svo, voxel_entry_t};
 use super::voxelize::*;
 use super::*;
 use crate::model::{Material, Mesh, Rgba8Image};
 use std::collections::HashSet;
 
-pub use crate::fixtures::Rng;
+pub use crate::rng::Rng;
 
 fn brute_force(grid: &Grid, tris: &[[[f32; 3]; 3]]) -> HashSet<[u32; 3]> {
     let mut out = HashSet::new();
@@ -363,7 +363,7 @@ fn svo_traversal_equals_brute_force_dda() {
     }
 }
 
-fn random_ray(rng: &mut Rng, dims: [u32; 3], inside: bool) -> Ray {
+fn random_ray(rng: &mut Rng, dims: [u32; 3], inside: bool) -> VoxelRay {
     let o = if inside {
         dims.map(|d| rng.range(0.0, d as f32))
     } else {
@@ -375,7 +375,7 @@ fn random_ray(rng: &mut Rng, dims: [u32; 3], inside: bool) -> Ray {
     if rng.f32() < 0.1 {
         dir[(rng.next_u64() % 3) as usize] = 0.0;
     }
-    Ray {
+    VoxelRay {
         origin: o,
         dir,
         t_min: 0.0,

@@ -10,7 +10,7 @@ use super::svo::Svo;
 
 /// A ray in voxel units, `p(t) = origin + t·dir` for t in [t_min, t_max].
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Ray {
+pub struct VoxelRay {
     pub origin: [f32; 3],
     pub dir: [f32; 3],
     pub t_min: f32,
@@ -25,7 +25,7 @@ pub struct Hit {
 }
 
 /// Entry and exit `t` of the box [lo, hi] (slab test), unclamped.
-pub fn box_interval(r: &Ray, lo: [f32; 3], hi: [f32; 3]) -> (f32, f32) {
+pub fn box_interval(r: &VoxelRay, lo: [f32; 3], hi: [f32; 3]) -> (f32, f32) {
     let mut t0 = f32::NEG_INFINITY;
     let mut t1 = f32::INFINITY;
     for k in 0..3 {
@@ -44,7 +44,7 @@ pub fn box_interval(r: &Ray, lo: [f32; 3], hi: [f32; 3]) -> (f32, f32) {
 }
 
 /// `t` at which the ray enters voxel `v` (at least `t_min`).
-pub fn voxel_entry_t(r: &Ray, v: [u32; 3]) -> f32 {
+pub fn voxel_entry_t(r: &VoxelRay, v: [u32; 3]) -> f32 {
     let lo = v.map(|x| x as f32);
     let hi = v.map(|x| x as f32 + 1.0);
     box_interval(r, lo, hi).0.max(r.t_min)
@@ -60,7 +60,7 @@ pub(crate) struct Dda {
 
 impl Dda {
     /// Starts in the cell holding the point at `t`, clamped into `0..n[k]` cells.
-    pub(crate) fn new(r: &Ray, base: [f32; 3], cell: f32, n: [i64; 3], t: f32) -> Dda {
+    pub(crate) fn new(r: &VoxelRay, base: [f32; 3], cell: f32, n: [i64; 3], t: f32) -> Dda {
         let mut d = Dda {
             c: [0; 3],
             step: [0; 3],
@@ -117,7 +117,7 @@ fn slot(c: [i64; 3]) -> u32 {
 }
 
 /// First occupied voxel along the ray through the octree.
-pub fn trace_svo(svo: &Svo, r: &Ray) -> Option<Hit> {
+pub fn trace_svo(svo: &Svo, r: &VoxelRay) -> Option<Hit> {
     let side = 4f32.powi(svo.levels as i32);
     let dims = svo.grid.dims.map(|d| d as f32);
     let (t0, t1) = box_interval(r, [0.0; 3], dims);
@@ -132,7 +132,7 @@ pub fn trace_svo(svo: &Svo, r: &Ray) -> Option<Hit> {
 #[allow(clippy::too_many_arguments)]
 fn trace_node(
     svo: &Svo,
-    r: &Ray,
+    r: &VoxelRay,
     level: usize,
     node: usize,
     base: [f32; 3],
@@ -167,7 +167,14 @@ fn trace_node(
     }
 }
 
-fn trace_brick(svo: &Svo, r: &Ray, mask: u64, base: [f32; 3], t0: f32, t1: f32) -> Option<Hit> {
+fn trace_brick(
+    svo: &Svo,
+    r: &VoxelRay,
+    mask: u64,
+    base: [f32; 3],
+    t0: f32,
+    t1: f32,
+) -> Option<Hit> {
     let mut dda = Dda::new(r, base, 1.0, [4; 3], t0);
     loop {
         if mask >> slot(dda.c) & 1 == 1 {
@@ -186,7 +193,7 @@ fn trace_brick(svo: &Svo, r: &Ray, mask: u64, base: [f32; 3], t0: f32, t1: f32) 
 }
 
 /// The reference: a flat DDA over the whole grid, testing every voxel against `occupied`.
-pub fn trace_dda(dims: [u32; 3], occupied: impl Fn([u32; 3]) -> bool, r: &Ray) -> Option<Hit> {
+pub fn trace_dda(dims: [u32; 3], occupied: impl Fn([u32; 3]) -> bool, r: &VoxelRay) -> Option<Hit> {
     let (t0, t1) = box_interval(r, [0.0; 3], dims.map(|d| d as f32));
     let (t0, t1) = (t0.max(r.t_min), t1.min(r.t_max));
     if t0 > t1 {

@@ -8,14 +8,7 @@ use crate::error::Result;
 use crate::model::{Mesh, Rgba8Image};
 use rayon::prelude::*;
 
-/// sRGB transfer function decoded (display value to linear).
-pub fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
+pub use crate::color::srgb_to_linear;
 
 /// Unit vector, or zero for a zero vector.
 pub fn normalize(v: [f32; 3]) -> [f32; 3] {

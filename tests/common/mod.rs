@@ -70,19 +70,19 @@ pub fn linear_sky(a: f32, b: f32) -> bake::sh::ShRadiance {
 /// A scene BVH of `models` placed by `inst`.
 pub fn scene_bvh(
     models: &[&bake::model::Mesh],
-    inst: Vec<bake::rt::InstanceTransform>,
-) -> bake::rt::SceneBvh {
-    use bake::rt::{BuildPreset, ModelBvh};
+    inst: Vec<bake::trace::InstanceTransform>,
+) -> bake::trace::SceneBvh {
+    use bake::trace::{BuildPreset, ModelBvh};
     let bvhs = models
         .iter()
         .map(|m| std::sync::Arc::new(ModelBvh::build(m, &[], BuildPreset::Medium).unwrap()))
         .collect();
-    bake::rt::SceneBvh::build(bvhs, inst).unwrap()
+    bake::trace::SceneBvh::build(bvhs, inst).unwrap()
 }
 
 /// Instance of `model` at `t`, rotated about z by `rotation_deg`, scale 1.
-pub fn place(model: u32, t: [f32; 3], rotation_deg: f32) -> bake::rt::InstanceTransform {
-    bake::rt::InstanceTransform {
+pub fn place(model: u32, t: [f32; 3], rotation_deg: f32) -> bake::trace::InstanceTransform {
+    bake::trace::InstanceTransform {
         model,
         translation: t,
         scale: 1.0,

@@ -4,10 +4,10 @@
 //! light map's direct sun taken out exactly (flat terrain: only πL_sky remains).
 
 use super::*;
-use crate::light::prt::{PrtOptions, Transfer};
+use crate::ingest::instances_section as instances;
 use crate::model::{Instance, Instances, Material, Mesh, Terrain};
-use crate::pack::kinds::{self, instances};
 use crate::pack::{ArrayFormat, PackWriter, SectionBuilder};
+use crate::prt::transfer::{PrtOptions, Transfer};
 use crate::render::scene::load_scene;
 use crate::sh::ShRotation;
 
@@ -72,7 +72,7 @@ fn quad() -> Mesh {
 
 fn quad_pack(sky: &ShRadiance, rotation_deg: f32) -> Pack {
     let mut w = PackWriter::new();
-    w.insert(kinds::mesh::to_section(
+    w.insert(crate::mesh::section::to_section(
         "mesh:quad.obj",
         "quad.obj",
         &quad(),
@@ -105,7 +105,7 @@ fn quad_pack(sky: &ShRadiance, rotation_deg: f32) -> Pack {
         bounces: 2,
         ..PrtOptions::default()
     };
-    let (w, _, _) = crate::light::prt_pack::prt_pack(&pack, &opts, &|_| {}).unwrap();
+    let (w, _, _) = crate::prt::pack::prt_pack(&pack, &opts, &|_| {}).unwrap();
     Pack::from_bytes(&w.to_bytes().unwrap(), "quad.bake").unwrap()
 }
 
@@ -153,7 +153,7 @@ fn open_quad_under_a_constant_sky_reflects_albedo_times_sky() {
 }
 
 fn srgb(c: f32) -> f32 {
-    crate::render::scene::srgb_to_linear(c)
+    crate::color::srgb_to_linear(c)
 }
 
 /// A two-vertex transfer with random coefficients.
@@ -171,7 +171,7 @@ fn random_prt(rng: &mut Lcg, t: f32) -> PrtData {
     };
     PrtData {
         vertices: 2,
-        packed: crate::light::prt::pack_gpu(&tr),
+        packed: crate::prt::transfer::pack_gpu(&tr),
         transfer: tr.coeffs,
         materials: vec![PrtMaterial {
             albedo: [0.5; 3],
@@ -297,7 +297,7 @@ fn sky_maps_turn_into_the_instance_frame() {
 fn cluster_pack(records: &[Instance], maps: &[(Sh16, Sh16)], weights: bool) -> Pack {
     use crate::envmap::section::{self as es, ClustersMeta, DIM};
     let mut w = PackWriter::new();
-    w.insert(kinds::mesh::to_section(
+    w.insert(crate::mesh::section::to_section(
         "mesh:quad.obj",
         "quad.obj",
         &quad(),
@@ -477,7 +477,9 @@ fn flat_terrain_pack(sky: &ShRadiance, sun: ([f32; 3], [f32; 3])) -> Pack {
         color: None,
     };
     let mut w = PackWriter::new();
-    w.insert(kinds::terrain::to_section("terrain", "flat.raw", &t, None));
+    w.insert(crate::terrain::source_section::to_section(
+        "terrain", "flat.raw", &t, None,
+    ));
     w.insert(instances::to_section(
         "instances",
         &Instances::default(),

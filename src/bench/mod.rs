@@ -1,0 +1,61 @@
+//! Benchmarks (`bake bench WHAT`; results recorded in docs/PERFORMANCE.md): each module measures
+//! one stage or kernel and returns its report; `cli::bench` parses the arguments and prints.
+//! One timing helper for all of them: [`time_best`] (fastest of three runs, wall and CPU time)
+//! and [`cpu_seconds`] (this process' CPU time, from Linux' schedstat).
+
+pub mod ambient;
+pub mod rays;
+pub mod terrain;
+pub mod terrain_rays;
+pub mod textures;
+
+use std::time::Instant;
+
+/// What a benchmark reports: its JSON document and the text `bake bench` prints.
+#[derive(Debug, Clone)]
+pub struct Report {
+    pub json: serde_json::Value,
+    pub text: String,
+}
+
+/// CPU time of this process (all threads), from Linux' per-thread schedstat (nanoseconds);
+/// `None` elsewhere. On a shared machine, rays per CPU-second compare two runs far more stably
+/// than wall time.
+pub fn cpu_seconds() -> Option<f64> {
+    let mut total = 0u64;
+    for task in std::fs::read_dir("/proc/self/task").ok()? {
+        let stat = std::fs::read_to_string(task.ok()?.path().join("schedstat")).ok()?;
+        total += stat.split_whitespace().next()?.parse::<u64>().ok()?;
+    }
+    Some(total as f64 * 1e-9)
+}
+
+/// A measurement: the fastest of three runs, in wall and CPU seconds.
+#[derive(Debug, Clone, Copy)]
+pub struct Timing {
+    pub wall: f64,
+    pub cpu: Option<f64>,
+}
+
+pub fn time_best(mut f: impl FnMut()) -> Timing {
+    let mut best = Timing {
+        wall: f64::INFINITY,
+        cpu: None,
+    };
+    for _ in 0..3 {
+        let (start, cpu0) = (Instant::now(), cpu_seconds());
+        f();
+        let wall = start.elapsed().as_secs_f64();
+        // schedstat advances in scheduler ticks: a run too short to register has no CPU time.
+        let cpu = cpu0
+            .zip(cpu_seconds())
+            .map(|(a, b)| b - a)
+            .filter(|&c| c > 1e-3);
+        best.wall = best.wall.min(wall);
+        best.cpu = match (best.cpu, cpu) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+    }
+    best
+}

@@ -1,0 +1,426 @@
+//! Per-vertex precomputed radiance transfer (PRT) for plant models (seed 000, 4.6.1).
+//!
+//! For every vertex and each of its two sides (front F along the vertex normal, back B against
+//! it), Monte-Carlo paths start in the cosine-weighted hemisphere of that side and are traced
+//! against the model itself (alpha-tested BVH). At a hit the path scatters diffusely: it is
+//! reflected into the hemisphere it came from with probability 1 − t or transmitted through the
+//! leaf with probability t (translucence), and its throughput is multiplied by the hit
+//! material's albedo (the BSDF is ρ(1−t)/π on the reflection side and ρt/π on the transmission
+//! side, so the sampling probabilities cancel and only ρ remains); Russian roulette on the
+//! throughput ends most paths after a hit on a dark leaf, unbiased. When a path leaves the model,
+//! the SH basis of its final direction, weighted by the throughput, is added to the side's
+//! transfer: set 0 collects every path (V(D|G|S)*C), set 1 only paths with at least one bounce
+//! (V(D|G|S)+C, for the indirect sun). Paths still inside the model after `bounces` scattering
+//! events are dropped (a slight, documented underestimate of deep interreflection).
+//!
+//! What the transfer means: with an environment C given as SH radiance coefficients (16 RGB),
+//! `L = Σ_i P_i · C_i` is the radiance the side reflects diffusely, i.e. the receiving vertex's
+//! albedo ρ and the 1/π of the diffuse BRDF are folded in: an unoccluded upward vertex has the
+//! SH projection of ρ·max(0, cos θ)/π. Translucence t of the receiving vertex is *not* folded
+//! in: the runtime applies it (eq. 4.8, `L_P = (P_FH·C_H + P_FS·C_S)(1 − t) + (P_BH·C_H +
+//! P_BS·C_S)·t`). That renderer integration is not part of this stage.
+//!
+//! Sampling: the first direction of sample k is the k-th point of the 2-D Sobol (0,2)-sequence
+//! with a random digital shift (XOR scramble, the base-2 form of a Cranley–Patterson rotation)
+//! derived from a hash of (vertex, side); later bounces use a SplitMix64 stream seeded by
+//! (vertex, side, k). Every vertex is computed on its own, so results are byte-identical
+//! whatever the thread count.
+//!
+//! Albedo and translucence (until the material stage's two-layer Schlick conversion lands):
+//! albedo = sRGB-decoded diffuse colour × the mean linear colour of the colour map's opaque
+//! texels; translucence = the TXF set's translucence, else [`PrtOptions::default_translucence`].
+
+use crate::error::Result;
+use crate::model::Mesh;
+pub use crate::trace::materials::{PrtMaterial, alpha_masks, prt_materials};
+use crate::trace::{AlphaMask, BuildPreset, ModelBvh, Ray, Rng, cosine_hemisphere, mix64};
+use glam::Vec3A;
+use rayon::prelude::*;
+
+/// SH order (bands) of the transfer.
+pub const ORDER: usize = crate::sh::ORDER;
+/// Coefficients per transfer vector.
+pub const COEFFS: usize = ORDER * ORDER;
+/// Sides per vertex: 0 = front (along the normal), 1 = back.
+pub const SIDES: usize = 2;
+/// Transfer sets: 0 = all paths, 1 = paths with at least one bounce.
+pub const SETS: usize = 2;
+/// RGB transfer coefficients per vertex.
+pub const PER_VERTEX: usize = SIDES * SETS * COEFFS;
+
+/// Options of the PRT stage.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PrtOptions {
+    /// Paths per vertex side.
+    pub samples: u32,
+    /// Scattering events a path may take inside the model (0: visibility only).
+    pub bounces: u32,
+    pub preset: BuildPreset,
+    /// Subdivision depth of the alpha-aware BVH build ([`crate::trace::bvh::ALPHA_SPLIT_DEPTH`]).
+    pub alpha_split: u32,
+    /// Ray origin offset along the normal, relative to the model's bounding-box diagonal.
+    pub offset: f32,
+    /// Translucence of materials that carry none (TXF plants: 0.3; objects: 0).
+    pub default_translucence: f32,
+    /// Seed of the per-vertex sample scrambles.
+    pub seed: u64,
+}
+
+impl PrtOptions {
+    /// Quick look: 64 paths per side, 2 bounces.
+    pub const fn preview() -> Self {
+        PrtOptions {
+            samples: 64,
+            bounces: 2,
+            preset: BuildPreset::VeryFast,
+            alpha_split: crate::trace::bvh::ALPHA_SPLIT_DEPTH,
+            offset: 1e-4,
+            default_translucence: 0.3,
+            seed: 0,
+        }
+    }
+    /// Final quality: 1,024 paths per side, 4 bounces.
+    pub const fn final_quality() -> Self {
+        PrtOptions {
+            samples: 1024,
+            bounces: 4,
+            ..Self::preview()
+        }
+    }
+}
+
+impl PrtOptions {
+    /// The default: 256 paths per side, 3 bounces.
+    pub const fn standard() -> Self {
+        PrtOptions {
+            samples: 256,
+            bounces: 3,
+            ..Self::preview()
+        }
+    }
+}
+
+impl Default for PrtOptions {
+    fn default() -> Self {
+        Self::standard()
+    }
+}
+
+/// The transfer of a mesh: `coeffs[((v·2 + side)·2 + set)·16 + i]` is the RGB coefficient i.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Transfer {
+    pub vertices: u32,
+    pub samples: u32,
+    pub bounces: u32,
+    pub coeffs: Vec<[f32; 3]>,
+    /// Rays traced (closest-hit queries), for the ray-rate statistics.
+    pub rays: u64,
+    /// Vertices with no usable normal or not used by any triangle (their transfer is zero).
+    pub skipped_vertices: u32,
+}
+
+impl Transfer {
+    /// The 16 coefficients of one vertex, side and set.
+    pub fn get(&self, vertex: usize, side: usize, set: usize) -> &[[f32; 3]] {
+        let at = ((vertex * SIDES + side) * SETS + set) * COEFFS;
+        &self.coeffs[at..at + COEFFS]
+    }
+}
+
+/// Bakes the transfer of `mesh`: builds its BVH, then [`bake_prt_with`].
+pub fn bake_prt(
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    masks: &[Option<AlphaMask>],
+    opts: &PrtOptions,
+) -> Result<Transfer> {
+    let bvh = ModelBvh::build_split(mesh, masks, opts.preset, opts.alpha_split)?;
+    Ok(bake_prt_with(&bvh, mesh, materials, opts, &|_| {}))
+}
+
+/// Bakes the transfer against a prebuilt BVH of `mesh`. `progress` is called with the number of
+/// vertices finished since its last call.
+pub fn bake_prt_with(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    opts: &PrtOptions,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Transfer {
+    let all: Vec<u32> = (0..mesh.positions.len() as u32).collect();
+    bake_prt_subset(bvh, mesh, materials, opts, &all, progress)
+}
+
+/// The transfer of the listed vertices only (in that order; benchmarks trace a sample of a
+/// large model). Out-of-range indices count as skipped.
+pub fn bake_prt_subset(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    opts: &PrtOptions,
+    vertices: &[u32],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Transfer {
+    let ctx = Ctx::new(bvh, mesh, materials, opts);
+    let n = vertices.len();
+    let per_vertex: Vec<VertexResult> = vertices
+        .par_iter()
+        .with_min_len(16)
+        .map(|&v| {
+            let r = ctx.vertex(v as usize);
+            progress(1);
+            r
+        })
+        .collect();
+    let mut t = Transfer {
+        vertices: n as u32,
+        samples: opts.samples,
+        bounces: opts.bounces,
+        coeffs: Vec::with_capacity(n * PER_VERTEX),
+        rays: 0,
+        skipped_vertices: 0,
+    };
+    for r in per_vertex {
+        match r {
+            Some((c, rays)) => {
+                t.coeffs.extend_from_slice(&c[..]);
+                t.rays += rays;
+            }
+            None => {
+                t.coeffs.extend_from_slice(&[[0.0; 3]; PER_VERTEX]);
+                t.skipped_vertices += 1;
+            }
+        }
+    }
+    t
+}
+
+/// One vertex's coefficients and ray count, or `None` if it was skipped.
+type VertexResult = Option<(Box<[[f32; 3]; PER_VERTEX]>, u64)>;
+
+/// Everything the per-vertex loop reads.
+struct Ctx<'a> {
+    bvh: &'a ModelBvh,
+    mesh: &'a Mesh,
+    materials: Vec<PrtMaterial>,
+    /// Material of each vertex (of the first triangle using it), `u32::MAX` if unused.
+    vertex_material: Vec<u32>,
+    /// Area-weighted face normal per vertex: the fallback for unusable vertex normals.
+    face_normal: Vec<Vec3A>,
+    eps: f32,
+    opts: &'a PrtOptions,
+}
+
+impl<'a> Ctx<'a> {
+    fn new(
+        bvh: &'a ModelBvh,
+        mesh: &'a Mesh,
+        materials: &[PrtMaterial],
+        opts: &'a PrtOptions,
+    ) -> Self {
+        let n = mesh.positions.len();
+        let mut vertex_material = vec![u32::MAX; n];
+        let mut face_normal = vec![Vec3A::ZERO; n];
+        for (t, tri) in mesh.indices.iter().enumerate() {
+            let p = |i: u32| Vec3A::from(mesh.positions[i as usize]);
+            let ng = (p(tri[1]) - p(tri[0])).cross(p(tri[2]) - p(tri[0]));
+            for &i in tri {
+                let i = i as usize;
+                if vertex_material[i] == u32::MAX {
+                    vertex_material[i] = mesh.triangle_materials[t];
+                }
+                if ng.is_finite() {
+                    face_normal[i] += ng;
+                }
+            }
+        }
+        let (lo, hi) = bvh.bounds();
+        let diag = (hi - lo).length();
+        let diag = if diag.is_finite() && diag > 0.0 {
+            diag
+        } else {
+            1.0
+        };
+        // Materials the mesh names but the caller did not describe absorb everything.
+        let mut mats = materials.to_vec();
+        mats.resize(
+            mesh.materials.len().max(mats.len()),
+            PrtMaterial {
+                albedo: [0.0; 3],
+                translucence: 0.0,
+            },
+        );
+        Ctx {
+            bvh,
+            mesh,
+            materials: mats,
+            vertex_material,
+            face_normal,
+            eps: opts.offset * diag,
+            opts,
+        }
+    }
+
+    /// The unit normal of vertex `v`: its own, or the face normal where that is unusable.
+    fn normal(&self, v: usize) -> Option<Vec3A> {
+        let n = Vec3A::from(self.mesh.normals[v]);
+        n.try_normalize()
+            .or_else(|| self.face_normal[v].try_normalize())
+    }
+
+    fn vertex(&self, v: usize) -> VertexResult {
+        let mat = *self.materials.get(*self.vertex_material.get(v)? as usize)?;
+        let n = self.normal(v)?;
+        let p = Vec3A::from(self.mesh.positions[v]);
+        if !p.is_finite() {
+            return None;
+        }
+        let mut out = Box::new([[0.0f32; 3]; PER_VERTEX]);
+        let mut rays = 0;
+        for side in 0..SIDES {
+            let ns = if side == 0 { n } else { -n };
+            let mut acc = [[[0.0f64; 3]; COEFFS]; SETS];
+            rays += self.side(v, side, p + ns * self.eps, ns, &mut acc);
+            let scale = 1.0 / self.opts.samples.max(1) as f64;
+            let dst = &mut out[side * SETS * COEFFS..(side + 1) * SETS * COEFFS];
+            for (o, a) in dst.iter_mut().zip(acc.iter().flatten()) {
+                *o = std::array::from_fn(|k| (a[k] * scale * mat.albedo[k] as f64) as f32);
+            }
+        }
+        Some((out, rays))
+    }
+
+    /// Traces the paths of one side, adding throughput × SH basis of each escape direction.
+    fn side(
+        &self,
+        v: usize,
+        side: usize,
+        origin: Vec3A,
+        n: Vec3A,
+        acc: &mut [[[f64; 3]; COEFFS]; SETS],
+    ) -> u64 {
+        let key = self.opts.seed ^ ((v as u64) << 1 | side as u64);
+        let shift = mix64(key);
+        let (sx, sy) = (shift as u32, (shift >> 32) as u32);
+        let mut rays = 0;
+        for k in 0..self.opts.samples {
+            let (u1, u2) = sobol_scrambled(k, sx, sy);
+            let d = cosine_hemisphere(n, u1, u2);
+            let mut rng = Rng::hashed(mix64(key) ^ (k as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+            let (escape, r) = self.trace(origin, d, &mut rng);
+            rays += r;
+            if let Some((dir, beta, bounces)) = escape {
+                let y = crate::sh::eval_basis16(dir.to_array());
+                // Set 0 takes every escaping path, set 1 only those that bounced.
+                let sets = if bounces == 0 { 1 } else { SETS };
+                for set_acc in acc.iter_mut().take(sets) {
+                    for (a, &yi) in set_acc.iter_mut().zip(&y) {
+                        for c in 0..3 {
+                            a[c] += (beta[c] * yi) as f64;
+                        }
+                    }
+                }
+            }
+        }
+        rays
+    }
+
+    /// Follows one path; returns (escape direction, throughput, bounces) if it left the model,
+    /// and the number of rays traced.
+    fn trace(&self, mut o: Vec3A, mut d: Vec3A, rng: &mut Rng) -> (Option<Escape>, u64) {
+        let mut beta = [1.0f32; 3];
+        for bounce in 0..=self.opts.bounces {
+            let ray = Ray::new(o, d, 0.0);
+            if bounce == self.opts.bounces {
+                // The last ray only has to tell whether the path escapes: any hit will do.
+                let escape = (!self.bvh.any_hit(&ray)).then_some((d, beta, bounce));
+                return (escape, bounce as u64 + 1);
+            }
+            let Some(h) = self.bvh.closest_hit(&ray) else {
+                return (Some((d, beta, bounce)), bounce as u64 + 1);
+            };
+            let (position, ng, material) = self.bvh.hit_point(&h);
+            let m = self.materials[material as usize];
+            beta = std::array::from_fn(|k| beta[k] * m.albedo[k]);
+            if beta == [0.0; 3] || ng == Vec3A::ZERO {
+                return (None, bounce as u64 + 1);
+            }
+            // Russian roulette: go on with probability q = max(β) and divide by it, so dark
+            // leaves (albedo ≈ 0.1) end most paths after one hit without biasing the estimate.
+            let q = beta[0].max(beta[1]).max(beta[2]).min(1.0);
+            if q < 1.0 {
+                if rng.f32() >= q {
+                    return (None, bounce as u64 + 1);
+                }
+                beta = beta.map(|b| b / q);
+            }
+            let facing = if ng.dot(d) < 0.0 { ng } else { -ng };
+            let out = if rng.f32() < m.translucence {
+                -facing
+            } else {
+                facing
+            };
+            o = position + out * self.eps;
+            d = cosine_hemisphere(out, rng.f32(), rng.f32());
+        }
+        unreachable!("the loop returns at bounce == bounces at the latest")
+    }
+}
+
+/// Escape direction, throughput, bounces taken.
+type Escape = (Vec3A, [f32; 3], u32);
+
+/// Point k of the 2-D Sobol (0,2)-sequence, XOR-scrambled, in [0, 1)².
+fn sobol_scrambled(k: u32, sx: u32, sy: u32) -> (f32, f32) {
+    let mut v = 1u32 << 31;
+    let mut y = 0u32;
+    let mut i = k;
+    while i != 0 {
+        if i & 1 != 0 {
+            y ^= v;
+        }
+        i >>= 1;
+        v ^= v >> 1;
+    }
+    let x = k.reverse_bits();
+    let to_unit = |b: u32| (b >> 8) as f32 * (1.0 / (1u32 << 24) as f32);
+    (to_unit(x ^ sx), to_unit(y ^ sy))
+}
+
+pub use crate::color::luminance;
+
+/// Vec4s per side in the GPU layout.
+pub const GPU_VEC4_PER_SIDE: usize = 5;
+
+/// The thesis' GPU layout (4.6.1): per vertex and side 5 vec4. vec4 0 holds band 0 of set 0 in
+/// RGB and, in alpha, the indirect fraction (band-0 luminance of set 1 over set 0, in [0, 1]:
+/// the runtime approximates P_S by this fraction × P_H); vec4 1–4 hold the luminance of
+/// coefficients 1–15 of set 0 (bands 1–3 monochrome), the last float is 0.
+pub fn pack_gpu(t: &Transfer) -> Vec<[f32; 4]> {
+    let mut out = Vec::with_capacity(t.vertices as usize * SIDES * GPU_VEC4_PER_SIDE);
+    for v in 0..t.vertices as usize {
+        for side in 0..SIDES {
+            let all = t.get(v, side, 0);
+            let ind = t.get(v, side, 1);
+            let l0 = luminance(all[0]);
+            let frac = if l0 > 0.0 {
+                (luminance(ind[0]) / l0).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            out.push([all[0][0], all[0][1], all[0][2], frac]);
+            let mut mono = [0.0f32; 16];
+            for i in 1..COEFFS {
+                mono[i - 1] = luminance(all[i]);
+            }
+            for c in mono.chunks_exact(4) {
+                out.push([c[0], c[1], c[2], c[3]]);
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests;

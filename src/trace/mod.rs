@@ -1,0 +1,134 @@
+//! Ray tracing: per-model BVHs with alpha-tested triangles ([`bvh`]), the terrain traced through
+//! its min/max quadtree ([`heightfield`]), a two-level scene of instanced models on the terrain
+//! ([`scene`]), that scene built from a pack ([`pack_scene`]), the surfaces the tracer sees
+//! ([`materials`]), and the shared ray, hit and sampling types.
+//!
+//! Every query here is pure and single-threaded; batch helpers run queries over rayon and
+//! collect in input order, so results never depend on the thread count.
+
+pub mod bvh;
+pub mod heightfield;
+pub mod materials;
+pub mod pack_scene;
+pub mod scene;
+
+pub use bvh::{AlphaMask, BuildPreset, ModelBvh, SurfacePoint};
+pub use heightfield::{Heightfield, TerrainPoint};
+pub use scene::{InstanceTransform, SceneBvh, SceneHit};
+
+use glam::Vec3A;
+
+/// A ray segment: points `origin + t·dir` for `t` in `[tmin, tmax]`.
+///
+/// `dir` need not be unit length: `t` is in units of `dir` (the two-level scene relies on this
+/// to keep `t` unchanged when it maps a ray into a scaled instance).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray {
+    pub origin: Vec3A,
+    pub dir: Vec3A,
+    pub tmin: f32,
+    pub tmax: f32,
+}
+
+impl Ray {
+    /// A ray from `origin` along `dir` with `t` in `[tmin, ∞)`.
+    pub fn new(origin: Vec3A, dir: Vec3A, tmin: f32) -> Self {
+        Ray {
+            origin,
+            dir,
+            tmin,
+            tmax: f32::INFINITY,
+        }
+    }
+
+    /// The point at parameter `t`.
+    pub fn at(&self, t: f32) -> Vec3A {
+        self.origin + self.dir * t
+    }
+
+    /// The same ray as obvhs expects it (obvhs uses its own glam version).
+    pub(crate) fn to_obvhs(self) -> obvhs::ray::Ray {
+        obvhs::ray::Ray::new(
+            self.origin.to_array().into(),
+            self.dir.to_array().into(),
+            self.tmin,
+            self.tmax,
+        )
+    }
+}
+
+/// A ray/triangle hit: parameter `t`, the triangle (index into the mesh's triangles), its BVH
+/// slot, and the barycentrics: the hit point is `(1 − u − v)·p0 + u·p1 + v·p2`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    pub triangle: u32,
+    /// Position of the triangle in the BVH's leaf order (for [`ModelBvh::hit_point`]).
+    pub slot: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+/// An orthonormal frame around a unit normal (Duff et al. 2017, "Building an Orthonormal Basis,
+/// Revisited"): returns tangent and bitangent so that (t, b, n) is right-handed.
+pub fn frame(n: Vec3A) -> (Vec3A, Vec3A) {
+    let sign = 1.0f32.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    let t = Vec3A::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let bt = Vec3A::new(b, sign + n.y * n.y * a, -n.y);
+    (t, bt)
+}
+
+/// Cosine-weighted direction on the hemisphere around unit `n` from `(u1, u2)` in [0, 1)²
+/// (Malley's method: a uniform disk point lifted to the hemisphere). pdf = cos θ / π.
+pub fn cosine_hemisphere(n: Vec3A, u1: f32, u2: f32) -> Vec3A {
+    let r = u1.sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    let (s, c) = phi.sin_cos();
+    let z = (1.0 - u1).max(0.0).sqrt();
+    let (t, b) = frame(n);
+    t * (r * c) + b * (r * s) + n * z
+}
+
+pub use crate::rng::{Rng, mix64};
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_is_orthonormal() {
+        let mut rng = Rng::hashed(1);
+        for _ in 0..1000 {
+            let n = Vec3A::new(
+                rng.f32() * 2.0 - 1.0,
+                rng.f32() * 2.0 - 1.0,
+                rng.f32() * 2.0 - 1.0,
+            )
+            .normalize();
+            let (t, b) = frame(n);
+            assert!((t.length() - 1.0).abs() < 1e-4);
+            assert!((b.length() - 1.0).abs() < 1e-4);
+            assert!(t.dot(b).abs() < 1e-4 && t.dot(n).abs() < 1e-4 && b.dot(n).abs() < 1e-4);
+            assert!((t.cross(b) - n).length() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn cosine_samples_have_mean_cosine_two_thirds() {
+        // E[cos θ] under pdf cos θ/π is 2/3: an independent check of the warp.
+        let n = Vec3A::new(0.3, -0.5, 0.8).normalize();
+        let mut rng = Rng::hashed(7);
+        let k = 200_000;
+        let mut sum = 0.0f64;
+        for _ in 0..k {
+            let d = cosine_hemisphere(n, rng.f32(), rng.f32());
+            assert!((d.length() - 1.0).abs() < 1e-4);
+            assert!(d.dot(n) >= -1e-6);
+            sum += d.dot(n) as f64;
+        }
+        let mean = sum / k as f64;
+        assert!((mean - 2.0 / 3.0).abs() < 3e-3, "{mean}");
+    }
+}
