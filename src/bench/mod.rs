@@ -4,11 +4,15 @@
 //! and [`cpu_seconds`] (this process' CPU time, from Linux' schedstat).
 
 pub mod ambient;
+pub mod lightmap;
 pub mod rays;
+pub mod sky;
+pub mod svo;
 pub mod terrain;
 pub mod terrain_rays;
 pub mod textures;
 
+use crate::error::Result;
 use std::time::Instant;
 
 /// What a benchmark reports: its JSON document and the text `bake bench` prints.
@@ -58,4 +62,29 @@ pub fn time_best(mut f: impl FnMut()) -> Timing {
         };
     }
     best
+}
+
+/// Median wall time of `repeat` runs of `f`, in seconds.
+pub fn time_median<T>(repeat: u32, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
+    let mut times = Vec::new();
+    let mut last = None;
+    for _ in 0..repeat.max(1) {
+        let t = Instant::now();
+        last = Some(f()?);
+        times.push(t.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    Ok((times[times.len() / 2], last.expect("at least one run")))
+}
+
+/// Best (smallest) wall time of `repeat` runs of `f`, in seconds, and the last run's result.
+pub fn time_min<T>(repeat: u32, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
+    let mut best = f64::INFINITY;
+    let mut last = None;
+    for _ in 0..repeat.max(1) {
+        let t = Instant::now();
+        last = Some(f()?);
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    Ok((best, last.expect("at least one run")))
 }

@@ -210,130 +210,14 @@ pub struct SkyBenchArgs {
     pub cmgen_sh: Option<PathBuf>,
 }
 
-/// Median wall time of `repeat` runs of `f`, in seconds.
-fn time_median<T>(repeat: u32, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
-    let mut times = Vec::new();
-    let mut last = None;
-    for _ in 0..repeat.max(1) {
-        let t = std::time::Instant::now();
-        last = Some(f()?);
-        times.push(t.elapsed().as_secs_f64());
-    }
-    times.sort_by(f64::total_cmp);
-    Ok((times[times.len() / 2], last.expect("at least one run")))
-}
-
-/// Largest coefficient difference relative to |L00| (per channel, over all 16 coefficients).
-fn sh_error(a: &crate::sh::ShRadiance, exact: &crate::sh::ShRadiance) -> f64 {
-    let mut worst = 0.0f64;
-    for k in 0..3 {
-        let scale = (exact.coeffs[0][k] as f64).abs().max(1e-30);
-        for i in 0..16 {
-            worst = worst.max((a.coeffs[i][k] as f64 - exact.coeffs[i][k] as f64).abs() / scale);
-        }
-    }
-    worst
-}
-
 pub fn bench(a: &SkyBenchArgs, _g: &Global) -> Result<Outcome> {
-    if let Some((w, h)) = a.write_sample {
-        // Sun off the diagonals, so the x and y axes are told apart in comparisons.
-        let params = BuiltinSky {
-            sun_elevation_deg: 35.0,
-            sun_azimuth_deg: 160.0,
-            ..BuiltinSky::default()
-        };
-        let img = sky::builtin::builtin_sky_latlong(&params, w, h);
-        crate::pack::write_atomic(&a.input, &crate::ingest::skyimage::write_hdr(&img))?;
-        return Ok(Outcome {
-            json: json!({"written": a.input, "width": w, "height": h}),
-            text: format!("{}: built-in sky, {w}×{h}\n", a.input.display()),
-            warnings: Vec::new(),
-        });
-    }
-    let (t_decode, img) = time_median(a.repeat, || crate::ingest::skyimage::load(&a.input))?;
-    let (t_sh, sh) = time_median(a.repeat, || Ok(crate::sh::project_latlong(&img)))?;
-    let src = sky::image_to_source(img.clone()).map_err(|e| Error::invalid(&a.input, e))?;
-    let (t_bake, bake) = time_median(a.repeat, || sky::bake_sky(&src, &SkyOptions::default()))?;
-    let exact = crate::sh::project_latlong_exact(&img);
-    let full_cube = sky::source_to_cube(&src, bake.cube.size, 0.0);
-    let cube_sh = crate::sh::project_cube(&full_cube);
-    let mut json = json!({
-        "input": a.input, "width": img.width, "height": img.height, "threads": rayon::current_num_threads(),
-        "seconds": {"decode": t_decode, "sh_latlong": t_sh, "bake_sky": t_bake},
-        "sh_error_vs_exact": {"latlong": sh_error(&sh, &exact), "cube": sh_error(&cube_sh, &exact)},
-        "face_size": bake.cube.size,
-        "sh_exact": exact.coeffs, "sh_latlong": sh.coeffs,
-    });
-    let mut text = format!(
-        "{} ({}×{}, {} threads): decode {:.1} ms, SH from lat-long {:.1} ms, bake sky (cube {}, sun, SH) {:.1} ms\n  SH error vs exact pixel integrals (max |Δ|/|L00|): lat-long {:.2e}, cube {:.2e}\n",
-        a.input.display(),
-        img.width,
-        img.height,
-        rayon::current_num_threads(),
-        t_decode * 1e3,
-        t_sh * 1e3,
-        bake.cube.size,
-        t_bake * 1e3,
-        sh_error(&sh, &exact),
-        sh_error(&cube_sh, &exact),
-    );
-    if let Some(path) = &a.cmgen_sh {
-        let theirs = read_cmgen_sh(path)?;
-        let err = sh_error(&theirs, &exact);
-        json["sh_error_vs_exact"]["cmgen"] = json!(err);
-        json["sh_cmgen_aligned"] = json!(theirs.coeffs);
-        text.push_str(&format!("  cmgen (aligned): {err:.2e}\n"));
-    }
+    let r = match a.write_sample {
+        Some((w, h)) => crate::bench::sky::write_sample(&a.input, w, h)?,
+        None => crate::bench::sky::bench_sky(&a.input, a.repeat, a.cmgen_sh.as_deref())?,
+    };
     Ok(Outcome {
-        json,
-        text,
+        json: r.json,
+        text: r.text,
         warnings: Vec::new(),
     })
-}
-
-/// Reads cmgen's `--sh-output` text (`( r, g, b ); // L00 ...` lines, 16 of them) and maps it to
-/// bake's convention (see docs/PERFORMANCE.md, "Sky", for how the conventions were aligned).
-fn read_cmgen_sh(path: &std::path::Path) -> Result<crate::sh::ShRadiance> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let mut coeffs = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let Some(open) = line.find('(') else { continue };
-        let Some(close) = line[open..].find(')') else {
-            continue;
-        };
-        let nums: Vec<f32> = line[open + 1..open + close]
-            .split(',')
-            .map(|s| s.trim().parse::<f32>())
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|_| {
-                Error::invalid_at(path, format!("line {}", n + 1), "expected ( r, g, b )")
-            })?;
-        if nums.len() != 3 {
-            return Err(Error::invalid_at(
-                path,
-                format!("line {}", n + 1),
-                "expected 3 numbers",
-            ));
-        }
-        coeffs.push([nums[0], nums[1], nums[2]]);
-    }
-    let coeffs: [[f32; 3]; 16] = coeffs.try_into().map_err(|c: Vec<_>| {
-        Error::invalid_at(
-            path,
-            "file",
-            format!("{} coefficients, expected 16", c.len()),
-        )
-    })?;
-    Ok(cmgen_to_bake(coeffs))
-}
-
-/// cmgen's coefficients in bake's convention. cmgen (Filament `libs/ibl`) uses the same real
-/// basis with the Condon–Shortley phase, but its axes are Y up and its cube maps mirrored (its
-/// default): a world direction (x, y, z) is cmgen's (x', y', z') = (y, z, −x), found by matching
-/// the band-1 dipole of a sky whose sun is off the diagonals (an improper map, det −1). bake's
-/// function at ω is cmgen's at M·ω, i.e. cmgen's rotated by Mᵀ.
-fn cmgen_to_bake(c: [[f32; 3]; 16]) -> crate::sh::ShRadiance {
-    let mt = [[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
-    crate::sh::ShRadiance { coeffs: c }.rotated(&crate::sh::ShRotation::new(4, mt))
 }
