@@ -19,6 +19,7 @@ pub mod mesh;
 pub mod model;
 pub mod pack;
 pub mod pipeline;
+pub mod plan;
 pub mod render;
 pub mod rt;
 pub mod sh;

@@ -14,11 +14,13 @@ pub mod lightmap;
 pub mod linespace;
 pub mod material;
 pub mod pipeline;
+pub mod plan;
 pub mod prt;
 pub mod render;
 pub mod sky;
 pub mod svo;
 pub mod terrain;
+pub mod unit;
 pub mod validate;
 pub mod verify;
 
