@@ -1,4 +1,5 @@
-//! The stage graph as Ninja actions (issue 17): `bake plan --emit ninja` of the fixture scene,
+//! The stage graph as Ninja actions (issue 17): `bake plan --emit ninja` of the fixture scene
+//! (env maps in two shards, the terrain light map in two row shards),
 //! built by the real `ninja`, against the single-process `bake SCENE.eco` (byte identity), ninja's
 //! own `-n` output (no work after a build; after one model changes, only that model's actions
 //! and the scene actions that read them), and every action run alone in a folder holding only
@@ -54,6 +55,8 @@ fn planned(root: &Path) -> PathBuf {
         "ninja",
         "-o",
         "build",
+        "--lightmap-shards",
+        "2",
     ];
     args.extend(PIPELINE);
     ok(run_in(root, &common::bake_bin(), &args), "bake plan");
@@ -148,7 +151,9 @@ fn the_ninja_build_equals_the_single_process_bake_and_rebuilds_only_what_a_model
     let want: BTreeSet<String> = [
         model.as_str(),
         prt.as_str(),
-        "lightmap",
+        "lightmap-1-of-2",
+        "lightmap-2-of-2",
+        "lightmap-join",
         "atlas",
         "envmaps-1-of-2",
         "envmaps-2-of-2",
@@ -199,6 +204,7 @@ fn every_action_succeeds_in_a_folder_holding_only_its_declared_inputs() {
         sky: Some(root.path().join("fx/sky.hdr")),
         pipeline: Some("ci".into()),
         set: vec!["stages.svo=true".into(), "stages.linespace=true".into()],
+        lightmap_shards: Some(2),
         ..Default::default()
     };
     let plan = bake::plan::make_plan(&opts, &build).unwrap();

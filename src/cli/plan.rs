@@ -46,14 +46,17 @@ pub struct PlanArgs {
     /// Environment-map shards (default: the pipeline's units.envmap_shard_instances).
     #[arg(long)]
     pub shards: Option<usize>,
+    /// Row shards of the terrain light map (default 1).
+    #[arg(long, value_name = "N")]
+    pub lightmap_shards: Option<usize>,
     /// The final pack (default: DIR/<scene stem>.bake).
     #[arg(long)]
     pub output: Option<PathBuf>,
 }
 
 pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
-    if args.shards == Some(0) {
-        return Err(Error::usage("--shards must be at least 1"));
+    if args.shards == Some(0) || args.lightmap_shards == Some(0) {
+        return Err(Error::usage("--shards and --lightmap-shards must be at least 1"));
     }
     let opts = PlanOptions {
         scenes: args.scenes.clone(),
@@ -65,6 +68,7 @@ pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
         preview: args.preview,
         set: args.set.clone(),
         shards: args.shards,
+        lightmap_shards: args.lightmap_shards,
         output: args.output.clone(),
     };
     let bake = std::env::current_exe().map_err(|e| Error::io("bake", e))?;

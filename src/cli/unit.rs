@@ -96,8 +96,17 @@ pub enum Unit {
     Instances(SceneFlags),
     /// The sky's cube map, sun and SH.
     Sky(SceneFlags),
-    /// The terrain light map over the packs of terrain, models, instances, sky.
-    Lightmap(WithPacks),
+    /// The terrain light map over the packs of terrain, models, instances, sky (with `--rows
+    /// I/N`: one shard of its rows, joined by `lightmap-join`).
+    Lightmap {
+        #[command(flatten)]
+        packs: WithPacks,
+        /// Which shard of the rows: I of N (1-based).
+        #[arg(long, value_parser = actions::parse_shard)]
+        rows: Option<(usize, usize)>,
+    },
+    /// The terrain light map from its row shards' packs (in shard order).
+    LightmapJoin(WithPacks),
     /// The object atlases over the same packs.
     Atlas(WithPacks),
     /// One shard of the environment maps (`--shard I/N`), over the same packs.
@@ -150,7 +159,16 @@ pub fn run(args: &UnitArgs, g: &Global) -> Result<Outcome> {
         }
         Unit::Instances(f) => actions::instances(&f.scene(g)?, &f.output)?,
         Unit::Sky(f) => actions::sky(&f.scene(g)?, &f.output)?,
-        Unit::Lightmap(w) => actions::lightmap(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
+        Unit::Lightmap { packs, rows } => {
+            let scene = packs.scene.scene(g)?;
+            match rows {
+                Some(r) => actions::lightmap_rows(&scene, &packs.inputs, *r, &packs.scene.output)?,
+                None => actions::lightmap(&scene, &packs.inputs, &packs.scene.output)?,
+            }
+        }
+        Unit::LightmapJoin(w) => {
+            actions::lightmap_join(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?
+        }
         Unit::Atlas(w) => actions::atlas(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
         Unit::Envmaps { packs, shard } => actions::envmaps_shard(
             &packs.scene.scene(g)?,

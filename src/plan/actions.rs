@@ -227,6 +227,99 @@ pub fn lightmap(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitRep
     finish("lightmap", out, outs, Vec::new())
 }
 
+/// Kind (and name) of the section holding one row shard of the terrain light map.
+pub const LIGHTMAP_ROWS_KIND: &str = "lightmap-rows";
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct RowsMeta {
+    width: u32,
+    height: u32,
+    start: u32,
+    end: u32,
+}
+
+/// Rows `shard.0` of `shard.1` of the terrain light map ([`shard_range`] over the rows), over
+/// the same packs as [`lightmap`]; joined by [`lightmap_join`].
+pub fn lightmap_rows(
+    s: &SceneArgs,
+    inputs: &[PathBuf],
+    shard: (usize, usize),
+    out: &Path,
+) -> Result<UnitReport> {
+    let sections = read_packs(inputs)?;
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let (ts, light) = traced(&view)?;
+    let lm = &s.pipeline.lightmap;
+    let mut outs = Vec::new();
+    if let Some((w, h)) = crate::lightmap::terrain_lightmap_size(&ts, lm) {
+        let r = shard_range(shard.0, shard.1, h as usize);
+        let rows = r.start as u32..r.end as u32;
+        let (texels, direct) =
+            crate::lightmap::bake_terrain_lightmap_rows(&ts, &light, lm, rows.clone())
+                .unwrap_or_default();
+        let mut b = crate::pack::SectionBuilder::new(LIGHTMAP_ROWS_KIND, LIGHTMAP_ROWS_KIND);
+        b.meta(&RowsMeta {
+            width: w,
+            height: h,
+            start: rows.start,
+            end: rows.end,
+        });
+        b.array("texels", crate::pack::ArrayFormat::F32, 3, &texels);
+        b.array("direct", crate::pack::ArrayFormat::F32, 3, &direct);
+        outs.push(b.finish());
+    }
+    finish("lightmap-rows", out, outs, Vec::new())
+}
+
+/// The terrain light map from its row shards' packs (in shard order): the same section as
+/// [`lightmap`] computes in one piece.
+pub fn lightmap_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let mut texels: Vec<[f32; 3]> = Vec::new();
+    let mut direct: Vec<[f32; 3]> = Vec::new();
+    let mut size = None;
+    let mut next = 0u32;
+    for p in shards {
+        let pack = Pack::open(p)?;
+        let Some(e) = pack.find(LIGHTMAP_ROWS_KIND) else {
+            continue; // no terrain: every shard is empty
+        };
+        let bad = |m: String| Error::invalid_at(p, "lightmap-rows section", m);
+        let v = pack.view(e)?;
+        let m: RowsMeta = v.meta().map_err(|e| bad(e.to_string()))?;
+        if size.is_some_and(|s| s != (m.width, m.height)) || m.start != next || m.end < m.start {
+            return Err(bad(format!(
+                "rows {}..{} of a {}×{} map do not continue the shards before it (row {next})",
+                m.start, m.end, m.width, m.height
+            )));
+        }
+        size = Some((m.width, m.height));
+        next = m.end;
+        let t: &[[f32; 3]] = v.array("texels").map_err(|e| bad(e.to_string()))?;
+        let d: &[[f32; 3]] = v.array("direct").map_err(|e| bad(e.to_string()))?;
+        let want = ((m.end - m.start) * m.width) as usize;
+        if t.len() != want || d.len() != want {
+            return Err(bad(format!("{} texels, expected {want}", t.len())));
+        }
+        texels.extend_from_slice(t);
+        direct.extend_from_slice(d);
+    }
+    let mut outs = Vec::new();
+    if let Some((width, height)) = size {
+        if next != height {
+            return Err(Error::usage(format!(
+                "the light map's row shards end at row {next} of {height}: a shard is missing"
+            )));
+        }
+        let map = crate::lightmap::Lightmap {
+            width,
+            height,
+            texels,
+        };
+        outs = crate::lightmap::terrain_sections_of(&map, &direct, &s.pipeline.lightmap);
+    }
+    finish("lightmap", out, outs, Vec::new())
+}
+
 /// The object atlases over the same packs as [`lightmap`].
 pub fn atlas(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
     let sections = read_packs(inputs)?;

@@ -32,6 +32,8 @@ pub struct PlanOptions {
     pub set: Vec<String>,
     /// Environment-map shards (default: the pipeline's `units.envmap_shard_instances`).
     pub shards: Option<usize>,
+    /// Row shards of the terrain light map (default 1: one action).
+    pub lightmap_shards: Option<usize>,
     /// Where the final pack goes (default: `<dir>/<scene stem>.bake`).
     pub output: Option<PathBuf>,
 }
@@ -289,7 +291,26 @@ pub fn make_plan(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
         }
     };
     if s.lightmap {
-        actions.push(over("lightmap", &trace_refs, "lightmap.bake", &[]));
+        let shards = opts.lightmap_shards.unwrap_or(1).max(1);
+        if shards == 1 {
+            actions.push(over("lightmap", &trace_refs, "lightmap.bake", &[]));
+        } else {
+            let mut rows = Vec::new();
+            for i in 0..shards {
+                let out = format!("lightmap/rows-{}-of-{shards}.bake", i + 1);
+                let mut a = over(
+                    "lightmap",
+                    &trace_refs,
+                    &out,
+                    &["--rows".into(), format!("{}/{shards}", i + 1)],
+                );
+                a.id = format!("lightmap-{}-of-{shards}", i + 1);
+                actions.push(a);
+                rows.push(PathBuf::from(out));
+            }
+            let refs: Vec<&PathBuf> = rows.iter().collect();
+            actions.push(over("lightmap-join", &refs, "lightmap.bake", &[]));
+        }
         merged.push("lightmap.bake".into());
     }
     if s.atlas {
