@@ -96,8 +96,7 @@ fn dry_run(build: &Path) -> BTreeSet<String> {
 }
 
 #[test]
-fn the_ninja_build_equals_the_single_process_bake_and_rebuilds_only_what_a_model_change_reaches()
-{
+fn the_ninja_build_equals_the_single_process_bake_and_rebuilds_only_what_a_model_change_reaches() {
     if !common::tool_available("ninja", "the Ninja build of the plan") {
         return;
     }
@@ -266,18 +265,49 @@ fn merge_refuses_two_payloads_under_one_name_naming_both_files() {
     );
     // The same pack twice is fine (every section kept once) and equals the pack.
     ok(
-        run_in(d, &bake, &["-q", "merge", "a.bake", "a.bake", "-o", "aa.bake"]),
+        run_in(
+            d,
+            &bake,
+            &["-q", "merge", "a.bake", "a.bake", "-o", "aa.bake"],
+        ),
         "merge a a",
     );
     assert!(std::fs::read(d.join("aa.bake")).unwrap() == std::fs::read(d.join("a.bake")).unwrap());
     // b's terrain section replaced a's: same name, other bytes.
-    let o = run_in(d, &bake, &["-q", "merge", "a.bake", "b.bake", "-o", "ab.bake"]);
+    let o = run_in(
+        d,
+        &bake,
+        &["-q", "merge", "a.bake", "b.bake", "-o", "ab.bake"],
+    );
     assert!(!o.status.success());
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("a.bake") && e.contains("b.bake"), "{e}");
     assert!(!d.join("ab.bake").exists(), "no partial output");
+    // A unit given the wrong pack names it and writes nothing.
+    let o = run_in(
+        d,
+        &bake,
+        &[
+            "-q",
+            "unit",
+            "envmaps-join",
+            "scene.eco",
+            "--in",
+            "a.bake",
+            "-o",
+            "j.bake",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(4));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("a.bake") && e.contains("envmaps-shard"), "{e}");
+    assert!(!d.join("j.bake").exists());
     // A file that is not a pack names itself.
-    let o = run_in(d, &bake, &["-q", "merge", "a.bake", "scene.eco", "-o", "x.bake"]);
+    let o = run_in(
+        d,
+        &bake,
+        &["-q", "merge", "a.bake", "scene.eco", "-o", "x.bake"],
+    );
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("scene.eco"));
     assert!(!d.join("x.bake").exists());

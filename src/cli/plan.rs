@@ -56,7 +56,9 @@ pub struct PlanArgs {
 
 pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
     if args.shards == Some(0) || args.lightmap_shards == Some(0) {
-        return Err(Error::usage("--shards and --lightmap-shards must be at least 1"));
+        return Err(Error::usage(
+            "--shards and --lightmap-shards must be at least 1",
+        ));
     }
     let opts = PlanOptions {
         scenes: args.scenes.clone(),

@@ -39,11 +39,8 @@ pub struct SceneFlags {
 
 impl SceneFlags {
     fn scene(&self, g: &Global) -> Result<SceneArgs> {
-        let (pipeline, pipeline_file) = super::build::resolve_pipeline(
-            self.pipeline.as_deref(),
-            self.preview,
-            &self.set,
-        )?;
+        let (pipeline, pipeline_file) =
+            super::build::resolve_pipeline(self.pipeline.as_deref(), self.preview, &self.set)?;
         Ok(SceneArgs {
             scenes: self.scenes.clone(),
             sky: self.sky.clone(),

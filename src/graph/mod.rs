@@ -768,7 +768,10 @@ pub(crate) fn shard_section(maps: &[crate::envmap::bake::InstanceMaps]) -> Secti
     b.finish()
 }
 
-pub(crate) fn shard_maps(sections: &[Section], n: usize) -> Result<Vec<crate::envmap::bake::InstanceMaps>> {
+pub(crate) fn shard_maps(
+    sections: &[Section],
+    n: usize,
+) -> Result<Vec<crate::envmap::bake::InstanceMaps>> {
     let bad = || Error::runtime("environment-map shard: unexpected cache entry contents");
     let s = sections
         .first()

@@ -130,6 +130,9 @@ pub fn terrain_lightmap_size(scene: &TraceScene, opts: &LightmapOptions) -> Opti
     Some((res, res))
 }
 
+/// Texels of some rows of a light map and their direct-sun part.
+pub type TexelRows = (Vec<[f32; 3]>, Vec<[f32; 3]>);
+
 /// The texels (irradiance, direct-sun part) of rows `rows` of the terrain light map, exactly as
 /// the whole map holds them (each texel is seeded by its index): a shard of the light map.
 pub fn bake_terrain_lightmap_rows(
@@ -137,7 +140,7 @@ pub fn bake_terrain_lightmap_rows(
     light: &Lighting,
     opts: &LightmapOptions,
     rows: std::ops::Range<u32>,
-) -> Option<(Vec<[f32; 3]>, Vec<[f32; 3]>)> {
+) -> Option<TexelRows> {
     let t = scene.terrain.as_ref()?;
     let (w, h) = terrain_lightmap_size(scene, opts)?;
     let rows = rows.start.min(h)..rows.end.min(h);

@@ -153,8 +153,8 @@ pub fn model(
         files,
         triangles,
     };
-    let json = serde_json::to_vec_pretty(&d)
-        .map_err(|e| Error::runtime(format!("model record: {e}")))?;
+    let json =
+        serde_json::to_vec_pretty(&d).map_err(|e| Error::runtime(format!("model record: {e}")))?;
     write_sections(out, &sections)?;
     crate::pack::write_atomic(deps, &json)?;
     Ok(report("model", out, &sections, warnings))
@@ -196,11 +196,7 @@ pub fn instances(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
 pub fn sky(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
     let mut sections = Vec::new();
     if s.pipeline.stages.sky {
-        let img = s
-            .sky
-            .as_deref()
-            .map(ingest::skyimage::load)
-            .transpose()?;
+        let img = s.sky.as_deref().map(ingest::skyimage::load).transpose()?;
         sections = crate::sky::scene_sky_sections(
             img.as_ref(),
             &crate::sky::builtin::BuiltinSky::default(),

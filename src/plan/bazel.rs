@@ -171,7 +171,12 @@ pub fn build_bazel(plan: &Plan) -> String {
          # `bazel build //:scene`.\n\nload(\":bake.bzl\", \"bake_unit\")\n\n",
     );
     for a in &plan.actions {
-        let mut srcs: Vec<String> = a.inputs.iter().chain(&a.lookups).map(|p| label(p)).collect();
+        let mut srcs: Vec<String> = a
+            .inputs
+            .iter()
+            .chain(&a.lookups)
+            .map(|p| label(p))
+            .collect();
         srcs.sort();
         srcs.dedup();
         let own: std::collections::BTreeSet<String> =

@@ -110,11 +110,8 @@ pub fn make_plan(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
         .scenes
         .first()
         .ok_or_else(|| Error::usage("no scene given"))?;
-    let (pipeline, pipeline_file) = crate::cli::build::resolve_pipeline(
-        opts.pipeline.as_deref(),
-        opts.preview,
-        &opts.set,
-    )?;
+    let (pipeline, pipeline_file) =
+        crate::cli::build::resolve_pipeline(opts.pipeline.as_deref(), opts.preview, &opts.set)?;
     // The arguments every action shares, with paths as the actions see them.
     let mut common: Vec<String> = Vec::new();
     for s in &opts.scenes {
@@ -122,9 +119,17 @@ pub fn make_plan(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
     }
     let scenes_rel: Vec<PathBuf> = opts.scenes.iter().map(|p| rel(p)).collect::<Result<_>>()?;
     let sky_rel = opts.sky.as_deref().map(rel).transpose()?;
-    let models_rel: Vec<PathBuf> = opts.model_dirs.iter().map(|p| rel(p)).collect::<Result<_>>()?;
+    let models_rel: Vec<PathBuf> = opts
+        .model_dirs
+        .iter()
+        .map(|p| rel(p))
+        .collect::<Result<_>>()?;
     let color_rel = opts.color_map.as_deref().map(rel).transpose()?;
-    let allow_rel: Vec<PathBuf> = opts.allow_paths.iter().map(|p| rel(p)).collect::<Result<_>>()?;
+    let allow_rel: Vec<PathBuf> = opts
+        .allow_paths
+        .iter()
+        .map(|p| rel(p))
+        .collect::<Result<_>>()?;
     let pipeline_rel = pipeline_file.as_deref().map(rel).transpose()?;
     if let Some(s) = &sky_rel {
         common.extend(["--sky".into(), arg(s)]);
@@ -435,10 +440,7 @@ pub fn shell_quote(s: &str) -> String {
 
 /// The pipeline a plan's actions run (for callers that need it).
 pub fn pipeline_of(opts: &PlanOptions) -> Result<Pipeline> {
-    Ok(
-        crate::cli::build::resolve_pipeline(opts.pipeline.as_deref(), opts.preview, &opts.set)?
-            .0,
-    )
+    Ok(crate::cli::build::resolve_pipeline(opts.pipeline.as_deref(), opts.preview, &opts.set)?.0)
 }
 
 #[cfg(test)]
