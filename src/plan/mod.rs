@@ -13,7 +13,6 @@ pub mod bazel;
 pub mod ninja;
 
 use crate::error::{Error, Result};
-use crate::graph::Pipeline;
 use crate::ingest::{self, IngestOptions};
 use std::path::{Component, Path, PathBuf};
 
@@ -436,11 +435,6 @@ pub fn shell_quote(s: &str) -> String {
     } else {
         format!("'{}'", s.replace('\'', "'\\''"))
     }
-}
-
-/// The pipeline a plan's actions run (for callers that need it).
-pub fn pipeline_of(opts: &PlanOptions) -> Result<Pipeline> {
-    Ok(crate::cli::build::resolve_pipeline(opts.pipeline.as_deref(), opts.preview, &opts.set)?.0)
 }
 
 #[cfg(test)]
