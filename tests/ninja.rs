@@ -312,3 +312,42 @@ fn merge_refuses_two_payloads_under_one_name_naming_both_files() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("scene.eco"));
     assert!(!d.join("x.bake").exists());
 }
+
+#[test]
+fn a_plan_of_a_bad_scene_names_the_file_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake::fixtures::write_all(d).unwrap();
+    let bake = common::bake_bin();
+    let o = run_in(
+        d,
+        &bake,
+        &[
+            "-q",
+            "plan",
+            "missing.eco",
+            "--emit",
+            "ninja",
+            "-o",
+            "build",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(3), "{o:?}");
+    assert!(String::from_utf8_lossy(&o.stderr).contains("missing.eco"));
+    assert!(!d.join("build").exists(), "no partial output");
+    // A scene line naming a model that is not there: the ECO file and its line.
+    let eco = std::fs::read_to_string(d.join("scene.eco")).unwrap();
+    std::fs::write(d.join("bad.eco"), eco.replace("plant ", "nosuchplant ")).unwrap();
+    let o = run_in(
+        d,
+        &bake,
+        &["-q", "plan", "bad.eco", "--emit", "ninja", "-o", "build"],
+    );
+    assert_eq!(o.status.code(), Some(4), "{o:?}");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("bad.eco") && e.contains("line") && e.contains("nosuchplant"),
+        "{e}"
+    );
+    assert!(!d.join("build").exists(), "no partial output");
+}

@@ -100,9 +100,19 @@ pub fn relative(path: &Path, base: &Path) -> PathBuf {
     out
 }
 
-/// Computes the plan of a scene whose actions run in `dir` (created if missing).
+/// Computes the plan of a scene whose actions run in `dir` (created if missing, and removed
+/// again when the scene cannot be planned).
 pub fn make_plan(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
+    let created = !dir.exists();
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let plan = plan_in(opts, dir);
+    if plan.is_err() && created {
+        let _ = std::fs::remove_dir(dir);
+    }
+    plan
+}
+
+fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
     let base = absolute(dir)?;
     let rel = |p: &Path| -> Result<PathBuf> { Ok(relative(&absolute(p)?, &base)) };
     let first = opts
