@@ -23,6 +23,7 @@ pub mod mesh;
 pub mod model;
 pub mod pack;
 pub mod pipeline;
+pub mod plan;
 pub mod prt;
 pub mod render;
 pub mod rng;

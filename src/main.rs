@@ -61,6 +61,12 @@ enum Command {
     Validate(cli::validate::ValidateArgs),
     /// Check a pack against docs/FORMAT.md: container, checksums, every section's invariants.
     Verify(cli::verify::VerifyArgs),
+    /// One unit of the stage graph as a build-engine action (what `bake plan` writes).
+    Unit(cli::unit::UnitArgs),
+    /// Join packs into one (the union of sections; a name with two payloads is an error).
+    Merge(cli::unit::MergeArgs),
+    /// The stage graph as actions of Ninja or Bazel: `--emit ninja|bazel -o DIR`.
+    Plan(cli::plan::PlanArgs),
 }
 
 fn run(cli: &Cli) -> Result<Outcome, Error> {
@@ -86,6 +92,9 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Linespace(a) => cli::linespace::run(a, g),
         Command::Validate(a) => cli::validate::run(a, g),
         Command::Verify(a) => cli::verify::run(a, g),
+        Command::Unit(a) => cli::unit::run(a, g),
+        Command::Merge(a) => cli::unit::run_merge(a, g),
+        Command::Plan(a) => cli::plan::run(a, g),
     }
 }
 

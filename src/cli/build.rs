@@ -2,8 +2,8 @@
 //! through the cached stage graph ([`crate::graph`]).
 
 use super::{Global, Outcome};
-use crate::error::{Error, Result};
-use crate::graph::{BuildOptions, CacheMode, Pipeline, build, progress};
+use crate::error::Result;
+use crate::graph::{BuildOptions, CacheMode, build, progress};
 use crate::ingest::IngestOptions;
 use std::path::PathBuf;
 
@@ -63,33 +63,7 @@ pub struct BuildArgs {
 }
 
 /// The pipeline of `--pipeline`/`--preview`/`--set`, and the file it came from.
-pub fn resolve_pipeline(
-    pipeline: Option<&str>,
-    preview: bool,
-    set: &[String],
-) -> Result<(Pipeline, Option<PathBuf>)> {
-    let (mut p, file) = match (pipeline, preview) {
-        (_, true) => (Pipeline::preview(), None),
-        (None, false) => (Pipeline::default_pipeline(), None),
-        (Some(name), false) => match Pipeline::preset(name) {
-            Some(p) if !std::path::Path::new(name).exists() => (p, None),
-            _ => {
-                let path = PathBuf::from(name);
-                if !path.exists() {
-                    return Err(Error::usage(format!(
-                        "--pipeline {name}: no such file, and not a preset (one of {})",
-                        crate::graph::preset::PRESETS.join(", ")
-                    )));
-                }
-                (Pipeline::load(&path)?, Some(path))
-            }
-        },
-    };
-    for s in set {
-        p.set(s)?;
-    }
-    Ok((p, file))
-}
+pub use crate::graph::preset::resolve as resolve_pipeline;
 
 pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
     let (pipeline, pipeline_file) =

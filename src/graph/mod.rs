@@ -142,11 +142,11 @@ pub fn process_usage() -> (f64, u64) {
 
 /// What a unit computed: sections, the stage's report, warnings, files read beyond its key.
 #[derive(Default)]
-struct Output {
-    sections: Vec<Section>,
-    report: Value,
-    warnings: Vec<String>,
-    files: Vec<FileDep>,
+pub(crate) struct Output {
+    pub(crate) sections: Vec<Section>,
+    pub(crate) report: Value,
+    pub(crate) warnings: Vec<String>,
+    pub(crate) files: Vec<FileDep>,
 }
 
 /// The running bake.
@@ -277,7 +277,7 @@ impl Graph<'_> {
 }
 
 /// Replaces sections of the same name (keeping their place) and appends the rest.
-fn merge(into: &mut Vec<Section>, new: Vec<Section>) {
+pub(crate) fn merge(into: &mut Vec<Section>, new: Vec<Section>) {
     for s in new {
         match into.iter_mut().find(|t| t.name == s.name) {
             Some(t) => *t = s,
@@ -745,7 +745,7 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
     Ok(())
 }
 
-fn texels(sections: &[Section]) -> u64 {
+pub(crate) fn texels(sections: &[Section]) -> u64 {
     sections
         .iter()
         .filter_map(|s| crate::pack::section::SectionView::parse(&s.payload, 0).ok())
@@ -756,7 +756,7 @@ fn texels(sections: &[Section]) -> u64 {
 /// Kind of the cache-only section that holds one shard's environment maps.
 const SHARD_KIND: &str = "envmaps-shard";
 
-fn shard_section(maps: &[crate::envmap::bake::InstanceMaps]) -> Section {
+pub(crate) fn shard_section(maps: &[crate::envmap::bake::InstanceMaps]) -> Section {
     let flat: Vec<[f32; 3]> = maps
         .iter()
         .flat_map(|(h, s)| h.iter().chain(s.iter()).copied())
@@ -766,7 +766,10 @@ fn shard_section(maps: &[crate::envmap::bake::InstanceMaps]) -> Section {
     b.finish()
 }
 
-fn shard_maps(sections: &[Section], n: usize) -> Result<Vec<crate::envmap::bake::InstanceMaps>> {
+pub(crate) fn shard_maps(
+    sections: &[Section],
+    n: usize,
+) -> Result<Vec<crate::envmap::bake::InstanceMaps>> {
     let bad = || Error::runtime("environment-map shard: unexpected cache entry contents");
     let s = sections
         .first()
@@ -789,7 +792,7 @@ fn shard_maps(sections: &[Section], n: usize) -> Result<Vec<crate::envmap::bake:
 }
 
 /// Reads one model and its textures into `texture:<model>/...` and `mesh:<model>` sections.
-fn ingest_model(name: &str, path: &Path, policy: &ingest::ReadPolicy) -> Result<Output> {
+pub(crate) fn ingest_model(name: &str, path: &Path, policy: &ingest::ReadPolicy) -> Result<Output> {
     let mesh = ingest::load_mesh_in(path, policy)?;
     let mut warnings: Vec<String> = mesh.warnings.clone();
     let mut w = crate::pack::PackWriter::new();
@@ -817,7 +820,7 @@ fn ingest_model(name: &str, path: &Path, policy: &ingest::ReadPolicy) -> Result<
 }
 
 /// The key of a whole build: version, pipeline, command-line inputs and every file's content.
-fn build_key(opts: &BuildOptions, version: &str, files: &[FileDep]) -> Key {
+pub(crate) fn build_key(opts: &BuildOptions, version: &str, files: &[FileDep]) -> Key {
     let mut k = KeyBuilder::new(version, "build", 1, "");
     k.options(&opts.pipeline);
     k.options(&(
@@ -840,12 +843,12 @@ fn build_key(opts: &BuildOptions, version: &str, files: &[FileDep]) -> Key {
 pub const BUILD_KIND: &str = "build";
 
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-struct BuildMeta {
-    key: String,
-    files: Vec<FileDep>,
-    models: u64,
-    instances: u64,
-    triangles: u64,
+pub(crate) struct BuildMeta {
+    pub(crate) key: String,
+    pub(crate) files: Vec<FileDep>,
+    pub(crate) models: u64,
+    pub(crate) instances: u64,
+    pub(crate) triangles: u64,
 }
 
 /// Decodes a `build` section (for `bake verify`).
@@ -862,7 +865,7 @@ pub fn check_build_section(
     Ok(())
 }
 
-fn build_section(meta: &BuildMeta) -> Section {
+pub(crate) fn build_section(meta: &BuildMeta) -> Section {
     let mut b = SectionBuilder::new(BUILD_KIND, BUILD_KIND);
     b.meta(meta);
     b.finish()

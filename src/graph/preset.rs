@@ -311,6 +311,35 @@ fn toml_error(name: &str, text: &str, e: &toml::de::Error) -> Error {
     Error::invalid_at(name, place, msg)
 }
 
+/// The pipeline of `--pipeline`/`--preview`/`--set`, and the file it came from.
+pub fn resolve(
+    pipeline: Option<&str>,
+    preview: bool,
+    set: &[String],
+) -> Result<(Pipeline, Option<std::path::PathBuf>)> {
+    let (mut p, file) = match (pipeline, preview) {
+        (_, true) => (Pipeline::preview(), None),
+        (None, false) => (Pipeline::default_pipeline(), None),
+        (Some(name), false) => match Pipeline::preset(name) {
+            Some(p) if !std::path::Path::new(name).exists() => (p, None),
+            _ => {
+                let path = std::path::PathBuf::from(name);
+                if !path.exists() {
+                    return Err(Error::usage(format!(
+                        "--pipeline {name}: no such file, and not a preset (one of {})",
+                        PRESETS.join(", ")
+                    )));
+                }
+                (Pipeline::load(&path)?, Some(path))
+            }
+        },
+    };
+    for s in set {
+        p.set(s)?;
+    }
+    Ok((p, file))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -105,15 +105,45 @@ pub fn bake_terrain_lightmap_parts(
     light: &BakeLight,
     opts: &LightmapOptions,
 ) -> Option<(Lightmap, Vec<[f32; 3]>)> {
+    let (w, h) = terrain_lightmap_size(scene, opts)?;
+    let (texels, direct) = bake_terrain_lightmap_rows(scene, light, opts, 0..h)?;
+    Some((
+        Lightmap {
+            width: w,
+            height: h,
+            texels,
+        },
+        direct,
+    ))
+}
+
+/// Texels per side of the terrain's light map (`None` without a terrain).
+pub fn terrain_lightmap_size(scene: &TraceScene, opts: &LightmapOptions) -> Option<(u32, u32)> {
     let t = scene.terrain.as_ref()?;
     let res = opts
         .resolution
         .unwrap_or(t.width.max(t.height))
         .min(opts.max_resolution.unwrap_or(u32::MAX))
         .max(1);
-    let (w, h) = (res, res);
+    Some((res, res))
+}
+
+/// Texels of some rows of a light map and their direct-sun part.
+pub type TexelRows = (Vec<[f32; 3]>, Vec<[f32; 3]>);
+
+/// The texels (irradiance, direct-sun part) of rows `rows` of the terrain light map, exactly as
+/// the whole map holds them (each texel is seeded by its index): a shard of the light map.
+pub fn bake_terrain_lightmap_rows(
+    scene: &TraceScene,
+    light: &BakeLight,
+    opts: &LightmapOptions,
+    rows: std::ops::Range<u32>,
+) -> Option<TexelRows> {
+    let t = scene.terrain.as_ref()?;
+    let (w, h) = terrain_lightmap_size(scene, opts)?;
+    let rows = rows.start.min(h)..rows.end.min(h);
     let sky_irr = light.sky.to_irradiance();
-    let (texels, direct): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..w * h)
+    let (texels, direct): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (rows.start * w..rows.end * w)
         .into_par_iter()
         .map(|k| {
             let (i, j) = (k % w, k / w);
@@ -134,14 +164,7 @@ pub fn bake_terrain_lightmap_parts(
             )
         })
         .unzip();
-    Some((
-        Lightmap {
-            width: w,
-            height: h,
-            texels,
-        },
-        direct,
-    ))
+    Some((texels, direct))
 }
 
 /// Normal of the bilinear height field at (x, y) by central differences over one grid step.
@@ -332,6 +355,15 @@ pub fn terrain_sections(
     let Some((map, direct)) = bake_terrain_lightmap_parts(scene, light, opts) else {
         return Vec::new();
     };
+    terrain_sections_of(&map, &direct, opts)
+}
+
+/// The terrain light map's section from its texels and their direct-sun part.
+pub fn terrain_sections_of(
+    map: &Lightmap,
+    direct: &[[f32; 3]],
+    opts: &LightmapOptions,
+) -> Vec<crate::pack::Section> {
     let meta = section::LightmapMeta {
         surface: "terrain".into(),
         width: map.width,
@@ -343,13 +375,13 @@ pub fn terrain_sections(
     let indirect: Vec<[f32; 3]> = map
         .texels
         .iter()
-        .zip(&direct)
+        .zip(direct)
         .map(|(e, d)| std::array::from_fn(|c| (e[c] - d[c]).max(0.0)))
         .collect();
     vec![section::to_section_with_indirect(
         "lightmap:terrain",
         &meta,
-        &map,
+        map,
         &indirect,
     )]
 }

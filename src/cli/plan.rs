@@ -1,0 +1,101 @@
+//! `bake plan SCENE.eco --emit ninja|bazel -o DIR`: the stage graph as actions of a build
+//! engine ([`crate::plan`]).
+
+use super::{Global, Outcome};
+use crate::error::{Error, Result};
+use crate::plan::{PlanOptions, make_plan};
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Emit {
+    /// `DIR/build.ninja` (run `ninja -C DIR`).
+    Ninja,
+    /// A Bazel workspace in DIR (`BUILD.bazel`, `bake.bzl`, `WORKSPACE`; the inputs copied in).
+    Bazel,
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct PlanArgs {
+    /// The ECO files of the scene.
+    #[arg(required = true)]
+    pub scenes: Vec<PathBuf>,
+    /// HDR sky (.hdr or .exr, lat-long).
+    #[arg(long)]
+    pub sky: Option<PathBuf>,
+    /// Extra folders searched for model files.
+    #[arg(long = "models", value_name = "DIR")]
+    pub models: Vec<PathBuf>,
+    /// Colour map of the terrain.
+    #[arg(long)]
+    pub color_map: Option<PathBuf>,
+    /// The pipeline: a TOML file or a preset name.
+    #[arg(long, value_name = "FILE|PRESET")]
+    pub pipeline: Option<String>,
+    /// Override one pipeline option (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Short for `--pipeline preview`.
+    #[arg(long, conflicts_with = "pipeline")]
+    pub preview: bool,
+    /// The build engine.
+    #[arg(long, value_enum)]
+    pub emit: Emit,
+    /// The folder of the build file (and of the units' packs).
+    #[arg(short = 'o', long = "dir", value_name = "DIR", required = true)]
+    pub dir: PathBuf,
+    /// Environment-map shards (default: the pipeline's units.envmap_shard_instances).
+    #[arg(long)]
+    pub shards: Option<usize>,
+    /// Row shards of the terrain light map (default 1).
+    #[arg(long, value_name = "N")]
+    pub lightmap_shards: Option<usize>,
+    /// The final pack (default: DIR/<scene stem>.bake).
+    #[arg(long)]
+    pub output: Option<PathBuf>,
+}
+
+pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
+    if args.shards == Some(0) || args.lightmap_shards == Some(0) {
+        return Err(Error::usage(
+            "--shards and --lightmap-shards must be at least 1",
+        ));
+    }
+    let opts = PlanOptions {
+        scenes: args.scenes.clone(),
+        sky: args.sky.clone(),
+        model_dirs: args.models.clone(),
+        color_map: args.color_map.clone(),
+        allow_paths: g.allow_paths.clone(),
+        pipeline: args.pipeline.clone(),
+        preview: args.preview,
+        set: args.set.clone(),
+        shards: args.shards,
+        lightmap_shards: args.lightmap_shards,
+        output: args.output.clone(),
+    };
+    let bake = std::env::current_exe().map_err(|e| Error::io("bake", e))?;
+    let (file, plan) = match args.emit {
+        Emit::Ninja => {
+            let plan = make_plan(&opts, &args.dir)?;
+            (crate::plan::ninja::write(&plan, &args.dir, &bake)?, plan)
+        }
+        Emit::Bazel => crate::plan::bazel::write(&opts, &args.dir, &bake)?,
+    };
+    let json = serde_json::json!({
+        "build_file": file,
+        "actions": plan.actions.len(),
+        "sources": plan.sources,
+        "output": plan.output,
+    });
+    Ok(Outcome {
+        json,
+        text: format!(
+            "{}: {} actions over {} source files; final pack {}\n",
+            file.display(),
+            plan.actions.len(),
+            plan.sources.len(),
+            plan.output.display()
+        ),
+        warnings: Vec::new(),
+    })
+}

@@ -1,0 +1,213 @@
+//! `bake unit STAGE ...`: one unit of the stage graph as an action with explicit inputs and
+//! outputs (what `bake plan` writes for Ninja and Bazel; [`crate::plan::actions`]). Every unit
+//! takes the scene's arguments of `bake SCENE.eco` (scenes, `--sky`, `--models`, `--color-map`,
+//! `--pipeline`/`--set`/`--preview`) so that its options are the graph's.
+
+use super::{Global, Outcome};
+use crate::error::Result;
+use crate::plan::actions::{self, SceneArgs, UnitReport};
+use std::path::PathBuf;
+
+/// The arguments of `bake SCENE.eco` that every unit shares.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SceneFlags {
+    /// The ECO files of the scene (as `bake SCENE.eco` is given them).
+    #[arg(required = true)]
+    pub scenes: Vec<PathBuf>,
+    /// HDR sky (.hdr or .exr, lat-long).
+    #[arg(long)]
+    pub sky: Option<PathBuf>,
+    /// Extra folders searched for model files.
+    #[arg(long = "models", value_name = "DIR")]
+    pub models: Vec<PathBuf>,
+    /// Colour map of the terrain.
+    #[arg(long)]
+    pub color_map: Option<PathBuf>,
+    /// The pipeline: a TOML file or a preset name.
+    #[arg(long, value_name = "FILE|PRESET")]
+    pub pipeline: Option<String>,
+    /// Override one pipeline option (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Short for `--pipeline preview`.
+    #[arg(long, conflicts_with = "pipeline")]
+    pub preview: bool,
+    /// The unit's pack.
+    #[arg(short, long, required = true)]
+    pub output: PathBuf,
+}
+
+impl SceneFlags {
+    fn scene(&self, g: &Global) -> Result<SceneArgs> {
+        let (pipeline, pipeline_file) =
+            super::build::resolve_pipeline(self.pipeline.as_deref(), self.preview, &self.set)?;
+        Ok(SceneArgs {
+            scenes: self.scenes.clone(),
+            sky: self.sky.clone(),
+            ingest: crate::ingest::IngestOptions {
+                model_dirs: self.models.clone(),
+                color_map: self.color_map.clone(),
+                ..g.ingest_defaults()
+            },
+            pipeline,
+            pipeline_file,
+        })
+    }
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct UnitArgs {
+    #[command(subcommand)]
+    pub unit: Unit,
+}
+
+#[derive(Debug, Clone, clap::Subcommand)]
+pub enum Unit {
+    /// The terrain's sections and the prepared terrain.
+    Terrain(SceneFlags),
+    /// One model: ingest and materials; also writes the files it read (`--deps`).
+    Model {
+        #[command(flatten)]
+        scene: SceneFlags,
+        /// The model's name in the scene (its file name).
+        #[arg(long)]
+        name: String,
+        /// The model file, as the scene resolves it.
+        #[arg(long)]
+        path: PathBuf,
+        /// JSON record of the files read and the triangle count (for `bake unit record`).
+        #[arg(long, required = true)]
+        deps: PathBuf,
+    },
+    /// One model's PRT over its model pack.
+    Prt {
+        #[command(flatten)]
+        scene: SceneFlags,
+        #[arg(long)]
+        name: String,
+        /// The model's pack (`bake unit model`).
+        #[arg(long = "in", required = true)]
+        input: PathBuf,
+    },
+    /// The scene's `instances` section.
+    Instances(SceneFlags),
+    /// The sky's cube map, sun and SH.
+    Sky(SceneFlags),
+    /// The terrain light map over the packs of terrain, models, instances, sky (with `--rows
+    /// I/N`: one shard of its rows, joined by `lightmap-join`).
+    Lightmap {
+        #[command(flatten)]
+        packs: WithPacks,
+        /// Which shard of the rows: I of N (1-based).
+        #[arg(long, value_parser = actions::parse_shard)]
+        rows: Option<(usize, usize)>,
+    },
+    /// The terrain light map from its row shards' packs (in shard order).
+    LightmapJoin(WithPacks),
+    /// The object atlases over the same packs.
+    Atlas(WithPacks),
+    /// One shard of the environment maps (`--shard I/N`), over the same packs.
+    Envmaps {
+        #[command(flatten)]
+        packs: WithPacks,
+        /// Which shard: I of N (1-based).
+        #[arg(long, value_parser = actions::parse_shard, required = true)]
+        shard: (usize, usize),
+    },
+    /// The `envmaps` section from the shards' packs (in shard order).
+    EnvmapsJoin(WithPacks),
+    /// Clustering over the packs of the instances and the environment maps.
+    Cluster(WithPacks),
+    /// The BitTree of the scene's instances.
+    Bittree(SceneFlags),
+    /// The SVO over the packs of terrain, models, instances.
+    Svo(WithPacks),
+    /// The N-tree with line spaces over the packs of terrain, models, instances.
+    Linespace(WithPacks),
+    /// The `build` record over the models' records (`--deps`).
+    Record {
+        #[command(flatten)]
+        scene: SceneFlags,
+        #[arg(long = "deps", value_name = "JSON")]
+        deps: Vec<PathBuf>,
+    },
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct WithPacks {
+    #[command(flatten)]
+    pub scene: SceneFlags,
+    /// The packs the unit reads, in the graph's order (repeatable).
+    #[arg(long = "in", value_name = "PACK", required = true)]
+    pub inputs: Vec<PathBuf>,
+}
+
+pub fn run(args: &UnitArgs, g: &Global) -> Result<Outcome> {
+    let r: UnitReport = match &args.unit {
+        Unit::Terrain(f) => actions::terrain(&f.scene(g)?, &f.output)?,
+        Unit::Model {
+            scene,
+            name,
+            path,
+            deps,
+        } => actions::model(&scene.scene(g)?, name, path, &scene.output, deps)?,
+        Unit::Prt { scene, name, input } => {
+            actions::prt(&scene.scene(g)?, name, input, &scene.output)?
+        }
+        Unit::Instances(f) => actions::instances(&f.scene(g)?, &f.output)?,
+        Unit::Sky(f) => actions::sky(&f.scene(g)?, &f.output)?,
+        Unit::Lightmap { packs, rows } => {
+            let scene = packs.scene.scene(g)?;
+            match rows {
+                Some(r) => actions::lightmap_rows(&scene, &packs.inputs, *r, &packs.scene.output)?,
+                None => actions::lightmap(&scene, &packs.inputs, &packs.scene.output)?,
+            }
+        }
+        Unit::LightmapJoin(w) => {
+            actions::lightmap_join(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?
+        }
+        Unit::Atlas(w) => actions::atlas(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
+        Unit::Envmaps { packs, shard } => actions::envmaps_shard(
+            &packs.scene.scene(g)?,
+            &packs.inputs,
+            *shard,
+            &packs.scene.output,
+        )?,
+        Unit::EnvmapsJoin(w) => {
+            actions::envmaps_join(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?
+        }
+        Unit::Cluster(w) => actions::cluster(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
+        Unit::Bittree(f) => actions::bittree(&f.scene(g)?, &f.output)?,
+        Unit::Svo(w) => actions::svo(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
+        Unit::Linespace(w) => actions::linespace(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
+        Unit::Record { scene, deps } => actions::record(&scene.scene(g)?, deps, &scene.output)?,
+    };
+    Ok(outcome(r))
+}
+
+pub(crate) fn outcome(r: UnitReport) -> Outcome {
+    Outcome {
+        json: serde_json::to_value(&r).unwrap_or_default(),
+        text: format!(
+            "{}: {} ({} sections)\n",
+            r.output.display(),
+            r.unit,
+            r.sections.len()
+        ),
+        warnings: r.warnings,
+    }
+}
+
+/// `bake merge A.bake B.bake ... -o OUT.bake`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct MergeArgs {
+    /// The packs, in the order their sections go into the output.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    #[arg(short, long, required = true)]
+    pub output: PathBuf,
+}
+
+pub fn run_merge(args: &MergeArgs, _g: &Global) -> Result<Outcome> {
+    Ok(outcome(actions::merge(&args.inputs, &args.output)?))
+}

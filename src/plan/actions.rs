@@ -1,0 +1,544 @@
+//! The stage graph's units as separate actions (`bake unit ...`): each reads only the files
+//! and packs it is given and writes one small pack (plus, for a model, a JSON list of the
+//! files it read). The units call the same stage functions with the same options as
+//! [`crate::graph::build`], in the same order, so that `bake merge` of their packs in the plan's
+//! order is byte-identical to `bake SCENE.eco` run with the same arguments from the same folder.
+
+use crate::error::{Error, Result};
+use crate::graph::cache::{self, FileDep};
+use crate::graph::{BAKE_VERSION, BuildOptions, Pipeline};
+use crate::ingest::{self, IngestOptions};
+use crate::pack::fit_name;
+use crate::pack::{Pack, Section, StreamWriter, hex};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// What every unit knows of the scene: the arguments of `bake SCENE.eco`.
+#[derive(Debug, Clone, Default)]
+pub struct SceneArgs {
+    pub scenes: Vec<PathBuf>,
+    pub sky: Option<PathBuf>,
+    pub ingest: IngestOptions,
+    pub pipeline: Pipeline,
+    pub pipeline_file: Option<PathBuf>,
+}
+
+impl SceneArgs {
+    fn first(&self) -> Result<&Path> {
+        self.scenes
+            .first()
+            .map(PathBuf::as_path)
+            .ok_or_else(|| Error::usage("no scene given"))
+    }
+
+    /// The name the graph gives its in-memory views (the first scene as written).
+    fn view_name(&self) -> Result<String> {
+        Ok(self.first()?.display().to_string())
+    }
+
+    fn policy(&self) -> Result<ingest::ReadPolicy> {
+        Ok(ingest::eco::scene_policy(self.first()?, &self.ingest))
+    }
+
+    fn plan(&self) -> Result<ingest::eco::ScenePlan> {
+        self.pipeline
+            .check()
+            .map_err(|m| Error::usage(format!("pipeline: {m}")))?;
+        ingest::eco::scene_plan(&self.scenes, &self.ingest)
+    }
+}
+
+/// What a unit did: sections written and warnings raised.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct UnitReport {
+    pub unit: String,
+    pub output: PathBuf,
+    pub sections: Vec<String>,
+    pub warnings: Vec<String>,
+}
+
+/// Writes `sections` in order as a pack at `out` (atomically; nothing is left on failure).
+pub fn write_sections(out: &Path, sections: &[Section]) -> Result<()> {
+    let mut w = StreamWriter::create(out)?;
+    for s in sections {
+        w.push(s)?;
+    }
+    w.finish()
+}
+
+fn report(unit: &str, out: &Path, sections: &[Section], warnings: Vec<String>) -> UnitReport {
+    UnitReport {
+        unit: unit.into(),
+        output: out.to_path_buf(),
+        sections: sections.iter().map(|s| s.name.clone()).collect(),
+        warnings,
+    }
+}
+
+fn finish(unit: &str, out: &Path, sections: Vec<Section>, w: Vec<String>) -> Result<UnitReport> {
+    write_sections(out, &sections)?;
+    Ok(report(unit, out, &sections, w))
+}
+
+/// Every section of the given packs, in order (checksums checked).
+pub fn read_packs(inputs: &[PathBuf]) -> Result<Vec<Section>> {
+    let mut all = Vec::new();
+    for p in inputs {
+        all.extend(Pack::open(p)?.checked_sections()?);
+    }
+    Ok(all)
+}
+
+/// The terrain's sections from the plan, then the prepared terrain (`stages.terrain`).
+pub fn terrain(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
+    let plan = s.plan()?;
+    let mut sections = Vec::new();
+    if let Some(t) = &plan.scene.terrain {
+        sections = crate::pipeline::terrain_sections(s.first()?, t);
+        if s.pipeline.stages.terrain {
+            let view = Pack::from_sections(&sections, &s.view_name()?);
+            let (prepared, _) = crate::terrain::bake_terrain(&view)?;
+            crate::graph::merge(&mut sections, prepared);
+        }
+    }
+    finish("terrain", out, sections, plan.scene.warnings.clone())
+}
+
+/// What a model unit read, beside its pack: the files (with hashes; the model file first) and
+/// the model's triangle count, for the build record.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelDeps {
+    pub model: String,
+    pub files: Vec<FileDep>,
+    pub triangles: u64,
+}
+
+/// One model: ingest, then materials (`stages.material`). Writes the pack and `deps`.
+pub fn model(
+    s: &SceneArgs,
+    name: &str,
+    path: &Path,
+    out: &Path,
+    deps: &Path,
+) -> Result<UnitReport> {
+    s.pipeline
+        .check()
+        .map_err(|m| Error::usage(format!("pipeline: {m}")))?;
+    let policy = s.policy()?;
+    let model_hash = cache::hash_file(path)?;
+    let o = crate::graph::ingest_model(name, path, &policy)?;
+    let mut sections = o.sections;
+    let mut warnings = o.warnings;
+    if s.pipeline.stages.material {
+        let view = Pack::from_sections(&sections, &s.view_name()?);
+        let (m, mut r) = crate::material::bake_materials(&view, &s.pipeline.material)?;
+        warnings.append(&mut r.warnings);
+        crate::graph::merge(&mut sections, m);
+    }
+    let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let triangles = view
+        .find(&mesh_name)
+        .and_then(|e| view.view(e).ok())
+        .and_then(|v| v.info("indices").map(|a| a.count))
+        .unwrap_or(0);
+    let mut files = vec![FileDep {
+        path: path.to_path_buf(),
+        blake3: Some(hex(&model_hash)),
+    }];
+    files.extend(o.files);
+    let d = ModelDeps {
+        model: name.into(),
+        files,
+        triangles,
+    };
+    let json =
+        serde_json::to_vec_pretty(&d).map_err(|e| Error::runtime(format!("model record: {e}")))?;
+    write_sections(out, &sections)?;
+    crate::pack::write_atomic(deps, &json)?;
+    Ok(report("model", out, &sections, warnings))
+}
+
+/// One model's PRT over its model pack.
+pub fn prt(s: &SceneArgs, name: &str, model_pack: &Path, out: &Path) -> Result<UnitReport> {
+    let sections = read_packs(&[model_pack.to_path_buf()])?;
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
+    let mut warnings = Vec::new();
+    let mut outs = Vec::new();
+    if s.pipeline.stages.prt {
+        let (sec, _) =
+            crate::prt::pack::prt_mesh(&view, &mesh_name, &s.pipeline.prt, &|_| {}, &mut warnings)?;
+        outs.push(sec);
+    }
+    finish("prt", out, outs, warnings)
+}
+
+/// The `instances` section of the scene.
+pub fn instances(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
+    let plan = s.plan()?;
+    let meshes = plan
+        .models
+        .iter()
+        .map(|(n, _)| fit_name(crate::mesh::section::mesh_section_name(n)))
+        .collect();
+    let sec =
+        crate::ingest::instances_section::to_section("instances", &plan.scene.instances, meshes);
+    finish("instances", out, vec![sec], Vec::new())
+}
+
+/// The sky (the built-in clear sky without `--sky`).
+pub fn sky(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
+    let mut sections = Vec::new();
+    if s.pipeline.stages.sky {
+        let img = s.sky.as_deref().map(ingest::skyimage::load).transpose()?;
+        sections = crate::sky::scene_sky_sections(
+            img.as_ref(),
+            &crate::sky::builtin::BuiltinSky::default(),
+            &s.pipeline.sky,
+        )?;
+    }
+    finish("sky", out, sections, Vec::new())
+}
+
+type Traced = (
+    crate::trace::pack_scene::TraceScene,
+    crate::lightmap::BakeLight,
+);
+
+fn traced(view: &Pack) -> Result<Traced> {
+    let light = crate::lightmap::scene_lighting(view)?;
+    let ts = crate::trace::pack_scene::trace_scene(view)?;
+    Ok((ts, light))
+}
+
+/// The terrain light map over the packs of the terrain, the models, the instances and the sky.
+pub fn lightmap(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let sections = read_packs(inputs)?;
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let (ts, light) = traced(&view)?;
+    let outs = crate::lightmap::terrain_sections(&ts, &light, &s.pipeline.lightmap);
+    finish("lightmap", out, outs, Vec::new())
+}
+
+/// Kind (and name) of the section holding one row shard of the terrain light map.
+pub const LIGHTMAP_ROWS_KIND: &str = "lightmap-rows";
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct RowsMeta {
+    width: u32,
+    height: u32,
+    start: u32,
+    end: u32,
+}
+
+/// Rows `shard.0` of `shard.1` of the terrain light map ([`shard_range`] over the rows), over
+/// the same packs as [`lightmap`]; joined by [`lightmap_join`].
+pub fn lightmap_rows(
+    s: &SceneArgs,
+    inputs: &[PathBuf],
+    shard: (usize, usize),
+    out: &Path,
+) -> Result<UnitReport> {
+    let sections = read_packs(inputs)?;
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let (ts, light) = traced(&view)?;
+    let lm = &s.pipeline.lightmap;
+    let mut outs = Vec::new();
+    if let Some((w, h)) = crate::lightmap::terrain_lightmap_size(&ts, lm) {
+        let r = shard_range(shard.0, shard.1, h as usize);
+        let rows = r.start as u32..r.end as u32;
+        let (texels, direct) =
+            crate::lightmap::bake_terrain_lightmap_rows(&ts, &light, lm, rows.clone())
+                .unwrap_or_default();
+        let mut b = crate::pack::SectionBuilder::new(LIGHTMAP_ROWS_KIND, LIGHTMAP_ROWS_KIND);
+        b.meta(&RowsMeta {
+            width: w,
+            height: h,
+            start: rows.start,
+            end: rows.end,
+        });
+        b.array("texels", crate::pack::ArrayFormat::F32, 3, &texels);
+        b.array("direct", crate::pack::ArrayFormat::F32, 3, &direct);
+        outs.push(b.finish());
+    }
+    finish("lightmap-rows", out, outs, Vec::new())
+}
+
+/// The terrain light map from its row shards' packs (in shard order): the same section as
+/// [`lightmap`] computes in one piece.
+pub fn lightmap_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let mut texels: Vec<[f32; 3]> = Vec::new();
+    let mut direct: Vec<[f32; 3]> = Vec::new();
+    let mut size = None;
+    let mut next = 0u32;
+    for p in shards {
+        let pack = Pack::open(p)?;
+        let Some(e) = pack.find(LIGHTMAP_ROWS_KIND) else {
+            continue; // no terrain: every shard is empty
+        };
+        let bad = |m: String| Error::invalid_at(p, "lightmap-rows section", m);
+        let v = pack.view(e)?;
+        let m: RowsMeta = v.meta().map_err(|e| bad(e.to_string()))?;
+        if size.is_some_and(|s| s != (m.width, m.height)) || m.start != next || m.end < m.start {
+            return Err(bad(format!(
+                "rows {}..{} of a {}×{} map do not continue the shards before it (row {next})",
+                m.start, m.end, m.width, m.height
+            )));
+        }
+        size = Some((m.width, m.height));
+        next = m.end;
+        let t: &[[f32; 3]] = v.array("texels").map_err(|e| bad(e.to_string()))?;
+        let d: &[[f32; 3]] = v.array("direct").map_err(|e| bad(e.to_string()))?;
+        let want = ((m.end - m.start) * m.width) as usize;
+        if t.len() != want || d.len() != want {
+            return Err(bad(format!("{} texels, expected {want}", t.len())));
+        }
+        texels.extend_from_slice(t);
+        direct.extend_from_slice(d);
+    }
+    let mut outs = Vec::new();
+    if let Some((width, height)) = size {
+        if next != height {
+            return Err(Error::usage(format!(
+                "the light map's row shards end at row {next} of {height}: a shard is missing"
+            )));
+        }
+        let map = crate::lightmap::Lightmap {
+            width,
+            height,
+            texels,
+        };
+        outs = crate::lightmap::terrain_sections_of(&map, &direct, &s.pipeline.lightmap);
+    }
+    finish("lightmap", out, outs, Vec::new())
+}
+
+/// The object atlases over the same packs as [`lightmap`].
+pub fn atlas(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let sections = read_packs(inputs)?;
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let (ts, light) = traced(&view)?;
+    let outs = crate::lightmap::object_sections(&view, &ts, &light, &s.pipeline.lightmap)?;
+    finish("atlas", out, outs, Vec::new())
+}
+
+/// The instances of shard `i` of `n` (0-based): `i*len/n .. (i+1)*len/n`.
+pub fn shard_range(i: usize, n: usize, len: usize) -> std::ops::Range<usize> {
+    (i * len / n)..((i + 1) * len / n)
+}
+
+/// Parses `I/N` (1-based I, as written on the command line) into a 0-based shard and count.
+pub fn parse_shard(text: &str) -> std::result::Result<(usize, usize), String> {
+    let bad = || format!("{text:?} is not I/N with 1 <= I <= N, e.g. 3/8");
+    let (i, n) = text.split_once('/').ok_or_else(bad)?;
+    let i: usize = i.trim().parse().map_err(|_| bad())?;
+    let n: usize = n.trim().parse().map_err(|_| bad())?;
+    if i == 0 || n == 0 || i > n {
+        return Err(bad());
+    }
+    Ok((i - 1, n))
+}
+
+/// One shard's environment maps (a cache-only `envmaps-shard` section, joined by
+/// [`envmaps_join`]).
+pub fn envmaps_shard(
+    s: &SceneArgs,
+    inputs: &[PathBuf],
+    shard: (usize, usize),
+    out: &Path,
+) -> Result<UnitReport> {
+    let sections = read_packs(inputs)?;
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let (ts, light) = traced(&view)?;
+    let range = shard_range(shard.0, shard.1, ts.instances.items.len());
+    let maps = crate::envmap::instance_maps(&ts, &light, &s.pipeline.envmaps, range);
+    finish(
+        "envmaps-shard",
+        out,
+        vec![crate::graph::shard_section(&maps)],
+        Vec::new(),
+    )
+}
+
+/// The `envmaps` section from the shards' packs, in shard order.
+pub fn envmaps_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let mut maps = Vec::new();
+    for p in shards {
+        let sections = read_packs(std::slice::from_ref(p))?;
+        let n = sections
+            .first()
+            .and_then(|x| crate::pack::section::SectionView::parse(&x.payload, 0).ok())
+            .and_then(|v| v.info("maps").map(|a| a.count as usize / 32))
+            .ok_or_else(|| {
+                Error::invalid_at(
+                    p,
+                    "envmaps-shard section",
+                    "not the pack of an environment-map shard (bake unit envmaps)",
+                )
+            })?;
+        maps.extend(
+            crate::graph::shard_maps(&sections, n)
+                .map_err(|e| Error::invalid_at(p, "envmaps-shard section", e.to_string()))?,
+        );
+    }
+    let sec = crate::envmap::envmaps_section(&maps, &s.pipeline.envmaps);
+    finish("envmaps", out, vec![sec], Vec::new())
+}
+
+/// Clustering over the packs of the instances and the environment maps.
+pub fn cluster(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let sections = read_packs(inputs)?;
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let (outs, _) = crate::envmap::cluster_sections(&view, &s.pipeline.cluster, false)?;
+    finish("cluster", out, outs, Vec::new())
+}
+
+/// The BitTree of the scene's instances over the graph's area.
+pub fn bittree(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
+    let plan = s.plan()?;
+    let area = crate::pipeline::instance_area(&plan.scene);
+    let (outs, warnings) = match crate::bittree::section::to_section(
+        "bittree",
+        &plan.scene.instances,
+        area,
+        &s.pipeline.bittree,
+    ) {
+        Ok(sec) => (vec![sec], Vec::new()),
+        Err(e) => (Vec::new(), vec![format!("no BitTree: {e}")]),
+    };
+    finish("bittree", out, outs, warnings)
+}
+
+/// The sparse voxel octree over the packs of the terrain, the models and the instances.
+pub fn svo(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let sections = read_packs(inputs)?;
+    let name = s.view_name()?;
+    let view = Pack::from_sections(&sections, &name);
+    let geo = crate::voxel::geometry::pack_geometry(&view)?;
+    let v = crate::voxel::voxelize::mesh_to_voxels(&geo.mesh, &geo.textures, &s.pipeline.svo)?;
+    let tree = crate::voxel::svo::voxels_to_svo(&v);
+    let sec = crate::voxel::section::to_section("svo", &name, &tree, s.pipeline.svo.solid);
+    finish("svo", out, vec![sec], Vec::new())
+}
+
+/// The N-tree with line spaces over the same packs as [`svo`].
+pub fn linespace(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let sections = read_packs(inputs)?;
+    let name = s.view_name()?;
+    let view = Pack::from_sections(&sections, &name);
+    let geo = crate::voxel::geometry::pack_geometry(&view)?;
+    let tris = crate::linespace::world_triangles(&geo.mesh);
+    let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(
+        s.pipeline.linespace.n,
+    ));
+    let tree = crate::linespace::ntree::build_ntree(&tris, &s.pipeline.linespace, &shafts)?;
+    let sec = crate::linespace::section::to_section("linespace", &name, &tree);
+    finish("linespace", out, vec![sec], Vec::new())
+}
+
+/// The files a whole bake reads, as [`crate::graph::build`] records them: the scene's ECO,
+/// RAW and colour-map files, the pipeline file, every model with the files it read, the sky.
+pub fn scene_files(
+    s: &SceneArgs,
+    plan: &ingest::eco::ScenePlan,
+    models: &[ModelDeps],
+) -> BTreeSet<PathBuf> {
+    let mut files: BTreeSet<PathBuf> = plan.files.iter().cloned().collect();
+    files.extend(s.pipeline_file.iter().cloned());
+    for m in models {
+        files.extend(
+            m.files
+                .iter()
+                .filter(|f| f.blake3.is_some())
+                .map(|f| f.path.clone()),
+        );
+    }
+    files.extend(s.sky.iter().cloned());
+    files
+}
+
+/// The `build` record: its key over every file the bake read (the models' files as their
+/// units hashed them) and the counts.
+pub fn record(s: &SceneArgs, deps: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let plan = s.plan()?;
+    let mut models = Vec::new();
+    for d in deps {
+        let bytes = crate::error::read_file(d)?;
+        let m: ModelDeps = serde_json::from_slice(&bytes).map_err(|e| {
+            Error::invalid_at(
+                d,
+                format!("line {}", e.line()),
+                format!("not a model record of `bake unit model`: {e}"),
+            )
+        })?;
+        models.push(m);
+    }
+    let known: std::collections::BTreeMap<&Path, &FileDep> = models
+        .iter()
+        .flat_map(|m| m.files.iter())
+        .filter(|f| f.blake3.is_some())
+        .map(|f| (f.path.as_path(), f))
+        .collect();
+    let files = scene_files(s, &plan, &models);
+    let mut file_deps = Vec::with_capacity(files.len());
+    for f in &files {
+        file_deps.push(match known.get(f.as_path()) {
+            Some(d) => (*d).clone(),
+            None => FileDep {
+                path: f.clone(),
+                blake3: Some(hex(&cache::hash_file(f)?)),
+            },
+        });
+    }
+    let opts = BuildOptions {
+        scenes: s.scenes.clone(),
+        sky: s.sky.clone(),
+        ingest: s.ingest.clone(),
+        pipeline: s.pipeline.clone(),
+        pipeline_file: s.pipeline_file.clone(),
+        ..Default::default()
+    };
+    let key = crate::graph::build_key(&opts, BAKE_VERSION, &file_deps);
+    let sec = crate::graph::build_section(&crate::graph::BuildMeta {
+        key: key.hex(),
+        files: file_deps,
+        models: plan.models.len() as u64,
+        instances: plan.scene.instances.items.len() as u64,
+        triangles: models.iter().map(|m| m.triangles).sum(),
+    });
+    finish("record", out, vec![sec], Vec::new())
+}
+
+/// `bake merge`: the union of the packs' sections in argument order. A name seen again with
+/// the same payload is kept once; with a different payload it is an error naming both files.
+pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
+    let mut seen: std::collections::HashMap<String, (usize, [u8; 32], String)> =
+        std::collections::HashMap::new();
+    let mut sections = Vec::new();
+    for (k, p) in inputs.iter().enumerate() {
+        for sec in Pack::open(p)?.checked_sections()? {
+            match seen.get(&sec.name) {
+                Some((j, h, kind)) => {
+                    if h != sec.payload.hash() || *kind != sec.kind {
+                        return Err(Error::invalid_at(
+                            p,
+                            format!("section {:?}", sec.name),
+                            format!(
+                                "differs from the section of the same name in {}; \
+                                 a merge takes each section from one place",
+                                inputs[*j].display()
+                            ),
+                        ));
+                    }
+                }
+                None => {
+                    seen.insert(sec.name.clone(), (k, *sec.payload.hash(), sec.kind.clone()));
+                    sections.push(sec);
+                }
+            }
+        }
+    }
+    finish("merge", out, sections, Vec::new())
+}
