@@ -32,7 +32,7 @@ fi
 BGD=$TOOLS/venv/bin/bgd
 if [ ! -x "$BGD" ]; then
   python3 -m venv "$TOOLS/venv"
-  "$TOOLS/venv/bin/pip" install --quiet buildgrid
+  "$TOOLS/venv/bin/pip" install --quiet buildgrid==0.4.4   # the version this script was written against
 fi
 "$BAZEL" --version 2>/dev/null | head -1 || true
 

@@ -324,11 +324,7 @@ impl StreamWriter {
     pub fn create(target: &Path) -> Result<StreamWriter> {
         let dir = parent_dir(target);
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-        let tmp = tempfile::Builder::new()
-            .prefix(TMP_PREFIX)
-            .tempfile_in(&dir)
-            .map_err(|e| Error::io(&dir, e))?;
-        lock(tmp.as_file(), true);
+        let tmp = new_temporary(&dir)?;
         remove_stale_temporaries(&dir);
         Ok(StreamWriter {
             target: target.to_path_buf(),
@@ -455,9 +451,43 @@ fn lock(_f: &std::fs::File, _block: bool) -> bool {
     false
 }
 
+/// A locked temporary file in `dir`. Between its creation and its lock the file is briefly
+/// unlocked, so it is created under a shared lock of the folder, which
+/// [`remove_stale_temporaries`] takes exclusively: a cleaner never sees a live temporary
+/// before its lock (two bakes writing into one folder once removed each other's file there).
+fn new_temporary(dir: &Path) -> Result<tempfile::NamedTempFile> {
+    let _guard = lock_dir(dir, false);
+    let tmp = tempfile::Builder::new()
+        .prefix(TMP_PREFIX)
+        .tempfile_in(dir)
+        .map_err(|e| Error::io(dir, e))?;
+    lock(tmp.as_file(), true);
+    Ok(tmp)
+}
+
+/// A blocking advisory lock on a folder (shared or exclusive), held until the value is dropped;
+/// `None` where the folder cannot be opened or locked (the file locks alone then guard).
+#[cfg(unix)]
+fn lock_dir(dir: &Path, exclusive: bool) -> Option<std::fs::File> {
+    use std::os::unix::io::AsRawFd;
+    let f = std::fs::File::open(dir).ok()?;
+    let op = if exclusive {
+        libc::LOCK_EX
+    } else {
+        libc::LOCK_SH
+    };
+    // SAFETY: flock on a file descriptor this process holds open.
+    (unsafe { libc::flock(f.as_raw_fd(), op) } == 0).then_some(f)
+}
+#[cfg(not(unix))]
+fn lock_dir(_dir: &Path, _exclusive: bool) -> Option<std::fs::File> {
+    None
+}
+
 /// Removes the temporary files of killed bakes in `dir`: those whose lock is free. Returns how
 /// many were removed.
 pub fn remove_stale_temporaries(dir: &Path) -> usize {
+    let _guard = lock_dir(dir, true);
     let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
     };
@@ -493,11 +523,7 @@ fn parent_dir(path: &Path) -> PathBuf {
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let dir = parent_dir(path);
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let mut tmp = tempfile::Builder::new()
-        .prefix(TMP_PREFIX)
-        .tempfile_in(&dir)
-        .map_err(|e| Error::io(&dir, e))?;
-    lock(tmp.as_file(), true);
+    let mut tmp = new_temporary(&dir)?;
     tmp.write_all(bytes).map_err(|e| Error::io(tmp.path(), e))?;
     tmp.as_file()
         .sync_all()
@@ -1008,6 +1034,37 @@ mod tests {
             e.contains("version 3") && e.contains("versions 1 to 2"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn cleaners_never_remove_a_live_writers_temporary_file() {
+        // Writers creating temporaries in one folder while others clean it: a temporary is
+        // unlocked for an instant after its creation; without the folder lock a cleaner took
+        // it for a killed bake's and removed it, and the writer's rename failed (ENOENT).
+        let dir = tempfile::tempdir().unwrap();
+        let done = std::sync::atomic::AtomicBool::new(false);
+        std::thread::scope(|scope| {
+            for _ in 0..2 {
+                scope.spawn(|| {
+                    while !done.load(std::sync::atomic::Ordering::Relaxed) {
+                        remove_stale_temporaries(dir.path());
+                    }
+                });
+            }
+            let writers: Vec<_> = (0..4)
+                .map(|t| {
+                    let path = dir.path().join(format!("w{t}.bin"));
+                    scope.spawn(move || {
+                        (0..300)
+                            .filter(|i| write_atomic(&path, &[*i as u8; 64]).is_err())
+                            .count()
+                    })
+                })
+                .collect();
+            let failed: usize = writers.into_iter().map(|w| w.join().unwrap()).sum();
+            done.store(true, std::sync::atomic::Ordering::Relaxed);
+            assert_eq!(failed, 0, "writes lost their temporary file to a cleaner");
+        });
     }
 
     #[test]
