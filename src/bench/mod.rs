@@ -5,6 +5,7 @@
 
 pub mod ambient;
 pub mod lightmap;
+pub mod linespace;
 pub mod rays;
 pub mod sky;
 pub mod svo;
