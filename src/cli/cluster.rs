@@ -125,6 +125,11 @@ pub struct ClusterBenchArgs {
     /// fit and evaluation); the fastest of each is reported (the machine is shared).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100))]
     pub repeat: u32,
+    /// Instead: measure why a baked pack's traced maps do (not) cluster (noise from two
+    /// half-sample estimates, neighbour differences, the bounds; `--samples` rays in all,
+    /// `--error` the bound). See `bench::cluster_cause`.
+    #[arg(long)]
+    pub cause: Option<PathBuf>,
 }
 
 /// One timed run of the interpolation: wall and CPU seconds of the weights alone and with the
@@ -142,6 +147,18 @@ struct Interpolation {
 type BenchScene = (Vec<[f32; 3]>, Vec<f32>, Option<Vec<f32>>);
 
 pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
+    if let Some(pack) = &a.cause {
+        let opts = crate::bench::cluster_cause::CauseOptions {
+            samples: a.samples,
+            error: a.error,
+        };
+        let r = crate::bench::cluster_cause::measure_cause(pack, &opts)?;
+        return Ok(Outcome {
+            text: r.text,
+            json: r.json,
+            warnings: Vec::new(),
+        });
+    }
     let t_envmaps = std::time::Instant::now();
     let (positions, values, truth) = if a.synthetic {
         synthetic_scene(a)
