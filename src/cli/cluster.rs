@@ -60,7 +60,8 @@ pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
         ..Default::default()
     };
     let start = std::time::Instant::now();
-    let (sections, c) = crate::envmap::cluster_sections(&pack, &opts, args.weights)?;
+    let (sections, c, warning) =
+        crate::envmap::cluster_sections_warned(&pack, &opts, args.weights)?;
     let seconds = start.elapsed().as_secs_f64();
     let bytes = super::write_pack(w, sections, &output)?;
     let out = Pack::from_bytes(&bytes, "out")?;
@@ -72,7 +73,7 @@ pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
     Ok(Outcome {
         text: format!("{}: {}\n", output.display(), doc),
         json: doc,
-        warnings: Vec::new(),
+        warnings: warning.into_iter().collect(),
     })
 }
 
