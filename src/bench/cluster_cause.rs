@@ -27,36 +27,54 @@ pub struct CauseOptions {
     pub samples: u32,
     /// The per-instance error bound the clusterings use.
     pub error: f32,
+    /// Rays of the reference maps of a subset of (at most about 200) instances.
+    pub ref_samples: u32,
 }
 
 /// Instance positions and two estimates of their maps (flattened, `DIM` per instance).
 pub type HalfEstimates = (Vec<[f32; 3]>, Vec<f32>, Vec<f32>);
 
-/// The two half-sample estimates of a pack's scene, world frame, flattened (`DIM` per instance).
-pub fn half_estimates(pack: &crate::pack::Pack, samples: u32) -> Result<HalfEstimates> {
+/// The two half-sample estimates of a pack's scene, world frame, flattened (`DIM` per instance),
+/// and for the instances `subset` a reference traced with `ref_samples` rays (a third seed).
+pub fn half_estimates(
+    pack: &crate::pack::Pack,
+    samples: u32,
+    subset: &[usize],
+    ref_samples: u32,
+) -> Result<(HalfEstimates, Vec<f32>)> {
     let light = crate::lightmap::scene_lighting(pack)?;
     let scene = crate::trace::pack_scene::trace_scene(pack)?;
     let n = scene.instance_count;
-    let half = |seed: u64| {
-        let opts = crate::envmap::bake::EnvmapOptions {
-            samples: (samples / 2).max(1),
-            seed,
-        };
-        let maps = crate::envmap::instance_maps(&scene, &light, &opts, 0..n);
+    let rot: Vec<f32> = scene
+        .instances
+        .items
+        .iter()
+        .map(|i| i.rotation_deg)
+        .collect();
+    let world = |maps: Vec<crate::envmap::bake::InstanceMaps>, rot: &[f32]| {
         let (mut sky, mut sun): (Vec<_>, Vec<_>) = maps.into_iter().unzip();
-        let rot: Vec<f32> = scene
-            .instances
-            .items
-            .iter()
-            .map(|i| i.rotation_deg)
-            .collect();
-        crate::envmap::to_world_frame(&mut sky, &mut sun, &rot);
+        crate::envmap::to_world_frame(&mut sky, &mut sun, rot);
         flatten(&sky, &sun)
+    };
+    let opts = |samples: u32, seed: u64| crate::envmap::bake::EnvmapOptions {
+        samples: samples.max(1),
+        seed,
+    };
+    let half = |seed: u64| {
+        let maps = crate::envmap::instance_maps(&scene, &light, &opts(samples / 2, seed), 0..n);
+        world(maps, &rot)
     };
     let a = half(0x00a1_1ce5);
     let b = half(0x00b0_b005);
+    let ro = opts(ref_samples, 0x0072_ef00);
+    let reference: Vec<crate::envmap::bake::InstanceMaps> = subset
+        .iter()
+        .flat_map(|&i| crate::envmap::instance_maps(&scene, &light, &ro, i..i + 1))
+        .collect();
+    let sub_rot: Vec<f32> = subset.iter().map(|&i| rot[i]).collect();
+    let reference = world(reference, &sub_rot);
     let pos = scene.instances.items.iter().map(|i| i.position).collect();
-    Ok((pos, a, b))
+    Ok(((pos, a, b), reference))
 }
 
 /// Per-instance noise variance of the mean (A+B)/2 (per coefficient).
@@ -122,7 +140,13 @@ fn quantile(mut v: Vec<f64>, q: f64) -> f64 {
 pub fn measure_cause(pack_path: &Path, o: &CauseOptions) -> Result<Report> {
     let pack = crate::pack::Pack::open(pack_path)?;
     let t0 = std::time::Instant::now();
-    let (pos, a, b) = half_estimates(&pack, o.samples)?;
+    let total = crate::ingest::instances_section::from_section(&pack.view_named("instances")?)
+        .map_err(|e| crate::error::Error::invalid(pack_path, e))?
+        .1
+        .items
+        .len();
+    let subset: Vec<usize> = (0..total).step_by((total / 200).max(1)).collect();
+    let ((pos, a, b), reference) = half_estimates(&pack, o.samples, &subset, o.ref_samples)?;
     let trace_seconds = t0.elapsed().as_secs_f64();
     let v: Vec<f32> = a.iter().zip(&b).map(|(x, y)| 0.5 * (x + y)).collect();
     let n = pos.len();
@@ -232,6 +256,20 @@ pub fn measure_cause(pack_path: &Path, o: &CauseOptions) -> Result<Report> {
             .sum::<f64>()
             / n as f64;
         let inst: Vec<f64> = e.iter().map(|&x| rel(x)).collect();
+        // Against the high-ray reference of the subset: the reconstruction from the samples.
+        let (sp, sv) = cluster::gather_samples(&pos, &v, DIM, &samples);
+        let ip = crate::envmap::interp::Interpolator::new(&sp, &sv, DIM, p.radius, p.k);
+        let mut out = vec![0.0f32; DIM];
+        let mut vs_ref = 0.0f64;
+        for (r, &i) in subset.iter().enumerate() {
+            ip.reconstruct(pos[i], &mut out);
+            vs_ref += out
+                .iter()
+                .zip(&reference[r * DIM..(r + 1) * DIM])
+                .map(|(x, y)| ((x - y) as f64).powi(2))
+                .sum::<f64>();
+        }
+        let vs_ref = rel(vs_ref / (subset.len().max(1) * DIM) as f64);
         fixed.push(json!({
             "every": t, "samples": samples.len(), "compression": raw / (samples.len() as f64 * (16.0 + 4.0 * DIM as f64)),
             "per_instance_max": quantile(inst.clone(), 1.0),
@@ -240,9 +278,25 @@ pub fn measure_cause(pack_path: &Path, o: &CauseOptions) -> Result<Report> {
             "cluster_summed_fraction_over_bound": cl.iter().filter(|&&x| x > o.error as f64).count() as f64 / cl.len() as f64,
             "scene_rms": rel(scene_ms),
             "scene_rms_noise_removed": rel(scene_ms - own_noise),
+            "rms_error_vs_reference": vs_ref,
         }));
     }
+    // The per-instance maps themselves against the reference: their noise, checked.
+    let own_vs_ref: f64 = subset
+        .iter()
+        .enumerate()
+        .map(|(r, &i)| {
+            v[i * DIM..(i + 1) * DIM]
+                .iter()
+                .zip(&reference[r * DIM..(r + 1) * DIM])
+                .map(|(x, y)| ((x - y) as f64).powi(2))
+                .sum::<f64>()
+        })
+        .sum::<f64>()
+        / (subset.len().max(1) * DIM) as f64;
     let json = json!({
+        "reference": {"instances": subset.len(), "samples": o.ref_samples,
+            "per_instance_maps_rms_error_vs_reference": rel(own_vs_ref)},
         "pack": pack_path, "instances": n, "samples": o.samples, "error_bound": o.error,
         "rms": rms, "trace_seconds": trace_seconds, "threads": rayon::current_num_threads(),
         "noise": noise, "neighbours": neighbours,

@@ -131,6 +131,9 @@ pub struct ClusterBenchArgs {
     /// `--error` the bound). See `bench::cluster_cause`.
     #[arg(long)]
     pub cause: Option<PathBuf>,
+    /// With `--cause`: rays of the reference maps of about 200 instances.
+    #[arg(long, default_value_t = 4096)]
+    pub reference_samples: u32,
 }
 
 /// One timed run of the interpolation: wall and CPU seconds of the weights alone and with the
@@ -152,6 +155,7 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
         let opts = crate::bench::cluster_cause::CauseOptions {
             samples: a.samples,
             error: a.error,
+            ref_samples: a.reference_samples,
         };
         let r = crate::bench::cluster_cause::measure_cause(pack, &opts)?;
         return Ok(Outcome {
