@@ -4,6 +4,7 @@
 //! and [`cpu_seconds`] (this process' CPU time, from Linux' schedstat).
 
 pub mod ambient;
+pub mod cluster_cause;
 pub mod lightmap;
 pub mod linespace;
 pub mod rays;

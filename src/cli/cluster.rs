@@ -60,7 +60,8 @@ pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
         ..Default::default()
     };
     let start = std::time::Instant::now();
-    let (sections, c) = crate::envmap::cluster_sections(&pack, &opts, args.weights)?;
+    let (sections, c, warning) =
+        crate::envmap::cluster_sections_warned(&pack, &opts, args.weights)?;
     let seconds = start.elapsed().as_secs_f64();
     let bytes = super::write_pack(w, sections, &output)?;
     let out = Pack::from_bytes(&bytes, "out")?;
@@ -72,7 +73,7 @@ pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
     Ok(Outcome {
         text: format!("{}: {}\n", output.display(), doc),
         json: doc,
-        warnings: Vec::new(),
+        warnings: warning.into_iter().collect(),
     })
 }
 
@@ -125,6 +126,14 @@ pub struct ClusterBenchArgs {
     /// fit and evaluation); the fastest of each is reported (the machine is shared).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100))]
     pub repeat: u32,
+    /// Instead: measure why a baked pack's traced maps do (not) cluster (noise from two
+    /// half-sample estimates, neighbour differences, the bounds; `--samples` rays in all,
+    /// `--error` the bound). See `bench::cluster_cause`.
+    #[arg(long)]
+    pub cause: Option<PathBuf>,
+    /// With `--cause`: rays of the reference maps of about 200 instances.
+    #[arg(long, default_value_t = 4096)]
+    pub reference_samples: u32,
 }
 
 /// One timed run of the interpolation: wall and CPU seconds of the weights alone and with the
@@ -142,6 +151,19 @@ struct Interpolation {
 type BenchScene = (Vec<[f32; 3]>, Vec<f32>, Option<Vec<f32>>);
 
 pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
+    if let Some(pack) = &a.cause {
+        let opts = crate::bench::cluster_cause::CauseOptions {
+            samples: a.samples,
+            error: a.error,
+            ref_samples: a.reference_samples,
+        };
+        let r = crate::bench::cluster_cause::measure_cause(pack, &opts)?;
+        return Ok(Outcome {
+            text: r.text,
+            json: r.json,
+            warnings: Vec::new(),
+        });
+    }
     let t_envmaps = std::time::Instant::now();
     let (positions, values, truth) = if a.synthetic {
         synthetic_scene(a)

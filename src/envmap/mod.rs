@@ -203,6 +203,68 @@ pub fn instance_maps(
     bake::bake_envmaps_range(&es, opts, range)
 }
 
+/// Compression the stage reaches: the raw maps (`dim` f32 per instance) over the stored samples
+/// (position, instance index and `dim` f32 each; without stored weights), as the section summary
+/// counts it.
+pub fn compression(c: &Clustering, dim: usize) -> f64 {
+    let raw = (c.assignment.len() * dim * 4) as f64;
+    let packed = (c.samples.len() * (12 + 4 + dim * 4)) as f64;
+    if packed > 0.0 { raw / packed } else { 0.0 }
+}
+
+/// Compression below which the stage warns.
+pub const MIN_COMPRESSION: f64 = 2.0;
+
+/// A warning when the clustering does not compress (below [`MIN_COMPRESSION`]), naming the
+/// reason it measures: how much a map differs from the least-squares plane through its 8
+/// nearest neighbours' maps ([`cluster::estimate_noise`]'s residual: Monte-Carlo noise and real
+/// local differences together), against the error bound (plus the noise allowance, if any). A
+/// residual above the bound means no reconstruction from neighbours can meet it (measured on
+/// the pipeline's traced maps: docs/PERFORMANCE.md, "Environment-map clustering: the cause").
+pub fn compression_warning(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    c: &Clustering,
+    opts: &ClusterOptions,
+) -> Option<String> {
+    let ratio = compression(c, dim);
+    if ratio >= MIN_COMPRESSION || positions.is_empty() {
+        return None;
+    }
+    let head = format!(
+        "environment maps not compressed: {} clusters for {} instances ({ratio:.2}x, below {MIN_COMPRESSION}x)",
+        c.samples.len(),
+        positions.len()
+    );
+    let allowed = ((opts.error as f64).powi(2) + (c.noise as f64).powi(2)).sqrt();
+    if positions.len() < 4 * c.k.max(1) {
+        return Some(format!(
+            "{head}: too few instances ({}) for {} neighbours per reconstruction",
+            positions.len(),
+            c.k
+        ));
+    }
+    let residual = cluster::estimate_noise(positions, values, dim) as f64;
+    Some(if residual > allowed {
+        format!(
+            "{head}: neighbouring maps differ from the plane through their 8 nearest neighbours by {:.1} % (relative RMS; Monte-Carlo noise and local occlusion together), more than the allowed error {:.1} % (bound {:.1} %, noise allowance {:.1} %), so no reconstruction from neighbours meets the per-instance bound",
+            100.0 * residual,
+            100.0 * allowed,
+            100.0 * opts.error,
+            100.0 * c.noise
+        )
+    } else {
+        format!(
+            "{head}: the maps are smooth between neighbours ({:.1} % plane residual) but the {}-neighbour multiquadric (R = {:.2} m) does not reach the allowed error {:.1} % with fewer samples",
+            100.0 * residual,
+            c.k,
+            c.radius,
+            100.0 * allowed
+        )
+    })
+}
+
 /// The `envmaps` section of every instance's maps.
 pub fn envmaps_section(
     maps: &[bake::InstanceMaps],
@@ -228,6 +290,16 @@ pub fn cluster_sections(
     opts: &ClusterOptions,
     store_weights: bool,
 ) -> crate::error::Result<(Vec<crate::pack::Section>, Clustering)> {
+    cluster_sections_warned(pack, opts, store_weights).map(|(s, c, _)| (s, c))
+}
+
+/// [`cluster_sections`] and the stage's warning, if it does not compress
+/// ([`compression_warning`]).
+pub fn cluster_sections_warned(
+    pack: &crate::pack::Pack,
+    opts: &ClusterOptions,
+    store_weights: bool,
+) -> crate::error::Result<(Vec<crate::pack::Section>, Clustering, Option<String>)> {
     let bad = |e| crate::error::Error::invalid(pack.path(), e);
     let (_, inst) = crate::ingest::instances_section::from_section(&pack.view_named("instances")?)
         .map_err(bad)?;
@@ -247,11 +319,13 @@ pub fn cluster_sections(
     let (meta, c, weights) =
         cluster_and_weigh(&positions, &values, section::DIM, opts, store_weights);
     let wref = weights.as_ref().map(|(n, w)| (n.as_slice(), w.as_slice()));
+    let warning = compression_warning(&positions, &values, section::DIM, &c, opts);
     Ok((
         vec![section::clusters_to_section(
             "clusters", &meta, &c, &positions, &values, wref,
         )],
         c,
+        warning,
     ))
 }
 
@@ -293,6 +367,42 @@ mod tests {
                 c.errors[i]
             );
         }
+    }
+
+    #[test]
+    fn the_stage_warns_with_the_measured_reason_when_it_does_not_compress() {
+        let mut rng = crate::rng::Rng::new(7);
+        let pos: Vec<[f32; 3]> = (0..2000)
+            .map(|_| [rng.f32() * 300.0, rng.f32() * 300.0, 0.0])
+            .collect();
+        let opts = ClusterOptions {
+            error: 0.02,
+            ..Default::default()
+        };
+        // A smooth field compresses and does not warn.
+        let smooth = synthetic::synthetic_envmaps(&pos, &synthetic::bench_terrain_height, 0.0, 3);
+        let c = cluster_envmaps(&pos, &smooth.truth, section::DIM, &opts);
+        assert!(compression(&c, section::DIM) >= MIN_COMPRESSION);
+        assert_eq!(
+            compression_warning(&pos, &smooth.truth, section::DIM, &c, &opts),
+            None
+        );
+        // Maps that differ between neighbours far more than the bound (20 % independent noise)
+        // split down to single instances, and the warning names the measured residual.
+        let noisy = synthetic::synthetic_envmaps(&pos, &synthetic::bench_terrain_height, 0.2, 3);
+        let c = cluster_envmaps(&pos, &noisy.noisy, section::DIM, &opts);
+        let ratio = compression(&c, section::DIM);
+        assert!(ratio < MIN_COMPRESSION, "{ratio}");
+        let w = compression_warning(&pos, &noisy.noisy, section::DIM, &c, &opts).unwrap();
+        assert!(
+            w.contains("not compressed") && w.contains("neighbouring maps differ"),
+            "{w}"
+        );
+        let residual = cluster::estimate_noise(&pos, &noisy.noisy, section::DIM);
+        assert!(w.contains(&format!("{:.1} %", 100.0 * residual)), "{w}");
+        // Raw maps (96 f32 per instance) over the stored samples (3 + 1 + 96 words each).
+        let expect = (2000.0 * 96.0) / (c.samples.len() as f64 * 100.0);
+        assert!((ratio - expect).abs() < 1e-9, "{ratio} {expect}");
     }
 
     #[test]

@@ -48,7 +48,8 @@ pub mod versions {
     pub const LIGHTMAP: u32 = 1;
     pub const ATLAS: u32 = 1;
     pub const ENVMAPS: u32 = 1;
-    pub const CLUSTER: u32 = 1;
+    /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
+    pub const CLUSTER: u32 = 2;
     pub const BITTREE: u32 = 1;
     pub const SVO: u32 = 1;
     /// 2: the compact section layout (issue 15).
@@ -645,10 +646,12 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
             }
         }
         let out = g.unit("cluster", "scene", k.finish(), None, |_| {
-            let (s, c) = crate::envmap::cluster_sections(&view, &p.cluster, false)?;
+            let (s, c, w) = crate::envmap::cluster_sections_warned(&view, &p.cluster, false)?;
             Ok(Output {
-                report: json!({"clusters": c.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error()}),
+                report: json!({"clusters": c.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error(),
+                    "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
                 sections: s,
+                warnings: w.into_iter().collect(),
                 ..Default::default()
             })
         })?;
