@@ -29,6 +29,9 @@ if [ ! -x "$BAZEL" ]; then
   command -v npm >/dev/null || { echo "npm is needed (apt-get install npm)"; exit 1; }
   npm install --silent --no-audit --no-fund --prefix "$TOOLS" @bazel/bazel@2.1.0 >/dev/null
 fi
+# npm leaves the platform binary without its executable bit here (mode 0644); this script
+# calls the binary directly, not through the package's launcher, so it sets the bit itself.
+[ -x "$BAZEL" ] || chmod +x "$BAZEL"
 BGD=$TOOLS/venv/bin/bgd
 if [ ! -x "$BGD" ]; then
   python3 -m venv "$TOOLS/venv"
