@@ -59,10 +59,7 @@ pub fn parse_exr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
     use exr::prelude::*;
     // The pixel buffer is allocated from the header's size before any pixel is read: check
     // every layer's size first, so a lying header cannot make us allocate.
-    for (w, h) in exr_layer_sizes(bytes)? {
-        check_size(w.min(u32::MAX as u64) as u32, h.min(u32::MAX as u64) as u32)?;
-    }
-    exr_check_blocks(bytes)?;
+    exr_check_header(bytes)?;
     // The pixel buffer is allocated when the first pixel has been decoded, not from the header
     // alone: a file whose chunks are missing fails before the buffer exists.
     let image = read()
@@ -103,14 +100,18 @@ fn exr_layer_sizes(bytes: &[u8]) -> Result<Vec<(u64, u64)>, ParseError> {
         .collect())
 }
 
-/// Checks the block layout of an OpenEXR header against the file before anything is
-/// allocated: every chunk has an 8-byte entry in the offset tables after the header, so a
+/// Checks an OpenEXR header (read once) before anything is allocated: every layer's size
+/// against the pixel limit; and the block layout against the file: every chunk has an 8-byte entry in the offset tables after the header, so a
 /// header that declares more chunks than the file can list is refused; and a tile larger than
 /// its layer (the `exr` crate allocates a whole tile per block: a 533-byte file from the fuzzer
 /// declared 536,870,976×64-pixel tiles for an 8×4 image and cost 1.9 GB) is refused too.
-fn exr_check_blocks(bytes: &[u8]) -> Result<(), ParseError> {
+fn exr_check_header(bytes: &[u8]) -> Result<(), ParseError> {
     let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
         .map_err(|e| ParseError::new("OpenEXR header", exr_message(e)))?;
+    for h in &meta.headers {
+        let (w, h) = (h.layer_size.0 as u64, h.layer_size.1 as u64);
+        check_size(w.min(u32::MAX as u64) as u32, h.min(u32::MAX as u64) as u32)?;
+    }
     let chunks: u64 = meta.headers.iter().map(|h| h.chunk_count as u64).sum();
     if chunks.saturating_mul(8) > bytes.len() as u64 {
         return Err(ParseError::new(
