@@ -5,9 +5,12 @@
 
 pub mod ambient;
 pub mod cluster_cause;
+pub mod incremental;
+pub mod ingest;
 pub mod lightmap;
 pub mod linespace;
 pub mod rays;
+pub mod render;
 pub mod sky;
 pub mod svo;
 pub mod terrain;
@@ -77,6 +80,17 @@ pub fn time_median<T>(repeat: u32, mut f: impl FnMut() -> Result<T>) -> Result<(
     }
     times.sort_by(f64::total_cmp);
     Ok((times[times.len() / 2], last.expect("at least one run")))
+}
+
+/// Mean wall time of `repeat` runs of `f`, in seconds, and the last run's result.
+pub fn time_mean<T>(repeat: u32, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
+    let start = Instant::now();
+    let mut last = None;
+    for _ in 0..repeat.max(1) {
+        last = Some(f()?);
+    }
+    let secs = start.elapsed().as_secs_f64() / repeat.max(1) as f64;
+    Ok((secs, last.expect("at least one run")))
 }
 
 /// Best (smallest) wall time of `repeat` runs of `f`, in seconds, and the last run's result.

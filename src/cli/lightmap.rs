@@ -94,9 +94,5 @@ pub use crate::bench::lightmap::fixture_pack;
 /// `bake bench lightmap` (crate::bench::lightmap).
 pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
     let r = crate::bench::lightmap::bench_lightmap(a.input.as_deref(), a.samples, a.repeat)?;
-    Ok(Outcome {
-        json: r.json,
-        text: r.text,
-        warnings: Vec::new(),
-    })
+    Ok(r.into())
 }

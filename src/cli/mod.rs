@@ -76,6 +76,17 @@ impl Outcome {
     }
 }
 
+/// A benchmark's report as a command's outcome (no warnings).
+impl From<crate::bench::Report> for Outcome {
+    fn from(r: crate::bench::Report) -> Outcome {
+        Outcome {
+            json: r.json,
+            text: r.text,
+            warnings: Vec::new(),
+        }
+    }
+}
+
 impl Global {
     /// Ingest options carrying the global --allow-path and --max-memory.
     pub fn ingest_defaults(&self) -> crate::ingest::IngestOptions {

@@ -167,68 +167,14 @@ pub struct RenderBenchArgs {
     pub reference: bool,
 }
 
-/// Median seconds of `repeat` CPU reference renders (BVH build included).
-fn bench_reference(pack: &Pack, opts: &RenderOptions, repeat: u32) -> Result<f64> {
-    let mut t = Vec::new();
-    for _ in 0..repeat.max(1) {
-        t.push(crate::render::reference::render_reference(pack, opts)?.seconds);
-    }
-    t.sort_by(f64::total_cmp);
-    Ok(t[t.len() / 2])
-}
-
-/// `bake bench render PACK`: median seconds of device setup, upload and draw (with readback).
+/// `bake bench render PACK`: see [`crate::bench::render::bench_render`].
 pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
-    let pack = Pack::open(&args.pack)?;
     let opts = RenderOptions {
         width: args.width,
         height: args.height,
         backend: args.backend,
         ..RenderOptions::default()
     };
-    let mut runs = Vec::new();
-    let mut adapter = None;
-    for _ in 0..args.repeat.max(1) {
-        let out = render_pack(&pack, &opts)?;
-        let s = out.stats;
-        runs.push([s.seconds_setup, s.seconds_upload, s.seconds_draw]);
-        adapter = Some((out.adapter, s.triangles, s.instances, s.uploaded_bytes));
-    }
-    let median = |k: usize| {
-        let mut v: Vec<f64> = runs.iter().map(|r| r[k]).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let (setup, upload, draw) = (median(0), median(1), median(2));
-    let (adapter, triangles, instances, bytes) = adapter.expect("at least one run");
-    let reference = if args.reference {
-        Some(bench_reference(&pack, &opts, args.repeat)?)
-    } else {
-        None
-    };
-    let mut text = format!(
-        "{}: {}×{} on {adapter}: {triangles} triangles, {instances} instances, {bytes} bytes uploaded; \
-         median of {}: setup {:.1} ms, upload {:.1} ms, draw+readback {:.1} ms ({:.1} Mtri/s)\n",
-        args.pack.display(),
-        args.width,
-        args.height,
-        runs.len(),
-        setup * 1e3,
-        upload * 1e3,
-        draw * 1e3,
-        triangles as f64 / draw / 1e6
-    );
-    if let Some(r) = reference {
-        text += &format!("CPU reference: median {:.1} ms\n", r * 1e3);
-    }
-    Ok(Outcome {
-        json: serde_json::json!({
-            "pack": args.pack, "adapter": adapter, "width": args.width, "height": args.height,
-            "runs": runs.len(), "triangles": triangles, "instances": instances, "uploaded_bytes": bytes,
-            "seconds_setup": setup, "seconds_upload": upload, "seconds_draw": draw,
-            "seconds_reference": reference,
-        }),
-        text,
-        warnings: Vec::new(),
-    })
+    let r = crate::bench::render::bench_render(&args.pack, &opts, args.repeat, args.reference)?;
+    Ok(r.into())
 }

@@ -215,9 +215,5 @@ pub fn bench(a: &SkyBenchArgs, _g: &Global) -> Result<Outcome> {
         Some((w, h)) => crate::bench::sky::write_sample(&a.input, w, h)?,
         None => crate::bench::sky::bench_sky(&a.input, a.repeat, a.cmgen_sh.as_deref())?,
     };
-    Ok(Outcome {
-        json: r.json,
-        text: r.text,
-        warnings: Vec::new(),
-    })
+    Ok(r.into())
 }
