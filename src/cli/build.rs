@@ -4,7 +4,6 @@
 use super::{Global, Outcome};
 use crate::error::Result;
 use crate::graph::{BuildOptions, CacheMode, build, progress};
-use crate::ingest::IngestOptions;
 use std::path::PathBuf;
 
 /// How progress is shown.
@@ -20,31 +19,11 @@ pub enum ProgressMode {
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct BuildArgs {
-    /// One or more ECO files of one scene.
-    #[arg(required = true)]
-    pub scenes: Vec<PathBuf>,
+    #[command(flatten)]
+    pub scene: super::scene::SceneFlags,
     /// Output pack (default: next to the first scene as <stem>.bake).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
-    /// HDR sky (.hdr or .exr, lat-long).
-    #[arg(long)]
-    pub sky: Option<PathBuf>,
-    /// Extra folders searched for model files (after the ECO file's folder).
-    #[arg(long = "models", value_name = "DIR")]
-    pub models: Vec<PathBuf>,
-    /// Colour map of the terrain (default: beside the RAW file).
-    #[arg(long)]
-    pub color_map: Option<PathBuf>,
-    /// The stages and their options: a TOML file (see pipelines/) or a preset name
-    /// (default, preview, final, ci). Default: the `default` preset.
-    #[arg(long, value_name = "FILE|PRESET")]
-    pub pipeline: Option<String>,
-    /// Override one pipeline option, e.g. `--set prt.samples=256` (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
-    /// Short for `--pipeline preview` (quick, noisy lighting).
-    #[arg(long, conflicts_with = "pipeline")]
-    pub preview: bool,
     /// Stage cache folder (default: $BAKE_CACHE, else $XDG_CACHE_HOME/bake, else ~/.cache/bake).
     #[arg(long, value_name = "DIR")]
     pub cache: Option<PathBuf>,
@@ -66,17 +45,12 @@ pub struct BuildArgs {
 pub use crate::graph::preset::resolve as resolve_pipeline;
 
 pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
-    let (pipeline, pipeline_file) =
-        resolve_pipeline(args.pipeline.as_deref(), args.preview, &args.set)?;
+    let (pipeline, pipeline_file) = args.scene.pipeline()?;
     let opts = BuildOptions {
-        scenes: args.scenes.clone(),
+        scenes: args.scene.scenes.clone(),
         output: args.output.clone(),
-        sky: args.sky.clone(),
-        ingest: IngestOptions {
-            model_dirs: args.models.clone(),
-            color_map: args.color_map.clone(),
-            ..g.ingest_defaults()
-        },
+        sky: args.scene.sky.clone(),
+        ingest: args.scene.ingest(g),
         pipeline,
         pipeline_file,
         cache: match (&args.cache, args.no_cache) {

@@ -17,6 +17,7 @@ pub mod pipeline;
 pub mod plan;
 pub mod prt;
 pub mod render;
+pub mod scene;
 pub mod sky;
 pub mod svo;
 pub mod terrain;

@@ -16,27 +16,8 @@ pub enum Emit {
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct PlanArgs {
-    /// The ECO files of the scene.
-    #[arg(required = true)]
-    pub scenes: Vec<PathBuf>,
-    /// HDR sky (.hdr or .exr, lat-long).
-    #[arg(long)]
-    pub sky: Option<PathBuf>,
-    /// Extra folders searched for model files.
-    #[arg(long = "models", value_name = "DIR")]
-    pub models: Vec<PathBuf>,
-    /// Colour map of the terrain.
-    #[arg(long)]
-    pub color_map: Option<PathBuf>,
-    /// The pipeline: a TOML file or a preset name.
-    #[arg(long, value_name = "FILE|PRESET")]
-    pub pipeline: Option<String>,
-    /// Override one pipeline option (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
-    /// Short for `--pipeline preview`.
-    #[arg(long, conflicts_with = "pipeline")]
-    pub preview: bool,
+    #[command(flatten)]
+    pub scene: super::scene::SceneFlags,
     /// The build engine.
     #[arg(long, value_enum)]
     pub emit: Emit,
@@ -61,14 +42,14 @@ pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
         ));
     }
     let opts = PlanOptions {
-        scenes: args.scenes.clone(),
-        sky: args.sky.clone(),
-        model_dirs: args.models.clone(),
-        color_map: args.color_map.clone(),
+        scenes: args.scene.scenes.clone(),
+        sky: args.scene.sky.clone(),
+        model_dirs: args.scene.models.clone(),
+        color_map: args.scene.color_map.clone(),
         allow_paths: g.allow_paths.clone(),
-        pipeline: args.pipeline.clone(),
-        preview: args.preview,
-        set: args.set.clone(),
+        pipeline: args.scene.pipeline.clone(),
+        preview: args.scene.preview,
+        set: args.scene.set.clone(),
         shards: args.shards,
         lightmap_shards: args.lightmap_shards,
         output: args.output.clone(),

@@ -8,47 +8,23 @@ use crate::error::Result;
 use crate::plan::actions::{self, SceneArgs, UnitReport};
 use std::path::PathBuf;
 
-/// The arguments of `bake SCENE.eco` that every unit shares.
+/// The arguments of `bake SCENE.eco` that every unit shares, and the unit's pack.
 #[derive(Debug, Clone, clap::Args)]
-pub struct SceneFlags {
-    /// The ECO files of the scene (as `bake SCENE.eco` is given them).
-    #[arg(required = true)]
-    pub scenes: Vec<PathBuf>,
-    /// HDR sky (.hdr or .exr, lat-long).
-    #[arg(long)]
-    pub sky: Option<PathBuf>,
-    /// Extra folders searched for model files.
-    #[arg(long = "models", value_name = "DIR")]
-    pub models: Vec<PathBuf>,
-    /// Colour map of the terrain.
-    #[arg(long)]
-    pub color_map: Option<PathBuf>,
-    /// The pipeline: a TOML file or a preset name.
-    #[arg(long, value_name = "FILE|PRESET")]
-    pub pipeline: Option<String>,
-    /// Override one pipeline option (repeatable).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
-    /// Short for `--pipeline preview`.
-    #[arg(long, conflicts_with = "pipeline")]
-    pub preview: bool,
+pub struct UnitFlags {
+    #[command(flatten)]
+    pub flags: super::scene::SceneFlags,
     /// The unit's pack.
     #[arg(short, long, required = true)]
     pub output: PathBuf,
 }
 
-impl SceneFlags {
+impl UnitFlags {
     fn scene(&self, g: &Global) -> Result<SceneArgs> {
-        let (pipeline, pipeline_file) =
-            super::build::resolve_pipeline(self.pipeline.as_deref(), self.preview, &self.set)?;
+        let (pipeline, pipeline_file) = self.flags.pipeline()?;
         Ok(SceneArgs {
-            scenes: self.scenes.clone(),
-            sky: self.sky.clone(),
-            ingest: crate::ingest::IngestOptions {
-                model_dirs: self.models.clone(),
-                color_map: self.color_map.clone(),
-                ..g.ingest_defaults()
-            },
+            scenes: self.flags.scenes.clone(),
+            sky: self.flags.sky.clone(),
+            ingest: self.flags.ingest(g),
             pipeline,
             pipeline_file,
         })
@@ -64,11 +40,11 @@ pub struct UnitArgs {
 #[derive(Debug, Clone, clap::Subcommand)]
 pub enum Unit {
     /// The terrain's sections and the prepared terrain.
-    Terrain(SceneFlags),
+    Terrain(UnitFlags),
     /// One model: ingest and materials; also writes the files it read (`--deps`).
     Model {
         #[command(flatten)]
-        scene: SceneFlags,
+        scene: UnitFlags,
         /// The model's name in the scene (its file name).
         #[arg(long)]
         name: String,
@@ -82,7 +58,7 @@ pub enum Unit {
     /// One model's PRT over its model pack.
     Prt {
         #[command(flatten)]
-        scene: SceneFlags,
+        scene: UnitFlags,
         #[arg(long)]
         name: String,
         /// The model's pack (`bake unit model`).
@@ -90,9 +66,9 @@ pub enum Unit {
         input: PathBuf,
     },
     /// The scene's `instances` section.
-    Instances(SceneFlags),
+    Instances(UnitFlags),
     /// The sky's cube map, sun and SH.
-    Sky(SceneFlags),
+    Sky(UnitFlags),
     /// The terrain light map over the packs of terrain, models, instances, sky (with `--rows
     /// I/N`: one shard of its rows, joined by `lightmap-join`).
     Lightmap {
@@ -119,7 +95,7 @@ pub enum Unit {
     /// Clustering over the packs of the instances and the environment maps.
     Cluster(WithPacks),
     /// The BitTree of the scene's instances.
-    Bittree(SceneFlags),
+    Bittree(UnitFlags),
     /// The SVO over the packs of terrain, models, instances.
     Svo(WithPacks),
     /// The N-tree with line spaces over the packs of terrain, models, instances.
@@ -127,7 +103,7 @@ pub enum Unit {
     /// The `build` record over the models' records (`--deps`).
     Record {
         #[command(flatten)]
-        scene: SceneFlags,
+        scene: UnitFlags,
         #[arg(long = "deps", value_name = "JSON")]
         deps: Vec<PathBuf>,
     },
@@ -136,7 +112,7 @@ pub enum Unit {
 #[derive(Debug, Clone, clap::Args)]
 pub struct WithPacks {
     #[command(flatten)]
-    pub scene: SceneFlags,
+    pub scene: UnitFlags,
     /// The packs the unit reads, in the graph's order (repeatable).
     #[arg(long = "in", value_name = "PACK", required = true)]
     pub inputs: Vec<PathBuf>,
