@@ -5,7 +5,8 @@
 #   scripts/fuzz.sh build                    build every target
 #   scripts/fuzz.sh smoke [SECONDS]          each target SECONDS (default 5) on its seed corpus; CI
 #   scripts/fuzz.sh campaign SECONDS [T...]  each target (or the named ones) SECONDS, one after the
-#                                            other at nice 19; corpus grows in $FUZZ_WORK/<target>;
+#                                            other at nice $FUZZ_NICE (default 19); corpus grows in
+#                                            $FUZZ_WORK/<target>;
 #                                            prints one line per target: executions, coverage
 #
 # Crashes, hangs (over 10 s) and allocations over 2 GiB (fuzz/src/lib.rs) stop a run and leave
@@ -36,7 +37,7 @@ run() {
   mkdir -p "$FUZZ_WORK/$t" "$FUZZ_WORK/artifacts/$t"
   log="$FUZZ_WORK/$t.log"
   local rc=0
-  nice -n 19 "$(bin "$t")" "${LIBFUZZER[@]}" -max_total_time="$secs" \
+  nice -n "${FUZZ_NICE:-19}" "$(bin "$t")" "${LIBFUZZER[@]}" -max_total_time="$secs" \
     -artifact_prefix="$FUZZ_WORK/artifacts/$t/" "$FUZZ_WORK/$t" "fuzz/corpus/$t" >"$log" 2>&1 || rc=$?
   local execs cov ft
   execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo 0)

@@ -8,6 +8,13 @@
 //! cell, so it is within half a cell diagonal of the original. Instances come back in leaf order
 //! (breadth first), which [`encode_bittree`] returns as a permutation so per-instance attributes
 //! (scale, rotation, model, layer) can be stored beside the bits in the same order.
+//!
+//! Real scenes hold coincident and near-coincident instances (a plant placed twice, two layers
+//! scattered over one spot), which no depth separates. The tree is therefore refined only until
+//! every cell's instances lie within [`MIN_CELL`] of each other (or `max_levels` is reached):
+//! instances still sharing a leaf there are listed in [`BitTree::shared`], one leaf index per
+//! further instance (4 bytes each), and decode to the same cell centre, next to each other in
+//! leaf order, within half a cell of their positions like every other instance.
 
 pub mod section;
 
@@ -19,7 +26,8 @@ use crate::model::Rect;
 pub struct BitTreeOptions {
     /// Children per level: 4, 16 or 64.
     pub children: u32,
-    /// Deepest level allowed; a scene needing more (two instances closer than extent / side^max) is an error.
+    /// Deepest level allowed; instances still sharing a cell there share a leaf
+    /// ([`BitTree::shared`]).
     pub max_levels: u32,
 }
 
@@ -37,18 +45,24 @@ impl Default for BitTreeOptions {
     }
 }
 
+/// Instances this close (metres, in x and in y) may share a leaf instead of forcing deeper levels.
+pub const MIN_CELL: f64 = 1e-3;
+
 /// An encoded BitTree.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BitTree {
     pub area: Rect,
     pub children: u32,
     pub levels: u32,
-    /// Number of leaves (instances).
+    /// Number of instances: the leaves plus `shared.len()`.
     pub count: u64,
     /// The bit stream, packed little-endian into bytes (bit k of the stream is bit k%8 of byte k/8).
     pub bits: Vec<u8>,
     /// Number of bits used in `bits`.
     pub bit_len: u64,
+    /// For each instance beyond the first in a leaf, that leaf's index (in leaf order,
+    /// non-decreasing); empty when every instance has its own cell.
+    pub shared: Vec<u32>,
 }
 
 impl BitTree {
@@ -79,10 +93,8 @@ fn side_of(children: u32) -> u32 {
 pub enum BitTreeError {
     #[error("children per level must be 4, 16 or 64, not {0}")]
     Children(u32),
-    #[error(
-        "instances {0} and {1} fall in the same cell even at {2} levels (they are closer than the finest cell)"
-    )]
-    TooClose(usize, usize, u32),
+    #[error("shared-leaf list is not non-decreasing leaf indices below {0}")]
+    Shared(u64),
     #[error("the area of interest has no extent")]
     EmptyArea,
     #[error("bit stream ends early at bit {0}")]
@@ -115,7 +127,7 @@ pub fn encode_bittree(
         return Err(BitTreeError::EmptyArea);
     }
     let side = side_of(opts.children) as u64;
-    let levels = choose_levels(points, &area, side, opts.max_levels)?;
+    let levels = choose_levels(points, &area, side, opts.max_levels);
     let cells = side.pow(levels);
     // Sort instances by their path through the tree: for breadth-first leaf order it is enough to
     // sort by the digit sequence (most significant level first), i.e. the interleaved base-`side` key.
@@ -151,6 +163,11 @@ pub fn encode_bittree(
         }
         nodes = next;
     }
+    let shared = nodes
+        .iter()
+        .enumerate()
+        .flat_map(|(leaf, &(lo, hi))| std::iter::repeat_n(leaf as u32, hi - lo - 1))
+        .collect();
     let order = keyed.iter().map(|&(_, i)| i).collect();
     let tree = BitTree {
         area,
@@ -159,6 +176,7 @@ pub fn encode_bittree(
         count: points.len() as u64,
         bit_len: bits.len,
         bits: bits.bytes,
+        shared,
     };
     Ok((tree, order))
 }
@@ -179,42 +197,57 @@ fn digit(key: u128, exp: u32, side: u64) -> u128 {
     (key / base.pow(exp)) % base
 }
 
-/// The fewest levels at which no two points share a cell.
-fn choose_levels(
-    points: &[[f32; 2]],
-    area: &Rect,
-    side: u64,
-    max_levels: u32,
-) -> Result<u32, BitTreeError> {
+/// The fewest levels at which the points sharing any one cell lie within [`MIN_CELL`] of each
+/// other (in x and in y), at most `max_levels`.
+fn choose_levels(points: &[[f32; 2]], area: &Rect, side: u64, max_levels: u32) -> u32 {
     let max_levels = max_levels
         .min(126 / (2 * side.trailing_zeros()).max(1))
         .max(1);
-    for levels in 1..=max_levels {
+    let mut keyed: Vec<([u64; 2], usize)> = Vec::with_capacity(points.len());
+    for levels in 1..max_levels {
         let cells = side.pow(levels);
-        let mut keys: Vec<([u64; 2], usize)> = points
-            .iter()
-            .enumerate()
-            .map(|(i, p)| (cell_of(*p, area, cells), i))
-            .collect();
-        keys.sort_unstable();
-        let clash = keys.windows(2).find(|w| w[0].0 == w[1].0);
-        match clash {
-            None => return Ok(levels),
-            Some(w) if levels == max_levels => {
-                return Err(BitTreeError::TooClose(
-                    w[0].1.min(w[1].1),
-                    w[0].1.max(w[1].1),
-                    levels,
-                ));
-            }
-            Some(_) => {}
+        keyed.clear();
+        keyed.extend(
+            points
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (cell_of(*p, area, cells), i)),
+        );
+        keyed.sort_unstable();
+        let separated = keyed
+            .chunk_by(|a, b| a.0 == b.0)
+            .all(|run| run.len() == 1 || within_min_cell(run.iter().map(|&(_, i)| points[i])));
+        if separated {
+            return levels;
         }
     }
-    Ok(max_levels)
+    max_levels
 }
 
-/// Decodes cell-centre positions (x, y) in leaf order.
+/// Whether points lie within [`MIN_CELL`] of each other in x and in y (their bounding box).
+fn within_min_cell(points: impl Iterator<Item = [f32; 2]>) -> bool {
+    let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+    for p in points {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    (0..2).all(|k| ((hi[k] - lo[k]) as f64) <= MIN_CELL)
+}
+
+/// Decodes cell-centre positions (x, y) in leaf order (instances sharing a leaf next to each
+/// other).
 pub fn decode_bittree(tree: &BitTree) -> Result<Vec<[f32; 2]>, BitTreeError> {
+    let leaves = tree
+        .count
+        .checked_sub(tree.shared.len() as u64)
+        .ok_or(BitTreeError::CountMismatch(0, tree.count))?;
+    if tree.shared.windows(2).any(|w| w[0] > w[1])
+        || tree.shared.last().is_some_and(|&l| l as u64 >= leaves)
+    {
+        return Err(BitTreeError::Shared(leaves));
+    }
     let side = side_of(tree.children) as u64;
     let n = side * side;
     let mut reader = BitReader {
@@ -223,38 +256,42 @@ pub fn decode_bittree(tree: &BitTree) -> Result<Vec<[f32; 2]>, BitTreeError> {
         len: tree.bit_len,
     };
     // Cells of occupied nodes at the current level, in stream order.
-    let mut nodes: Vec<[u64; 2]> = if tree.count == 0 {
+    let mut nodes: Vec<[u64; 2]> = if leaves == 0 {
         Vec::new()
     } else {
         vec![[0, 0]]
     };
     for _ in 0..tree.levels {
-        let mut next = Vec::with_capacity(nodes.len().min(tree.count as usize) * 2);
+        let mut next = Vec::with_capacity(nodes.len().min(leaves as usize) * 2);
         for &c in &nodes {
             for child in 0..n {
                 if reader.next()? {
                     next.push([c[0] * side + child % side, c[1] * side + child / side]);
-                    if next.len() as u64 > tree.count {
-                        return Err(BitTreeError::CountMismatch(next.len() as u64, tree.count));
+                    if next.len() as u64 > leaves {
+                        return Err(BitTreeError::CountMismatch(next.len() as u64, leaves));
                     }
                 }
             }
         }
         nodes = next;
     }
-    if nodes.len() as u64 != tree.count {
-        return Err(BitTreeError::CountMismatch(nodes.len() as u64, tree.count));
+    if nodes.len() as u64 != leaves {
+        return Err(BitTreeError::CountMismatch(nodes.len() as u64, leaves));
     }
     let cell = tree.cell_size();
-    Ok(nodes
-        .iter()
-        .map(|c| {
-            [
-                tree.area.origin[0] + (c[0] as f32 + 0.5) * cell[0],
-                tree.area.origin[1] + (c[1] as f32 + 0.5) * cell[1],
-            ]
-        })
-        .collect())
+    let mut out = Vec::with_capacity(tree.count as usize);
+    let mut shared = tree.shared.iter().peekable();
+    for (leaf, c) in nodes.iter().enumerate() {
+        let p = [
+            tree.area.origin[0] + (c[0] as f32 + 0.5) * cell[0],
+            tree.area.origin[1] + (c[1] as f32 + 0.5) * cell[1],
+        ];
+        out.push(p);
+        while shared.next_if(|&&l| l as usize == leaf).is_some() {
+            out.push(p);
+        }
+    }
+    Ok(out)
 }
 
 #[derive(Default)]
@@ -405,13 +442,133 @@ mod tests {
         assert_eq!(dec.len(), 4096);
     }
 
+    /// Checks a tree against its points: every instance decodes within half a cell, `order` is a
+    /// permutation, and the bit and shared-leaf counts equal a brute-force count of the occupied
+    /// cells of every level.
+    fn check_against_brute_force(pts: &[[f32; 2]], tree: &BitTree, order: &[u32], a: &Rect) {
+        let dec = decode_bittree(tree).unwrap();
+        assert_eq!(dec.len(), pts.len());
+        let cell = tree.cell_size();
+        for (k, d) in dec.iter().enumerate() {
+            let p = pts[order[k] as usize];
+            for c in 0..2 {
+                assert!(
+                    (d[c] - p[c]).abs() <= 0.5 * cell[c] * 1.0001 + 1e-4,
+                    "{d:?} vs {p:?}, cell {cell:?}"
+                );
+            }
+        }
+        let mut sorted = order.to_vec();
+        sorted.sort_unstable();
+        assert!(sorted.iter().enumerate().all(|(i, &v)| i as u32 == v));
+        let side = tree.side() as u64;
+        let finest: Vec<[u64; 2]> = pts
+            .iter()
+            .map(|p| cell_of(*p, a, side.pow(tree.levels)))
+            .collect();
+        let mut bits = 0u64;
+        for level in 0..tree.levels {
+            let mut occ: Vec<_> = finest
+                .iter()
+                .map(|c| c.map(|x| x / side.pow(tree.levels - level)))
+                .collect();
+            occ.sort_unstable();
+            occ.dedup();
+            bits += occ.len() as u64 * side * side;
+        }
+        assert_eq!(tree.bit_len, bits);
+        let mut leaves = finest.clone();
+        leaves.sort_unstable();
+        leaves.dedup();
+        assert_eq!(tree.shared.len(), pts.len() - leaves.len());
+    }
+
+    /// Brute force: every pair of points in one of `cells`² cells is within MIN_CELL in x and y.
+    fn only_close_points_share(pts: &[[f32; 2]], cells: u64) -> bool {
+        let mut by_cell: std::collections::BTreeMap<[u64; 2], Vec<[f32; 2]>> = Default::default();
+        for p in pts {
+            by_cell
+                .entry(cell_of(*p, &area(), cells))
+                .or_default()
+                .push(*p);
+        }
+        by_cell.values().all(|v| {
+            v.iter().all(|p| {
+                v.iter().all(|q| {
+                    ((p[0] - q[0]).abs() as f64) <= MIN_CELL
+                        && ((p[1] - q[1]).abs() as f64) <= MIN_CELL
+                })
+            })
+        })
+    }
+
     #[test]
-    fn coincident_points_and_corrupt_streams_are_errors() {
-        let pts = vec![[1.0, 1.0], [1.0, 1.0]];
-        assert!(matches!(
-            encode_bittree(&pts, area(), &BitTreeOptions::default()),
-            Err(BitTreeError::TooClose(0, 1, _))
-        ));
+    fn coincident_and_near_coincident_instances_share_leaves() {
+        let mut pts = random_points(2000, 21);
+        let mut rng = Rng::new(4);
+        // 30 exact copies, 5 triples and 10 instances 0.1 mm beside others.
+        for k in 0..30 {
+            pts.push(pts[k * 37]);
+        }
+        for k in 0..5 {
+            pts.push(pts[k * 101 + 7]);
+            pts.push(pts[k * 101 + 7]);
+        }
+        for k in 0..10 {
+            let p = pts[k * 53 + 3];
+            pts.push([p[0] + 1e-4 * rng.f32(), p[1] - 1e-4 * rng.f32()]);
+        }
+        for children in [4, 16, 64] {
+            let opts = BitTreeOptions {
+                children,
+                max_levels: 24,
+            };
+            let (tree, order) = encode_bittree(&pts, area(), &opts).unwrap();
+            // The fewest levels at which every shared cell's instances lie within MIN_CELL.
+            let side = tree.side() as u64;
+            assert!(only_close_points_share(&pts, side.pow(tree.levels)));
+            assert!(!only_close_points_share(&pts, side.pow(tree.levels - 1)));
+            assert!(tree.shared.len() >= 30 + 10, "{}", tree.shared.len());
+            check_against_brute_force(&pts, &tree, &order, &area());
+        }
+        // A tree of one spot: every instance shares the single leaf.
+        let same = vec![[30.0, 4.0]; 5];
+        let (tree, order) = encode_bittree(&same, area(), &BitTreeOptions::default()).unwrap();
+        assert_eq!(tree.shared, vec![0; 4]);
+        check_against_brute_force(&same, &tree, &order, &area());
+    }
+
+    #[test]
+    fn a_200000_instance_scatter_of_the_generated_scene_encodes() {
+        // The generated scene's placement (fixtures::large): uniform u, v written with 6 decimals
+        // over a 4096 m terrain; instances that land on one spot share a leaf.
+        let a = Rect {
+            origin: [0.0, 0.0],
+            extent: [4096.0, 4096.0],
+        };
+        let mut rng = Rng::new(0x5ca1e);
+        let mut pts: Vec<[f32; 2]> = (0..200_000)
+            .map(|_| {
+                let q = |x: f32| (x as f64 * 1e6).round() as f32 * 1e-6 * 4096.0;
+                [q(rng.f32()), q(rng.f32())]
+            })
+            .collect();
+        // And a handful of duplicates, as an artist's second placement pass makes them.
+        for k in 0..20 {
+            pts.push(pts[k * 9973]);
+        }
+        let (tree, order) = encode_bittree(&pts, a, &BitTreeOptions::default()).unwrap();
+        assert!(tree.shared.len() >= 20);
+        check_against_brute_force(&pts, &tree, &order, &a);
+        // The duplicates cost their 4 bytes each and not one bit: the tree without them has the
+        // same levels and the same bits.
+        let (alone, _) = encode_bittree(&pts[..200_000], a, &BitTreeOptions::default()).unwrap();
+        assert_eq!((alone.levels, &alone.bits), (tree.levels, &tree.bits));
+        assert_eq!(alone.shared.len() + 20, tree.shared.len());
+    }
+
+    #[test]
+    fn corrupt_streams_are_errors() {
         let (mut tree, _) =
             encode_bittree(&random_points(50, 3), area(), &BitTreeOptions::default()).unwrap();
         tree.bit_len -= 5;
@@ -420,6 +577,20 @@ mod tests {
             encode_bittree(&random_points(50, 3), area(), &BitTreeOptions::default()).unwrap();
         tree.count = 49;
         assert!(decode_bittree(&tree).is_err());
+        // Shared-leaf lists out of order, past the leaves or longer than the instances.
+        let mut pts = random_points(50, 3);
+        pts.push(pts[10]);
+        pts.push(pts[40]);
+        let (tree, _) = encode_bittree(&pts, area(), &BitTreeOptions::default()).unwrap();
+        assert_eq!(tree.shared.len(), 2);
+        assert!(decode_bittree(&tree).is_ok());
+        for shared in [vec![30, 10], vec![10, 50], vec![1; 60]] {
+            let bad = BitTree {
+                shared,
+                ..tree.clone()
+            };
+            assert!(decode_bittree(&bad).is_err(), "{:?}", bad.shared);
+        }
         assert!(matches!(
             encode_bittree(
                 &pts,

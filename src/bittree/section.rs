@@ -68,6 +68,9 @@ pub fn to_section(
         .array("rotation", ArrayFormat::U16, 1, &rotation)
         .array("model", ArrayFormat::U16, 1, &model)
         .array("layer", ArrayFormat::U16, 1, &layer);
+    if !tree.shared.is_empty() {
+        b.array("shared", ArrayFormat::U32, 1, &tree.shared);
+    }
     Ok(b.finish())
 }
 
@@ -84,6 +87,13 @@ pub struct Decoded {
 pub fn from_section(v: &SectionView) -> Result<Decoded, ParseError> {
     let meta: BitTreeMeta = v.meta()?;
     let bits: Vec<u8> = v.array_vec("bits")?;
+    // Absent when every instance has its own leaf (so packs without coincident instances keep
+    // the bytes they had before the array existed).
+    let shared: Vec<u32> = if v.info("shared").is_some() {
+        v.array_vec("shared")?
+    } else {
+        Vec::new()
+    };
     let tree = BitTree {
         area: meta.area,
         children: meta.children,
@@ -91,6 +101,7 @@ pub fn from_section(v: &SectionView) -> Result<Decoded, ParseError> {
         count: meta.count,
         bits,
         bit_len: meta.bit_len,
+        shared,
     };
     if ![4, 16, 64].contains(&tree.children) || tree.levels > 63 {
         return Err(ParseError::new(
@@ -148,6 +159,7 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     };
     Ok(json!({
         "instances": meta.count, "children": meta.children, "levels": meta.levels, "bytes": bytes,
+        "shared_leaf_instances": v.info("shared").map_or(0, |a| a.count),
         "position_bytes": meta.bit_len.div_ceil(8),
         "cell_size": [meta.area.extent[0] as f64 / cells, meta.area.extent[1] as f64 / cells],
         "bytes_per_instance": per, "explicit_bytes": meta.count * EXPLICIT_BYTES,
@@ -215,6 +227,31 @@ mod tests {
         }
         let s = summary(&pack.view_named("bittree").unwrap()).unwrap();
         assert_eq!(s["instances"], 300);
+        assert_eq!(s["shared_leaf_instances"], 0);
         assert!(s["bytes"].as_u64().unwrap() < 300 * EXPLICIT_BYTES);
+        assert!(pack.view_named("bittree").unwrap().info("shared").is_none());
+
+        // Coincident instances: the `shared` array carries them; each decodes at its twin's cell
+        // with its own attributes.
+        let mut twins = inst.clone();
+        for k in [3usize, 3, 150] {
+            let mut i = twins.items[k].clone();
+            i.scale += 10.0;
+            twins.items.push(i);
+        }
+        let mut w = PackWriter::new();
+        w.insert(to_section("bittree", &twins, area, &BitTreeOptions::default()).unwrap());
+        let pack = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap();
+        let d = from_section(&pack.view_named("bittree").unwrap()).unwrap();
+        assert_eq!(d.positions.len(), 303);
+        let s = summary(&pack.view_named("bittree").unwrap()).unwrap();
+        assert_eq!(s["shared_leaf_instances"], 3);
+        let cell = 40.0 / 4f32.powi(d.meta.levels as i32);
+        for (k, orig) in twins.items.iter().enumerate().skip(300) {
+            let j = d.scale.iter().position(|&x| x == orig.scale).unwrap();
+            let p = d.positions[j];
+            assert!((orig.position[0] - p[0]).abs() <= cell * 0.5001, "{k}");
+            assert!((orig.position[1] - p[1]).abs() <= cell * 0.5001, "{k}");
+        }
     }
 }

@@ -50,7 +50,9 @@ pub mod versions {
     pub const ENVMAPS: u32 = 1;
     /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
     pub const CLUSTER: u32 = 2;
-    pub const BITTREE: u32 = 1;
+    /// 2: instances within 1 mm of each other share a leaf (the `shared` array) instead of
+    /// forcing deeper levels or failing (issue 16).
+    pub const BITTREE: u32 = 2;
     pub const SVO: u32 = 1;
     /// 2: the compact section layout (issue 15).
     pub const LINESPACE: u32 = 2;

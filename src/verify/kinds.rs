@@ -60,6 +60,7 @@ const BITTREE: Schema = &[
     ("rotation", &[U16], 1),
     ("model", &[U16], 1),
     ("layer", &[U16], 1),
+    ("shared", &[U32], 1),
 ];
 const SVO: Schema = &[
     ("nodes", &[U32], 4),
