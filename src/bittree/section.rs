@@ -235,7 +235,7 @@ mod tests {
         // with its own attributes.
         let mut twins = inst.clone();
         for k in [3usize, 3, 150] {
-            let mut i = twins.items[k].clone();
+            let mut i = twins.items[k];
             i.scale += 10.0;
             twins.items.push(i);
         }
