@@ -3,6 +3,8 @@
 //! Every section kind registers a summary and a full-data view in [`KINDS`]; unknown kinds are
 //! listed with their size and checksum only.
 
+pub mod images;
+
 use crate::error::{ParseError, Result};
 use crate::pack::Pack;
 use crate::pack::section::SectionView;
