@@ -351,3 +351,50 @@ fn a_plan_of_a_bad_scene_names_the_file_and_writes_nothing() {
     );
     assert!(!d.join("build").exists(), "no partial output");
 }
+
+#[test]
+fn the_memory_budget_reaches_the_plan_and_every_action() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake::fixtures::write_all(&d.join("fx")).unwrap();
+    let bake = common::bake_bin();
+    let plan = |budget: &str| {
+        run_in(
+            d,
+            &bake,
+            &[
+                "-q",
+                "plan",
+                "fx/scene.eco",
+                "--emit",
+                "ninja",
+                "-o",
+                "build",
+                "--max-memory",
+                budget,
+            ],
+        )
+    };
+    // The fixture's 128×128 colour map decodes to 64 KiB: a 40 KiB budget refuses it while
+    // planning, naming the file, and writes nothing.
+    let o = plan("40K");
+    assert_eq!(o.status.code(), Some(4), "{o:?}");
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("terrain.png") && e.contains("40.0 KiB budget"),
+        "{e}"
+    );
+    assert!(!d.join("build").exists(), "no partial output");
+    // 100 KiB is enough; every unit (each reads the scene; the merge reads only packs) carries
+    // the budget.
+    ok(plan("100K"), "bake plan --max-memory 100K");
+    let text = std::fs::read_to_string(d.join("build/build.ninja")).unwrap();
+    let actions: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("  args = unit "))
+        .collect();
+    assert!(actions.len() > 5, "{text}");
+    for a in actions {
+        assert!(a.contains("--max-memory 102400"), "{a}");
+    }
+}

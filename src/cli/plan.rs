@@ -47,6 +47,7 @@ pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
         model_dirs: args.scene.models.clone(),
         color_map: args.scene.color_map.clone(),
         allow_paths: g.allow_paths.clone(),
+        max_memory: g.max_memory,
         pipeline: args.scene.pipeline.clone(),
         preview: args.scene.preview,
         set: args.scene.set.clone(),

@@ -25,6 +25,8 @@ pub struct PlanOptions {
     pub model_dirs: Vec<PathBuf>,
     pub color_map: Option<PathBuf>,
     pub allow_paths: Vec<PathBuf>,
+    /// `--max-memory` (bytes), passed to every action and used to resolve the scene.
+    pub max_memory: Option<u64>,
     /// `--pipeline` as given (a preset name or a file).
     pub pipeline: Option<String>,
     pub preview: bool,
@@ -152,6 +154,9 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
     for a in &allow_rel {
         common.extend(["--allow-path".into(), arg(a)]);
     }
+    if let Some(m) = opts.max_memory {
+        common.extend(["--max-memory".into(), m.to_string()]);
+    }
     match (&pipeline_rel, &opts.pipeline, opts.preview) {
         (_, _, true) => common.push("--preview".into()),
         (Some(f), _, false) => common.extend(["--pipeline".into(), arg(f)]),
@@ -173,6 +178,10 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
         model_dirs: models_rel.iter().map(|p| at(p)).collect(),
         color_map: color_rel.as_deref().map(at),
         allow_paths: allow_rel.iter().map(|p| at(p)).collect(),
+        limits: opts.max_memory.map_or(
+            crate::ingest::limits::Limits::DEFAULT,
+            crate::ingest::limits::Limits::with_memory,
+        ),
         ..Default::default()
     };
     let abs_scenes: Vec<PathBuf> = scenes_rel.iter().map(|p| at(p)).collect();
