@@ -398,3 +398,44 @@ fn the_memory_budget_reaches_the_plan_and_every_action() {
         assert!(a.contains("--max-memory 102400"), "{a}");
     }
 }
+
+#[test]
+fn a_plan_with_a_relative_bake_moves_with_its_folder() {
+    if !common::tool_available("ninja", "the Ninja build of a moved plan") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().join("here");
+    bake::fixtures::write_all(&d.join("fx")).unwrap();
+    std::fs::copy(common::bake_bin(), d.join("bake")).unwrap();
+    let mut args = vec![
+        "-q",
+        "plan",
+        "fx/scene.eco",
+        "--sky",
+        "fx/sky.hdr",
+        "--emit",
+        "ninja",
+        "-o",
+        "build",
+        "--bake",
+        "./bake",
+    ];
+    args.extend(PIPELINE);
+    ok(
+        run_in(&d, &common::bake_bin(), &args),
+        "bake plan --bake ./bake",
+    );
+    let text = std::fs::read_to_string(d.join("build/build.ninja")).unwrap();
+    assert!(text.contains("command = ../bake -q $args"), "{text}");
+    assert!(
+        !text.contains(dir.path().to_str().unwrap()),
+        "no absolute path: {text}"
+    );
+    // The whole folder moves elsewhere; Ninja builds there the pack of a single-process bake.
+    let moved = dir.path().join("elsewhere");
+    std::fs::rename(&d, &moved).unwrap();
+    ninja(&moved.join("build"), &[]);
+    let built = std::fs::read(moved.join("build/scene.bake")).unwrap();
+    assert_eq!(built, reference(&moved.join("build"), "ref.bake"));
+}

@@ -33,6 +33,12 @@ pub struct PlanArgs {
     /// The final pack (default: DIR/<scene stem>.bake).
     #[arg(long)]
     pub output: Option<PathBuf>,
+    /// The `bake` binary the actions run. Ninja: a relative PATH (from the working directory)
+    /// is written relative to DIR, so the build folder and the binary can move together to
+    /// another machine; an absolute one as it is. Bazel copies it into the workspace.
+    /// Default: this binary, by its absolute path.
+    #[arg(long, value_name = "PATH")]
+    pub bake: Option<PathBuf>,
 }
 
 pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
@@ -55,11 +61,20 @@ pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
         lightmap_shards: args.lightmap_shards,
         output: args.output.clone(),
     };
-    let bake = std::env::current_exe().map_err(|e| Error::io("bake", e))?;
+    let bake = match &args.bake {
+        Some(b) => b.clone(),
+        None => std::env::current_exe().map_err(|e| Error::io("bake", e))?,
+    };
     let (file, plan) = match args.emit {
         Emit::Ninja => {
             let plan = make_plan(&opts, &args.dir)?;
-            (crate::plan::ninja::write(&plan, &args.dir, &bake)?, plan)
+            let tool = if bake.is_relative() {
+                let dir = crate::plan::absolute(&args.dir)?;
+                crate::plan::relative(&crate::plan::absolute(&bake)?, &dir)
+            } else {
+                bake
+            };
+            (crate::plan::ninja::write(&plan, &args.dir, &tool)?, plan)
         }
         Emit::Bazel => crate::plan::bazel::write(&opts, &args.dir, &bake)?,
     };
