@@ -41,10 +41,9 @@ fn ok(o: Output, what: &str) -> Output {
     o
 }
 
-/// A fixture scene in `root/fx` and its Ninja plan in `root/build`.
-fn planned(root: &Path) -> PathBuf {
-    let fx = root.join("fx");
-    bake::fixtures::write_all(&fx).unwrap();
+/// `bake plan fx/scene.eco --sky fx/sky.hdr --emit ninja -o build` with the test pipeline and
+/// `extra` arguments.
+fn plan_args<'a>(extra: &[&'a str]) -> Vec<&'a str> {
     let mut args = vec![
         "-q",
         "plan",
@@ -55,10 +54,17 @@ fn planned(root: &Path) -> PathBuf {
         "ninja",
         "-o",
         "build",
-        "--lightmap-shards",
-        "2",
     ];
+    args.extend(extra);
     args.extend(PIPELINE);
+    args
+}
+
+/// A fixture scene in `root/fx` and its Ninja plan in `root/build`.
+fn planned(root: &Path) -> PathBuf {
+    let fx = root.join("fx");
+    bake::fixtures::write_all(&fx).unwrap();
+    let args = plan_args(&["--lightmap-shards", "2"]);
     ok(run_in(root, &common::bake_bin(), &args), "bake plan");
     root.join("build")
 }
@@ -408,20 +414,7 @@ fn a_plan_with_a_relative_bake_moves_with_its_folder() {
     let d = dir.path().join("here");
     bake::fixtures::write_all(&d.join("fx")).unwrap();
     std::fs::copy(common::bake_bin(), d.join("bake")).unwrap();
-    let mut args = vec![
-        "-q",
-        "plan",
-        "fx/scene.eco",
-        "--sky",
-        "fx/sky.hdr",
-        "--emit",
-        "ninja",
-        "-o",
-        "build",
-        "--bake",
-        "./bake",
-    ];
-    args.extend(PIPELINE);
+    let args = plan_args(&["--bake", "./bake"]);
     ok(
         run_in(&d, &common::bake_bin(), &args),
         "bake plan --bake ./bake",
