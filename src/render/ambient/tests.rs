@@ -342,6 +342,9 @@ fn cluster_pack(records: &[Instance], maps: &[(Sh16, Sh16)], weights: bool) -> P
         max_error_relative: 0.0,
         ill_conditioned: 0,
         weights,
+        local_components: 0,
+        max_bytes: 0,
+        shared_rms_error_relative: 0.0,
     };
     let mut b = SectionBuilder::new(es::CLUSTERS_KIND, "clusters");
     b.meta(&meta)
