@@ -43,13 +43,7 @@ fn pack_of(recs: &[InstanceRecord], values: &[f32], error: f32, weights: bool) -
     let wref = w.as_ref().map(|(n, w)| (n.as_slice(), w.as_slice()));
     let mut pw = PackWriter::new();
     pw.insert(es::clusters_to_section(
-        "clusters",
-        &meta,
-        &c.clustering,
-        &pos,
-        values,
-        wref,
-        c.local.as_ref(),
+        "clusters", &meta, &c, &pos, values, wref,
     ));
     Pack::from_bytes(&pw.to_bytes()?, "bench.bake")
 }

