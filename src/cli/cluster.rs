@@ -104,7 +104,7 @@ pub struct ClusterBenchArgs {
     #[arg(long, default_value_t = 0.02)]
     pub error: f32,
     /// Fraction of the violating clusters split per round.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = ClusterOptions::DEFAULT.split_fraction)]
     pub split_fraction: f32,
     /// Neighbours per reconstruction (default: chosen by leave-one-out).
     #[arg(long)]

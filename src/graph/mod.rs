@@ -49,7 +49,8 @@ pub mod versions {
     pub const ATLAS: u32 = 1;
     pub const ENVMAPS: u32 = 1;
     /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
-    /// 3: a byte budget (20x by default) and the per-instance local part (issue 20, item 2).
+    /// 3: a byte budget (20x by default), the per-instance local part and split fraction 1.0
+    /// (issue 20, item 2).
     pub const CLUSTER: u32 = 3;
     pub const BITTREE: u32 = 1;
     pub const SVO: u32 = 1;

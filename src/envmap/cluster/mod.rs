@@ -84,7 +84,7 @@ impl ClusterOptions {
         error: 0.02,
         k: None,
         radius: None,
-        split_fraction: 0.5,
+        split_fraction: 1.0,
         noise: Noise::None,
         local: 8,
         max_bytes: None,
