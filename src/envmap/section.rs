@@ -245,3 +245,35 @@ pub fn clusters_data(v: &SectionView) -> Result<Value, ParseError> {
     let inst: Vec<u32> = v.array_vec("sample_instance")?;
     Ok(json!({"sample_positions": pts, "sample_instance": inst}))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn version_2_metadata_reads_as_a_section_without_a_local_part() {
+        let old = ClustersMetaV2 {
+            instances: 10,
+            clusters: 2,
+            dim: DIM as u32,
+            k: 4,
+            radius: 3.0,
+            constant_term: true,
+            error_bound: 0.02,
+            rms_error_relative: 0.01,
+            max_error_relative: 0.03,
+            ill_conditioned: 0,
+            weights: false,
+        };
+        let mut b = SectionBuilder::new(CLUSTERS_KIND, "clusters");
+        b.meta(&old);
+        let mut w = crate::pack::PackWriter::new();
+        w.insert(b.finish());
+        let pack = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "v2.bake").unwrap();
+        let v = pack.view_named("clusters").unwrap();
+        let m = ClustersMeta::decode(&v).unwrap();
+        assert_eq!((m.instances, m.k, m.local_components), (10, 4, 0));
+        assert_eq!(m.shared_rms_error_relative, 0.01);
+        assert_eq!(local_from_section(&v, &m).unwrap(), None);
+    }
+}
