@@ -42,6 +42,10 @@ pub struct ClusterBench {
     pub scipy: bool,
     pub python: String,
     pub repeat: u32,
+    /// With `pack`: trace the scene twice more with half the pack's rays each, take the noise
+    /// covariance from their difference, and Wiener-filter the local part with it
+    /// (experimental).
+    pub denoise: bool,
 }
 
 /// A reference for some instances: their indices, their maps (world frame, `DIM` each) and the
@@ -59,6 +63,8 @@ pub struct BenchScene {
     pub positions: Vec<[f32; 3]>,
     pub values: Vec<f32>,
     pub reference: Option<Reference>,
+    /// The maps' noise covariance per instance (dim × dim), if measured (`denoise`).
+    pub noise: Option<Vec<f64>>,
 }
 
 /// One timed run of the interpolation.
@@ -76,9 +82,12 @@ pub fn bench_cluster(a: &ClusterBench) -> Result<Report> {
         positions,
         values,
         reference,
+        noise,
     } = scene?;
     let opts = a.cluster;
-    let (t_compress, z) = time_once(|| crate::envmap::compress(&positions, &values, DIM, &opts));
+    let (t_compress, z) = time_once(|| {
+        crate::envmap::compress_denoised(&positions, &values, DIM, &opts, noise.as_deref())
+    });
     let c = &z.clustering;
     let rows = z.sample_rows(&values, DIM);
     let mut best: Option<Interpolation> = None;
@@ -129,6 +138,7 @@ pub fn bench_cluster(a: &ClusterBench) -> Result<Report> {
         "interpolation_cpu_seconds": all.cpu,
         "repeat": a.repeat, "envmap_seconds": t_maps.wall, "envmap_cpu_seconds": t_maps.cpu,
         "synthetic": a.synthetic, "pack": a.pack.as_ref().map(|p| p.display().to_string()),
+        "denoise": noise.is_some(),
         "weights_bytes": weights_bytes, "ill_conditioned": c.ill_conditioned,
         "threads": rayon::current_num_threads(),
         "peak_rss_bytes": peak_rss(),
@@ -265,6 +275,7 @@ fn synthetic_scene(a: &ClusterBench) -> BenchScene {
         }),
         positions,
         values: m.noisy,
+        noise: None,
     }
 }
 
@@ -315,23 +326,51 @@ fn pack_scene(path: &Path, a: &ClusterBench) -> Result<BenchScene> {
     let rotations: Vec<f32> = inst.items.iter().map(|i| i.rotation_deg).collect();
     crate::envmap::to_world_frame(&mut sky, &mut sun, &rotations);
     let values = section::flatten(&sky, &sun);
-    let reference = if a.reference_samples > 0 {
-        let light = crate::lightmap::scene_lighting(&pack)?;
-        let ts = crate::trace::pack_scene::trace_scene(&pack)?;
-        let subset = random_subset(positions.len(), a.reference_instances, 4096);
-        Some(trace_reference(
-            subset,
-            &rotations,
-            a.reference_samples,
-            |o, s| crate::envmap::instance_maps_subset(&ts, &light, o, s),
+    let traced = if a.reference_samples > 0 || a.denoise {
+        Some((
+            crate::lightmap::scene_lighting(&pack)?,
+            crate::trace::pack_scene::trace_scene(&pack)?,
         ))
     } else {
         None
+    };
+    let reference = match (&traced, a.reference_samples > 0) {
+        (Some((light, ts)), true) => {
+            let subset = random_subset(positions.len(), a.reference_instances, 4096);
+            Some(trace_reference(
+                subset,
+                &rotations,
+                a.reference_samples,
+                |o, s| crate::envmap::instance_maps_subset(ts, light, o, s),
+            ))
+        }
+        _ => None,
+    };
+    let noise = match (&traced, a.denoise) {
+        (Some((light, ts)), true) => {
+            let (meta, _, _) =
+                section::envmaps_from_section(&pack.view_named("envmaps")?).map_err(bad)?;
+            let all: Vec<usize> = (0..positions.len()).collect();
+            let half = |seed: u64| {
+                let o = crate::envmap::bake::EnvmapOptions {
+                    samples: (meta.samples / 2).max(1),
+                    seed,
+                };
+                let maps = crate::envmap::instance_maps_subset(ts, light, &o, &all);
+                let (mut sky, mut sun): (Vec<_>, Vec<_>) = maps.into_iter().unzip();
+                crate::envmap::to_world_frame(&mut sky, &mut sun, &rotations);
+                section::flatten(&sky, &sun)
+            };
+            let (ha, hb) = (half(0x00de_0a15), half(0x00de_0b15));
+            Some(noise_covariance(&ha, &hb, DIM))
+        }
+        _ => None,
     };
     Ok(BenchScene {
         positions,
         values,
         reference,
+        noise,
     })
 }
 
@@ -429,7 +468,27 @@ fn traced_scene(a: &ClusterBench) -> Result<BenchScene> {
         positions,
         values: section::flatten(&sky_maps, &sun_maps),
         reference,
+        noise: None,
     })
+}
+
+/// Noise covariance (dim × dim) of the mean of two independent half estimates: Σ (A−B)(A−B)ᵀ /
+/// (4 n) — the noise of one full-ray estimate.
+pub fn noise_covariance(a: &[f32], b: &[f32], dim: usize) -> Vec<f64> {
+    let n = a.len() / dim.max(1);
+    let mut m = vec![0.0f64; dim * dim];
+    for (x, y) in a.chunks_exact(dim).zip(b.chunks_exact(dim)) {
+        let d: Vec<f64> = x.iter().zip(y).map(|(p, q)| (p - q) as f64).collect();
+        for r in 0..dim {
+            for c in 0..dim {
+                m[r * dim + c] += d[r] * d[c];
+            }
+        }
+    }
+    for v in &mut m {
+        *v /= 4.0 * n.max(1) as f64;
+    }
+    m
 }
 
 fn export(

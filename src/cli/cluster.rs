@@ -162,6 +162,10 @@ pub struct ClusterBenchArgs {
     /// reference is traced on its scene) instead of a generated scene.
     #[arg(long, conflicts_with = "cause")]
     pub pack: Option<PathBuf>,
+    /// With `--pack`: measure the maps' noise covariance (two more half-ray traces) and
+    /// Wiener-filter the local part with it (experimental).
+    #[arg(long, requires = "pack")]
+    pub denoise: bool,
 }
 
 pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
@@ -197,6 +201,7 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
             scipy: a.scipy,
             python: a.python.clone(),
             repeat: a.repeat,
+            denoise: a.denoise,
         })?
     };
     Ok(Outcome {

@@ -71,6 +71,15 @@ impl LocalPart {
 /// the quantized coefficients. Deterministic whatever the thread count (fixed blocks, summed in
 /// order).
 pub fn fit(residual: &[f32], dim: usize, p: usize) -> LocalPart {
+    fit_denoised(residual, dim, p, None)
+}
+
+/// [`fit`], and with `noise` (the dim × dim covariance of the maps' Monte-Carlo noise per
+/// instance, row-major) each component's coefficients shrunk by max(0, 1 − ν_k / λ_k) (ν_k the
+/// noise variance along the component, λ_k its mean squared coefficient): a Wiener filter of
+/// the per-instance part. Experimental (`bake bench cluster --denoise`; the pipeline's envmaps
+/// do not carry a noise estimate yet).
+pub fn fit_denoised(residual: &[f32], dim: usize, p: usize, noise: Option<&[f64]>) -> LocalPart {
     let n = residual.len() / dim.max(1);
     let p = p.min(dim);
     const BLOCK: usize = 1024;
@@ -133,6 +142,31 @@ pub fn fit(residual: &[f32], dim: usize, p: usize) -> LocalPart {
             })
         })
         .collect();
+    let mut proj = proj;
+    if let Some(nc) = noise {
+        let shrink: Vec<f32> = (0..p)
+            .map(|k| {
+                let b = &basis[k * dim..(k + 1) * dim];
+                let nu: f64 = (0..dim)
+                    .map(|r| {
+                        b[r] as f64 * (0..dim).map(|c| nc[r * dim + c] * b[c] as f64).sum::<f64>()
+                    })
+                    .sum();
+                let lambda = (0..n)
+                    .map(|i| (proj[i * p + k] as f64).powi(2))
+                    .sum::<f64>()
+                    / n.max(1) as f64;
+                if lambda > 0.0 {
+                    (1.0 - nu / lambda).max(0.0) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        for (i, a) in proj.iter_mut().enumerate() {
+            *a *= shrink[i % p];
+        }
+    }
     let mut scale = vec![0.0f32; p];
     for (i, &a) in proj.iter().enumerate() {
         scale[i % p.max(1)] = scale[i % p.max(1)].max(a.abs());
@@ -266,5 +300,43 @@ mod tests {
             }
         }
         assert!((err / tot).sqrt() < 0.01, "{}", (err / tot).sqrt());
+    }
+
+    #[test]
+    fn the_wiener_filter_drops_components_that_are_only_noise() {
+        // Two directions of signal plus isotropic noise σ: with the noise covariance σ² I the
+        // filtered local part is closer to the signal than the plain one.
+        let (n, dim, sigma) = (3000, 96, 0.05f32);
+        let mut rng = crate::rng::Rng::new(13);
+        let dirs: Vec<f32> = (0..2 * dim).map(|_| rng.f32() - 0.5).collect();
+        let mut signal = Vec::with_capacity(n * dim);
+        let mut noisy = Vec::with_capacity(n * dim);
+        for _ in 0..n {
+            let a = [rng.f32() - 0.5, rng.f32() - 0.5];
+            for c in 0..dim {
+                let s = a[0] * dirs[c] + a[1] * dirs[dim + c];
+                let g = (0..4).map(|_| rng.f32() - 0.5).sum::<f32>() * 3.0f32.sqrt();
+                signal.push(s);
+                noisy.push(s + sigma * g);
+            }
+        }
+        let mut cov = vec![0.0f64; dim * dim];
+        for c in 0..dim {
+            cov[c * dim + c] = (sigma as f64).powi(2);
+        }
+        let err = |l: &LocalPart| {
+            let mut e = 0.0f64;
+            for i in 0..n {
+                let mut out = vec![0.0f32; dim];
+                l.add_to(i, &mut out);
+                for (o, s) in out.iter().zip(&signal[i * dim..(i + 1) * dim]) {
+                    e += ((o - s) as f64).powi(2);
+                }
+            }
+            e
+        };
+        let plain = err(&fit(&noisy, dim, 6));
+        let filtered = err(&fit_denoised(&noisy, dim, 6, Some(&cov)));
+        assert!(filtered < 0.6 * plain, "{filtered} vs {plain}");
     }
 }

@@ -89,6 +89,18 @@ pub fn compress(
     dim: usize,
     opts: &ClusterOptions,
 ) -> Compressed {
+    compress_denoised(positions, values, dim, opts, None)
+}
+
+/// [`compress`] with the local part Wiener-filtered by a noise covariance
+/// ([`local::fit_denoised`]; experimental, the bench's `--denoise`).
+pub fn compress_denoised(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    opts: &ClusterOptions,
+    noise: Option<&[f64]>,
+) -> Compressed {
     let n = positions.len();
     let budget = opts.budget(n, dim);
     // The local part takes at most half the budget (small scenes: fewer components, since the
@@ -114,7 +126,7 @@ pub fn compress(
     // The shared part's own errors, with the stored (mean) sample values.
     c.errors = relative_errors(&rec, values, dim, c.rms);
     let residual: Vec<f32> = values.par_iter().zip(&rec).map(|(v, r)| v - r).collect();
-    let l = local::fit(&residual, dim, p);
+    let l = local::fit_denoised(&residual, dim, p, noise);
     l.add_all(&mut rec);
     let errors = relative_errors(&rec, values, dim, c.rms);
     Compressed {
