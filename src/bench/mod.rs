@@ -4,6 +4,7 @@
 //! and [`cpu_seconds`] (this process' CPU time, from Linux' schedstat).
 
 pub mod ambient;
+pub mod cluster;
 pub mod cluster_cause;
 pub mod incremental;
 pub mod ingest;
@@ -67,6 +68,15 @@ pub fn time_best(mut f: impl FnMut()) -> Timing {
         };
     }
     best
+}
+
+/// One run of `f`, in wall and CPU seconds, and its result (for runs too long to repeat).
+pub fn time_once<T>(f: impl FnOnce() -> T) -> (Timing, T) {
+    let (start, cpu0) = (Instant::now(), cpu_seconds());
+    let out = f();
+    let wall = start.elapsed().as_secs_f64();
+    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+    (Timing { wall, cpu }, out)
 }
 
 /// Median wall time of `repeat` runs of `f`, in seconds.

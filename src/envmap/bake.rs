@@ -91,6 +91,20 @@ pub fn bake_envmaps_range(
         .collect()
 }
 
+/// The maps of the instances `subset` (indices below the scene's count), in that order: a
+/// high-ray reference of some instances (`bench::cluster`).
+pub fn bake_envmaps_subset(
+    scene: &EnvmapScene,
+    opts: &EnvmapOptions,
+    subset: &[usize],
+) -> Vec<InstanceMaps> {
+    let sky_irr = scene.sky.to_irradiance();
+    subset
+        .par_iter()
+        .map(|&i| bake_one(scene, &sky_irr, i, opts))
+        .collect()
+}
+
 fn bake_one(
     scene: &EnvmapScene,
     sky_irr: &ShIrradiance,

@@ -3,26 +3,200 @@ pub mod bake;
 pub mod cluster;
 pub mod interp;
 pub mod kdtree;
+pub mod local;
 pub mod section;
 pub mod synthetic;
 
-use cluster::{ClusterOptions, Clustering, cluster_envmaps};
+use cluster::{ClusterOptions, Clustering};
 use rayon::prelude::*;
 use section::ClustersMeta;
 
 /// Per-instance neighbour indices and weights (k each, padded with sample 0 / weight 0).
 pub type NeighbourWeights = (Vec<u32>, Vec<f32>);
 
-/// Clusters the maps and, if asked, computes every instance's interpolation weights.
+/// The stage's result: the shared part (the clustering), the local part if stored, and every
+/// instance's final error (shared + local against the input maps, relative as
+/// [`ClusterOptions::error`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Compressed {
+    pub clustering: Clustering,
+    pub local: Option<local::LocalPart>,
+    pub errors: Vec<f32>,
+    /// The byte budget honoured (None: unlimited).
+    pub budget: Option<u64>,
+    /// The stored value of each sample (samples × dim): with a local part, the mean map of the
+    /// sample's cluster (a low-pass of the members' noise and local occlusion); else None, the
+    /// sample instance's own map.
+    pub sample_values: Option<Vec<f32>>,
+}
+
+impl Compressed {
+    /// The shared part alone (no local part, no budget).
+    pub fn shared_only(c: Clustering) -> Compressed {
+        let errors = c.errors.clone();
+        Compressed {
+            clustering: c,
+            local: None,
+            errors,
+            budget: None,
+            sample_values: None,
+        }
+    }
+
+    /// The stored sample values (samples × dim).
+    pub fn sample_rows(&self, values: &[f32], dim: usize) -> Vec<f32> {
+        match &self.sample_values {
+            Some(v) => v.clone(),
+            None => self
+                .clustering
+                .samples
+                .iter()
+                .flat_map(|&s| &values[s as usize * dim..(s as usize + 1) * dim])
+                .copied()
+                .collect(),
+        }
+    }
+    pub fn rms_error(&self) -> f32 {
+        (self.errors.iter().map(|e| (*e as f64).powi(2)).sum::<f64>()
+            / self.errors.len().max(1) as f64)
+            .sqrt() as f32
+    }
+    pub fn max_error(&self) -> f32 {
+        self.errors.iter().fold(0.0, |m, &e| m.max(e))
+    }
+    /// Bytes of the samples and the local part (the section's arrays without stored weights).
+    pub fn packed_bytes(&self, dim: usize) -> u64 {
+        let c = &self.clustering;
+        let p = self.local.as_ref().map_or(0, |l| l.components);
+        c.samples.len() as u64 * cluster::sample_bytes(dim)
+            + local::local_bytes(c.assignment.len(), p, dim)
+    }
+    /// Raw maps over [`Self::packed_bytes`].
+    pub fn compression(&self, dim: usize) -> f64 {
+        let raw = (self.clustering.assignment.len() * dim * 4) as f64;
+        let packed = self.packed_bytes(dim) as f64;
+        if packed > 0.0 { raw / packed } else { 0.0 }
+    }
+}
+
+/// Compresses the maps (issue 20): the split loop clusters them within the byte budget
+/// ([`ClusterOptions::budget`], room kept for a local part of `opts.local` components); if it
+/// stops at the budget with instances over the bound, the residual of the shared part goes into
+/// the local part ([`local`]); if the bound holds first, no local part is stored.
+pub fn compress(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    opts: &ClusterOptions,
+) -> Compressed {
+    compress_denoised(positions, values, dim, opts, None)
+}
+
+/// [`compress`] with the local part Wiener-filtered by a noise covariance
+/// ([`local::fit_denoised`]; experimental, the bench's `--denoise`).
+pub fn compress_denoised(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    opts: &ClusterOptions,
+    noise: Option<&[f64]>,
+) -> Compressed {
+    let n = positions.len();
+    let budget = opts.budget(n, dim);
+    // The local part takes at most half the budget (small scenes: fewer components, since the
+    // basis costs dim floats per component whatever the instance count).
+    let mut p = (opts.local as usize).min(dim);
+    if let Some(b) = budget {
+        while p > 0 && local::local_bytes(n, p, dim) > b / 2 {
+            p -= 1;
+        }
+    }
+    let c =
+        cluster::cluster_envmaps_limited(positions, values, dim, opts, opts.max_samples(n, dim, p));
+    if !c.budget_limited || p == 0 || n == 0 {
+        return Compressed {
+            budget,
+            ..Compressed::shared_only(c)
+        };
+    }
+    let rows = cluster_means(values, dim, &c);
+    let (nb, w) = instance_weights(positions, values, dim, &c);
+    let mut rec = apply_weights_rows(&rows, dim, c.k, &nb, &w);
+    let mut c = c;
+    // The shared part's own errors, with the stored (mean) sample values.
+    c.errors = relative_errors(&rec, values, dim, c.rms);
+    let residual: Vec<f32> = values.par_iter().zip(&rec).map(|(v, r)| v - r).collect();
+    let l = local::fit_denoised(&residual, dim, p, noise);
+    l.add_all(&mut rec);
+    let errors = relative_errors(&rec, values, dim, c.rms);
+    Compressed {
+        clustering: c,
+        local: Some(l),
+        errors,
+        budget,
+        sample_values: Some(rows),
+    }
+}
+
+/// The mean map of each cluster's members (samples × dim), summed in member order.
+pub fn cluster_means(values: &[f32], dim: usize, c: &Clustering) -> Vec<f32> {
+    let mut sum = vec![0.0f64; c.samples.len() * dim];
+    let mut count = vec![0u32; c.samples.len()];
+    for (i, &a) in c.assignment.iter().enumerate() {
+        let a = a as usize;
+        count[a] += 1;
+        for (s, &v) in sum[a * dim..(a + 1) * dim]
+            .iter_mut()
+            .zip(&values[i * dim..(i + 1) * dim])
+        {
+            *s += v as f64;
+        }
+    }
+    sum.chunks(dim)
+        .zip(&count)
+        .flat_map(|(m, &n)| m.iter().map(move |&x| (x / n.max(1) as f64) as f32))
+        .collect()
+}
+
+/// Per-instance RMS of (a − b) relative to `rms`.
+pub fn relative_errors(a: &[f32], b: &[f32], dim: usize, rms: f32) -> Vec<f32> {
+    a.par_chunks(dim)
+        .zip(b.par_chunks(dim))
+        .map(|(x, y)| {
+            let e: f64 = x.iter().zip(y).map(|(p, q)| ((p - q) as f64).powi(2)).sum();
+            ((e / dim as f64).sqrt() / rms.max(f32::MIN_POSITIVE) as f64) as f32
+        })
+        .collect()
+}
+
+/// Every instance's reconstruction from a [`Compressed`] (the shared part from stored-style
+/// f32 weights plus the local part), as the runtime forms it, world frame.
+pub fn reconstruct_all(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    z: &Compressed,
+) -> Vec<f32> {
+    let c = &z.clustering;
+    let (nb, w) = instance_weights(positions, values, dim, c);
+    let mut rec = apply_weights_rows(&z.sample_rows(values, dim), dim, c.k, &nb, &w);
+    if let Some(l) = &z.local {
+        l.add_all(&mut rec);
+    }
+    rec
+}
+
+/// Compresses the maps and, if asked, computes every instance's interpolation weights.
 pub fn cluster_and_weigh(
     positions: &[[f32; 3]],
     values: &[f32],
     dim: usize,
     opts: &ClusterOptions,
     store_weights: bool,
-) -> (ClustersMeta, Clustering, Option<NeighbourWeights>) {
-    let c = cluster_envmaps(positions, values, dim, opts);
-    let weights = store_weights.then(|| instance_weights(positions, values, dim, &c));
+) -> (ClustersMeta, Compressed, Option<NeighbourWeights>) {
+    let z = compress(positions, values, dim, opts);
+    let c = &z.clustering;
+    let weights = store_weights.then(|| instance_weights(positions, values, dim, c));
     let meta = ClustersMeta {
         instances: positions.len() as u64,
         clusters: c.samples.len() as u64,
@@ -31,12 +205,15 @@ pub fn cluster_and_weigh(
         radius: c.radius,
         constant_term: true,
         error_bound: opts.error,
-        rms_error_relative: c.rms_error(),
-        max_error_relative: c.max_error(),
+        rms_error_relative: z.rms_error(),
+        max_error_relative: z.max_error(),
         ill_conditioned: c.ill_conditioned as u64,
         weights: store_weights,
+        local_components: z.local.as_ref().map_or(0, |l| l.components as u32),
+        max_bytes: z.budget.unwrap_or(0),
+        shared_rms_error_relative: c.rms_error(),
     };
-    (meta, c, weights)
+    (meta, z, weights)
 }
 
 /// The k sample neighbours (indices into `c.samples`, nearest first) and multiquadric weights of
@@ -106,14 +283,26 @@ pub fn apply_weights(
     neighbours: &[u32],
     weights: &[f32],
 ) -> Vec<f32> {
-    let (k, dim) = (k.max(1), dim.max(1));
+    let dim1 = dim.max(1);
     // The samples' maps gathered first: a few megabytes in a row instead of rows spread over
     // all instances' maps (one TLB miss per neighbour otherwise).
     let rows: Vec<f32> = samples
         .iter()
-        .flat_map(|&s| &values[s as usize * dim..(s as usize + 1) * dim])
+        .flat_map(|&s| &values[s as usize * dim1..(s as usize + 1) * dim1])
         .copied()
         .collect();
+    apply_weights_rows(&rows, dim, k, neighbours, weights)
+}
+
+/// [`apply_weights`] from the samples' values themselves (`rows`: samples × dim).
+pub fn apply_weights_rows(
+    rows: &[f32],
+    dim: usize,
+    k: usize,
+    neighbours: &[u32],
+    weights: &[f32],
+) -> Vec<f32> {
+    let (k, dim) = (k.max(1), dim.max(1));
     // Zeroed by writing, on this thread: the first touch of a fresh page faults, and two threads
     // faulting pages into the same mapping mostly wait for each other (measured: the parallel
     // reconstruction of 200,000 maps took 0.175 s with a lazily zeroed output, 0.057 s like this).
@@ -183,6 +372,26 @@ pub fn instance_maps(
     opts: &bake::EnvmapOptions,
     range: std::ops::Range<usize>,
 ) -> Vec<bake::InstanceMaps> {
+    with_envmap_scene(scene, light, |es| bake::bake_envmaps_range(es, opts, range))
+}
+
+/// The maps of the instances `subset` of a pack's scene (in that order).
+pub fn instance_maps_subset(
+    scene: &crate::trace::pack_scene::TraceScene,
+    light: &crate::lightmap::BakeLight,
+    opts: &bake::EnvmapOptions,
+    subset: &[usize],
+) -> Vec<bake::InstanceMaps> {
+    with_envmap_scene(scene, light, |es| {
+        bake::bake_envmaps_subset(es, opts, subset)
+    })
+}
+
+fn with_envmap_scene<T>(
+    scene: &crate::trace::pack_scene::TraceScene,
+    light: &crate::lightmap::BakeLight,
+    f: impl FnOnce(&bake::EnvmapScene) -> T,
+) -> T {
     let probe_height = scene
         .instances
         .items
@@ -200,16 +409,14 @@ pub fn instance_maps(
             irradiance,
         }),
     };
-    bake::bake_envmaps_range(&es, opts, range)
+    f(&es)
 }
 
 /// Compression the stage reaches: the raw maps (`dim` f32 per instance) over the stored samples
-/// (position, instance index and `dim` f32 each; without stored weights), as the section summary
-/// counts it.
-pub fn compression(c: &Clustering, dim: usize) -> f64 {
-    let raw = (c.assignment.len() * dim * 4) as f64;
-    let packed = (c.samples.len() * (12 + 4 + dim * 4)) as f64;
-    if packed > 0.0 { raw / packed } else { 0.0 }
+/// (position, instance index and `dim` f32 each) and local part; without stored weights, as the
+/// section summary counts it.
+pub fn compression(z: &Compressed, dim: usize) -> f64 {
+    z.compression(dim)
 }
 
 /// Compression below which the stage warns.
@@ -225,10 +432,11 @@ pub fn compression_warning(
     positions: &[[f32; 3]],
     values: &[f32],
     dim: usize,
-    c: &Clustering,
+    z: &Compressed,
     opts: &ClusterOptions,
 ) -> Option<String> {
-    let ratio = compression(c, dim);
+    let c = &z.clustering;
+    let ratio = compression(z, dim);
     if ratio >= MIN_COMPRESSION || positions.is_empty() {
         return None;
     }
@@ -289,7 +497,7 @@ pub fn cluster_sections(
     pack: &crate::pack::Pack,
     opts: &ClusterOptions,
     store_weights: bool,
-) -> crate::error::Result<(Vec<crate::pack::Section>, Clustering)> {
+) -> crate::error::Result<(Vec<crate::pack::Section>, Compressed)> {
     cluster_sections_warned(pack, opts, store_weights).map(|(s, c, _)| (s, c))
 }
 
@@ -299,7 +507,7 @@ pub fn cluster_sections_warned(
     pack: &crate::pack::Pack,
     opts: &ClusterOptions,
     store_weights: bool,
-) -> crate::error::Result<(Vec<crate::pack::Section>, Clustering, Option<String>)> {
+) -> crate::error::Result<(Vec<crate::pack::Section>, Compressed, Option<String>)> {
     let bad = |e| crate::error::Error::invalid(pack.path(), e);
     let (_, inst) = crate::ingest::instances_section::from_section(&pack.view_named("instances")?)
         .map_err(bad)?;
@@ -316,15 +524,15 @@ pub fn cluster_sections_warned(
     let (mut sky, mut sun) = (sky, sun);
     to_world_frame(&mut sky, &mut sun, &rotations);
     let values = section::flatten(&sky, &sun);
-    let (meta, c, weights) =
+    let (meta, z, weights) =
         cluster_and_weigh(&positions, &values, section::DIM, opts, store_weights);
     let wref = weights.as_ref().map(|(n, w)| (n.as_slice(), w.as_slice()));
-    let warning = compression_warning(&positions, &values, section::DIM, &c, opts);
+    let warning = compression_warning(&positions, &values, section::DIM, &z, opts);
     Ok((
         vec![section::clusters_to_section(
-            "clusters", &meta, &c, &positions, &values, wref,
+            "clusters", &meta, &z, &positions, &values, wref,
         )],
-        c,
+        z,
         warning,
     ))
 }
@@ -332,6 +540,7 @@ pub fn cluster_sections_warned(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use cluster::cluster_envmaps;
 
     #[test]
     fn stored_weights_reproduce_the_interpolator_and_the_clustering_errors() {
@@ -381,7 +590,7 @@ mod tests {
         };
         // A smooth field compresses and does not warn.
         let smooth = synthetic::synthetic_envmaps(&pos, &synthetic::bench_terrain_height, 0.0, 3);
-        let c = cluster_envmaps(&pos, &smooth.truth, section::DIM, &opts);
+        let c = Compressed::shared_only(cluster_envmaps(&pos, &smooth.truth, section::DIM, &opts));
         assert!(compression(&c, section::DIM) >= MIN_COMPRESSION);
         assert_eq!(
             compression_warning(&pos, &smooth.truth, section::DIM, &c, &opts),
@@ -390,7 +599,7 @@ mod tests {
         // Maps that differ between neighbours far more than the bound (20 % independent noise)
         // split down to single instances, and the warning names the measured residual.
         let noisy = synthetic::synthetic_envmaps(&pos, &synthetic::bench_terrain_height, 0.2, 3);
-        let c = cluster_envmaps(&pos, &noisy.noisy, section::DIM, &opts);
+        let c = Compressed::shared_only(cluster_envmaps(&pos, &noisy.noisy, section::DIM, &opts));
         let ratio = compression(&c, section::DIM);
         assert!(ratio < MIN_COMPRESSION, "{ratio}");
         let w = compression_warning(&pos, &noisy.noisy, section::DIM, &c, &opts).unwrap();
@@ -401,7 +610,7 @@ mod tests {
         let residual = cluster::estimate_noise(&pos, &noisy.noisy, section::DIM);
         assert!(w.contains(&format!("{:.1} %", 100.0 * residual)), "{w}");
         // Raw maps (96 f32 per instance) over the stored samples (3 + 1 + 96 words each).
-        let expect = (2000.0 * 96.0) / (c.samples.len() as f64 * 100.0);
+        let expect = (2000.0 * 96.0) / (c.clustering.samples.len() as f64 * 100.0);
         assert!((ratio - expect).abs() < 1e-9, "{ratio} {expect}");
     }
 
@@ -429,5 +638,179 @@ mod tests {
             assert!((a - b).abs() < 1e-5);
         }
         assert_eq!(sky, sun);
+    }
+
+    /// Instances scattered over `side` m × `side` m of the bench terrain, and the smooth field
+    /// there (terrain occlusion of sky and sun bounce), with independent noise of relative RMS
+    /// `noise` per coefficient (the traced maps' Monte-Carlo noise).
+    fn smooth_scene(
+        n: usize,
+        side: f32,
+        noise: f32,
+        seed: u64,
+    ) -> (Vec<[f32; 3]>, synthetic::SyntheticMaps) {
+        let mut rng = crate::rng::Rng::new(seed);
+        let pos: Vec<[f32; 3]> = (0..n)
+            .map(|_| {
+                let (x, y) = (rng.f32() * side, rng.f32() * side);
+                [x, y, synthetic::bench_terrain_height(x, y)]
+            })
+            .collect();
+        let maps =
+            synthetic::synthetic_envmaps(&pos, &synthetic::bench_terrain_height, noise, seed);
+        (pos, maps)
+    }
+
+    fn rel_rms(a: &[f32], b: &[f32], rms: f32) -> f64 {
+        let e: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+        (e / a.len() as f64).sqrt() / rms as f64
+    }
+
+    #[test]
+    fn the_stage_recovers_a_smooth_field_under_noise_within_the_bound_at_20x() {
+        let (pos, maps) = smooth_scene(6000, 200.0, 0.01, 41);
+        let opts = ClusterOptions::DEFAULT;
+        let z = compress(&pos, &maps.noisy, section::DIM, &opts);
+        let ratio = z.compression(section::DIM);
+        assert!(ratio >= 20.0, "{ratio}");
+        let rec = reconstruct_all(&pos, &maps.noisy, section::DIM, &z);
+        let vs_truth = rel_rms(&rec, &maps.truth, z.clustering.rms);
+        assert!(
+            vs_truth <= opts.error as f64,
+            "{vs_truth} against the noise-free field"
+        );
+        // The stated error (against the noisy input) is what the reconstruction shows.
+        let stated = z.rms_error() as f64;
+        let vs_input = rel_rms(&rec, &maps.noisy, z.clustering.rms);
+        assert!((stated - vs_input).abs() < 1e-4, "{stated} {vs_input}");
+    }
+
+    /// A smooth field plus hard local occlusion: every instance loses up to 60 % of three
+    /// directional patterns (a crown or trunk next to it in one of three directions), independent
+    /// from instance to instance, and traced noise on top. The reference is the field with the
+    /// occlusion and without the noise.
+    fn occluded_scene(n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<f32>, Vec<f32>) {
+        let (pos, maps) = smooth_scene(n, 200.0, 0.0, seed);
+        let dim = section::DIM;
+        let rms = (maps.truth.iter().map(|v| (*v as f64).powi(2)).sum::<f64>()
+            / maps.truth.len() as f64)
+            .sqrt() as f32;
+        let dirs = [[0.6f32, 0.0, 0.8], [-0.3, 0.52, 0.8], [0.0, -0.95, 0.31]];
+        let patterns: Vec<Vec<f32>> = dirs
+            .iter()
+            .map(|&d| {
+                let y = crate::sh::eval_basis16(d);
+                let mut v = vec![0.0f32; dim];
+                for c in 0..16 {
+                    for k in 0..3 {
+                        v[c * 3 + k] = 2.0 * rms * y[c] * [1.0, 1.1, 1.3][k];
+                        v[48 + c * 3 + k] = 0.5 * rms * y[c] * [1.0, 0.9, 0.6][k];
+                    }
+                }
+                v
+            })
+            .collect();
+        let mut rng = crate::rng::Rng::new(seed ^ 0x0cc1);
+        let mut reference = maps.truth.clone();
+        for m in reference.chunks_mut(dim) {
+            for p in &patterns {
+                let a = 0.6 * rng.f32();
+                for (x, y) in m.iter_mut().zip(p) {
+                    *x -= a * y;
+                }
+            }
+        }
+        let mut noisy = reference.clone();
+        for x in noisy.iter_mut() {
+            let g = (0..4).map(|_| rng.f32() - 0.5).sum::<f32>() * 3.0f32.sqrt();
+            *x += 0.01 * rms * g;
+        }
+        (pos, noisy, reference)
+    }
+
+    #[test]
+    fn the_local_part_carries_hard_local_occlusion_within_the_bound_against_the_reference() {
+        let (pos, noisy, reference) = occluded_scene(6000, 43);
+        let opts = ClusterOptions::DEFAULT;
+        let z = compress(&pos, &noisy, section::DIM, &opts);
+        assert!(z.compression(section::DIM) >= 20.0);
+        let l = z.local.as_ref().expect("a local part");
+        assert!(l.components > 0);
+        // The shared part alone cannot carry the occlusion ...
+        let shared = z.clustering.rms_error();
+        assert!(shared > 5.0 * opts.error, "shared part alone: {shared}");
+        // ... the local part does: the error against the noise-free reference is within the bound.
+        let rec = reconstruct_all(&pos, &noisy, section::DIM, &z);
+        let vs_ref = rel_rms(&rec, &reference, z.clustering.rms);
+        assert!(
+            vs_ref <= opts.error as f64,
+            "{vs_ref} against the reference"
+        );
+        assert!(
+            z.rms_error() <= 2.0 * opts.error,
+            "{} against the input",
+            z.rms_error()
+        );
+    }
+
+    #[test]
+    fn the_compressed_section_is_byte_identical_across_thread_counts() {
+        let (pos, noisy, _) = occluded_scene(3000, 47);
+        let opts = ClusterOptions::DEFAULT;
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    let (meta, z, w) = cluster_and_weigh(&pos, &noisy, section::DIM, &opts, true);
+                    let wref = w.as_ref().map(|(n, w)| (n.as_slice(), w.as_slice()));
+                    let sec =
+                        section::clusters_to_section("clusters", &meta, &z, &pos, &noisy, wref);
+                    let mut pw = crate::pack::PackWriter::new();
+                    pw.insert(sec);
+                    (z, pw.to_bytes().unwrap())
+                })
+        };
+        let (z1, b1) = run(1);
+        assert!(z1.local.is_some());
+        for t in [2, 5] {
+            let (z, b) = run(t);
+            assert_eq!(z, z1, "{t} threads");
+            assert!(b == b1, "{t} threads: the section's bytes differ");
+        }
+    }
+
+    #[test]
+    fn the_renderer_reconstructs_what_the_stage_measured() {
+        // The section read back as the renderer reads it (solved weights + local part) gives
+        // the stage's reconstruction, whose errors the section states.
+        let (pos, noisy, _) = occluded_scene(2000, 53);
+        let (meta, z, _) =
+            cluster_and_weigh(&pos, &noisy, section::DIM, &ClusterOptions::DEFAULT, false);
+        let sec = section::clusters_to_section("clusters", &meta, &z, &pos, &noisy, None);
+        let mut pw = crate::pack::PackWriter::new();
+        pw.insert(sec);
+        let pack = crate::pack::Pack::from_bytes(&pw.to_bytes().unwrap(), "t.bake").unwrap();
+        let v = pack.view_named("clusters").unwrap();
+        let m = section::ClustersMeta::decode(&v).unwrap();
+        assert_eq!(m, meta);
+        let l = section::local_from_section(&v, &m).unwrap().unwrap();
+        assert_eq!(Some(&l), z.local.as_ref());
+        let stage = reconstruct_all(&pos, &noisy, section::DIM, &z);
+        let pts: Vec<[f32; 3]> = v.array_vec("sample_positions").unwrap();
+        let vals: Vec<f32> = v.array_vec("sample_values").unwrap();
+        let ip = interp::Interpolator::new(&pts, &vals, section::DIM, m.radius, m.k as usize);
+        let mut out = vec![0.0f32; section::DIM];
+        for (i, x) in pos.iter().enumerate() {
+            ip.reconstruct(*x, &mut out);
+            l.add_to(i, &mut out);
+            for (a, b) in out
+                .iter()
+                .zip(&stage[i * section::DIM..(i + 1) * section::DIM])
+            {
+                assert!((a - b).abs() < 1e-4 * z.clustering.rms, "instance {i}");
+            }
+        }
     }
 }

@@ -49,7 +49,9 @@ pub mod versions {
     pub const ATLAS: u32 = 1;
     pub const ENVMAPS: u32 = 1;
     /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
-    pub const CLUSTER: u32 = 2;
+    /// 3: a byte budget (20x by default), the per-instance local part and split fraction 1.0
+    /// (issue 20, item 2).
+    pub const CLUSTER: u32 = 3;
     /// 2: instances within 1 mm of each other share a leaf (the `shared` array) instead of
     /// forcing deeper levels or failing (issue 16).
     pub const BITTREE: u32 = 2;
@@ -650,7 +652,9 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
         let out = g.unit("cluster", "scene", k.finish(), None, |_| {
             let (s, c, w) = crate::envmap::cluster_sections_warned(&view, &p.cluster, false)?;
             Ok(Output {
-                report: json!({"clusters": c.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error(),
+                report: json!({"clusters": c.clustering.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error(),
+                    "shared_rms_error": c.clustering.rms_error(),
+                    "local_components": c.local.as_ref().map_or(0, |l| l.components),
                     "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
                 sections: s,
                 warnings: w.into_iter().collect(),

@@ -51,6 +51,9 @@ const CLUSTERS: Schema = &[
     ("sample_positions", &[F32], 3),
     ("sample_values", &[F32], 1),
     ("sample_instance", &[U32], 1),
+    ("local_basis", &[F32], 1),
+    ("local_scale", &[F32], 1),
+    ("local_coeffs", &[U8], 1),
     ("neighbours", &[U32], 1),
     ("weights", &[F32], 1),
 ];

@@ -67,6 +67,15 @@ pub struct ClusterOptions {
     pub split_fraction: f32,
     /// Noise level the bound allows for.
     pub noise: Noise,
+    /// Principal components of the per-instance local part (`envmap::local`), stored when the
+    /// shared part alone does not meet the bound within the byte budget; 0: none.
+    pub local: u32,
+    /// Byte budget of the section's samples and local part (not the optional stored weights);
+    /// None: the raw maps' bytes / `compression`.
+    pub max_bytes: Option<u64>,
+    /// Target compression when `max_bytes` is None (raw maps over samples + local part);
+    /// 0: no budget (split until the bound holds, as before version 3).
+    pub compression: f32,
 }
 
 impl ClusterOptions {
@@ -75,15 +84,45 @@ impl ClusterOptions {
         error: 0.02,
         k: None,
         radius: None,
-        split_fraction: 0.5,
+        split_fraction: 1.0,
         noise: Noise::None,
+        local: 8,
+        max_bytes: None,
+        compression: 20.0,
     };
+
+    /// The byte budget for n instances of `dim` floats (None: unlimited).
+    pub fn budget(&self, n: usize, dim: usize) -> Option<u64> {
+        match self.max_bytes {
+            Some(b) => Some(b),
+            None if self.compression > 0.0 => {
+                Some(((n * dim * 4) as f64 / self.compression as f64).floor() as u64)
+            }
+            None => None,
+        }
+    }
+
+    /// The most samples the budget leaves beside a local part of `local` components.
+    pub fn max_samples(&self, n: usize, dim: usize, local: usize) -> usize {
+        match self.budget(n, dim) {
+            None => usize::MAX,
+            Some(b) => {
+                let rest = b.saturating_sub(super::local::local_bytes(n, local, dim));
+                ((rest / sample_bytes(dim)) as usize).max(1)
+            }
+        }
+    }
 }
 
 impl Default for ClusterOptions {
     fn default() -> Self {
         Self::DEFAULT
     }
+}
+
+/// Bytes of one stored sample: position, instance index, `dim` floats.
+pub fn sample_bytes(dim: usize) -> u64 {
+    (12 + 4 + dim * 4) as u64
 }
 
 /// The result: which instances are samples, and how well everything is reconstructed.
@@ -108,6 +147,8 @@ pub struct Clustering {
     pub evaluations: usize,
     /// Leave-one-out scores of the (k, R) candidates tried: (k, R, relative RMS error).
     pub loo: Vec<(usize, f32, f32)>,
+    /// The split loop stopped at the sample budget with some instance over the bound.
+    pub budget_limited: bool,
 }
 
 impl Clustering {
@@ -150,6 +191,18 @@ pub fn cluster_envmaps(
     dim: usize,
     opts: &ClusterOptions,
 ) -> Clustering {
+    cluster_envmaps_limited(positions, values, dim, opts, usize::MAX)
+}
+
+/// [`cluster_envmaps`] with at most `max_samples` samples: the worst clusters are split first,
+/// and a round splits no more clusters than the budget has samples left.
+pub fn cluster_envmaps_limited(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    opts: &ClusterOptions,
+    max_samples: usize,
+) -> Clustering {
     let (p, loo) = prepare(positions, values, dim, opts);
     let n = positions.len();
     let mut clusters: Vec<Vec<u32>> = Vec::new();
@@ -163,8 +216,18 @@ pub fn cluster_envmaps(
     }
     let mut rounds = 1;
     loop {
-        let split = select_splits(&p, &clusters, &cache.err, &cache.wsq, opts.split_fraction);
+        let room = max_samples.saturating_sub(samples.len());
+        let split = select_splits(
+            &p,
+            &clusters,
+            &cache.err,
+            &cache.wsq,
+            opts.split_fraction,
+            room,
+        );
         if split.is_empty() {
+            let limited = room == 0
+                && select_splits(&p, &clusters, &cache.err, &cache.wsq, 1.0, 1).len() == 1;
             return finish(
                 &p,
                 clusters,
@@ -174,6 +237,7 @@ pub fn cluster_envmaps(
                 rounds,
                 cache.evaluations,
                 loo,
+                limited,
             );
         }
         let (removed, added) = apply_splits(positions, &mut clusters, &mut samples, &split);
@@ -218,13 +282,14 @@ pub(crate) fn prepare<'a>(
 
 /// The clusters to split this round: the worst `fraction` of those with a member over the bound
 /// (clusters of one instance cannot be split), by summed squared error, worst first; returned in
-/// ascending cluster order.
+/// ascending cluster order; at most `limit` of them.
 pub(crate) fn select_splits(
     p: &Problem,
     clusters: &[Vec<u32>],
     err: &[f64],
     wsq: &[f64],
     fraction: f32,
+    limit: usize,
 ) -> Vec<usize> {
     let mut violating: Vec<(f64, usize)> = clusters
         .par_iter()
@@ -236,11 +301,13 @@ pub(crate) fn select_splits(
         })
         .map(|(c, m)| (m.iter().map(|&i| err[i as usize]).sum::<f64>(), c))
         .collect();
-    if violating.is_empty() {
+    if violating.is_empty() || limit == 0 {
         return Vec::new();
     }
     violating.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    let take = ((violating.len() as f32 * fraction).ceil() as usize).clamp(1, violating.len());
+    let take = ((violating.len() as f32 * fraction).ceil() as usize)
+        .clamp(1, violating.len())
+        .min(limit);
     let mut split: Vec<usize> = violating[..take].iter().map(|&(_, c)| c).collect();
     split.sort_unstable();
     split
@@ -289,6 +356,7 @@ fn finish(
     rounds: usize,
     evaluations: usize,
     loo: Vec<(usize, f32, f32)>,
+    budget_limited: bool,
 ) -> Clustering {
     let mut assignment = vec![0u32; p.positions.len()];
     for (c, m) in clusters.iter().enumerate() {
@@ -308,5 +376,6 @@ fn finish(
         rounds,
         evaluations,
         loo,
+        budget_limited,
     }
 }

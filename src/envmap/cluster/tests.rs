@@ -66,9 +66,9 @@ fn reference(pos: &[[f32; 3]], vals: &[f32], opts: &ClusterOptions) -> Clusterin
             wsq.push(e.wsq);
             ill += e.ill as usize;
         }
-        let split = select_splits(&p, &clusters, &err, &wsq, opts.split_fraction);
+        let split = select_splits(&p, &clusters, &err, &wsq, opts.split_fraction, usize::MAX);
         if split.is_empty() {
-            return finish(&p, clusters, samples, &err, ill, rounds, 0, loo);
+            return finish(&p, clusters, samples, &err, ill, rounds, 0, loo, false);
         }
         apply_splits(pos, &mut clusters, &mut samples, &split);
         rounds += 1;

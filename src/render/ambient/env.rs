@@ -105,7 +105,7 @@ pub(super) fn cluster_maps(pack: &Pack, records: &[InstanceRecord]) -> Result<Ve
     use crate::envmap::section::{ClustersMeta, DIM};
     let place = "section \"clusters\"";
     let v = pack.view_named(crate::envmap::section::CLUSTERS_KIND)?;
-    let meta: ClustersMeta = v.meta().map_err(bad(pack))?;
+    let meta = ClustersMeta::decode(&v).map_err(bad(pack))?;
     let pts: Vec<[f32; 3]> = v.array_vec("sample_positions").map_err(bad(pack))?;
     let vals: Vec<f32> = v.array_vec("sample_values").map_err(bad(pack))?;
     let owner: Vec<u32> = v.array_vec("sample_instance").map_err(bad(pack))?;
@@ -133,6 +133,9 @@ pub(super) fn cluster_maps(pack: &Pack, records: &[InstanceRecord]) -> Result<Ve
     }
     let world = vals;
     let stored = stored_weights(&v, &meta, pts.len(), records.len()).map_err(invalid)?;
+    // The per-instance local part (issue 20): added to the interpolated world-frame map, the
+    // same sum the stage formed its errors with (`envmap::local`).
+    let local = crate::envmap::section::local_from_section(&v, &meta).map_err(bad(pack))?;
     let ip = crate::envmap::interp::Interpolator {
         constant_term: meta.constant_term,
         ..crate::envmap::interp::Interpolator::new(
@@ -155,6 +158,9 @@ pub(super) fn cluster_maps(pack: &Pack, records: &[InstanceRecord]) -> Result<Ve
                 None => {
                     ip.reconstruct(r.position, &mut buf);
                 }
+            }
+            if let Some(l) = &local {
+                l.add_to(i, &mut buf);
             }
             let (h, sn) = split_dim(&buf);
             (

@@ -342,6 +342,9 @@ fn cluster_pack(records: &[Instance], maps: &[(Sh16, Sh16)], weights: bool) -> P
         max_error_relative: 0.0,
         ill_conditioned: 0,
         weights,
+        local_components: 0,
+        max_bytes: 0,
+        shared_rms_error_relative: 0.0,
     };
     let mut b = SectionBuilder::new(es::CLUSTERS_KIND, "clusters");
     b.meta(&meta)
@@ -750,5 +753,77 @@ fn a_model_whose_atlas_splits_vertices_is_drawn_with_the_atlas_vertices() {
             split.packed[i * g..(i + 1) * g],
             orig.packed[src * g..(src + 1) * g]
         );
+    }
+}
+
+#[test]
+fn the_renderer_reconstructs_the_stages_shared_and_local_parts() {
+    // Maps that do not cluster (a smooth world field plus large independent per-instance
+    // parts): the stage stores a local part, and the renderer's maps (solved weights, local
+    // part, turned into each instance's frame) are the stage's reconstruction, whose error the
+    // section states.
+    use crate::envmap::section::{self as es, DIM};
+    let mut rng = Lcg(77);
+    let n = 1500;
+    let recs: Vec<Instance> = (0..n)
+        .map(|_| Instance {
+            model: 0,
+            position: [60.0 * rng.next(), 60.0 * rng.next(), 0.0],
+            scale: 1.0,
+            rotation_deg: 180.0 * rng.next(),
+            layer: 0,
+        })
+        .collect();
+    let world: Vec<(Sh16, Sh16)> = recs
+        .iter()
+        .map(|r| {
+            let s = (r.position[0] * 0.05).sin() + 2.0;
+            let a = 0.5 * rng.next();
+            let h: Sh16 = std::array::from_fn(|c| [s + a * (c as f32 * 0.3).cos(); 3]);
+            let sn: Sh16 = std::array::from_fn(|c| [0.3 * s - a * (c as f32).sin(); 3]);
+            (h, sn)
+        })
+        .collect();
+    let local: Vec<(Sh16, Sh16)> = world
+        .iter()
+        .zip(&recs)
+        .map(|(m, r)| {
+            (
+                to_instance_frame(&m.0, r.rotation_deg),
+                to_instance_frame(&m.1, r.rotation_deg),
+            )
+        })
+        .collect();
+    let base = cluster_pack(&recs, &local, false);
+    let opts = crate::envmap::cluster::ClusterOptions::DEFAULT;
+    let (sections, z) = crate::envmap::cluster_sections(&base, &opts, false).unwrap();
+    assert!(z.local.is_some(), "no local part");
+    let mut w = PackWriter::from_pack(&base);
+    w.remove_kind(es::CLUSTERS_KIND);
+    for s in sections {
+        w.insert(s);
+    }
+    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "local.bake").unwrap();
+    let records = pack_records(&pack);
+    let light = SkyLight {
+        sky: constant_sky([1.0; 3]),
+        irradiance: constant_sky([1.0; 3]).to_irradiance(),
+        sun: None,
+    };
+    let (maps, src) = instance_maps(&pack, &records, &light).unwrap();
+    assert_eq!(src, EnvSource::Clusters);
+    let positions: Vec<[f32; 3]> = recs.iter().map(|r| r.position).collect();
+    let values = es::flatten(
+        &world.iter().map(|m| m.0).collect::<Vec<_>>(),
+        &world.iter().map(|m| m.1).collect::<Vec<_>>(),
+    );
+    let rec = crate::envmap::reconstruct_all(&positions, &values, DIM, &z);
+    for (i, r) in recs.iter().enumerate() {
+        let (h, sn) = split_dim(&rec[i * DIM..(i + 1) * DIM]);
+        let want = (
+            to_instance_frame(&h, r.rotation_deg),
+            to_instance_frame(&sn, r.rotation_deg),
+        );
+        assert_maps_close(&maps[i], &want, 1e-4, &format!("instance {i}"));
     }
 }
