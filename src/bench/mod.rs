@@ -7,6 +7,7 @@ pub mod ambient;
 pub mod cluster_cause;
 pub mod lightmap;
 pub mod linespace;
+pub mod prt_error;
 pub mod rays;
 pub mod sky;
 pub mod svo;
