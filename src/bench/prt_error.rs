@@ -10,12 +10,15 @@
 //!
 //! Methods: `fixed` (today's sampler: the same count per side, a scrambled 2-D Sobol first
 //! direction, pseudo-random bounces) and `adaptive` ([`prt::bake_prt_adaptive`]: the same
-//! mean count, spread over the sides in proportion to their standard deviation).
+//! mean count, spread over the sides in proportion to their standard deviation) and `filtered`
+//! (`fixed`, then each vertex averaged with its neighbours of like normal, [`crate::prt::filter`];
+//! its time includes baking the neighbourhoods, and its projected time is per vertex baked).
 
 use super::cpu_seconds;
 use crate::error::{Error, Result};
 use crate::model::Mesh;
 use crate::prt::error::{TransferError, transfer_error};
+use crate::prt::filter::{FilterOptions, Neighbourhoods, filter_vertices};
 use crate::prt::transfer::{self as prt, Adaptive, PrtMaterial, PrtOptions, Transfer};
 use crate::trace::{AlphaMask, ModelBvh};
 use serde::Serialize;
@@ -33,14 +36,18 @@ const REFERENCE_VERSION: u32 = 1;
 pub enum Method {
     Fixed,
     Adaptive,
+    /// `fixed`, then [`crate::prt::filter`] over each measured vertex's neighbourhood (which
+    /// is baked too, and timed).
+    Filtered,
 }
 
 impl Method {
-    pub const ALL: [Method; 2] = [Method::Fixed, Method::Adaptive];
+    pub const ALL: [Method; 3] = [Method::Fixed, Method::Adaptive, Method::Filtered];
     pub fn name(self) -> &'static str {
         match self {
             Method::Fixed => "fixed",
             Method::Adaptive => "adaptive",
+            Method::Filtered => "filtered",
         }
     }
 }
@@ -59,6 +66,10 @@ pub struct PrtErrorOptions {
     pub prt: PrtOptions,
     /// Folder of the cached references (`None`: no cache).
     pub cache: Option<PathBuf>,
+    /// Radius of the `filtered` method, relative to the model's bounding-box diagonal, and the
+    /// least cosine between filtered normals.
+    pub filter_radius: f32,
+    pub filter_min_cos: f32,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -126,7 +137,6 @@ pub fn bench_prt_error(
     let start = Instant::now();
     let (halves, cached) = reference(&bvh, mesh, materials, &verts, opts)?;
     let reference_seconds = start.elapsed().as_secs_f64();
-    let scale = total as f64 / verts.len().max(1) as f64;
     let mut runs = Vec::new();
     let mut noise = 0.0;
     for &method in &opts.methods {
@@ -135,10 +145,17 @@ pub fn bench_prt_error(
                 samples,
                 ..opts.prt.clone()
             };
-            let (start, cpu0) = (Instant::now(), cpu_seconds());
-            let t = bake(method, &bvh, mesh, materials, &o, &verts);
-            let wall = start.elapsed().as_secs_f64();
-            let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+            let (t, wall, cpu, baked) = match method {
+                Method::Filtered => filtered(&bvh, mesh, materials, &o, &verts, opts),
+                _ => {
+                    let (start, cpu0) = (Instant::now(), cpu_seconds());
+                    let t = bake(method, &bvh, mesh, materials, &o, &verts);
+                    let wall = start.elapsed().as_secs_f64();
+                    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+                    (t, wall, cpu, verts.len())
+                }
+            };
+            let scale = total as f64 / baked.max(1) as f64;
             let e: TransferError = transfer_error(&t, &halves[0], &halves[1]);
             noise = e.reference_noise;
             runs.push(ErrorRun {
@@ -171,6 +188,38 @@ pub fn bench_prt_error(
     })
 }
 
+/// The `filtered` method: bakes the measured vertices' neighbourhoods with the fixed sampler,
+/// then filters: (transfer of `verts`, wall and CPU seconds, vertices baked).
+fn filtered(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    o: &PrtOptions,
+    verts: &[u32],
+    opts: &PrtErrorOptions,
+) -> (Transfer, f64, Option<f64>, usize) {
+    let (lo, hi) = bvh.bounds();
+    let f = FilterOptions {
+        radius: opts.filter_radius * (hi - lo).length().max(1e-6),
+        min_cos: opts.filter_min_cos,
+    };
+    let (start, cpu0) = (Instant::now(), cpu_seconds());
+    let hoods = Neighbourhoods::new(mesh, f);
+    let mut union: Vec<u32> = verts
+        .iter()
+        .flat_map(|&v| hoods.of(v))
+        .map(|(u, _)| u)
+        .collect();
+    union.sort_unstable();
+    union.dedup();
+    let t = prt::bake_prt_subset(bvh, mesh, materials, o, &union, &|_| {});
+    let row = |u: u32| union.binary_search(&u).ok();
+    let t = filter_vertices(&hoods, &t, verts, &row);
+    let wall = start.elapsed().as_secs_f64();
+    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+    (t, wall, cpu, union.len())
+}
+
 fn bake(
     method: Method,
     bvh: &ModelBvh,
@@ -180,7 +229,9 @@ fn bake(
     verts: &[u32],
 ) -> Transfer {
     match method {
-        Method::Fixed => prt::bake_prt_subset(bvh, mesh, materials, o, verts, &|_| {}),
+        Method::Fixed | Method::Filtered => {
+            prt::bake_prt_subset(bvh, mesh, materials, o, verts, &|_| {})
+        }
         Method::Adaptive => prt::bake_prt_adaptive(
             bvh,
             mesh,

@@ -272,9 +272,15 @@ pub struct PrtErrorBenchArgs {
     /// Paths per side of the measured runs (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "64,256,1024,4096")]
     pub samples: Vec<u32>,
-    /// Samplers to compare (comma-separated: fixed, adaptive).
+    /// Samplers to compare (comma-separated: fixed, adaptive, filtered).
     #[arg(long, value_delimiter = ',', default_value = "fixed,adaptive")]
     pub methods: Vec<String>,
+    /// Radius of the filtered method, relative to the model's bounding-box diagonal.
+    #[arg(long, default_value_t = 0.015)]
+    pub filter_radius: f32,
+    /// Least cosine between the normals the filtered method averages.
+    #[arg(long, default_value_t = 0.9)]
+    pub filter_min_cos: f32,
     #[arg(long, default_value_t = 4)]
     pub bounces: u32,
     /// BVH build preset.
@@ -301,7 +307,11 @@ pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
             Method::ALL
                 .into_iter()
                 .find(|k| k.name() == m)
-                .ok_or_else(|| Error::usage(format!("--methods {m}: expected fixed or adaptive")))
+                .ok_or_else(|| {
+                    Error::usage(format!(
+                        "--methods {m}: expected fixed, adaptive or filtered"
+                    ))
+                })
         })
         .collect::<Result<Vec<_>>>()?;
     let (mesh, textures, source, warnings) = load_model(a.model.as_deref(), a.triangles)?;
@@ -318,6 +328,8 @@ pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
             ..PrtOptions::default()
         },
         cache: (!a.no_cache).then(|| a.cache.clone()),
+        filter_radius: a.filter_radius,
+        filter_min_cos: a.filter_min_cos,
     };
     let r = bench_prt_error(&source, &mesh, &mats, &masks, &opts)?;
     Ok(Outcome {
