@@ -24,7 +24,10 @@
 //! with a random digital shift (XOR scramble, the base-2 form of a Cranley–Patterson rotation)
 //! derived from a hash of (vertex, side); later bounces use a SplitMix64 stream seeded by
 //! (vertex, side, k). Every vertex is computed on its own, so results are byte-identical
-//! whatever the thread count.
+//! whatever the thread count. Vertices equal in position, normal and material are welded and
+//! traced once ([`weld_vertices`]). [`bake_prt_adaptive`] spreads the same mean count over the
+//! sides by their variance (measured in `bake bench prt-error`: no gain on a dense crown, so the
+//! stage keeps the fixed count).
 //!
 //! Albedo and translucence (until the material stage's two-layer Schlick conversion lands):
 //! albedo = sRGB-decoded diffuse colour × the mean linear colour of the colour map's opaque
@@ -139,8 +142,9 @@ pub fn bake_prt(
     Ok(bake_prt_with(&bvh, mesh, materials, opts, &|_| {}))
 }
 
-/// Bakes the transfer against a prebuilt BVH of `mesh`. `progress` is called with the number of
-/// vertices finished since its last call.
+/// Bakes the transfer against a prebuilt BVH of `mesh`, tracing each set of duplicate vertices
+/// once ([`weld_vertices`]). `progress` is called with the number of vertices finished since its
+/// last call.
 pub fn bake_prt_with(
     bvh: &ModelBvh,
     mesh: &Mesh,
