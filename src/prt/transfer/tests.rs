@@ -273,8 +273,9 @@ fn translucent_white_furnace_follows_the_geometric_series() {
             .enumerate()
             .map(|(k, p)| p * rho.powi(k as i32 + 1))
             .sum();
-        // Russian roulette keeps a path alive with probability ρ per hit at throughput 1, so
-        // each path contributes 0 or 1: a Bernoulli variable.
+        // Each path contributes a value in [0, 1] (ρ after one scattering, then Russian
+        // roulette keeps it alive with probability ρ per hit at throughput 1), so its variance
+        // is at most that of a Bernoulli variable of the same mean.
         let sigma = (mean * (1.0 - mean)).max(0.0).sqrt();
         for v in 24..28 {
             for side in 0..2 {
