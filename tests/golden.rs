@@ -24,6 +24,9 @@ fn bake_in(dir: &Path, args: &[&str]) {
         .args(args)
         .current_dir(dir)
         .env("NODEVICE_SELECT", "1")
+        // A stage cache of this test's own: a shared one could serve units computed by an older
+        // build of the same stage version and hide a changed encoding.
+        .env("BAKE_CACHE", dir.join(".bake-cache"))
         .output()
         .unwrap();
     assert!(

@@ -110,3 +110,41 @@ fn bench_rays_reports_the_documented_keys() {
         assert!(doc[key].is_number(), "{key}: {doc}");
     }
 }
+
+#[test]
+fn bench_prt_error_reports_the_documented_keys() {
+    let doc = json(&bake(&[
+        "bench",
+        "prt-error",
+        "--triangles",
+        "300",
+        "--vertices",
+        "20",
+        "--reference-samples",
+        "128",
+        "--samples",
+        "8,32",
+        "--no-cache",
+        "--json",
+    ]));
+    for key in ["triangles", "vertices", "reference_samples"] {
+        assert!(doc[key].is_number(), "{key}: {doc}");
+    }
+    assert!(doc["model"].is_string(), "{doc}");
+    let runs = doc["runs"].as_array().expect("runs");
+    assert_eq!(runs.len(), 4, "2 methods × 2 sample counts: {doc}");
+    for r in runs {
+        assert!(r["method"].is_string() && r["samples"].is_number(), "{r}");
+        for key in ["wall_seconds", "rms_error"] {
+            assert!(r[key].as_f64().is_some_and(|v| v >= 0.0), "{key}: {r}");
+        }
+        assert!(r.get("cpu_seconds").is_some(), "{r}");
+    }
+    // More paths, less error (the metric subtracts the reference's own noise).
+    let fixed: Vec<f64> = runs
+        .iter()
+        .filter(|r| r["method"] == "fixed")
+        .map(|r| r["rms_error"].as_f64().unwrap())
+        .collect();
+    assert!(fixed[1] < fixed[0], "{fixed:?}");
+}

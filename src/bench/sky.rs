@@ -120,3 +120,59 @@ fn cmgen_to_bake(c: [[f32; 3]; 16]) -> crate::sh::ShRadiance {
     let mt = [[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
     crate::sh::ShRadiance { coeffs: c }.rotated(&crate::sh::ShRotation::new(4, mt))
 }
+
+/// The steps of `bake sky FILE --face-size N` timed one by one (median of `repeat` runs each, in
+/// seconds): read and decode, resampling into the cube, sun extraction, sky irradiance, SH,
+/// the pack's bytes (sections, compression, checksums) and the file write.
+pub fn profile_sky(input: &Path, face_size: u32, repeat: u32, out: &Path) -> Result<Report> {
+    let (t_decode, img) = time_median(repeat, || crate::ingest::skyimage::load(input))?;
+    let src = sky::image_to_source(img).map_err(|e| Error::invalid(input, e))?;
+    let (t_cube, full) = time_median(repeat, || Ok(sky::source_to_cube(&src, face_size, 0.0)))?;
+    let sun_opts = SkyOptions::default().sun;
+    let (t_sun, (cube, sun)) = time_median(repeat, || Ok(sky::sun::extract_sun(&full, &sun_opts)))?;
+    let (t_irr, irr) = time_median(repeat, || Ok(sky::sun::sky_irradiance(&cube)))?;
+    let (t_sh, sh) = time_median(repeat, || Ok(crate::sh::project_cube(&cube)))?;
+    let bake = sky::SkyBake {
+        cube,
+        sun,
+        sky: irr,
+        sh,
+    };
+    let (t_bytes, bytes) = time_median(repeat, || {
+        let mut w = crate::pack::PackWriter::new();
+        for s in sky::sky_sections(&bake, "profile") {
+            w.insert(s);
+        }
+        w.to_bytes()
+    })?;
+    let (t_write, ()) = time_median(repeat, || crate::pack::write_atomic(out, &bytes))?;
+    let steps = [
+        ("decode", t_decode),
+        ("cube", t_cube),
+        ("sun", t_sun),
+        ("irradiance", t_irr),
+        ("sh", t_sh),
+        ("pack_bytes", t_bytes),
+        ("write", t_write),
+    ];
+    let total: f64 = steps.iter().map(|s| s.1).sum();
+    let mut text = format!(
+        "{} → cube {face_size}², {} threads, {} bytes: {:.1} ms in all\n",
+        input.display(),
+        rayon::current_num_threads(),
+        bytes.len(),
+        total * 1e3
+    );
+    for (name, t) in steps {
+        text.push_str(&format!("  {name:<11} {:>7.1} ms\n", t * 1e3));
+    }
+    let seconds: serde_json::Map<String, serde_json::Value> = steps
+        .iter()
+        .map(|(k, t)| (k.to_string(), json!(t)))
+        .collect();
+    Ok(Report {
+        json: json!({"input": input, "face_size": face_size, "bytes": bytes.len(),
+            "threads": rayon::current_num_threads(), "seconds": seconds, "total_seconds": total}),
+        text,
+    })
+}

@@ -20,6 +20,8 @@ pub enum BenchWhat {
     Linespace(crate::cli::linespace::LinespaceBenchArgs),
     /// Raw obvhs rays/s against PRT rays/s on one model (default: a procedural plant).
     Rays(super::prt::RaysBenchArgs),
+    /// PRT transfer error against a converged reference, against wall time, per sampler.
+    PrtError(super::prt::PrtErrorBenchArgs),
     /// Environment-map clustering and interpolation weights on a generated scene.
     Cluster(super::cluster::ClusterBenchArgs),
     /// Offscreen render of a pack: device setup, upload and draw times.
@@ -113,6 +115,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
     match &args.what {
         BenchWhat::Ingest(a) => Ok(crate::bench::ingest::bench_ingest(&a.files, a.repeat)?.into()),
         BenchWhat::Rays(a) => super::prt::bench(a, g),
+        BenchWhat::PrtError(a) => super::prt::bench_error(a, g),
         BenchWhat::Cluster(a) => super::cluster::bench(a, g),
         BenchWhat::Render(a) => super::render::bench(a, g),
         BenchWhat::Svo(a) => crate::cli::svo::bench(a, g),

@@ -1,5 +1,6 @@
 //! `bake prt INPUT`: per-vertex PRT for every mesh of a pack or model file, and
-//! `bake bench rays`: raw obvhs traversal against PRT ray throughput (docs/PERFORMANCE.md).
+//! `bake bench rays`: raw obvhs traversal against PRT ray throughput, and `bake bench prt-error`:
+//! the transfer's error against time (docs/PERFORMANCE.md).
 
 use super::{Global, Outcome};
 use crate::bench::rays::{RaysBenchOptions, bench_rays};
@@ -148,31 +149,7 @@ pub struct RaysBenchArgs {
 
 pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
     check_sampling(a.samples, a.bounces)?;
-    let mut warnings = Vec::new();
-    let (mesh, textures, source) = match &a.model {
-        None => {
-            let (mesh, tex) = crate::prt::plant::procedural_plant(a.triangles, 1);
-            (
-                mesh,
-                vec![Some(tex)],
-                "procedural plant, seed 1".to_string(),
-            )
-        }
-        Some(path) => {
-            let (pack, w) = open_or_ingest(path)?;
-            warnings.extend(w);
-            let e = pack
-                .of_kind(crate::mesh::section::KIND)
-                .next()
-                .cloned()
-                .ok_or_else(|| Error::invalid_at(path, "section table", "no mesh section"))?;
-            let view = pack.view(&e)?;
-            let (meta, mesh) = crate::mesh::section::from_section(&view)
-                .map_err(|err| Error::invalid(path, err))?;
-            let textures = mesh_textures(&pack, &e.name, &meta, &mut warnings);
-            (mesh, textures, path.display().to_string())
-        }
-    };
+    let (mesh, textures, source, warnings) = load_model(a.model.as_deref(), a.triangles)?;
     let mats = prt::prt_materials(&mesh, &textures, 0.3);
     let masks = prt::alpha_masks(&mesh, &textures);
     let opts = RaysBenchOptions {
@@ -247,6 +224,117 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
     Ok(Outcome {
         json,
         text,
+        warnings,
+    })
+}
+
+/// The benchmarks' model: the first mesh of a model file or pack with its textures, or the
+/// procedural plant of `triangles` triangles; and its name and warnings.
+type BenchModel = (
+    crate::model::Mesh,
+    Vec<Option<crate::model::Rgba8Image>>,
+    String,
+    Vec<String>,
+);
+
+fn load_model(model: Option<&Path>, triangles: usize) -> Result<BenchModel> {
+    let Some(path) = model else {
+        let (mesh, tex) = crate::prt::plant::procedural_plant(triangles, 1);
+        let name = "procedural plant, seed 1".to_string();
+        return Ok((mesh, vec![Some(tex)], name, Vec::new()));
+    };
+    let (pack, mut warnings) = open_or_ingest(path)?;
+    let e = pack
+        .of_kind(crate::mesh::section::KIND)
+        .next()
+        .cloned()
+        .ok_or_else(|| Error::invalid_at(path, "section table", "no mesh section"))?;
+    let view = pack.view(&e)?;
+    let (meta, mesh) =
+        crate::mesh::section::from_section(&view).map_err(|err| Error::invalid(path, err))?;
+    let textures = mesh_textures(&pack, &e.name, &meta, &mut warnings);
+    Ok((mesh, textures, path.display().to_string(), warnings))
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct PrtErrorBenchArgs {
+    /// A model file or pack (its first mesh); default: a procedural alpha-tested plant.
+    pub model: Option<PathBuf>,
+    /// Triangles of the procedural plant.
+    #[arg(long, default_value_t = 100_000)]
+    pub triangles: usize,
+    /// Vertices measured (an even stride over the model; 0: all).
+    #[arg(long, default_value_t = 1000)]
+    pub vertices: usize,
+    /// Paths per side of the reference (two independent halves of half as many).
+    #[arg(long, default_value_t = 16_384)]
+    pub reference_samples: u32,
+    /// Paths per side of the measured runs (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "64,256,1024,4096")]
+    pub samples: Vec<u32>,
+    /// Samplers to compare (comma-separated: fixed, adaptive, filtered).
+    #[arg(long, value_delimiter = ',', default_value = "fixed,adaptive")]
+    pub methods: Vec<String>,
+    /// Radius of the filtered method, relative to the model's bounding-box diagonal.
+    #[arg(long, default_value_t = 0.015)]
+    pub filter_radius: f32,
+    /// Least cosine between the normals the filtered method averages.
+    #[arg(long, default_value_t = 0.9)]
+    pub filter_min_cos: f32,
+    #[arg(long, default_value_t = 4)]
+    pub bounces: u32,
+    /// BVH build preset.
+    #[arg(long, value_enum, default_value_t = BuildPreset::default())]
+    pub preset: BuildPreset,
+    /// Folder of the cached references.
+    #[arg(long, default_value = "target/prt-error")]
+    pub cache: PathBuf,
+    /// Bake the reference again and cache nothing.
+    #[arg(long)]
+    pub no_cache: bool,
+}
+
+pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
+    use crate::bench::prt_error::{Method, PrtErrorOptions, bench_prt_error, report_text};
+    for &s in &a.samples {
+        check_sampling(s, a.bounces)?;
+    }
+    check_sampling(a.reference_samples, a.bounces)?;
+    let methods = a
+        .methods
+        .iter()
+        .map(|m| {
+            Method::ALL
+                .into_iter()
+                .find(|k| k.name() == m)
+                .ok_or_else(|| {
+                    Error::usage(format!(
+                        "--methods {m}: expected fixed, adaptive or filtered"
+                    ))
+                })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (mesh, textures, source, warnings) = load_model(a.model.as_deref(), a.triangles)?;
+    let mats = prt::prt_materials(&mesh, &textures, 0.3);
+    let masks = prt::alpha_masks(&mesh, &textures);
+    let opts = PrtErrorOptions {
+        vertices: a.vertices,
+        reference_samples: a.reference_samples,
+        samples: a.samples.clone(),
+        methods,
+        prt: PrtOptions {
+            bounces: a.bounces,
+            preset: a.preset,
+            ..PrtOptions::default()
+        },
+        cache: (!a.no_cache).then(|| a.cache.clone()),
+        filter_radius: a.filter_radius,
+        filter_min_cos: a.filter_min_cos,
+    };
+    let r = bench_prt_error(&source, &mesh, &mats, &masks, &opts)?;
+    Ok(Outcome {
+        json: serde_json::to_value(&r).unwrap_or_default(),
+        text: report_text(&r),
         warnings,
     })
 }

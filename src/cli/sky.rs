@@ -208,11 +208,20 @@ pub struct SkyBenchArgs {
     /// cmgen's `--sh-output` text file for the same input, compared after aligning conventions.
     #[arg(long)]
     pub cmgen_sh: Option<PathBuf>,
+    /// Instead, time the steps of `bake sky INPUT --face-size N` one by one (pack written to
+    /// INPUT with the extension .profile.bake).
+    #[arg(long, value_name = "N")]
+    pub profile: Option<u32>,
 }
 
 pub fn bench(a: &SkyBenchArgs, _g: &Global) -> Result<Outcome> {
     let r = match a.write_sample {
         Some((w, h)) => crate::bench::sky::write_sample(&a.input, w, h)?,
+        None if a.profile.is_some() => {
+            let n = a.profile.unwrap_or(256).clamp(1, crate::sky::MAX_FACE_SIZE);
+            let out = a.input.with_extension("profile.bake");
+            crate::bench::sky::profile_sky(&a.input, n, a.repeat, &out)?
+        }
         None => crate::bench::sky::bench_sky(&a.input, a.repeat, a.cmgen_sh.as_deref())?,
     };
     Ok(r.into())

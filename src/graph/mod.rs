@@ -44,7 +44,9 @@ pub mod versions {
     pub const TERRAIN: u32 = 1;
     /// 2: the sun's energy kept through resampling, the ring-mean replacement (issue 16).
     pub const SKY: u32 = 2;
-    pub const PRT: u32 = 1;
+    /// 2: duplicate vertices (position, normal, material) welded, sharing one transfer (issue 19).
+    /// 3: no Russian roulette at the first hit (issue 19).
+    pub const PRT: u32 = 3;
     pub const LIGHTMAP: u32 = 1;
     pub const ATLAS: u32 = 1;
     pub const ENVMAPS: u32 = 1;

@@ -7,10 +7,10 @@
 //! leaf with probability t (translucence), and its throughput is multiplied by the hit
 //! material's albedo (the BSDF is ρ(1−t)/π on the reflection side and ρt/π on the transmission
 //! side, so the sampling probabilities cancel and only ρ remains); Russian roulette on the
-//! throughput ends most paths after a hit on a dark leaf, unbiased. When a path leaves the model,
-//! the SH basis of its final direction, weighted by the throughput, is added to the side's
-//! transfer: set 0 collects every path (V(D|G|S)*C), set 1 only paths with at least one bounce
-//! (V(D|G|S)+C, for the indirect sun). Paths still inside the model after `bounces` scattering
+//! throughput, from the second hit on, ends most deeper paths on dark leaves, unbiased. When a
+//! path leaves the model, the SH basis of its final direction, weighted by the throughput, is
+//! added to the side's transfer: set 0 collects every path (V(D|G|S)*C), set 1 only paths with
+//! at least one bounce (V(D|G|S)+C, for the indirect sun). Paths still inside the model after `bounces` scattering
 //! events are dropped (a slight, documented underestimate of deep interreflection).
 //!
 //! What the transfer means: with an environment C given as SH radiance coefficients (16 RGB),
@@ -24,7 +24,10 @@
 //! with a random digital shift (XOR scramble, the base-2 form of a Cranley–Patterson rotation)
 //! derived from a hash of (vertex, side); later bounces use a SplitMix64 stream seeded by
 //! (vertex, side, k). Every vertex is computed on its own, so results are byte-identical
-//! whatever the thread count.
+//! whatever the thread count. Vertices equal in position, normal and material are welded and
+//! traced once ([`weld_vertices`]). [`bake_prt_adaptive`] spreads the same mean count over the
+//! sides by their variance (measured in `bake bench prt-error`: no gain on a dense crown, so the
+//! stage keeps the fixed count).
 //!
 //! Albedo and translucence (until the material stage's two-layer Schlick conversion lands):
 //! albedo = sRGB-decoded diffuse colour × the mean linear colour of the colour map's opaque
@@ -139,8 +142,9 @@ pub fn bake_prt(
     Ok(bake_prt_with(&bvh, mesh, materials, opts, &|_| {}))
 }
 
-/// Bakes the transfer against a prebuilt BVH of `mesh`. `progress` is called with the number of
-/// vertices finished since its last call.
+/// Bakes the transfer against a prebuilt BVH of `mesh`, tracing each set of duplicate vertices
+/// once ([`weld_vertices`]). `progress` is called with the number of vertices finished since its
+/// last call.
 pub fn bake_prt_with(
     bvh: &ModelBvh,
     mesh: &Mesh,
@@ -148,8 +152,76 @@ pub fn bake_prt_with(
     opts: &PrtOptions,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Transfer {
-    let all: Vec<u32> = (0..mesh.positions.len() as u32).collect();
-    bake_prt_subset(bvh, mesh, materials, opts, &all, progress)
+    let reps = weld_vertices(mesh);
+    let unique: Vec<u32> = (0..reps.len() as u32)
+        .filter(|&v| reps[v as usize] == v)
+        .collect();
+    let mut t = bake_prt_subset(bvh, mesh, materials, opts, &unique, progress);
+    if unique.len() == reps.len() {
+        return t;
+    }
+    // Copy each representative's transfer to the vertices welded to it.
+    let mut slot = vec![0u32; reps.len()];
+    for (i, &v) in unique.iter().enumerate() {
+        slot[v as usize] = i as u32;
+    }
+    let ctx = Ctx::new(bvh, mesh, materials, opts);
+    let mut coeffs = Vec::with_capacity(reps.len() * PER_VERTEX);
+    let mut skipped = 0;
+    for &r in &reps {
+        let at = slot[r as usize] as usize * PER_VERTEX;
+        coeffs.extend_from_slice(&t.coeffs[at..at + PER_VERTEX]);
+        skipped += ctx.vertex_frame(r as usize).is_none() as u32;
+    }
+    progress((reps.len() - unique.len()) as u64);
+    t.coeffs = coeffs;
+    t.vertices = reps.len() as u32;
+    t.skipped_vertices = skipped;
+    t
+}
+
+/// Welds duplicate vertices: for each vertex, the first vertex with the same position, normal
+/// (bit for bit) and material (of the first triangle using it), whose transfer it shares (real
+/// TXF files repeat positions across sets). Unused vertices stay their own.
+pub fn weld_vertices(mesh: &Mesh) -> Vec<u32> {
+    let n = mesh.positions.len();
+    let mut material = vec![u32::MAX; n];
+    for (t, tri) in mesh.indices.iter().enumerate() {
+        for &i in tri {
+            if let Some(m) = material.get_mut(i as usize)
+                && *m == u32::MAX
+            {
+                *m = mesh.triangle_materials.get(t).copied().unwrap_or(u32::MAX);
+            }
+        }
+    }
+    let mut first = std::collections::HashMap::with_capacity(n);
+    (0..n)
+        .map(|v| {
+            if material[v] == u32::MAX {
+                return v as u32;
+            }
+            let key = (
+                mesh.positions[v].map(f32::to_bits),
+                mesh.normals
+                    .get(v)
+                    .copied()
+                    .unwrap_or_default()
+                    .map(f32::to_bits),
+                material[v],
+            );
+            *first.entry(key).or_insert(v as u32)
+        })
+        .collect()
+}
+
+/// The number of distinct vertices after [`weld_vertices`].
+pub fn weld_key_count(mesh: &Mesh) -> usize {
+    let reps = weld_vertices(mesh);
+    reps.iter()
+        .enumerate()
+        .filter(|&(v, &r)| r as usize == v)
+        .count()
 }
 
 /// The transfer of the listed vertices only (in that order; benchmarks trace a sample of a
@@ -163,7 +235,6 @@ pub fn bake_prt_subset(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Transfer {
     let ctx = Ctx::new(bvh, mesh, materials, opts);
-    let n = vertices.len();
     let per_vertex: Vec<VertexResult> = vertices
         .par_iter()
         .with_min_len(16)
@@ -173,6 +244,12 @@ pub fn bake_prt_subset(
             r
         })
         .collect();
+    collect_transfer(per_vertex, opts)
+}
+
+/// The transfer of the vertices' results, in order.
+fn collect_transfer(per_vertex: Vec<VertexResult>, opts: &PrtOptions) -> Transfer {
+    let n = per_vertex.len();
     let mut t = Transfer {
         vertices: n as u32,
         samples: opts.samples,
@@ -194,6 +271,99 @@ pub fn bake_prt_subset(
         }
     }
     t
+}
+
+/// Adaptive per-side path counts ([`bake_prt_adaptive`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Adaptive {
+    /// Paths per side of the pilot pass that estimates each side's variance.
+    pub pilot: u32,
+    /// Most paths a side may get, as a multiple of `PrtOptions::samples`.
+    pub max_factor: u32,
+}
+
+impl Adaptive {
+    /// A pilot of 1/8 of the mean count (at least 16 paths), at most 8× the mean per side.
+    pub const fn for_samples(samples: u32) -> Self {
+        let pilot = samples / 8;
+        Adaptive {
+            pilot: if pilot < 16 { 16 } else { pilot },
+            max_factor: 8,
+        }
+    }
+}
+
+/// The transfer of `vertices` with, on average, `opts.samples` paths per side, spread over the
+/// sides by their noise: a pilot pass of `adaptive.pilot` paths estimates each side's per-path
+/// variance σ² (summed over sets, coefficients and channels), then each side gets
+/// N = clamp(λσ, pilot, max) paths in all, with λ chosen so that the mean N is `opts.samples`
+/// (N ∝ σ minimizes the summed variance Σ σ²/N of a fixed budget). The second pass continues
+/// each side's sequence after the pilot's paths, which are kept. Deterministic and independent
+/// of the thread count: λ comes from a sequential bisection over the pilot's variances in vertex
+/// order. (N depends on the pilot's own paths, a small bias the error benchmark measures.)
+pub fn bake_prt_adaptive(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    opts: &PrtOptions,
+    vertices: &[u32],
+    adaptive: Adaptive,
+) -> Transfer {
+    let ctx = Ctx::new(bvh, mesh, materials, opts);
+    let pilot = adaptive.pilot.clamp(1, opts.samples.max(1));
+    let first: Vec<Option<Pilot>> = vertices
+        .par_iter()
+        .with_min_len(16)
+        .map(|&v| ctx.pilot(v as usize, pilot))
+        .collect();
+    let sigmas: Vec<f64> = first.iter().flatten().flat_map(|p| p.sigma).collect();
+    let max = opts
+        .samples
+        .saturating_mul(adaptive.max_factor.max(1))
+        .max(pilot);
+    let target = opts.samples.max(1) as f64 * sigmas.len() as f64;
+    let lambda = allocation_scale(&sigmas, pilot, max, target);
+    let count = |sigma: f64| (lambda * sigma).round().clamp(pilot as f64, max as f64) as u32;
+    let per_vertex: Vec<VertexResult> = vertices
+        .par_iter()
+        .zip(first)
+        .with_min_len(16)
+        .map(|(&v, p)| ctx.finish(v as usize, p?, pilot, count))
+        .collect();
+    collect_transfer(per_vertex, opts)
+}
+
+/// The smallest λ whose clamped counts clamp(λσ, lo, hi) add up to at least `target`
+/// (bisection; sequential, so the same on any thread count).
+fn allocation_scale(sigmas: &[f64], lo: u32, hi: u32, target: f64) -> f64 {
+    let total = |l: f64| -> f64 {
+        sigmas
+            .iter()
+            .map(|&s| (l * s).round().clamp(lo as f64, hi as f64))
+            .sum()
+    };
+    let mut high = 1.0f64;
+    while total(high) < target && high < 1e30 {
+        high *= 2.0;
+    }
+    let mut low = 0.0;
+    for _ in 0..60 {
+        let mid = 0.5 * (low + high);
+        if total(mid) < target {
+            low = mid;
+        } else {
+            high = mid;
+        }
+    }
+    high
+}
+
+/// The pilot pass of one vertex: its path sums (unnormalized, receiving albedo not applied),
+/// each side's per-path standard deviation, and the rays traced.
+struct Pilot {
+    sums: Box<[[f32; 3]; PER_VERTEX]>,
+    sigma: [f64; SIDES],
+    rays: u64,
 }
 
 /// One vertex's coefficients and ray count, or `None` if it was skipped.
@@ -270,41 +440,93 @@ impl<'a> Ctx<'a> {
     }
 
     fn vertex(&self, v: usize) -> VertexResult {
-        let mat = *self.materials.get(*self.vertex_material.get(v)? as usize)?;
-        let n = self.normal(v)?;
-        let p = Vec3A::from(self.mesh.positions[v]);
-        if !p.is_finite() {
-            return None;
-        }
+        let (mat, n, p) = self.vertex_frame(v)?;
         let mut out = Box::new([[0.0f32; 3]; PER_VERTEX]);
         let mut rays = 0;
         for side in 0..SIDES {
-            let ns = if side == 0 { n } else { -n };
-            let mut acc = [[[0.0f64; 3]; COEFFS]; SETS];
-            rays += self.side(v, side, p + ns * self.eps, ns, &mut acc);
+            let mut acc = SideSums::default();
+            rays += self.side(v, side, p, n, 0..self.opts.samples, &mut acc);
             let scale = 1.0 / self.opts.samples.max(1) as f64;
             let dst = &mut out[side * SETS * COEFFS..(side + 1) * SETS * COEFFS];
-            for (o, a) in dst.iter_mut().zip(acc.iter().flatten()) {
+            for (o, a) in dst.iter_mut().zip(acc.sum.iter().flatten()) {
                 *o = std::array::from_fn(|k| (a[k] * scale * mat.albedo[k] as f64) as f32);
             }
         }
         Some((out, rays))
     }
 
-    /// Traces the paths of one side, adding throughput × SH basis of each escape direction.
+    /// The material, unit normal and position of vertex `v`, or `None` if it is skipped.
+    fn vertex_frame(&self, v: usize) -> Option<(PrtMaterial, Vec3A, Vec3A)> {
+        let mat = *self.materials.get(*self.vertex_material.get(v)? as usize)?;
+        let n = self.normal(v)?;
+        let p = Vec3A::from(self.mesh.positions[v]);
+        p.is_finite().then_some((mat, n, p))
+    }
+
+    /// The pilot pass of [`bake_prt_adaptive`] for vertex `v`: `pilot` paths per side.
+    fn pilot(&self, v: usize, pilot: u32) -> Option<Pilot> {
+        let (mat, n, p) = self.vertex_frame(v)?;
+        let mut sums = Box::new([[0.0f32; 3]; PER_VERTEX]);
+        let mut sigma = [0.0; SIDES];
+        let mut rays = 0;
+        for side in 0..SIDES {
+            let mut acc = SideSums::default();
+            rays += self.side(v, side, p, n, 0..pilot, &mut acc);
+            sigma[side] = acc.variance(pilot, mat.albedo).sqrt();
+            let dst = &mut sums[side * SETS * COEFFS..(side + 1) * SETS * COEFFS];
+            for (o, a) in dst.iter_mut().zip(acc.sum.iter().flatten()) {
+                *o = a.map(|x| x as f32);
+            }
+        }
+        Some(Pilot { sums, sigma, rays })
+    }
+
+    /// The second pass of [`bake_prt_adaptive`]: continues each side of `v` after the pilot's
+    /// paths up to `count(σ)` paths and normalizes.
+    fn finish(
+        &self,
+        v: usize,
+        pilot: Pilot,
+        first: u32,
+        count: impl Fn(f64) -> u32,
+    ) -> VertexResult {
+        let (mat, n, p) = self.vertex_frame(v)?;
+        let mut out = pilot.sums;
+        let mut rays = pilot.rays;
+        for side in 0..SIDES {
+            let total = count(pilot.sigma[side]).max(first);
+            let mut acc = SideSums::default();
+            rays += self.side(v, side, p, n, first..total, &mut acc);
+            let scale = 1.0 / total as f64;
+            let dst = &mut out[side * SETS * COEFFS..(side + 1) * SETS * COEFFS];
+            for (o, a) in dst.iter_mut().zip(acc.sum.iter().flatten()) {
+                *o = std::array::from_fn(|k| {
+                    ((o[k] as f64 + a[k]) * scale * mat.albedo[k] as f64) as f32
+                });
+            }
+        }
+        Some((out, rays))
+    }
+
+    /// Traces paths `ks` of one side of vertex `v` (at `p`, normal `n`), adding throughput × SH
+    /// basis of each escape direction to `acc`. Path k is the same whatever range it is traced
+    /// in, so a side can be continued (adaptive sampling).
     fn side(
         &self,
         v: usize,
         side: usize,
-        origin: Vec3A,
+        p: Vec3A,
         n: Vec3A,
-        acc: &mut [[[f64; 3]; COEFFS]; SETS],
+        ks: std::ops::Range<u32>,
+        acc: &mut SideSums,
     ) -> u64 {
+        let n = if side == 0 { n } else { -n };
+        let origin = p + n * self.eps;
         let key = self.opts.seed ^ ((v as u64) << 1 | side as u64);
         let shift = mix64(key);
         let (sx, sy) = (shift as u32, (shift >> 32) as u32);
         let mut rays = 0;
-        for k in 0..self.opts.samples {
+        for k in ks {
             let (u1, u2) = sobol_scrambled(k, sx, sy);
             let d = cosine_hemisphere(n, u1, u2);
             let mut rng = Rng::hashed(mix64(key) ^ (k as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
@@ -314,12 +536,16 @@ impl<'a> Ctx<'a> {
                 let y = crate::sh::eval_basis16(dir.to_array());
                 // Set 0 takes every escaping path, set 1 only those that bounced.
                 let sets = if bounces == 0 { 1 } else { SETS };
-                for set_acc in acc.iter_mut().take(sets) {
+                for set_acc in acc.sum.iter_mut().take(sets) {
                     for (a, &yi) in set_acc.iter_mut().zip(&y) {
                         for c in 0..3 {
                             a[c] += (beta[c] * yi) as f64;
                         }
                     }
+                }
+                let yy: f64 = y.iter().map(|&yi| (yi as f64) * (yi as f64)).sum();
+                for (sq, &b) in acc.squares.iter_mut().zip(&beta) {
+                    *sq += (b as f64).powi(2) * yy * sets as f64;
                 }
             }
         }
@@ -346,10 +572,14 @@ impl<'a> Ctx<'a> {
             if beta == [0.0; 3] || ng == Vec3A::ZERO {
                 return (None, bounce as u64 + 1);
             }
-            // Russian roulette: go on with probability q = max(β) and divide by it, so dark
-            // leaves (albedo ≈ 0.1) end most paths after one hit without biasing the estimate.
+            // Russian roulette from the second hit on: go on with probability q = max(β) and
+            // divide by it, so dark leaves (albedo ≈ 0.1) end most deep paths without biasing
+            // the estimate. The first hit always goes on: roulette there multiplied the variance
+            // of the bounced set (40 % of the noise, 1 % of the signal) by ~1/ρ; without it a
+            // bake takes 1.5× the rays for 0.59× the mean square error, ~11 % fewer rays at
+            // equal error (docs/PERFORMANCE.md, issue 19).
             let q = beta[0].max(beta[1]).max(beta[2]).min(1.0);
-            if q < 1.0 {
+            if q < 1.0 && bounce >= 1 {
                 if rng.f32() >= q {
                     return (None, bounce as u64 + 1);
                 }
@@ -370,6 +600,28 @@ impl<'a> Ctx<'a> {
 
 /// Escape direction, throughput, bounces taken.
 type Escape = (Vec3A, [f32; 3], u32);
+
+/// The running sums of one side's paths: Σ throughput × SH basis per set, coefficient and
+/// channel, and per channel Σ over sets and coefficients of its square (for the variance).
+#[derive(Debug, Clone, Default)]
+struct SideSums {
+    sum: [[[f64; 3]; COEFFS]; SETS],
+    squares: [f64; 3],
+}
+
+impl SideSums {
+    /// The per-path variance of the side's estimate, summed over sets, coefficients and
+    /// channels, after `n` paths, with the receiving albedo applied.
+    fn variance(&self, n: u32, albedo: [f32; 3]) -> f64 {
+        let n = n.max(1) as f64;
+        (0..3)
+            .map(|c| {
+                let mean_sq: f64 = self.sum.iter().flatten().map(|a| (a[c] / n).powi(2)).sum();
+                (self.squares[c] / n - mean_sq).max(0.0) * (albedo[c] as f64).powi(2)
+            })
+            .sum()
+    }
+}
 
 /// Point k of the 2-D Sobol (0,2)-sequence, XOR-scrambled, in [0, 1)².
 fn sobol_scrambled(k: u32, sx: u32, sy: u32) -> (f32, f32) {

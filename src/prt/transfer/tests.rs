@@ -273,8 +273,9 @@ fn translucent_white_furnace_follows_the_geometric_series() {
             .enumerate()
             .map(|(k, p)| p * rho.powi(k as i32 + 1))
             .sum();
-        // Russian roulette keeps a path alive with probability ρ per hit at throughput 1, so
-        // each path contributes 0 or 1: a Bernoulli variable.
+        // Each path contributes a value in [0, 1] (ρ after one scattering, then Russian
+        // roulette keeps it alive with probability ρ per hit at throughput 1), so its variance
+        // is at most that of a Bernoulli variable of the same mean.
         let sigma = (mean * (1.0 - mean)).max(0.0).sqrt();
         for v in 24..28 {
             for side in 0..2 {
@@ -395,4 +396,26 @@ fn gpu_layout_puts_band_zero_rgb_fraction_and_mono_bands() {
     t.coeffs[0] = [2.0; 3];
     t.coeffs[COEFFS] = [0.5; 3];
     assert!((pack_gpu(&t)[0][3] - 0.25).abs() < 1e-6);
+}
+
+#[test]
+fn duplicate_vertices_are_welded_and_share_their_transfer() {
+    // The ground quad twice (TXF files repeat positions across sets), the copy with another
+    // material: welded only where position, normal and material agree.
+    let mut mesh = mesh_with_materials(2);
+    ground(&mut mesh, 0);
+    ground(&mut mesh, 0);
+    ground(&mut mesh, 1);
+    assert_eq!(weld_vertices(&mesh), [0, 1, 2, 3, 0, 1, 2, 3, 8, 9, 10, 11]);
+    assert_eq!(weld_key_count(&mesh), 8);
+    let m = [mat(0.5, 0.0), mat(0.5, 0.0)];
+    let t = bake_prt(&mesh, &m, &[], &opts(64, 2)).unwrap();
+    assert_eq!(t.vertices, 12);
+    for v in 0..4 {
+        for side in 0..2 {
+            assert_eq!(t.get(v, side, 0), t.get(v + 4, side, 0));
+        }
+    }
+    // Unoccluded paths are one ray each: 8 vertices traced, not 12.
+    assert_eq!(t.rays, 8 * 2 * 64);
 }

@@ -1,0 +1,368 @@
+//! `bake bench prt-error`: the PRT's error against a converged reference, against wall time,
+//! per sampler and sample count: the time to a transfer of a given quality.
+//!
+//! The error ([`crate::prt::error`]) is the RMS over vertices, sides, sets, coefficients and
+//! channels of the difference from the reference, relative to the reference's RMS, with the
+//! reference's own noise measured (two independent halves, other seeds) and subtracted. The
+//! vertices are an even stride over the model (`vertices`, default 1,000); times are measured
+//! on them and projected to the whole model in proportion to its vertex count. The reference
+//! is cached in a file keyed by the model, the options and the vertex sample.
+//!
+//! Methods: `fixed` (today's sampler: the same count per side, a scrambled 2-D Sobol first
+//! direction, pseudo-random bounces) and `adaptive` ([`prt::bake_prt_adaptive`]: the same
+//! mean count, spread over the sides in proportion to their standard deviation) and `filtered`
+//! (`fixed`, then each vertex averaged with its neighbours of like normal, [`crate::prt::filter`];
+//! its time includes baking the neighbourhoods, and its projected time is per vertex baked).
+
+use super::cpu_seconds;
+use crate::error::{Error, Result};
+use crate::model::Mesh;
+use crate::prt::error::{TransferError, transfer_error};
+use crate::prt::filter::{FilterOptions, Neighbourhoods, filter_vertices};
+use crate::prt::transfer::{self as prt, Adaptive, PrtMaterial, PrtOptions, Transfer};
+use crate::trace::{AlphaMask, ModelBvh};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Seeds of the reference's two halves (the estimates use `PrtOptions::seed`).
+const REFERENCE_SEEDS: [u64; 2] = [0x5EED_0000_0001, 0x5EED_0000_0002];
+/// Bumped when the sampler's output changes, so that cached references are recomputed.
+const REFERENCE_VERSION: u32 = 1;
+
+/// A sampler the benchmark compares.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    Fixed,
+    Adaptive,
+    /// `fixed`, then [`crate::prt::filter`] over each measured vertex's neighbourhood (which
+    /// is baked too, and timed).
+    Filtered,
+}
+
+impl Method {
+    pub const ALL: [Method; 3] = [Method::Fixed, Method::Adaptive, Method::Filtered];
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Fixed => "fixed",
+            Method::Adaptive => "adaptive",
+            Method::Filtered => "filtered",
+        }
+    }
+}
+
+/// What to measure.
+#[derive(Debug, Clone)]
+pub struct PrtErrorOptions {
+    /// Vertices measured (an even stride over the model; 0: all).
+    pub vertices: usize,
+    /// Paths per side of the reference (split into two halves of half as many).
+    pub reference_samples: u32,
+    /// Paths per side of the measured runs.
+    pub samples: Vec<u32>,
+    pub methods: Vec<Method>,
+    /// Bounces, preset, seed and the rest of the measured runs.
+    pub prt: PrtOptions,
+    /// Folder of the cached references (`None`: no cache).
+    pub cache: Option<PathBuf>,
+    /// Radius of the `filtered` method, relative to the model's bounding-box diagonal, and the
+    /// least cosine between filtered normals.
+    pub filter_radius: f32,
+    pub filter_min_cos: f32,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorRun {
+    pub method: &'static str,
+    pub samples: u32,
+    pub wall_seconds: f64,
+    pub cpu_seconds: Option<f64>,
+    /// Corrected relative RMS error (0.01 = 1 %).
+    pub rms_error: f64,
+    /// Uncorrected relative RMS difference from the reference.
+    pub rms_difference: f64,
+    pub rays: u64,
+    /// `wall_seconds` scaled to every vertex of the model (BVH build excluded).
+    pub projected_wall_seconds: f64,
+    pub projected_cpu_seconds: Option<f64>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct PrtErrorReport {
+    pub model: String,
+    pub triangles: usize,
+    pub vertices: usize,
+    pub vertices_measured: usize,
+    /// Vertices left after welding those with equal position, normal and material.
+    pub unique_vertices: usize,
+    pub bounces: u32,
+    pub threads: usize,
+    pub reference_samples: u32,
+    /// The reference's own relative RMS noise (subtracted from every run's error).
+    pub reference_noise: f64,
+    pub reference_seconds: f64,
+    pub reference_cached: bool,
+    pub build_seconds: f64,
+    pub runs: Vec<ErrorRun>,
+}
+
+/// Runs the benchmark on `mesh` (named `model` in the report).
+pub fn bench_prt_error(
+    model: &str,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    masks: &[Option<AlphaMask>],
+    opts: &PrtErrorOptions,
+) -> Result<PrtErrorReport> {
+    if opts.reference_samples < 2 {
+        return Err(Error::usage("--reference-samples: expected at least 2"));
+    }
+    let total = mesh.positions.len();
+    let stride = match opts.vertices {
+        0 => 1,
+        k => (total / k).max(1),
+    };
+    let verts: Vec<u32> = (0..total as u32)
+        .step_by(stride)
+        .take(if opts.vertices == 0 {
+            total
+        } else {
+            opts.vertices
+        })
+        .collect();
+    let start = Instant::now();
+    let bvh = ModelBvh::build_split(mesh, masks, opts.prt.preset, opts.prt.alpha_split)?;
+    let build_seconds = start.elapsed().as_secs_f64();
+    let start = Instant::now();
+    let (halves, cached) = reference(&bvh, mesh, materials, &verts, opts)?;
+    let reference_seconds = start.elapsed().as_secs_f64();
+    let mut runs = Vec::new();
+    let mut noise = 0.0;
+    for &method in &opts.methods {
+        for &samples in &opts.samples {
+            let o = PrtOptions {
+                samples,
+                ..opts.prt.clone()
+            };
+            let (t, wall, cpu, baked) = match method {
+                Method::Filtered => filtered(&bvh, mesh, materials, &o, &verts, opts),
+                _ => {
+                    let (start, cpu0) = (Instant::now(), cpu_seconds());
+                    let t = bake(method, &bvh, mesh, materials, &o, &verts);
+                    let wall = start.elapsed().as_secs_f64();
+                    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+                    (t, wall, cpu, verts.len())
+                }
+            };
+            let scale = total as f64 / baked.max(1) as f64;
+            let e: TransferError = transfer_error(&t, &halves[0], &halves[1]);
+            noise = e.reference_noise;
+            runs.push(ErrorRun {
+                method: method.name(),
+                samples,
+                wall_seconds: wall,
+                cpu_seconds: cpu,
+                rms_error: e.rms_error,
+                rms_difference: e.rms_difference,
+                rays: t.rays,
+                projected_wall_seconds: wall * scale,
+                projected_cpu_seconds: cpu.map(|c| c * scale),
+            });
+        }
+    }
+    Ok(PrtErrorReport {
+        model: model.to_string(),
+        triangles: mesh.indices.len(),
+        vertices: total,
+        vertices_measured: verts.len(),
+        unique_vertices: prt::weld_key_count(mesh),
+        bounces: opts.prt.bounces,
+        threads: rayon::current_num_threads(),
+        reference_samples: opts.reference_samples,
+        reference_noise: noise,
+        reference_seconds,
+        reference_cached: cached,
+        build_seconds,
+        runs,
+    })
+}
+
+/// The `filtered` method: bakes the measured vertices' neighbourhoods with the fixed sampler,
+/// then filters: (transfer of `verts`, wall and CPU seconds, vertices baked).
+fn filtered(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    o: &PrtOptions,
+    verts: &[u32],
+    opts: &PrtErrorOptions,
+) -> (Transfer, f64, Option<f64>, usize) {
+    let (lo, hi) = bvh.bounds();
+    let f = FilterOptions {
+        radius: opts.filter_radius * (hi - lo).length().max(1e-6),
+        min_cos: opts.filter_min_cos,
+    };
+    let (start, cpu0) = (Instant::now(), cpu_seconds());
+    let hoods = Neighbourhoods::new(mesh, f);
+    let mut union: Vec<u32> = verts
+        .iter()
+        .flat_map(|&v| hoods.of(v))
+        .map(|(u, _)| u)
+        .collect();
+    union.sort_unstable();
+    union.dedup();
+    let t = prt::bake_prt_subset(bvh, mesh, materials, o, &union, &|_| {});
+    let row = |u: u32| union.binary_search(&u).ok();
+    let t = filter_vertices(&hoods, &t, verts, &row);
+    let wall = start.elapsed().as_secs_f64();
+    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+    (t, wall, cpu, union.len())
+}
+
+fn bake(
+    method: Method,
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    o: &PrtOptions,
+    verts: &[u32],
+) -> Transfer {
+    match method {
+        Method::Fixed | Method::Filtered => {
+            prt::bake_prt_subset(bvh, mesh, materials, o, verts, &|_| {})
+        }
+        Method::Adaptive => prt::bake_prt_adaptive(
+            bvh,
+            mesh,
+            materials,
+            o,
+            verts,
+            Adaptive::for_samples(o.samples),
+        ),
+    }
+}
+
+/// The reference's two halves, from the cache or baked (and then cached); `true` if cached.
+fn reference(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    verts: &[u32],
+    opts: &PrtErrorOptions,
+) -> Result<([Transfer; 2], bool)> {
+    let half = PrtOptions {
+        samples: opts.reference_samples / 2,
+        ..opts.prt.clone()
+    };
+    let file = opts.cache.as_ref().map(|dir| {
+        dir.join(format!(
+            "prt-reference-{}.bin",
+            reference_key(mesh, materials, verts, &half)
+        ))
+    });
+    if let Some(f) = &file
+        && let Some(h) = read_reference(f, verts.len(), &half)
+    {
+        return Ok((h, true));
+    }
+    let halves = REFERENCE_SEEDS.map(|seed| {
+        let o = PrtOptions {
+            seed,
+            ..half.clone()
+        };
+        prt::bake_prt_subset(bvh, mesh, materials, &o, verts, &|_| {})
+    });
+    if let Some(f) = &file {
+        write_reference(f, &halves)?;
+    }
+    Ok((halves, false))
+}
+
+/// A hash of everything the reference depends on.
+fn reference_key(
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    verts: &[u32],
+    half: &PrtOptions,
+) -> String {
+    let mut h = blake3::Hasher::new();
+    h.update(&REFERENCE_VERSION.to_le_bytes());
+    h.update(bytemuck::cast_slice(&mesh.positions));
+    h.update(bytemuck::cast_slice(&mesh.normals));
+    h.update(bytemuck::cast_slice(&mesh.indices));
+    h.update(bytemuck::cast_slice(&mesh.triangle_materials));
+    for m in materials {
+        h.update(bytemuck::cast_slice(&m.albedo));
+        h.update(&m.translucence.to_le_bytes());
+    }
+    h.update(bytemuck::cast_slice(verts));
+    h.update(serde_json::to_string(half).unwrap_or_default().as_bytes());
+    h.finalize().to_hex()[..32].to_string()
+}
+
+fn read_reference(file: &Path, vertices: usize, half: &PrtOptions) -> Option<[Transfer; 2]> {
+    let bytes = std::fs::read(file).ok()?;
+    let n = vertices * prt::PER_VERTEX * 3;
+    if bytes.len() != 2 * n * 4 {
+        return None;
+    }
+    let floats: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    let transfer = |f: &[f32]| Transfer {
+        vertices: vertices as u32,
+        samples: half.samples,
+        bounces: half.bounces,
+        coeffs: f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        rays: 0,
+        skipped_vertices: 0,
+    };
+    Some([transfer(&floats[..n]), transfer(&floats[n..])])
+}
+
+fn write_reference(file: &Path, halves: &[Transfer; 2]) -> Result<()> {
+    let mut bytes = Vec::new();
+    for t in halves {
+        for c in t.coeffs.iter().flatten() {
+            bytes.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    if let Some(dir) = file.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    crate::pack::write_atomic(file, &bytes)
+}
+
+/// The report as text: one line per run.
+pub fn report_text(r: &PrtErrorReport) -> String {
+    let mut text = format!(
+        "{}: {} triangles, {} vertices ({} unique), {} measured, {} bounces, {} threads\n\
+         reference: {} paths per side (two halves), noise {:.3} %, {:.1} s{}\n\
+         method     samples   RMS error   wall s (measured)   CPU s   projected wall s (all vertices)\n",
+        r.model,
+        r.triangles,
+        r.vertices,
+        r.unique_vertices,
+        r.vertices_measured,
+        r.bounces,
+        r.threads,
+        r.reference_samples,
+        r.reference_noise * 100.0,
+        r.reference_seconds,
+        if r.reference_cached { " (cached)" } else { "" },
+    );
+    for run in &r.runs {
+        text.push_str(&format!(
+            "{:<10} {:>7}   {:>8.3} %   {:>8.2}   {:>8}   {:>10.1}\n",
+            run.method,
+            run.samples,
+            run.rms_error * 100.0,
+            run.wall_seconds,
+            run.cpu_seconds.map_or("-".into(), |c| format!("{c:.2}")),
+            run.projected_wall_seconds,
+        ));
+    }
+    text
+}
