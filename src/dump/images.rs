@@ -98,7 +98,9 @@ impl Files<'_> {
     /// A linear RGB image as a tone-mapped PNG and an OpenEXR file.
     fn hdr(&mut self, suffix: &str, what: &str, img: &FloatImage) -> Result<(), ParseError> {
         let size = (img.width, img.height);
-        let png = rgba8_png(img.width, img.height, &tonemap(&img.pixels))?;
+        let mapped =
+            crate::render::reference::tone_map_image(&img.pixels, exposure(&img.pixels), size);
+        let png = rgba8_png(img.width, img.height, &mapped.pixels)?;
         self.push(&format!("{suffix}.png"), what, size, png);
         self.push(&format!("{suffix}.exr"), what, size, exr_rgb(img)?);
         Ok(())
@@ -110,12 +112,12 @@ fn encode_error(e: impl std::fmt::Display) -> ParseError {
 }
 
 fn rgba8_png(width: u32, height: u32, pixels: &[[u8; 4]]) -> Result<Vec<u8>, ParseError> {
-    let buf = image::RgbaImage::from_raw(width, height, bytemuck::cast_slice(pixels).to_vec())
-        .ok_or_else(|| encode_error("image buffer does not match its size"))?;
-    let mut out = std::io::Cursor::new(Vec::new());
-    buf.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(encode_error)?;
-    Ok(out.into_inner())
+    let img = crate::model::Rgba8Image {
+        width,
+        height,
+        pixels: pixels.to_vec(),
+    };
+    crate::render::encode_png(&img).map_err(encode_error)
 }
 
 fn grey16_png(width: u32, height: u32, values: &[u16]) -> Result<Vec<u8>, ParseError> {
@@ -145,7 +147,7 @@ fn exr_rgb(img: &FloatImage) -> Result<Vec<u8>, ParseError> {
     Ok(out.into_inner())
 }
 
-/// The exposure of [`tonemap`]: ln 2 over the mean finite luminance (1 for a black image).
+/// The exposure of the tone map (`render::reference::tone_map`): ln 2 over the mean finite luminance (1 for a black image).
 pub fn exposure(texels: &[[f32; 3]]) -> f32 {
     let (sum, n) = texels
         .iter()
@@ -158,19 +160,6 @@ pub fn exposure(texels: &[[f32; 3]]) -> f32 {
     } else {
         1.0
     }
-}
-
-/// 1 − exp(−L·s) per channel with s = [`exposure`], sRGB-encoded, opaque.
-fn tonemap(texels: &[[f32; 3]]) -> Vec<[u8; 4]> {
-    let s = exposure(texels);
-    let enc = |v: f32| {
-        let v = if v.is_finite() { v.max(0.0) } else { 0.0 };
-        (crate::color::linear_to_srgb(1.0 - (-v * s).exp()) * 255.0).round() as u8
-    };
-    texels
-        .iter()
-        .map(|t| [enc(t[0]), enc(t[1]), enc(t[2]), 255])
-        .collect()
 }
 
 /// Rows in reverse order (row 0 south becomes the bottom row of the file).
@@ -196,15 +185,12 @@ fn texture(v: &SectionView, f: &mut Files) -> Result<(), ParseError> {
         return Ok(());
     }
     let (_, t) = crate::texture::section::from_section(v)?;
-    let srgb = |c: f32| (crate::color::linear_to_srgb(c.clamp(0.0, 1.0)) * 255.0).round() as u8;
-    let unorm = |c: f32| (c.clamp(0.0, 1.0) * 255.0).round() as u8;
     if let Some(color) = &t.color {
         for (k, l) in color.levels.iter().enumerate() {
-            let px: Vec<[u8; 4]> = l
-                .texels
-                .iter()
-                .map(|c| [srgb(c[0]), srgb(c[1]), srgb(c[2]), unorm(c[3])])
-                .collect();
+            let px = crate::texture::linear::encode_rgba8(
+                &l.texels,
+                crate::texture::linear::TransferFunction::Srgb,
+            );
             let what = format!("colour mip {k} (sRGB, straight alpha)");
             let png = rgba8_png(l.width, l.height, &px)?;
             f.push(
@@ -219,10 +205,7 @@ fn texture(v: &SectionView, f: &mut Files) -> Result<(), ParseError> {
         let px: Vec<[u8; 4]> = l
             .texels
             .iter()
-            .map(|(n, len)| {
-                let e = |x: f32| unorm(x * 0.5 + 0.5);
-                [e(n[0]), e(n[1]), e(n[2]), unorm(*len)]
-            })
+            .map(|&(n, len)| crate::texture::normalmap::encode_normal(n, len))
             .collect();
         let what = format!("normal mip {k} (xyz·½+½, alpha: averaged length)");
         let png = rgba8_png(l.width, l.height, &px)?;

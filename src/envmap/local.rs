@@ -193,22 +193,44 @@ pub fn fit_denoised(residual: &[f32], dim: usize, p: usize, noise: Option<&[f64]
     }
 }
 
+/// When cyclic Jacobi rotations stop (besides a sweep limit): the squared off-diagonal norm
+/// below an absolute bound, or its norm relative to the diagonal's absolute sum.
+#[derive(Debug, Clone, Copy)]
+pub enum JacobiStop {
+    OffSquaredBelow(f64),
+    OffRelativeToDiagonal(f64),
+}
+
 /// Eigen-decomposition of a symmetric n×n matrix (row-major) by cyclic Jacobi rotations.
 /// Returns the eigenvalues and the eigenvectors as columns (row-major n×n).
-pub fn jacobi_eigen_n(mut a: Vec<f64>, n: usize) -> (Vec<f64>, Vec<f64>) {
+pub fn jacobi_eigen_n(a: Vec<f64>, n: usize) -> (Vec<f64>, Vec<f64>) {
+    jacobi_eigen_with(a, n, 60, JacobiStop::OffRelativeToDiagonal(1e-15))
+}
+
+/// [`jacobi_eigen_n`] with a given sweep limit and stopping rule (Press et al. 1992).
+pub fn jacobi_eigen_with(
+    mut a: Vec<f64>,
+    n: usize,
+    sweeps: usize,
+    stop: JacobiStop,
+) -> (Vec<f64>, Vec<f64>) {
     let mut v = vec![0.0f64; n * n];
     for i in 0..n {
         v[i * n + i] = 1.0;
     }
     let diag: f64 = (0..n).map(|i| a[i * n + i].abs()).sum::<f64>().max(1e-300);
-    for _sweep in 0..60 {
+    for _sweep in 0..sweeps {
         let mut off = 0.0;
         for p in 0..n {
             for q in p + 1..n {
                 off += a[p * n + q].powi(2);
             }
         }
-        if off.sqrt() <= 1e-15 * diag {
+        let done = match stop {
+            JacobiStop::OffSquaredBelow(bound) => off < bound,
+            JacobiStop::OffRelativeToDiagonal(rel) => off.sqrt() <= rel * diag,
+        };
+        if done {
             break;
         }
         for p in 0..n {

@@ -57,12 +57,10 @@ impl Compressed {
         }
     }
     pub fn rms_error(&self) -> f32 {
-        (self.errors.iter().map(|e| (*e as f64).powi(2)).sum::<f64>()
-            / self.errors.len().max(1) as f64)
-            .sqrt() as f32
+        cluster::rms_of(&self.errors)
     }
     pub fn max_error(&self) -> f32 {
-        self.errors.iter().fold(0.0, |m, &e| m.max(e))
+        cluster::max_of(&self.errors)
     }
     /// Bytes of the samples and the local part (the section's arrays without stored weights).
     pub fn packed_bytes(&self, dim: usize) -> u64 {

@@ -52,8 +52,7 @@ pub fn synthetic_envmaps(
         .par_iter()
         .flat_map_iter(|p| terrain_maps(*p, height, &dirs))
         .collect();
-    let rms = (truth.iter().map(|v| (*v as f64).powi(2)).sum::<f64>() / truth.len().max(1) as f64)
-        .sqrt() as f32;
+    let rms = super::cluster::rms_of(&truth);
     let sigma = noise * rms;
     let noisy = truth
         .par_chunks(DIM)

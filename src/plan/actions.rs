@@ -213,11 +213,15 @@ fn traced(view: &Pack) -> Result<Traced> {
     Ok((ts, light))
 }
 
+/// The traced scene and its lighting over the union of the packs `inputs`.
+fn traced_packs(s: &SceneArgs, inputs: &[PathBuf]) -> Result<Traced> {
+    let sections = read_packs(inputs)?;
+    traced(&Pack::from_sections(&sections, &s.view_name()?))
+}
+
 /// The terrain light map over the packs of the terrain, the models, the instances and the sky.
 pub fn lightmap(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
-    let sections = read_packs(inputs)?;
-    let view = Pack::from_sections(&sections, &s.view_name()?);
-    let (ts, light) = traced(&view)?;
+    let (ts, light) = traced_packs(s, inputs)?;
     let outs = crate::lightmap::terrain_sections(&ts, &light, &s.pipeline.lightmap);
     finish("lightmap", out, outs, Vec::new())
 }
@@ -241,9 +245,7 @@ pub fn lightmap_rows(
     shard: (usize, usize),
     out: &Path,
 ) -> Result<UnitReport> {
-    let sections = read_packs(inputs)?;
-    let view = Pack::from_sections(&sections, &s.view_name()?);
-    let (ts, light) = traced(&view)?;
+    let (ts, light) = traced_packs(s, inputs)?;
     let lm = &s.pipeline.lightmap;
     let mut outs = Vec::new();
     if let Some((w, h)) = crate::lightmap::terrain_lightmap_size(&ts, lm) {
@@ -349,9 +351,7 @@ pub fn envmaps_shard(
     shard: (usize, usize),
     out: &Path,
 ) -> Result<UnitReport> {
-    let sections = read_packs(inputs)?;
-    let view = Pack::from_sections(&sections, &s.view_name()?);
-    let (ts, light) = traced(&view)?;
+    let (ts, light) = traced_packs(s, inputs)?;
     let range = shard_range(shard.0, shard.1, ts.instances.items.len());
     let maps = crate::envmap::instance_maps(&ts, &light, &s.pipeline.envmaps, range);
     finish(

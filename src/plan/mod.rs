@@ -313,24 +313,30 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
             outputs: vec![out.into()],
         }
     };
+    // `shards` actions of `unit` over the traced packs, shard I/N in `flag`, writing
+    // `<stem>-I-of-N.bake`, named `<unit>-I-of-N`; returns their packs in shard order.
+    let sharded = |unit: &str, flag: &str, stem: &str, shards: usize, actions: &mut Vec<Action>| {
+        let mut packs = Vec::new();
+        for i in 1..=shards {
+            let out = format!("{stem}-{i}-of-{shards}.bake");
+            let mut a = over(
+                unit,
+                &trace_refs,
+                &out,
+                &[flag.into(), format!("{i}/{shards}")],
+            );
+            a.id = format!("{unit}-{i}-of-{shards}");
+            actions.push(a);
+            packs.push(PathBuf::from(out));
+        }
+        packs
+    };
     if s.lightmap {
         let shards = opts.lightmap_shards.unwrap_or(1).max(1);
         if shards == 1 {
             actions.push(over("lightmap", &trace_refs, "lightmap.bake", &[]));
         } else {
-            let mut rows = Vec::new();
-            for i in 0..shards {
-                let out = format!("lightmap/rows-{}-of-{shards}.bake", i + 1);
-                let mut a = over(
-                    "lightmap",
-                    &trace_refs,
-                    &out,
-                    &["--rows".into(), format!("{}/{shards}", i + 1)],
-                );
-                a.id = format!("lightmap-{}-of-{shards}", i + 1);
-                actions.push(a);
-                rows.push(PathBuf::from(out));
-            }
+            let rows = sharded("lightmap", "--rows", "lightmap/rows", shards, &mut actions);
             let refs: Vec<&PathBuf> = rows.iter().collect();
             actions.push(over("lightmap-join", &refs, "lightmap.bake", &[]));
         }
@@ -344,19 +350,13 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
         let n = plan.scene.instances.items.len();
         let per = pipeline.units.envmap_shard_instances.max(1) as usize;
         let shards = opts.shards.unwrap_or(n.max(1).div_ceil(per)).max(1);
-        let mut shard_packs = Vec::new();
-        for i in 0..shards {
-            let out = format!("envmaps/envmaps-{}-of-{shards}.bake", i + 1);
-            let mut a = over(
-                "envmaps",
-                &trace_refs,
-                &out,
-                &["--shard".into(), format!("{}/{shards}", i + 1)],
-            );
-            a.id = format!("envmaps-{}-of-{shards}", i + 1);
-            actions.push(a);
-            shard_packs.push(PathBuf::from(out));
-        }
+        let shard_packs = sharded(
+            "envmaps",
+            "--shard",
+            "envmaps/envmaps",
+            shards,
+            &mut actions,
+        );
         let refs: Vec<&PathBuf> = shard_packs.iter().collect();
         let mut join = over("envmaps-join", &refs, "envmaps.bake", &[]);
         join.id = "envmaps-join".into();

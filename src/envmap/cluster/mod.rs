@@ -153,13 +153,22 @@ pub struct Clustering {
 
 impl Clustering {
     pub fn rms_error(&self) -> f32 {
-        (self.errors.iter().map(|e| (*e as f64).powi(2)).sum::<f64>()
-            / self.errors.len().max(1) as f64)
-            .sqrt() as f32
+        rms_of(&self.errors)
     }
     pub fn max_error(&self) -> f32 {
-        self.errors.iter().fold(0.0, |m, &e| m.max(e))
+        max_of(&self.errors)
     }
+}
+
+/// RMS of a list of values, such as per-instance errors (0 for none), summed in f64.
+pub fn rms_of(values: &[f32]) -> f32 {
+    (values.iter().map(|v| (*v as f64).powi(2)).sum::<f64>() / values.len().max(1) as f64).sqrt()
+        as f32
+}
+
+/// The largest per-instance error (0 for none).
+pub fn max_of(errors: &[f32]) -> f32 {
+    errors.iter().fold(0.0, |m, &e| m.max(e))
 }
 
 /// The data being clustered and the fixed parameters of one run.
@@ -258,9 +267,7 @@ pub(crate) fn prepare<'a>(
         positions.len() * dim,
         "values must hold dim floats per instance"
     );
-    let rms = ((values.iter().map(|v| (*v as f64).powi(2)).sum::<f64>()
-        / values.len().max(1) as f64)
-        .sqrt()) as f32;
+    let rms = rms_of(values);
     let (k, radius, loo) = choose_parameters(positions, values, dim, rms, opts);
     let noise = match opts.noise {
         Noise::None => 0.0,

@@ -67,41 +67,13 @@ pub(super) fn split_cluster(positions: &[[f32; 3]], members: &[u32]) -> (Vec<u32
     (sorted, b)
 }
 
-/// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations (Press et al. 1992).
-/// Returns the eigenvalues and the eigenvectors as columns.
-pub fn jacobi_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    for _sweep in 0..50 {
-        let off = a[0][1].powi(2) + a[0][2].powi(2) + a[1][2].powi(2);
-        if off < 1e-30 {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            if a[p][q].abs() < 1e-300 {
-                continue;
-            }
-            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let t = if theta == 0.0 { 1.0 } else { t };
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let s = t * c;
-            // A' = Jᵀ A J with the rotation in the (p, q) plane.
-            for row in a.iter_mut() {
-                let (akp, akq) = (row[p], row[q]);
-                row[p] = c * akp - s * akq;
-                row[q] = s * akp + c * akq;
-            }
-            let (rp, rq) = (a[p], a[q]);
-            for k in 0..3 {
-                a[p][k] = c * rp[k] - s * rq[k];
-                a[q][k] = s * rp[k] + c * rq[k];
-            }
-            for row in v.iter_mut() {
-                let (vkp, vkq) = (row[p], row[q]);
-                row[p] = c * vkp - s * vkq;
-                row[q] = s * vkp + c * vkq;
-            }
-        }
-    }
-    ([a[0][0], a[1][1], a[2][2]], v)
+/// Eigen-decomposition of a symmetric 3×3 matrix by cyclic Jacobi rotations
+/// ([`crate::envmap::local::jacobi_eigen_with`]: at most 50 sweeps, until the squared
+/// off-diagonal norm is below 1e-30). Returns the eigenvalues and the eigenvectors as columns.
+pub fn jacobi_eigen(a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
+    use crate::envmap::local::{JacobiStop, jacobi_eigen_with};
+    let flat = a.iter().flatten().copied().collect();
+    let (vals, v) = jacobi_eigen_with(flat, 3, 50, JacobiStop::OffSquaredBelow(1e-30));
+    let row = |r: usize| [v[r * 3], v[r * 3 + 1], v[r * 3 + 2]];
+    ([vals[0], vals[1], vals[2]], [row(0), row(1), row(2)])
 }
