@@ -18,6 +18,7 @@ pub mod graph;
 pub mod ingest;
 pub mod lightmap;
 pub mod linespace;
+pub mod lod;
 pub mod material;
 pub mod mesh;
 pub mod model;

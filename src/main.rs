@@ -31,6 +31,8 @@ enum Command {
     Ingest(cli::ingest::IngestArgs),
     /// Per-vertex PRT (SH transfer) for every mesh of a pack or model file.
     Prt(cli::prt::PrtArgs),
+    /// Levels of detail and impostor atlases for every mesh of a pack.
+    Lod(cli::lod::LodArgs),
     /// Show what a pack holds.
     Dump(cli::dump::DumpArgs),
     /// Write the generated fixture scene into a folder.
@@ -77,6 +79,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Cache(a) => cli::cache::run(a, g),
         Command::Pipeline(a) => cli::pipeline::run(a, g),
         Command::Prt(a) => cli::prt::run(a, g),
+        Command::Lod(a) => cli::lod::run(a, g),
         Command::Dump(a) => cli::dump::run(a, g),
         Command::Sky(a) => cli::sky::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),

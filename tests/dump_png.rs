@@ -108,6 +108,20 @@ fn dump_png_writes_every_image_section_with_its_values() {
         .unwrap();
     assert!(worst <= 1, "level 0 differs from the source by {worst}");
 
+    // The impostor atlas of the plant: colour and normal PNGs are the section's texels exactly.
+    let view = pack.view_named("lod:plant.txf").unwrap();
+    let lod = bake::lod::section::from_view(&view, None).unwrap();
+    let imp = lod.impostor.as_ref().unwrap();
+    for (file, texels) in [
+        ("lod_plant.txf.impostor-color.png", imp.color),
+        ("lod_plant.txf.impostor-normal.png", imp.normal),
+    ] {
+        let png = image::open(out.join(file)).unwrap().to_rgba8();
+        let side = lod.meta.impostor.as_ref().unwrap().side() as u32;
+        assert_eq!((png.width(), png.height()), (side, side), "{file}");
+        assert!(png.pixels().zip(texels).all(|(a, b)| a.0 == *b), "{file}");
+    }
+
     // The terrain light map's EXR is its texels exactly; its PNG maps the mean to mid-grey.
     let view = pack.view_named("lightmap:terrain").unwrap();
     let (_, lm) = bake::lightmap::section::from_section(&view).unwrap();

@@ -137,7 +137,12 @@ fn one_changed_model_reruns_its_units_and_the_scene_units_only() {
     nudge_first_vertex(&mut bytes);
     std::fs::write(&path, &bytes).unwrap();
     let r = run(&opts(dir.path(), "b.bake", &cache));
-    let mut expect = set(&["ingest object.3ds", "material object.3ds", "prt object.3ds"]);
+    let mut expect = set(&[
+        "ingest object.3ds",
+        "material object.3ds",
+        "prt object.3ds",
+        "lod object.3ds",
+    ]);
     expect.extend(set(&SCENE_UNITS[..3]));
     // The clustering reads the instances and the env maps only: it re-runs exactly when the
     // maps came out different (content addressing cuts the rebuild off where outputs repeat).
@@ -153,6 +158,7 @@ fn one_changed_model_reruns_its_units_and_the_scene_units_only() {
         "ingest plant.txf",
         "material plant.txf",
         "prt plant.txf",
+        "lod plant.txf",
         "sky sky",
         "terrain terrain",
         "bittree scene",
@@ -190,6 +196,7 @@ fn a_changed_sky_does_not_rerun_the_transfer() {
     expect.extend(set(&SCENE_UNITS));
     assert_eq!(missed(&r), expect);
     assert_eq!(statuses(&r)["prt plant.txf"], "hit");
+    assert_eq!(statuses(&r)["lod plant.txf"], "hit");
 }
 
 #[test]
@@ -206,6 +213,9 @@ fn one_option_of_one_stage_reruns_that_unit_only() {
     let mut o = opts(dir.path(), "d.bake", &cache);
     o.pipeline.set("cluster.error=0.05").unwrap();
     assert_eq!(missed(&run(&o)), set(&["cluster scene"]));
+    let mut o = opts(dir.path(), "e.bake", &cache);
+    o.pipeline.set("lod.levels=2").unwrap();
+    assert_eq!(missed(&run(&o)), set(&["lod object.3ds", "lod plant.txf"]));
 }
 
 #[test]

@@ -127,10 +127,10 @@ fn the_ninja_build_equals_the_single_process_bake_and_rebuilds_only_what_a_model
     let again = ninja(&build, &["-n"]);
     assert!(again.contains("no work to do"), "{again}");
 
-    // One model file changes (rewritten, so newer): its model and PRT actions and the scene
+    // One model file changes (rewritten, so newer): its model, PRT and LOD actions and the scene
     // actions that read its pack run again; the other model, the terrain, the sky, the
     // instances and the BitTree do not.
-    let ids = |name: &str| -> (String, String) {
+    let ids = |name: &str| -> (String, String, String) {
         let plan = std::fs::read_to_string(build.join("build.ninja")).unwrap();
         let line = plan
             .lines()
@@ -145,10 +145,10 @@ fn the_ninja_build_equals_the_single_process_bake_and_rebuilds_only_what_a_model
             .next()
             .unwrap()
             .to_string();
-        (format!("model-{k}"), format!("prt-{k}"))
+        (format!("model-{k}"), format!("prt-{k}"), format!("lod-{k}"))
     };
-    let (model, prt) = ids("plant.txf");
-    let (other_model, other_prt) = ids("object.3ds");
+    let (model, prt, lod) = ids("plant.txf");
+    let (other_model, other_prt, other_lod) = ids("object.3ds");
     std::thread::sleep(std::time::Duration::from_millis(20));
     let plant = root.path().join("fx/plant.txf");
     std::fs::write(&plant, std::fs::read(&plant).unwrap()).unwrap();
@@ -156,6 +156,7 @@ fn the_ninja_build_equals_the_single_process_bake_and_rebuilds_only_what_a_model
     let want: BTreeSet<String> = [
         model.as_str(),
         prt.as_str(),
+        lod.as_str(),
         "lightmap-1-of-2",
         "lightmap-2-of-2",
         "lightmap-join",
@@ -176,6 +177,7 @@ fn the_ninja_build_equals_the_single_process_bake_and_rebuilds_only_what_a_model
     for clean in [
         other_model.as_str(),
         other_prt.as_str(),
+        other_lod.as_str(),
         "terrain",
         "sky",
         "instances",

@@ -448,7 +448,9 @@ fn instances_are_placed_scaled_and_rotated() {
         }
     }
     assert_eq!(out.stats.instances, 2);
-    assert_eq!(out.stats.triangles, 2 * 2 + 2 * 16);
+    // Two quads of two triangles, and the terrain (chunked: src/render/terrain_lod.rs).
+    assert!(out.stats.terrain_triangles > 0);
+    assert_eq!(out.stats.triangles - out.stats.terrain_triangles, 2 * 2);
 }
 
 #[test]
@@ -585,8 +587,28 @@ fn bake_render_writes_a_png_and_reports_the_adapter() {
         "{doc}"
     );
     assert_eq!(doc["stats"]["instances"], 2);
+    assert_eq!(doc["stats"]["instances_per_level"], serde_json::json!([2]));
     let img = image::open(&png).unwrap();
     assert_eq!((img.width(), img.height()), (64, 48));
+
+    // The LOD threshold: --no-lod is --lod-tau 0; a negative one is a usage error naming it.
+    let no_lod = std::process::Command::new(bin)
+        .args([
+            "render", "--json", "--width", "64", "--height", "48", "--no-lod", "-o",
+        ])
+        .arg(&png)
+        .arg(&pack_path)
+        .output()
+        .unwrap();
+    assert!(no_lod.status.success());
+    let bad = std::process::Command::new(bin)
+        .args(["render", "--lod-tau=-1", "-o"])
+        .arg(&png)
+        .arg(&pack_path)
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(bake::error::exit::USAGE));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("LOD threshold"));
 
     let missing = std::process::Command::new(bin)
         .args(["render", "-o"])

@@ -2,6 +2,8 @@
 //! src/render/ambient.rs), on the baked fixture scene seen close up, where plants (PRT against
 //! interpolated cluster maps), the placed object and the terrain (its light map) fill the image.
 
+mod common;
+
 use bake::pack::{Pack, PackWriter};
 use bake::render::ambient::{PrtLayout, load_ambient, packed_layout_error};
 use bake::render::reference::{image_difference, render_reference};
@@ -11,20 +13,7 @@ use bake::render::{RenderOptions, Terms, render_pack};
 const THRESHOLD: u8 = 24;
 
 fn fixture_pack(dir: &std::path::Path) -> Pack {
-    bake::fixtures::write_all(dir).unwrap();
-    let out = dir.join("scene.bake");
-    bake::graph::build(
-        &bake::graph::BuildOptions {
-            scenes: vec![dir.join("scene.eco")],
-            output: Some(out.clone()),
-            sky: Some(dir.join("sky.hdr")),
-            cache: bake::graph::CacheMode::Off,
-            ..Default::default()
-        }
-        .preview(),
-        &bake::graph::progress::Silent,
-    )
-    .unwrap();
+    let out = common::preview_fixture_pack(dir);
     Pack::open(&out).unwrap()
 }
 
@@ -54,6 +43,9 @@ fn close_view(pack: &Pack, terms: Terms) -> RenderOptions {
         eye: Some([p[0] + 1.6, p[1] - 1.6, p[2] + 1.3]),
         target: Some([p[0], p[1], p[2] + 0.7]),
         terms,
+        // The CPU reference draws every model at full detail: it is the oracle of the nearest
+        // LOD level, so the GPU side draws that level everywhere too (issue 14, item 5).
+        lod_tau: 0.0,
         ..RenderOptions::default()
     }
 }

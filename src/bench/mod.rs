@@ -10,6 +10,7 @@ pub mod incremental;
 pub mod ingest;
 pub mod lightmap;
 pub mod linespace;
+pub mod lod;
 pub mod prt_error;
 pub mod rays;
 pub mod render;

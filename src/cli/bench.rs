@@ -16,6 +16,8 @@ pub enum BenchWhat {
     Ingest(IngestBenchArgs),
     /// Voxelization and octree build time, bytes per voxel.
     Svo(crate::cli::svo::SvoBenchArgs),
+    /// The `lod` stage over every mesh of a pack: simplification and impostors timed apart.
+    Lod(crate::cli::lod::LodBenchArgs),
     /// Line-space shadow queries against exact BVH shadow rays.
     Linespace(crate::cli::linespace::LinespaceBenchArgs),
     /// Raw obvhs rays/s against PRT rays/s on one model (default: a procedural plant).
@@ -119,6 +121,7 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
         BenchWhat::Cluster(a) => super::cluster::bench(a, g),
         BenchWhat::Render(a) => super::render::bench(a, g),
         BenchWhat::Svo(a) => crate::cli::svo::bench(a, g),
+        BenchWhat::Lod(a) => crate::cli::lod::bench(a, g),
         BenchWhat::Linespace(a) => crate::cli::linespace::bench(a, g),
         BenchWhat::Sky(a) => super::sky::bench(a, g),
         BenchWhat::Textures(a) => {

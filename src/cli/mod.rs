@@ -12,6 +12,7 @@ pub mod fixtures;
 pub mod ingest;
 pub mod lightmap;
 pub mod linespace;
+pub mod lod;
 pub mod material;
 pub mod pipeline;
 pub mod plan;

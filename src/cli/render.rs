@@ -63,6 +63,16 @@ pub struct RenderArgs {
     /// PNG; the JSON result adds the difference between the two images.
     #[arg(long)]
     pub reference: Option<PathBuf>,
+    /// LOD pixel threshold τ: each instance draws the coarsest level of its model's `lod`
+    /// section whose projected error is at most τ pixels (0: full detail everywhere).
+    #[arg(long, default_value_t = crate::render::DEFAULT_LOD_TAU)]
+    pub lod_tau: f32,
+    /// Full detail everywhere (the same as --lod-tau 0).
+    #[arg(long, conflicts_with = "lod_tau")]
+    pub no_lod: bool,
+    /// Cascades of the sun's shadow map, 1 to 4 (1: one map over the whole scene).
+    #[arg(long, default_value_t = crate::render::shadow::DEFAULT_CASCADES)]
+    pub shadow_cascades: u32,
 }
 
 /// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
@@ -99,6 +109,8 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
                 compare_exact: args.shadow_compare,
             }),
         terms: args.terms,
+        lod_tau: if args.no_lod { 0.0 } else { args.lod_tau },
+        shadow_cascades: args.shadow_cascades,
     };
     let pack = Pack::open(&args.pack)?;
     let out = render_pack(&pack, &opts)?;
@@ -160,6 +172,12 @@ pub struct RenderBenchArgs {
     /// Renders (each opens its own device).
     #[arg(long, default_value_t = 5)]
     pub repeat: u32,
+    /// LOD pixel threshold τ (0: full detail), as `bake render --lod-tau`.
+    #[arg(long, default_value_t = crate::render::DEFAULT_LOD_TAU)]
+    pub lod_tau: f32,
+    /// Cascades of the sun's shadow map, 1 to 4 (1: one map over the whole scene).
+    #[arg(long, default_value_t = crate::render::shadow::DEFAULT_CASCADES)]
+    pub shadow_cascades: u32,
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
     pub backend: BackendChoice,
     /// Also time the CPU reference (src/render/reference.rs) of the same view.
@@ -173,6 +191,8 @@ pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
         width: args.width,
         height: args.height,
         backend: args.backend,
+        lod_tau: args.lod_tau,
+        shadow_cascades: args.shadow_cascades,
         ..RenderOptions::default()
     };
     let r = crate::bench::render::bench_render(&args.pack, &opts, args.repeat, args.reference)?;

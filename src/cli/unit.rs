@@ -65,6 +65,16 @@ pub enum Unit {
         #[arg(long = "in", required = true)]
         input: PathBuf,
     },
+    /// One model's levels of detail over its model pack.
+    Lod {
+        #[command(flatten)]
+        scene: UnitFlags,
+        #[arg(long)]
+        name: String,
+        /// The model's pack (`bake unit model`).
+        #[arg(long = "in", required = true)]
+        input: PathBuf,
+    },
     /// The scene's `instances` section.
     Instances(UnitFlags),
     /// The sky's cube map, sun and SH.
@@ -129,6 +139,9 @@ pub fn run(args: &UnitArgs, g: &Global) -> Result<Outcome> {
         } => actions::model(&scene.scene(g)?, name, path, &scene.output, deps)?,
         Unit::Prt { scene, name, input } => {
             actions::prt(&scene.scene(g)?, name, input, &scene.output)?
+        }
+        Unit::Lod { scene, name, input } => {
+            actions::lod(&scene.scene(g)?, name, input, &scene.output)?
         }
         Unit::Instances(f) => actions::instances(&f.scene(g)?, &f.output)?,
         Unit::Sky(f) => actions::sky(&f.scene(g)?, &f.output)?,

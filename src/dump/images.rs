@@ -59,6 +59,7 @@ pub fn section_images(pack: &Pack) -> Result<Vec<ImageFile>> {
             "terrain" => terrain(&v, &mut files).map_err(at)?,
             "lightmap" => lightmap(&v, &mut files).map_err(at)?,
             "sky" => sky(&v, &mut files).map_err(at)?,
+            "lod" => lod(&v, &mut files).map_err(at)?,
             _ => {}
         }
     }
@@ -287,6 +288,30 @@ fn lightmap(v: &SectionView, f: &mut Files) -> Result<(), ParseError> {
         pixels: m.texels,
     };
     f.hdr("", "terrain light map (irradiance), north up", &img)
+}
+
+/// The impostor atlas of a `lod` section: albedo with alpha, and the normal as stored.
+fn lod(v: &SectionView, f: &mut Files) -> Result<(), ParseError> {
+    let view = crate::lod::section::from_view(v, None)?;
+    let (Some(m), Some(a)) = (&view.meta.impostor, &view.impostor) else {
+        return Ok(());
+    };
+    let side = m.side() as u32;
+    let color = rgba8_png(side, side, a.color)?;
+    f.push(
+        ".impostor-color.png",
+        "impostor atlas: sRGB albedo, alpha-tested coverage (hemi-octahedral views, row 0 at the top)",
+        (side, side),
+        color,
+    );
+    let normal = rgba8_png(side, side, a.normal)?;
+    f.push(
+        ".impostor-normal.png",
+        "impostor atlas: (n+1)/2 of the model-space normal, A = coverage",
+        (side, side),
+        normal,
+    );
+    Ok(())
 }
 
 fn sky(v: &SectionView, f: &mut Files) -> Result<(), ParseError> {

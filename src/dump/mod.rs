@@ -65,6 +65,11 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         crate::prt::pack::data,
     ),
     (
+        crate::lod::section::KIND,
+        crate::lod::section::summary,
+        crate::lod::section::data,
+    ),
+    (
         crate::sky::section::SUN_KIND,
         crate::sky::section::sun_summary,
         crate::sky::section::sun_data,

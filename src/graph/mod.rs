@@ -47,6 +47,8 @@ pub mod versions {
     /// 2: duplicate vertices (position, normal, material) welded, sharing one transfer (issue 19).
     /// 3: no Russian roulette at the first hit (issue 19).
     pub const PRT: u32 = 3;
+    /// 1: the `lod` stage (issue 14): meshopt levels, leaf-card thinning, impostor atlas.
+    pub const LOD: u32 = 1;
     pub const LIGHTMAP: u32 = 1;
     pub const ATLAS: u32 = 1;
     pub const ENVMAPS: u32 = 1;
@@ -474,6 +476,22 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
                     sections: vec![s],
                     report: report_of(&r),
                     warnings,
+                    ..Default::default()
+                })
+            })?;
+            g.finish_sections(out)?;
+        }
+        if p.stages.lod {
+            let mut k = g.key("lod", versions::LOD, name);
+            k.options(&p.lod);
+            for (n, h) in &prt_inputs {
+                k.input(n, h);
+            }
+            let out = g.unit("lod", name, k.finish(), None, |_| {
+                let (s, r) = crate::lod::bake_lod(&view, &mesh_name, &p.lod)?;
+                Ok(Output {
+                    sections: vec![s],
+                    report: report_of(&r),
                     ..Default::default()
                 })
             })?;

@@ -12,6 +12,7 @@ use crate::envmap::cluster::ClusterOptions;
 use crate::error::{Error, Result};
 use crate::lightmap::LightmapOptions;
 use crate::linespace::ntree::NTreeOptions;
+use crate::lod::LodOptions;
 use crate::material::MaterialOptions;
 use crate::prt::transfer::PrtOptions;
 use crate::sky::SkyOptions;
@@ -32,6 +33,8 @@ pub struct Stages {
     pub sky: bool,
     /// Per-vertex PRT transfer (per model).
     pub prt: bool,
+    /// Levels of detail and the impostor atlas (per model).
+    pub lod: bool,
     /// The terrain light map (per scene).
     pub lightmap: bool,
     /// Atlas light maps of rarely placed models (per scene).
@@ -77,6 +80,7 @@ pub struct Pipeline {
     pub material: MaterialOptions,
     pub sky: SkyOptions,
     pub prt: PrtOptions,
+    pub lod: LodOptions,
     pub lightmap: LightmapOptions,
     pub envmaps: EnvmapOptions,
     pub cluster: ClusterOptions,
@@ -104,6 +108,7 @@ impl Pipeline {
                 terrain: true,
                 sky: true,
                 prt: true,
+                lod: true,
                 lightmap: true,
                 atlas: true,
                 envmaps: true,
@@ -118,6 +123,7 @@ impl Pipeline {
             material: MaterialOptions::DEFAULT,
             sky: SkyOptions::DEFAULT,
             prt: PrtOptions::standard(),
+            lod: LodOptions::DEFAULT,
             lightmap: LightmapOptions::DEFAULT,
             envmaps: EnvmapOptions::DEFAULT,
             cluster: ClusterOptions::DEFAULT,
@@ -134,6 +140,7 @@ impl Pipeline {
         let d = Pipeline::default_pipeline();
         Pipeline {
             prt: PrtOptions::preview(),
+            lod: LodOptions::preview(),
             lightmap: LightmapOptions {
                 max_resolution: Some(1025),
                 samples: 16,
@@ -159,6 +166,7 @@ impl Pipeline {
                 ..d.stages
             },
             prt: PrtOptions::final_quality(),
+            lod: LodOptions::final_quality(),
             lightmap: LightmapOptions {
                 samples: 256,
                 sun_samples: 32,
@@ -278,6 +286,7 @@ impl Pipeline {
                 ));
             }
         }
+        self.lod.check()?;
         if self.units.envmap_shard_instances == 0 {
             return Err("units.envmap_shard_instances must be at least 1".into());
         }

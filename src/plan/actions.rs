@@ -175,6 +175,19 @@ pub fn prt(s: &SceneArgs, name: &str, model_pack: &Path, out: &Path) -> Result<U
     finish("prt", out, outs, warnings)
 }
 
+/// One model's levels of detail over its model pack.
+pub fn lod(s: &SceneArgs, name: &str, model_pack: &Path, out: &Path) -> Result<UnitReport> {
+    let sections = read_packs(&[model_pack.to_path_buf()])?;
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
+    let mut outs = Vec::new();
+    if s.pipeline.stages.lod {
+        let (sec, _) = crate::lod::bake_lod(&view, &mesh_name, &s.pipeline.lod)?;
+        outs.push(sec);
+    }
+    finish("lod", out, outs, Vec::new())
+}
+
 /// The `instances` section of the scene.
 pub fn instances(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
     let plan = s.plan()?;

@@ -274,6 +274,20 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
             });
             merged.push(prt);
         }
+        if s.lod {
+            let lod = PathBuf::from(format!("lod/lod-{k:03}.bake"));
+            let mut a = vec!["--name".to_string(), name.clone()];
+            a.extend(ins(&[&pack]));
+            a.extend(o(&arg(&lod)));
+            actions.push(Action {
+                id: format!("lod-{k:03}"),
+                args: unit("lod", &a),
+                inputs: with_pipeline(vec![pack.clone()]),
+                lookups: Vec::new(),
+                outputs: vec![lod.clone()],
+            });
+            merged.push(lod);
+        }
         model_packs.push(pack);
         model_deps.push(deps);
     }

@@ -25,8 +25,8 @@ const _: () = assert!(size_of::<AmbientParams>() == 304);
 /// Group 3 of the scene passes.
 pub struct AmbientGpu {
     pub terrain: wgpu::BindGroup,
-    /// Per model, one bind group per material.
-    pub models: Vec<Vec<wgpu::BindGroup>>,
+    /// Per model and level (finest first), one bind group per material.
+    pub models: Vec<Vec<Vec<wgpu::BindGroup>>>,
     pub bytes: u64,
 }
 
@@ -182,6 +182,17 @@ pub fn upload_ambient(
     })
 }
 
+/// Rows of `k` items of `a`, one per entry of `source` (the row it names).
+fn gather_rows<T: Copy>(a: &[T], source: &[u32], k: usize) -> Vec<T> {
+    source
+        .iter()
+        .flat_map(|&v| &a[v as usize * k..(v as usize + 1) * k])
+        .copied()
+        .collect()
+}
+
+/// The ambient bind groups of every level of a model: level 0 reads the arrays as resolved,
+/// a simplified level the PRT rows and light-map UVs of each vertex's source mesh vertex.
 fn upload_model(
     up: &mut Up,
     pipes: &Pipelines,
@@ -190,7 +201,7 @@ fn upload_model(
     layout: PrtLayout,
     base: &AmbientParams,
     black: &wgpu::TextureView,
-) -> Result<Vec<wgpu::BindGroup>> {
+) -> Result<Vec<Vec<wgpu::BindGroup>>> {
     let label = |what: &str| format!("{}: {what}", m.section);
     let mode = a.mode();
     let maps: Vec<f32> = a
@@ -198,53 +209,84 @@ fn upload_model(
         .iter()
         .flat_map(|e| e.sky.iter().chain(&e.sun).flatten().copied())
         .collect();
-    let (prt, maps) = match (&a.prt, mode) {
-        (Some(p), MeshAmbientMode::Prt) => {
-            let data: &[u8] = match layout {
-                PrtLayout::Full => bytemuck::cast_slice(&p.transfer),
-                PrtLayout::Packed => bytemuck::cast_slice(&p.packed),
+    let maps = match mode {
+        MeshAmbientMode::Prt => up.storage(&label("instance maps"), bytemuck::cast_slice(&maps))?,
+        _ => up.storage("none", &[])?,
+    };
+    let map = match (&a.lightmap, mode) {
+        (Some(lm), MeshAmbientMode::Lightmap) => {
+            Some(up.light_texture(&label("light map"), &lm.texture)?)
+        }
+        _ => None,
+    };
+    let n0 = m.positions.len();
+    let mut levels = Vec::with_capacity(1 + m.lod_levels.len());
+    for level in 0..=m.lod_levels.len() {
+        let source = (level > 0).then(|| m.lod_levels[level - 1].source.as_slice());
+        let vertices = source.map_or(n0, <[u32]>::len);
+        let prt = match (&a.prt, mode) {
+            (Some(p), MeshAmbientMode::Prt) => {
+                let data: Vec<u8> = match (layout, source) {
+                    (PrtLayout::Full, None) => bytemuck::cast_slice(&p.transfer).to_vec(),
+                    (PrtLayout::Packed, None) => bytemuck::cast_slice(&p.packed).to_vec(),
+                    (PrtLayout::Full, Some(s)) => bytemuck::cast_slice(&gather_rows(
+                        &p.transfer,
+                        s,
+                        p.transfer.len() / p.vertices.max(1),
+                    ))
+                    .to_vec(),
+                    (PrtLayout::Packed, Some(s)) => bytemuck::cast_slice(&gather_rows(
+                        &p.packed,
+                        s,
+                        p.packed.len() / p.vertices.max(1),
+                    ))
+                    .to_vec(),
+                };
+                up.storage(&label("PRT"), &data)?
+            }
+            _ => up.storage("none", &[])?,
+        };
+        let (uvs, per_instance) = match (&a.lightmap, mode) {
+            (Some(lm), MeshAmbientMode::Lightmap) => {
+                let uvs: Vec<[f32; 2]> = match (source, lm.per_instance) {
+                    (None, _) => lm.uvs.clone(),
+                    (Some(s), false) => gather_rows(&lm.uvs, s, 1),
+                    (Some(s), true) => (0..lm.uvs.len() / n0.max(1))
+                        .flat_map(|i| s.iter().map(move |&v| (i, v)))
+                        .map(|(i, v)| lm.uvs[i * n0 + v as usize])
+                        .collect(),
+                };
+                (
+                    up.storage(&label("light-map UVs"), bytemuck::cast_slice(&uvs))?,
+                    if lm.per_instance { vertices as u32 } else { 0 },
+                )
+            }
+            _ => (up.storage("none", &[])?, 0),
+        };
+        let mut groups = Vec::with_capacity(m.materials.len());
+        for k in 0..m.materials.len() {
+            let mut params = *base;
+            params.mode[0] = match mode {
+                MeshAmbientMode::Prt => 0,
+                MeshAmbientMode::Lightmap => 1,
+                MeshAmbientMode::SkyIrradiance => 2,
             };
-            (
-                up.storage(&label("PRT"), data)?,
-                up.storage(&label("instance maps"), bytemuck::cast_slice(&maps))?,
-            )
+            params.mode[1] = (layout == PrtLayout::Packed) as u32;
+            params.mode[2] = per_instance;
+            if let Some(p) = &a.prt {
+                let s = p.albedo_scale(k);
+                params.albedo_scale_t = [s[0], s[1], s[2], p.translucence(k)];
+            }
+            let g = Group {
+                params,
+                light_map: map.as_ref().unwrap_or(black),
+                prt: &prt,
+                maps: &maps,
+                uvs: &uvs,
+            };
+            groups.push(bind(up, pipes, &label("ambient"), &g));
         }
-        _ => (up.storage("none", &[])?, up.storage("none", &[])?),
-    };
-    let (uvs, map, per_instance) = match (&a.lightmap, mode) {
-        (Some(lm), MeshAmbientMode::Lightmap) => (
-            up.storage(&label("light-map UVs"), bytemuck::cast_slice(&lm.uvs))?,
-            Some(up.light_texture(&label("light map"), &lm.texture)?),
-            if lm.per_instance {
-                m.positions.len() as u32
-            } else {
-                0
-            },
-        ),
-        _ => (up.storage("none", &[])?, None, 0),
-    };
-    let mut groups = Vec::with_capacity(m.materials.len());
-    for k in 0..m.materials.len() {
-        let mut params = *base;
-        params.mode[0] = match mode {
-            MeshAmbientMode::Prt => 0,
-            MeshAmbientMode::Lightmap => 1,
-            MeshAmbientMode::SkyIrradiance => 2,
-        };
-        params.mode[1] = (layout == PrtLayout::Packed) as u32;
-        params.mode[2] = per_instance;
-        if let Some(p) = &a.prt {
-            let s = p.albedo_scale(k);
-            params.albedo_scale_t = [s[0], s[1], s[2], p.translucence(k)];
-        }
-        let g = Group {
-            params,
-            light_map: map.as_ref().unwrap_or(black),
-            prt: &prt,
-            maps: &maps,
-            uvs: &uvs,
-        };
-        groups.push(bind(up, pipes, &label("ambient"), &g));
+        levels.push(groups);
     }
-    Ok(groups)
+    Ok(levels)
 }

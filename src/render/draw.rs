@@ -5,7 +5,7 @@
 use super::camera::Camera;
 use super::light::Lighting;
 use super::pipelines::{DEPTH_FORMAT, HDR_FORMAT, OUTPUT_FORMAT, Pipelines, SHADOW_FORMAT};
-use super::shadow::{SHADOW_MAP_SIZE, ShadowParams};
+use super::shadow::{ShadowParams, Shadows};
 use super::upload::GpuScene;
 use crate::error::Result;
 use crate::gpu::Gpu;
@@ -65,8 +65,79 @@ impl Globals {
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct DrawCounts {
     pub draw_calls: u32,
+    /// Triangles of the camera pass (terrain and models).
     pub triangles: u64,
+    /// Instances drawn by the camera pass (impostors included).
     pub instances: u64,
+    /// Of `instances`, those drawn as impostors (two triangles each, counted in `triangles`).
+    pub impostor_instances: u64,
+    /// Triangles of the shadow passes.
+    pub shadow_triangles: u64,
+    /// Of `triangles`, the terrain's (chunk surfaces and skirts, zero-area ones past the grid
+    /// included).
+    pub terrain_triangles: u64,
+}
+
+/// The frame's instance buckets ([`super::cull::bucket`]) and, per model, their records on the
+/// GPU (vertex slot 3).
+pub struct FrameInstances {
+    pub buckets: Vec<super::cull::ModelBuckets>,
+    pub buffers: Vec<wgpu::Buffer>,
+    /// The terrain chunks of each pass: (step log2, chunk records on the GPU, chunk count).
+    pub terrain: Vec<Vec<(u32, wgpu::Buffer, u32)>>,
+}
+
+impl FrameInstances {
+    pub fn upload(
+        gpu: &Gpu,
+        buckets: Vec<super::cull::ModelBuckets>,
+        chunks: &[super::terrain_lod::Selection],
+    ) -> FrameInstances {
+        let terrain = chunks
+            .iter()
+            .map(|sel| {
+                sel.by_step
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, c)| !c.is_empty())
+                    .map(|(s, c)| {
+                        let b = gpu
+                            .device
+                            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                                label: Some("terrain chunks"),
+                                contents: bytemuck::cast_slice(c),
+                                usage: wgpu::BufferUsages::VERTEX,
+                            });
+                        (s as u32, b, c.len() as u32)
+                    })
+                    .collect()
+            })
+            .collect();
+        let buffers = buckets
+            .iter()
+            .map(|b| {
+                // wgpu refuses empty vertex buffers: an unused record stands in.
+                let empty = [bytemuck::Zeroable::zeroed()];
+                let recs: &[crate::ingest::instances_section::InstanceRecord] =
+                    if b.records.is_empty() {
+                        &empty
+                    } else {
+                        &b.records
+                    };
+                gpu.device
+                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some("frame instances"),
+                        contents: bytemuck::cast_slice(recs),
+                        usage: wgpu::BufferUsages::VERTEX,
+                    })
+            })
+            .collect();
+        FrameInstances {
+            buckets,
+            buffers,
+            terrain,
+        }
+    }
 }
 
 fn target(
@@ -143,17 +214,19 @@ pub(crate) fn globals_group(
 }
 
 /// Draws the scene and returns the tone-mapped image as tightly packed RGBA8 rows (sRGB).
-/// `shadow`: the sun's shadow-map view (`None`: no shadow map, everything sees the sun).
+/// `shadow`: the sun's cascades (`None`: no shadow map, everything sees the sun).
 /// `sun_visibility`: the soft-shadow visibility per pixel (used where `globals.sun_direction.w`
-/// is 1, see src/render/soft_shadow.rs).
+/// is 1, see src/render/soft_shadow.rs). `frame`: the instances each pass draws, per level.
+#[allow(clippy::too_many_arguments)]
 pub fn draw_frame(
     gpu: &Gpu,
     pipes: &Pipelines,
     scene: &GpuScene,
     globals: &Globals,
     size: (u32, u32),
-    shadow: Option<&ShadowParams>,
+    shadow: Option<&Shadows>,
     sun_visibility: &wgpu::TextureView,
+    frame: &FrameInstances,
 ) -> Result<(Vec<u8>, DrawCounts)> {
     let hdr = target(gpu, "hdr", size, HDR_FORMAT, false);
     let depth = target(gpu, "depth", size, DEPTH_FORMAT, false);
@@ -161,11 +234,22 @@ pub fn draw_frame(
     let hdr_view = hdr.create_view(&Default::default());
     let globals_bg = globals_group(gpu, pipes, scene, globals, sun_visibility);
     let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let shadow_bg = shadow_group(gpu, pipes, scene, globals, shadow, sun_visibility, &mut enc);
-    let counts = scene_pass(
+    let mut counts = DrawCounts::default();
+    let shadow_bg = shadow_group(
+        gpu,
+        pipes,
+        scene,
+        globals,
+        shadow,
+        sun_visibility,
+        (frame, &mut counts),
+        &mut enc,
+    );
+    scene_pass(
         &mut enc,
         pipes,
         scene,
+        (frame, &mut counts),
         [&globals_bg, &shadow_bg],
         &hdr_view,
         &depth.create_view(&Default::default()),
@@ -184,31 +268,67 @@ pub fn draw_frame(
     Ok((pixels, counts))
 }
 
-/// Renders the shadow map (when `params` is given) and returns bind group 2 of the scene pass.
+/// Renders the cascades' shadow maps (when `shadows` is given), one layer of an array texture
+/// each (bucket pass `SHADOW_PASS + i`), and returns bind group 2 of the scene pass.
+#[allow(clippy::too_many_arguments)]
 fn shadow_group(
     gpu: &Gpu,
     pipes: &Pipelines,
     scene: &GpuScene,
     globals: &Globals,
-    params: Option<&ShadowParams>,
+    shadows: Option<&Shadows>,
     sun_visibility: &wgpu::TextureView,
+    (frame, counts): (&FrameInstances, &mut DrawCounts),
     enc: &mut wgpu::CommandEncoder,
 ) -> wgpu::BindGroup {
-    let side = if params.is_some() { SHADOW_MAP_SIZE } else { 1 };
-    let map = target(gpu, "shadow map", (side, side), SHADOW_FORMAT, false);
-    let view = map.create_view(&Default::default());
-    let off = ShadowParams {
-        light_view_proj: glam::Mat4::IDENTITY.to_cols_array_2d(),
-        params: [1.0, 0.0, 0.0, 0.0],
-    };
-    let p = params.copied().unwrap_or(off);
-    if params.is_some() {
+    let (side, layers) = shadows.map_or((1, 1), |s| (s.size, s.cascades.len() as u32));
+    let map = gpu.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("shadow maps"),
+        size: wgpu::Extent3d {
+            width: side,
+            height: side,
+            depth_or_array_layers: layers,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: SHADOW_FORMAT,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+        view_formats: &[],
+    });
+    let view = map.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    });
+    // Without a map the shader sees a cascade count of 0 and reads nothing.
+    let p = shadows.map_or(ShadowParams::zeroed(), |s| {
+        s.params(glam::Vec3::from_slice(&globals.cam_forward[..3]))
+    });
+    for (i, c) in shadows
+        .map_or(&[][..], |s| &s.cascades[..])
+        .iter()
+        .enumerate()
+    {
         let light = Globals {
-            view_proj: p.light_view_proj,
+            view_proj: c.view_proj.to_cols_array_2d(),
             ..*globals
         };
         let bg = globals_group(gpu, pipes, scene, &light, sun_visibility);
-        shadow_pass(enc, pipes, scene, &bg, &view);
+        let layer = map.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2),
+            base_array_layer: i as u32,
+            array_layer_count: Some(1),
+            ..Default::default()
+        });
+        shadow_pass(
+            enc,
+            pipes,
+            scene,
+            (frame, counts),
+            SHADOW_PASS + i,
+            &bg,
+            &layer,
+        );
     }
     let buf = gpu
         .device
@@ -244,11 +364,14 @@ fn shadow_group(
     })
 }
 
-/// Depth of the terrain and every instance as seen from the sun (alpha-tested models).
+/// Depth of the terrain and the instances of bucket pass `p` as seen from the sun
+/// (alpha-tested models).
 fn shadow_pass(
     enc: &mut wgpu::CommandEncoder,
     pipes: &Pipelines,
     scene: &GpuScene,
+    (frame, counts): (&FrameInstances, &mut DrawCounts),
+    p: usize,
     light_bg: &wgpu::BindGroup,
     map: &wgpu::TextureView,
 ) {
@@ -271,30 +394,88 @@ fn shadow_pass(
     if let Some(t) = &scene.terrain {
         pass.set_pipeline(&pipes.terrain_shadow);
         pass.set_bind_group(1, &t.bind_group, &[]);
-        pass.draw(0..t.vertex_count, 0..1);
+        counts.shadow_triangles += draw_chunks(&mut pass, frame, p);
     }
     pass.set_pipeline(&pipes.mesh_shadow);
-    draw_models(&mut pass, scene);
+    counts.shadow_triangles += draw_levels(&mut pass, scene, frame, p, |_, _, _, _| {}).triangles;
+    counts.shadow_triangles +=
+        super::impostor::draw_shadow(&mut pass, &pipes.impostor, scene, frame, p);
 }
 
-/// Every draw range of every model, with its material in bind group 1 (passes without the
-/// ambient term's group 3).
+/// The terrain chunks of pass `p`, one instanced draw per step; returns the triangles drawn.
+fn draw_chunks(pass: &mut wgpu::RenderPass, frame: &FrameInstances, p: usize) -> u64 {
+    let mut triangles = 0;
+    for (s, buf, n) in frame.terrain.get(p).map_or(&[][..], |t| &t[..]) {
+        let v = super::terrain_lod::vertices_per_chunk(*s);
+        pass.set_vertex_buffer(0, buf.slice(..));
+        pass.draw(0..v, 0..*n);
+        triangles += v as u64 / 3 * *n as u64;
+    }
+    triangles
+}
+
+/// The bucket pass of the first cascade (cascade i is pass `SHADOW_PASS + i`).
+pub const SHADOW_PASS: usize = 1;
+
+/// Every draw range of every model at full detail with all its instances, with its material in
+/// bind group 1 (passes without the ambient term's group 3).
 pub(crate) fn draw_models(pass: &mut wgpu::RenderPass, scene: &GpuScene) {
     for m in &scene.models {
-        bind_model(pass, m);
-        for d in &m.draws {
+        let level = &m.levels[0];
+        bind_level(pass, level, &m.instances);
+        for d in &level.draws {
             pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
             pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, 0..m.instance_count);
         }
     }
 }
 
-/// The vertex and index buffers of a model (slots as in pipelines.rs).
-fn bind_model(pass: &mut wgpu::RenderPass, m: &super::upload::ModelGpu) {
+/// What [`draw_levels`] drew.
+#[derive(Debug, Default, Clone, Copy)]
+struct Drawn {
+    draw_calls: u32,
+    triangles: u64,
+    instances: u64,
+}
+
+/// The mesh levels of bucket pass `p`: per model, level and material range one instanced draw
+/// with the material in group 1; `per_draw(pass, model, level, material)` binds what else a
+/// pass needs before each draw (the scene pass's ambient group).
+fn draw_levels(
+    pass: &mut wgpu::RenderPass,
+    scene: &GpuScene,
+    frame: &FrameInstances,
+    p: usize,
+    mut per_draw: impl FnMut(&mut wgpu::RenderPass, usize, usize, usize),
+) -> Drawn {
+    let mut drawn = Drawn::default();
+    for (k, m) in scene.models.iter().enumerate() {
+        for (l, level) in m.levels.iter().enumerate() {
+            let range = frame.buckets[k].range(p, l);
+            if range.is_empty() {
+                continue;
+            }
+            bind_level(pass, level, &frame.buffers[k]);
+            for d in &level.draws {
+                pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
+                per_draw(pass, k, l, d.material as usize);
+                pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, range.clone());
+                drawn.draw_calls += 1;
+                drawn.triangles += d.count as u64 * range.len() as u64;
+            }
+            drawn.instances += range.len() as u64;
+        }
+    }
+    drawn
+}
+
+/// The vertex and index buffers of a model level and an instance buffer (slots as in
+/// pipelines.rs).
+fn bind_level(pass: &mut wgpu::RenderPass, m: &super::upload::LevelGpu, instances: &wgpu::Buffer) {
     pass.set_vertex_buffer(0, m.positions.slice(..));
     pass.set_vertex_buffer(1, m.normals.slice(..));
     pass.set_vertex_buffer(2, m.uvs.slice(..));
-    pass.set_vertex_buffer(3, m.instances.slice(..));
+    pass.set_vertex_buffer(3, instances.slice(..));
     pass.set_vertex_buffer(4, m.tangents.slice(..));
     pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
 }
@@ -303,10 +484,11 @@ fn scene_pass(
     enc: &mut wgpu::CommandEncoder,
     pipes: &Pipelines,
     scene: &GpuScene,
+    (frame, counts): (&FrameInstances, &mut DrawCounts),
     [globals_bg, shadow_bg]: [&wgpu::BindGroup; 2],
     hdr: &wgpu::TextureView,
     depth: &wgpu::TextureView,
-) -> DrawCounts {
+) {
     let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
         label: Some("scene"),
         color_attachments: &[Some(wgpu::RenderPassColorAttachment {
@@ -331,7 +513,6 @@ fn scene_pass(
         occlusion_query_set: None,
         multiview_mask: None,
     });
-    let mut counts = DrawCounts::default();
     pass.set_bind_group(0, globals_bg, &[]);
     pass.set_bind_group(2, shadow_bg, &[]);
     // The sky first, without depth writes: everything else covers it.
@@ -344,26 +525,30 @@ fn scene_pass(
         if let Some(a) = &scene.ambient {
             pass.set_bind_group(3, &a.terrain, &[]);
         }
-        pass.draw(0..t.vertex_count, 0..1);
-        counts.draw_calls += 1;
-        counts.triangles += t.vertex_count as u64 / 3;
+        counts.terrain_triangles = draw_chunks(&mut pass, frame, CAMERA_PASS);
+        counts.triangles += counts.terrain_triangles;
+        counts.draw_calls += frame.terrain.get(CAMERA_PASS).map_or(0, |t| t.len() as u32);
     }
     pass.set_pipeline(&pipes.mesh);
-    for (k, m) in scene.models.iter().enumerate() {
-        bind_model(&mut pass, m);
-        for d in &m.draws {
-            pass.set_bind_group(1, &m.materials[d.material as usize], &[]);
+    let drawn = draw_levels(
+        &mut pass,
+        scene,
+        frame,
+        CAMERA_PASS,
+        |pass, k, l, material| {
             if let Some(a) = &scene.ambient {
-                pass.set_bind_group(3, &a.models[k][d.material as usize], &[]);
+                pass.set_bind_group(3, &a.models[k][l][material], &[]);
             }
-            pass.draw_indexed(d.first * 3..(d.first + d.count) * 3, 0, 0..m.instance_count);
-            counts.draw_calls += 1;
-            counts.triangles += d.count as u64 * m.instance_count as u64;
-        }
-        counts.instances += m.instance_count as u64;
-    }
-    counts
+        },
+    );
+    counts.draw_calls += drawn.draw_calls;
+    counts.triangles += drawn.triangles;
+    counts.instances += drawn.instances;
+    super::impostor::draw(&mut pass, &pipes.impostor, scene, frame, counts);
 }
+
+/// The bucket pass of the camera.
+pub const CAMERA_PASS: usize = 0;
 
 fn tonemap_pass(
     gpu: &Gpu,

@@ -6,11 +6,17 @@
 //! [`pipelines`] builds the passes; [`upload`] moves the arrays to the GPU; [`draw`] renders the
 //! sky, the terrain and the instanced models into an `Rgba16Float` target and tone-maps it
 //! (1 − exp(−L·s), then sRGB) into the output. [`light`] and [`camera`] hold the conventions.
+//! [`cull`] and [`levels`] choose each instance's level; [`impostor`] draws the instances the
+//! LOD rule gives the impostor atlas (quads, the nearest of the atlas' views, no blend: its
+//! module documentation holds the rules).
 
 pub mod ambient;
 pub mod ambient_gpu;
 pub mod camera;
+pub mod cull;
 pub mod draw;
+pub mod impostor;
+pub mod levels;
 pub mod light;
 pub mod pipelines;
 pub mod reference;
@@ -18,6 +24,7 @@ pub mod sample;
 pub mod scene;
 pub mod shadow;
 pub mod soft_shadow;
+pub mod terrain_lod;
 pub mod upload;
 
 use crate::error::{Error, Result};
@@ -49,7 +56,16 @@ pub struct RenderOptions {
     pub soft_shadows: Option<soft_shadow::SoftShadows>,
     /// Which light terms to draw (the shading contract: L = L_direct + L_ambient).
     pub terms: Terms,
+    /// Pixel threshold τ of the LOD rule ([`crate::lod::select`]): each instance draws the
+    /// coarsest level whose projected error is at most τ pixels; 0 draws full detail.
+    pub lod_tau: f32,
+    /// Cascades of the sun's shadow map, 1 to [`shadow::MAX_CASCADES`] (1: one map over the
+    /// whole scene).
+    pub shadow_cascades: u32,
 }
+
+/// Default [`RenderOptions::lod_tau`], pixels.
+pub const DEFAULT_LOD_TAU: f32 = 1.0;
 
 /// Which terms of `L = L_direct + L_ambient` a render draws (the sky background is always drawn).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
@@ -88,6 +104,8 @@ impl Default for RenderOptions {
             prt_layout: ambient::PrtLayout::Full,
             soft_shadows: None,
             terms: Terms::All,
+            lod_tau: DEFAULT_LOD_TAU,
+            shadow_cascades: shadow::DEFAULT_CASCADES,
         }
     }
 }
@@ -105,12 +123,39 @@ pub struct RenderStats {
     /// True when the pack had no sky and the analytic one was drawn.
     pub analytic_sky: bool,
     pub models: usize,
+    /// Instances the camera pass drew (after culling).
     pub instances: u64,
+    /// Instances outside the view, not drawn by the camera pass.
+    pub instances_culled: u64,
+    /// Instances the camera pass drew at each level (index 0: full detail; for a model with an
+    /// impostor, the index after its last mesh level counts its impostors).
+    pub instances_per_level: Vec<u64>,
+    /// Of `instances`, those drawn as impostor quads ([`impostor`]).
+    pub impostor_instances: u64,
+    /// Triangles of the camera pass (terrain and models).
     pub triangles: u64,
+    /// Triangles of the shadow pass(es).
+    pub shadow_triangles: u64,
+    /// Of `triangles`, the terrain's.
+    pub terrain_triangles: u64,
+    /// World size of one shadow-map texel in metres near the camera (the first cascade) and at
+    /// the far plane (the last); `None` without a shadow map.
+    pub shadow_texel_near_m: Option<f32>,
+    pub shadow_texel_far_m: Option<f32>,
+    /// Each cascade's view-depth range and texel size (empty without a shadow map).
+    pub shadow_cascades: Vec<shadow::CascadeStats>,
+    /// Terrain chunks outside the view, and those drawn at each step 2^s cells (index s).
+    pub terrain_chunks_culled: u32,
+    pub terrain_chunks_per_step: Vec<u32>,
     pub draw_calls: u32,
     pub uploaded_bytes: u64,
+    /// Reading the pack's sections and resolving the ambient light (CPU).
+    pub seconds_load: f64,
     pub seconds_setup: f64,
     pub seconds_upload: f64,
+    /// Culling, LOD selection and the instance buckets (CPU), and their upload.
+    pub seconds_select: f64,
+    /// Recording, drawing and reading back the frame.
     pub seconds_draw: f64,
     /// Where the ambient term's light came from.
     pub ambient: ambient::AmbientSummary,
@@ -182,19 +227,20 @@ pub fn resolve_view(pack: &Pack, scene: &scene::SceneData, opts: &RenderOptions)
 /// Renders `pack`.
 pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     check_options(opts)?;
+    let tl = std::time::Instant::now();
     let scene = scene::load_scene(pack)?;
     let View {
         camera: cam,
         lighting,
         exposure,
     } = resolve_view(pack, &scene, opts);
+    let amb = ambient::load_ambient(pack, &scene, opts.prt_layout, opts.lighting.as_ref())?;
 
     let t0 = std::time::Instant::now();
     let gpu = crate::gpu::init_gpu(opts.backend)?;
     let pipes = pipelines::Pipelines::new(&gpu.device);
     gpu.check()?;
     let t1 = std::time::Instant::now();
-    let amb = ambient::load_ambient(pack, &scene, opts.prt_layout, opts.lighting.as_ref())?;
     let mut gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;
     let amb_gpu = ambient_gpu::upload_ambient(&gpu, &pipes, &scene, &amb, opts.terms.weights()[1])?;
     gpu_scene.bytes += amb_gpu.bytes;
@@ -213,23 +259,71 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let visibility = soft.as_ref().map_or(&lit, |v| &v.view);
     // Soft shadows replace the shadow map: direct.wgsl reads the visibility texture where
     // sun_direction.w is 1.
-    let shadow_params = match soft {
+    let shadows = match soft {
         Some(_) => {
             globals.sun_direction[3] = 1.0;
             None
         }
-        None => shadow::shadow_params(&scene, lighting.sun_direction),
+        None => shadow::shadows(&scene, &cam, lighting.sun_direction, opts.shadow_cascades),
     };
+    let ts = std::time::Instant::now();
+    // Pass 0 the camera, pass 1 + i cascade i: casters are culled per cascade.
+    let mut views = vec![cull::Frustum::from_view_proj(cam.view_proj(), false)];
+    for c in shadows.as_ref().map_or(&[][..], |s| &s.cascades[..]) {
+        views.push(cull::Frustum::from_view_proj(c.view_proj, true));
+    }
+    let k = opts.height as f32 / (2.0 * (cam.fov_y_deg.to_radians() * 0.5).tan());
+    let rules: Vec<levels::ModelRule> = scene
+        .models
+        .iter()
+        .map(|m| levels::ModelRule::new(m, k, opts.lod_tau))
+        .collect();
+    let buckets = cull::bucket(
+        &scene
+            .models
+            .iter()
+            .map(|m| m.instances.as_slice())
+            .collect::<Vec<_>>(),
+        &scene.models.iter().map(|m| m.sphere).collect::<Vec<_>>(),
+        &rules
+            .iter()
+            .map(|r| r as &dyn cull::LevelRule)
+            .collect::<Vec<_>>(),
+        cam.eye,
+        &views,
+    );
+    let mut per_level = Vec::new();
+    for b in &buckets {
+        for (l, r) in b.ranges[draw::CAMERA_PASS].iter().enumerate() {
+            if per_level.len() <= l {
+                per_level.resize(l + 1, 0u64);
+            }
+            per_level[l] += r.len() as u64;
+        }
+    }
+    // The terrain's chunks per pass, each culled by its own view, the step from the camera.
+    let chunks: Vec<terrain_lod::Selection> = match &scene.terrain {
+        Some(t) => views
+            .iter()
+            .map(|f| t.chunks.select(f, cam.eye, k, opts.lod_tau))
+            .collect(),
+        None => Vec::new(),
+    };
+    let terrain_culled = chunks.first().map_or(0, |c| c.culled);
+    let frame = draw::FrameInstances::upload(&gpu, buckets, &chunks);
+    let seconds_select = ts.elapsed().as_secs_f64();
     let (pixels, counts) = draw::draw_frame(
         &gpu,
         &pipes,
         &gpu_scene,
         &globals,
         size,
-        shadow_params.as_ref(),
+        shadows.as_ref(),
         visibility,
+        &frame,
     )?;
     let t3 = std::time::Instant::now();
+    let total_instances: u64 = scene.models.iter().map(|m| m.instances.len() as u64).sum();
 
     let image = Rgba8Image {
         width: opts.width,
@@ -247,12 +341,32 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         analytic_sky: scene.sky.analytic,
         models: scene.models.len(),
         instances: counts.instances,
+        instances_culled: total_instances - counts.instances,
+        instances_per_level: per_level,
+        impostor_instances: counts.impostor_instances,
         triangles: counts.triangles,
+        shadow_triangles: counts.shadow_triangles,
+        terrain_triangles: counts.terrain_triangles,
+        shadow_texel_near_m: shadows
+            .as_ref()
+            .and_then(|s| s.cascades.first())
+            .map(|c| c.texel_m),
+        shadow_texel_far_m: shadows
+            .as_ref()
+            .and_then(|s| s.cascades.last())
+            .map(|c| c.texel_m),
+        shadow_cascades: shadows.as_ref().map_or(Vec::new(), |s| s.stats()),
+        terrain_chunks_culled: terrain_culled,
+        terrain_chunks_per_step: chunks.first().map_or(Vec::new(), |c| {
+            c.by_step.iter().map(|v| v.len() as u32).collect()
+        }),
         draw_calls: counts.draw_calls,
         uploaded_bytes: gpu_scene.bytes,
+        seconds_load: (t0 - tl).as_secs_f64(),
         seconds_setup: (t1 - t0).as_secs_f64(),
         seconds_upload: (t2 - t1).as_secs_f64(),
-        seconds_draw: (t3 - t2).as_secs_f64(),
+        seconds_select,
+        seconds_draw: (t3 - t2).as_secs_f64() - seconds_select,
         ambient: amb.summary(),
     };
     let mut warnings = scene.warnings;
@@ -277,6 +391,19 @@ pub fn check_options(opts: &RenderOptions) -> Result<()> {
         return Err(Error::usage(format!(
             "field of view {}° is not in (0, 180)",
             opts.fov_y_deg
+        )));
+    }
+    if !(opts.lod_tau >= 0.0 && opts.lod_tau.is_finite()) {
+        return Err(Error::usage(format!(
+            "LOD threshold {} px must be 0 or more (0: full detail)",
+            opts.lod_tau
+        )));
+    }
+    if !(1..=shadow::MAX_CASCADES as u32).contains(&opts.shadow_cascades) {
+        return Err(Error::usage(format!(
+            "{} shadow cascades: must be 1 to {}",
+            opts.shadow_cascades,
+            shadow::MAX_CASCADES
         )));
     }
     if let Some(s) = opts.exposure
@@ -322,4 +449,28 @@ pub fn encode_png(img: &Rgba8Image) -> Result<Vec<u8>> {
     buf.write_to(&mut out, image::ImageFormat::Png)
         .map_err(|e| Error::runtime(format!("PNG encoding failed: {e}")))?;
     Ok(out.into_inner())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shadow_cascades_outside_one_to_four_are_a_usage_error() {
+        for n in [0, shadow::MAX_CASCADES as u32 + 1] {
+            let opts = RenderOptions {
+                shadow_cascades: n,
+                ..RenderOptions::default()
+            };
+            let e = check_options(&opts).unwrap_err().to_string();
+            assert!(e.contains("shadow cascades"), "{n}: {e}");
+        }
+        for n in 1..=shadow::MAX_CASCADES as u32 {
+            let opts = RenderOptions {
+                shadow_cascades: n,
+                ..RenderOptions::default()
+            };
+            assert!(check_options(&opts).is_ok());
+        }
+    }
 }

@@ -13,15 +13,15 @@ pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Format of the displayed image (the hardware applies the sRGB encoding on store).
 pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 
-const COMMON_WGSL: &str = include_str!("shaders/common.wgsl");
+pub(super) const COMMON_WGSL: &str = include_str!("shaders/common.wgsl");
 const SKY_WGSL: &str = include_str!("shaders/sky.wgsl");
 const TERRAIN_WGSL: &str = include_str!("shaders/terrain.wgsl");
-const MESH_WGSL: &str = include_str!("shaders/mesh.wgsl");
-const DIRECT_WGSL: &str = include_str!("shaders/direct.wgsl");
+pub(super) const MESH_WGSL: &str = include_str!("shaders/mesh.wgsl");
+pub(super) const DIRECT_WGSL: &str = include_str!("shaders/direct.wgsl");
 /// Format of the sun's shadow map (orthographic, normal Z: cleared to 1, nearer is smaller).
 pub const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const TONEMAP_WGSL: &str = include_str!("shaders/tonemap.wgsl");
-const AMBIENT_WGSL: &str = include_str!("shaders/ambient.wgsl");
+pub(super) const AMBIENT_WGSL: &str = include_str!("shaders/ambient.wgsl");
 
 /// Every pipeline and layout of a frame.
 pub struct Pipelines {
@@ -33,7 +33,8 @@ pub struct Pipelines {
     pub material_layout: wgpu::BindGroupLayout,
     /// Group 0 of the tone map: HDR image, exposure uniform.
     pub tonemap_layout: wgpu::BindGroupLayout,
-    /// Group 2 of the terrain and meshes: shadow parameters, shadow map, comparison sampler.
+    /// Group 2 of the terrain and meshes: shadow parameters, the cascades' shadow maps (a 2D
+    /// array, one layer per cascade), comparison sampler.
     pub shadow_layout: wgpu::BindGroupLayout,
     /// Group 3 of the terrain and meshes: the ambient term (see [`super::ambient_gpu`]).
     pub ambient_layout: wgpu::BindGroupLayout,
@@ -44,9 +45,14 @@ pub struct Pipelines {
     /// Depth-only passes into the shadow map (the mesh one alpha-tested).
     pub terrain_shadow: wgpu::RenderPipeline,
     pub mesh_shadow: wgpu::RenderPipeline,
+    /// The camera pass's impostor quads ([`super::impostor`]).
+    pub impostor: super::impostor::ImpostorPipeline,
 }
 
-fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
+pub(super) fn uniform_entry(
+    binding: u32,
+    visibility: wgpu::ShaderStages,
+) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility,
@@ -59,7 +65,7 @@ fn uniform_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGrou
     }
 }
 
-fn texture_entry(
+pub(super) fn texture_entry(
     binding: u32,
     visibility: wgpu::ShaderStages,
     filterable: bool,
@@ -85,7 +91,7 @@ fn sampler_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
-fn layout(
+pub(super) fn layout(
     device: &wgpu::Device,
     label: &str,
     entries: &[wgpu::BindGroupLayoutEntry],
@@ -96,7 +102,7 @@ fn layout(
     })
 }
 
-fn shader(device: &wgpu::Device, label: &str, parts: &[&str]) -> wgpu::ShaderModule {
+pub(super) fn shader(device: &wgpu::Device, label: &str, parts: &[&str]) -> wgpu::ShaderModule {
     device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
         source: wgpu::ShaderSource::Wgsl(parts.concat().into()),
@@ -109,11 +115,37 @@ const MESH_ATTRS_POS: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![0 =>
 const MESH_ATTRS_NRM: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![1 => Float32x3];
 const MESH_ATTRS_UV: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![2 => Float32x2];
 const MESH_ATTRS_TAN: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![6 => Float32x4];
-/// InstanceRecord: position at 0, scale at 12, rotation_deg at 16.
-const INSTANCE_ATTRS: [wgpu::VertexAttribute; 3] =
-    wgpu::vertex_attr_array![3 => Float32x3, 4 => Float32, 5 => Float32];
+/// InstanceRecord: position at 0, scale at 12, rotation_deg at 16, and at 28 the `reserved`
+/// field, which the renderer's instance buckets set to the instance's index among its model's
+/// instances (src/render/cull.rs).
+pub const INSTANCE_ATTRS: [wgpu::VertexAttribute; 4] = [
+    wgpu::VertexAttribute {
+        format: wgpu::VertexFormat::Float32x3,
+        offset: 0,
+        shader_location: 3,
+    },
+    wgpu::VertexAttribute {
+        format: wgpu::VertexFormat::Float32,
+        offset: 12,
+        shader_location: 4,
+    },
+    wgpu::VertexAttribute {
+        format: wgpu::VertexFormat::Float32,
+        offset: 16,
+        shader_location: 5,
+    },
+    wgpu::VertexAttribute {
+        format: wgpu::VertexFormat::Uint32,
+        offset: 28,
+        shader_location: 7,
+    },
+];
 
-struct PassDesc<'a> {
+/// ChunkRecord (src/render/terrain_lod.rs): first cell at 0, step log2 at 8, skirt bottom at 12.
+const CHUNK_ATTRS: [wgpu::VertexAttribute; 3] =
+    wgpu::vertex_attr_array![0 => Uint32x2, 1 => Uint32, 2 => Float32];
+
+pub(super) struct PassDesc<'a> {
     label: &'a str,
     module: &'a wgpu::ShaderModule,
     layouts: &'a [Option<&'a wgpu::BindGroupLayout>],
@@ -121,9 +153,11 @@ struct PassDesc<'a> {
     target: wgpu::TextureFormat,
     /// Depth writes and test on (scene geometry) or off (full-screen passes).
     depth: Option<bool>,
+    /// The vertex entry point.
+    vertex: &'a str,
 }
 
-fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipeline {
+pub(super) fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipeline {
     let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some(d.label),
         bind_group_layouts: d.layouts,
@@ -145,7 +179,7 @@ fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipeline {
         layout: Some(&layout),
         vertex: wgpu::VertexState {
             module: d.module,
-            entry_point: Some("vs_main"),
+            entry_point: Some(d.vertex),
             compilation_options: Default::default(),
             buffers: d.buffers,
         },
@@ -174,7 +208,7 @@ fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipeline {
 
 /// A depth-only pipeline into the shadow map; `vertex` and `fragment` name the entry points
 /// (the latter the alpha test).
-fn shadow_pipeline(
+pub(super) fn shadow_pipeline(
     device: &wgpu::Device,
     d: &PassDesc,
     vertex: &str,
@@ -231,7 +265,7 @@ fn shadow_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
                 visibility: f,
                 ty: wgpu::BindingType::Texture {
                     sample_type: wgpu::TextureSampleType::Depth,
-                    view_dimension: wgpu::TextureViewDimension::D2,
+                    view_dimension: wgpu::TextureViewDimension::D2Array,
                     multisampled: false,
                 },
                 count: None,
@@ -405,7 +439,7 @@ fn mesh_buffers() -> [Option<wgpu::VertexBufferLayout<'static>>; 5] {
 }
 
 /// A pass into the HDR target.
-fn hdr_pass<'a>(
+pub(super) fn hdr_pass<'a>(
     label: &'a str,
     module: &'a wgpu::ShaderModule,
     layouts: &'a [Option<&'a wgpu::BindGroupLayout>],
@@ -419,6 +453,7 @@ fn hdr_pass<'a>(
         buffers,
         target: HDR_FORMAT,
         depth,
+        vertex: "vs_main",
     }
 }
 
@@ -434,15 +469,23 @@ impl Pipelines {
             &hdr_pass("sky", &m.sky, &[Some(&l.globals)], &[], Some(false)),
         );
         let lit = [Some(&l.shadow), Some(&l.ambient)];
+        let chunk_buffers = [Some(wgpu::VertexBufferLayout {
+            array_stride: size_of::<super::terrain_lod::ChunkRecord>() as u64,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &CHUNK_ATTRS,
+        })];
         let terrain = pipeline(
             device,
-            &hdr_pass(
-                "terrain",
-                &m.terrain,
-                &[Some(&l.globals), Some(&l.terrain), lit[0], lit[1]],
-                &[],
-                Some(true),
-            ),
+            &PassDesc {
+                vertex: "vs_chunk",
+                ..hdr_pass(
+                    "terrain",
+                    &m.terrain,
+                    &[Some(&l.globals), Some(&l.terrain), lit[0], lit[1]],
+                    &chunk_buffers,
+                    Some(true),
+                )
+            },
         );
         let mesh = pipeline(
             device,
@@ -460,10 +503,10 @@ impl Pipelines {
                 "terrain shadow",
                 &m.terrain,
                 &[Some(&l.globals), Some(&l.terrain)],
-                &[],
+                &chunk_buffers,
                 Some(true),
             ),
-            "vs_main",
+            "vs_chunk",
             None,
         );
         let mesh_shadow = shadow_pipeline(
@@ -487,9 +530,13 @@ impl Pipelines {
                 buffers: &[],
                 target: OUTPUT_FORMAT,
                 depth: None,
+                vertex: "vs_main",
             },
         );
+        let impostor =
+            super::impostor::ImpostorPipeline::new(device, &l.globals, &l.shadow, &l.ambient);
         Pipelines {
+            impostor,
             globals_layout: l.globals,
             terrain_layout: l.terrain,
             material_layout: l.material,

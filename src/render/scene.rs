@@ -39,6 +39,9 @@ pub struct TerrainData<'a> {
     /// World-space normal map, one texel per grid sample, row 0 south, `(n + 1)/2` in RGB: the
     /// prepared section's `normals` array, or computed here for an unprepared terrain.
     pub normals: Cow<'a, [[u8; 4]]>,
+    /// The chunked LOD grid, from the prepared section's min/max quadtree (built here from the
+    /// heights for an unprepared terrain: one O(samples) pass).
+    pub chunks: super::terrain_lod::ChunkGrid,
 }
 
 /// One material as the preview shades it.
@@ -83,6 +86,44 @@ pub struct ModelData<'a> {
     pub instances: Vec<InstanceRecord>,
     /// Model-space bounds.
     pub bounds: ([f32; 3], [f32; 3]),
+    /// Model-space bounding sphere (culling and the LOD distance).
+    pub sphere: super::cull::Sphere,
+    /// The simplified levels 1.. of the `lod:<model>` section (empty: full detail only).
+    pub lod_levels: Vec<LodLevelData>,
+    /// The `lod:<model>` section's metadata (the selection rule reads it); `None`: full detail.
+    pub lod: Option<crate::lod::section::LodMeta>,
+    /// The `lod:<model>` section's impostor atlas, drawn where the rule chooses it
+    /// ([`super::impostor`]); `None`: the model has none.
+    pub impostor: Option<ImpostorData>,
+}
+
+/// A model's impostor atlas as the `lod` section stores it (`grid·tile` texels square, row 0 at
+/// the top; docs/CONVENTIONS.md "Impostors").
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImpostorData {
+    pub meta: crate::lod::section::ImpostorMeta,
+    /// sRGB albedo, straight alpha (0 or 255).
+    pub color: Vec<[u8; 4]>,
+    /// Model-space normal, (n + 1)/2.
+    pub normal: Vec<[u8; 4]>,
+    /// Depth code along the view (src/lod/octa.rs `depth_code`).
+    pub depth: Vec<u8>,
+}
+
+/// One simplified level of a model: its own vertices, each a copy of mesh vertex `source[i]`
+/// (normal, UV, tangent and, in the ambient term, PRT transfer gathered from it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LodLevelData {
+    pub positions: Vec<[f32; 3]>,
+    pub normals: Vec<[f32; 3]>,
+    pub uvs: Vec<[f32; 2]>,
+    pub tangents: Vec<[f32; 4]>,
+    pub source: Vec<u32>,
+    /// Triangles grouped by material, indices into this level's vertices.
+    pub indices: Vec<[u32; 3]>,
+    pub draws: Vec<DrawRange>,
+    /// Geometric error in model units.
+    pub error: f32,
 }
 
 /// The sky as a lat-long RGBA float image.
@@ -168,7 +209,33 @@ fn load_terrain<'a>(
         None => None,
     };
     let normals = terrain_normals(&v, &meta, heights);
+    let tree = match crate::terrain::section::is_prepared(&v) {
+        true => crate::terrain::section::quadtree_from_section(&v)
+            .map_err(|e| Error::invalid(pack.path(), e))?,
+        false => crate::terrain::MinMaxQuadtree::build(heights, meta.width, meta.height),
+    };
+    let l0 = tree.level(0);
+    if (l0.width, l0.height) != (meta.width - 1, meta.height - 1) {
+        return Err(invalid(
+            pack,
+            name,
+            format!(
+                "quadtree level 0 is {}×{} nodes for {}×{} cells",
+                l0.width,
+                l0.height,
+                meta.width - 1,
+                meta.height - 1
+            ),
+        ));
+    }
+    let chunks = super::terrain_lod::ChunkGrid::new(
+        &tree,
+        (meta.width, meta.height),
+        [meta.origin[0], meta.origin[1]],
+        meta.extent,
+    );
     Ok(Some(TerrainData {
+        chunks,
         meta,
         heights,
         min_height,
@@ -359,14 +426,79 @@ fn load_model<'a>(
         materials,
         instances,
         bounds,
+        sphere: super::cull::Sphere::around(positions),
+        lod_levels: Vec::new(),
+        lod: None,
+        impostor: None,
     };
     if let Some((source, atlas_indices)) = atlas_split(pack, section, n, indices.len())? {
         model.split_vertices(source, atlas_indices);
+    } else {
+        load_lod(pack, section, &mut model)?;
     }
     let (grouped, draws) = group_by_material(&model.indices, tri_mats);
     let grouped = Cow::Owned(grouped.into_owned());
     (model.indices, model.draws) = (grouped, draws);
     Ok(model)
+}
+
+/// The `lod:<model>` section's simplified levels (its level 0 is the mesh itself, drawn from
+/// the mesh section) with normals, UVs and tangents gathered through `vertex_source`, and its
+/// bounding sphere. A model drawn with a light-map atlas' split vertices keeps full detail (its
+/// light-map UVs belong to atlas vertices, which a LOD vertex does not name): the caller skips it.
+fn load_lod(pack: &Pack, section: &str, model: &mut ModelData) -> Result<()> {
+    let Some(view) = crate::lod::section::read(pack, section)? else {
+        return Ok(());
+    };
+    let materials = model.materials.len() as u32;
+    let name = crate::lod::section::lod_section_name(section);
+    let mut levels = Vec::with_capacity(view.meta.levels.len().saturating_sub(1));
+    for l in 1..view.meta.levels.len() {
+        let first = view.meta.levels[l].first_vertex as usize;
+        let positions = view.level_positions(l);
+        let source = &view.vertex_source[first..first + positions.len()];
+        let (tris, mats) = view.level_triangles(l);
+        if let Some(t) = mats.iter().position(|&m| m >= materials) {
+            return Err(invalid(
+                pack,
+                &name,
+                format!(
+                    "level {l} triangle {t}: material {} past {materials}",
+                    mats[t]
+                ),
+            ));
+        }
+        let gather = |a: &[[f32; 3]]| source.iter().map(|&v| a[v as usize]).collect();
+        let (grouped, draws) = group_by_material(tris, mats);
+        levels.push(LodLevelData {
+            positions: positions.to_vec(),
+            normals: gather(&model.normals),
+            uvs: source.iter().map(|&v| model.uvs[v as usize]).collect(),
+            tangents: source.iter().map(|&v| model.tangents[v as usize]).collect(),
+            source: source.to_vec(),
+            indices: grouped.into_owned(),
+            draws,
+            error: view.meta.levels[l].error,
+        });
+    }
+    if view.meta.radius.is_finite() && view.meta.radius > 0.0 {
+        model.sphere = super::cull::Sphere {
+            centre: view.meta.centre,
+            radius: view.meta.radius,
+        };
+    }
+    model.impostor = match (&view.meta.impostor, &view.impostor) {
+        (Some(meta), Some(a)) => Some(ImpostorData {
+            meta: meta.clone(),
+            color: a.color.to_vec(),
+            normal: a.normal.to_vec(),
+            depth: a.depth.to_vec(),
+        }),
+        _ => None,
+    };
+    model.lod_levels = levels;
+    model.lod = Some(view.meta);
+    Ok(())
 }
 
 impl ModelData<'_> {

@@ -247,8 +247,7 @@ fn world_pipeline(
 const ATTR_POS: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![0 => Float32x3];
 const ATTR_NRM: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![1 => Float32x3];
 const ATTR_UV: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![2 => Float32x2];
-const ATTR_INSTANCE: [wgpu::VertexAttribute; 3] =
-    wgpu::vertex_attr_array![3 => Float32x3, 4 => Float32, 5 => Float32];
+const ATTR_INSTANCE: [wgpu::VertexAttribute; 4] = super::pipelines::INSTANCE_ATTRS;
 const ATTR_TANGENT: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![6 => Float32x4];
 
 impl WorldPipelines {

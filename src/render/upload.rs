@@ -66,19 +66,31 @@ pub struct TerrainGpu {
     pub vertex_count: u32,
 }
 
-/// One model on the GPU.
-pub struct ModelGpu {
+/// One detail level of a model on the GPU: level 0 is the mesh as drawn, the others the `lod`
+/// section's simplified meshes with their attributes gathered through `vertex_source`.
+pub struct LevelGpu {
     pub positions: wgpu::Buffer,
     pub normals: wgpu::Buffer,
     pub uvs: wgpu::Buffer,
     /// The `tangents:<model>` frames (vertex slot 4).
     pub tangents: wgpu::Buffer,
     pub indices: wgpu::Buffer,
+    pub draws: Vec<DrawRange>,
+    pub triangles: u64,
+}
+
+/// One model on the GPU.
+pub struct ModelGpu {
+    /// The mesh levels, finest first.
+    pub levels: Vec<LevelGpu>,
+    /// Every instance, `reserved` = its index among the model's instances (passes that draw all
+    /// instances at full detail, e.g. the soft shadows' world pass).
     pub instances: wgpu::Buffer,
     pub instance_count: u32,
-    pub draws: Vec<DrawRange>,
     /// One per material, indexed by `DrawRange::material`.
     pub materials: Vec<wgpu::BindGroup>,
+    /// The impostor atlas, drawn for the instances of bucket level `levels.len()`.
+    pub impostor: Option<super::impostor::ImpostorGpu>,
 }
 
 /// Everything uploaded for a frame.
@@ -92,13 +104,18 @@ pub struct GpuScene {
     pub ambient: Option<super::ambient_gpu::AmbientGpu>,
 }
 
-struct Uploader<'g> {
-    gpu: &'g Gpu,
+pub(crate) struct Uploader<'g> {
+    pub(super) gpu: &'g Gpu,
     bytes: u64,
 }
 
 impl Uploader<'_> {
-    fn buffer(&mut self, label: &str, contents: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
+    pub(super) fn buffer(
+        &mut self,
+        label: &str,
+        contents: &[u8],
+        usage: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
         self.bytes += contents.len() as u64;
         self.gpu
             .device
@@ -110,7 +127,7 @@ impl Uploader<'_> {
     }
 
     /// A 2D texture from tightly packed rows of `bytes_per_texel` bytes.
-    fn texture(
+    pub(super) fn texture(
         &mut self,
         label: &str,
         (width, height): (u32, u32),
@@ -322,12 +339,40 @@ fn upload_model(
         },
     )?;
     use wgpu::BufferUsages as U;
-    let positions = up.buffer("positions", bytemuck::cast_slice(&m.positions), U::VERTEX);
-    let normals = up.buffer("normals", bytemuck::cast_slice(&m.normals), U::VERTEX);
-    let uvs = up.buffer("uvs", bytemuck::cast_slice(&m.uvs), U::VERTEX);
-    let tangents = up.buffer("tangents", bytemuck::cast_slice(&m.tangents), U::VERTEX);
-    let indices = up.buffer("indices", bytemuck::cast_slice(&m.indices), U::INDEX);
-    let instances = up.buffer("instances", bytemuck::cast_slice(&m.instances), U::VERTEX);
+    let mut levels = vec![upload_level(
+        up,
+        &LevelArrays {
+            positions: &m.positions,
+            normals: &m.normals,
+            uvs: &m.uvs,
+            tangents: &m.tangents,
+            indices: &m.indices,
+            draws: &m.draws,
+        },
+    )];
+    for l in &m.lod_levels {
+        levels.push(upload_level(
+            up,
+            &LevelArrays {
+                positions: &l.positions,
+                normals: &l.normals,
+                uvs: &l.uvs,
+                tangents: &l.tangents,
+                indices: &l.indices,
+                draws: &l.draws,
+            },
+        ));
+    }
+    let all: Vec<_> = m
+        .instances
+        .iter()
+        .enumerate()
+        .map(|(k, r)| crate::ingest::instances_section::InstanceRecord {
+            reserved: k as u32,
+            ..*r
+        })
+        .collect();
+    let instances = up.buffer("instances", bytemuck::cast_slice(&all), U::VERTEX);
     let mut materials = Vec::with_capacity(m.materials.len());
     for (k, mat) in m.materials.iter().enumerate() {
         let view = match &mat.color_map {
@@ -374,15 +419,46 @@ fn upload_model(
             ],
         }));
     }
+    let impostor = match &m.impostor {
+        Some(d) => Some(super::impostor::upload(up, &pipes.impostor, &m.section, d)?),
+        None => None,
+    };
     Ok(ModelGpu {
-        positions,
-        normals,
-        uvs,
-        tangents,
-        indices,
+        impostor,
+        levels,
         instances,
         instance_count: m.instances.len() as u32,
-        draws: m.draws.clone(),
         materials,
     })
+}
+
+/// The vertex and index arrays of one level.
+struct LevelArrays<'a> {
+    positions: &'a [[f32; 3]],
+    normals: &'a [[f32; 3]],
+    uvs: &'a [[f32; 2]],
+    tangents: &'a [[f32; 4]],
+    indices: &'a [[u32; 3]],
+    draws: &'a [DrawRange],
+}
+
+fn upload_level(up: &mut Uploader, l: &LevelArrays) -> LevelGpu {
+    use wgpu::BufferUsages as U;
+    // wgpu refuses empty vertex buffers: a level without vertices gets one zero vertex.
+    fn bytes<T: Pod>(a: &[T], min: usize) -> std::borrow::Cow<'_, [u8]> {
+        if a.is_empty() {
+            std::borrow::Cow::Owned(vec![0u8; min])
+        } else {
+            std::borrow::Cow::Borrowed(bytemuck::cast_slice(a))
+        }
+    }
+    LevelGpu {
+        positions: up.buffer("positions", &bytes(l.positions, 12), U::VERTEX),
+        normals: up.buffer("normals", &bytes(l.normals, 12), U::VERTEX),
+        uvs: up.buffer("uvs", &bytes(l.uvs, 8), U::VERTEX),
+        tangents: up.buffer("tangents", &bytes(l.tangents, 16), U::VERTEX),
+        indices: up.buffer("indices", &bytes(l.indices, 12), U::INDEX),
+        draws: l.draws.to_vec(),
+        triangles: l.indices.len() as u64,
+    }
 }

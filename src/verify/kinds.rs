@@ -73,6 +73,15 @@ const SVO: Schema = &[
     ("voxel_normals", &[U32], 1),
     ("node_normals", &[U32], 1),
 ];
+const LOD: Schema = &[
+    ("positions", &[F32], 3),
+    ("vertex_source", &[U32], 1),
+    ("indices", &[U32], 3),
+    ("triangle_materials", &[U32], 1),
+    ("impostor_color", &[U8], 4),
+    ("impostor_normal", &[U8], 4),
+    ("impostor_depth", &[U8], 1),
+];
 const LINESPACE: Schema = &[
     ("nodes", &[U32], 2),
     ("linespaces", &[U32], 1),
@@ -97,6 +106,7 @@ fn schema(kind: &str) -> Option<Schema> {
         "clusters" => CLUSTERS,
         "bittree" => BITTREE,
         "prt" => &[("transfer", &[F32], 3), ("gpu", &[F32], 4)],
+        "lod" => LOD,
         "svo" => SVO,
         "linespace" => LINESPACE,
         "build" => &[],
@@ -138,6 +148,7 @@ pub fn decode(kind: &str, v: &SectionView) -> Result<(), crate::error::ParseErro
         "clusters" => crate::envmap::section::clusters_summary(v).map(drop),
         "bittree" => crate::bittree::section::from_section(v).map(drop),
         "prt" => crate::prt::pack::from_section(v).map(drop),
+        "lod" => crate::lod::section::from_view(v, None).map(drop),
         "svo" => crate::voxel::section::from_section(v).map(drop),
         "linespace" => crate::linespace::section::from_section(v).map(drop),
         "build" => crate::graph::check_build_section(v),
@@ -230,6 +241,7 @@ impl Check<'_, '_> {
             "material" => self.material(facts),
             "tangents" => self.tangents(facts),
             "prt" => self.prt(facts),
+            "lod" => self.lod(facts),
             "lightmap" => self.lightmap(facts),
             _ => {}
         }
@@ -239,7 +251,7 @@ impl Check<'_, '_> {
     fn check_names(&mut self) {
         let (kind, name) = (self.e.kind.as_str(), self.e.name.as_str());
         let ok = match kind {
-            "mesh" | "texture" | "material" | "tangents" | "prt" => name
+            "mesh" | "texture" | "material" | "tangents" | "prt" | "lod" => name
                 .strip_prefix(kind)
                 .is_some_and(|r| r.len() > 1 && r.starts_with(':')),
             "lightmap" => name.starts_with("lightmap:"),
@@ -433,6 +445,27 @@ impl Check<'_, '_> {
         };
         self.reference(facts, "mesh", &meta.mesh, "mesh");
         self.vertex_count(facts, &meta.mesh, meta.vertices as u64, "transfer");
+    }
+
+    fn lod(&mut self, facts: &Facts) {
+        let Ok(meta) = self.v.meta::<crate::lod::section::LodMeta>() else {
+            return;
+        };
+        self.reference(facts, "mesh_section", &meta.mesh_section, "mesh");
+        if let Some(&v) = facts.vertices.get(meta.mesh_section.as_str())
+            && v != meta.mesh_vertices as u64
+        {
+            let msg = format!(
+                "stale: baked for {} vertices, but {:?} has {v} (run `bake lod` again)",
+                meta.mesh_vertices, meta.mesh_section
+            );
+            self.fail(
+                "reference.vertex_count",
+                Some("vertex_source"),
+                self.e.offset,
+                msg,
+            );
+        }
     }
 
     fn lightmap(&mut self, facts: &Facts) {

@@ -157,3 +157,23 @@ pub fn tool_available(tool: &str, why: &str) -> bool {
     }
     found
 }
+
+/// The fixture scene (`bake::fixtures::write_all` into `dir`) baked with the preview pipeline
+/// and no stage cache; returns the pack's path (`dir/scene.bake`).
+pub fn preview_fixture_pack(dir: &std::path::Path) -> std::path::PathBuf {
+    bake::fixtures::write_all(dir).unwrap();
+    let out = dir.join("scene.bake");
+    bake::graph::build(
+        &bake::graph::BuildOptions {
+            scenes: vec![dir.join("scene.eco")],
+            output: Some(out.clone()),
+            sky: Some(dir.join("sky.hdr")),
+            cache: bake::graph::CacheMode::Off,
+            ..Default::default()
+        }
+        .preview(),
+        &bake::graph::progress::Silent,
+    )
+    .unwrap();
+    out
+}

@@ -9,7 +9,7 @@ pub(super) fn load_terrain_lightmap(
     light: &SkyLight,
     warnings: &mut Vec<String>,
 ) -> Result<Option<LightTexture>> {
-    let Some((name, meta, mut tex)) = find_lightmap(pack, "terrain")? else {
+    let Some((name, _, mut tex)) = find_lightmap(pack, "terrain")? else {
         return Ok(None);
     };
     let v = pack.view_named(&name)?;
@@ -17,17 +17,15 @@ pub(super) fn load_terrain_lightmap(
         tex.texels = indirect;
         return Ok(Some(tex));
     }
+    // An older map without `indirect` holds the direct sun too. Taking it out again
+    // ([`strip_terrain_direct_sun`]) would build the scene's BVH and trace shadow rays at render
+    // time, bake work the renderer does not do (issue 14): the sky SH lights the terrain.
     if light.sun.is_some() {
-        let scene = crate::trace::pack_scene::trace_scene(pack)?;
-        match strip_terrain_direct_sun(&mut tex, &meta, &scene, light) {
-            Ok(()) => {}
-            Err(m) => {
-                warnings.push(format!(
-                    "{name}: {m}; the sky SH lights the terrain instead"
-                ));
-                return Ok(None);
-            }
-        }
+        warnings.push(format!(
+            "{name}: no `indirect` array (an older pack): its irradiance includes the direct sun; \
+             the sky SH lights the terrain instead (re-run `bake lightmap` to use the map)"
+        ));
+        return Ok(None);
     }
     Ok(Some(tex))
 }

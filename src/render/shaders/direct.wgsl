@@ -1,17 +1,23 @@
 // The direct sun of the shading contract: L_direct = E_sun · visibility · f(wi, wo) · |cos θi|.
 // f is the two-layer Schlick BRDF, a line-by-line port of `SchlickMaterial::eval`
 // (src/material/schlick.rs; keep the two in step), evaluated in the normal-mapped tangent frame;
-// visibility comes from the sun's shadow map (group 2, src/render/shadow.rs) with 3x3 PCF.
+// visibility comes from the sun's cascaded shadow maps (group 2, src/render/shadow.rs) with 3x3 PCF.
 // Prepended (after common.wgsl) to the terrain and mesh shaders.
 
+// Layout mirrors `ShadowParams` in src/render/shadow.rs (352 bytes).
 struct ShadowParams {
-    light_view_proj: mat4x4<f32>,
-    // x: one texel in uv, y: normal offset (m), z: depth bias (depth units), w: 1 = map used
-    params: vec4<f32>,
+    // world to each cascade's light clip space
+    light_view_proj: array<mat4x4<f32>, 4>,
+    // per cascade: x one texel in uv, y normal offset (m), z depth bias (depth units), w texel (m)
+    cascade: array<vec4<f32>, 4>,
+    // the far view depth of each cascade (m)
+    splits: vec4<f32>,
+    // xyz: the camera's forward direction; w: cascade count (0: no map)
+    view: vec4<f32>,
 };
 
 @group(2) @binding(0) var<uniform> shadow: ShadowParams;
-@group(2) @binding(1) var shadow_map: texture_depth_2d;
+@group(2) @binding(1) var shadow_map: texture_depth_2d_array;
 @group(2) @binding(2) var shadow_sampler: sampler_comparison;
 
 struct SchlickLayer {
@@ -114,31 +120,49 @@ fn shading_frame(n: vec3<f32>, t_in: vec3<f32>) -> mat3x3<f32> {
     return mat3x3<f32>(t, cross(n, t), n);
 }
 
+// The cascade of a receiver: the first whose far split lies beyond its view depth (the last
+// one takes the rest); no blending between cascades.
+fn shadow_cascade(world: vec3<f32>) -> i32 {
+    let d = dot(world - globals.eye.xyz, shadow.view.xyz);
+    let n = i32(shadow.view.w);
+    var i = 0;
+    loop {
+        if (i >= n - 1 || d <= shadow.splits[i]) {
+            break;
+        }
+        i = i + 1;
+    }
+    return i;
+}
+
 // The fraction of the sun seen at `world` (1 without a shadow map). The point is pushed along
-// the normal towards the sun's side before the lookup, and compared with a small depth bias.
+// the normal towards the sun's side before the lookup, and compared with a small depth bias,
+// both in texels of the receiver's cascade.
 fn sun_visibility(world: vec3<f32>, n: vec3<f32>) -> f32 {
     // `--soft-shadows`: the line-space visibility replaces the shadow map.
     if (globals.sun_direction.w > 0.5) {
         return soft_visibility_at(world);
     }
-    if (shadow.params.w == 0.0) {
+    if (shadow.view.w == 0.0) {
         return 1.0;
     }
+    let k = shadow_cascade(world);
+    let cp = shadow.cascade[k];
     let cos_s = dot(n, normalize(globals.sun_direction.xyz));
     let side = select(-1.0, 1.0, cos_s >= 0.0);
-    let p = world + n * (side * shadow.params.y);
-    let c = shadow.light_view_proj * vec4<f32>(p, 1.0);
+    let p = world + n * (side * cp.y);
+    let c = shadow.light_view_proj[k] * vec4<f32>(p, 1.0);
     let uv = vec2<f32>(c.x * 0.5 + 0.5, 0.5 - c.y * 0.5);
     // Slope-scaled: across the filter's reach (2 texels) a surface tilted by θ from the light
     // changes depth by 2 tan θ texels.
     let a = max(abs(cos_s), 1e-3);
     let tan_s = min(sqrt(max(1.0 - a * a, 0.0)) / a, 8.0);
-    let depth = c.z - shadow.params.z * (1.0 + 2.0 * tan_s);
+    let depth = c.z - cp.z * (1.0 + 2.0 * tan_s);
     var sum = 0.0;
     for (var dy = -1; dy <= 1; dy = dy + 1) {
         for (var dx = -1; dx <= 1; dx = dx + 1) {
-            let o = vec2<f32>(f32(dx), f32(dy)) * shadow.params.x;
-            sum = sum + textureSampleCompareLevel(shadow_map, shadow_sampler, uv + o, depth);
+            let o = vec2<f32>(f32(dx), f32(dy)) * cp.x;
+            sum = sum + textureSampleCompareLevel(shadow_map, shadow_sampler, uv + o, k, depth);
         }
     }
     return sum / 9.0;

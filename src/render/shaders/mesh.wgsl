@@ -1,6 +1,7 @@
 // Instanced models: vertex arrays straight from the mesh section (positions, normals, uvs in
-// three buffers, tangents from the `tangents:<model>` section in a fourth) and one 32-byte
-// InstanceRecord per instance (position, scale, rotation about +Z in degrees). Alpha test at 0.5
+// three buffers, tangents from the `tangents:<model>` section in a fourth), or a `lod` level's
+// vertices with the same attributes gathered, and one 32-byte InstanceRecord per instance
+// (position, scale, rotation about +Z in degrees, the instance's index in `reserved`). Alpha test at 0.5
 // on the colour map times the material's opacity; the direct sun in direct.wgsl.
 
 struct MaterialParams {
@@ -30,8 +31,10 @@ struct MeshIn {
     @location(4) instance_scale: f32,
     @location(5) instance_rotation_deg: f32,
     @location(6) tangent: vec4<f32>,
+    // The instance's index among its model's instances (the record's `reserved` field, set by
+    // the renderer's buckets): its maps and light-map UVs are read with it.
+    @location(7) instance_ref: u32,
     @builtin(vertex_index) vertex_index: u32,
-    @builtin(instance_index) instance_index: u32,
 };
 
 struct MeshOut {
@@ -50,7 +53,7 @@ struct MeshOut {
 @vertex
 fn vs_main(v: MeshIn) -> MeshOut {
     var out = mesh_vertex(v);
-    let amb = ambient_vertex(v.vertex_index, v.instance_index);
+    let amb = ambient_vertex(v.vertex_index, v.instance_ref);
     out.ambient_front = amb.front;
     out.ambient_back = amb.back;
     out.light_map_uv = amb.uv;

@@ -40,6 +40,13 @@ fn vs_main(@builtin(vertex_index) vid: u32) -> TerrainOut {
     let corner = vid % 6u;
     let i = quad % (w - 1) + dx[corner];
     let j = quad / (w - 1) + dy[corner];
+    return grid_vertex(i, j);
+}
+
+// Grid sample (i, j) as a terrain vertex.
+fn grid_vertex(i: i32, j: i32) -> TerrainOut {
+    let w = i32(terrain.size.x);
+    let h = i32(terrain.size.y);
     let step = terrain.origin_extent.zw / vec2<f32>(f32(w - 1), f32(h - 1));
     let xy = terrain.origin_extent.xy + vec2<f32>(f32(i), f32(j)) * step;
     let world = vec3<f32>(xy, height_at(i, j));
@@ -53,6 +60,74 @@ fn vs_main(@builtin(vertex_index) vid: u32) -> TerrainOut {
     out.world = world;
     out.normal = vec3<f32>(-dzdx, -dzdy, 1.0);
     out.uv = vec2<f32>(f32(i) / f32(w - 1), 1.0 - f32(j) / f32(h - 1));
+    return out;
+}
+
+// The chunked LOD grid (src/render/terrain_lod.rs): one instance per chunk, drawn at a step of
+// 2^step_log2 cells. Vertex k: quads first (n² of them, n = CHUNK / step, row-major), then the
+// skirts of the four edges (south, north, west, east; n segments each), six vertices per quad.
+// Sample coordinates past the grid are clamped (such quads have zero area); a skirt on the
+// terrain's border has zero depth.
+const CHUNK: u32 = 64u;
+
+struct ChunkIn {
+    @builtin(vertex_index) vid: u32,
+    @location(0) cell: vec2<u32>,
+    @location(1) step_log2: u32,
+    @location(2) skirt_bottom: f32,
+};
+
+@vertex
+fn vs_chunk(c: ChunkIn) -> TerrainOut {
+    let w = i32(terrain.size.x);
+    let h = i32(terrain.size.y);
+    let step = i32(1u << c.step_log2);
+    let n = CHUNK >> c.step_log2;
+    let q = c.vid / 6u;
+    let corner = c.vid % 6u;
+    var dx = array<i32, 6>(0, 1, 1, 0, 1, 0);
+    var dy = array<i32, 6>(0, 0, 1, 0, 1, 1);
+    let x0 = i32(c.cell.x);
+    let y0 = i32(c.cell.y);
+    var i: i32;
+    var j: i32;
+    var down = 0.0;
+    if (q < n * n) {
+        i = x0 + (i32(q % n) + dx[corner]) * step;
+        j = y0 + (i32(q / n) + dy[corner]) * step;
+    } else {
+        let s = q - n * n;
+        let edge = s / n;
+        let along = (i32(s % n) + dx[corner]) * step;
+        let side = i32(CHUNK);
+        if (edge == 0u) {
+            i = x0 + along;
+            j = y0;
+        } else if (edge == 1u) {
+            i = x0 + along;
+            j = y0 + side;
+        } else if (edge == 2u) {
+            i = x0;
+            j = y0 + along;
+        } else {
+            i = x0 + side;
+            j = y0 + along;
+        }
+        down = f32(dy[corner]);
+        let ci = clamp(i, 0, w - 1);
+        let cj = clamp(j, 0, h - 1);
+        let border = (edge < 2u && (cj == 0 || cj == h - 1)) || (edge >= 2u && (ci == 0 || ci == w - 1));
+        if (border) {
+            down = 0.0;
+        }
+    }
+    i = clamp(i, 0, w - 1);
+    j = clamp(j, 0, h - 1);
+    var out = grid_vertex(i, j);
+    if (down > 0.0) {
+        out.world.z = min(out.world.z, c.skirt_bottom);
+        out.position = globals.view_proj * vec4<f32>(out.world, 1.0);
+    }
     return out;
 }
 

@@ -1,0 +1,116 @@
+//! `bake lod PACK`: the levels of detail (and impostor atlases) of every mesh of a pack.
+
+use super::{Global, Outcome};
+use crate::error::{Error, Result};
+use crate::lod::LodOptions;
+use crate::pack::Pack;
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct LodArgs {
+    /// A pack with mesh sections (.bake).
+    pub input: PathBuf,
+    /// Output pack (default: the input pack itself).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Options of a pipeline preset (default, preview, final, ci) before the flags below.
+    #[arg(long, default_value = "default")]
+    pub preset: String,
+    /// Most mesh levels after the full mesh.
+    #[arg(long)]
+    pub levels: Option<u32>,
+    /// First target error, relative to each model's bounding radius.
+    #[arg(long)]
+    pub base_error: Option<f32>,
+    /// Ratio between consecutive target errors.
+    #[arg(long)]
+    pub ratio: Option<f32>,
+    /// Bake the impostor atlas (`--impostor false` to skip it).
+    #[arg(long)]
+    pub impostor: Option<bool>,
+    /// Hemi-octahedral views per atlas side.
+    #[arg(long)]
+    pub impostor_grid: Option<u32>,
+    /// Texels per view side.
+    #[arg(long)]
+    pub impostor_tile: Option<u32>,
+}
+
+/// `bake bench lod PACK`: the options of `bake lod`, nothing is written.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LodBenchArgs {
+    #[command(flatten)]
+    pub lod: LodArgs,
+}
+
+pub fn bench(args: &LodBenchArgs, _g: &Global) -> Result<Outcome> {
+    let opts = options(&args.lod)?;
+    let pack = Pack::open(&args.lod.input)?;
+    Ok(crate::bench::lod::bench_lod(&pack, &opts)?.into())
+}
+
+fn options(a: &LodArgs) -> Result<LodOptions> {
+    let p = crate::graph::preset::Pipeline::preset(&a.preset).ok_or_else(|| {
+        Error::usage(format!(
+            "--preset {}: expected one of {}",
+            a.preset,
+            crate::graph::preset::PRESETS.join(", ")
+        ))
+    })?;
+    let d = p.lod;
+    let o = LodOptions {
+        levels: a.levels.unwrap_or(d.levels),
+        base_error: a.base_error.unwrap_or(d.base_error),
+        ratio: a.ratio.unwrap_or(d.ratio),
+        impostor: a.impostor.unwrap_or(d.impostor),
+        impostor_grid: a.impostor_grid.unwrap_or(d.impostor_grid),
+        impostor_tile: a.impostor_tile.unwrap_or(d.impostor_tile),
+        ..d
+    };
+    o.check().map_err(Error::usage)?;
+    Ok(o)
+}
+
+pub fn run(args: &LodArgs, _g: &Global) -> Result<Outcome> {
+    let opts = options(args)?;
+    let pack = Pack::open(&args.input)?;
+    if pack.of_kind(crate::mesh::section::KIND).next().is_none() {
+        return Err(Error::invalid_at(
+            &args.input,
+            "section table",
+            "no mesh section: nothing to build levels of detail for",
+        ));
+    }
+    let t0 = std::time::Instant::now();
+    let (w, reports) = crate::lod::lod_pack(&pack, &opts)?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let output = args.output.clone().unwrap_or_else(|| args.input.clone());
+    drop(pack); // release the input's memory map before replacing the file
+    let bytes = w.to_bytes()?;
+    crate::pack::write_atomic(&output, &bytes)?;
+    let mut text = String::new();
+    for r in &reports {
+        let tris: Vec<String> = r.levels.iter().map(|l| l.triangles.to_string()).collect();
+        text.push_str(&format!(
+            "{}: {} levels ({} triangles), {} cards{}\n",
+            r.section,
+            r.levels.len(),
+            tris.join(" / "),
+            r.cards,
+            r.impostor_error
+                .map_or(String::new(), |e| format!(", impostor error {e:.3}"))
+        ));
+    }
+    text.push_str(&format!(
+        "{}: {} bytes, {} meshes in {seconds:.2} s\n",
+        output.display(),
+        bytes.len(),
+        reports.len()
+    ));
+    Ok(Outcome {
+        json: serde_json::json!({"output": output, "bytes": bytes.len(), "seconds": seconds,
+            "options": opts, "meshes": reports}),
+        text,
+        warnings: Vec::new(),
+    })
+}

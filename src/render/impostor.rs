@@ -1,0 +1,281 @@
+//! Drawing impostors: where [`crate::lod::select::choose`] gives an instance
+//! [`crate::lod::select::Choice::Impostor`], the renderer draws one camera-facing quad for it,
+//! textured with a view of the model's hemi-octahedral atlas (`lod:<model>` section,
+//! docs/CONVENTIONS.md "Impostors"), all of a model's impostor instances in one instanced draw
+//! (`shaders/impostor.wgsl`, 6 vertices per instance, two triangles).
+//!
+//! - **Quad:** centre `p + R_z(θ)·(s·c)` (the instance transform applied to the impostor centre
+//!   `c`), half size `radius·|s|`, axes `right = normalize(Z × v)`, `up = v × right` of the unit
+//!   direction `v` from that centre to the eye (octa.rs `view_axes`), so the quad faces the eye.
+//! - **Tile:** the nearest view, no blend: `v` is taken into the instance's model frame (undo the
+//!   rotation about +Z; the lower hemisphere clamps to the horizon) and the tile whose centre
+//!   direction has the largest dot product with it is drawn ([`nearest_tile`]: the cell that
+//!   holds its octahedral coordinates and its 8 neighbours, checked against brute force over all
+//!   tiles by tests/render_lod.rs). Nearest texel within the tile (no filtering across tiles).
+//! - **Alpha:** the atlas alpha (0 or 255) tested at 0.5, the mesh shader's cutoff.
+//! - **Light:** the atlas normal (model space) rotated to the world and turned towards the eye;
+//!   the sun by Lambert on the atlas albedo (the material's Schlick lobes are not in the atlas)
+//!   with the shadow-map lookup of the mesh path (`sun_visibility` of direct.wgsl) at the
+//!   surface point the depth atlas gives; the ambient term is the sky SH fallback
+//!   (albedo/π · E_sky(n)), since the mesh path's per-instance ambient is per-vertex PRT, which an
+//!   impostor has no vertices for.
+//! - **Shadows:** impostor instances cast impostor shadows ([`draw_shadow`], the shadow pass's
+//!   one hook): a quad facing the sun with the view nearest the sun's direction in the model
+//!   frame, alpha-tested, each fragment at the depth of the surface point its depth texel gives
+//!   (so the plant shadows itself roughly as its mesh would).
+//! - **Depth:** the quad's plane (through the centre) is written; instance scale is taken by its
+//!   size (a mirroring negative scale is not mirrored).
+
+use super::draw::{CAMERA_PASS, DrawCounts, FrameInstances};
+use super::pipelines;
+use super::scene::ImpostorData;
+use super::upload::{GpuScene, Uploader};
+use crate::error::Result;
+use crate::lod::octa;
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+/// The tile (column, row) of an `n × n` atlas whose centre direction is nearest to `w` (the
+/// direction towards the eye in the model frame): among the cell holding `w`'s coordinates
+/// ([`octa::tile_of`]) and its 8 neighbours, the largest dot product, the first in row-major
+/// order on a tie. `z < 0` is clamped to the horizon, a zero direction looks straight down.
+/// `shaders/impostor.wgsl` `nearest_tile` is the same function on the GPU.
+pub fn nearest_tile(w: Vec3, n: u32) -> (u32, u32) {
+    let mut w = Vec3::new(w.x, w.y, w.z.max(0.0));
+    if w.length_squared() < 1e-24 {
+        w = Vec3::Z;
+    }
+    let w = w.normalize();
+    let (ci, cj) = octa::tile_of(w, n);
+    let mut best = (ci, cj);
+    let mut best_dot = -2.0f32;
+    for dj in -1i64..=1 {
+        for di in -1i64..=1 {
+            let (i, j) = (ci as i64 + di, cj as i64 + dj);
+            if i < 0 || j < 0 || i >= n as i64 || j >= n as i64 {
+                continue;
+            }
+            let d = octa::tile_direction(i as u32, j as u32, n).dot(w);
+            if d > best_dot {
+                best_dot = d;
+                best = (i as u32, j as u32);
+            }
+        }
+    }
+    best
+}
+
+/// The direction towards the eye in the model frame of an instance rotated by `rotation_deg`
+/// about +Z whose impostor centre is at `centre` in the world.
+pub fn model_view_direction(eye: Vec3, centre: Vec3, rotation_deg: f32) -> Vec3 {
+    let v = (eye - centre).normalize_or(Vec3::Z);
+    let (s, c) = rotation_deg.to_radians().sin_cos();
+    Vec3::new(c * v.x + s * v.y, -s * v.x + c * v.y, v.z)
+}
+
+/// `shaders/impostor.wgsl` `ImpostorParams`: 32 bytes.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct ImpostorParams {
+    centre_radius: [f32; 4],
+    grid_tile: [u32; 4],
+}
+
+/// One model's atlas on the GPU (group 1 of the impostor pass).
+pub struct ImpostorGpu {
+    pub bind_group: wgpu::BindGroup,
+}
+
+/// The impostor pass's pipeline and its group 1 layout.
+pub struct ImpostorPipeline {
+    pub layout: wgpu::BindGroupLayout,
+    pub pipeline: wgpu::RenderPipeline,
+    /// Depth only, into the sun's shadow map (groups 0 and 1).
+    pub shadow: wgpu::RenderPipeline,
+}
+
+impl ImpostorPipeline {
+    pub(super) fn new(
+        device: &wgpu::Device,
+        globals: &wgpu::BindGroupLayout,
+        shadow: &wgpu::BindGroupLayout,
+        ambient: &wgpu::BindGroupLayout,
+    ) -> ImpostorPipeline {
+        use wgpu::ShaderStages as S;
+        let layout = pipelines::layout(
+            device,
+            "impostor",
+            &[
+                pipelines::uniform_entry(0, S::VERTEX | S::FRAGMENT),
+                pipelines::texture_entry(1, S::FRAGMENT, false),
+                pipelines::texture_entry(2, S::FRAGMENT, false),
+                pipelines::texture_entry(3, S::FRAGMENT, false),
+            ],
+        );
+        let module = pipelines::shader(
+            device,
+            "impostor",
+            &[
+                pipelines::COMMON_WGSL,
+                pipelines::DIRECT_WGSL,
+                pipelines::AMBIENT_WGSL,
+                include_str!("shaders/impostor.wgsl"),
+            ],
+        );
+        let buffers = [Some(wgpu::VertexBufferLayout {
+            array_stride: size_of::<crate::ingest::instances_section::InstanceRecord>() as u64,
+            step_mode: wgpu::VertexStepMode::Instance,
+            attributes: &pipelines::INSTANCE_ATTRS,
+        })];
+        let pipeline = pipelines::pipeline(
+            device,
+            &pipelines::hdr_pass(
+                "impostor",
+                &module,
+                &[Some(globals), Some(&layout), Some(shadow), Some(ambient)],
+                &buffers,
+                Some(true),
+            ),
+        );
+        let shadow = pipelines::shadow_pipeline(
+            device,
+            &pipelines::hdr_pass(
+                "impostor shadow",
+                &module,
+                &[Some(globals), Some(&layout)],
+                &buffers,
+                Some(true),
+            ),
+            "vs_shadow",
+            Some("fs_shadow"),
+        );
+        ImpostorPipeline {
+            layout,
+            pipeline,
+            shadow,
+        }
+    }
+}
+
+/// Uploads the atlas of a model (`label`: its mesh section): colour (sRGB), normal and depth.
+pub(super) fn upload(
+    up: &mut Uploader,
+    pipe: &ImpostorPipeline,
+    label: &str,
+    d: &ImpostorData,
+) -> Result<ImpostorGpu> {
+    let side = d.meta.side() as u32;
+    let size = (side, side);
+    let color = up.texture(
+        &format!("{label}: impostor colour"),
+        size,
+        wgpu::TextureFormat::Rgba8UnormSrgb,
+        4,
+        bytemuck::cast_slice(&d.color),
+    )?;
+    let normal = up.texture(
+        &format!("{label}: impostor normal"),
+        size,
+        wgpu::TextureFormat::Rgba8Unorm,
+        4,
+        bytemuck::cast_slice(&d.normal),
+    )?;
+    let depth = up.texture(
+        &format!("{label}: impostor depth"),
+        size,
+        wgpu::TextureFormat::R8Unorm,
+        1,
+        &d.depth,
+    )?;
+    let m = &d.meta;
+    let params = ImpostorParams {
+        centre_radius: [m.centre[0], m.centre[1], m.centre[2], m.radius],
+        grid_tile: [m.grid, m.tile, side, 0],
+    };
+    let params = up.buffer(
+        "impostor params",
+        bytemuck::bytes_of(&params),
+        wgpu::BufferUsages::UNIFORM,
+    );
+    let entry = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+    let tex = wgpu::BindingResource::TextureView;
+    let bind_group = up.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("impostor"),
+        layout: &pipe.layout,
+        entries: &[
+            entry(0, params.as_entire_binding()),
+            entry(1, tex(&color)),
+            entry(2, tex(&normal)),
+            entry(3, tex(&depth)),
+        ],
+    });
+    Ok(ImpostorGpu { bind_group })
+}
+
+/// The impostors of shadow pass `p` (bucket pass index): per model with an atlas, its impostor
+/// bucket as one instanced draw of sun-facing quads, alpha-tested, at the depth the depth atlas
+/// gives. Group 0 (the sun's view) is the shadow pass's. Returns the triangles drawn.
+pub(super) fn draw_shadow(
+    pass: &mut wgpu::RenderPass,
+    pipe: &ImpostorPipeline,
+    scene: &GpuScene,
+    frame: &FrameInstances,
+    p: usize,
+) -> u64 {
+    let mut triangles = 0;
+    let mut bound = false;
+    for (k, m) in scene.models.iter().enumerate() {
+        let Some(imp) = &m.impostor else {
+            continue;
+        };
+        let range = frame.buckets[k].range(p, m.levels.len());
+        if range.is_empty() {
+            continue;
+        }
+        if !bound {
+            pass.set_pipeline(&pipe.shadow);
+            bound = true;
+        }
+        pass.set_bind_group(1, &imp.bind_group, &[]);
+        pass.set_vertex_buffer(0, frame.buffers[k].slice(..));
+        pass.draw(0..6, range.clone());
+        triangles += 2 * range.len() as u64;
+    }
+    triangles
+}
+
+/// The camera pass's impostors: per model with an atlas, its impostor bucket (index = its mesh
+/// level count) as one instanced draw. Groups 0 and 2 are the scene pass's.
+pub(super) fn draw(
+    pass: &mut wgpu::RenderPass,
+    pipe: &ImpostorPipeline,
+    scene: &GpuScene,
+    frame: &FrameInstances,
+    counts: &mut DrawCounts,
+) {
+    let mut bound = false;
+    for (k, m) in scene.models.iter().enumerate() {
+        let Some(imp) = &m.impostor else {
+            continue;
+        };
+        let range = frame.buckets[k].range(CAMERA_PASS, m.levels.len());
+        if range.is_empty() {
+            continue;
+        }
+        if !bound {
+            pass.set_pipeline(&pipe.pipeline);
+            if let Some(a) = &scene.ambient {
+                pass.set_bind_group(3, &a.terrain, &[]);
+            }
+            bound = true;
+        }
+        pass.set_bind_group(1, &imp.bind_group, &[]);
+        pass.set_vertex_buffer(0, frame.buffers[k].slice(..));
+        pass.draw(0..6, range.clone());
+        let n = range.len() as u64;
+        counts.draw_calls += 1;
+        counts.triangles += 2 * n;
+        counts.instances += n;
+        counts.impostor_instances += n;
+    }
+}

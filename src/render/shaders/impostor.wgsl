@@ -1,0 +1,198 @@
+// Impostors (src/render/impostor.rs): one camera-facing quad per instance (6 vertices, no vertex
+// arrays; the InstanceRecord in slot 0), textured with the nearest hemi-octahedral view of the
+// model's atlas (src/lod/octa.rs; `nearest_tile` in impostor.rs is the CPU twin of `tile_of`
+// below: keep the two in step). Alpha test at 0.5 like mesh.wgsl, the atlas normal rotated to the
+// world lit by the sun (Lambert on the atlas albedo) with the shadow-map lookup of direct.wgsl at
+// the surface point the depth atlas gives, and the sky SH ambient (group 3 bound with the
+// terrain's ambient group: mode 2, the sun-free sky's irradiance).
+
+struct ImpostorParams {
+    // xyz: centre of every view (model units), w: radius
+    centre_radius: vec4<f32>,
+    // x: grid N, y: texels per tile side, z: atlas side N·tile
+    grid_tile: vec4<u32>,
+};
+
+@group(1) @binding(0) var<uniform> impostor: ImpostorParams;
+@group(1) @binding(1) var atlas_color: texture_2d<f32>;
+@group(1) @binding(2) var atlas_normal: texture_2d<f32>;
+@group(1) @binding(3) var atlas_depth: texture_2d<f32>;
+
+struct ImpostorIn {
+    @location(3) instance_position: vec3<f32>,
+    @location(4) instance_scale: f32,
+    @location(5) instance_rotation_deg: f32,
+    @location(7) instance_ref: u32,
+    @builtin(vertex_index) vertex_index: u32,
+};
+
+struct ImpostorOut {
+    @builtin(position) position: vec4<f32>,
+    @location(0) world: vec3<f32>,
+    // the quad's (s, t) in [-1, 1]², s along `right`, t along `up`
+    @location(1) st: vec2<f32>,
+    @location(2) @interpolate(flat) tile: vec2<u32>,
+    // the instance's rotation (cos, sin), the world view axes and radius
+    @location(3) @interpolate(flat) rot: vec2<f32>,
+    @location(4) @interpolate(flat) view_dir: vec3<f32>,
+    @location(5) @interpolate(flat) radius: f32,
+};
+
+// The tile of unit direction w (z < 0 clamped to the horizon), as octa.rs `tile_of`.
+fn octa_cell(w: vec3<f32>, n: u32) -> vec2<u32> {
+    let v = vec3<f32>(w.x, w.y, max(w.z, 0.0));
+    let l1 = abs(v.x) + abs(v.y) + v.z;
+    var uv = vec2<f32>(0.5, 0.5);
+    if (l1 > 0.0) {
+        let a = v.x / l1;
+        let b = v.y / l1;
+        uv = vec2<f32>(0.5 * (a + b + 1.0), 0.5 * (a - b + 1.0));
+    }
+    let c = clamp(floor(uv * f32(n)), vec2<f32>(0.0), vec2<f32>(f32(n - 1u)));
+    return vec2<u32>(c);
+}
+
+// octa.rs `tile_direction`.
+fn octa_tile_direction(i: u32, j: u32, n: u32) -> vec3<f32> {
+    let x = 2.0 * (f32(i) + 0.5) / f32(n) - 1.0;
+    let y = 2.0 * (f32(j) + 0.5) / f32(n) - 1.0;
+    let a = 0.5 * (x + y);
+    let b = 0.5 * (x - y);
+    return normalize(vec3<f32>(a, b, 1.0 - abs(a) - abs(b)));
+}
+
+// The tile whose centre direction is nearest to w: the best of the cell holding w and its eight
+// neighbours (impostor.rs `nearest_tile`).
+fn nearest_tile(w_in: vec3<f32>, n: u32) -> vec2<u32> {
+    var w = vec3<f32>(w_in.xy, max(w_in.z, 0.0));
+    if (dot(w, w) < 1e-24) {
+        w = vec3<f32>(0.0, 0.0, 1.0);
+    }
+    w = normalize(w);
+    let c = vec2<i32>(octa_cell(w, n));
+    var best = vec2<u32>(c);
+    var best_dot = -2.0;
+    for (var dj = -1; dj <= 1; dj = dj + 1) {
+        for (var di = -1; di <= 1; di = di + 1) {
+            let i = c.x + di;
+            let j = c.y + dj;
+            if (i < 0 || j < 0 || i >= i32(n) || j >= i32(n)) {
+                continue;
+            }
+            let d = dot(octa_tile_direction(u32(i), u32(j), n), w);
+            if (d > best_dot) {
+                best_dot = d;
+                best = vec2<u32>(u32(i), u32(j));
+            }
+        }
+    }
+    return best;
+}
+
+// octa.rs `view_axes` (right, up) for the direction towards the eye w.
+fn view_right(w: vec3<f32>) -> vec3<f32> {
+    let c = cross(vec3<f32>(0.0, 0.0, 1.0), w);
+    if (length(c) > 1e-6) {
+        return normalize(c);
+    }
+    return vec3<f32>(1.0, 0.0, 0.0);
+}
+
+// The instance's impostor centre in the world.
+fn impostor_centre(v: ImpostorIn) -> vec3<f32> {
+    let a = radians(v.instance_rotation_deg);
+    let q = impostor.centre_radius.xyz * v.instance_scale;
+    return vec3<f32>(cos(a) * q.x - sin(a) * q.y, sin(a) * q.x + cos(a) * q.y, q.z) + v.instance_position;
+}
+
+// The camera pass: the quad faces the eye.
+@vertex
+fn vs_main(v: ImpostorIn) -> ImpostorOut {
+    var to_eye = globals.eye.xyz - impostor_centre(v);
+    if (dot(to_eye, to_eye) < 1e-20) {
+        to_eye = vec3<f32>(0.0, 0.0, 1.0);
+    }
+    return impostor_vertex(v, normalize(to_eye));
+}
+
+// The shadow pass (globals.view_proj is the sun's view): the quad faces the sun and shows the
+// view nearest the sun's direction.
+@vertex
+fn vs_shadow(v: ImpostorIn) -> ImpostorOut {
+    return impostor_vertex(v, sun_light().xyz);
+}
+
+// The quad of an instance seen from unit world direction w_world (towards the viewer).
+fn impostor_vertex(v: ImpostorIn, w_world: vec3<f32>) -> ImpostorOut {
+    let a = radians(v.instance_rotation_deg);
+    let c = cos(a);
+    let s = sin(a);
+    let centre = impostor_centre(v);
+    let radius = impostor.centre_radius.w * abs(v.instance_scale);
+    // Into the model frame: undo the rotation about +Z.
+    let w_model = vec3<f32>(c * w_world.x + s * w_world.y, -s * w_world.x + c * w_world.y, w_world.z);
+    let right = view_right(w_world);
+    let up = cross(w_world, right);
+    // Two triangles: corners (-1,-1) (1,-1) (1,1), (-1,-1) (1,1) (-1,1).
+    var corners = array<vec2<f32>, 6>(
+        vec2<f32>(-1.0, -1.0), vec2<f32>(1.0, -1.0), vec2<f32>(1.0, 1.0),
+        vec2<f32>(-1.0, -1.0), vec2<f32>(1.0, 1.0), vec2<f32>(-1.0, 1.0),
+    );
+    let st = corners[v.vertex_index % 6u];
+    let world = centre + (right * st.x + up * st.y) * radius;
+    var out: ImpostorOut;
+    out.position = globals.view_proj * vec4<f32>(world, 1.0);
+    out.world = world;
+    out.st = st;
+    out.tile = nearest_tile(w_model, impostor.grid_tile.x);
+    out.rot = vec2<f32>(c, s);
+    out.view_dir = w_world;
+    out.radius = radius;
+    return out;
+}
+
+// The atlas texel of a quad fragment: texel (c, r) of its tile, as lod/impostor.rs
+// `texel_ray` (s = 2(c + ½)/tile − 1, t = 1 − 2(r + ½)/tile), nearest.
+fn atlas_texel(in: ImpostorOut) -> vec2<i32> {
+    let tile = impostor.grid_tile.y;
+    let fc = clamp(floor((in.st.x * 0.5 + 0.5) * f32(tile)), 0.0, f32(tile - 1u));
+    let fr = clamp(floor((0.5 - in.st.y * 0.5) * f32(tile)), 0.0, f32(tile - 1u));
+    return vec2<i32>(in.tile * tile + vec2<u32>(u32(fc), u32(fr)));
+}
+
+// The depth atlas' offset δ = (centre − x)·w of the surface behind a fragment.
+fn atlas_delta(in: ImpostorOut, px: vec2<i32>) -> f32 {
+    return (textureLoad(atlas_depth, px, 0).r * 2.0 - 1.0) * in.radius;
+}
+
+// The shadow pass: the same alpha test, the depth of the surface point the depth atlas gives.
+@fragment
+fn fs_shadow(in: ImpostorOut) -> @builtin(frag_depth) f32 {
+    let px = atlas_texel(in);
+    if (textureLoad(atlas_color, px, 0).a < 0.5) {
+        discard;
+    }
+    let p = globals.view_proj * vec4<f32>(in.world - in.view_dir * atlas_delta(in, px), 1.0);
+    return clamp(p.z / p.w, 0.0, 1.0);
+}
+
+@fragment
+fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
+    let px = atlas_texel(in);
+    let texel = textureLoad(atlas_color, px, 0);
+    if (texel.a < 0.5) {
+        discard;
+    }
+    let nm = textureLoad(atlas_normal, px, 0).xyz * 2.0 - 1.0;
+    let c = in.rot.x;
+    let s = in.rot.y;
+    let n_world = vec3<f32>(c * nm.x - s * nm.y, s * nm.x + c * nm.y, nm.z);
+    // The surface point: depth code d = 255 (δ + r)/(2r), δ = (centre − x)·w.
+    let delta = atlas_delta(in, px);
+    let surface = in.world - in.view_dir * delta;
+    let n = facing_normal(n_world, surface);
+    let albedo = texel.rgb;
+    let direct = direct_lambert(albedo, n, surface);
+    let amb = albedo * max(sky_irradiance(n), vec3<f32>(0.0)) / PI * ambient.scale.x;
+    return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
+}
