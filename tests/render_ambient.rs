@@ -46,6 +46,10 @@ fn close_view(pack: &Pack, terms: Terms) -> RenderOptions {
         // The CPU reference draws every model at full detail: it is the oracle of the nearest
         // LOD level, so the GPU side draws that level everywhere too (issue 14, item 5).
         lod_tau: 0.0,
+        // One sample per pixel on both sides: with four, the reference's four rays also
+        // supersample the colour maps, which the GPU (one shading per pixel) does not, and the
+        // SMALL bound is about the shading formulas (MSAA is checked in render_reference.rs).
+        msaa: 1,
         ..RenderOptions::default()
     }
 }

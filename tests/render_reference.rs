@@ -447,3 +447,57 @@ fn the_cli_writes_the_reference_and_reports_the_difference() {
         assert_eq!((img.width(), img.height()), (64, 48));
     }
 }
+
+/// 4× MSAA with alpha to coverage on the leaf cards against the supersampled oracle: the CPU
+/// reference averaging four rays per pixel at the standard sample positions. The multisampled
+/// image is closer to it than one sample per pixel is, and within the fixture's bounds.
+#[test]
+fn msaa_brings_the_gpu_image_towards_the_supersampled_reference() {
+    let pack = fixture_pack();
+    let opts = |msaa| RenderOptions {
+        msaa,
+        ..fixture_view(Terms::All)
+    };
+    let oracle = render_reference(&pack, &opts(4)).unwrap();
+    let one = render_pack(&pack, &opts(1)).unwrap();
+    let four = render_pack(&pack, &opts(4)).unwrap();
+    assert_eq!((one.stats.msaa, four.stats.msaa), (1, 4));
+    let d1 = image_difference(&one.image, &oracle.image, OVER_THRESHOLD).unwrap();
+    let d4 = image_difference(&four.image, &oracle.image, OVER_THRESHOLD).unwrap();
+    eprintln!("against the 4-ray reference: 1 sample {d1:?}, 4 samples {d4:?}");
+    assert!(
+        d4.mad < 0.85 * d1.mad && d4.fraction_over < d1.fraction_over,
+        "MSAA does not bring the image closer: {d1:?} {d4:?}"
+    );
+    assert_within_bounds(&four.image, &oracle.image, "4 samples");
+    // Any other count is refused.
+    let e = render_pack(&pack, &opts(2)).unwrap_err().to_string();
+    assert!(e.contains("samples per pixel"), "{e}");
+}
+
+/// `--gamma`: the thesis' L_g = L_s^γ (seed 000 eq. 4.10) written without the sRGB encoding,
+/// the GPU (which hands the sRGB target a pre-decoded value) against the CPU's plain power.
+#[test]
+fn gamma_writes_the_power_of_the_tone_mapped_value_on_both_paths() {
+    use bake::render::Encoding;
+    let pack = fixture_pack();
+    let opts = |encoding| RenderOptions {
+        encoding,
+        ..fixture_view(Terms::All)
+    };
+    let mut images = Vec::new();
+    for g in [1.0 / 2.2, 1.0] {
+        let o = opts(Encoding::Gamma(g));
+        let gpu = render_pack(&pack, &o).unwrap();
+        let cpu = render_reference(&pack, &o).unwrap();
+        assert_within_bounds(&gpu.image, &cpu.image, &format!("gamma {g}"));
+        images.push(gpu.image);
+    }
+    // γ = 1 writes L_s itself: far darker than its sRGB encoding, which the bounds catch.
+    let srgb = render_reference(&pack, &opts(Encoding::Srgb)).unwrap();
+    assert_outside_bounds(&images[1], &srgb.image, "gamma 1 against sRGB");
+    let e = render_pack(&pack, &opts(Encoding::Gamma(0.0)))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("gamma"), "{e}");
+}

@@ -73,6 +73,14 @@ pub struct RenderArgs {
     /// Cascades of the sun's shadow map, 1 to 4 (1: one map over the whole scene).
     #[arg(long, default_value_t = crate::render::shadow::DEFAULT_CASCADES)]
     pub shadow_cascades: u32,
+    /// Samples per pixel: 4 (MSAA with alpha to coverage on leaf cards; the CPU reference
+    /// averages rays at the same 4 positions) or 1.
+    #[arg(long, default_value_t = crate::render::MSAA_SAMPLES)]
+    pub msaa: u32,
+    /// Write the thesis' L_g = L_s^γ (seed 000 §4.7.4) instead of the sRGB encoding of the
+    /// tone-mapped L_s (γ 0.4545 ≈ a 2.2 display gamma).
+    #[arg(long)]
+    pub gamma: Option<f32>,
 }
 
 /// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
@@ -111,6 +119,11 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         terms: args.terms,
         lod_tau: if args.no_lod { 0.0 } else { args.lod_tau },
         shadow_cascades: args.shadow_cascades,
+        msaa: args.msaa,
+        encoding: args.gamma.map_or(
+            crate::render::Encoding::Srgb,
+            crate::render::Encoding::Gamma,
+        ),
     };
     let pack = Pack::open(&args.pack)?;
     let out = render_pack(&pack, &opts)?;
@@ -183,6 +196,9 @@ pub struct RenderBenchArgs {
     /// Also time the CPU reference (src/render/reference.rs) of the same view.
     #[arg(long)]
     pub reference: bool,
+    /// Samples per pixel (4: MSAA, 1: none), as `bake render --msaa`.
+    #[arg(long, default_value_t = crate::render::MSAA_SAMPLES)]
+    pub msaa: u32,
 }
 
 /// `bake bench render PACK`: see [`crate::bench::render::bench_render`].
@@ -193,6 +209,7 @@ pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
         backend: args.backend,
         lod_tau: args.lod_tau,
         shadow_cascades: args.shadow_cascades,
+        msaa: args.msaa,
         ..RenderOptions::default()
     };
     let r = crate::bench::render::bench_render(&args.pack, &opts, args.repeat, args.reference)?;

@@ -213,7 +213,8 @@ pub(crate) fn globals_group(
     })
 }
 
-/// Draws the scene and returns the tone-mapped image as tightly packed RGBA8 rows (sRGB).
+/// Draws the scene and returns the tone-mapped image as tightly packed RGBA8 rows (sRGB, or
+/// `encoding`'s power law).
 /// `shadow`: the sun's cascades (`None`: no shadow map, everything sees the sun).
 /// `sun_visibility`: the soft-shadow visibility per pixel (used where `globals.sun_direction.w`
 /// is 1, see src/render/soft_shadow.rs). `frame`: the instances each pass draws, per level.
@@ -227,11 +228,33 @@ pub fn draw_frame(
     shadow: Option<&Shadows>,
     sun_visibility: &wgpu::TextureView,
     frame: &FrameInstances,
+    encoding: super::Encoding,
 ) -> Result<(Vec<u8>, DrawCounts)> {
     let hdr = target(gpu, "hdr", size, HDR_FORMAT, false);
-    let depth = target(gpu, "depth", size, DEPTH_FORMAT, false);
     let out = target(gpu, "output", size, OUTPUT_FORMAT, true);
     let hdr_view = hdr.create_view(&Default::default());
+    // Under MSAA the scene pass draws into multisampled colour and depth and resolves the
+    // colour (the linear radiance) into `hdr`, which the tone map reads.
+    let samples = pipes.samples;
+    let attachment = |label, format| {
+        gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width: size.0,
+                height: size.1,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: samples,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            view_formats: &[],
+        })
+    };
+    let depth = attachment("depth", DEPTH_FORMAT);
+    let hdr_ms = (samples > 1).then(|| attachment("hdr samples", HDR_FORMAT));
+    let hdr_ms_view = hdr_ms.as_ref().map(|t| t.create_view(&Default::default()));
     let globals_bg = globals_group(gpu, pipes, scene, globals, sun_visibility);
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     let mut counts = DrawCounts::default();
@@ -251,7 +274,10 @@ pub fn draw_frame(
         scene,
         (frame, &mut counts),
         [&globals_bg, &shadow_bg],
-        &hdr_view,
+        (
+            hdr_ms_view.as_ref().unwrap_or(&hdr_view),
+            hdr_ms_view.as_ref().map(|_| &hdr_view),
+        ),
         &depth.create_view(&Default::default()),
     );
     tonemap_pass(
@@ -260,7 +286,10 @@ pub fn draw_frame(
         pipes,
         &hdr_view,
         &out.create_view(&Default::default()),
-        globals.eye[3],
+        match encoding {
+            super::Encoding::Srgb => [globals.eye[3], 0.0, 0.0, 0.0],
+            super::Encoding::Gamma(g) => [globals.eye[3], 1.0, g, 0.0],
+        },
     );
     gpu.queue.submit([enc.finish()]);
     gpu.check()?;
@@ -486,7 +515,7 @@ fn scene_pass(
     scene: &GpuScene,
     (frame, counts): (&FrameInstances, &mut DrawCounts),
     [globals_bg, shadow_bg]: [&wgpu::BindGroup; 2],
-    hdr: &wgpu::TextureView,
+    (hdr, resolve): (&wgpu::TextureView, Option<&wgpu::TextureView>),
     depth: &wgpu::TextureView,
 ) {
     let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -494,10 +523,15 @@ fn scene_pass(
         color_attachments: &[Some(wgpu::RenderPassColorAttachment {
             view: hdr,
             depth_slice: None,
-            resolve_target: None,
+            resolve_target: resolve,
             ops: wgpu::Operations {
                 load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                store: wgpu::StoreOp::Store,
+                // The samples are needed only until they are resolved.
+                store: if resolve.is_some() {
+                    wgpu::StoreOp::Discard
+                } else {
+                    wgpu::StoreOp::Store
+                },
             },
         })],
         depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
@@ -556,13 +590,13 @@ fn tonemap_pass(
     pipes: &Pipelines,
     hdr: &wgpu::TextureView,
     out: &wgpu::TextureView,
-    exposure: f32,
+    tone: [f32; 4],
 ) {
     let params = gpu
         .device
         .create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("tone"),
-            contents: bytemuck::bytes_of(&[exposure, 0.0, 0.0, 0.0]),
+            contents: bytemuck::bytes_of(&tone),
             usage: wgpu::BufferUsages::UNIFORM,
         });
     let bg = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {

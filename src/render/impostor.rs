@@ -100,6 +100,7 @@ impl ImpostorPipeline {
         globals: &wgpu::BindGroupLayout,
         shadow: &wgpu::BindGroupLayout,
         ambient: &wgpu::BindGroupLayout,
+        samples: u32,
     ) -> ImpostorPipeline {
         use wgpu::ShaderStages as S;
         let layout = pipelines::layout(
@@ -135,7 +136,8 @@ impl ImpostorPipeline {
                 &[Some(globals), Some(&layout), Some(shadow), Some(ambient)],
                 &buffers,
                 Some(true),
-            ),
+            )
+            .multisampled(samples, false),
         );
         let shadow = pipelines::shadow_pipeline(
             device,

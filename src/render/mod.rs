@@ -62,6 +62,26 @@ pub struct RenderOptions {
     /// Cascades of the sun's shadow map, 1 to [`shadow::MAX_CASCADES`] (1: one map over the
     /// whole scene).
     pub shadow_cascades: u32,
+    /// Samples per pixel of the scene pass: 1, or [`MSAA_SAMPLES`] (multisampling with alpha
+    /// to coverage on alpha-tested leaf cards).
+    pub msaa: u32,
+    /// Display encoding of the tone-mapped value L_s (see [`Encoding`]).
+    pub encoding: Encoding,
+}
+
+/// The multisample count of `--msaa` (the one count every WebGPU device supports beside 1).
+pub const MSAA_SAMPLES: u32 = 4;
+
+/// How the tone-mapped L_s = 1 − exp(−L·s) in [0, 1] is written to the 8-bit image.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "lowercase", tag = "kind", content = "gamma")]
+pub enum Encoding {
+    /// The sRGB transfer function (IEC 61966-2-1), the default.
+    Srgb,
+    /// The thesis' L_g = L_s^γ (seed 000 §4.7.4, eq. 4.10), written as 8-bit values without
+    /// further encoding: γ = 1/2.2 ≈ 0.4545 is the classic CRT correction, other values darken
+    /// (γ > 1/2.2) or lighten the image on purpose.
+    Gamma(f32),
 }
 
 /// Default [`RenderOptions::lod_tau`], pixels.
@@ -106,6 +126,8 @@ impl Default for RenderOptions {
             terms: Terms::All,
             lod_tau: DEFAULT_LOD_TAU,
             shadow_cascades: shadow::DEFAULT_CASCADES,
+            msaa: MSAA_SAMPLES,
+            encoding: Encoding::Srgb,
         }
     }
 }
@@ -115,6 +137,9 @@ impl Default for RenderOptions {
 pub struct RenderStats {
     pub width: u32,
     pub height: u32,
+    /// Samples per pixel of the scene pass ([`RenderOptions::msaa`]).
+    pub msaa: u32,
+    pub encoding: Encoding,
     pub eye: [f32; 3],
     pub target: [f32; 3],
     pub fov_y_deg: f32,
@@ -238,7 +263,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
 
     let t0 = std::time::Instant::now();
     let gpu = crate::gpu::init_gpu(opts.backend)?;
-    let pipes = pipelines::Pipelines::new(&gpu.device);
+    let pipes = pipelines::Pipelines::new(&gpu.device, opts.msaa);
     gpu.check()?;
     let t1 = std::time::Instant::now();
     let mut gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;
@@ -321,6 +346,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         shadows.as_ref(),
         visibility,
         &frame,
+        opts.encoding,
     )?;
     let t3 = std::time::Instant::now();
     let total_instances: u64 = scene.models.iter().map(|m| m.instances.len() as u64).sum();
@@ -333,6 +359,8 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let stats = RenderStats {
         width: opts.width,
         height: opts.height,
+        msaa: opts.msaa,
+        encoding: opts.encoding,
         eye: cam.eye.to_array(),
         target: cam.target.to_array(),
         fov_y_deg: cam.fov_y_deg,
@@ -405,6 +433,17 @@ pub fn check_options(opts: &RenderOptions) -> Result<()> {
             opts.shadow_cascades,
             shadow::MAX_CASCADES
         )));
+    }
+    if opts.msaa != 1 && opts.msaa != MSAA_SAMPLES {
+        return Err(Error::usage(format!(
+            "{} samples per pixel: must be 1 or {MSAA_SAMPLES}",
+            opts.msaa
+        )));
+    }
+    if let Encoding::Gamma(g) = opts.encoding
+        && !(g > 0.0 && g.is_finite())
+    {
+        return Err(Error::usage(format!("gamma {g} must be positive")));
     }
     if let Some(s) = opts.exposure
         && !(s > 0.0 && s.is_finite())

@@ -47,6 +47,8 @@ pub struct Pipelines {
     pub mesh_shadow: wgpu::RenderPipeline,
     /// The camera pass's impostor quads ([`super::impostor`]).
     pub impostor: super::impostor::ImpostorPipeline,
+    /// Samples per pixel of the scene pass's targets.
+    pub samples: u32,
 }
 
 pub(super) fn uniform_entry(
@@ -155,6 +157,11 @@ pub(super) struct PassDesc<'a> {
     depth: Option<bool>,
     /// The vertex entry point.
     vertex: &'a str,
+    /// Samples per pixel of the target (1, or [`super::MSAA_SAMPLES`] for the scene pass).
+    samples: u32,
+    /// Alpha to coverage (leaf cards under MSAA): the fragment's alpha becomes its sample mask,
+    /// and the shader's `A2C` override turns the alpha test into a coverage ramp.
+    a2c: bool,
 }
 
 pub(super) fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipeline {
@@ -190,11 +197,18 @@ pub(super) fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipel
             ..Default::default()
         },
         depth_stencil,
-        multisample: Default::default(),
+        multisample: wgpu::MultisampleState {
+            count: d.samples,
+            mask: !0,
+            alpha_to_coverage_enabled: d.a2c,
+        },
         fragment: Some(wgpu::FragmentState {
             module: d.module,
             entry_point: Some("fs_main"),
-            compilation_options: Default::default(),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: if d.a2c { &[("A2C", 1.0)] } else { &[] },
+                ..Default::default()
+            },
             targets: &[Some(wgpu::ColorTargetState {
                 format: d.target,
                 blend: None,
@@ -454,19 +468,35 @@ pub(super) fn hdr_pass<'a>(
         target: HDR_FORMAT,
         depth,
         vertex: "vs_main",
+        samples: 1,
+        a2c: false,
+    }
+}
+
+impl<'a> PassDesc<'a> {
+    /// The same pass into a target of `samples` samples per pixel, with alpha to coverage
+    /// when `a2c` and more than one sample.
+    pub(super) fn multisampled(self, samples: u32, a2c: bool) -> PassDesc<'a> {
+        PassDesc {
+            samples,
+            a2c: a2c && samples > 1,
+            ..self
+        }
     }
 }
 
 impl Pipelines {
-    /// Layouts, then shader modules, then the scene passes (sky, terrain, meshes), the
-    /// depth-only shadow passes and the tone map.
-    pub fn new(device: &wgpu::Device) -> Pipelines {
+    /// Layouts, then shader modules, then the scene passes (sky, terrain, meshes, impostors;
+    /// `samples` per pixel, alpha to coverage on the alpha-tested meshes when more than one),
+    /// the depth-only shadow passes and the tone map.
+    pub fn new(device: &wgpu::Device, samples: u32) -> Pipelines {
         let l = Layouts::new(device);
         let m = Modules::new(device);
         let mesh_buffers = mesh_buffers();
         let sky = pipeline(
             device,
-            &hdr_pass("sky", &m.sky, &[Some(&l.globals)], &[], Some(false)),
+            &hdr_pass("sky", &m.sky, &[Some(&l.globals)], &[], Some(false))
+                .multisampled(samples, false),
         );
         let lit = [Some(&l.shadow), Some(&l.ambient)];
         let chunk_buffers = [Some(wgpu::VertexBufferLayout {
@@ -485,6 +515,7 @@ impl Pipelines {
                     &chunk_buffers,
                     Some(true),
                 )
+                .multisampled(samples, false)
             },
         );
         let mesh = pipeline(
@@ -495,7 +526,8 @@ impl Pipelines {
                 &[Some(&l.globals), Some(&l.material), lit[0], lit[1]],
                 &mesh_buffers,
                 Some(true),
-            ),
+            )
+            .multisampled(samples, true),
         );
         let terrain_shadow = shadow_pipeline(
             device,
@@ -531,11 +563,15 @@ impl Pipelines {
                 target: OUTPUT_FORMAT,
                 depth: None,
                 vertex: "vs_main",
+                samples: 1,
+                a2c: false,
             },
         );
-        let impostor =
-            super::impostor::ImpostorPipeline::new(device, &l.globals, &l.shadow, &l.ambient);
+        let impostor = super::impostor::ImpostorPipeline::new(
+            device, &l.globals, &l.shadow, &l.ambient, samples,
+        );
         Pipelines {
+            samples,
             impostor,
             globals_layout: l.globals,
             terrain_layout: l.terrain,

@@ -95,8 +95,14 @@ pub fn render_reference(pack: &Pack, opts: &RenderOptions) -> Result<ReferenceOu
         opts.prt_layout,
         opts.lighting.as_ref(),
     )?);
-    let radiance = r.radiance_image(&view, (opts.width, opts.height), opts.terms);
-    let image = tone_map_image(&radiance, view.exposure, (opts.width, opts.height));
+    let radiance =
+        r.radiance_image_sampled(&view, (opts.width, opts.height), opts.terms, opts.msaa);
+    let image = tone_map_image_encoded(
+        &radiance,
+        view.exposure,
+        (opts.width, opts.height),
+        opts.encoding,
+    );
     Ok(ReferenceOutput {
         image,
         radiance,
@@ -286,18 +292,56 @@ impl<'s, 'a> Reference<'s, 'a> {
 
     /// Linear radiance of every pixel of a `size` image of `view`.
     pub fn radiance_image(&self, view: &View, size: (u32, u32), terms: Terms) -> Vec<[f32; 3]> {
+        self.radiance_image_sampled(view, size, terms, 1)
+    }
+
+    /// Linear radiance of every pixel as the mean of `samples` rays (1: the centre; 4: the
+    /// standard 4× sample positions of Vulkan, D3D and Metal, those the GPU's MSAA resolves).
+    pub fn radiance_image_sampled(
+        &self,
+        view: &View,
+        size: (u32, u32),
+        terms: Terms,
+        samples: u32,
+    ) -> Vec<[f32; 3]> {
         let (w, h) = size;
+        let offsets: &[[f32; 2]] = if samples >= 4 {
+            &STANDARD_4X
+        } else {
+            &[[0.5, 0.5]]
+        };
+        let n = offsets.len() as f32;
         (0..h)
             .into_par_iter()
-            .flat_map_iter(|y| (0..w).map(move |x| self.pixel(view, size, terms, x, y)))
+            .flat_map_iter(|y| {
+                (0..w).map(move |x| {
+                    let mut l = [0.0f32; 3];
+                    for &[ox, oy] in offsets {
+                        let s = self.sample(view, size, terms, (x as f32 + ox, y as f32 + oy));
+                        l = [l[0] + s[0], l[1] + s[1], l[2] + s[2]];
+                    }
+                    l.map(|c| c / n)
+                })
+            })
             .collect::<Vec<_>>()
     }
 
     /// Radiance of pixel (x, y): the ray through its centre.
-    pub fn pixel(&self, view: &View, (w, h): (u32, u32), terms: Terms, x: u32, y: u32) -> [f32; 3] {
+    pub fn pixel(&self, view: &View, size: (u32, u32), terms: Terms, x: u32, y: u32) -> [f32; 3] {
+        self.sample(view, size, terms, (x as f32 + 0.5, y as f32 + 0.5))
+    }
+
+    /// Radiance of the ray through image point `(px, py)` (pixels from the top-left corner).
+    pub fn sample(
+        &self,
+        view: &View,
+        (w, h): (u32, u32),
+        terms: Terms,
+        (px, py): (f32, f32),
+    ) -> [f32; 3] {
         let cam: &Camera = &view.camera;
-        let ndc_x = (x as f32 + 0.5) / w as f32 * 2.0 - 1.0;
-        let ndc_y = 1.0 - (y as f32 + 0.5) / h as f32 * 2.0;
+        let ndc_x = px / w as f32 * 2.0 - 1.0;
+        let ndc_y = 1.0 - py / h as f32 * 2.0;
         let d = cam.ray(ndc_x, ndc_y);
         let ray = Ray::new(Vec3A::from(cam.eye), Vec3A::from(d), cam.near);
         match self.trace(&ray) {
@@ -579,24 +623,53 @@ pub use crate::color::linear_to_srgb;
 /// The display value of radiance `l`: `1 − exp(−L·s)`, sRGB-encoded, rounded to 8 bits (what
 /// the tone-map pass writes into the `Rgba8UnormSrgb` target).
 pub fn tone_map(l: f32, exposure: f32) -> u8 {
-    let v = 1.0 - (-l.max(0.0) * exposure).exp();
-    (linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0).round() as u8
+    tone_map_encoded(l, exposure, super::Encoding::Srgb)
+}
+
+/// The display value of radiance `l` under `encoding`: `1 − exp(−L·s)`, then sRGB or the
+/// thesis' power L_s^γ, rounded to 8 bits.
+pub fn tone_map_encoded(l: f32, exposure: f32, encoding: super::Encoding) -> u8 {
+    let v = (1.0 - (-l.max(0.0) * exposure).exp()).clamp(0.0, 1.0);
+    let e = match encoding {
+        super::Encoding::Srgb => linear_to_srgb(v),
+        super::Encoding::Gamma(g) => v.powf(g),
+    };
+    (e * 255.0).round() as u8
 }
 
 /// Tone-maps a radiance image into an sRGB RGBA8 image.
-pub fn tone_map_image(radiance: &[[f32; 3]], exposure: f32, (w, h): (u32, u32)) -> Rgba8Image {
+pub fn tone_map_image(radiance: &[[f32; 3]], exposure: f32, size: (u32, u32)) -> Rgba8Image {
+    tone_map_image_encoded(radiance, exposure, size, super::Encoding::Srgb)
+}
+
+/// Tone-maps a radiance image into an RGBA8 image with `encoding`.
+pub fn tone_map_image_encoded(
+    radiance: &[[f32; 3]],
+    exposure: f32,
+    (w, h): (u32, u32),
+    encoding: super::Encoding,
+) -> Rgba8Image {
     Rgba8Image {
         width: w,
         height: h,
         pixels: radiance
             .iter()
             .map(|l| {
-                let [r, g, b] = l.map(|c| tone_map(c, exposure));
+                let [r, g, b] = l.map(|c| tone_map_encoded(c, exposure, encoding));
                 [r, g, b, 255]
             })
             .collect(),
     }
 }
+
+/// The standard 4× sample positions within a pixel (x right, y down, in pixels), as Vulkan
+/// (`VkPhysicalDeviceLimits::standardSampleLocations`), D3D and Metal define them.
+pub const STANDARD_4X: [[f32; 2]; 4] = [
+    [0.375, 0.125],
+    [0.875, 0.375],
+    [0.125, 0.625],
+    [0.625, 0.875],
+];
 
 /// How far two images of the same size are apart (RGB only).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -642,6 +715,17 @@ mod tests {
         assert_eq!(tone_map(std::f32::consts::LN_2, 1.0), 188);
         assert_eq!(tone_map(0.0, 3.0), 0);
         assert_eq!(tone_map(1e9, 1.0), 255);
+    }
+
+    #[test]
+    fn the_gamma_encoding_is_the_plain_power_of_the_tone_mapped_value() {
+        use crate::render::Encoding;
+        // L s = −ln 0.4: L_s = 0.6; 0.6^1 → 153, 0.6^(1/2.2) = 0.7927 → 202.
+        let l = -(0.4f32.ln());
+        assert_eq!(tone_map_encoded(l, 1.0, Encoding::Gamma(1.0)), 153);
+        assert_eq!(tone_map_encoded(l, 1.0, Encoding::Gamma(1.0 / 2.2)), 202);
+        assert_eq!(tone_map_encoded(l, 1.0, Encoding::Srgb), tone_map(l, 1.0));
+        assert_eq!(tone_map_encoded(1e9, 1.0, Encoding::Gamma(3.0)), 255);
     }
 
     #[test]

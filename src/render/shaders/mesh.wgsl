@@ -119,17 +119,30 @@ fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
     return ambient_mesh(in.ambient_front, in.ambient_back, in.light_map_uv, albedo, n, seen_front);
 }
 
+// Alpha to coverage (set by the pipeline under MSAA, src/render/pipelines.rs): the alpha test
+// at 0.5 becomes a ramp one pixel wide across the alpha edge, whose value the hardware turns
+// into the fragment's sample mask; without it the test is a hard discard.
+override A2C: bool = false;
+
 @fragment
 fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
-    // Every texture read before the discard (derivatives need uniform control flow).
+    // Every texture read and derivative before the discard (uniform control flow).
     let texel = textureSample(color_map, color_sampler, in.uv);
     let ts = textureSample(normal_map, color_sampler, in.uv).xyz * 2.0 - 1.0;
-    if (texel.a * direct_material.mode.z < 0.5) {
+    let a = texel.a * direct_material.mode.z;
+    let w = fwidth(a);
+    var coverage = 1.0;
+    if (A2C) {
+        coverage = clamp((a - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
+        if (coverage <= 0.0) {
+            discard;
+        }
+    } else if (a < 0.5) {
         discard;
     }
     let l = mesh_direct(in, texel.rgb, ts) * globals.viewport.z
         + mesh_ambient(in, texel.rgb) * globals.viewport.w;
-    return vec4<f32>(l, 1.0);
+    return vec4<f32>(l, coverage);
 }
 
 // The shadow pass: depth only, with the same alpha test.
