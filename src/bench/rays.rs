@@ -202,11 +202,7 @@ pub fn bench_rays(
 
 /// The raw rays through Embree with the alpha test: (build seconds, timing).
 #[cfg(feature = "embree")]
-fn embree_timing(
-    mesh: &Mesh,
-    masks: &[Option<AlphaMask>],
-    rays: &[Ray],
-) -> Result<(f64, Timing)> {
+fn embree_timing(mesh: &Mesh, masks: &[Option<AlphaMask>], rays: &[Ray]) -> Result<(f64, Timing)> {
     let start = Instant::now();
     let scene = crate::trace::embree::EmbreeScene::build(mesh, masks)?;
     let build = start.elapsed().as_secs_f64();

@@ -180,7 +180,12 @@ impl EmbreeScene {
             let mat = mesh.triangle_materials.get(t).copied().unwrap_or(0) as usize;
             mask.push(mat_mask.get(mat).copied().unwrap_or(u32::MAX));
         }
-        if mesh.indices.iter().flatten().any(|&i| i as usize >= mesh.positions.len()) {
+        if mesh
+            .indices
+            .iter()
+            .flatten()
+            .any(|&i| i as usize >= mesh.positions.len())
+        {
             return Err(Error::runtime("embree: a triangle index is out of range"));
         }
         let alpha = Box::new(AlphaData {
