@@ -31,6 +31,8 @@ pub struct RaysBenchOptions {
     pub presets: Vec<BuildPreset>,
     /// Also bake every vertex with this many samples and time it.
     pub full_bake_samples: Option<u32>,
+    /// Also trace the raw rays through Embree (feature `embree`).
+    pub embree: bool,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -84,6 +86,17 @@ pub struct RaysBenchReport {
     pub efficiency_alpha: f64,
     pub presets: Vec<PresetResult>,
     pub full_bake: Option<FullBake>,
+    /// The raw rays through Embree's own BVH with the same alpha test (`--embree` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub embree_rays_per_second: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub embree_rays_per_cpu_second: Option<f64>,
+    /// Embree scene build time.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub embree_build_seconds: Option<f64>,
+    /// PRT rays per second over Embree rays per second (wall).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prt_over_embree: Option<f64>,
 }
 
 /// Runs the benchmark on `mesh` with its materials and alpha masks.
@@ -148,6 +161,11 @@ pub fn bench_rays(
     let raw_cpu = per(raw_rays, raw.cpu);
     let prt_cpu = per(prt_rays, prt.cpu);
     let wall_eff = (raw_rays as f64 / raw.wall).recip() * (prt_rays as f64 / prt.wall);
+    let embree = if opts.embree {
+        Some(embree_timing(mesh, masks, &rays)?)
+    } else {
+        None
+    };
     let full_bake = opts
         .full_bake_samples
         .map(|s| full_bake(mesh, materials, masks, &opts.prt, s))
@@ -175,7 +193,38 @@ pub fn bench_rays(
         ),
         presets,
         full_bake,
+        embree_rays_per_second: embree.map(|(_, t)| raw_rays as f64 / t.wall),
+        embree_rays_per_cpu_second: embree.and_then(|(_, t)| per(raw_rays, t.cpu)),
+        embree_build_seconds: embree.map(|(b, _)| b),
+        prt_over_embree: embree.map(|(_, t)| prt_rays as f64 / prt.wall * t.wall / raw_rays as f64),
     })
+}
+
+/// The raw rays through Embree with the alpha test: (build seconds, timing).
+#[cfg(feature = "embree")]
+fn embree_timing(mesh: &Mesh, masks: &[Option<AlphaMask>], rays: &[Ray]) -> Result<(f64, Timing)> {
+    let start = Instant::now();
+    let scene = crate::trace::embree::EmbreeScene::build(mesh, masks)?;
+    let build = start.elapsed().as_secs_f64();
+    let t = time_best(|| {
+        let hits: usize = rays
+            .par_iter()
+            .map(|r| scene.closest_hit(r).is_some() as usize)
+            .sum();
+        std::hint::black_box(hits);
+    });
+    Ok((build, t))
+}
+
+#[cfg(not(feature = "embree"))]
+fn embree_timing(
+    _mesh: &Mesh,
+    _masks: &[Option<AlphaMask>],
+    _rays: &[Ray],
+) -> Result<(f64, Timing)> {
+    Err(crate::error::Error::runtime(
+        "--embree needs a build with the cargo feature `embree` (cargo build --features embree)",
+    ))
 }
 
 /// The first rays of the PRT paths of `verts`, without the PRT machinery: origin offset along

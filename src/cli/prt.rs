@@ -145,6 +145,9 @@ pub struct RaysBenchArgs {
     /// Also bake every vertex with this many samples per side and report the time.
     #[arg(long)]
     pub bake_samples: Option<u32>,
+    /// Also trace the raw rays through Embree with the same alpha test (cargo feature `embree`).
+    #[arg(long)]
+    pub embree: bool,
 }
 
 pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
@@ -167,6 +170,7 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
             vec![a.preset]
         },
         full_bake_samples: a.bake_samples,
+        embree: a.embree,
     };
     let r = bench_rays(&mesh, &mats, &masks, &opts)?;
     let cpu = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.3}", v / 1e6));
@@ -204,6 +208,16 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
             p.build_seconds,
             p.raw_rays_per_second / 1e6,
             cpu(p.raw_rays_per_cpu_second)
+        ));
+    }
+    if let (Some(e), Some(b)) = (r.embree_rays_per_second, r.embree_build_seconds) {
+        text.push_str(&format!(
+            "raw Embree  {:>8.3}  {:>8}   (raw rays, Embree BVH, alpha filter; build {:.3} s)\n\
+             PRT / Embree {:>7.3}\n",
+            e / 1e6,
+            cpu(r.embree_rays_per_cpu_second),
+            b,
+            r.prt_over_embree.unwrap_or(0.0)
         ));
     }
     if let Some(b) = &r.full_bake {

@@ -7,6 +7,8 @@
 //! collect in input order, so results never depend on the thread count.
 
 pub mod bvh;
+#[cfg(feature = "embree")]
+pub mod embree;
 pub mod heightfield;
 pub mod materials;
 pub mod pack_scene;
