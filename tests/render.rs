@@ -41,6 +41,7 @@ fn lighting() -> Lighting {
         sun_direction: Vec3::new(0.2, -0.5, 0.8).normalize().to_array(),
         sun_irradiance: [3.0, 2.9, 2.7],
         ambient: [0.8, 0.9, 1.1],
+        sun_solid_angle: 0.0,
     }
 }
 

@@ -271,6 +271,7 @@ fn a_flat_terrain_under_the_sun_has_the_analytic_radiance_on_both_paths() {
                 sun_direction: sun.to_array(),
                 sun_irradiance: e,
                 ambient: [0.5; 3],
+                sun_solid_angle: 0.0,
             }),
             terms: Terms::Direct,
             ..RenderOptions::default()
@@ -373,6 +374,7 @@ fn the_shader_evaluates_the_schlick_brdf_like_the_rust_code() {
                 sun_direction: sun.to_array(),
                 sun_irradiance: e,
                 ambient: [0.0; 3],
+                sun_solid_angle: 0.0,
             }),
             terms: Terms::Direct,
             ..RenderOptions::default()
@@ -500,4 +502,63 @@ fn gamma_writes_the_power_of_the_tone_mapped_value_on_both_paths() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("gamma"), "{e}");
+}
+
+/// The sun's disc in the sky background (issue 16 item 2): the sky stage took the sun out of the
+/// cube, so the sky pass draws it back as a cap of solid angle Ω with radiance E/Ω at the
+/// extracted direction. Looking straight at it, both paths saturate Ω / (pixel solid angle)
+/// pixels (the analytic count), and agree with each other; a light without a disc shows none.
+#[test]
+fn the_sun_disc_is_drawn_where_the_sky_stage_took_it_out() {
+    let pack = fixture_pack();
+    let l = bake::render::pack_lighting(&pack).unwrap();
+    let omega = l.sun_solid_angle;
+    assert!(omega > 0.0, "the fixture's sky stage removed the sun");
+    let rho = (1.0 - omega / (2.0 * PI)).acos();
+    let fov = (8.0 * rho).to_degrees();
+    let eye = [50.0, 50.0, 200.0];
+    let d = Vec3::from(l.sun_direction);
+    let opts = RenderOptions {
+        width: SIZE.0,
+        height: SIZE.1,
+        eye: Some(eye),
+        target: Some((Vec3::from(eye) + d * 100.0).to_array()),
+        fov_y_deg: fov,
+        ..RenderOptions::default()
+    };
+    let saturated = |img: &Rgba8Image| {
+        img.pixels
+            .iter()
+            .filter(|p| p[..3].iter().all(|&c| c >= 250))
+            .count()
+    };
+    let gpu = render_pack(&pack, &opts).unwrap();
+    let cpu = render_reference(&pack, &opts).unwrap();
+    let pixel = (2.0 * (fov.to_radians() * 0.5).tan() / SIZE.1 as f32).powi(2);
+    let expected = omega / pixel;
+    let (g, c) = (saturated(&gpu.image), saturated(&cpu.image));
+    eprintln!(
+        "Ω {omega} sr, ρ {:.3}°: expected {expected:.1} pixels, GPU {g}, CPU {c}",
+        rho.to_degrees()
+    );
+    for n in [g, c] {
+        assert!(
+            (n as f32 - expected).abs() <= 0.1 * expected + 2.0,
+            "{n} saturated pixels, expected {expected:.1}"
+        );
+    }
+    assert_within_bounds(&gpu.image, &cpu.image, "sun disc");
+    // The same view with the pack's light but no disc: nothing saturates.
+    let none = render_pack(
+        &pack,
+        &RenderOptions {
+            lighting: Some(bake::render::Lighting {
+                sun_solid_angle: 0.0,
+                ..l
+            }),
+            ..opts.clone()
+        },
+    )
+    .unwrap();
+    assert_eq!(saturated(&none.image), 0);
 }

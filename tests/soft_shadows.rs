@@ -101,6 +101,7 @@ fn options(soft: bool) -> RenderOptions {
             sun_direction: [0.0, 0.0, 1.0],
             sun_irradiance: [3.0, 3.0, 3.0],
             ambient: [0.3, 0.3, 0.3],
+            sun_solid_angle: 0.0,
         }),
         soft_shadows: soft.then_some(SoftShadows {
             area_light: Some(light()),

@@ -54,7 +54,7 @@ impl Globals {
             cam_up: v4((b.up * ty).to_array(), 0.0),
             cam_forward: v4(b.forward.to_array(), 0.0),
             sun_direction: v4(light.sun_direction, 0.0),
-            sun_irradiance: v4(light.sun_irradiance, 0.0),
+            sun_irradiance: v4(light.sun_irradiance, light.sun_solid_angle),
             ambient: v4(light.ambient, 0.0),
             viewport: [size.0 as f32, size.1 as f32, kd, ka],
         }

@@ -22,6 +22,11 @@ pub struct Lighting {
     pub sun_irradiance: [f32; 3],
     /// Irradiance of a horizontal surface from the sky.
     pub ambient: [f32; 3],
+    /// Solid angle (sr) of the sun's disc drawn in the sky background at `sun_direction` with
+    /// radiance `sun_irradiance / sun_solid_angle`: the sky stage's removed texels, so the
+    /// sun-free cube plus the disc hold the map's energy. 0: no disc (a sky that still holds
+    /// its sun, or none).
+    pub sun_solid_angle: f32,
 }
 
 /// Ratio of direct sun to sky irradiance used when the pack does not say (a clear day gives 3–6).
@@ -197,6 +202,7 @@ pub fn default_lighting(texels: &[[f32; 4]], width: u32, height: u32, analytic: 
             sun_direction: default_dir.to_array(),
             sun_irradiance: [e; 3],
             ambient,
+            sun_solid_angle: 0.0,
         };
     }
     match split_sun(texels, width, height) {
@@ -204,11 +210,13 @@ pub fn default_lighting(texels: &[[f32; 4]], width: u32, height: u32, analytic: 
             sun_direction: sun.direction.to_array(),
             sun_irradiance: sun.irradiance,
             ambient: sun.sky,
+            sun_solid_angle: 0.0,
         },
         None => Lighting {
             sun_direction: default_dir.to_array(),
             sun_irradiance: [0.0; 3],
             ambient: sky_irradiance(texels, width, height),
+            sun_solid_angle: 0.0,
         },
     }
 }
@@ -310,6 +318,7 @@ mod tests {
             sun_direction: [0.0, 0.0, 1.0],
             sun_irradiance: [3.0; 3],
             ambient: [1.0; 3],
+            sun_solid_angle: 0.0,
         };
         let s = auto_exposure(&l);
         let grey = 0.18 * 4.0 / PI;

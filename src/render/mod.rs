@@ -208,11 +208,14 @@ pub fn pack_lighting(pack: &Pack) -> Option<light::Lighting> {
         .view_named(crate::sky::SUN_SECTION)
         .ok()
         .and_then(|v| crate::sky::section::sun_from_section(&v).ok());
-    let (dir, e) = sun.map_or(([0.0, 0.0, 1.0], [0.0; 3]), |s| (s.direction, s.irradiance));
+    let (dir, e, omega) = sun.map_or(([0.0, 0.0, 1.0], [0.0; 3], 0.0), |s| {
+        (s.direction, s.irradiance, s.solid_angle as f32)
+    });
     Some(light::Lighting {
         sun_direction: dir,
         sun_irradiance: e,
         ambient: irr.eval([0.0, 0.0, 1.0]).map(|v| v.max(0.0)),
+        sun_solid_angle: omega,
     })
 }
 
@@ -230,7 +233,17 @@ pub fn resolve_view(pack: &Pack, scene: &scene::SceneData, opts: &RenderOptions)
     let camera = choose_camera(scene, opts, aspect);
     let lighting = opts
         .lighting
-        .or_else(|| pack_lighting(pack))
+        .or_else(|| {
+            // The disc only where the drawn sky is the one its sun was taken out of.
+            pack_lighting(pack).map(|l| light::Lighting {
+                sun_solid_angle: if scene.sky.sun_removed {
+                    l.sun_solid_angle
+                } else {
+                    0.0
+                },
+                ..l
+            })
+        })
         .unwrap_or_else(|| {
             light::default_lighting(
                 &scene.sky.texels,

@@ -345,7 +345,11 @@ impl<'s, 'a> Reference<'s, 'a> {
         let d = cam.ray(ndc_x, ndc_y);
         let ray = Ray::new(Vec3A::from(cam.eye), Vec3A::from(d), cam.near);
         match self.trace(&ray) {
-            None => sky_radiance(self.scene, d),
+            None => {
+                let s = sky_radiance(self.scene, d);
+                let disc = sun_disc(&view.lighting, d);
+                [s[0] + disc[0], s[1] + disc[1], s[2] + disc[2]]
+            }
             Some(hit) => {
                 let wo = -d;
                 let [kd, ka] = terms.weights();
@@ -616,6 +620,16 @@ pub fn sky_radiance(scene: &SceneData, d: Vec3) -> [f32; 3] {
         let t = sky.texels[(j.clamp(0, h - 1) * w + i.rem_euclid(w)) as usize];
         [t[0], t[1], t[2]]
     })
+}
+
+/// The sun's disc seen along `d`: radiance E/Ω inside the cap cos ρ = 1 − Ω/2π around the sun
+/// (as shaders/sky.wgsl draws it), zero outside or without a disc.
+pub fn sun_disc(l: &super::Lighting, d: Vec3) -> [f32; 3] {
+    let omega = l.sun_solid_angle;
+    if omega <= 0.0 || d.dot(Vec3::from(l.sun_direction)) < 1.0 - omega / (2.0 * PI) {
+        return [0.0; 3];
+    }
+    l.sun_irradiance.map(|e| e / omega)
 }
 
 pub use crate::color::linear_to_srgb;

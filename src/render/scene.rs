@@ -134,6 +134,9 @@ pub struct SkyData<'a> {
     pub texels: Cow<'a, [[f32; 4]]>,
     /// True when the pack had no sky and the analytic one is used.
     pub analytic: bool,
+    /// True for the sky stage's cube, whose sun was taken out (the sky pass draws it as a
+    /// disc, [`super::light::Lighting::sun_solid_angle`]).
+    pub sun_removed: bool,
 }
 
 /// Everything a frame needs.
@@ -801,6 +804,7 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
                 height: h,
                 texels: Cow::Owned(texels),
                 analytic: false,
+                sun_removed: true,
             });
         }
         let texels: &[[f32; 4]] = v
@@ -819,6 +823,7 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
                 height: meta.height,
                 texels: Cow::Borrowed(texels),
                 analytic: false,
+                sun_removed: false,
             });
         }
         warnings.push(format!(
@@ -832,6 +837,7 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
         height: h,
         texels: Cow::Owned(light::analytic_sky(w, h)),
         analytic: true,
+        sun_removed: false,
     })
 }
 

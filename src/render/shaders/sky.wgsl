@@ -40,10 +40,20 @@ fn sky_radiance(d: vec3<f32>) -> vec3<f32> {
     return mix(a, b, fy);
 }
 
+// The sun's disc (sun_irradiance.w: its solid angle Ω, 0 for none): a cap of cos ρ = 1 − Ω/2π
+// around the sun's direction with radiance E/Ω, what the sky stage took out of the cube.
+fn sun_disc(d: vec3<f32>) -> vec3<f32> {
+    let omega = globals.sun_irradiance.w;
+    if (omega <= 0.0 || dot(d, globals.sun_direction.xyz) < 1.0 - omega / (2.0 * PI)) {
+        return vec3<f32>(0.0);
+    }
+    return globals.sun_irradiance.xyz / omega;
+}
+
 @fragment
 fn fs_main(in: SkyOut) -> @location(0) vec4<f32> {
     let ndc = vec2<f32>(in.position.x / globals.viewport.x * 2.0 - 1.0,
                         1.0 - in.position.y / globals.viewport.y * 2.0);
     let d = normalize(globals.cam_forward.xyz + ndc.x * globals.cam_right.xyz + ndc.y * globals.cam_up.xyz);
-    return vec4<f32>(sky_radiance(d), 1.0);
+    return vec4<f32>(sky_radiance(d) + sun_disc(d), 1.0);
 }
