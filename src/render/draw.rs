@@ -162,6 +162,18 @@ pub(crate) fn texture_2d(
     format: wgpu::TextureFormat,
     usage: wgpu::TextureUsages,
 ) -> wgpu::Texture {
+    texture_2d_samples(gpu, label, size, format, usage, 1)
+}
+
+/// A single-level 2D texture of `samples` samples per texel (the scene pass's MSAA targets).
+fn texture_2d_samples(
+    gpu: &Gpu,
+    label: &str,
+    size: (u32, u32),
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+    samples: u32,
+) -> wgpu::Texture {
     gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: Some(label),
         size: wgpu::Extent3d {
@@ -170,7 +182,7 @@ pub(crate) fn texture_2d(
             depth_or_array_layers: 1,
         },
         mip_level_count: 1,
-        sample_count: 1,
+        sample_count: samples,
         dimension: wgpu::TextureDimension::D2,
         format,
         usage,
@@ -237,20 +249,8 @@ pub fn draw_frame(
     // colour (the linear radiance) into `hdr`, which the tone map reads.
     let samples = pipes.samples;
     let attachment = |label, format| {
-        gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
-            size: wgpu::Extent3d {
-                width: size.0,
-                height: size.1,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: samples,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-            view_formats: &[],
-        })
+        let usage = wgpu::TextureUsages::RENDER_ATTACHMENT;
+        texture_2d_samples(gpu, label, size, format, usage, samples)
     };
     let depth = attachment("depth", DEPTH_FORMAT);
     let hdr_ms = (samples > 1).then(|| attachment("hdr samples", HDR_FORMAT));
