@@ -198,6 +198,42 @@ pub struct Terrain {
     pub color: Option<Rgba8Image>,
 }
 
+/// Bilinear height at world (x, y) of a height grid of `width × height` samples (row-major,
+/// row 0 at `origin[1]`) spanning `extent`, clamped to the grid's edge ([`Terrain::height_at`]).
+pub fn bilinear_height(
+    heights: &[f32],
+    (width, height): (u32, u32),
+    origin: [f32; 2],
+    extent: [f32; 2],
+    x: f32,
+    y: f32,
+) -> f32 {
+    let w = width.max(1);
+    let h = height.max(1);
+    let fx = if w > 1 {
+        (x - origin[0]) / extent[0] * (w - 1) as f32
+    } else {
+        0.0
+    };
+    let fy = if h > 1 {
+        (y - origin[1]) / extent[1] * (h - 1) as f32
+    } else {
+        0.0
+    };
+    let fx = fx.clamp(0.0, (w - 1) as f32);
+    let fy = fy.clamp(0.0, (h - 1) as f32);
+    let i0 = (fx.floor() as u32).min(w.saturating_sub(2));
+    let j0 = (fy.floor() as u32).min(h.saturating_sub(2));
+    let i1 = (i0 + 1).min(w - 1);
+    let j1 = (j0 + 1).min(h - 1);
+    let tx = fx - i0 as f32;
+    let ty = fy - j0 as f32;
+    let at = |i: u32, j: u32| heights[(j * width + i) as usize];
+    let a = at(i0, j0) * (1.0 - tx) + at(i1, j0) * tx;
+    let b = at(i0, j1) * (1.0 - tx) + at(i1, j1) * tx;
+    a * (1.0 - ty) + b * ty
+}
+
 impl Terrain {
     /// Height at grid sample (i, j).
     pub fn sample(&self, i: u32, j: u32) -> f32 {
@@ -206,29 +242,14 @@ impl Terrain {
 
     /// Bilinear height at world (x, y), clamped to the terrain's edge.
     pub fn height_at(&self, x: f32, y: f32) -> f32 {
-        let w = self.width.max(1);
-        let h = self.height.max(1);
-        let fx = if w > 1 {
-            (x - self.origin[0]) / self.extent[0] * (w - 1) as f32
-        } else {
-            0.0
-        };
-        let fy = if h > 1 {
-            (y - self.origin[1]) / self.extent[1] * (h - 1) as f32
-        } else {
-            0.0
-        };
-        let fx = fx.clamp(0.0, (w - 1) as f32);
-        let fy = fy.clamp(0.0, (h - 1) as f32);
-        let i0 = (fx.floor() as u32).min(w.saturating_sub(2));
-        let j0 = (fy.floor() as u32).min(h.saturating_sub(2));
-        let i1 = (i0 + 1).min(w - 1);
-        let j1 = (j0 + 1).min(h - 1);
-        let tx = fx - i0 as f32;
-        let ty = fy - j0 as f32;
-        let a = self.sample(i0, j0) * (1.0 - tx) + self.sample(i1, j0) * tx;
-        let b = self.sample(i0, j1) * (1.0 - tx) + self.sample(i1, j1) * tx;
-        a * (1.0 - ty) + b * ty
+        bilinear_height(
+            &self.heights,
+            (self.width, self.height),
+            self.origin,
+            self.extent,
+            x,
+            y,
+        )
     }
 
     /// World position of grid sample (i, j).

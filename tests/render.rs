@@ -754,3 +754,156 @@ fn instance_screen_box(o: &Oracle, i: &Instance, m: &Mesh) -> [f32; 4] {
     }
     b
 }
+
+/// A 64 m square terrain sloping as the plane z = 1 + 0.1 x + 0.05 y (bilinear interpolation
+/// reproduces a plane exactly, so the height under any point is known), a random scatter of the
+/// quad over it with coincident pairs, and, with `bittree`, the BitTree of `tree_of` (the
+/// scatter itself unless a test passes a changed one).
+fn scatter_pack(items: &[Instance], tree_of: Option<&[Instance]>) -> Pack {
+    let n = 33u32;
+    let plane = |x: f32, y: f32| 1.0 + 0.1 * x + 0.05 * y;
+    let heights = (0..n)
+        .flat_map(|j| (0..n).map(move |i| plane(i as f32 * 2.0, j as f32 * 2.0)))
+        .collect();
+    let t = Terrain {
+        width: n,
+        height: n,
+        heights,
+        origin: [0.0, 0.0],
+        extent: [64.0, 64.0],
+        color: None,
+    };
+    let mut w = PackWriter::new();
+    w.insert(terrain::to_section("terrain", "test", &t, None));
+    let leaf = bake::texture::source_section::texture_section_name("quad", "leaf.png");
+    w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
+    let mesh_name = bake::mesh::section::mesh_section_name("quad");
+    w.insert(mesh::to_section(
+        &mesh_name,
+        "test",
+        &quad_mesh(),
+        &[Some(leaf)],
+    ));
+    let inst = |items: &[Instance]| Instances {
+        models: vec!["quad".into()],
+        items: items.to_vec(),
+    };
+    w.insert(instances::to_section(
+        "instances",
+        &inst(items),
+        vec![mesh_name],
+    ));
+    if let Some(tree) = tree_of {
+        let area = bake::model::Rect {
+            origin: [0.0, 0.0],
+            extent: [64.0, 64.0],
+        };
+        w.insert(
+            bake::bittree::section::to_section(
+                "bittree",
+                &inst(tree),
+                area,
+                &bake::bittree::BitTreeOptions::DEFAULT,
+            )
+            .unwrap(),
+        );
+    }
+    Pack::from_bytes(&w.to_bytes().unwrap(), "scatter.bake").unwrap()
+}
+
+/// 2,000 instances at pseudo-random places, scales and rotations on the sloped terrain, the
+/// first 40 repeated exactly (coincident instances, which share a BitTree leaf).
+fn scatter() -> Vec<Instance> {
+    let mut s = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let mut items: Vec<Instance> = (0..2000)
+        .map(|_| {
+            let (x, y) = (next() * 64.0, next() * 64.0);
+            Instance {
+                model: 0,
+                position: [x, y, 1.0 + 0.1 * x + 0.05 * y],
+                scale: 0.5 + next(),
+                rotation_deg: next() * 360.0,
+                layer: (next() * 3.0) as i32,
+            }
+        })
+        .collect();
+    items.extend(items[..40].to_vec());
+    items
+}
+
+/// Issue 16 item 3: with a `bittree` section the renderer reads the instances from it. Each
+/// decoded instance stays in the cell of its record (|Δx|, |Δy| ≤ half a cell), stands on the
+/// terrain (z the plane's height at the decoded point), keeps its scale, its layer and its
+/// rotation to half a quantum (360°/2¹⁶); the coincident pairs decode to one point. A BitTree of
+/// other positions is refused as stale, and both packs render.
+#[test]
+fn instances_are_decoded_from_the_bittree_at_load() {
+    let items = scatter();
+    let plain = scatter_pack(&items, None);
+    let coded = scatter_pack(&items, Some(&items));
+    let a = bake::render::scene::load_scene(&plain).unwrap();
+    let b = bake::render::scene::load_scene(&coded).unwrap();
+    use bake::render::scene::InstanceSource;
+    assert_eq!(a.instance_source, InstanceSource::Instances);
+    assert_eq!(b.instance_source, InstanceSource::Bittree);
+    let meta: bake::bittree::section::BitTreeMeta =
+        coded.view_named("bittree").unwrap().meta().unwrap();
+    let cells = 4f32.powi(meta.levels as i32);
+    let cell = [64.0 / cells, 64.0 / cells];
+    let (ra, rb) = (&a.models[0].instances, &b.models[0].instances);
+    assert_eq!(ra.len(), items.len());
+    assert_eq!(rb.len(), items.len());
+    let mut moved = 0.0f32;
+    for (k, (p, q)) in ra.iter().zip(rb).enumerate() {
+        for (i, c) in cell.iter().enumerate() {
+            let d = (p.position[i] - q.position[i]).abs();
+            assert!(d <= 0.5 * c * 1.0001, "instance {k}: {d} m off in axis {i}");
+            moved = moved.max(d);
+        }
+        let z = 1.0 + 0.1 * q.position[0] + 0.05 * q.position[1];
+        assert!(
+            (q.position[2] - z).abs() < 1e-4,
+            "instance {k}: z {}",
+            q.position[2]
+        );
+        assert_eq!(p.scale, q.scale);
+        assert_eq!(p.layer, q.layer);
+        let turn = (p.rotation_deg - q.rotation_deg).rem_euclid(360.0);
+        assert!(
+            turn.min(360.0 - turn) <= 0.5 * 360.0 / 65536.0 + 1e-4,
+            "instance {k}"
+        );
+    }
+    for k in 0..40 {
+        assert_eq!(rb[k].position, rb[2000 + k].position, "coincident pair {k}");
+    }
+    eprintln!(
+        "{} levels, cell {:.4} m, largest offset {moved:.4} m",
+        meta.levels, cell[0]
+    );
+    assert!(moved > 0.0, "the decoded positions are the records' own");
+
+    let mut other = items.clone();
+    other[7].position[0] = (other[7].position[0] + 20.0) % 64.0;
+    let stale = scatter_pack(&items, Some(&other));
+    let e = bake::render::scene::load_scene(&stale)
+        .expect_err("a stale BitTree is refused")
+        .to_string();
+    assert!(e.contains("bittree") && e.contains("stale"), "{e}");
+
+    let opts = RenderOptions {
+        eye: Some([32.0, -20.0, 30.0]),
+        target: Some([32.0, 32.0, 4.0]),
+        ..options()
+    };
+    let ga = render_pack(&plain, &opts).unwrap();
+    let gb = render_pack(&coded, &opts).unwrap();
+    assert_eq!(gb.stats.instances_from, InstanceSource::Bittree);
+    assert_eq!(ga.stats.instances, gb.stats.instances);
+}

@@ -113,6 +113,36 @@ fn cell_of(p: [f32; 2], area: &Rect, cells: u64) -> [u64; 2] {
     c
 }
 
+/// The points' path keys in a tree of `levels` levels, sorted: breadth-first leaf order is the
+/// order of the digit sequences (most significant level first), i.e. of the interleaved
+/// base-`side` keys; ties (a shared leaf) in input order.
+fn keyed_points(points: &[[f32; 2]], area: &Rect, side: u64, levels: u32) -> Vec<(u128, u32)> {
+    let cells = side.pow(levels);
+    let mut keyed: Vec<(u128, u32)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (path_key(cell_of(*p, area, cells), side, levels), i as u32))
+        .collect();
+    keyed.sort_unstable();
+    keyed
+}
+
+/// The leaf order of `points` in the grid of a tree over `area` with `children` per node and
+/// `levels` levels: `order[k]` is the point decoded as the k-th position, as [`encode_bittree`]
+/// returns it. A reader that keeps per-instance data in input order pairs the decoded
+/// positions with it through this.
+pub fn leaf_order(points: &[[f32; 2]], area: &Rect, children: u32, levels: u32) -> Vec<u32> {
+    keyed_points(points, area, side_of(children) as u64, levels)
+        .into_iter()
+        .map(|(_, i)| i)
+        .collect()
+}
+
+/// The deepest-level cell (column, row) of a point in that grid, clamped into the area.
+pub fn leaf_cell(p: [f32; 2], area: &Rect, children: u32, levels: u32) -> [u64; 2] {
+    cell_of(p, area, (side_of(children) as u64).pow(levels))
+}
+
 /// Encodes positions (x, y) inside `area`. Returns the tree and the leaf order: `order[k]` is the
 /// index of the input instance decoded as the k-th position.
 pub fn encode_bittree(
@@ -128,15 +158,7 @@ pub fn encode_bittree(
     }
     let side = side_of(opts.children) as u64;
     let levels = choose_levels(points, &area, side, opts.max_levels);
-    let cells = side.pow(levels);
-    // Sort instances by their path through the tree: for breadth-first leaf order it is enough to
-    // sort by the digit sequence (most significant level first), i.e. the interleaved base-`side` key.
-    let mut keyed: Vec<(u128, u32)> = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| (path_key(cell_of(*p, &area, cells), side, levels), i as u32))
-        .collect();
-    keyed.sort_unstable();
+    let keyed = keyed_points(points, &area, side, levels);
     let mut bits = BitWriter::default();
     // Nodes of the current level as ranges of `keyed` sharing the same prefix.
     let mut nodes: Vec<(usize, usize)> = if keyed.is_empty() {

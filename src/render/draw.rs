@@ -198,11 +198,14 @@ pub(crate) fn globals_group(
     globals: &Globals,
     sun_visibility: &wgpu::TextureView,
 ) -> wgpu::BindGroup {
+    // cam_forward.w: 1 where the sky pass samples the cube.
+    let mut globals = *globals;
+    globals.cam_forward[3] = if scene.sky_is_cube { 1.0 } else { 0.0 };
     let buf = gpu
         .device
         .create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("globals"),
-            contents: bytemuck::bytes_of(globals),
+            contents: bytemuck::bytes_of(&globals),
             usage: wgpu::BufferUsages::UNIFORM,
         });
     gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -220,6 +223,14 @@ pub(crate) fn globals_group(
             wgpu::BindGroupEntry {
                 binding: 2,
                 resource: wgpu::BindingResource::TextureView(sun_visibility),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: wgpu::BindingResource::TextureView(&scene.sky_cube),
+            },
+            wgpu::BindGroupEntry {
+                binding: 4,
+                resource: wgpu::BindingResource::Sampler(&scene.sky_sampler),
             },
         ],
     })

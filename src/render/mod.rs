@@ -148,6 +148,9 @@ pub struct RenderStats {
     /// True when the pack had no sky and the analytic one was drawn.
     pub analytic_sky: bool,
     pub models: usize,
+    /// Where the instances were read from: the `bittree` section when the pack has one, else
+    /// the `instances` records ([`scene::bittree_instances`]).
+    pub instances_from: scene::InstanceSource,
     /// Instances the camera pass drew (after culling).
     pub instances: u64,
     /// Instances outside the view, not drawn by the camera pass.
@@ -381,6 +384,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         lighting,
         analytic_sky: scene.sky.analytic,
         models: scene.models.len(),
+        instances_from: scene.instance_source,
         instances: counts.instances,
         instances_culled: total_instances - counts.instances,
         instances_per_level: per_level,

@@ -356,6 +356,18 @@ impl Layouts {
                 texture_entry(1, S::FRAGMENT, false),
                 // The sun's visibility (soft shadows), R32Float.
                 texture_entry(2, S::FRAGMENT, false),
+                // The cube sky (Rgba16Float) and its bilinear sampler.
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: S::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::Cube,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                sampler_entry(4),
             ],
         );
         let terrain = layout(

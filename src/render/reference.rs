@@ -605,10 +605,14 @@ pub fn bilinear(
     })
 }
 
-/// The sky along unit `d`: the lat-long image, bilinear with wrap in u and clamp in v
-/// (shaders/sky.wgsl `sky_radiance`).
+/// The sky along unit `d` (shaders/sky.wgsl `sky_radiance`): the sky stage's cube, bilinear and
+/// seamless ([`crate::cube::CubeMap::sample`], the section's half floats that the GPU holds);
+/// else the lat-long image, bilinear with wrap in u and clamp in v.
 pub fn sky_radiance(scene: &SceneData, d: Vec3) -> [f32; 3] {
     let sky = &scene.sky;
+    if let Some(cube) = &sky.cube {
+        return cube.sample([d.x as f64, d.y as f64, d.z as f64]);
+    }
     let (w, h) = (sky.width as i64, sky.height as i64);
     let theta = d.z.clamp(-1.0, 1.0).acos();
     let mut phi = d.y.atan2(d.x);

@@ -126,17 +126,34 @@ pub struct LodLevelData {
     pub error: f32,
 }
 
-/// The sky as a lat-long RGBA float image.
+/// The sky: a lat-long RGBA float image and, for the sky stage's cube, the cube itself.
 #[derive(Debug, Clone)]
 pub struct SkyData<'a> {
     pub width: u32,
     pub height: u32,
+    /// The lat-long image: the sky pass draws it where there is no cube, and the light of a
+    /// pack without an `sh` section is estimated from it.
     pub texels: Cow<'a, [[f32; 4]]>,
+    /// The sky stage's cube map (faces of `src/cube.rs`): the sky pass samples it as a cube
+    /// texture (`Rgba16Float`, bilinear, seamless) with the world direction.
+    pub cube: Option<crate::cube::CubeMap>,
     /// True when the pack had no sky and the analytic one is used.
     pub analytic: bool,
     /// True for the sky stage's cube, whose sun was taken out (the sky pass draws it as a
     /// disc, [`super::light::Lighting::sun_solid_angle`]).
     pub sun_removed: bool,
+}
+
+/// Where a scene's instance positions, scales, rotations and models were read from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum InstanceSource {
+    /// The `instances` section's records (or one instance per mesh without one).
+    #[default]
+    Instances,
+    /// The `bittree` section: cell-centre positions (x, y) on the terrain, quantized rotations
+    /// (see [`bittree_instances`]).
+    Bittree,
 }
 
 /// Everything a frame needs.
@@ -145,6 +162,8 @@ pub struct SceneData<'a> {
     pub terrain: Option<TerrainData<'a>>,
     pub models: Vec<ModelData<'a>>,
     pub sky: SkyData<'a>,
+    /// Where the instances' positions came from.
+    pub instance_source: InstanceSource,
     /// What was skipped (missing textures, unusable sections).
     pub warnings: Vec<String>,
 }
@@ -156,12 +175,13 @@ pub fn load_scene(pack: &Pack) -> Result<SceneData<'_>> {
         Some(e) => load_terrain(pack, &e.name, &mut warnings)?,
         None => None,
     };
-    let models = load_models(pack, &mut warnings)?;
+    let (models, instance_source) = load_models(pack, terrain.as_ref(), &mut warnings)?;
     let sky = load_sky(pack, &mut warnings)?;
     Ok(SceneData {
         terrain,
         models,
         sky,
+        instance_source,
         warnings,
     })
 }
@@ -304,14 +324,29 @@ fn load_image<'a>(
 
 /// Every model of the `instances` section with its instances; without an `instances` section
 /// (a pack from `bake ingest model.txf`) every mesh section is drawn once at the origin.
-fn load_models<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<Vec<ModelData<'a>>> {
+///
+/// With a `bittree` section the instances are decoded from it ([`bittree_instances`]).
+fn load_models<'a>(
+    pack: &'a Pack,
+    terrain: Option<&TerrainData>,
+    warnings: &mut Vec<String>,
+) -> Result<(Vec<ModelData<'a>>, InstanceSource)> {
     let mut out: Vec<ModelData<'a>> = Vec::new();
+    let mut source = InstanceSource::Instances;
     if let Some(e) = pack.of_kind(instances::KIND).next() {
         let v = pack.view(e)?;
         let meta: InstancesMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
-        let recs: &[InstanceRecord] = v
+        let list: &[InstanceRecord] = v
             .array("instances")
             .map_err(|e| Error::invalid(pack.path(), e))?;
+        let decoded = match pack.of_kind(crate::bittree::section::KIND).next() {
+            Some(b) => {
+                source = InstanceSource::Bittree;
+                Some(bittree_instances(pack, &b.name, list, terrain)?)
+            }
+            None => None,
+        };
+        let recs = decoded.as_deref().unwrap_or(list);
         if meta.mesh_sections.len() != meta.models.len() {
             return Err(invalid(
                 pack,
@@ -365,6 +400,80 @@ fn load_models<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<Vec<Mod
             let name = e.name.trim_start_matches("mesh:").to_string();
             out.push(load_model(pack, &name, &e.name, vec![origin], warnings)?);
         }
+    }
+    Ok((out, source))
+}
+
+/// The instances as the `bittree` section `name` holds them (seed 000 §5.1.1), in the order of
+/// the `instances` section's `list`: x and y the centre of the instance's deepest cell (within
+/// half a cell of its position), z the terrain's height there (the list's z without a terrain),
+/// scale, rotation (to 2⁻¹⁶ of a turn), model and layer from the arrays beside the bits.
+///
+/// The per-instance caches (env maps, clusters, light-map UVs) are indexed by the list, so each
+/// decoded instance is paired with its list entry through the leaf order of the list's
+/// positions ([`crate::bittree::leaf_order`], the encoder's order). The pairing is checked: a
+/// pair must share its cell and its model, else the section is stale or foreign and the pack is
+/// refused.
+pub fn bittree_instances(
+    pack: &Pack,
+    name: &str,
+    list: &[InstanceRecord],
+    terrain: Option<&TerrainData>,
+) -> Result<Vec<InstanceRecord>> {
+    let v = pack.view_named(name)?;
+    let d = crate::bittree::section::from_section(&v)
+        .map_err(|e| invalid(pack, name, e.to_string()))?;
+    if d.positions.len() != list.len() {
+        return Err(invalid(
+            pack,
+            name,
+            format!(
+                "{} instances, the instances section has {}",
+                d.positions.len(),
+                list.len()
+            ),
+        ));
+    }
+    let (area, children, levels) = (d.meta.area, d.meta.children, d.meta.levels);
+    let xy: Vec<[f32; 2]> = list
+        .iter()
+        .map(|r| [r.position[0], r.position[1]])
+        .collect();
+    let order = crate::bittree::leaf_order(&xy, &area, children, levels);
+    let mut out = list.to_vec();
+    for (k, &i) in order.iter().enumerate() {
+        let i = i as usize;
+        let p = d.positions[k];
+        let cell = |p| crate::bittree::leaf_cell(p, &area, children, levels);
+        if cell(p) != cell(xy[i]) || d.model[k] as u32 != list[i].model {
+            return Err(invalid(
+                pack,
+                name,
+                format!(
+                    "decoded instance {k} (model {} at {:?}) is not instance {i} of the \
+                     instances section (model {} at {:?}): the BitTree is stale",
+                    d.model[k], p, list[i].model, xy[i]
+                ),
+            ));
+        }
+        let z = terrain.map_or(list[i].position[2], |t| {
+            crate::model::bilinear_height(
+                t.heights,
+                (t.meta.width, t.meta.height),
+                t.meta.origin,
+                t.meta.extent,
+                p[0],
+                p[1],
+            )
+        });
+        out[i] = InstanceRecord {
+            position: [p[0], p[1], z],
+            scale: d.scale[k],
+            rotation_deg: d.rotation_deg[k],
+            model: d.model[k] as u32,
+            layer: d.layer[k] as i32,
+            reserved: 0,
+        };
     }
     Ok(out)
 }
@@ -793,9 +902,21 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
         let v = pack.view(e)?;
         let meta: SkyMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
         if meta.layout == "cube" {
-            // The sky stage's cube map (sun removed): resampled to lat-long for the sky pass.
-            let (_, cube) = crate::sky::section::cube_from_section(&v)
+            // The sky stage's cube map (sun removed): drawn as a cube texture; its lat-long
+            // resampling only estimates the light where the pack has no `sh` section.
+            let (_, mut cube) = crate::sky::section::cube_from_section(&v)
                 .map_err(|e| Error::invalid(pack.path(), e))?;
+            // Half floats that are not radiance (NaN, ±∞, negative) as the GPU path clamps
+            // them, so both renderers read the same texels.
+            for t in &mut cube.texels {
+                *t = t.map(|v| {
+                    if v.is_nan() {
+                        0.0
+                    } else {
+                        v.clamp(0.0, 65504.0)
+                    }
+                });
+            }
             let (w, h) = ANALYTIC_SKY_SIZE;
             let img = crate::sky::cube_to_latlong(&cube, w, h);
             let texels = img.pixels.iter().map(|p| [p[0], p[1], p[2], 1.0]).collect();
@@ -803,6 +924,7 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
                 width: w,
                 height: h,
                 texels: Cow::Owned(texels),
+                cube: Some(cube),
                 analytic: false,
                 sun_removed: true,
             });
@@ -822,6 +944,7 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
                 width: meta.width,
                 height: meta.height,
                 texels: Cow::Borrowed(texels),
+                cube: None,
                 analytic: false,
                 sun_removed: false,
             });
@@ -836,6 +959,7 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
         width: w,
         height: h,
         texels: Cow::Owned(light::analytic_sky(w, h)),
+        cube: None,
         analytic: true,
         sun_removed: false,
     })

@@ -1,7 +1,8 @@
 //! Scene upload: the pack's arrays go into GPU buffers and textures byte for byte (bytemuck
 //! casts, no per-vertex conversion): mesh `positions`/`normals`/`uvs`/`indices` become vertex and
 //! index buffers, `InstanceRecord`s an instance buffer per model, terrain heights an `R32Float`
-//! texture, colour maps `Rgba8UnormSrgb` textures, the sky an `Rgba32Float` texture.
+//! texture, colour maps `Rgba8UnormSrgb` textures, the sky stage's cube an `Rgba16Float` cube
+//! texture (a lat-long sky an `Rgba32Float` texture).
 
 use super::pipelines::Pipelines;
 use super::scene::{DrawRange, ImageData, SceneData};
@@ -95,7 +96,13 @@ pub struct ModelGpu {
 
 /// Everything uploaded for a frame.
 pub struct GpuScene {
+    /// The lat-long sky (1×1 where the cube is drawn).
     pub sky_view: wgpu::TextureView,
+    /// The cube sky (a 1×1 black cube where the lat-long one is drawn) and its sampler.
+    pub sky_cube: wgpu::TextureView,
+    pub sky_sampler: wgpu::Sampler,
+    /// True when the sky pass samples `sky_cube`.
+    pub sky_is_cube: bool,
     pub terrain: Option<TerrainGpu>,
     pub models: Vec<ModelGpu>,
     /// Bytes sent to the GPU.
@@ -171,6 +178,68 @@ impl Uploader<'_> {
         Ok(texture.create_view(&Default::default()))
     }
 
+    /// A cube texture (`Rgba16Float`, six layers in the face order of `src/cube.rs`, which is
+    /// wgpu's on world axes) and its cube view. Radiance beyond half-float range is clamped to
+    /// its largest value (65504), NaN to 0 (as [`super::scene`] does for the CPU reference).
+    pub(super) fn cube_texture(
+        &mut self,
+        label: &str,
+        cube: &crate::cube::CubeMap,
+    ) -> Result<wgpu::TextureView> {
+        let n = cube.size;
+        let max = self.gpu.max_texture_side();
+        if n == 0 || n > max {
+            return Err(Error::runtime(format!(
+                "{label}: cube faces of {n}×{n} texels, this GPU ({}) takes 1 to {max} per side",
+                self.gpu.adapter
+            )));
+        }
+        let half = |v: f32| {
+            half::f16::from_f32(if v.is_nan() {
+                0.0
+            } else {
+                v.clamp(0.0, 65504.0)
+            })
+            .to_bits()
+        };
+        let data: Vec<[u16; 4]> = cube
+            .texels
+            .iter()
+            .map(|t| [half(t[0]), half(t[1]), half(t[2]), half(1.0)])
+            .collect();
+        let size = wgpu::Extent3d {
+            width: n,
+            height: n,
+            depth_or_array_layers: 6,
+        };
+        let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba16Float,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let bytes: &[u8] = bytemuck::cast_slice(&data);
+        self.gpu.queue.write_texture(
+            texture.as_image_copy(),
+            bytes,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(n * 8),
+                rows_per_image: Some(n),
+            },
+            size,
+        );
+        self.bytes += bytes.len() as u64;
+        Ok(texture.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::Cube),
+            ..Default::default()
+        }))
+    }
+
     /// A normal map (`(n + 1)/2` in RGB, read as linear unorm).
     fn normal_map(&mut self, label: &str, img: &ImageData) -> Result<wgpu::TextureView> {
         self.texture(
@@ -208,13 +277,32 @@ fn sampler(gpu: &Gpu, address: wgpu::AddressMode) -> wgpu::Sampler {
 pub fn upload_scene(gpu: &Gpu, pipes: &Pipelines, scene: &SceneData) -> Result<GpuScene> {
     let mut up = Uploader { gpu, bytes: 0 };
     let sky = &scene.sky;
-    let sky_view = up.texture(
-        "sky",
-        (sky.width, sky.height),
-        wgpu::TextureFormat::Rgba32Float,
-        16,
-        bytemuck::cast_slice(&sky.texels),
-    )?;
+    let (sky_view, sky_cube) = match &sky.cube {
+        Some(cube) => (
+            up.texture(
+                "sky (unused)",
+                (1, 1),
+                wgpu::TextureFormat::Rgba32Float,
+                16,
+                bytemuck::cast_slice(&[[0f32; 4]]),
+            )?,
+            up.cube_texture("sky cube", cube)?,
+        ),
+        None => (
+            up.texture(
+                "sky",
+                (sky.width, sky.height),
+                wgpu::TextureFormat::Rgba32Float,
+                16,
+                bytemuck::cast_slice(&sky.texels),
+            )?,
+            up.cube_texture(
+                "sky cube (unused)",
+                &crate::cube::CubeMap::filled(1, [0.0; 3]),
+            )?,
+        ),
+    };
+    let sky_sampler = sampler(gpu, wgpu::AddressMode::ClampToEdge);
     let white = up.color_map(
         "white",
         &ImageData {
@@ -231,6 +319,9 @@ pub fn upload_scene(gpu: &Gpu, pipes: &Pipelines, scene: &SceneData) -> Result<G
     }
     Ok(GpuScene {
         sky_view,
+        sky_cube,
+        sky_sampler,
+        sky_is_cube: sky.cube.is_some(),
         terrain,
         models,
         bytes: up.bytes,

@@ -8,6 +8,7 @@ struct Globals {
     // camera frame scaled so that forward + ndc.x * right + ndc.y * up is the pixel's ray
     cam_right: vec4<f32>,
     cam_up: vec4<f32>,
+    // w: 1 where the sky is the cube texture `sky_cube`, 0 for the lat-long `sky_texture`
     cam_forward: vec4<f32>,
     // xyz: unit vector towards the sun
     sun_direction: vec4<f32>,
@@ -24,6 +25,10 @@ struct Globals {
 // The sun's visibility per pixel from the line-space soft shadows (src/render/soft_shadow.rs),
 // R32Float, used where sun_direction.w is 1 (`bake render --soft-shadows`); 1×1 otherwise.
 @group(0) @binding(2) var soft_visibility: texture_2d<f32>;
+// The sky stage's cube map, Rgba16Float, faces on world axes (src/cube.rs): sampled with the
+// world direction, bilinear and seamless.
+@group(0) @binding(3) var sky_cube: texture_cube<f32>;
+@group(0) @binding(4) var sky_sampler: sampler;
 
 const PI: f32 = 3.14159265358979;
 

@@ -1,6 +1,7 @@
-// The sky background: a full-screen triangle at infinite depth; each pixel looks up the
-// lat-long sky along its ray, bilinear with wrap in u and clamp in v (done by hand because
-// Rgba32Float is not filterable everywhere).
+// The sky background: a full-screen triangle at infinite depth; each pixel looks up the sky
+// along its ray: the sky stage's cube texture (bilinear, seamless), or the lat-long image,
+// bilinear with wrap in u and clamp in v (done by hand because Rgba32Float is not filterable
+// everywhere).
 
 struct SkyOut {
     @builtin(position) position: vec4<f32>,
@@ -17,6 +18,9 @@ fn vs_main(@builtin(vertex_index) vid: u32) -> SkyOut {
 }
 
 fn sky_radiance(d: vec3<f32>) -> vec3<f32> {
+    if (globals.cam_forward.w > 0.5) {
+        return textureSampleLevel(sky_cube, sky_sampler, d, 0.0).rgb;
+    }
     let size = vec2<i32>(textureDimensions(sky_texture));
     let theta = acos(clamp(d.z, -1.0, 1.0));
     var phi = atan2(d.y, d.x);
