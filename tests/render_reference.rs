@@ -315,6 +315,11 @@ fn leaf_material() -> bake::model::Material {
 /// A 2 m square leaf ([`leaf_material`]: glossy wax over a diffuse layer, translucence 0.3) at
 /// the origin, through the material stage.
 fn leaf_quad_pack() -> Pack {
+    quad_pack(leaf_material())
+}
+
+/// The 2 m quad of [`leaf_quad_pack`] with `material`, through the material stage.
+fn quad_pack(material: bake::model::Material) -> Pack {
     let mesh = bake::model::Mesh {
         positions: vec![
             [-1.0, -1.0, 0.0],
@@ -326,7 +331,7 @@ fn leaf_quad_pack() -> Pack {
         uvs: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
         indices: vec![[0, 1, 2], [0, 2, 3]],
         triangle_materials: vec![0, 0],
-        materials: vec![leaf_material()],
+        materials: vec![material],
         ..Default::default()
     };
     let mut w = PackWriter::new();
@@ -711,5 +716,52 @@ fn the_sky_box_samples_the_cube_map_like_the_cpu_reference() {
             f.mad > 1.0 && f.mad > 10.0 * d.mad,
             "{what}: the lat-long path is as close: {f:?}"
         );
+    }
+}
+
+/// Emission is drawn (issue 16 item 1): a quad whose material emits (linear radiance 0.6, 0.3,
+/// 0.1) under no light at all shows exactly the tone-mapped emission, seen from either side, on
+/// both paths; the direct and ambient terms alone leave it out (black).
+#[test]
+fn an_emissive_material_shows_its_emission_on_both_paths() {
+    let e = [0.6f32, 0.3, 0.1];
+    let pack = quad_pack(bake::model::Material {
+        emission: [e[0], e[1], e[2], 1.0],
+        ..Default::default()
+    });
+    let dark = Lighting {
+        sun_direction: [0.0, 0.0, 1.0],
+        sun_irradiance: [0.0; 3],
+        ambient: [0.0; 3],
+        sun_solid_angle: 0.0,
+    };
+    let exposure = 2.0;
+    let want = e.map(|l| bake::render::reference::tone_map(l, exposure));
+    for (side, eye) in [("front", [0.3f32, 0.2, 4.0]), ("back", [0.3, 0.2, -4.0])] {
+        for terms in [Terms::All, Terms::Direct, Terms::Ambient] {
+            let opts = RenderOptions {
+                width: 32,
+                height: 24,
+                eye: Some(eye),
+                target: Some([0.0, 0.0, 0.0]),
+                lighting: Some(dark),
+                exposure: Some(exposure),
+                terms,
+                msaa: 1,
+                ..RenderOptions::default()
+            };
+            let gpu = render_pack(&pack, &opts).unwrap();
+            let cpu = render_reference(&pack, &opts).unwrap();
+            let want = if terms == Terms::All { want } else { [0; 3] };
+            for (what, img) in [("GPU", &gpu.image), ("CPU", &cpu.image)] {
+                let p = img.pixels[(12 * 32 + 16) as usize];
+                for k in 0..3 {
+                    assert!(
+                        p[k].abs_diff(want[k]) <= 1,
+                        "{what} {side} {terms:?}: {p:?}, want {want:?}"
+                    );
+                }
+            }
+        }
     }
 }

@@ -361,6 +361,12 @@ impl<'s, 'a> Reference<'s, 'a> {
                     let a = self.ambient_term(&hit, wo, view);
                     l = [l[0] + a[0], l[1] + a[1], l[2] + a[2]];
                 }
+                // Emission: full renders only (kd · ka), both faces (docs/CONVENTIONS.md).
+                if kd * ka > 0.0
+                    && let Brdf::Schlick(m) = &self.surface(&hit, wo).brdf
+                {
+                    l = [0, 1, 2].map(|k| l[k] + kd * ka * m.emission[k]);
+                }
                 l
             }
         }

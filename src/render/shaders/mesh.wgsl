@@ -140,8 +140,11 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
     } else if (a < 0.5) {
         discard;
     }
+    // Emission (the record's last vec4, zero without a material section): emitted radiance on
+    // both faces, drawn in full renders only (weight kd · ka), in neither term alone.
+    let emission = direct_material.record[5].xyz * (globals.viewport.z * globals.viewport.w);
     let l = mesh_direct(in, texel.rgb, ts) * globals.viewport.z
-        + mesh_ambient(in, texel.rgb) * globals.viewport.w;
+        + mesh_ambient(in, texel.rgb) * globals.viewport.w + emission;
     return vec4<f32>(l, coverage);
 }
 
