@@ -765,3 +765,111 @@ fn an_emissive_material_shows_its_emission_on_both_paths() {
         }
     }
 }
+
+/// A 400 m square ground plane (one model, two triangles) whose opaque 16×16 checker of
+/// 4×4-texel blocks in two colours repeats 100 times across it, through the material stage
+/// (which bakes the mip chain).
+fn checker_plane_pack() -> Pack {
+    let (a, b) = ([230u8, 200, 60, 255], [30u8, 60, 160, 255]);
+    let pixels = (0..16)
+        .flat_map(|j| (0..16).map(move |i| if (i / 4 + j / 4) % 2 == 0 { a } else { b }))
+        .collect();
+    let img = Rgba8Image {
+        width: 16,
+        height: 16,
+        pixels,
+    };
+    let s = 200.0;
+    let mesh = bake::model::Mesh {
+        positions: vec![[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]],
+        normals: vec![[0.0, 0.0, 1.0]; 4],
+        uvs: vec![[0.0, 100.0], [100.0, 100.0], [100.0, 0.0], [0.0, 0.0]],
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+        triangle_materials: vec![0, 0],
+        materials: vec![bake::model::Material {
+            diffuse: [1.0, 1.0, 1.0, 1.0],
+            color_map: Some(0),
+            ..Default::default()
+        }],
+        textures: vec![bake::model::TextureRef {
+            name: "checker.png".into(),
+            path: "checker.png".into(),
+        }],
+        ..Default::default()
+    };
+    let mut w = PackWriter::new();
+    let tex = texture::texture_section_name("plane", "checker.png");
+    w.insert(texture::to_section(&tex, "test", &img));
+    w.insert(bake::mesh::section::to_section(
+        "mesh:plane",
+        "test",
+        &mesh,
+        &[Some(tex)],
+    ));
+    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "plane.bake").unwrap();
+    let (sections, _) = bake::material::bake_materials(&pack, &Default::default()).unwrap();
+    let mut w = PackWriter::from_pack(&pack);
+    for s in sections {
+        w.insert(s);
+    }
+    Pack::from_bytes(&w.to_bytes().unwrap(), "plane.bake").unwrap()
+}
+
+/// Mip-level selection (issue 16 item 1): a checker plane receding to the horizon, drawn with
+/// the processed colour map's mips and trilinear filtering on the GPU, against the CPU
+/// reference's trilinear lookup with the level from ray differentials (the next pixels' rays
+/// on the hit's plane, Vulkan's ρ and λ = log₂ ρ). They agree (llvmpipe: MAD 0.28, 0.005 % of
+/// pixels over 24); level 0 alone (what the renderer sampled before: the far checkers alias
+/// into noise) does not (MAD 7.0, 13 % over 24).
+#[test]
+fn mip_levels_on_a_receding_plane_match_the_cpu_reference() {
+    let pack = checker_plane_pack();
+    let scene = bake::render::scene::load_scene(&pack).unwrap();
+    let mips = scene.models[0].materials[0].color_mips.as_ref().unwrap();
+    assert_eq!(mips.levels.len(), 5, "16×16 down to 1×1");
+    let opts = RenderOptions {
+        width: SIZE.0,
+        height: SIZE.1,
+        eye: Some([0.0, -190.0, 1.5]),
+        target: Some([0.0, 0.0, -2.0]),
+        fov_y_deg: 50.0,
+        lighting: Some(Lighting {
+            sun_direction: [0.0, 0.0, 1.0],
+            sun_irradiance: [0.0; 3],
+            ambient: [2.0; 3],
+            sun_solid_angle: 0.0,
+        }),
+        exposure: Some(1.5),
+        terms: Terms::Ambient,
+        msaa: 1,
+        ..RenderOptions::default()
+    };
+    let gpu = render_pack(&pack, &opts).unwrap();
+    let cpu = render_reference(&pack, &opts).unwrap();
+    let d = image_difference(&gpu.image, &cpu.image, 24).unwrap();
+    eprintln!("trilinear, GPU against CPU: {d:?}");
+    // Level 0 alone on the CPU: the path without mips.
+    let plain = bake::render::scene::SceneData {
+        models: scene
+            .models
+            .iter()
+            .map(|m| {
+                let mut m = m.clone();
+                m.materials[0].color_mips = None;
+                m
+            })
+            .collect(),
+        ..scene.clone()
+    };
+    let view = bake::render::resolve_view(&pack, &plain, &opts);
+    let r = Reference::build(&plain).unwrap();
+    let radiance = r.radiance_image(&view, SIZE, Terms::Ambient);
+    let level0 = tone_map_image(&radiance, view.exposure, SIZE);
+    let e = image_difference(&gpu.image, &level0, 24).unwrap();
+    eprintln!("GPU trilinear against CPU level 0: {e:?}");
+    assert!(d.mad < 1.0 && d.fraction_over < 0.005, "{d:?}");
+    assert!(
+        e.mad > 3.0 * d.mad && e.fraction_over > 5.0 * d.fraction_over.max(0.002),
+        "{e:?}"
+    );
+}

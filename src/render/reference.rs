@@ -50,12 +50,22 @@ pub struct HitRecord {
     pub uv: [f32; 2],
     /// Material index of the model (0 for the terrain).
     pub material: u32,
+    /// World-space gradients of u and of v on a model triangle's plane (zero on the terrain):
+    /// with the neighbouring pixels' rays they give the texture footprint (mip level).
+    pub uv_gradient: [Vec3; 2],
+    /// Texture footprint of the pixel, (∂u/∂x, ∂v/∂x, ∂u/∂y, ∂v/∂y) per pixel, set by
+    /// [`Reference::sample`] (zero: level 0).
+    pub uv_derivatives: [f32; 4],
 }
 
 /// A scene prepared for ray casting.
 pub struct Reference<'s, 'a> {
     pub scene: &'s SceneData<'a>,
     bvh: SceneBvh,
+    /// The same scene for primary rays where some colour map has mips: those models without
+    /// their level-0 alpha masks, the alpha test done per hit at the pixel's mip level as the
+    /// GPU does ([`Reference::trace_primary`]).
+    primary: Option<SceneBvh>,
     /// Per BVH instance: the model index (`u32::MAX` for the terrain).
     owner: Vec<u32>,
     /// Per BVH instance: its index in `ModelData::instances` of its model.
@@ -172,13 +182,18 @@ impl<'s, 'a> Reference<'s, 'a> {
         let mut owner = Vec::new();
         let mut slot = Vec::new();
         let mut triangle_materials = Vec::new();
+        let mut unmasked = Vec::new();
         for (k, m) in scene.models.iter().enumerate() {
             let (mesh, tri_mats) = model_mesh(m);
-            models.push(Arc::new(ModelBvh::build(
-                &mesh,
-                &model_masks(m),
-                BuildPreset::Medium,
-            )?));
+            let masks = model_masks(m);
+            let bvh = Arc::new(ModelBvh::build(&mesh, &masks, BuildPreset::Medium)?);
+            let mipped = m.materials.iter().any(|x| x.color_mips.is_some());
+            unmasked.push(if mipped && masks.iter().any(|x| x.is_some()) {
+                Some(Arc::new(ModelBvh::build(&mesh, &[], BuildPreset::Medium)?))
+            } else {
+                None
+            });
+            models.push(bvh);
             triangle_materials.push(tri_mats);
             for (j, i) in m.instances.iter().enumerate() {
                 slot.push(j as u32);
@@ -204,9 +219,26 @@ impl<'s, 'a> Reference<'s, 'a> {
             owner.push(u32::MAX);
             slot.push(0);
         }
+        let primary = if unmasked.iter().any(|u| u.is_some()) {
+            let list = models
+                .iter()
+                .enumerate()
+                .map(|(k, m)| {
+                    unmasked
+                        .get(k)
+                        .cloned()
+                        .flatten()
+                        .unwrap_or_else(|| m.clone())
+                })
+                .collect();
+            Some(SceneBvh::build(list, transforms.clone())?)
+        } else {
+            None
+        };
         Ok(Reference {
             scene,
             bvh: SceneBvh::build(models, transforms)?,
+            primary,
             owner,
             slot,
             triangle_materials,
@@ -229,8 +261,48 @@ impl<'s, 'a> Reference<'s, 'a> {
     /// The closest hit along `ray` with its attributes.
     pub fn trace(&self, ray: &Ray) -> Option<HitRecord> {
         let h = self.bvh.closest_hit(ray)?;
-        let sp = self.bvh.surface(&h);
-        let inst = self.bvh.instances()[h.instance as usize];
+        Some(self.record(&self.bvh, &h))
+    }
+
+    /// The closest hit of a primary ray, alpha-tested as the GPU tests it: where the hit's
+    /// colour map has mips, the alpha of the pixel's mip level (trilinear, the footprint that
+    /// `footprint` sets) times the opacity against 0.5; the ray goes on past a rejected hit.
+    pub fn trace_primary(
+        &self,
+        ray: &Ray,
+        footprint: impl Fn(&mut HitRecord),
+    ) -> Option<HitRecord> {
+        let Some(bvh) = &self.primary else {
+            let mut hit = self.trace(ray)?;
+            footprint(&mut hit);
+            return Some(hit);
+        };
+        let mut r = *ray;
+        // Each rejected hit moves t_min past it; a bound on the layers of leaves a ray crosses.
+        for _ in 0..256 {
+            let h = bvh.closest_hit(&r)?;
+            let mut hit = self.record(bvh, &h);
+            footprint(&mut hit);
+            let Some(k) = hit.model else {
+                return Some(hit);
+            };
+            let mat = &self.scene.models[k as usize].materials[hit.material as usize];
+            let Some(mips) = &mat.color_mips else {
+                return Some(hit);
+            };
+            let opacity = mat.schlick.map_or(1.0, |s| s.opacity);
+            if trilinear(mips, hit.uv, hit.uv_derivatives)[3] * opacity >= 0.5 {
+                return Some(hit);
+            }
+            r = Ray::new(r.origin, r.dir, hit.t * (1.0 + 1e-6) + 1e-6);
+        }
+        None
+    }
+
+    /// The attributes of BVH hit `h`.
+    fn record(&self, bvh: &SceneBvh, h: &crate::trace::scene::SceneHit) -> HitRecord {
+        let sp = bvh.surface(h);
+        let inst = bvh.instances()[h.instance as usize];
         let (u, v) = (h.hit.u, h.hit.v);
         let bary = [1.0 - u - v, u, v];
         let owner = self.owner[h.instance as usize];
@@ -246,6 +318,8 @@ impl<'s, 'a> Reference<'s, 'a> {
             tangent: [1.0, 0.0, 0.0, 1.0],
             uv: sp.uv,
             material: 0,
+            uv_gradient: [Vec3::ZERO; 2],
+            uv_derivatives: [0.0; 4],
         };
         if owner != u32::MAX {
             let m = &self.scene.models[owner as usize];
@@ -261,9 +335,13 @@ impl<'s, 'a> Reference<'s, 'a> {
             };
             rec.model = Some(owner);
             rec.tangent = [t.x, t.y, t.z, w];
+            let p =
+                tri.map(|i| Vec3::from(inst.point_to_world(Vec3A::from(m.positions[i as usize]))));
+            let uv = tri.map(|i| m.uvs[i as usize]);
+            rec.uv_gradient = [0, 1].map(|k| plane_gradient(p, [uv[0][k], uv[1][k], uv[2][k]]));
             rec.material = self.triangle_materials[owner as usize][h.hit.triangle as usize];
         }
-        Some(rec)
+        rec
     }
 
     /// Whether nothing blocks the sun seen from `hit` (an exact shadow ray, alpha-tested). The
@@ -344,7 +422,28 @@ impl<'s, 'a> Reference<'s, 'a> {
         let ndc_y = 1.0 - py / h as f32 * 2.0;
         let d = cam.ray(ndc_x, ndc_y);
         let ray = Ray::new(Vec3A::from(cam.eye), Vec3A::from(d), cam.near);
-        match self.trace(&ray) {
+        let ray_at =
+            |px: f32, py: f32| cam.ray(px / w as f32 * 2.0 - 1.0, 1.0 - py / h as f32 * 2.0);
+        // The footprint: where the next pixel's rays (right, down) meet the hit's plane.
+        let footprint = |hit: &mut HitRecord| {
+            let n = hit.geometric_normal;
+            let [gu, gv] = hit.uv_gradient;
+            let mut dd = [0.0f32; 4];
+            for (k, d2) in [ray_at(px + 1.0, py), ray_at(px, py + 1.0)]
+                .into_iter()
+                .enumerate()
+            {
+                let den = d2.dot(n);
+                if den.abs() > 1e-12 {
+                    let q = cam.eye + d2 * ((hit.position - cam.eye).dot(n) / den);
+                    let delta = q - hit.position;
+                    dd[2 * k] = gu.dot(delta);
+                    dd[2 * k + 1] = gv.dot(delta);
+                }
+            }
+            hit.uv_derivatives = dd;
+        };
+        match self.trace_primary(&ray, footprint) {
             None => {
                 let s = sky_radiance(self.scene, d);
                 let disc = sun_disc(&view.lighting, d);
@@ -447,10 +546,11 @@ impl<'s, 'a> Reference<'s, 'a> {
         };
         let m = &self.scene.models[k as usize];
         let mat = &m.materials[hit.material as usize];
-        let texel = mat
-            .color_map
-            .as_ref()
-            .map_or([1.0; 4], |img| sample_srgb(img, hit.uv, true));
+        let texel = match (&mat.color_mips, &mat.color_map) {
+            (Some(mips), _) => trilinear(mips, hit.uv, hit.uv_derivatives),
+            (None, Some(img)) => sample_srgb(img, hit.uv, true),
+            (None, None) => [1.0; 4],
+        };
         let map = [texel[0], texel[1], texel[2]];
         match &mat.schlick {
             Some(s) => {
@@ -581,6 +681,54 @@ fn decode_normal_texel(c: [f32; 4]) -> Vec3 {
 }
 
 /// A tangent-space normal from a normal map (bilinear on the encoded values, as the GPU does).
+/// The gradient on a triangle's plane of the value `f` given at its corners `p`: the vector g
+/// in the plane with g·(p1 − p0) = f1 − f0 and g·(p2 − p0) = f2 − f0 (zero for a degenerate
+/// triangle).
+fn plane_gradient(p: [Vec3; 3], f: [f32; 3]) -> Vec3 {
+    let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
+    let (a, b, c) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let det = a * c - b * b;
+    if det.abs() <= 1e-20 * (a * c).max(f32::MIN_POSITIVE) {
+        return Vec3::ZERO;
+    }
+    let (f1, f2) = (f[1] - f[0], f[2] - f[0]);
+    let x = (c * f1 - b * f2) / det;
+    let y = (a * f2 - b * f1) / det;
+    e1 * x + e2 * y
+}
+
+/// Trilinear lookup in a processed colour map's mips with repeat addressing, the level from the
+/// footprint as the Vulkan spec writes it (§ "Scale Factor Operation"): ρ = max(|∂(u·w, v·h)/∂x|,
+/// |∂(u·w, v·h)/∂y|) at level 0's size, λ = log₂ ρ clamped to the chain, the two nearest levels
+/// bilinear and blended by λ's fraction.
+pub fn trilinear(mips: &super::scene::ColorMips, uv: [f32; 2], d: [f32; 4]) -> [f32; 4] {
+    let [w, h, ..] = mips.levels[0];
+    let (w, h) = (w as f32, h as f32);
+    let rho_x = ((d[0] * w).powi(2) + (d[1] * h).powi(2)).sqrt();
+    let rho_y = ((d[2] * w).powi(2) + (d[3] * h).powi(2)).sqrt();
+    let top = (mips.levels.len() - 1) as f32;
+    let lambda = rho_x.max(rho_y).max(1e-30).log2().clamp(0.0, top);
+    let l0 = lambda.floor() as usize;
+    let l1 = (l0 + 1).min(mips.levels.len() - 1);
+    let f = lambda - l0 as f32;
+    let level = |l: usize| {
+        let [lw, lh, ..] = mips.levels[l];
+        bilinear_with((lw, lh), uv, |i, j| {
+            mips.texel(
+                l,
+                i.rem_euclid(lw as i64) as u32,
+                j.rem_euclid(lh as i64) as u32,
+            )
+        })
+    };
+    let a = level(l0);
+    if f == 0.0 || l1 == l0 {
+        return a;
+    }
+    let b = level(l1);
+    [0, 1, 2, 3].map(|k| a[k] + (b[k] - a[k]) * f)
+}
+
 fn sample_normal(img: &ImageData, uv: [f32; 2], repeat: bool) -> [f32; 3] {
     decode_normal_texel(bilinear(img, uv, repeat, unorm)).to_array()
 }

@@ -240,6 +240,62 @@ impl Uploader<'_> {
         }))
     }
 
+    /// A processed colour map with its whole mip chain (`Rgba16Float`, the section's half
+    /// floats level by level), sampled trilinear.
+    fn color_mips(
+        &mut self,
+        label: &str,
+        mips: &super::scene::ColorMips,
+    ) -> Result<wgpu::TextureView> {
+        let [width, height, ..] = mips.levels[0];
+        let max = self.gpu.max_texture_side();
+        if width > max || height > max {
+            return Err(Error::runtime(format!(
+                "{label}: {width}×{height} texels, this GPU ({}) takes 1 to {max} per side",
+                self.gpu.adapter
+            )));
+        }
+        let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: mips.levels.len() as u32,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba16Float,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        for (level, &[w, h, first, count]) in mips.levels.iter().enumerate() {
+            let data: &[u8] =
+                bytemuck::cast_slice(&mips.texels[first as usize..(first + count) as usize]);
+            self.gpu.queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &texture,
+                    mip_level: level as u32,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                data,
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(w * 8),
+                    rows_per_image: Some(h),
+                },
+                wgpu::Extent3d {
+                    width: w,
+                    height: h,
+                    depth_or_array_layers: 1,
+                },
+            );
+            self.bytes += data.len() as u64;
+        }
+        Ok(texture.create_view(&Default::default()))
+    }
+
     /// A normal map (`(n + 1)/2` in RGB, read as linear unorm).
     fn normal_map(&mut self, label: &str, img: &ImageData) -> Result<wgpu::TextureView> {
         self.texture(
@@ -269,6 +325,8 @@ fn sampler(gpu: &Gpu, address: wgpu::AddressMode) -> wgpu::Sampler {
         address_mode_v: address,
         mag_filter: wgpu::FilterMode::Linear,
         min_filter: wgpu::FilterMode::Linear,
+        // Trilinear where a texture has mips (processed colour maps); no effect on one level.
+        mipmap_filter: wgpu::MipmapFilterMode::Linear,
         ..Default::default()
     })
 }
@@ -466,9 +524,11 @@ fn upload_model(
     let instances = up.buffer("instances", bytemuck::cast_slice(&all), U::VERTEX);
     let mut materials = Vec::with_capacity(m.materials.len());
     for (k, mat) in m.materials.iter().enumerate() {
-        let view = match &mat.color_map {
-            Some(img) => up.color_map(&format!("{}: material {k}", m.section), img)?,
-            None => white.clone(),
+        let label = format!("{}: material {k}", m.section);
+        let view = match (&mat.color_mips, &mat.color_map) {
+            (Some(mips), _) => up.color_mips(&label, mips)?,
+            (None, Some(img)) => up.color_map(&label, img)?,
+            (None, None) => white.clone(),
         };
         let params = MaterialParams {
             base_color: mat.base_color,

@@ -101,7 +101,11 @@ pub fn to_section(
 }
 
 /// The level table, checked against the base size and the array lengths.
-fn levels(v: &SectionView, meta: &TextureMeta, array: &str) -> Result<Vec<[u32; 4]>, ParseError> {
+pub fn levels(
+    v: &SectionView,
+    meta: &TextureMeta,
+    array: &str,
+) -> Result<Vec<[u32; 4]>, ParseError> {
     let table: Vec<[u32; 4]> = v.array_vec("levels")?;
     let count = v.info(array).map_or(0, |a| a.count);
     let sizes = super::mips::mip_sizes(meta.width, meta.height);
