@@ -155,6 +155,20 @@ fn quad_instances() -> Instances {
     }
 }
 
+/// Writes the quad's leaf texture and mesh sections; returns the mesh section's name.
+fn insert_quad(w: &mut PackWriter) -> String {
+    let leaf = bake::texture::source_section::texture_section_name("quad", "leaf.png");
+    w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
+    let mesh_name = bake::mesh::section::mesh_section_name("quad");
+    w.insert(mesh::to_section(
+        &mesh_name,
+        "test",
+        &quad_mesh(),
+        &[Some(leaf)],
+    ));
+    mesh_name
+}
+
 /// A flat 5×5 terrain over [0, 20]² at z = 0 with the quadrant colour map, the quad instanced
 /// twice, and (optionally) the sky.
 fn build_pack(with_sky: bool) -> Pack {
@@ -170,15 +184,7 @@ fn build_pack(with_sky: bool) -> Pack {
     let color = bake::texture::source_section::texture_section_name("terrain", "color");
     w.insert(texture::to_section(&color, "test", &terrain_colors()));
     w.insert(terrain::to_section("terrain", "test", &t, Some(color)));
-    let leaf = bake::texture::source_section::texture_section_name("quad", "leaf.png");
-    w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
-    let mesh_name = bake::mesh::section::mesh_section_name("quad");
-    w.insert(mesh::to_section(
-        &mesh_name,
-        "test",
-        &quad_mesh(),
-        &[Some(leaf)],
-    ));
+    let mesh_name = insert_quad(&mut w);
     w.insert(instances::to_section(
         "instances",
         &quad_instances(),
@@ -775,15 +781,7 @@ fn scatter_pack(items: &[Instance], tree_of: Option<&[Instance]>) -> Pack {
     };
     let mut w = PackWriter::new();
     w.insert(terrain::to_section("terrain", "test", &t, None));
-    let leaf = bake::texture::source_section::texture_section_name("quad", "leaf.png");
-    w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
-    let mesh_name = bake::mesh::section::mesh_section_name("quad");
-    w.insert(mesh::to_section(
-        &mesh_name,
-        "test",
-        &quad_mesh(),
-        &[Some(leaf)],
-    ));
+    let mesh_name = insert_quad(&mut w);
     let inst = |items: &[Instance]| Instances {
         models: vec!["quad".into()],
         items: items.to_vec(),

@@ -318,6 +318,17 @@ fn leaf_quad_pack() -> Pack {
     quad_pack(leaf_material())
 }
 
+/// The pack of `w` named `name` after the material stage.
+fn with_materials(w: PackWriter, name: &str) -> Pack {
+    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), name).unwrap();
+    let (sections, _) = bake::material::bake_materials(&pack, &Default::default()).unwrap();
+    let mut w = PackWriter::from_pack(&pack);
+    for s in sections {
+        w.insert(s);
+    }
+    Pack::from_bytes(&w.to_bytes().unwrap(), name).unwrap()
+}
+
 /// The 2 m quad of [`leaf_quad_pack`] with `material`, through the material stage.
 fn quad_pack(material: bake::model::Material) -> Pack {
     let mesh = bake::model::Mesh {
@@ -341,13 +352,7 @@ fn quad_pack(material: bake::model::Material) -> Pack {
         &mesh,
         &[],
     ));
-    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "leaf.bake").unwrap();
-    let (sections, _) = bake::material::bake_materials(&pack, &Default::default()).unwrap();
-    let mut w = PackWriter::from_pack(&pack);
-    for s in sections {
-        w.insert(s);
-    }
-    Pack::from_bytes(&w.to_bytes().unwrap(), "leaf.bake").unwrap()
+    with_materials(w, "leaf.bake")
 }
 
 /// The WGSL port of the two-layer Schlick BRDF against `SchlickMaterial::eval` itself: every
@@ -806,13 +811,7 @@ fn checker_plane_pack() -> Pack {
         &mesh,
         &[Some(tex)],
     ));
-    let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "plane.bake").unwrap();
-    let (sections, _) = bake::material::bake_materials(&pack, &Default::default()).unwrap();
-    let mut w = PackWriter::from_pack(&pack);
-    for s in sections {
-        w.insert(s);
-    }
-    Pack::from_bytes(&w.to_bytes().unwrap(), "plane.bake").unwrap()
+    with_materials(w, "plane.bake")
 }
 
 /// Mip-level selection (issue 16 item 1): a checker plane receding to the horizon, drawn with

@@ -57,44 +57,22 @@ pub struct MaterialData<'a> {
     pub schlick: Option<crate::material::schlick::SchlickMaterial>,
     /// Level 0 of the tangent-space normal map (`normal` array of the processed texture).
     pub normal_map: Option<ImageData<'a>>,
-    /// The normal map's whole chain: drawn trilinear, its A (|n̄|) widening the glossy lobe by
-    /// Toksvig's factor ([`super::reference::toksvig_roughness`]).
-    pub normal_mips: Option<NormalMips<'a>>,
 }
 
-/// A processed texture's mip chain (docs/FORMAT.md, `texture` processed by `bake material`),
-/// level 0 first; each level's (width, height, first texel, texel count). Colour maps
-/// ([`ColorMips`]): linear RGB with straight alpha scaled per level to keep the alpha-tested
-/// coverage, as half floats. Normal maps ([`NormalMips`]): (n + 1)/2 in RGB, A = the length of
-/// the filtered normal (Toksvig's |n̄|).
+/// A processed colour map's mip chain (docs/FORMAT.md, `texture` processed by `bake material`):
+/// linear RGB with straight alpha scaled per level to keep the alpha-tested coverage, as half
+/// floats, level 0 first; each level's (width, height, first texel, texel count).
 #[derive(Debug, Clone)]
-pub struct Mips<'a, T> {
+pub struct ColorMips<'a> {
     pub levels: Vec<[u32; 4]>,
-    pub texels: &'a [T],
-}
-pub type ColorMips<'a> = Mips<'a, [u16; 4]>;
-pub type NormalMips<'a> = Mips<'a, [u8; 4]>;
-
-impl<T> Mips<'_, T> {
-    /// Texel (i, j) of `level`.
-    pub fn at(&self, level: usize, i: u32, j: u32) -> &T {
-        let [w, _, first, _] = self.levels[level];
-        &self.texels[(first + j * w + i) as usize]
-    }
+    pub texels: &'a [[u16; 4]],
 }
 
 impl ColorMips<'_> {
     /// Texel (i, j) of `level`, widened to f32.
     pub fn texel(&self, level: usize, i: u32, j: u32) -> [f32; 4] {
-        self.at(level, i, j)
-            .map(|b| half::f16::from_bits(b).to_f32())
-    }
-}
-
-impl NormalMips<'_> {
-    /// Texel (i, j) of `level` as unorm values in [0, 1].
-    pub fn texel(&self, level: usize, i: u32, j: u32) -> [f32; 4] {
-        self.at(level, i, j).map(|b| b as f32 / 255.0)
+        let [w, _, first, _] = self.levels[level];
+        self.texels[(first + j * w + i) as usize].map(|b| half::f16::from_bits(b).to_f32())
     }
 }
 
@@ -771,7 +749,6 @@ fn load_materials<'a>(
             color_mips: None,
             schlick: None,
             normal_map: None,
-            normal_mips: None,
         }]);
     }
     let mut out = Vec::with_capacity(meta.materials.len());
@@ -795,7 +772,7 @@ fn load_materials<'a>(
             _ => None,
         };
         let d = m.diffuse;
-        let (schlick, normal_map, normal_mips) = load_schlick(pack, section, out.len(), warnings)?;
+        let (schlick, normal_map) = load_schlick(pack, section, out.len(), warnings)?;
         out.push(MaterialData {
             base_color: [
                 srgb_to_linear(d[0]),
@@ -807,7 +784,6 @@ fn load_materials<'a>(
             color_mips,
             schlick,
             normal_map,
-            normal_mips,
         });
     }
     Ok(out)
@@ -818,8 +794,8 @@ fn model_of(mesh_section: &str) -> &str {
     mesh_section.strip_prefix("mesh:").unwrap_or(mesh_section)
 }
 
-/// The Schlick material `index` of a mesh section, level 0 of its normal map and the map's mip
-/// chain; all `None` when the material stage has not run (the mesh is shaded with Lambert).
+/// The Schlick material `index` of a mesh section and level 0 of its normal map; `(None, None)`
+/// when the material stage has not run (the mesh is shaded with Lambert).
 fn load_schlick<'a>(
     pack: &'a Pack,
     mesh_section: &str,
@@ -828,12 +804,11 @@ fn load_schlick<'a>(
 ) -> Result<(
     Option<crate::material::schlick::SchlickMaterial>,
     Option<ImageData<'a>>,
-    Option<NormalMips<'a>>,
 )> {
     use crate::material::section as ms;
     let name = ms::material_section_name(model_of(mesh_section), index);
     if pack.find(&name).is_none() {
-        return Ok((None, None, None));
+        return Ok((None, None));
     }
     let v = pack.view_named(&name)?;
     let meta = ms::from_section(&v).map_err(|e| Error::invalid(pack.path(), e))?;
@@ -842,24 +817,13 @@ fn load_schlick<'a>(
             "{name:?} belongs to {:?} material {}: shaded with Lambert",
             meta.mesh_section, meta.index
         ));
-        return Ok((None, None, None));
+        return Ok((None, None));
     }
     let normal_map = match &meta.normal_map {
         Some(s) => load_normal_map(pack, s, warnings)?,
         None => None,
     };
-    let normal_mips = match (&normal_map, &meta.normal_map) {
-        (Some(_), Some(s)) => {
-            let v = pack.view_named(s)?;
-            let tm: TextureMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
-            let bad = |e: crate::error::ParseError| invalid(pack, s, e.to_string());
-            let levels = crate::texture::section::levels(&v, &tm, "normal").map_err(bad)?;
-            let texels: &[[u8; 4]] = v.array("normal").map_err(bad)?;
-            Some(NormalMips { levels, texels })
-        }
-        _ => None,
-    };
-    Ok((Some(meta.material), normal_map, normal_mips))
+    Ok((Some(meta.material), normal_map))
 }
 
 /// Level 0 of a processed texture's `normal` array (the first width × height texels).

@@ -133,6 +133,26 @@ impl Uploader<'_> {
             })
     }
 
+    /// A 2D texture (array) the shaders sample, filled by copies.
+    fn sampled_texture(
+        &self,
+        label: &str,
+        size: wgpu::Extent3d,
+        mip_level_count: u32,
+        format: wgpu::TextureFormat,
+    ) -> wgpu::Texture {
+        self.gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size,
+            mip_level_count,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        })
+    }
+
     /// A 2D texture from tightly packed rows of `bytes_per_texel` bytes.
     pub(super) fn texture(
         &mut self,
@@ -154,16 +174,7 @@ impl Uploader<'_> {
             height,
             depth_or_array_layers: 1,
         };
-        let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let texture = self.sampled_texture(label, size, 1, format);
         self.gpu.queue.write_texture(
             texture.as_image_copy(),
             data,
@@ -179,8 +190,8 @@ impl Uploader<'_> {
     }
 
     /// A cube texture (`Rgba16Float`, six layers in the face order of `src/cube.rs`, which is
-    /// wgpu's on world axes) and its cube view. Radiance beyond half-float range is clamped to
-    /// its largest value (65504), NaN to 0 (as [`super::scene`] does for the CPU reference).
+    /// wgpu's on world axes) and its cube view. The texels are the sky section's half floats,
+    /// already made finite and non-negative by [`super::scene`] (so the conversion is exact).
     pub(super) fn cube_texture(
         &mut self,
         label: &str,
@@ -194,14 +205,7 @@ impl Uploader<'_> {
                 self.gpu.adapter
             )));
         }
-        let half = |v: f32| {
-            half::f16::from_f32(if v.is_nan() {
-                0.0
-            } else {
-                v.clamp(0.0, 65504.0)
-            })
-            .to_bits()
-        };
+        let half = |v: f32| half::f16::from_f32(v).to_bits();
         let data: Vec<[u16; 4]> = cube
             .texels
             .iter()
@@ -212,16 +216,7 @@ impl Uploader<'_> {
             height: n,
             depth_or_array_layers: 6,
         };
-        let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba16Float,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let texture = self.sampled_texture(label, size, 1, wgpu::TextureFormat::Rgba16Float);
         let bytes: &[u8] = bytemuck::cast_slice(&data);
         self.gpu.queue.write_texture(
             texture.as_image_copy(),
@@ -255,20 +250,13 @@ impl Uploader<'_> {
                 self.gpu.adapter
             )));
         }
-        let texture = self.gpu.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
-            size: wgpu::Extent3d {
-                width,
-                height,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: mips.levels.len() as u32,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba16Float,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let size = wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        };
+        let levels = mips.levels.len() as u32;
+        let texture = self.sampled_texture(label, size, levels, wgpu::TextureFormat::Rgba16Float);
         for (level, &[w, h, first, count]) in mips.levels.iter().enumerate() {
             let data: &[u8] =
                 bytemuck::cast_slice(&mips.texels[first as usize..(first + count) as usize]);
