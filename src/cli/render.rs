@@ -81,6 +81,10 @@ pub struct RenderArgs {
     /// tone-mapped L_s (γ 0.4545 ≈ a 2.2 display gamma).
     #[arg(long)]
     pub gamma: Option<f32>,
+    /// Draw the normal maps' mips without Toksvig's roughness correction (the renormalized
+    /// filtered normals with the material's own roughness: minified bumpy gloss sparkles).
+    #[arg(long)]
+    pub no_toksvig: bool,
 }
 
 /// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
@@ -124,6 +128,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
             crate::render::Encoding::Srgb,
             crate::render::Encoding::Gamma,
         ),
+        toksvig: !args.no_toksvig,
     };
     let pack = Pack::open(&args.pack)?;
     let out = render_pack(&pack, &opts)?;

@@ -110,6 +110,23 @@ impl SchlickLayer {
     }
 }
 
+/// The shortest filtered-normal length [`toksvig_roughness`] takes (|n̄| below it counts as it).
+pub const TOKSVIG_MIN_LENGTH: f32 = 1e-3;
+
+/// Toksvig's correction (Toksvig 2004, "Mipmapping Normal Maps"; seed 000 §4.7.3) of a Schlick
+/// roughness `r` for a filtered normal of length `length` = |n̄| ≤ 1: r is GGX's α² (module note),
+/// whose Blinn–Phong exponent is s = 2/r − 2; Toksvig's factor f = |n̄| / (|n̄| + s(1 − |n̄|))
+/// scales the exponent, and the roughness of f·s is r' = 2/(f·s + 2). r' = r at |n̄| = 1 and grows
+/// to 1 (diffuse) as |n̄| → 0. (The seed multiplies the roughness by |n̄|, which would make a
+/// filtered bumpy surface glossier, against its own words that such surfaces become diffuse.)
+pub fn toksvig_roughness(r: f32, length: f32) -> f32 {
+    let r = r.clamp(1e-4, 1.0);
+    let n = length.clamp(TOKSVIG_MIN_LENGTH, 1.0);
+    let s = 2.0 / r - 2.0;
+    let f = n / (n + s * (1.0 - n));
+    2.0 / (f * s + 2.0)
+}
+
 fn normalize(v: [f32; 3]) -> [f32; 3] {
     let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     if l > 0.0 {
@@ -120,6 +137,16 @@ fn normalize(v: [f32; 3]) -> [f32; 3] {
 }
 
 impl SchlickMaterial {
+    /// The material with both layers' roughness corrected by [`toksvig_roughness`] for a
+    /// filtered normal of length `length`.
+    pub fn with_toksvig(&self, length: f32) -> SchlickMaterial {
+        let mut m = *self;
+        for l in &mut m.layers {
+            l.roughness = toksvig_roughness(l.roughness, length);
+        }
+        m
+    }
+
     /// The BRDF/BTDF (without the specular delta) for unit directions in the tangent frame, light
     /// arriving from `wi`, leaving towards `wo`, with `map` the colour map's linear RGB at the
     /// point (use `[1; 3]` without one). Light on one side and the viewer on the other sees the
@@ -196,6 +223,28 @@ impl SchlickMaterial {
 
 #[cfg(test)]
 mod tests {
+
+    /// Toksvig's r' against the exponent-variance form 1/s' = 1/s + σ² with σ² = (1 − |n̄|)/|n̄|
+    /// (Toksvig 2004 eq. 3 for a Gaussian of normals), at both ends and on a grid.
+    #[test]
+    fn toksvig_roughness_adds_the_filtered_normals_variance_to_the_exponents() {
+        for r in [0.005f32, 0.0154, 0.1, 0.5, 0.9] {
+            assert!((toksvig_roughness(r, 1.0) - r).abs() < 1e-6, "{r}");
+            assert!(toksvig_roughness(r, 0.0) > 0.99, "{r}");
+            let mut last = r;
+            for k in (1..100).rev() {
+                let len = k as f64 / 100.0;
+                let s = 2.0 / r as f64 - 2.0;
+                let s2 = 1.0 / (1.0 / s + (1.0 - len) / len);
+                let want = 2.0 / (s2 + 2.0);
+                let got = toksvig_roughness(r, len as f32);
+                assert!((got as f64 - want).abs() < 1e-5, "{r} {len}: {got} {want}");
+                assert!(got >= last, "rougher as |n̄| shrinks");
+                last = got;
+            }
+        }
+    }
+
     use super::*;
 
     fn layer(r: f32, p: f32, w: [f32; 3], c: f32) -> SchlickLayer {

@@ -67,6 +67,9 @@ pub struct RenderOptions {
     pub msaa: u32,
     /// Display encoding of the tone-mapped value L_s (see [`Encoding`]).
     pub encoding: Encoding,
+    /// Toksvig's roughness from the normal map's filtered length |n̄| (on by default; off draws
+    /// the renormalized mip normals with the material's own roughness).
+    pub toksvig: bool,
 }
 
 /// The multisample count of `--msaa` (the one count every WebGPU device supports beside 1).
@@ -128,6 +131,7 @@ impl Default for RenderOptions {
             shadow_cascades: shadow::DEFAULT_CASCADES,
             msaa: MSAA_SAMPLES,
             encoding: Encoding::Srgb,
+            toksvig: true,
         }
     }
 }
@@ -290,6 +294,8 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let t2 = std::time::Instant::now();
     let size = (opts.width, opts.height);
     let mut globals = draw::Globals::new(&cam, &lighting, exposure, size, opts.terms);
+    // cam_up.w: 1 where the normal map's length corrects the roughness (Toksvig).
+    globals.cam_up[3] = if opts.toksvig { 1.0 } else { 0.0 };
     let soft = match &opts.soft_shadows {
         Some(s) => Some(soft_shadow::for_render(
             &gpu, &pipes, &gpu_scene, &globals, size, pack, &lighting, s,

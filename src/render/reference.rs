@@ -79,6 +79,9 @@ pub struct Reference<'s, 'a> {
     /// Trace shadow rays (on by default; off gives the unshadowed image a test can hold
     /// against a bound to show the bound detects missing shadows).
     pub shadows: bool,
+    /// Toksvig's roughness from the normal map's filtered length (on by default, like
+    /// [`RenderOptions::toksvig`]).
+    pub toksvig: bool,
 }
 
 /// The reference image of a view.
@@ -99,6 +102,7 @@ pub fn render_reference(pack: &Pack, opts: &RenderOptions) -> Result<ReferenceOu
     let scene = super::scene::load_scene(pack)?;
     let view = super::resolve_view(pack, &scene, opts);
     let mut r = Reference::build(&scene)?;
+    r.toksvig = opts.toksvig;
     r.ambient = Some(super::ambient::load_ambient(
         pack,
         &scene,
@@ -245,6 +249,7 @@ impl<'s, 'a> Reference<'s, 'a> {
             terrain_model,
             ambient: None,
             shadows: true,
+            toksvig: true,
         })
     }
 
@@ -554,12 +559,25 @@ impl<'s, 'a> Reference<'s, 'a> {
         let map = [texel[0], texel[1], texel[2]];
         match &mat.schlick {
             Some(s) => {
-                let n = match &mat.normal_map {
-                    Some(nm) => perturb(hit, sample_normal(nm, hit.uv, true)),
-                    None => hit.normal,
+                // The normal map at the pixel's levels: direction, and |n̄| for Toksvig.
+                let (n, s) = match &mat.normal_map {
+                    Some(nm) => {
+                        let t =
+                            trilinear_with(&nm.levels, hit.uv, hit.uv_derivatives, |l, i, j| {
+                                nm.texel(l, i, j)
+                            });
+                        let n = perturb(hit, decode_normal_texel(t).to_array());
+                        let s = if self.toksvig {
+                            s.with_toksvig(t[3])
+                        } else {
+                            *s
+                        };
+                        (n, s)
+                    }
+                    None => (hit.normal, *s),
                 };
                 Surface {
-                    brdf: Brdf::Schlick(*s),
+                    brdf: Brdf::Schlick(s),
                     map,
                     frame: tangent_frame(n, Vec3::from_slice(&hit.tangent[..3])),
                 }
@@ -702,19 +720,30 @@ fn plane_gradient(p: [Vec3; 3], f: [f32; 3]) -> Vec3 {
 /// |∂(u·w, v·h)/∂y|) at level 0's size, λ = log₂ ρ clamped to the chain, the two nearest levels
 /// bilinear and blended by λ's fraction.
 pub fn trilinear(mips: &super::scene::ColorMips, uv: [f32; 2], d: [f32; 4]) -> [f32; 4] {
-    let [w, h, ..] = mips.levels[0];
+    trilinear_with(&mips.levels, uv, d, |l, i, j| mips.texel(l, i, j))
+}
+
+/// [`trilinear`] over any mip chain of level table `levels` (width, height, first, count),
+/// `texel(level, i, j)` reading one texel of a level.
+pub fn trilinear_with(
+    levels: &[[u32; 4]],
+    uv: [f32; 2],
+    d: [f32; 4],
+    texel: impl Fn(usize, u32, u32) -> [f32; 4],
+) -> [f32; 4] {
+    let [w, h, ..] = levels[0];
     let (w, h) = (w as f32, h as f32);
     let rho_x = ((d[0] * w).powi(2) + (d[1] * h).powi(2)).sqrt();
     let rho_y = ((d[2] * w).powi(2) + (d[3] * h).powi(2)).sqrt();
-    let top = (mips.levels.len() - 1) as f32;
+    let top = (levels.len() - 1) as f32;
     let lambda = rho_x.max(rho_y).max(1e-30).log2().clamp(0.0, top);
     let l0 = lambda.floor() as usize;
-    let l1 = (l0 + 1).min(mips.levels.len() - 1);
+    let l1 = (l0 + 1).min(levels.len() - 1);
     let f = lambda - l0 as f32;
     let level = |l: usize| {
-        let [lw, lh, ..] = mips.levels[l];
+        let [lw, lh, ..] = levels[l];
         bilinear_with((lw, lh), uv, |i, j| {
-            mips.texel(
+            texel(
                 l,
                 i.rem_euclid(lw as i64) as u32,
                 j.rem_euclid(lh as i64) as u32,
@@ -727,10 +756,6 @@ pub fn trilinear(mips: &super::scene::ColorMips, uv: [f32; 2], d: [f32; 4]) -> [
     }
     let b = level(l1);
     [0, 1, 2, 3].map(|k| a[k] + (b[k] - a[k]) * f)
-}
-
-fn sample_normal(img: &ImageData, uv: [f32; 2], repeat: bool) -> [f32; 3] {
-    decode_normal_texel(bilinear(img, uv, repeat, unorm)).to_array()
 }
 
 /// A colour map texel as the `Rgba8UnormSrgb` sampler returns it: linear RGB, alpha.

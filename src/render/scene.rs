@@ -55,24 +55,51 @@ pub struct MaterialData<'a> {
     pub color_mips: Option<ColorMips<'a>>,
     /// The two-layer Schlick material of the `material:<model>/<i>` section; `None`: Lambert.
     pub schlick: Option<crate::material::schlick::SchlickMaterial>,
-    /// Level 0 of the tangent-space normal map (`normal` array of the processed texture).
-    pub normal_map: Option<ImageData<'a>>,
+    /// The tangent-space normal map's mip chain (`normal` array of the processed texture):
+    /// `(n + 1)/2` in RGB, the filtered normal's length |n̄| in alpha (the Toksvig input).
+    pub normal_map: Option<NormalMips<'a>>,
 }
 
-/// A processed colour map's mip chain (docs/FORMAT.md, `texture` processed by `bake material`):
-/// linear RGB with straight alpha scaled per level to keep the alpha-tested coverage, as half
-/// floats, level 0 first; each level's (width, height, first texel, texel count).
+/// A processed texture's mip chain (docs/FORMAT.md, `texture` processed by `bake material`):
+/// level 0 first, each level's (width, height, first texel, texel count) and the concatenated
+/// texels.
 #[derive(Debug, Clone)]
-pub struct ColorMips<'a> {
+pub struct Mips<'a, T> {
     pub levels: Vec<[u32; 4]>,
-    pub texels: &'a [[u16; 4]],
+    pub texels: &'a [T],
 }
+
+/// A colour map's chain: linear RGB with straight alpha scaled per level to keep the
+/// alpha-tested coverage, as half floats.
+pub type ColorMips<'a> = Mips<'a, [u16; 4]>;
+
+/// A normal map's chain: `(n + 1)/2` of the renormalized filtered normal in RGB and its length
+/// before renormalizing in alpha (255 at level 0), 8-bit unorm.
+pub type NormalMips<'a> = Mips<'a, [u8; 4]>;
 
 impl ColorMips<'_> {
     /// Texel (i, j) of `level`, widened to f32.
     pub fn texel(&self, level: usize, i: u32, j: u32) -> [f32; 4] {
         let [w, _, first, _] = self.levels[level];
         self.texels[(first + j * w + i) as usize].map(|b| half::f16::from_bits(b).to_f32())
+    }
+}
+
+impl NormalMips<'_> {
+    /// Level 0 as an image.
+    pub fn level0(&self) -> ImageData<'_> {
+        let [width, height, first, count] = self.levels[0];
+        ImageData {
+            width,
+            height,
+            texels: &self.texels[first as usize..(first + count) as usize],
+        }
+    }
+
+    /// Texel (i, j) of `level` as an `Rgba8Unorm` sampler reads it: each byte / 255.
+    pub fn texel(&self, level: usize, i: u32, j: u32) -> [f32; 4] {
+        let [w, _, first, _] = self.levels[level];
+        self.texels[(first + j * w + i) as usize].map(|b| b as f32 / 255.0)
     }
 }
 
@@ -803,7 +830,7 @@ fn load_schlick<'a>(
     warnings: &mut Vec<String>,
 ) -> Result<(
     Option<crate::material::schlick::SchlickMaterial>,
-    Option<ImageData<'a>>,
+    Option<NormalMips<'a>>,
 )> {
     use crate::material::section as ms;
     let name = ms::material_section_name(model_of(mesh_section), index);
@@ -826,12 +853,13 @@ fn load_schlick<'a>(
     Ok((Some(meta.material), normal_map))
 }
 
-/// Level 0 of a processed texture's `normal` array (the first width × height texels).
+/// The mip chain of a processed texture's `normal` array; a chain that does not match its
+/// `levels` table is an invalid pack.
 fn load_normal_map<'a>(
     pack: &'a Pack,
     name: &str,
     warnings: &mut Vec<String>,
-) -> Result<Option<ImageData<'a>>> {
+) -> Result<Option<NormalMips<'a>>> {
     let v = match pack.find(name) {
         Some(_) => pack.view_named(name)?,
         None => {
@@ -840,28 +868,13 @@ fn load_normal_map<'a>(
         }
     };
     let meta: TextureMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
-    let Ok(normal) = v.array::<[u8; 4]>("normal") else {
+    let Ok(texels) = v.array::<[u8; 4]>("normal") else {
         warnings.push(format!("texture {name:?} has no normal array: drawn flat"));
         return Ok(None);
     };
-    let n = meta.width as u64 * meta.height as u64;
-    if n == 0 || (normal.len() as u64) < n {
-        return Err(invalid(
-            pack,
-            name,
-            format!(
-                "{} normals for {}×{}",
-                normal.len(),
-                meta.width,
-                meta.height
-            ),
-        ));
-    }
-    Ok(Some(ImageData {
-        width: meta.width,
-        height: meta.height,
-        texels: &normal[..n as usize],
-    }))
+    let bad = |e: crate::error::ParseError| invalid(pack, name, e.to_string());
+    let levels = crate::texture::section::levels(&v, &meta, "normal").map_err(bad)?;
+    Ok(Some(NormalMips { levels, texels }))
 }
 
 /// The `tangents:<model>` section's frames when they match the mesh's vertices, else any unit

@@ -235,12 +235,15 @@ impl Uploader<'_> {
         }))
     }
 
-    /// A processed colour map with its whole mip chain (`Rgba16Float`, the section's half
-    /// floats level by level), sampled trilinear.
-    fn color_mips(
+    /// A processed texture with its whole mip chain (the section's texels level by level, in
+    /// `format` of `texel_bytes` per texel), sampled trilinear: colour maps as `Rgba16Float`,
+    /// normal maps as `Rgba8Unorm` (the alpha, |n̄|, filtered like the rest).
+    fn mips<T: Pod>(
         &mut self,
         label: &str,
-        mips: &super::scene::ColorMips,
+        mips: &super::scene::Mips<T>,
+        format: wgpu::TextureFormat,
+        texel_bytes: u32,
     ) -> Result<wgpu::TextureView> {
         let [width, height, ..] = mips.levels[0];
         let max = self.gpu.max_texture_side();
@@ -256,7 +259,7 @@ impl Uploader<'_> {
             depth_or_array_layers: 1,
         };
         let levels = mips.levels.len() as u32;
-        let texture = self.sampled_texture(label, size, levels, wgpu::TextureFormat::Rgba16Float);
+        let texture = self.sampled_texture(label, size, levels, format);
         for (level, &[w, h, first, count]) in mips.levels.iter().enumerate() {
             let data: &[u8] =
                 bytemuck::cast_slice(&mips.texels[first as usize..(first + count) as usize]);
@@ -270,7 +273,7 @@ impl Uploader<'_> {
                 data,
                 wgpu::TexelCopyBufferLayout {
                     offset: 0,
-                    bytes_per_row: Some(w * 8),
+                    bytes_per_row: Some(w * texel_bytes),
                     rows_per_image: Some(h),
                 },
                 wgpu::Extent3d {
@@ -284,7 +287,7 @@ impl Uploader<'_> {
         Ok(texture.create_view(&Default::default()))
     }
 
-    /// A normal map (`(n + 1)/2` in RGB, read as linear unorm).
+    /// A normal map (`(n + 1)/2` in RGB, read as linear unorm), one level.
     fn normal_map(&mut self, label: &str, img: &ImageData) -> Result<wgpu::TextureView> {
         self.texture(
             label,
@@ -514,7 +517,7 @@ fn upload_model(
     for (k, mat) in m.materials.iter().enumerate() {
         let label = format!("{}: material {k}", m.section);
         let view = match (&mat.color_mips, &mat.color_map) {
-            (Some(mips), _) => up.color_mips(&label, mips)?,
+            (Some(mips), _) => up.mips(&label, mips, wgpu::TextureFormat::Rgba16Float, 8)?,
             (None, Some(img)) => up.color_map(&label, img)?,
             (None, None) => white.clone(),
         };
@@ -528,7 +531,12 @@ fn upload_model(
             U::UNIFORM,
         );
         let normal_view = match &mat.normal_map {
-            Some(img) => up.normal_map(&format!("{}: normal map {k}", m.section), img)?,
+            Some(mips) => up.mips(
+                &format!("{}: normal map {k}", m.section),
+                mips,
+                wgpu::TextureFormat::Rgba8Unorm,
+                4,
+            )?,
             None => flat.clone(),
         };
         materials.push(up.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {

@@ -43,6 +43,16 @@ fn schlick_from_record(v: array<vec4<f32>, 6>) -> Schlick {
     return Schlick(top, bottom, v[4].y);
 }
 
+// src/material/schlick.rs `toksvig_roughness`: r' = 2/(f·s + 2), s = 2/r − 2,
+// f = |n̄| / (|n̄| + s(1 − |n̄|)).
+fn toksvig_roughness(r_in: f32, length: f32) -> f32 {
+    let r = clamp(r_in, 1e-4, 1.0);
+    let n = clamp(length, 1e-3, 1.0);
+    let s = 2.0 / r - 2.0;
+    let f = n / (n + s * (1.0 - n));
+    return 2.0 / (f * s + 2.0);
+}
+
 // G(v): Smith masking of the GGX distribution Z/π.
 fn schlick_shadowing(l: SchlickLayer, v: f32) -> f32 {
     let r = max(l.roughness, 1e-4);

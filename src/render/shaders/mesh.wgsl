@@ -84,7 +84,8 @@ fn mesh_vertex(v: MeshIn) -> MeshOut {
 
 // The sun on a model: two-layer Schlick in the normal-mapped tangent frame, or Lambert on the
 // side facing the viewer for models without a material section.
-fn mesh_direct(in: MeshOut, texel: vec3<f32>, ts: vec3<f32>) -> vec3<f32> {
+// `ts` is the normal map's tangent-space normal, `len` its filtered length |n̄| (Toksvig).
+fn mesh_direct(in: MeshOut, texel: vec3<f32>, ts: vec3<f32>, len: f32) -> vec3<f32> {
     if (direct_material.mode.x == 0.0) {
         let n = facing_normal(in.normal, in.world);
         return direct_lambert(texel * material.base_color.rgb, n, in.world);
@@ -98,7 +99,13 @@ fn mesh_direct(in: MeshOut, texel: vec3<f32>, ts: vec3<f32>) -> vec3<f32> {
         let b = cross(n, t) * select(1.0, -1.0, in.tangent.w < 0.0);
         ns = normalize(t * ts.x + b * ts.y + n * ts.z);
     }
-    let m = schlick_from_record(direct_material.record);
+    var m = schlick_from_record(direct_material.record);
+    // Toksvig (globals.cam_up.w = 1, src/material/schlick.rs `with_toksvig`): the roughness of
+    // both layers from the filtered normal's length at the sampled levels.
+    if (direct_material.mode.y != 0.0 && globals.cam_up.w != 0.0) {
+        m.top.roughness = toksvig_roughness(m.top.roughness, len);
+        m.bottom.roughness = toksvig_roughness(m.bottom.roughness, len);
+    }
     return direct_schlick(m, texel, ns, t, n, in.world);
 }
 
@@ -128,7 +135,8 @@ override A2C: bool = false;
 fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
     // Every texture read and derivative before the discard (uniform control flow).
     let texel = textureSample(color_map, color_sampler, in.uv);
-    let ts = textureSample(normal_map, color_sampler, in.uv).xyz * 2.0 - 1.0;
+    let nm = textureSample(normal_map, color_sampler, in.uv);
+    let ts = nm.xyz * 2.0 - 1.0;
     let a = texel.a * direct_material.mode.z;
     let w = fwidth(a);
     var coverage = 1.0;
@@ -143,7 +151,7 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
     // Emission (the record's last vec4, zero without a material section): emitted radiance on
     // both faces, drawn in full renders only (weight kd · ka), in neither term alone.
     let emission = direct_material.record[5].xyz * (globals.viewport.z * globals.viewport.w);
-    let l = mesh_direct(in, texel.rgb, ts) * globals.viewport.z
+    let l = mesh_direct(in, texel.rgb, ts, nm.a) * globals.viewport.z
         + mesh_ambient(in, texel.rgb) * globals.viewport.w + emission;
     return vec4<f32>(l, coverage);
 }
