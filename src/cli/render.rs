@@ -85,6 +85,10 @@ pub struct RenderArgs {
     /// filtered normals with the material's own roughness: minified bumpy gloss sparkles).
     #[arg(long)]
     pub no_toksvig: bool,
+    /// Parallax mapping with offset limiting (seed 000 §4.7.3): colour and normal maps read
+    /// where the view ray crosses the height map's surface (mean-colour height ± the bump).
+    #[arg(long)]
+    pub parallax: bool,
 }
 
 /// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
@@ -129,6 +133,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
             crate::render::Encoding::Gamma,
         ),
         toksvig: !args.no_toksvig,
+        parallax: args.parallax,
     };
     let pack = Pack::open(&args.pack)?;
     let out = render_pack(&pack, &opts)?;

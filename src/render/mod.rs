@@ -70,6 +70,8 @@ pub struct RenderOptions {
     /// Toksvig's roughness from the normal map's filtered length |n̄| (on by default; off draws
     /// the renormalized mip normals with the material's own roughness).
     pub toksvig: bool,
+    /// Parallax mapping from the colour maps' height chains (seed 000 §4.7.3; off by default).
+    pub parallax: bool,
 }
 
 /// The multisample count of `--msaa` (the one count every WebGPU device supports beside 1).
@@ -132,6 +134,7 @@ impl Default for RenderOptions {
             msaa: MSAA_SAMPLES,
             encoding: Encoding::Srgb,
             toksvig: true,
+            parallax: false,
         }
     }
 }
@@ -296,6 +299,8 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let mut globals = draw::Globals::new(&cam, &lighting, exposure, size, opts.terms);
     // cam_up.w: 1 where the normal map's length corrects the roughness (Toksvig).
     globals.cam_up[3] = if opts.toksvig { 1.0 } else { 0.0 };
+    // cam_right.w: 1 where the height maps displace the texture lookups (parallax).
+    globals.cam_right[3] = if opts.parallax { 1.0 } else { 0.0 };
     let soft = match &opts.soft_shadows {
         Some(s) => Some(soft_shadow::for_render(
             &gpu, &pipes, &gpu_scene, &globals, size, pack, &lighting, s,

@@ -390,6 +390,7 @@ impl Layouts {
                 sampler_entry(2),
                 uniform_entry(3, S::FRAGMENT),
                 texture_entry(4, S::FRAGMENT, true),
+                texture_entry(5, S::FRAGMENT, true),
             ],
         );
         let shadow = shadow_layout(device);

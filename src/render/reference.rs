@@ -82,6 +82,9 @@ pub struct Reference<'s, 'a> {
     /// Toksvig's roughness from the normal map's filtered length (on by default, like
     /// [`RenderOptions::toksvig`]).
     pub toksvig: bool,
+    /// Parallax mapping from the colour maps' height chains (off by default, like
+    /// [`RenderOptions::parallax`]).
+    pub parallax: bool,
 }
 
 /// The reference image of a view.
@@ -103,6 +106,7 @@ pub fn render_reference(pack: &Pack, opts: &RenderOptions) -> Result<ReferenceOu
     let view = super::resolve_view(pack, &scene, opts);
     let mut r = Reference::build(&scene)?;
     r.toksvig = opts.toksvig;
+    r.parallax = opts.parallax;
     r.ambient = Some(super::ambient::load_ambient(
         pack,
         &scene,
@@ -250,6 +254,7 @@ impl<'s, 'a> Reference<'s, 'a> {
             ambient: None,
             shadows: true,
             toksvig: true,
+            parallax: false,
         })
     }
 
@@ -551,9 +556,13 @@ impl<'s, 'a> Reference<'s, 'a> {
         };
         let m = &self.scene.models[k as usize];
         let mat = &m.materials[hit.material as usize];
+        let uv = match (&mat.height_mips, &mat.schlick) {
+            (Some(h), Some(s)) if self.parallax => parallax_uv(hit, h, s.bump_height, wo),
+            _ => hit.uv,
+        };
         let texel = match (&mat.color_mips, &mat.color_map) {
-            (Some(mips), _) => trilinear(mips, hit.uv, hit.uv_derivatives),
-            (None, Some(img)) => sample_srgb(img, hit.uv, true),
+            (Some(mips), _) => trilinear(mips, uv, hit.uv_derivatives),
+            (None, Some(img)) => sample_srgb(img, uv, true),
             (None, None) => [1.0; 4],
         };
         let map = [texel[0], texel[1], texel[2]];
@@ -562,10 +571,9 @@ impl<'s, 'a> Reference<'s, 'a> {
                 // The normal map at the pixel's levels: direction, and |n̄| for Toksvig.
                 let (n, s) = match &mat.normal_map {
                     Some(nm) => {
-                        let t =
-                            trilinear_with(&nm.levels, hit.uv, hit.uv_derivatives, |l, i, j| {
-                                nm.texel(l, i, j)
-                            });
+                        let t = trilinear_with(&nm.levels, uv, hit.uv_derivatives, |l, i, j| {
+                            nm.texel(l, i, j)
+                        });
                         let n = perturb(hit, decode_normal_texel(t).to_array());
                         let s = if self.toksvig {
                             s.with_toksvig(t[3])
@@ -713,6 +721,29 @@ fn plane_gradient(p: [Vec3; 3], f: [f32; 3]) -> Vec3 {
     let x = (c * f1 - b * f2) / det;
     let y = (a * f2 - b * f1) / det;
     e1 * x + e2 * y
+}
+
+/// Parallax mapping with offset limiting (shaders/mesh.wgsl `parallax_uv`): the height h at the
+/// hit's texture point and level, d = (2h − 1)·bump metres along the normal, the tangent-plane
+/// offset o = d·(V − n(n·V)) towards the viewer `wo`, and uv + (∇u·o, ∇v·o) with the
+/// triangle's uv gradients.
+pub fn parallax_uv(
+    hit: &HitRecord,
+    heights: &super::scene::HeightMips,
+    bump: f32,
+    wo: Vec3,
+) -> [f32; 2] {
+    let h = trilinear_with(&heights.levels, hit.uv, hit.uv_derivatives, |l, i, j| {
+        heights.texel(l, i, j)
+    })[0];
+    let d = (2.0 * h - 1.0) * bump;
+    let n = hit.normal;
+    let v = wo.normalize_or_zero();
+    let o = d * (v - n * n.dot(v));
+    [
+        hit.uv[0] + hit.uv_gradient[0].dot(o),
+        hit.uv[1] + hit.uv_gradient[1].dot(o),
+    ]
 }
 
 /// Trilinear lookup in a processed colour map's mips with repeat addressing, the level from the

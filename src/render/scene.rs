@@ -58,6 +58,9 @@ pub struct MaterialData<'a> {
     /// The tangent-space normal map's mip chain (`normal` array of the processed texture):
     /// `(n + 1)/2` in RGB, the filtered normal's length |n̄| in alpha (the Toksvig input).
     pub normal_map: Option<NormalMips<'a>>,
+    /// The colour map's mean-colour height chain (half floats in [0, 1], the colour chain's
+    /// level table): parallax mapping's input.
+    pub height_mips: Option<HeightMips<'a>>,
 }
 
 /// A processed texture's mip chain (docs/FORMAT.md, `texture` processed by `bake material`):
@@ -76,6 +79,18 @@ pub type ColorMips<'a> = Mips<'a, [u16; 4]>;
 /// A normal map's chain: `(n + 1)/2` of the renormalized filtered normal in RGB and its length
 /// before renormalizing in alpha (255 at level 0), 8-bit unorm.
 pub type NormalMips<'a> = Mips<'a, [u8; 4]>;
+
+/// A height chain: one half float per texel.
+pub type HeightMips<'a> = Mips<'a, u16>;
+
+impl HeightMips<'_> {
+    /// Texel (i, j) of `level`, widened to f32 (in R).
+    pub fn texel(&self, level: usize, i: u32, j: u32) -> [f32; 4] {
+        let [w, _, first, _] = self.levels[level];
+        let h = half::f16::from_bits(self.texels[(first + j * w + i) as usize]).to_f32();
+        [h, 0.0, 0.0, 1.0]
+    }
+}
 
 impl ColorMips<'_> {
     /// Texel (i, j) of `level`, widened to f32.
@@ -372,7 +387,11 @@ fn load_image<'a>(
 /// The mip chain of texture section `name` where the material stage processed it (format
 /// `rgba16f_linear`), `None` for an ingested texture; a chain that does not match its table is
 /// an invalid pack.
-fn load_color_mips<'a>(pack: &'a Pack, name: &str) -> Result<Option<ColorMips<'a>>> {
+#[allow(clippy::type_complexity)]
+fn load_color_mips<'a>(
+    pack: &'a Pack,
+    name: &str,
+) -> Result<Option<(ColorMips<'a>, HeightMips<'a>)>> {
     let v = pack.view_named(name)?;
     let meta: TextureMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
     if meta.format != crate::texture::section::FORMAT_COLOR {
@@ -380,8 +399,19 @@ fn load_color_mips<'a>(pack: &'a Pack, name: &str) -> Result<Option<ColorMips<'a
     }
     let bad = |e: crate::error::ParseError| invalid(pack, name, e.to_string());
     let levels = crate::texture::section::levels(&v, &meta, "color").map_err(bad)?;
+    crate::texture::section::levels(&v, &meta, "height").map_err(bad)?;
     let texels: &[[u16; 4]] = v.array("color").map_err(bad)?;
-    Ok(Some(ColorMips { levels, texels }))
+    let heights: &[u16] = v.array("height").map_err(bad)?;
+    Ok(Some((
+        ColorMips {
+            levels: levels.clone(),
+            texels,
+        },
+        HeightMips {
+            levels,
+            texels: heights,
+        },
+    )))
 }
 
 /// Every model of the `instances` section with its instances; without an `instances` section
@@ -776,6 +806,7 @@ fn load_materials<'a>(
             color_mips: None,
             schlick: None,
             normal_map: None,
+            height_mips: None,
         }]);
     }
     let mut out = Vec::with_capacity(meta.materials.len());
@@ -794,9 +825,10 @@ fn load_materials<'a>(
             },
             None => None,
         };
-        let color_mips = match (&color_map, entry.and_then(|t| t.section.as_deref())) {
-            (Some(_), Some(s)) => load_color_mips(pack, s)?,
-            _ => None,
+        let (color_mips, height_mips) = match (&color_map, entry.and_then(|t| t.section.as_deref()))
+        {
+            (Some(_), Some(s)) => load_color_mips(pack, s)?.unzip(),
+            _ => (None, None),
         };
         let d = m.diffuse;
         let (schlick, normal_map) = load_schlick(pack, section, out.len(), warnings)?;
@@ -811,6 +843,7 @@ fn load_materials<'a>(
             color_mips,
             schlick,
             normal_map,
+            height_mips,
         });
     }
     Ok(out)

@@ -36,7 +36,8 @@ const _: () = assert!(size_of::<MaterialParams>() == 16);
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct DirectMaterialParams {
     pub record: crate::material::section::MaterialRecord,
-    /// x: 1 = two-layer Schlick, 0 = Lambert; y: 1 = normal map; z: opacity; w: 0
+    /// x: 1 = two-layer Schlick, 0 = Lambert; y: 1 = normal map; z: opacity; w: 1 = a height
+    /// map for parallax (binding 5)
     pub mode: [f32; 4],
 }
 const _: () = assert!(size_of::<DirectMaterialParams>() == 112);
@@ -50,7 +51,7 @@ impl DirectMaterialParams {
                     1.0,
                     if mat.normal_map.is_some() { 1.0 } else { 0.0 },
                     m.opacity,
-                    0.0,
+                    if mat.height_mips.is_some() { 1.0 } else { 0.0 },
                 ],
             },
             None => DirectMaterialParams {
@@ -478,6 +479,14 @@ fn upload_model(
             texels: &[[128, 128, 255, 255]],
         },
     )?;
+    // Likewise the height map of a material without one: 0.5, the undisplaced surface.
+    let level_ground = up.texture(
+        "level height",
+        (1, 1),
+        wgpu::TextureFormat::R16Float,
+        2,
+        bytemuck::bytes_of(&half::f16::from_f32(0.5).to_bits()),
+    )?;
     use wgpu::BufferUsages as U;
     let mut levels = vec![upload_level(
         up,
@@ -530,6 +539,15 @@ fn upload_model(
             bytemuck::bytes_of(&DirectMaterialParams::new(mat)),
             U::UNIFORM,
         );
+        let height_view = match &mat.height_mips {
+            Some(mips) => up.mips(
+                &format!("{}: height map {k}", m.section),
+                mips,
+                wgpu::TextureFormat::R16Float,
+                2,
+            )?,
+            None => level_ground.clone(),
+        };
         let normal_view = match &mat.normal_map {
             Some(mips) => up.mips(
                 &format!("{}: normal map {k}", m.section),
@@ -562,6 +580,10 @@ fn upload_model(
                 wgpu::BindGroupEntry {
                     binding: 4,
                     resource: wgpu::BindingResource::TextureView(&normal_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: wgpu::BindingResource::TextureView(&height_view),
                 },
             ],
         }));

@@ -22,6 +22,9 @@ struct DirectMaterial {
 
 @group(1) @binding(3) var<uniform> direct_material: DirectMaterial;
 @group(1) @binding(4) var normal_map: texture_2d<f32>;
+// The colour map's mean-colour height in [0, 1] (R16Float mips), parallax mapping's input; a
+// 1×1 0.5 where the material has none.
+@group(1) @binding(5) var height_map: texture_2d<f32>;
 
 struct MeshIn {
     @location(0) position: vec3<f32>,
@@ -131,11 +134,54 @@ fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
 // into the fragment's sample mask; without it the test is a hard discard.
 override A2C: bool = false;
 
+// Parallax mapping with offset limiting (Welch 2004; seed 000 §4.7.3), where
+// globals.cam_right.w is 1 (`bake render --parallax`) and the material has a height map: the
+// surface stands d = (2h − 1) · bump metres off the triangle, and the texture is read at the
+// point the view ray crosses that height, offset-limited: o = d · (V − n (n·V)) in the tangent
+// plane (no division by n·V), carried into uv through the screen derivatives (o as a
+// combination of ∂p/∂x and ∂p/∂y, the same combination of ∂uv/∂x and ∂uv/∂y). The CPU
+// reference does it with the triangle's uv gradients (src/render/reference.rs `parallax_uv`).
+fn parallax_uv(in: MeshOut, dux: vec2<f32>, duy: vec2<f32>) -> vec2<f32> {
+    let dpx = dpdx(in.world);
+    let dpy = dpdy(in.world);
+    let h = textureSampleGrad(height_map, color_sampler, in.uv, dux, duy).r;
+    let d = (2.0 * h - 1.0) * direct_material.record[4].x;
+    if (dot(in.normal, in.normal) < 1e-12) {
+        return in.uv;
+    }
+    let n = normalize(in.normal);
+    let v = normalize(globals.eye.xyz - in.world);
+    let o = d * (v - n * dot(n, v));
+    let a11 = dot(dpx, dpx);
+    let a12 = dot(dpx, dpy);
+    let a22 = dot(dpy, dpy);
+    let det = a11 * a22 - a12 * a12;
+    if (det <= 1e-30) {
+        return in.uv;
+    }
+    let b1 = dot(o, dpx);
+    let b2 = dot(o, dpy);
+    let x = (a22 * b1 - a12 * b2) / det;
+    let y = (a11 * b2 - a12 * b1) / det;
+    return in.uv + x * dux + y * duy;
+}
+
 @fragment
 fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
-    // Every texture read and derivative before the discard (uniform control flow).
-    let texel = textureSample(color_map, color_sampler, in.uv);
-    let nm = textureSample(normal_map, color_sampler, in.uv);
+    // Every texture read and derivative before the discard (uniform control flow: the parallax
+    // switch is a uniform).
+    var texel: vec4<f32>;
+    var nm: vec4<f32>;
+    if (globals.cam_right.w != 0.0 && direct_material.mode.w != 0.0) {
+        let dux = dpdx(in.uv);
+        let duy = dpdy(in.uv);
+        let uv = parallax_uv(in, dux, duy);
+        texel = textureSampleGrad(color_map, color_sampler, uv, dux, duy);
+        nm = textureSampleGrad(normal_map, color_sampler, uv, dux, duy);
+    } else {
+        texel = textureSample(color_map, color_sampler, in.uv);
+        nm = textureSample(normal_map, color_sampler, in.uv);
+    }
     let ts = nm.xyz * 2.0 - 1.0;
     let a = texel.a * direct_material.mode.z;
     let w = fwidth(a);
