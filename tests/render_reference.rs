@@ -784,27 +784,40 @@ fn checker_plane_pack() -> Pack {
         height: 16,
         pixels,
     };
-    let s = 200.0;
+    let material = bake::model::Material {
+        diffuse: [1.0, 1.0, 1.0, 1.0],
+        color_map: Some(0),
+        ..Default::default()
+    };
+    textured_plane_pack(200.0, 100.0, material, "checker.png", &img)
+}
+
+/// A square plane of half side `s` metres at z = 0 (one model, two triangles) with `material`
+/// whose texture 0 is `img` (as `texture`), repeated `repeat` times across the plane; through
+/// the material stage (which bakes the mip chains).
+fn textured_plane_pack(
+    s: f32,
+    repeat: f32,
+    material: bake::model::Material,
+    texture: &str,
+    img: &Rgba8Image,
+) -> Pack {
     let mesh = bake::model::Mesh {
         positions: vec![[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]],
         normals: vec![[0.0, 0.0, 1.0]; 4],
-        uvs: vec![[0.0, 100.0], [100.0, 100.0], [100.0, 0.0], [0.0, 0.0]],
+        uvs: vec![[0.0, repeat], [repeat, repeat], [repeat, 0.0], [0.0, 0.0]],
         indices: vec![[0, 1, 2], [0, 2, 3]],
         triangle_materials: vec![0, 0],
-        materials: vec![bake::model::Material {
-            diffuse: [1.0, 1.0, 1.0, 1.0],
-            color_map: Some(0),
-            ..Default::default()
-        }],
+        materials: vec![material],
         textures: vec![bake::model::TextureRef {
-            name: "checker.png".into(),
-            path: "checker.png".into(),
+            name: texture.into(),
+            path: texture.into(),
         }],
         ..Default::default()
     };
     let mut w = PackWriter::new();
-    let tex = texture::texture_section_name("plane", "checker.png");
-    w.insert(texture::to_section(&tex, "test", &img));
+    let tex = texture::texture_section_name("plane", texture);
+    w.insert(texture::to_section(&tex, "test", img));
     w.insert(bake::mesh::section::to_section(
         "mesh:plane",
         "test",
@@ -896,36 +909,14 @@ fn bumpy_plane_pack() -> Pack {
         height: 64,
         pixels,
     };
-    let (s, repeat) = (20.0, 40.0);
-    let mesh = bake::model::Mesh {
-        positions: vec![[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]],
-        normals: vec![[0.0, 0.0, 1.0]; 4],
-        uvs: vec![[0.0, repeat], [repeat, repeat], [repeat, 0.0], [0.0, 0.0]],
-        indices: vec![[0, 1, 2], [0, 2, 3]],
-        triangle_materials: vec![0, 0],
-        materials: vec![bake::model::Material {
-            diffuse: [0.1, 0.1, 0.1, 1.0],
-            specular: [1.0, 1.0, 1.0, 1.0],
-            shininess: 128.0,
-            normal_map: Some(0),
-            ..Default::default()
-        }],
-        textures: vec![bake::model::TextureRef {
-            name: "bumps.png".into(),
-            path: "bumps.png".into(),
-        }],
+    let material = bake::model::Material {
+        diffuse: [0.1, 0.1, 0.1, 1.0],
+        specular: [1.0, 1.0, 1.0, 1.0],
+        shininess: 128.0,
+        normal_map: Some(0),
         ..Default::default()
     };
-    let mut w = PackWriter::new();
-    let tex = texture::texture_section_name("plane", "bumps.png");
-    w.insert(texture::to_section(&tex, "test", &img));
-    w.insert(bake::mesh::section::to_section(
-        "mesh:plane",
-        "test",
-        &mesh,
-        &[Some(tex)],
-    ));
-    with_materials(w, "bumps.bake")
+    textured_plane_pack(20.0, 40.0, material, "bumps.png", &img)
 }
 
 /// Luminance-ish (mean of RGB, 8-bit) peak and the count of pixels at or above half of `half_of`.
