@@ -27,6 +27,7 @@ pub mod pipeline;
 pub mod plan;
 pub mod prt;
 pub mod render;
+pub mod report;
 pub mod rng;
 pub mod sh;
 pub mod sky;

@@ -35,6 +35,8 @@ enum Command {
     Lod(cli::lod::LodArgs),
     /// Show what a pack holds.
     Dump(cli::dump::DumpArgs),
+    /// One self-contained HTML page of a pack: sections, images, the bake's timeline, a render.
+    Report(cli::report::ReportArgs),
     /// Write the generated fixture scene into a folder.
     Fixtures(cli::fixtures::FixturesArgs),
     /// Encode the instances of a scene pack as a BitTree.
@@ -81,6 +83,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Prt(a) => cli::prt::run(a, g),
         Command::Lod(a) => cli::lod::run(a, g),
         Command::Dump(a) => cli::dump::run(a, g),
+        Command::Report(a) => cli::report::run(a, g),
         Command::Sky(a) => cli::sky::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),
         Command::Material(a) => cli::material::run(a, g),

@@ -39,6 +39,11 @@ pub struct BuildArgs {
     /// Render the baked pack to this PNG afterwards (default camera).
     #[arg(long, value_name = "PNG")]
     pub render: Option<PathBuf>,
+    /// Keep the build report in the pack (a `build_report` section) instead of beside it as
+    /// PACK.report.json. The report holds wall times: the pack is then no longer the same bytes
+    /// from run to run.
+    #[arg(long)]
+    pub embed_report: bool,
 }
 
 /// The pipeline of `--pipeline`/`--preview`/`--set`, and the file it came from.
@@ -93,6 +98,20 @@ pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
         }
     );
     let mut json = serde_json::to_value(&report).unwrap_or_default();
+    // The record of the bake that wrote the pack (`bake report`): beside it, or in it.
+    if !report.up_to_date {
+        let sidecar = crate::report::sidecar_path(&report.output);
+        if args.embed_report {
+            crate::report::embed(&json, &report.output)?;
+            match std::fs::remove_file(&sidecar) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(e) => return Err(crate::error::Error::io(&sidecar, e)),
+            }
+        } else {
+            crate::report::write_sidecar(&json, &report.output)?;
+        }
+    }
     let mut warnings: Vec<String> = report
         .warnings
         .iter()

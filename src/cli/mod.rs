@@ -18,6 +18,7 @@ pub mod pipeline;
 pub mod plan;
 pub mod prt;
 pub mod render;
+pub mod report;
 pub mod scene;
 pub mod sky;
 pub mod svo;

@@ -90,6 +90,11 @@ pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
         crate::linespace::section::data,
     ),
     (
+        crate::report::KIND,
+        crate::report::summary,
+        crate::report::data,
+    ),
+    (
         crate::material::section::KIND,
         crate::material::section::summary,
         crate::material::section::data,

@@ -295,18 +295,7 @@ fn read_entry(path: &Path) -> std::result::Result<Entry, String> {
     Ok(Entry { sections, meta })
 }
 
-/// BLAKE3 of a file's bytes (memory-mapped; hashed on all threads for large files).
-pub fn hash_file(path: &Path) -> Result<[u8; 32]> {
-    let f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let len = f.metadata().map_err(|e| Error::io(path, e))?.len();
-    if len == 0 {
-        return Ok(crate::pack::hash_bytes(&[]));
-    }
-    // SAFETY: read-only map of an input file; a file changed under the bake is the user's
-    // race, and the hash then simply describes neither version.
-    let map = unsafe { memmap2::Mmap::map(&f) }.map_err(|e| Error::io(path, e))?;
-    Ok(crate::pack::hash_bytes(&map))
-}
+pub use crate::pack::hash_file;
 
 #[cfg(test)]
 mod tests {

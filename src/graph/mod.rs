@@ -107,6 +107,9 @@ pub struct StageRecord {
     pub unit: String,
     /// "hit", "miss" or "off".
     pub cache: &'static str,
+    /// Seconds from the start of the bake to the start of this unit (the timeline of
+    /// `bake report`).
+    pub start_seconds: f64,
     pub wall_seconds: f64,
     pub cpu_seconds: f64,
     pub outputs: Vec<String>,
@@ -123,6 +126,8 @@ pub struct BuildReport {
     pub up_to_date: bool,
     pub sections: usize,
     pub bytes: u64,
+    /// BLAKE3 of the pack file as written (hex); `None` when the output was up to date.
+    pub pack_blake3: Option<String>,
     pub models: usize,
     pub instances: usize,
     pub triangles: u64,
@@ -170,6 +175,8 @@ struct Graph<'a> {
     done: Vec<Section>,
     out: StreamWriter,
     name: String,
+    /// When the bake started.
+    t0: Instant,
 }
 
 impl Graph<'_> {
@@ -188,6 +195,7 @@ impl Graph<'_> {
         compute: impl FnOnce(&(dyn Fn(u64) + Sync)) -> Result<Output>,
     ) -> Result<Vec<Section>> {
         let t0 = Instant::now();
+        let start_seconds = t0.duration_since(self.t0).as_secs_f64();
         let (c0, _) = process_usage();
         self.observer.start(stage, unit, total);
         let mut status = "off";
@@ -254,6 +262,7 @@ impl Graph<'_> {
             stage: stage.into(),
             unit: unit.into(),
             cache: status,
+            start_seconds,
             wall_seconds: t0.elapsed().as_secs_f64(),
             cpu_seconds: c1 - c0,
             outputs: sections.iter().map(|s| s.name.clone()).collect(),
@@ -372,6 +381,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         done: Vec::new(),
         out: StreamWriter::create(&output)?,
         name: first.display().to_string(),
+        t0,
     };
     g.files.extend(plan.files.iter().cloned());
     g.files.extend(opts.pipeline_file.iter().cloned());
@@ -558,10 +568,12 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     if let Some(d) = &opts.depfile {
         write_depfile(d, &output, &files)?;
     }
+    let pack_blake3 = Some(hex(&cache::hash_file(&output)?));
     Ok(finish(BuildReport {
         output,
         sections,
         bytes,
+        pack_blake3,
         models: plan.models.len(),
         instances,
         triangles,

@@ -143,6 +143,19 @@ pub fn hash_bytes(bytes: &[u8]) -> [u8; 32] {
     }
 }
 
+/// BLAKE3 of a file's bytes (memory-mapped; hashed on all threads for large files).
+pub fn hash_file(path: &Path) -> Result<[u8; 32]> {
+    let f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = f.metadata().map_err(|e| Error::io(path, e))?.len();
+    if len == 0 {
+        return Ok(hash_bytes(&[]));
+    }
+    // SAFETY: read-only map of an input file; a file changed under the bake is the user's
+    // race, and the hash then simply describes neither version.
+    let map = unsafe { memmap2::Mmap::map(&f) }.map_err(|e| Error::io(path, e))?;
+    Ok(hash_bytes(&map))
+}
+
 /// Lower-case hex of `bytes`.
 pub fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()

@@ -110,6 +110,7 @@ fn schema(kind: &str) -> Option<Schema> {
         "svo" => SVO,
         "linespace" => LINESPACE,
         "build" => &[],
+        "build_report" => &[("json", &[U8], 1)],
         _ => return None,
     })
 }
@@ -152,6 +153,7 @@ pub fn decode(kind: &str, v: &SectionView) -> Result<(), crate::error::ParseErro
         "svo" => crate::voxel::section::from_section(v).map(drop),
         "linespace" => crate::linespace::section::from_section(v).map(drop),
         "build" => crate::graph::check_build_section(v),
+        "build_report" => crate::report::from_section(v).map(drop),
         other => Err(crate::error::ParseError::new(
             "section kind",
             format!("unknown kind {other:?}"),
