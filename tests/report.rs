@@ -46,6 +46,18 @@ fn read_json(path: &Path) -> Value {
     serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
 
+/// `bake report PACK -o PAGE --no-render --json`.
+fn report_without_render(pack: &Path, page: &Path) -> Value {
+    common::json(&common::bake(&[
+        "report",
+        pack.to_str().unwrap(),
+        "-o",
+        page.to_str().unwrap(),
+        "--no-render",
+        "--json",
+    ]))
+}
+
 #[test]
 fn every_bake_writes_a_sidecar_report_that_names_its_pack() {
     let dir = tempfile::tempdir().unwrap();
@@ -102,14 +114,7 @@ fn every_bake_writes_a_sidecar_report_that_names_its_pack() {
     assert_ne!(blake3_hex(&other), blake3_hex(&pack));
     std::fs::copy(&sidecar, dir.path().join("b.bake.report.json")).unwrap();
     let page = dir.path().join("b.html");
-    let r = common::json(&common::bake(&[
-        "report",
-        other.to_str().unwrap(),
-        "-o",
-        page.to_str().unwrap(),
-        "--no-render",
-        "--json",
-    ]));
+    let r = report_without_render(&other, &page);
     assert_eq!(r["build_report"], Value::Null);
     let notes = r["notes"].to_string();
     assert!(notes.contains("stale"), "{notes}");
@@ -142,14 +147,7 @@ fn embed_report_keeps_the_report_in_the_pack() {
     // The embedded report names the pack as the stage graph wrote it, before the report went in.
     assert_ne!(report["pack_blake3"].as_str().unwrap(), blake3_hex(&pack));
     let page = dir.path().join("e.html");
-    let r = common::json(&common::bake(&[
-        "report",
-        pack.to_str().unwrap(),
-        "-o",
-        page.to_str().unwrap(),
-        "--no-render",
-        "--json",
-    ]));
+    let r = report_without_render(&pack, &page);
     assert_eq!(r["build_report"], "the pack's build_report section");
 }
 
