@@ -18,6 +18,9 @@ use std::path::{Path, PathBuf};
 /// Kind and name of the embedded report's section.
 pub const KIND: &str = "build_report";
 
+/// Largest sidecar read (a report of 200,000 instances and 300 models is well under 1 MB).
+pub const MAX_SIDECAR_BYTES: u64 = 64 << 20;
+
 /// The sidecar of `pack`: `scene.bake` → `scene.bake.report.json`.
 pub fn sidecar_path(pack: &Path) -> PathBuf {
     let mut name = pack.file_name().unwrap_or_default().to_os_string();
@@ -116,6 +119,18 @@ pub fn find(pack: &Pack) -> Result<(Option<Found>, Vec<String>)> {
         ));
     }
     let path = sidecar_path(pack.path());
+    if let Ok(m) = std::fs::metadata(&path)
+        && m.len() > MAX_SIDECAR_BYTES
+    {
+        return Ok((
+            None,
+            vec![format!(
+                "{}: {} bytes, more than a build report's {MAX_SIDECAR_BYTES}: left out",
+                path.display(),
+                m.len()
+            )],
+        ));
+    }
     let text = match std::fs::read(&path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
