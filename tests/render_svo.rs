@@ -95,9 +95,9 @@ fn render(pack: &str, dir: &Path, tag: &str, show: &str, lod_scale: &str) -> Val
         "--height",
         "120",
         "--eye",
-        "0,-3,2.5",
+        "0,-1,3",
         "--target",
-        "0,20,0",
+        "0,30,0",
         "--reference",
         &cpu,
         "--json",
@@ -145,12 +145,12 @@ fn rgba(p: &str) -> image::RgbaImage {
 fn the_svo_view_matches_the_cpu_traversal_and_coarsens_with_distance() {
     let dir = tempfile::tempdir().unwrap();
     let pack = strip_pack(dir.path());
-    let r = render(&pack, dir.path(), "level", "level", "24");
+    let r = render(&pack, dir.path(), "level", "level", "32");
     let counts = per_level(&r);
     assert_eq!(counts.len(), 5, "{r}");
     let hits: u64 = counts.iter().sum();
     assert!(hits > 200 * 120 / 3, "{r}");
-    // At scale 24 the near strip shows voxels and the far end coarser cells.
+    // At scale 32 the near strip shows voxels and the far end coarser cells.
     let shown: Vec<usize> = (0..5).filter(|&l| counts[l] > 20).collect();
     assert!(shown.len() >= 3, "{counts:?}");
     // Coarser levels lie farther away: the mean distance falls as the level index rises.
@@ -179,9 +179,9 @@ fn the_svo_view_matches_the_cpu_traversal_and_coarsens_with_distance() {
     assert!(zero[4] > 0);
 
     // Colour and normal views of the same rays agree with the CPU too (checked in `render`).
-    let c = render(&pack, dir.path(), "colour", "colour", "24");
+    let c = render(&pack, dir.path(), "colour", "colour", "32");
     assert_eq!(per_level(&c), counts);
-    render(&pack, dir.path(), "normal", "normal", "24");
+    render(&pack, dir.path(), "normal", "normal", "32");
 }
 
 #[test]
@@ -198,15 +198,15 @@ fn a_huge_lod_scale_collapses_every_hit_to_the_root_colour() {
     let img = rgba(&path(dir.path(), "root.png"));
     let colours: HashSet<[u8; 4]> = img.pixels().map(|p| p.0).collect();
     assert_eq!(colours.len(), 2, "{colours:?}");
-    // Scale 24 of the same view shows many colours.
-    render(&pack, dir.path(), "detail", "colour", "24");
+    // Scale 32 of the same view shows many colours.
+    render(&pack, dir.path(), "detail", "colour", "32");
     let img = rgba(&path(dir.path(), "detail.png"));
     let colours: HashSet<[u8; 4]> = img.pixels().map(|p| p.0).collect();
     assert!(colours.len() > 10, "{}", colours.len());
 }
 
 #[test]
-fn a_pack_without_an_svo_section_is_an_invalid_input() {
+fn a_pack_without_an_svo_section_is_an_invalid_input_and_a_bad_scale_a_usage_error() {
     let dir = tempfile::tempdir().unwrap();
     let pack = strip_pack(dir.path());
     let bare = path(dir.path(), "bare.bake");
@@ -219,5 +219,22 @@ fn a_pack_without_an_svo_section_is_an_invalid_input() {
     assert_eq!(o.status.code(), Some(4), "{o:?}");
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("no svo section"), "{err}");
+    assert!(!Path::new(&png).exists());
+    // A lod scale that is not a number is a usage error (exit 2) before any work.
+    let o = bake(&[
+        "render",
+        &pack,
+        "-o",
+        &png,
+        "--view",
+        "svo",
+        "--svo-lod-scale",
+        "NaN",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{o:?}");
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("lod scale"),
+        "{o:?}"
+    );
     assert!(!Path::new(&png).exists());
 }
