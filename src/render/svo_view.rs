@@ -153,10 +153,9 @@ pub fn prepare_svo_view(
         ),
         None => (Vec3::from(DEFAULT_LIGHT).normalize().to_array(), false),
     };
-    let tan_half = (camera.fov_y_deg.to_radians() * 0.5).tan();
     Ok(SvoScene {
         rays: pixel_rays(&camera, &g, size),
-        cone: view.lod_scale * 2.0 * tan_half / opts.height as f32,
+        cone: pixel_cone(&camera, opts.height, view.lod_scale),
         svo,
         camera,
         light,
@@ -164,6 +163,12 @@ pub fn prepare_svo_view(
         size,
         opts: view,
     })
+}
+
+/// `lod_scale` × the angle one pixel spans at the image centre, `2 tan(fov_y / 2) / height`: the
+/// footprint of a ray at distance t is `cone · t` (in voxels, or metres, alike).
+pub fn pixel_cone(cam: &Camera, height: u32, lod_scale: f32) -> f32 {
+    lod_scale * 2.0 * (cam.fov_y_deg.to_radians() * 0.5).tan() / height as f32
 }
 
 /// One ray per pixel centre in voxel units, unit direction, row 0 at the top.
@@ -307,6 +312,49 @@ mod tests {
             t: 1.0,
             color: crate::voxel::svo::pack_rgba8(color),
             normal: crate::voxel::svo::pack_normal(normal),
+        }
+    }
+
+    #[test]
+    fn the_cone_spans_one_pixel_and_the_rays_pass_through_the_pixel_centres() {
+        let cam = Camera::look_at(
+            Vec3::new(1.0, -10.0, 3.0),
+            Vec3::new(0.0, 5.0, 0.0),
+            45.0,
+            1.6,
+        );
+        let (w, h) = (32u32, 20u32);
+        // Two points cone·t apart across the central ray project one pixel apart.
+        let cone = pixel_cone(&cam, h, 1.0);
+        let b = cam.basis();
+        let vp = cam.view_proj();
+        for t in [2.0f32, 7.0, 40.0] {
+            let p = cam.eye + b.forward * t;
+            let q = p + b.up * (cone * t);
+            let pixels = (vp.project_point3(q).y - vp.project_point3(p).y) * 0.5 * h as f32;
+            assert!((pixels - 1.0).abs() < 1e-3, "t {t}: {pixels} px");
+        }
+        assert_eq!(pixel_cone(&cam, h, 3.0), 3.0 * cone);
+        // Rays in the voxels of a non-unit grid: unit directions whose points project back to
+        // the pixel centres.
+        let grid = Grid {
+            origin: [-4.0, 2.0, -1.0],
+            voxel_size: [0.25; 3],
+            dims: [64, 64, 16],
+        };
+        let rays = pixel_rays(&cam, &grid, (w, h));
+        assert_eq!(rays.len(), (w * h) as usize);
+        for (i, r) in rays.iter().enumerate() {
+            let l: f32 = r.dir.iter().map(|d| d * d).sum::<f32>().sqrt();
+            assert!((l - 1.0).abs() < 1e-5);
+            let g = [0, 1, 2].map(|k| r.origin[k] + r.dir[k] * 30.0);
+            let p = vp.project_point3(Vec3::from(grid.to_world(g)));
+            let (x, y) = ((p.x + 1.0) * 0.5 * w as f32, (1.0 - p.y) * 0.5 * h as f32);
+            let (px, py) = ((i as u32 % w) as f32 + 0.5, (i as u32 / w) as f32 + 0.5);
+            assert!(
+                (x - px).abs() < 1e-3 && (y - py).abs() < 1e-3,
+                "{i}: {x},{y}"
+            );
         }
     }
 
