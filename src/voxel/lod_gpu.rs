@@ -152,6 +152,32 @@ impl<'g> SvoLodGpu<'g> {
     }
 }
 
+/// The rays with unit directions (t_max scaled to match), so that t is a distance in voxels and
+/// a cone means the same on every ray.
+pub fn unit_rays(rays: &[VoxelRay]) -> Vec<VoxelRay> {
+    rays.iter()
+        .map(|r| {
+            let l = r.dir.iter().map(|d| d * d).sum::<f32>().sqrt();
+            VoxelRay {
+                dir: r.dir.map(|d| d / l),
+                t_max: r.t_max * l,
+                ..*r
+            }
+        })
+        .collect()
+}
+
+/// Cones that spread random rays through a grid of largest side `d` over the levels: at t = d/2
+/// a footprint of 0 (voxels), 4 (bricks), 16 and 64 voxels.
+pub fn validation_cones(d: u32) -> [f32; 4] {
+    [0.0, 8.0, 32.0, 128.0].map(|k| k / d.max(1) as f32)
+}
+
+/// The largest fraction of rays whose LOD answers may disagree before `bake validate` fails:
+/// a level choice `s ≤ cone · t` flips where t lands on the boundary and the GPU rounds a
+/// division differently (t within [`T_TOLERANCE`]); lavapipe measures 0.
+pub const LOD_MISMATCH_FRACTION: f64 = 1e-3;
+
 /// Agreement of GPU and CPU LOD traversal on the same rays.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct LodAgreement {
@@ -176,6 +202,11 @@ impl LodAgreement {
     /// Rays that disagree in any way.
     pub fn mismatches(&self) -> usize {
         self.hit_mismatches + self.cell_mismatches + self.attribute_mismatches + self.t_mismatches
+    }
+
+    /// At most [`LOD_MISMATCH_FRACTION`] of the rays disagree.
+    pub fn agrees(&self) -> bool {
+        self.mismatches() as f64 <= LOD_MISMATCH_FRACTION * self.rays as f64
     }
 }
 
@@ -232,17 +263,7 @@ mod tests {
         for dims in [[4, 4, 4], [37, 20, 45], [130, 17, 9], [300, 41, 22]] {
             let svo = voxels_to_svo(&random_voxels(&mut rng, dims));
             let dev = SvoLodGpu::new(&gpu, &svo).unwrap();
-            let rays: Vec<VoxelRay> = random_rays(dims, 20_000, dims[2] as u64)
-                .into_iter()
-                .map(|r| {
-                    let l = r.dir.iter().map(|d| d * d).sum::<f32>().sqrt();
-                    VoxelRay {
-                        dir: r.dir.map(|d| d / l),
-                        t_max: r.t_max * l,
-                        ..r
-                    }
-                })
-                .collect();
+            let rays = unit_rays(&random_rays(dims, 20_000, dims[2] as u64));
             let mut levels = vec![0usize; svo.levels as usize + 1];
             for cone in [0.0f32, 0.03, 0.15, 0.6, 3.0, 1e30] {
                 let on_gpu = dev.trace(&rays, cone).unwrap();

@@ -214,17 +214,7 @@ mod tests {
 
     /// [`random_rays`] with unit directions, so that t is a distance in voxels.
     fn unit_rays(dims: [u32; 3], count: usize, seed: u64) -> Vec<VoxelRay> {
-        random_rays(dims, count, seed)
-            .into_iter()
-            .map(|r| {
-                let l = r.dir.iter().map(|d| d * d).sum::<f32>().sqrt();
-                VoxelRay {
-                    dir: r.dir.map(|d| d / l),
-                    t_max: r.t_max * l,
-                    ..r
-                }
-            })
-            .collect()
+        crate::voxel::lod_gpu::unit_rays(&random_rays(dims, count, seed))
     }
 
     /// Every voxel's straight colour and normal, by coordinate (from the voxel set, not the tree).
