@@ -29,12 +29,11 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 /// What `--view svo` shows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SvoShow {
     /// The filtered colour, lit.
     #[default]
-    #[value(alias = "color")]
     Colour,
     /// The filtered normal as RGB.
     Normal,
