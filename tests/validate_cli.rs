@@ -86,6 +86,22 @@ fn validate_agrees_on_svo_and_linespace_of_a_model() {
     assert_eq!(v["svo"]["rays"], 5000);
     assert_eq!(v["svo"]["voxel_mismatches"], 0);
     assert!(v["svo"]["hits"].as_u64().unwrap() > 500, "{v}");
+    // The LOD kernel of `render --view svo` on the same rays at four cones: every answer equal.
+    let lod = v["svo_lod"].as_array().unwrap();
+    assert_eq!(lod.len(), 4, "{v}");
+    for row in lod {
+        let a = &row["agreement"];
+        assert_eq!(row["agree"], true, "{row}");
+        for k in [
+            "hit_mismatches",
+            "cell_mismatches",
+            "attribute_mismatches",
+            "t_mismatches",
+        ] {
+            assert_eq!(a[k], 0, "{row}");
+        }
+        assert!(a["hits"].as_u64().unwrap() > 500, "{row}");
+    }
     assert_eq!(v["linespace"]["segments"], 300 * 16);
     assert_eq!(v["linespace"]["fraction_mismatches"], 0);
     assert!(v["linespace"]["occluded"].as_u64().unwrap() > 100, "{v}");

@@ -3,6 +3,7 @@
 use super::{Global, Outcome, parse_vec3};
 use crate::error::Result;
 use crate::pack::Pack;
+use crate::render::svo_view::{self, SvoShow, SvoViewOptions};
 use crate::render::{BackendChoice, RenderOptions, Terms, encode_png, render_pack};
 use std::path::PathBuf;
 
@@ -89,6 +90,25 @@ pub struct RenderArgs {
     /// where the view ray crosses the height map's surface (mean-colour height ± the bump).
     #[arg(long)]
     pub parallax: bool,
+    /// What to draw: the scene (meshes, terrain, sky), or the `svo` section ray-marched by a
+    /// compute shader that stops at the filtered parents, the level chosen by distance.
+    #[arg(long, value_enum, default_value_t = ViewMode::Scene)]
+    pub view: ViewMode,
+    /// With --view svo: the filtered colour (lit by the pack's sun or a fixed light), the
+    /// normal as RGB, or the level each pixel stopped at as a palette colour.
+    #[arg(long, value_enum, default_value_t = SvoShow::Colour)]
+    pub svo_show: SvoShow,
+    /// With --view svo: factor on the pixel's cone; a cell stops the descent once its side is
+    /// at most scale × the pixel's footprint where the ray enters it (0: always the voxels).
+    #[arg(long, default_value_t = svo_view::DEFAULT_LOD_SCALE)]
+    pub svo_lod_scale: f32,
+}
+
+/// `bake render --view`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ViewMode {
+    Scene,
+    Svo,
 }
 
 /// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
@@ -136,6 +156,9 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         parallax: args.parallax,
     };
     let pack = Pack::open(&args.pack)?;
+    if args.view == ViewMode::Svo {
+        return run_svo(args, &pack, &opts);
+    }
     let out = render_pack(&pack, &opts)?;
     let png = encode_png(&out.image)?;
     crate::pack::write_atomic(&args.output, &png)?;
@@ -181,6 +204,67 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         json,
         text,
         warnings: out.warnings,
+    })
+}
+
+/// `--view svo`: the GPU traversal's image, and with `--reference` the CPU traversal's on the
+/// same rays with the difference of the images and of the answers.
+fn run_svo(args: &RenderArgs, pack: &Pack, opts: &RenderOptions) -> Result<Outcome> {
+    let view = SvoViewOptions {
+        show: args.svo_show,
+        lod_scale: args.svo_lod_scale,
+    };
+    let scene = svo_view::prepare_svo_view(pack, opts, view)?;
+    let out = svo_view::render_svo(&scene, args.backend)?;
+    crate::pack::write_atomic(&args.output, &encode_png(&out.image)?)?;
+    let stats = svo_view::view_stats(&scene, &out.hits);
+    let mut text = format!(
+        "{}: svo view {}×{} on {}, lod scale {}, {} of {} pixels hit, per level (root first) {:?}, {:.3} s\n",
+        args.output.display(),
+        stats.width,
+        stats.height,
+        out.adapter,
+        stats.lod_scale,
+        stats.hits,
+        scene.rays.len(),
+        stats.pixels_per_level,
+        out.seconds
+    );
+    let mut json = serde_json::json!({
+        "output": args.output,
+        "adapter": out.adapter,
+        "seconds": out.seconds,
+        "svo": stats,
+    });
+    if let Some(path) = &args.reference {
+        let t0 = std::time::Instant::now();
+        let cpu = svo_view::trace_cpu(&scene);
+        let seconds = t0.elapsed().as_secs_f64();
+        let image = svo_view::shade_image(&scene, &cpu);
+        crate::pack::write_atomic(path, &encode_png(&image)?)?;
+        let d = crate::render::reference::image_difference(&out.image, &image, REFERENCE_THRESHOLD)
+            .ok_or_else(|| crate::error::Error::runtime("reference image has another size"))?;
+        let a = crate::voxel::lod_gpu::compare_lod_hits(&out.hits, &cpu);
+        text += &format!(
+            "{}: CPU traversal, {:.3} s; mean absolute difference {:.2}/255, {:.2} % of pixels off by more than {}/255; {} of {} rays disagree\n",
+            path.display(),
+            seconds,
+            d.mad,
+            d.fraction_over * 100.0,
+            d.threshold,
+            a.mismatches(),
+            a.rays
+        );
+        json["reference"] = serde_json::json!({
+            "output": path, "seconds": seconds, "mad": d.mad,
+            "pixels_over": d.fraction_over, "threshold": d.threshold, "max": d.max,
+            "agreement": a,
+        });
+    }
+    Ok(Outcome {
+        json,
+        text,
+        warnings: Vec::new(),
     })
 }
 

@@ -1,6 +1,7 @@
 //! `bake validate PACK`: the runtime check of issue 6 — the compute shaders traverse the pack's
 //! `svo` and `linespace` sections for a batch of random rays and the answers are compared with
-//! the CPU traversal; exits non-zero (runtime error) when they disagree.
+//! the CPU traversal (for `svo` also the level-of-detail traversal of `bake render --view svo`);
+//! exits non-zero (runtime error) when they disagree.
 
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
@@ -8,6 +9,8 @@ use crate::linespace::gpu::validate_linespace;
 use crate::pack::Pack;
 use crate::render::BackendChoice;
 use crate::voxel::gpu::{SvoAgreement, compare_hits, random_rays, trace_svo_cpu};
+use crate::voxel::lod_gpu::{LodAgreement, compare_lod_hits, unit_rays, validation_cones};
+use crate::voxel::lod_trace::trace_lod;
 use serde_json::json;
 use std::path::PathBuf;
 
@@ -66,6 +69,29 @@ fn validate_svo_section(
     })
 }
 
+/// The level-of-detail traversal of the `svo` section (`bake render --view svo`'s kernel) on the
+/// same random rays with unit directions, at cones that reach each level.
+fn validate_svo_lod(
+    gpu: &crate::gpu::Gpu,
+    view: &crate::pack::section::SectionView,
+    args: &ValidateArgs,
+    path: &std::path::Path,
+) -> Result<Vec<(f32, LodAgreement)>> {
+    let (_, svo) =
+        crate::voxel::section::from_section(view).map_err(|e| Error::invalid(path, e))?;
+    let dev = crate::voxel::lod_gpu::SvoLodGpu::new(gpu, &svo)?;
+    let rays = unit_rays(&random_rays(svo.grid.dims, args.rays, args.seed));
+    let d = svo.grid.dims.into_iter().max().unwrap_or(1);
+    validation_cones(d)
+        .into_iter()
+        .map(|cone| {
+            let on_gpu = dev.trace(&rays, cone)?;
+            let on_cpu: Vec<_> = rays.iter().map(|r| trace_lod(&svo, r, cone)).collect();
+            Ok((cone, compare_lod_hits(&on_gpu, &on_cpu)))
+        })
+        .collect()
+}
+
 pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
     let pack = Pack::open(&args.pack)?;
     let svo_entry = pack.of_kind(crate::voxel::section::KIND).next();
@@ -90,6 +116,20 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
         );
         json["svo"] = json!(a);
         json["svo"]["agree"] = json!(a.agrees());
+        let lod = validate_svo_lod(&gpu, &pack.view(e)?, args, &args.pack)?;
+        let mut rows = Vec::new();
+        for (cone, a) in &lod {
+            ok &= a.agrees();
+            text += &format!(
+                "svo lod (cone {cone:.4}): {} rays, {} hits, {} disagree (at most {} of the rays may)\n",
+                a.rays,
+                a.hits,
+                a.mismatches(),
+                crate::voxel::lod_gpu::LOD_MISMATCH_FRACTION
+            );
+            rows.push(json!({ "cone": cone, "agreement": a, "agree": a.agrees() }));
+        }
+        json["svo_lod"] = json!(rows);
     }
     if let Some(e) = ls_entry {
         let (_, mut tree) = crate::linespace::section::from_section(&pack.view(e)?)

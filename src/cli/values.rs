@@ -7,6 +7,7 @@ use crate::lightmap::LightmapMode;
 use crate::linespace::ntree::Refine;
 use crate::render::Terms;
 use crate::render::ambient::PrtLayout;
+use crate::render::svo_view::SvoShow;
 use crate::texture::linear::TransferFunction;
 use crate::trace::BuildPreset;
 use clap::builder::PossibleValue;
@@ -42,6 +43,23 @@ value_enum!(PrtLayout {
     Full => "full": "The full-precision transfer (2 sides × 2 sets × 16 RGB per vertex)",
     Packed => "packed": "The thesis' 5 vec4 per side",
 });
+
+// By hand for the US spelling's alias.
+impl clap::ValueEnum for SvoShow {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[SvoShow::Colour, SvoShow::Normal, SvoShow::Level]
+    }
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        Some(match self {
+            SvoShow::Colour => PossibleValue::new("colour")
+                .alias("color")
+                .help("The filtered colour, lit"),
+            SvoShow::Normal => PossibleValue::new("normal").help("The filtered normal as RGB"),
+            SvoShow::Level => PossibleValue::new("level")
+                .help("The level each pixel stopped at, as a palette colour"),
+        })
+    }
+}
 
 value_enum!(Refine {
     Shaft => "shaft": "The thesis: a full shaft is a hit (cheapest; over-occludes by up to a shaft's width)",
@@ -88,5 +106,14 @@ mod tests {
             TransferFunction::Gamma22
         );
         assert_eq!(Refine::from_str("near", false).unwrap(), Refine::Near);
+        for (name, show) in [
+            ("colour", SvoShow::Colour),
+            ("color", SvoShow::Colour),
+            ("level", SvoShow::Level),
+        ] {
+            assert_eq!(SvoShow::from_str(name, false).unwrap(), show);
+        }
+        let v = SvoShow::Normal.to_possible_value().unwrap();
+        assert_eq!(serde_json::json!(SvoShow::Normal), v.get_name());
     }
 }

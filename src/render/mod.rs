@@ -8,7 +8,8 @@
 //! (1 − exp(−L·s), then sRGB) into the output. [`light`] and [`camera`] hold the conventions.
 //! [`cull`] and [`levels`] choose each instance's level; [`impostor`] draws the instances the
 //! LOD rule gives the impostor atlas (quads, the nearest of the atlas' views, no blend: its
-//! module documentation holds the rules).
+//! module documentation holds the rules). [`svo_view`] is the other view mode: the `svo`
+//! section ray-marched by a compute shader at a level chosen by distance.
 
 pub mod ambient;
 pub mod ambient_gpu;
@@ -24,6 +25,7 @@ pub mod sample;
 pub mod scene;
 pub mod shadow;
 pub mod soft_shadow;
+pub mod svo_view;
 pub mod terrain_lod;
 pub mod upload;
 
@@ -493,6 +495,17 @@ pub fn check_options(opts: &RenderOptions) -> Result<()> {
 /// The default camera frames the scene's focus bounds; `--eye`/`--target` override either part.
 fn choose_camera(scene: &scene::SceneData, opts: &RenderOptions, aspect: f32) -> camera::Camera {
     let (lo, hi) = scene.focus_bounds();
+    camera_for_bounds(lo, hi, opts, aspect)
+}
+
+/// The camera of `opts` over the box `lo..hi`: the box framed ([`camera::Camera::frame_box`])
+/// unless `--eye`/`--target` override either part.
+pub fn camera_for_bounds(
+    lo: [f32; 3],
+    hi: [f32; 3],
+    opts: &RenderOptions,
+    aspect: f32,
+) -> camera::Camera {
     let framed = camera::Camera::frame_box(Vec3::from(lo), Vec3::from(hi), opts.fov_y_deg, aspect);
     match (opts.eye, opts.target) {
         (None, None) => framed,

@@ -11,7 +11,8 @@ use crate::gpu::Gpu;
 use crate::rng::Rng;
 use bytemuck::{Pod, Zeroable};
 
-const DDA_WGSL: &str = include_str!("shaders/dda.wgsl");
+pub(crate) const DDA_WGSL: &str = include_str!("shaders/dda.wgsl");
+pub(crate) const SVO_COMMON_WGSL: &str = include_str!("shaders/svo_common.wgsl");
 const SVO_WGSL: &str = include_str!("shaders/svo_trace.wgsl");
 
 /// Tolerance of the hit `t` between GPU and CPU, relative to max(1, |t|): the slab divisions
@@ -81,7 +82,13 @@ impl<'g> SvoGpu<'g> {
         }
         Ok(SvoGpu {
             gpu,
-            kernel: Kernel::new(gpu, "svo trace", &[DDA_WGSL, SVO_WGSL], "main", 3)?,
+            kernel: Kernel::new(
+                gpu,
+                "svo trace",
+                &[DDA_WGSL, SVO_COMMON_WGSL, SVO_WGSL],
+                "main",
+                3,
+            )?,
             nodes: compute::storage(gpu, "svo nodes", nodes)?,
             leaves: compute::storage(gpu, "svo leaves", leaves)?,
             dims,

@@ -1,6 +1,7 @@
 //! Voxels: conservative mesh voxelization ([`voxelize`]), the sparse voxel octree built from it
-//! ([`svo`]), CPU ray traversal with a brute-force DDA reference ([`traverse`]) and the `svo`
-//! pack section ([`section`]).
+//! ([`svo`]), CPU ray traversal with a brute-force DDA reference ([`traverse`]), the
+//! level-of-detail traversal that stops at the filtered parents ([`lod_trace`], on the GPU
+//! [`lod_gpu`]) and the `svo` pack section ([`section`]).
 //!
 //! Voxel coordinates: a [`Grid`] maps world space (metres, Z up) to voxel units; voxel (i, j, k)
 //! covers `origin + [i, i+1) × voxel_size` on each axis. Voxels are keyed by their 64-bit Morton
@@ -9,6 +10,8 @@
 pub mod compute;
 pub mod geometry;
 pub mod gpu;
+pub mod lod_gpu;
+pub mod lod_trace;
 pub mod packed;
 pub mod section;
 pub mod svo;

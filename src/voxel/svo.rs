@@ -20,7 +20,7 @@
 //! - Attributes per voxel: colour RGBA8, linear, premultiplied alpha; normal as 2 × snorm16
 //!   octahedral. Per node and brick the filtered value of its 64 cells: the mean of the children's
 //!   premultiplied colours with empty cells counting as transparent black (so alpha is coverage),
-//!   and the coverage-weighted mean normal.
+//!   and the coverage-weighted mean normal of all the voxels below.
 //!
 //! Worked example: a brick whose voxels (0,0,0) and (1,0,0) are set has mask 0b11; a parent with
 //! that brick in slot 5 has bit 5 set; if its `first_voxel` is 100 and its bricks in slots 0..4
@@ -96,7 +96,8 @@ pub fn unpack_rgba8(v: u32) -> [f32; 4] {
     [0, 8, 16, 24].map(|s| ((v >> s) & 255) as f32 / 255.0)
 }
 
-/// Octahedral encoding of a unit normal (zero encodes as zero).
+/// Octahedral encoding of a normal's direction (zero encodes as zero). +Z would be (0, 0), the
+/// zero code, so it is stored one step off, as (0, 1): 1/32767 rad, below the quantization.
 pub fn pack_normal(n: [f32; 3]) -> u32 {
     let l1 = n[0].abs() + n[1].abs() + n[2].abs();
     if l1 == 0.0 {
@@ -109,7 +110,10 @@ pub fn pack_normal(n: [f32; 3]) -> u32 {
         y = (1.0 - ox.abs()) * oy.signum();
     }
     let q = |v: f32| ((v.clamp(-1.0, 1.0) * 32767.0).round() as i16) as u16 as u32;
-    q(x) | q(y) << 16
+    match q(x) | q(y) << 16 {
+        0 => 1 << 16,
+        v => v,
+    }
 }
 
 /// Inverse of [`pack_normal`].
@@ -259,13 +263,16 @@ impl Svo {
     }
 
     /// Filtered attributes of bricks, then of inner nodes bottom-up (premultiplied means over
-    /// 64 cells, empty = transparent black).
+    /// 64 cells, empty = transparent black; α-weighted normal sums, see [`filter_cells`]).
     fn filter_attributes(&mut self, v: &Voxels) {
         let mut brick_acc: Vec<([f32; 4], [f32; 3])> = Vec::with_capacity(self.bricks.len());
         let mut at = 0usize;
         for &m in &self.bricks {
             let k = m.count_ones() as usize;
-            let cells = (at..at + k).map(|i| (premultiply(v.colors[i]), v.normals[i]));
+            let cells = (at..at + k).map(|i| {
+                let c = premultiply(v.colors[i]);
+                (c, v.normals[i].map(|x| x * c[3]))
+            });
             brick_acc.push(filter_cells(cells));
             at += k;
         }
@@ -372,7 +379,11 @@ impl Svo {
     }
 }
 
-/// Mean of 64 cells from the occupied ones (premultiplied colour, coverage-weighted normal).
+/// Mean of 64 cells from the occupied ones: premultiplied colour, and the normal as the mean of
+/// α-weighted normals, kept unnormalized up the tree so that a node's normal is the
+/// coverage-weighted mean over all the voxels below it (normalizing per level would weight each
+/// child by its coverage alone, losing how well its voxels agree); [`pack_normal`] keeps only
+/// the direction.
 fn filter_cells(cells: impl Iterator<Item = ([f32; 4], [f32; 3])>) -> ([f32; 4], [f32; 3]) {
     let mut c = [0.0f32; 4];
     let mut n = [0.0f32; 3];
@@ -381,10 +392,10 @@ fn filter_cells(cells: impl Iterator<Item = ([f32; 4], [f32; 3])>) -> ([f32; 4],
             c[k] += cc[k];
         }
         for k in 0..3 {
-            n[k] += nn[k] * cc[3];
+            n[k] += nn[k];
         }
     }
-    (c.map(|x| x / 64.0), super::voxelize_shade::normalize(n))
+    (c.map(|x| x / 64.0), n.map(|x| x / 64.0))
 }
 
 /// Topology bytes of the same voxels as an ESVO octree: one 8-byte child descriptor per octree
@@ -415,6 +426,30 @@ pub fn submask_topology_bytes(inner_nodes: usize, bricks: &[u64]) -> u64 {
         .map(|&m| super::packed::brick_bytes(m) as u64)
         .sum();
     16 * inner_nodes as u64 + leaves
+}
+
+#[cfg(test)]
+mod normal_tests {
+    use super::{pack_normal, unpack_normal};
+
+    #[test]
+    fn only_the_zero_vector_packs_to_the_zero_code() {
+        assert_eq!(pack_normal([0.0; 3]), 0);
+        assert_eq!(unpack_normal(0), [0.0; 3]);
+        for n in [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, 1e-3],
+            [1e-7, 0.0, 2.0],
+            [0.0, 0.0, -1.0],
+        ] {
+            let p = pack_normal(n);
+            assert_ne!(p, 0, "{n:?}");
+            let u = unpack_normal(p);
+            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let dot: f32 = (0..3).map(|k| u[k] * n[k] / l).sum();
+            assert!(dot > 0.99999, "{n:?} → {u:?}");
+        }
+    }
 }
 
 #[cfg(test)]

@@ -106,7 +106,7 @@ impl Dda {
 }
 
 /// Morton slot of a 2-bit cell coordinate inside a 4³ node.
-fn slot(c: [i64; 3]) -> u32 {
+pub(crate) fn slot(c: [i64; 3]) -> u32 {
     let b = |v: i64, i: u32| (v as u32 >> i) & 1;
     b(c[0], 0)
         | b(c[1], 0) << 1
