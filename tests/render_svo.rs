@@ -1,8 +1,8 @@
 //! Black-box tests of `bake render --view svo`: a model through `bake svo`, then the compute-shader
 //! ray march against the CPU traversal on the same rays (`--reference`), the level chosen by
 //! distance (coarser levels farther away, more of them at a larger lod scale), the negative
-//! control of a lod scale so large that every ray stops at the root, and the error for a pack
-//! without an `svo` section.
+//! control of a lod scale so large that every ray stops at the root (of a solid box; a sparse
+//! root is below the coverage floor), and the error for a pack without an `svo` section.
 
 use serde_json::Value;
 use std::collections::HashSet;
@@ -75,6 +75,18 @@ fn strip_pack(dir: &Path) -> String {
 
 /// Renders the svo view down the strip (200×120) with the CPU reference beside it.
 fn render(pack: &str, dir: &Path, tag: &str, show: &str, lod_scale: &str) -> Value {
+    render_from(pack, dir, tag, show, lod_scale, ("0,-1,3", "0,30,0"))
+}
+
+/// As [`render`] from another eye and target.
+fn render_from(
+    pack: &str,
+    dir: &Path,
+    tag: &str,
+    show: &str,
+    lod_scale: &str,
+    (eye, target): (&str, &str),
+) -> Value {
     let (gpu, cpu) = (
         path(dir, &format!("{tag}.png")),
         path(dir, &format!("{tag}_cpu.png")),
@@ -95,9 +107,9 @@ fn render(pack: &str, dir: &Path, tag: &str, show: &str, lod_scale: &str) -> Val
         "--height",
         "120",
         "--eye",
-        "0,-1,3",
+        eye,
         "--target",
-        "0,30,0",
+        target,
         "--reference",
         &cpu,
         "--json",
@@ -184,25 +196,92 @@ fn the_svo_view_matches_the_cpu_traversal_and_coarsens_with_distance() {
     render(&pack, dir.path(), "normal", "normal", "32");
 }
 
+/// A closed 4 × 4 × 2 m box, as OBJ text.
+fn block_obj() -> String {
+    let mut s = String::new();
+    for (x, y, z) in [
+        (0, 0, 0),
+        (4, 0, 0),
+        (4, 4, 0),
+        (0, 4, 0),
+        (0, 0, 2),
+        (4, 0, 2),
+        (4, 4, 2),
+        (0, 4, 2),
+    ] {
+        s += &format!("v {x} {y} {z}\n");
+    }
+    for f in [
+        [1, 3, 2],
+        [1, 4, 3],
+        [5, 6, 7],
+        [5, 7, 8],
+        [1, 2, 6],
+        [1, 6, 5],
+        [2, 3, 7],
+        [2, 7, 6],
+        [3, 4, 8],
+        [3, 8, 7],
+        [4, 1, 5],
+        [4, 5, 8],
+    ] {
+        s += &format!("f {} {} {}\n", f[0], f[1], f[2]);
+    }
+    s
+}
+
 #[test]
 fn a_huge_lod_scale_collapses_every_hit_to_the_root_colour() {
+    // A solid box fills half its 64³ root: coverage above the floor, so the root may answer.
     let dir = tempfile::tempdir().unwrap();
-    let pack = strip_pack(dir.path());
-    let r = render(&pack, dir.path(), "root", "colour", "1e6");
+    let obj = path(dir.path(), "block.obj");
+    std::fs::write(&obj, block_obj()).unwrap();
+    let pack = path(dir.path(), "block.bake");
+    let s = json(&bake(&[
+        "svo",
+        &obj,
+        "-o",
+        &pack,
+        "--resolution",
+        "64",
+        "--solid",
+        "--json",
+    ]));
+    assert_eq!(s["levels"], 3, "{s}");
+    let view = ("6,-7,5", "2,2,1");
+    let r = render_from(&pack, dir.path(), "root", "level", "1e6", view);
     let counts = per_level(&r);
     let hits: u64 = counts.iter().sum();
     assert_eq!(counts[0], hits, "{counts:?}");
-    assert!(hits > 1000);
-    // One colour wherever a ray meets the grid (the root's, lit by its one normal) and the
-    // background elsewhere: the negative control of the level rule.
+    assert!(hits > 2000, "{counts:?}");
+    // Every hit pixel is the root's palette colour, the rest the background.
     let img = rgba(&path(dir.path(), "root.png"));
     let colours: HashSet<[u8; 4]> = img.pixels().map(|p| p.0).collect();
     assert_eq!(colours.len(), 2, "{colours:?}");
-    // Scale 32 of the same view shows many colours.
-    render(&pack, dir.path(), "detail", "colour", "32");
+    assert!(colours.contains(&[230, 25, 75, 255]), "{colours:?}");
+    // In colour, the root's one colour and normal (lit facing either way) on every hit.
+    render_from(&pack, dir.path(), "root_colour", "colour", "1e6", view);
+    let img = rgba(&path(dir.path(), "root_colour.png"));
+    let colours: HashSet<[u8; 4]> = img.pixels().map(|p| p.0).collect();
+    assert!(colours.len() <= 3, "{colours:?}");
+    // The same view at scale 1 shows the voxels and their lit faces.
+    let fine = render_from(&pack, dir.path(), "detail", "colour", "1", view);
+    assert_eq!(
+        per_level(&fine)[3],
+        per_level(&fine).iter().sum::<u64>(),
+        "{fine}"
+    );
     let img = rgba(&path(dir.path(), "detail.png"));
     let colours: HashSet<[u8; 4]> = img.pixels().map(|p| p.0).collect();
-    assert!(colours.len() > 10, "{}", colours.len());
+    assert!(colours.len() >= 4, "{}", colours.len());
+
+    // On the sparse strip the root is below the coverage floor: a huge scale stops at the
+    // first cell dense enough, never the root, and almost never a voxel.
+    let strip = strip_pack(dir.path());
+    let c = per_level(&render(&strip, dir.path(), "sparse", "level", "1e6"));
+    let hits: u64 = c.iter().sum();
+    assert_eq!(c[0], 0, "{c:?}");
+    assert!(c[4] * 50 < hits, "{c:?}");
 }
 
 #[test]

@@ -10,9 +10,13 @@
 //! unit direction in voxel units, `cone` is the pixel's angle times the LOD scale, see
 //! [`crate::render::svo_view`]). The traversal visits the occupied cells front to back as
 //! [`super::traverse::trace_svo`] does; an occupied cell of side s that the DDA enters at t
-//! stops the descent when `s ≤ cone · t` (or when it is a voxel). So the answer is the coarsest
-//! level whose cells are no wider than the footprint where the ray enters them, and cone 0
-//! gives the voxel traversal exactly (same voxel, bit-equal t).
+//! stops the descent when `s ≤ cone · t` and its stored coverage α is at least
+//! [`MIN_STOP_ALPHA`]/255 (or when it is a voxel). So the answer is the coarsest level whose
+//! cells are no wider than the footprint where the ray enters them, and cone 0 gives the voxel
+//! traversal exactly (same voxel, bit-equal t). The coverage floor is there because the stored
+//! colours are RGBA8 premultiplied: a cell covered to α = a/255 holds its colour in steps of
+//! 1/a, and a sparse coarse cell (a plane fills 1/64 of a 64³ node: a = 4; the root of a
+//! landscape often rounds to a = 0) has none worth showing; such cells are descended.
 //!
 //! The hit's t is where the traversal enters the stopping cell: the later of the cell's own
 //! entry, the grid's and `t_min` (for a voxel, [`voxel_entry_t`] as in `trace_svo`).
@@ -24,7 +28,7 @@
 //! surface is small at every coarse level (a plane fills 1/4 of its bricks), so coarse levels
 //! would read as fog; opaque cells keep the surface's look and make the level visible as
 //! blockiness. The stored values are RGBA8, so a parent's un-premultiplied colour has steps of
-//! 1/(255 α); a cell whose alpha rounded to 0 shows black.
+//! 1/(255 α), at most 1/16 with the coverage floor.
 
 use super::svo::{Node, Svo, unpack_normal, unpack_rgba8};
 use super::traverse::{Dda, VoxelRay, box_interval, slot, voxel_entry_t};
@@ -63,6 +67,15 @@ pub fn straight(c: [f32; 4]) -> [f32; 4] {
     [c[0] / c[3], c[1] / c[3], c[2] / c[3], c[3]]
 }
 
+/// The least stored alpha (8-bit coverage) with which a coarse cell may end the walk; sparser
+/// cells are descended whatever the cone (see the module documentation).
+pub const MIN_STOP_ALPHA: u32 = 16;
+
+/// Whether a cell with stored colour `color` (RGBA8 premultiplied) covers enough to stop on.
+pub fn can_stop(color: u32) -> bool {
+    color >> 24 >= MIN_STOP_ALPHA
+}
+
 /// Side in voxels of a cell of `level` in an octree of `levels` levels.
 pub fn cell_side(levels: u32, level: u32) -> f32 {
     4f32.powi(levels as i32 - level as i32)
@@ -79,7 +92,7 @@ pub fn trace_lod(svo: &Svo, r: &VoxelRay, cone: f32) -> Option<LodHit> {
     if t0 > t1 {
         return None;
     }
-    if side <= cone * t0 {
+    if side <= cone * t0 && can_stop(svo.node_colors[0]) {
         return Some(cell_hit(svo, 0, 0, [0.0; 3], t0));
     }
     let walk = Walk { svo, r, cone };
@@ -127,8 +140,8 @@ impl Walk<'_> {
             if mask >> s & 1 == 1 {
                 let child = svo.child(&n, s) as usize;
                 let cbase = [0, 1, 2].map(|k| base[k] + dda.c[k] as f32 * cell);
-                let hit = if cell <= self.cone * t {
-                    let attr = if last { svo.nodes.len() + child } else { child };
+                let attr = if last { svo.nodes.len() + child } else { child };
+                let hit = if cell <= self.cone * t && can_stop(svo.node_colors[attr]) {
                     Some(cell_hit(svo, level + 1, attr, cbase, t))
                 } else if last {
                     self.brick(&n, child, cbase, t, exit)
@@ -310,8 +323,24 @@ mod tests {
                 assert!(dot > 0.9999, "{h:?}: normal {g:?} vs {n:?}");
             }
         }
-        // Every level from the root's children to the voxels answered some rays.
-        assert!(per_level[1..].iter().all(|&n| n > 10), "{per_level:?}");
+        // Every level from the 16³ nodes to the voxels answered some rays (the root and the
+        // 64³ nodes of the sparse shell are below the coverage floor).
+        assert!(per_level[2..].iter().all(|&n| n > 10), "{per_level:?}");
+    }
+
+    /// Index into `node_colors` of the occupied cell of `level` holding voxel `cell`.
+    fn attr_of(svo: &Svo, cell: [u32; 3], level: u32) -> usize {
+        let key = morton_encode(cell);
+        let mut node = 0usize;
+        for l in 0..level as usize {
+            let slot = ((key >> (6 * (svo.levels as usize - 1 - l))) & 63) as u32;
+            let child = svo.child(&svo.nodes[node], slot) as usize;
+            if l + 1 == svo.inner_levels() {
+                return svo.nodes.len() + child;
+            }
+            node = child;
+        }
+        node
     }
 
     #[test]
@@ -346,10 +375,14 @@ mod tests {
                 if h.level < svo.levels {
                     coarse += 1;
                     violations += usize::from(side > cone * entry(side) * (1.0 + 1e-5));
+                    assert!(can_stop(h.color), "{h:?}: below the coverage floor");
                 }
+                // The parent was descended: too wide for the footprint, or too sparse.
                 if h.level > 0 {
-                    violations +=
-                        usize::from(4.0 * side <= cone * entry(4.0 * side) * (1.0 - 1e-5));
+                    let parent = svo.node_colors[attr_of(&svo, h.cell, h.level - 1)];
+                    violations += usize::from(
+                        4.0 * side <= cone * entry(4.0 * side) * (1.0 - 1e-5) && can_stop(parent),
+                    );
                 }
             }
             assert_eq!(violations, 0, "cone {cone}");
@@ -359,11 +392,47 @@ mod tests {
         }
     }
 
+    /// Every voxel of `dims` below height `top`, colour `color` (a dense block).
+    fn block_voxels(dims: [u32; 3], top: u32, color: [f32; 4]) -> Voxels {
+        let mut keys = Vec::new();
+        for z in 0..top {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    keys.push(morton_encode([x, y, z]));
+                }
+            }
+        }
+        keys.sort_unstable();
+        let mut bricks: Vec<Brick> = Vec::new();
+        for &k in &keys {
+            match bricks.last_mut() {
+                Some(b) if b.key == k >> 6 => b.mask |= 1 << (k & 63),
+                _ => bricks.push(Brick {
+                    key: k >> 6,
+                    mask: 1 << (k & 63),
+                }),
+            }
+        }
+        Voxels {
+            grid: Grid {
+                origin: [0.0; 3],
+                voxel_size: [1.0; 3],
+                dims,
+            },
+            bricks,
+            colors: vec![color; keys.len()],
+            normals: vec![[0.0, 0.0, 1.0]; keys.len()],
+            skipped_triangles: 0,
+            open_columns: 0,
+        }
+    }
+
     #[test]
     fn a_huge_cone_answers_with_the_root_wherever_the_ray_meets_the_grid() {
-        let mut rng = Rng::new(6);
-        let dims = [37, 20, 45];
-        let svo = voxels_to_svo(&random_voxels(&mut rng, dims));
+        // A block filling the lower 40 % of a 16³ root: coverage 0.4, above the floor.
+        let dims = [16, 16, 16];
+        let svo = voxels_to_svo(&block_voxels(dims, 7, [0.9, 0.5, 0.1, 1.0]));
+        assert!(can_stop(svo.node_colors[0]));
         let mut roots = 0;
         for r in unit_rays(dims, 2000, 1) {
             let (t0, t1) = box_interval(&r, [0.0; 3], dims.map(|d| d as f32));
@@ -377,10 +446,39 @@ mod tests {
             if let Some(h) = h {
                 assert_eq!((h.level, h.cell, h.color), (0, [0; 3], svo.node_colors[0]));
                 assert_eq!(h.t, t0.max(r.t_min));
+                let c = h.straight_color();
+                assert!(
+                    (c[0] - 0.9).abs() < 0.01 && (c[2] - 0.1).abs() < 0.01,
+                    "{c:?}"
+                );
                 roots += 1;
             }
         }
         assert!(roots > 400, "{roots} root hits");
+    }
+
+    #[test]
+    fn a_huge_cone_stops_at_the_first_cell_dense_enough_and_never_below_the_floor() {
+        let mut rng = Rng::new(6);
+        let dims = [37, 20, 45];
+        let svo = voxels_to_svo(&random_voxels(&mut rng, dims));
+        // The sparse shell's root is below the coverage floor, so it is never the answer.
+        assert!(!can_stop(svo.node_colors[0]));
+        let (mut coarse, mut hits) = (0, 0);
+        for r in unit_rays(dims, 2000, 1) {
+            let fine = trace_svo(&svo, &r);
+            let Some(h) = trace_lod(&svo, &r, 1e30) else {
+                assert!(fine.is_none(), "{r:?}");
+                continue;
+            };
+            hits += 1;
+            assert!(h.level > 0, "{h:?}");
+            if h.level < svo.levels {
+                coarse += 1;
+                assert!(can_stop(h.color), "{h:?}");
+            }
+        }
+        assert!(coarse > hits / 2, "{coarse} of {hits} hits coarse");
     }
 
     /// One brick of a 16³ grid (two levels) holding a 4 × 4 layer of half-transparent voxels.
@@ -432,11 +530,13 @@ mod tests {
             );
         }
         assert_eq!(h.normal(), [0.0, 0.0, -1.0]);
-        // A finer cone reaches the voxel layer itself at z = 6; a coarser one the root at z = 0.
+        // A finer cone reaches the voxel layer itself at z = 6. A coarser one would take the
+        // root at z = 0, but its coverage (8/4096) is below the floor: the brick again.
         let v = trace_lod(&svo, &r, 0.1).unwrap();
         assert_eq!((v.level, v.cell, v.t), (2, [6, 5, 6], 16.0));
-        let root = trace_lod(&svo, &r, 2.0).unwrap();
-        assert_eq!((root.level, root.t), (0, 10.0));
+        assert!(!can_stop(svo.node_colors[0]));
+        let coarse = trace_lod(&svo, &r, 2.0).unwrap();
+        assert_eq!((coarse.level, coarse.t), (1, 14.0));
         // A ray through the brick's empty lower half meets no voxel, but stops on the brick.
         let under = VoxelRay {
             origin: [-10.0, 5.5, 4.5],

@@ -1,6 +1,7 @@
 // Level-of-detail traversal of the packed SVO (src/voxel/lod_trace.rs, operation for operation):
 // svo_trace.wgsl's stack DDA, stopping at the first occupied cell whose side is at most
-// params.cone · t where the DDA enters it (or at a voxel) and answering with that cell's filtered
+// params.cone · t where the DDA enters it and whose coverage is at least MIN_STOP_ALPHA (or at a
+// voxel) and answering with that cell's filtered
 // attributes. Rays are in voxel units. Output per ray, two vec4<u32>: (level, bits of t, colour,
 // normal) and (cell corner x, y, z, 0); level all ones on a miss.
 // Prepended: dda.wgsl and svo_common.wgsl.
@@ -46,6 +47,12 @@ struct LodHit {
 @group(0) @binding(7) var<storage, read_write> hits: array<vec4<u32>>;
 
 const MAX_INNER: u32 = 10u;
+// lod_trace::MIN_STOP_ALPHA: the least stored alpha byte a coarse cell may stop the walk with.
+const MIN_STOP_ALPHA: u32 = 16u;
+
+fn can_stop(color: u32) -> bool {
+    return (color >> 24u) >= MIN_STOP_ALPHA;
+}
 
 fn miss() -> LodHit {
     return LodHit(vec4<u32>(0xffffffffu), vec4<u32>(0u));
@@ -86,7 +93,7 @@ fn trace(r: GpuRay) -> LodHit {
     if (t0 > t1) {
         return miss();
     }
-    if (params.side <= params.cone * t0) {
+    if (params.side <= params.cone * t0 && can_stop(node_attrs[0].x)) {
         return cell_hit(0u, node_attrs[0], vec3<f32>(0.0), t0);
     }
     var node: array<u32, MAX_INNER>;
@@ -111,11 +118,11 @@ fn trace(r: GpuRay) -> LodHit {
             let below = count_below(nd.xy, s);
             let cbase = base[lv] + vec3<f32>(dda[lv].c) * cell[lv];
             let last = lv + 1u == params.inner_levels;
-            if (cell[lv] <= params.cone * t[lv]) {
-                var attr = nd.z + below;
-                if (last) {
-                    attr = params.node_count + brick_first[node[lv]] + below;
-                }
+            var attr = nd.z + below;
+            if (last) {
+                attr = params.node_count + brick_first[node[lv]] + below;
+            }
+            if (cell[lv] <= params.cone * t[lv] && can_stop(node_attrs[attr].x)) {
                 return cell_hit(lv + 1u, node_attrs[attr], cbase, t[lv]);
             }
             if (last) {
