@@ -316,4 +316,14 @@ fn a_pack_without_an_svo_section_is_an_invalid_input_and_a_bad_scale_a_usage_err
         "{o:?}"
     );
     assert!(!Path::new(&png).exists());
+    // An option of the mesh view is refused, not silently ignored.
+    for extra in [&["--parallax"][..], &["--msaa", "1"], &["--soft-shadows"]] {
+        let mut args = vec!["render", &pack, "-o", &png, "--view", "svo"];
+        args.extend_from_slice(extra);
+        let o = bake(&args);
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {o:?}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("no effect with --view svo"), "{err}");
+        assert!(!Path::new(&png).exists());
+    }
 }

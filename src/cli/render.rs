@@ -210,6 +210,31 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
 /// `--view svo`: the GPU traversal's image, and with `--reference` the CPU traversal's on the
 /// same rays with the difference of the images and of the answers.
 fn run_svo(args: &RenderArgs, pack: &Pack, opts: &RenderOptions) -> Result<Outcome> {
+    // The options of the mesh view that the SVO view does not read: refused, not ignored.
+    let defaults = RenderOptions::default();
+    let unread = [
+        (args.soft_shadows, "--soft-shadows"),
+        (args.parallax, "--parallax"),
+        (args.no_toksvig, "--no-toksvig"),
+        (
+            args.no_lod || args.lod_tau != crate::render::DEFAULT_LOD_TAU,
+            "--lod-tau/--no-lod",
+        ),
+        (args.gamma.is_some(), "--gamma"),
+        (args.exposure.is_some(), "--exposure"),
+        (args.terms != Terms::All, "--terms"),
+        (args.msaa != defaults.msaa, "--msaa"),
+        (args.prt_layout != defaults.prt_layout, "--prt-layout"),
+        (
+            args.shadow_cascades != defaults.shadow_cascades,
+            "--shadow-cascades",
+        ),
+    ];
+    if let Some((_, flag)) = unread.iter().find(|(set, _)| *set) {
+        return Err(crate::error::Error::usage(format!(
+            "{flag} has no effect with --view svo (it draws the svo section: --svo-show, --svo-lod-scale, the camera, --reference)"
+        )));
+    }
     let view = SvoViewOptions {
         show: args.svo_show,
         lod_scale: args.svo_lod_scale,
