@@ -28,6 +28,28 @@ fn usage_errors_exit_2() {
 }
 
 #[test]
+fn a_scene_where_a_model_is_read_is_named_as_such_with_the_way_round() {
+    let dir = tempfile::tempdir().unwrap();
+    let eco = write(dir.path(), "scene.eco", b"");
+    let out = dir.path().join("s.bake");
+    for cmd in ["svo", "linespace"] {
+        let o = bake(&[cmd, &eco, "-o", out.to_str().unwrap()]);
+        assert_eq!(o.status.code(), Some(4), "{cmd}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(
+            e.contains("scene.eco: file name: a scene, not a model"),
+            "{e}"
+        );
+        assert!(e.contains("bake SCENE.eco -o S.bake"), "{e}");
+        assert!(!out.exists());
+    }
+    // An unknown extension keeps the message of every input kind.
+    let txt = write(dir.path(), "notes.txt", b"x");
+    let e = stderr(&bake(&["svo", &txt]));
+    assert!(e.contains("unknown input type"), "{e}");
+}
+
+#[test]
 fn missing_file_is_an_io_error_naming_the_file() {
     let o = bake(&["dump", "/nonexistent/pack.bake"]);
     assert_eq!(o.status.code(), Some(3));

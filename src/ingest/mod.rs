@@ -102,6 +102,25 @@ fn unknown_kind(path: &Path) -> Error {
     )
 }
 
+/// A known input that is not a model where a model is read (`bake svo scene.eco`).
+fn not_a_model(path: &Path, kind: InputKind) -> Error {
+    let (what, hint) = match kind {
+        InputKind::Eco => (
+            "a scene",
+            "; bake it into a pack first (`bake SCENE.eco -o S.bake`) and pass S.bake",
+        ),
+        InputKind::Raw => ("a height map", ""),
+        _ => ("an image", ""),
+    };
+    Error::invalid_at(
+        path,
+        "file name",
+        format!(
+            "{what}, not a model: expected one of .txf .3ds .obj .gltf .glb (or a .bake pack where the command takes one){hint}"
+        ),
+    )
+}
+
 /// Reads a model file (TXF, 3DS, OBJ, glTF/GLB) into one mesh in model space; the files it
 /// refers to must lie in its own folder.
 pub fn load_mesh(path: &Path) -> Result<Mesh> {
@@ -116,7 +135,8 @@ pub fn load_mesh_in(path: &Path, policy: &ReadPolicy) -> Result<Mesh> {
         Some(InputKind::Max3ds) => max3ds::load(path)?,
         Some(InputKind::Obj) => obj::load_in(path, &policy.roots)?,
         Some(InputKind::Gltf) => gltf::load_in(path, &policy.roots)?,
-        _ => return Err(unknown_kind(path)),
+        Some(kind) => return Err(not_a_model(path, kind)),
+        None => return Err(unknown_kind(path)),
     };
     debug_assert_eq!(mesh.validate(), Ok(()));
     check_mesh_size(path, &mesh, &policy.limits)?;
