@@ -14,39 +14,15 @@ use common::{bake, json};
 /// A 40 m ground strip along +y with three 2 m cubes on it, left and right, as OBJ text.
 fn strip_obj() -> String {
     let mut s = String::from("v -4 0 0\nv 4 0 0\nv 4 40 0\nv -4 40 0\nf 1 2 3\nf 1 3 4\n");
-    for (i, (cx, y)) in [(-2.5f32, 4.0f32), (2.0, 14.0), (-1.0, 30.0)]
+    for (i, &(cx, y)) in [(-2.5f32, 4.0f32), (2.0, 14.0), (-1.0, 30.0)]
         .iter()
         .enumerate()
     {
-        let b = 5 + 8 * i;
-        for (x, yy, z) in [
-            (-1.0, 0.0, 0.0),
-            (1.0, 0.0, 0.0),
-            (1.0, 2.0, 0.0),
-            (-1.0, 2.0, 0.0),
-            (-1.0, 0.0, 2.0),
-            (1.0, 0.0, 2.0),
-            (1.0, 2.0, 2.0),
-            (-1.0, 2.0, 2.0),
-        ] {
-            s += &format!("v {} {} {z}\n", cx + x, y + yy);
-        }
-        for f in [
-            [0, 2, 1],
-            [0, 3, 2],
-            [4, 5, 6],
-            [4, 6, 7],
-            [0, 1, 5],
-            [0, 5, 4],
-            [1, 2, 6],
-            [1, 6, 5],
-            [2, 3, 7],
-            [2, 7, 6],
-            [3, 0, 4],
-            [3, 4, 7],
-        ] {
-            s += &format!("f {} {} {}\n", b + f[0], b + f[1], b + f[2]);
-        }
+        s += &common::box_obj(
+            [cx - 1.0, y, 0.0],
+            [cx + 1.0, y + 2.0, 2.0],
+            5 + 8 * i as u32,
+        );
     }
     s
 }
@@ -196,46 +172,13 @@ fn the_svo_view_matches_the_cpu_traversal_and_coarsens_with_distance() {
     render(&pack, dir.path(), "normal", "normal", "32");
 }
 
-/// A closed 4 × 4 × 2 m box, as OBJ text.
-fn block_obj() -> String {
-    let mut s = String::new();
-    for (x, y, z) in [
-        (0, 0, 0),
-        (4, 0, 0),
-        (4, 4, 0),
-        (0, 4, 0),
-        (0, 0, 2),
-        (4, 0, 2),
-        (4, 4, 2),
-        (0, 4, 2),
-    ] {
-        s += &format!("v {x} {y} {z}\n");
-    }
-    for f in [
-        [1, 3, 2],
-        [1, 4, 3],
-        [5, 6, 7],
-        [5, 7, 8],
-        [1, 2, 6],
-        [1, 6, 5],
-        [2, 3, 7],
-        [2, 7, 6],
-        [3, 4, 8],
-        [3, 8, 7],
-        [4, 1, 5],
-        [4, 5, 8],
-    ] {
-        s += &format!("f {} {} {}\n", f[0], f[1], f[2]);
-    }
-    s
-}
-
 #[test]
 fn a_huge_lod_scale_collapses_every_hit_to_the_root_colour() {
     // A solid box fills half its 64³ root: coverage above the floor, so the root may answer.
     let dir = tempfile::tempdir().unwrap();
     let obj = path(dir.path(), "block.obj");
-    std::fs::write(&obj, block_obj()).unwrap();
+    // A closed 4 × 4 × 2 m box.
+    std::fs::write(&obj, common::box_obj([0.0; 3], [4.0, 4.0, 2.0], 1)).unwrap();
     let pack = path(dir.path(), "block.bake");
     let s = json(&bake(&[
         "svo",

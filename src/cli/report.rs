@@ -33,7 +33,8 @@ pub fn run(args: &ReportArgs, _g: &Global) -> Result<Outcome> {
     use rayon::prelude::*;
     let pack = Pack::open(&args.pack)?;
     let dump = dump_json(&pack, &DumpOptions::default())?;
-    let (report, mut notes) = crate::report::find(&pack)?;
+    let blake3 = crate::pack::hex(&crate::pack::hash_file(&args.pack)?);
+    let (report, mut notes) = crate::report::find(&pack, &blake3)?;
     let files: Vec<_> = crate::dump::images::section_images(&pack)?
         .into_iter()
         .filter(|f| f.file.ends_with(".png"))
@@ -90,7 +91,6 @@ pub fn run(args: &ReportArgs, _g: &Global) -> Result<Outcome> {
             }
         }
     };
-    let blake3 = crate::pack::hex(&crate::pack::hash_file(&args.pack)?);
     let bytes = std::fs::metadata(&args.pack)
         .map_err(|e| crate::error::Error::io(&args.pack, e))?
         .len();

@@ -101,7 +101,9 @@ pub struct Found {
 /// The build report of `pack`: its section, else a sidecar that names these bytes. A sidecar
 /// of other bytes (the pack was rewritten since) or one that does not parse is left out with a
 /// note saying why (the page says it too); no report at all is `Ok(None)`.
-pub fn find(pack: &Pack) -> Result<(Option<Found>, Vec<String>)> {
+///
+/// `pack_blake3` is the pack file's hash (hex), which the caller computes once.
+pub fn find(pack: &Pack, pack_blake3: &str) -> Result<(Option<Found>, Vec<String>)> {
     if let Some(e) = pack.of_kind(KIND).next() {
         let v = pack.view(e)?;
         let r = from_section(&v).map_err(|err| {
@@ -148,8 +150,8 @@ pub fn find(pack: &Pack) -> Result<(Option<Found>, Vec<String>)> {
         Ok(r) => r,
         Err(m) => return Ok((None, vec![format!("{}: {m}; left out", path.display())])),
     };
-    let want = crate::pack::hex(&crate::pack::hash_file(pack.path())?);
-    if r["pack_blake3"].as_str() != Some(want.as_str()) {
+    let want = pack_blake3;
+    if r["pack_blake3"].as_str() != Some(want) {
         return Ok((
             None,
             vec![format!(

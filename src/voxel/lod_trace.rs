@@ -206,7 +206,7 @@ mod tests {
     use crate::voxel::svo::voxels_to_svo;
     use crate::voxel::tests::{Rng, random_voxels};
     use crate::voxel::traverse::trace_svo;
-    use crate::voxel::voxelize::{Brick, Voxels};
+    use crate::voxel::voxelize::{Brick, Voxels, bricks_of_keys};
     use crate::voxel::{Grid, morton_decode, morton_encode};
     use std::collections::HashMap;
 
@@ -403,16 +403,7 @@ mod tests {
             }
         }
         keys.sort_unstable();
-        let mut bricks: Vec<Brick> = Vec::new();
-        for &k in &keys {
-            match bricks.last_mut() {
-                Some(b) if b.key == k >> 6 => b.mask |= 1 << (k & 63),
-                _ => bricks.push(Brick {
-                    key: k >> 6,
-                    mask: 1 << (k & 63),
-                }),
-            }
-        }
+        let bricks = bricks_of_keys(keys.iter().copied());
         Voxels {
             grid: Grid {
                 origin: [0.0; 3],

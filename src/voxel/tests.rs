@@ -248,16 +248,7 @@ pub(crate) fn random_voxels(rng: &mut Rng, dims: [u32; 3]) -> Voxels {
         }
     }
     keys.sort_unstable();
-    let mut bricks: Vec<Brick> = Vec::new();
-    for &k in &keys {
-        match bricks.last_mut() {
-            Some(b) if b.key == k >> 6 => b.mask |= 1 << (k & 63),
-            _ => bricks.push(Brick {
-                key: k >> 6,
-                mask: 1 << (k & 63),
-            }),
-        }
-    }
+    let bricks = bricks_of_keys(keys.iter().copied());
     let colors = (0..keys.len())
         .map(|_| [rng.f32(), rng.f32(), rng.f32(), rng.f32()])
         .collect();

@@ -96,6 +96,21 @@ pub fn keys_of_bricks(bricks: &[Brick]) -> Vec<u64> {
     out
 }
 
+/// Groups increasing voxel Morton keys into bricks (the inverse of [`keys_of_bricks`]).
+pub fn bricks_of_keys(keys: impl IntoIterator<Item = u64>) -> Vec<Brick> {
+    let mut bricks: Vec<Brick> = Vec::new();
+    for k in keys {
+        match bricks.last_mut() {
+            Some(b) if b.key == k >> 6 => b.mask |= 1 << (k & 63),
+            _ => bricks.push(Brick {
+                key: k >> 6,
+                mask: 1 << (k & 63),
+            }),
+        }
+    }
+    bricks
+}
+
 /// Per-triangle setup of the Schwarz–Seidel form of the 13-axis test, for unit voxels.
 #[derive(Debug, Clone, Copy)]
 pub struct TriSetup {

@@ -2,7 +2,7 @@
 //! the point of the triangle nearest to the voxel centre, the interpolated normal, the alpha
 //! test; and the interior of closed meshes by even–odd crossings along +Z.
 
-use super::voxelize::{Brick, Voxels, keys_of_bricks};
+use super::voxelize::{Voxels, keys_of_bricks};
 use super::{Grid, morton_encode};
 use crate::error::Result;
 use crate::model::{Mesh, Rgba8Image};
@@ -366,17 +366,7 @@ fn merge_interior(v: &mut Voxels, interior: &[(u64, [f32; 4])]) {
             j += 1;
         }
     }
-    let mut bricks: Vec<Brick> = Vec::new();
-    for k in keys {
-        match bricks.last_mut() {
-            Some(b) if b.key == k >> 6 => b.mask |= 1 << (k & 63),
-            _ => bricks.push(Brick {
-                key: k >> 6,
-                mask: 1 << (k & 63),
-            }),
-        }
-    }
-    v.bricks = bricks;
+    v.bricks = super::voxelize::bricks_of_keys(keys);
     v.colors = colors;
     v.normals = normals;
 }

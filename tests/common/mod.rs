@@ -177,3 +177,37 @@ pub fn preview_fixture_pack(dir: &std::path::Path) -> std::path::PathBuf {
     .unwrap();
     out
 }
+
+/// The OBJ text of a closed axis-aligned box from `lo` to `hi`: eight vertices numbered from
+/// `first` (1 when the box comes first in the file) and twelve outward-facing triangles.
+pub fn box_obj(lo: [f32; 3], hi: [f32; 3], first: u32) -> String {
+    let mut s = String::new();
+    for z in [lo[2], hi[2]] {
+        for (x, y) in [
+            (lo[0], lo[1]),
+            (hi[0], lo[1]),
+            (hi[0], hi[1]),
+            (lo[0], hi[1]),
+        ] {
+            s += &format!("v {x} {y} {z}\n");
+        }
+    }
+    for f in [
+        [1, 3, 2],
+        [1, 4, 3],
+        [5, 6, 7],
+        [5, 7, 8],
+        [1, 2, 6],
+        [1, 6, 5],
+        [2, 3, 7],
+        [2, 7, 6],
+        [3, 4, 8],
+        [3, 8, 7],
+        [4, 1, 5],
+        [4, 5, 8],
+    ] {
+        let f = f.map(|i| i + first - 1);
+        s += &format!("f {} {} {}\n", f[0], f[1], f[2]);
+    }
+    s
+}
