@@ -131,6 +131,12 @@ impl Camera {
         let ty = (self.fov_y_deg.to_radians() * 0.5).tan();
         (b.forward + b.right * (ndc_x * ty * self.aspect) + b.up * (ndc_y * ty)).normalize()
     }
+
+    /// [`Camera::ray`] through image point `(px, py)` of a `w` × `h` image, in pixels from the
+    /// top-left corner (a pixel's centre is at +0.5).
+    pub fn pixel_ray(&self, (px, py): (f32, f32), (w, h): (u32, u32)) -> Vec3 {
+        self.ray(px / w as f32 * 2.0 - 1.0, 1.0 - py / h as f32 * 2.0)
+    }
 }
 
 #[cfg(test)]

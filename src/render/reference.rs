@@ -428,12 +428,9 @@ impl<'s, 'a> Reference<'s, 'a> {
         (px, py): (f32, f32),
     ) -> [f32; 3] {
         let cam: &Camera = &view.camera;
-        let ndc_x = px / w as f32 * 2.0 - 1.0;
-        let ndc_y = 1.0 - py / h as f32 * 2.0;
-        let d = cam.ray(ndc_x, ndc_y);
+        let d = cam.pixel_ray((px, py), (w, h));
         let ray = Ray::new(Vec3A::from(cam.eye), Vec3A::from(d), cam.near);
-        let ray_at =
-            |px: f32, py: f32| cam.ray(px / w as f32 * 2.0 - 1.0, 1.0 - py / h as f32 * 2.0);
+        let ray_at = |px: f32, py: f32| cam.pixel_ray((px, py), (w, h));
         // The footprint: where the next pixel's rays (right, down) meet the hit's plane.
         let footprint = |hit: &mut HitRecord| {
             let n = hit.geometric_normal;

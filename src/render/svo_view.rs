@@ -170,15 +170,17 @@ pub fn pixel_cone(cam: &Camera, height: u32, lod_scale: f32) -> f32 {
     lod_scale * 2.0 * (cam.fov_y_deg.to_radians() * 0.5).tan() / height as f32
 }
 
+/// The centre of pixel `i` (row-major, `w` wide) in pixels from the top-left corner.
+fn pixel_centre(i: u32, w: u32) -> (f32, f32) {
+    ((i % w) as f32 + 0.5, (i / w) as f32 + 0.5)
+}
+
 /// One ray per pixel centre in voxel units, unit direction, row 0 at the top.
 pub fn pixel_rays(cam: &Camera, grid: &Grid, (w, h): (u32, u32)) -> Vec<VoxelRay> {
     let origin = grid.to_grid(cam.eye.to_array());
     (0..w * h)
         .map(|i| {
-            let (x, y) = (i % w, i / w);
-            let ndc_x = (x as f32 + 0.5) / w as f32 * 2.0 - 1.0;
-            let ndc_y = 1.0 - (y as f32 + 0.5) / h as f32 * 2.0;
-            let d = cam.ray(ndc_x, ndc_y);
+            let d = cam.pixel_ray(pixel_centre(i, w), (w, h));
             let dv = Vec3::from([0, 1, 2].map(|k| d[k] / grid.voxel_size[k])).normalize();
             VoxelRay {
                 origin,
@@ -231,9 +233,7 @@ pub fn shade_image(scene: &SvoScene, hits: &[Option<LodHit>]) -> Rgba8Image {
     let pixels = (0..w * h)
         .into_par_iter()
         .map(|i| {
-            let ndc_x = ((i % w) as f32 + 0.5) / w as f32 * 2.0 - 1.0;
-            let ndc_y = 1.0 - ((i / w) as f32 + 0.5) / h as f32 * 2.0;
-            let dir = scene.camera.ray(ndc_x, ndc_y);
+            let dir = scene.camera.pixel_ray(pixel_centre(i, w), (w, h));
             shade(hits[i as usize].as_ref(), scene.opts.show, scene.light, dir)
         })
         .collect();
