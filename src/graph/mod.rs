@@ -48,7 +48,8 @@ pub mod versions {
     /// 3: no Russian roulette at the first hit (issue 19).
     pub const PRT: u32 = 3;
     /// 1: the `lod` stage (issue 14): meshopt levels, leaf-card thinning, impostor atlas.
-    pub const LOD: u32 = 1;
+    /// 2: cards keep their triangles, a level's error counts the cards it removes (issue 14).
+    pub const LOD: u32 = 2;
     pub const LIGHTMAP: u32 = 1;
     pub const ATLAS: u32 = 1;
     pub const ENVMAPS: u32 = 1;

@@ -57,6 +57,13 @@ fn point_triangle(p: Vec3A, a: Vec3A, b: Vec3A, c: Vec3A) -> f32 {
 /// The largest distance from samples of the level's surface (vertices and 16 stratified
 /// points per triangle) to the full mesh, by brute force over every mesh triangle.
 fn max_deviation(level: &Level, mesh: &Mesh) -> f32 {
+    surface_distance(&level.to_mesh(mesh), mesh)
+}
+
+/// The largest distance from samples of `from`'s surface (vertices and 16 stratified points
+/// per triangle) to `to`, by brute force over every triangle of `to`.
+fn surface_distance(from: &Mesh, mesh: &Mesh) -> f32 {
+    let level = from;
     let tris: Vec<[Vec3A; 3]> = mesh
         .indices
         .iter()
@@ -107,10 +114,20 @@ fn reported_errors_bound_the_brute_force_distance() {
         ("tree3", tree_mesh(3)),
     ] {
         let (levels, radius) = chain(&mesh);
+        let cards = alpha_tested_only(&mesh, &alpha_masks(&mesh, &leaf()));
         assert!(levels.len() >= 2, "{name}: {} levels", levels.len());
         let mut prev = mesh.indices.len();
         for (l, lv) in levels.iter().enumerate() {
             let d = max_deviation(lv, &mesh);
+            // The other way, for the leaf cards: every point of every full-detail card
+            // (removed or kept) is within the error of the level (the removal bound e_r).
+            let back = surface_distance(&cards, &lv.to_mesh(&mesh));
+            assert!(
+                back <= lv.error * 1.001 + 1e-5 * radius,
+                "{name} level {}: a full-detail card is {back} from the level, above the reported error {}",
+                l + 1,
+                lv.error
+            );
             assert!(
                 d <= lv.error * 1.001 + 1e-5 * radius,
                 "{name} level {}: brute-force deviation {d} above the reported error {}",
@@ -165,10 +182,25 @@ fn vertex_sources_stay_in_range_and_in_their_material() {
     }
 }
 
+/// The mesh's alpha-tested triangles (a material with an alpha mask).
+fn alpha_tested_only(mesh: &Mesh, masks: &[Option<crate::trace::bvh::AlphaMask>]) -> Mesh {
+    let tested: Vec<usize> = (0..mesh.indices.len())
+        .filter(|&t| masks[mesh.triangle_materials[t] as usize].is_some())
+        .collect();
+    Mesh {
+        indices: tested.iter().map(|&t| mesh.indices[t]).collect(),
+        triangle_materials: tested.iter().map(|&t| mesh.triangle_materials[t]).collect(),
+        ..mesh.clone()
+    }
+}
+
 /// Share of 96² orthographic rays over the bounding square that hit an alpha-tested opaque
-/// texel, from 6 directions (4 around, one above, one oblique).
+/// texel, from 6 directions (4 around, one above, one oblique). Only the alpha-tested
+/// triangles are traced (the surfaces' simplification is bounded by the error, not here).
 fn projected_coverage(mesh: &Mesh) -> Vec<f32> {
     let masks: Vec<_> = alpha_masks(mesh, &leaf());
+    let cards = alpha_tested_only(mesh, &masks);
+    let mesh = &cards;
     let bvh = ModelBvh::build(mesh, &masks, BuildPreset::default()).unwrap();
     let (c, r) = super::section::bounding_sphere(&mesh.positions);
     let c = Vec3A::from(c);
