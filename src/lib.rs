@@ -16,6 +16,7 @@ pub mod fixtures;
 pub mod gpu;
 pub mod graph;
 pub mod ingest;
+pub mod kdtree;
 pub mod lightmap;
 pub mod linespace;
 pub mod lod;

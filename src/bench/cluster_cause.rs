@@ -234,7 +234,7 @@ pub fn measure_cause(pack_path: &Path, o: &CauseOptions) -> Result<Report> {
         let err = cluster::evaluate_all(&pos, &v, DIM, &samples, p.radius, p.k);
         let e: Vec<f64> = err.iter().map(|&x| x / DIM as f64).collect();
         // Clusters: each instance with its nearest sample (Voronoi cells).
-        let stree = crate::envmap::kdtree::KdTree::build(
+        let stree = crate::kdtree::KdTree::build(
             &samples.iter().map(|&s| pos[s as usize]).collect::<Vec<_>>(),
         );
         let mut sum = vec![(0.0f64, 0usize); samples.len()];

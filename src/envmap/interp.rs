@@ -11,7 +11,7 @@
 //! practice (and scipy's `RBFInterpolator`, degree 0) the system is augmented with a constant:
 //! [A 1; 1ᵀ 0]·[w; μ] = [φ(x); 1], so the weights sum to one and constants are exact.
 
-use super::kdtree::{KdTree, dist2};
+use crate::kdtree::{KdTree, dist2};
 
 /// Smallest pivot relative to the largest matrix entry before a system counts as ill-conditioned.
 pub const PIVOT_TOLERANCE: f64 = 1e-12;
@@ -443,7 +443,7 @@ mod tests {
         let queries: Vec<[f32; 3]> = (0..400)
             .map(|_| [rng.f32() * 10.0, rng.f32() * 10.0, rng.f32()])
             .collect();
-        let order = super::super::kdtree::morton_order(&queries);
+        let order = crate::kdtree::morton_order(&queries);
         let pos = |i: u32| pts[i as usize];
         let (mut cached, mut nb) = (MultiquadricSolver::default(), Vec::new());
         let (mut w1, mut w2, mut w3) = (Vec::new(), Vec::new(), Vec::new());

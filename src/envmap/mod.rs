@@ -2,7 +2,7 @@
 pub mod bake;
 pub mod cluster;
 pub mod interp;
-pub mod kdtree;
+use crate::kdtree;
 pub mod local;
 pub mod section;
 pub mod synthetic;

@@ -413,8 +413,9 @@ impl Prepared {
         (out, e)
     }
 
-    /// Which cards stay (by card index) and their common scale g': the alpha-weighted area of
-    /// the kept cards after simplification, times g'², is the full mesh's.
+    /// Which cards stay (by card index), their common scale g' (the alpha-weighted area of the
+    /// kept cards after simplification, times g'², is the full mesh's) and the removal error
+    /// of the cards left out ([`removal_error`]).
     fn choose_cards(&self, out: &[u32], budget: f32) -> (Vec<bool>, f32, f32) {
         let mut present = vec![false; self.cards.len()];
         let mut simplified = vec![0.0f64; self.cards.len()];
@@ -536,41 +537,21 @@ impl Prepared {
 /// their surfaces). The level's error is at least the largest D + R over the removed cards (0
 /// when none is removed; [`Prepared::choose_cards`] always keeps at least one card).
 fn removal_error(cards: &[Card], keep: &[bool], removed: &[bool]) -> f32 {
-    let mut kept: Vec<[f32; 3]> = cards
+    let kept: Vec<[f32; 3]> = cards
         .iter()
         .zip(keep)
         .filter(|(_, k)| **k)
         .map(|(c, _)| c.centre)
         .collect();
-    kept.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    let tree = crate::kdtree::KdTree::build(&kept);
+    let mut nearest = Vec::with_capacity(1);
     let mut worst = 0.0f32;
     for (c, _) in cards.iter().zip(removed).filter(|(_, r)| **r) {
-        let q = c.centre;
-        // Nearest kept centre: outward from q's place in x order, stopping once |dx| ≥ best.
-        let start = kept.partition_point(|p| p[0] < q[0]);
-        let mut best2 = f32::INFINITY;
-        for p in kept[start..].iter() {
-            let dx = p[0] - q[0];
-            if dx * dx >= best2 {
-                break;
-            }
-            best2 = best2.min(dist2(*p, q));
-        }
-        for p in kept[..start].iter().rev() {
-            let dx = q[0] - p[0];
-            if dx * dx >= best2 {
-                break;
-            }
-            best2 = best2.min(dist2(*p, q));
-        }
-        worst = worst.max(best2.sqrt() + c.radius);
+        tree.nearest(c.centre, 1, &mut nearest);
+        let d = nearest.first().map_or(f32::INFINITY, |&(d2, _)| d2.sqrt());
+        worst = worst.max(d + c.radius);
     }
     worst
-}
-
-fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
-    let d = sub(a, b);
-    d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
 }
 
 /// The whole chain below level 0: levels at the targets of the module documentation, up to

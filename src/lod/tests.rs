@@ -62,12 +62,11 @@ fn max_deviation(level: &Level, mesh: &Mesh) -> f32 {
 
 /// The largest distance from samples of `from`'s surface (vertices and 16 stratified points
 /// per triangle) to `to`, by brute force over every triangle of `to`.
-fn surface_distance(from: &Mesh, mesh: &Mesh) -> f32 {
-    let level = from;
-    let tris: Vec<[Vec3A; 3]> = mesh
+fn surface_distance(from: &Mesh, to: &Mesh) -> f32 {
+    let tris: Vec<[Vec3A; 3]> = to
         .indices
         .iter()
-        .map(|t| t.map(|i| Vec3A::from(mesh.positions[i as usize])))
+        .map(|t| t.map(|i| Vec3A::from(to.positions[i as usize])))
         .collect();
     let dist = |p: Vec3A| {
         tris.iter()
@@ -75,8 +74,8 @@ fn surface_distance(from: &Mesh, mesh: &Mesh) -> f32 {
             .fold(f32::INFINITY, f32::min)
     };
     let mut worst = 0.0f32;
-    for t in &level.indices {
-        let v = t.map(|i| Vec3A::from(level.positions[i as usize]));
+    for t in &from.indices {
+        let v = t.map(|i| Vec3A::from(from.positions[i as usize]));
         for k in 0..19 {
             let (x, y) = if k < 16 {
                 let (x, y) = (((k % 4) as f32 + 0.5) / 4.0, ((k / 4) as f32 + 0.5) / 4.0);

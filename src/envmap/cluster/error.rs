@@ -26,10 +26,7 @@ impl NeighbourCache {
     pub(super) fn new(positions: &[[f32; 3]], k: usize) -> Self {
         let n = positions.len();
         let mut rank = vec![0u32; n];
-        for (z, &i) in crate::envmap::kdtree::morton_order(positions)
-            .iter()
-            .enumerate()
-        {
+        for (z, &i) in crate::kdtree::morton_order(positions).iter().enumerate() {
             rank[i as usize] = z as u32;
         }
         NeighbourCache {

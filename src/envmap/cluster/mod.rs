@@ -26,7 +26,7 @@
 //! against noisy data is the error against the noise-free field plus σ².
 
 use super::interp::{Interpolator, MultiquadricSolver};
-use super::kdtree::{KdTree, dist2};
+use crate::kdtree::{KdTree, dist2};
 use rayon::prelude::*;
 
 mod error;

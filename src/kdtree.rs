@@ -1,4 +1,5 @@
-//! A static 3-d tree over points for k-nearest-neighbour queries (cluster samples, instances).
+//! A static 3-d tree over points for k-nearest-neighbour queries (cluster samples, instances,
+//! leaf-card centres).
 //!
 //! Built once by median splits on the widest axis (implicit layout: the node of a range is its
 //! middle element; ranges of up to 8 points are leaves); queries keep the k best in a small
