@@ -372,17 +372,11 @@ pub fn terrain_sections_of(
         samples: opts.samples,
         sun_samples: opts.sun_samples,
     };
-    let indirect: Vec<[f32; 3]> = map
-        .texels
-        .iter()
-        .zip(direct)
-        .map(|(e, d)| std::array::from_fn(|c| (e[c] - d[c]).max(0.0)))
-        .collect();
     vec![section::to_section_with_indirect(
         "lightmap:terrain",
         &meta,
         map,
-        &indirect,
+        direct,
     )]
 }
 

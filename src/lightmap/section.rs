@@ -21,28 +21,47 @@ pub struct LightmapMeta {
 }
 
 pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
-    let texels: Vec<[f32; 4]> = map.texels.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect();
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
-        .array("irradiance", ArrayFormat::F32, 4, &texels);
+        .array_fill("irradiance", ArrayFormat::F32, 4, map.texels.len(), |out| {
+            rgba_into(out, map.texels.iter().copied())
+        });
     b.finish()
 }
 
 /// As [`to_section`], plus the `indirect` array: the irradiance without the direct sun (sky and
-/// bounced light only, f32×4 with A = 1), which the renderer's ambient term reads.
+/// bounced light only, `max(0, E − direct)`, f32×4 with A = 1), which the renderer's ambient
+/// term reads. `direct` is the direct-sun part of every texel. Both arrays are written straight
+/// into the section (a 4097² map would otherwise be held three times over).
 pub fn to_section_with_indirect(
     name: &str,
     meta: &LightmapMeta,
     map: &Lightmap,
-    indirect: &[[f32; 3]],
+    direct: &[[f32; 3]],
 ) -> Section {
-    let rgba =
-        |t: &[[f32; 3]]| -> Vec<[f32; 4]> { t.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect() };
+    assert_eq!(map.texels.len(), direct.len(), "one direct part per texel");
+    let n = map.texels.len();
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
-        .array("irradiance", ArrayFormat::F32, 4, &rgba(&map.texels))
-        .array("indirect", ArrayFormat::F32, 4, &rgba(indirect));
+        .array_fill("irradiance", ArrayFormat::F32, 4, n, |out| {
+            rgba_into(out, map.texels.iter().copied())
+        })
+        .array_fill("indirect", ArrayFormat::F32, 4, n, |out| {
+            let indirect = map
+                .texels
+                .iter()
+                .zip(direct)
+                .map(|(e, d)| std::array::from_fn(|c| (e[c] - d[c]).max(0.0)));
+            rgba_into(out, indirect)
+        });
     b.finish()
+}
+
+/// Writes RGB texels as RGBA with A = 1.
+fn rgba_into(out: &mut [[f32; 4]], texels: impl Iterator<Item = [f32; 3]>) {
+    for (o, t) in out.iter_mut().zip(texels) {
+        *o = [t[0], t[1], t[2], 1.0];
+    }
 }
 
 pub fn from_section(v: &SectionView) -> Result<(LightmapMeta, Lightmap), ParseError> {

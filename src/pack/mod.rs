@@ -926,6 +926,35 @@ mod tests {
     }
 
     #[test]
+    fn an_array_filled_in_place_encodes_as_the_copied_array() {
+        let data: Vec<[f32; 3]> = (0..37).map(|k| [k as f32, 0.5, -(k as f32)]).collect();
+        let mut copied = SectionBuilder::new("mesh", "m");
+        copied
+            .meta(&7u32)
+            .array("tail", ArrayFormat::U8, 1, &[1u8, 2, 3])
+            .array("p", ArrayFormat::F32, 3, &data);
+        let mut filled = SectionBuilder::new("mesh", "m");
+        filled
+            .meta(&7u32)
+            .array("tail", ArrayFormat::U8, 1, &[1u8, 2, 3])
+            .array_fill(
+                "p",
+                ArrayFormat::F32,
+                3,
+                data.len(),
+                |out: &mut [[f32; 3]]| {
+                    assert!(
+                        out.iter().all(|v| *v == [0.0; 3]),
+                        "the slice starts zeroed"
+                    );
+                    out.copy_from_slice(&data)
+                },
+            );
+        let (a, b) = (copied.finish(), filled.finish());
+        assert_eq!(&a.payload[..], &b.payload[..]);
+    }
+
+    #[test]
     fn round_trip_in_memory_and_on_disk() {
         let bytes = sample().to_bytes().unwrap();
         let dir = tempfile::tempdir().unwrap();

@@ -71,23 +71,34 @@ impl ArrayFormat {
     }
 }
 
-struct PendingArray {
+/// An array's bytes: copied in, or written straight into the encoded payload by a closure
+/// (so a large array is never held twice).
+enum PendingBytes<'a> {
+    Copied(Vec<u8>),
+    Fill(Filler<'a>),
+}
+
+/// Writes an array's bytes into its place in the payload.
+type Filler<'a> = Box<dyn FnOnce(&mut [u8]) + 'a>;
+
+struct PendingArray<'a> {
     name: String,
     format: ArrayFormat,
     components: u32,
     count: u64,
-    bytes: Vec<u8>,
+    len: usize,
+    bytes: PendingBytes<'a>,
 }
 
 /// Builds one section: metadata plus named POD arrays.
-pub struct SectionBuilder {
+pub struct SectionBuilder<'a> {
     kind: String,
     name: String,
     meta: Vec<u8>,
-    arrays: Vec<PendingArray>,
+    arrays: Vec<PendingArray<'a>>,
 }
 
-impl SectionBuilder {
+impl<'a> SectionBuilder<'a> {
     pub fn new(kind: &str, name: &str) -> Self {
         Self {
             kind: kind.to_string(),
@@ -113,6 +124,45 @@ impl SectionBuilder {
         components: u32,
         data: &[T],
     ) -> &mut Self {
+        let bytes = bytemuck::cast_slice::<T, u8>(data).to_vec();
+        self.push::<T>(
+            name,
+            format,
+            components,
+            data.len(),
+            PendingBytes::Copied(bytes),
+        )
+    }
+
+    /// Adds an array of `count` elements of `T` that `fill` writes in place when the section is
+    /// encoded (the slice it gets is zeroed and 16-byte aligned): for arrays too large to build
+    /// beside their encoding. Panics as [`SectionBuilder::array`] does.
+    pub fn array_fill<T: bytemuck::Pod>(
+        &mut self,
+        name: &str,
+        format: ArrayFormat,
+        components: u32,
+        count: usize,
+        fill: impl FnOnce(&mut [T]) + 'a,
+    ) -> &mut Self {
+        let fill = move |out: &mut [u8]| fill(bytemuck::cast_slice_mut(out));
+        self.push::<T>(
+            name,
+            format,
+            components,
+            count,
+            PendingBytes::Fill(Box::new(fill)),
+        )
+    }
+
+    fn push<T>(
+        &mut self,
+        name: &str,
+        format: ArrayFormat,
+        components: u32,
+        count: usize,
+        bytes: PendingBytes<'a>,
+    ) -> &mut Self {
         assert_eq!(
             size_of::<T>(),
             format.size() * components as usize,
@@ -126,14 +176,15 @@ impl SectionBuilder {
             name: name.to_string(),
             format,
             components,
-            count: data.len() as u64,
-            bytes: bytemuck::cast_slice(data).to_vec(),
+            count: count as u64,
+            len: count * size_of::<T>(),
+            bytes,
         });
         self
     }
 
     /// Encodes the section.
-    pub fn finish(&self) -> Section {
+    pub fn finish(self) -> Section {
         let dir_end = SUB_HEADER + self.arrays.len() * DIR_ENTRY;
         let meta_offset = dir_end;
         let mut cursor = meta_offset + self.meta.len();
@@ -141,26 +192,29 @@ impl SectionBuilder {
         for a in &self.arrays {
             cursor = align_up(cursor, ARRAY_ALIGN);
             offsets.push(cursor);
-            cursor += a.bytes.len();
+            cursor += a.len;
         }
         let mut buf = vec![0u128; cursor.div_ceil(16)];
         let out = &mut bytemuck::cast_slice_mut::<u128, u8>(&mut buf)[..cursor];
         put_u32(out, 0, meta_offset as u32);
         put_u32(out, 4, self.meta.len() as u32);
         put_u32(out, 8, self.arrays.len() as u32);
-        for (k, (a, &off)) in self.arrays.iter().zip(&offsets).enumerate() {
+        for (k, (a, &off)) in self.arrays.into_iter().zip(&offsets).enumerate() {
             let d = SUB_HEADER + k * DIR_ENTRY;
             out[d..d + a.name.len()].copy_from_slice(a.name.as_bytes());
             put_u32(out, d + 24, a.format as u32);
             put_u32(out, d + 28, a.components);
             put_u64(out, d + 32, a.count);
             put_u64(out, d + 40, off as u64);
-            out[off..off + a.bytes.len()].copy_from_slice(&a.bytes);
+            match a.bytes {
+                PendingBytes::Copied(b) => out[off..off + a.len].copy_from_slice(&b),
+                PendingBytes::Fill(f) => f(&mut out[off..off + a.len]),
+            }
         }
         out[meta_offset..meta_offset + self.meta.len()].copy_from_slice(&self.meta);
         Section {
-            kind: self.kind.clone(),
-            name: self.name.clone(),
+            kind: self.kind,
+            name: self.name,
             payload: super::Payload::from_aligned(buf, cursor),
         }
     }
