@@ -284,7 +284,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         lighting,
         exposure,
     } = resolve_view(pack, &scene, opts);
-    let amb = ambient::load_ambient(pack, &scene, opts.prt_layout, opts.lighting.as_ref())?;
+    let mut amb = ambient::load_ambient(pack, &scene, opts.prt_layout, opts.lighting.as_ref())?;
 
     let t0 = std::time::Instant::now();
     let gpu = crate::gpu::init_gpu(opts.backend)?;
@@ -293,6 +293,10 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let t1 = std::time::Instant::now();
     let mut gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;
     let amb_gpu = ambient_gpu::upload_ambient(&gpu, &pipes, &scene, &amb, opts.terms.weights()[1])?;
+    // The GPU holds the ambient term now: its CPU copy (the light maps and PRT rows, hundreds of
+    // MB at scale) goes before the draw.
+    let (amb_summary, amb_warnings) = (amb.summary(), std::mem::take(&mut amb.warnings));
+    drop(amb);
     gpu_scene.bytes += amb_gpu.bytes;
     gpu_scene.ambient = Some(amb_gpu);
     gpu.wait()?;
@@ -425,10 +429,10 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         seconds_upload: (t2 - t1).as_secs_f64(),
         seconds_select,
         seconds_draw: (t3 - t2).as_secs_f64() - seconds_select,
-        ambient: amb.summary(),
+        ambient: amb_summary,
     };
     let mut warnings = scene.warnings;
-    warnings.extend(amb.warnings);
+    warnings.extend(amb_warnings);
     Ok(RenderOutput {
         image,
         adapter: gpu.adapter.clone(),

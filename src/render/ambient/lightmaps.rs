@@ -9,13 +9,14 @@ pub(super) fn load_terrain_lightmap(
     light: &SkyLight,
     warnings: &mut Vec<String>,
 ) -> Result<Option<LightTexture>> {
-    let Some((name, _, mut tex)) = find_lightmap(pack, "terrain")? else {
+    let Some((name, meta, v)) = find_lightmap(pack, "terrain")? else {
         return Ok(None);
     };
-    let v = pack.view_named(&name)?;
-    if let Some(indirect) = indirect_array(&v, &tex).map_err(bad(pack))? {
-        tex.texels = indirect;
-        return Ok(Some(tex));
+    // Only the array drawn is read: a 4097² map is 268 MB per array.
+    if v.info("indirect").is_some() {
+        return Ok(Some(
+            light_texture(&v, &meta, "indirect").map_err(bad(pack))?,
+        ));
     }
     // An older map without `indirect` holds the direct sun too. Taking it out again
     // ([`strip_terrain_direct_sun`]) would build the scene's BVH and trace shadow rays at render
@@ -27,54 +28,66 @@ pub(super) fn load_terrain_lightmap(
         ));
         return Ok(None);
     }
-    Ok(Some(tex))
+    Ok(Some(
+        light_texture(&v, &meta, "irradiance").map_err(bad(pack))?,
+    ))
 }
 
-/// The first `lightmap` section whose surface is `surface`: (name, meta, texture).
-pub(super) fn find_lightmap(
-    pack: &Pack,
+/// The first `lightmap` section whose surface is `surface`: (name, meta, view). Its arrays are
+/// not read here.
+pub(super) fn find_lightmap<'a>(
+    pack: &'a Pack,
     surface: &str,
-) -> Result<Option<(String, crate::lightmap::section::LightmapMeta, LightTexture)>> {
+) -> Result<
+    Option<(
+        String,
+        crate::lightmap::section::LightmapMeta,
+        crate::pack::section::SectionView<'a>,
+    )>,
+> {
     for e in pack.of_kind(crate::lightmap::section::KIND) {
         let v = pack.view(e)?;
         let meta: crate::lightmap::section::LightmapMeta = v.meta().map_err(bad(pack))?;
         if meta.surface != surface {
             continue;
         }
-        let (meta, map) = crate::lightmap::section::from_section(&v).map_err(bad(pack))?;
-        if map.texels.is_empty() {
+        if meta.width == 0 || meta.height == 0 {
             return Err(Error::invalid_at(
                 pack.path(),
                 format!("section {:?}", e.name),
                 "an empty light map",
             ));
         }
-        let tex = LightTexture {
-            width: map.width,
-            height: map.height,
-            texels: map.texels.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect(),
-        };
-        return Ok(Some((e.name.clone(), meta, tex)));
+        return Ok(Some((e.name.clone(), meta, v)));
     }
     Ok(None)
 }
 
-/// An `indirect` array (irradiance without the direct sun) if the section has one.
-pub(super) fn indirect_array(
+/// A light map's array `array` (`irradiance`, or `indirect`: the irradiance without the direct
+/// sun) as a texture with A = 1, read in place from the pack and copied once.
+pub(super) fn light_texture(
     v: &crate::pack::section::SectionView,
-    tex: &LightTexture,
-) -> std::result::Result<Option<Vec<[f32; 4]>>, crate::error::ParseError> {
-    if v.info("indirect").is_none() {
-        return Ok(None);
-    }
-    let t: Vec<[f32; 4]> = v.array_vec("indirect")?;
-    if t.len() != tex.texels.len() {
+    meta: &crate::lightmap::section::LightmapMeta,
+    array: &str,
+) -> std::result::Result<LightTexture, crate::error::ParseError> {
+    let t: &[[f32; 4]] = v.array(array)?;
+    let want = meta.width as u64 * meta.height as u64;
+    if t.len() as u64 != want {
         return Err(crate::error::ParseError::new(
-            "lightmap array \"indirect\"",
-            format!("{} texels, expected {}", t.len(), tex.texels.len()),
+            format!("lightmap array {array:?}"),
+            format!(
+                "{} texels, expected {}×{} = {want}",
+                t.len(),
+                meta.width,
+                meta.height
+            ),
         ));
     }
-    Ok(Some(t.iter().map(|x| [x[0], x[1], x[2], 1.0]).collect()))
+    Ok(LightTexture {
+        width: meta.width,
+        height: meta.height,
+        texels: t.iter().map(|x| [x[0], x[1], x[2], 1.0]).collect(),
+    })
 }
 
 /// Subtracts from a terrain light map without an `indirect` array (older packs) the direct sun
@@ -113,10 +126,9 @@ pub(super) fn load_mesh_lightmap(
     m: &ModelData,
     warnings: &mut Vec<String>,
 ) -> Result<Option<MeshLightmap>> {
-    let Some((name, _, mut texture)) = find_lightmap(pack, &m.section)? else {
+    let Some((name, meta, v)) = find_lightmap(pack, &m.section)? else {
         return Ok(None);
     };
-    let v = pack.view_named(&name)?;
     let n = m.positions.len();
     let uvs: Vec<[f32; 2]> = match (v.info("lightmap_uv"), &m.vertex_source) {
         (Some(_), _) => v.array_vec("lightmap_uv").map_err(bad(pack))?,
@@ -140,12 +152,16 @@ pub(super) fn load_mesh_lightmap(
             ));
         }
     };
-    match indirect_array(&v, &texture).map_err(bad(pack))? {
-        Some(t) => texture.texels = t,
-        None => warnings.push(format!(
-            "{name}: no `indirect` array: the object's light map counts the direct sun twice"
-        )),
-    }
+    let array = match v.info("indirect") {
+        Some(_) => "indirect",
+        None => {
+            warnings.push(format!(
+                "{name}: no `indirect` array: the object's light map counts the direct sun twice"
+            ));
+            "irradiance"
+        }
+    };
+    let texture = light_texture(&v, &meta, array).map_err(bad(pack))?;
     Ok(Some(MeshLightmap {
         texture,
         uvs,

@@ -2,7 +2,7 @@
 // GPU side of src/render/ambient.rs, which documents the formulas and evaluates the same ones for
 // the CPU reference. Group 3 of the terrain and mesh passes (one layout for both; the terrain
 // binds placeholders for what only meshes read):
-//   0 AmbientParams (uniform), 1 light map (Rgba32Float, textureLoad + manual bilinear, the same
+//   0 AmbientParams (uniform), 1 light map (Rgba16Float, textureLoad + manual bilinear, the same
 //   arithmetic as LightTexture::sample), 2 PRT per vertex (f32, full or packed layout),
 //   3 per-instance maps C_H, C_S (96 f32 each, instance frame), 4 light-map UVs per vertex.
 
