@@ -610,6 +610,10 @@ pub struct Pack {
     storage: Storage,
     version: u32,
     entries: Vec<SectionEntry>,
+    /// Per entry, whether its checksum was found to match, once computed: a section is hashed
+    /// once however often it is viewed (a reader scanning every light map for its surface would
+    /// otherwise hash a 537 MB terrain map once per model).
+    verified: Vec<std::sync::OnceLock<bool>>,
 }
 
 impl std::fmt::Debug for Pack {
@@ -633,6 +637,7 @@ impl Pack {
             path: path.to_path_buf(),
             storage: Storage::Mapped(std::sync::Arc::new(map)),
             version,
+            verified: unchecked(entries.len()),
             entries,
         })
     }
@@ -646,6 +651,7 @@ impl Pack {
             path: PathBuf::from(name),
             storage: Storage::Owned(buf, bytes.len()),
             version,
+            verified: unchecked(entries.len()),
             entries,
         })
     }
@@ -653,7 +659,7 @@ impl Pack {
     /// A view of sections in memory (a pack being built): no encoding, payloads shared. Names
     /// should be unique (a [`PackWriter`] keeps them so); lookups find the first.
     pub fn from_sections(sections: &[Section], name: &str) -> Pack {
-        let entries = sections
+        let entries: Vec<SectionEntry> = sections
             .iter()
             .enumerate()
             .map(|(k, s)| SectionEntry {
@@ -669,6 +675,7 @@ impl Pack {
             path: PathBuf::from(name),
             storage: Storage::Sections(sections.iter().map(|s| s.payload.clone()).collect()),
             version: VERSION,
+            verified: unchecked(entries.len()),
             entries,
         }
     }
@@ -733,11 +740,16 @@ impl Pack {
         }
     }
 
-    /// Whether the payload's BLAKE3 matches the table.
+    /// Whether the payload's BLAKE3 matches the table (computed once per entry of this pack).
     pub fn checksum_ok(&self, e: &SectionEntry) -> bool {
-        match &self.storage {
+        let compute = || match &self.storage {
             Storage::Sections(v) => v[e.offset as usize].hash() == &e.checksum,
             _ => hash_bytes(self.payload(e)) == e.checksum,
+        };
+        // The memo only for this pack's own entries (found by address, not by value).
+        match self.entries.iter().position(|x| std::ptr::eq(x, e)) {
+            Some(k) => *self.verified[k].get_or_init(compute),
+            None => compute(),
         }
     }
 
@@ -779,6 +791,11 @@ impl Pack {
         })?;
         self.view(e)
     }
+}
+
+/// One empty verification memo per section.
+fn unchecked(n: usize) -> Vec<std::sync::OnceLock<bool>> {
+    (0..n).map(|_| std::sync::OnceLock::new()).collect()
 }
 
 fn parse_table(b: &[u8]) -> Result<(u32, Vec<SectionEntry>), ParseError> {
@@ -923,6 +940,26 @@ mod tests {
         t.array("texels", ArrayFormat::U8, 1, &[7u8; 5]);
         w.insert(t.finish());
         w
+    }
+
+    #[test]
+    fn a_checksum_is_remembered_per_entry_and_a_foreign_entry_is_hashed() {
+        let bytes = sample().to_bytes().unwrap();
+        let mut bad = bytes.clone();
+        let pack = Pack::from_bytes(&bytes, "x.bake").unwrap();
+        let e = &pack.sections()[0];
+        assert!(pack.checksum_ok(e) && pack.checksum_ok(e));
+        assert!(pack.verified[0].get() == Some(&true));
+        // An entry that is not this pack's own (a copy with another checksum) is not memoised.
+        let mut other = e.clone();
+        other.checksum[0] ^= 1;
+        assert!(!pack.checksum_ok(&other));
+        // A corrupt payload in another pack is still found.
+        let at = e.offset as usize + e.size as usize - 1;
+        bad[at] ^= 0xff;
+        let corrupt = Pack::from_bytes(&bad, "y.bake").unwrap();
+        assert!(!corrupt.checksum_ok(&corrupt.sections()[0]));
+        assert!(corrupt.view(&corrupt.sections()[0]).is_err());
     }
 
     #[test]
