@@ -87,6 +87,25 @@ pub struct Mesh {
     pub objects: Vec<String>,
     /// What the reader dropped or repaired (counted, reported by the CLI).
     pub warnings: Vec<String>,
+    /// The model's own far representations where its format has them (TXF's line and point
+    /// arrays), model space; empty otherwise.
+    pub skeleton: Skeleton,
+}
+
+/// Xfrog's LOD representations of a plant (TXF `<line_array>`, `<point_array>`): line segments
+/// (the branch skeleton) and points, in model space. The `lod` stage keeps them as the farthest
+/// representations (docs/CONVENTIONS.md "Skeletons").
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Skeleton {
+    /// Segments, two end points each.
+    pub lines: Vec<[[f32; 3]; 2]>,
+    pub points: Vec<[f32; 3]>,
+}
+
+impl Skeleton {
+    pub fn is_empty(&self) -> bool {
+        self.lines.is_empty() && self.points.is_empty()
+    }
 }
 
 impl Mesh {
@@ -120,6 +139,8 @@ impl Mesh {
         self.textures.extend(other.textures);
         self.objects.extend(other.objects);
         self.warnings.extend(other.warnings);
+        self.skeleton.lines.extend(other.skeleton.lines);
+        self.skeleton.points.extend(other.skeleton.points);
     }
 
     /// Checks the structural invariants every stage relies on.

@@ -135,6 +135,7 @@ fn small_pack() -> Vec<u8> {
         }],
         objects: vec!["tri".into()],
         warnings: Vec::new(),
+        skeleton: Default::default(),
     };
     let img = Rgba8Image {
         width: 2,

@@ -167,6 +167,7 @@ fn each_instance_draws_the_level_the_selection_rule_chooses() {
             match bake::lod::select::choose(meta, r.scale, (c - v.camera.eye).length(), k, 1.0) {
                 bake::lod::select::Choice::Mesh(l) => expect[l] += 1,
                 bake::lod::select::Choice::Impostor => unreachable!("no impostor"),
+                bake::lod::select::Choice::Skeleton => unreachable!("no skeleton"),
             }
         }
     }
@@ -678,7 +679,7 @@ fn the_impostor_count_is_what_the_selection_rule_assigns() {
     opts.lod_tau = ratios[ratios.len() / 2];
     let out = render_pack(&pack, &opts).unwrap();
     let frustum = bake::render::cull::Frustum::from_view_proj(v.camera.view_proj(), false);
-    let (mut impostors, mut meshes) = (0u64, 0u64);
+    let (mut impostors, mut meshes, mut skeletons) = (0u64, 0u64, 0u64);
     let mut per_level: Vec<u64> = Vec::new();
     for m in &scene.models {
         let meta = m.lod.as_ref().expect("every model has a lod section");
@@ -697,6 +698,10 @@ fn the_impostor_count_is_what_the_selection_rule_assigns() {
                     meshes += 1;
                     l
                 }
+                bake::lod::select::Choice::Skeleton => {
+                    skeletons += 1;
+                    meta.levels.len() + meta.impostor.is_some() as usize
+                }
             };
             if per_level.len() <= l {
                 per_level.resize(l + 1, 0);
@@ -710,7 +715,173 @@ fn the_impostor_count_is_what_the_selection_rule_assigns() {
         "{impostors} impostors, {meshes} meshes"
     );
     assert_eq!(s.impostor_instances, impostors, "{s:?}");
-    assert_eq!(s.instances, impostors + meshes);
+    assert_eq!(s.skeleton_instances, skeletons, "{s:?}");
+    assert_eq!(s.instances, impostors + meshes + skeletons);
     per_level.resize(s.instances_per_level.len().max(per_level.len()), 0);
     assert_eq!(s.instances_per_level, per_level);
+}
+
+/// The pack's `lod` sections with every skeleton's pixel threshold set to `pixels` (so that a
+/// test can draw a skeleton large enough to check where its lines land).
+fn with_skeleton_pixels(sections: &[bake::pack::Section], pixels: f32) -> Vec<bake::pack::Section> {
+    use bake::lod::section::{ImpostorAtlas, from_view, to_section};
+    sections
+        .iter()
+        .map(|s| {
+            if s.kind != bake::lod::section::KIND {
+                return s.clone();
+            }
+            let pack = Pack::from_sections(std::slice::from_ref(s), "lod.bake");
+            let view = pack.view_named(&s.name).unwrap();
+            let v = from_view(&view, None).unwrap();
+            let mut meta = v.meta.clone();
+            if let Some(sk) = &mut meta.skeleton {
+                sk.pixels = pixels;
+            }
+            let arrays = LodArrays {
+                positions: v.positions.to_vec(),
+                vertex_source: v.vertex_source.to_vec(),
+                indices: v.indices.to_vec(),
+                triangle_materials: v.triangle_materials.to_vec(),
+                impostor: v.impostor.as_ref().map(|i| ImpostorAtlas {
+                    color: i.color.to_vec(),
+                    normal: i.normal.to_vec(),
+                    depth: i.depth.to_vec(),
+                }),
+                skeleton_lines: v.skeleton_lines.to_vec(),
+                skeleton_points: v.skeleton_points.to_vec(),
+            };
+            to_section(&s.name, &meta, &arrays)
+        })
+        .collect()
+}
+
+/// (d) A plant whose sphere projects below its skeleton's threshold is drawn as its TXF line and
+/// point arrays, where the CPU projection of the segments puts them: every pixel the plant
+/// changes (against the background, the plant behind the eye) lies within 1.5 px of a projected
+/// segment or point, and the segments are drawn along their length (a pixel within 1 px of at
+/// least 90 % of the 1-px steps along them). The threshold is raised to 40 px for the test so
+/// that the lines are long enough to check (the default, 1 px, gives a dot); no terrain.
+#[test]
+fn a_plant_below_its_skeleton_threshold_draws_its_lines_where_they_project() {
+    use glam::{Vec3, Vec4Swizzles};
+    let dir = tempfile::tempdir().unwrap();
+    let (base, name, meta, inst) = impostor_sections(dir.path());
+    let base = with_skeleton_pixels(&base, 40.0);
+    let plant = meta
+        .mesh_sections
+        .iter()
+        .position(|m| m.ends_with("plant.txf"))
+        .expect("the fixture has a plant");
+    let one = inst
+        .items
+        .iter()
+        .find(|i| i.model as usize == plant)
+        .copied()
+        .unwrap();
+    let pack = write_pack(
+        &dir.path().join("one.bake"),
+        &with_instances(false, &base, &name, &meta, &inst.models, vec![one]),
+    );
+    let scene = bake::render::scene::load_scene(&pack).unwrap();
+    let m = scene
+        .models
+        .iter()
+        .find(|m| m.instances.len() == 1)
+        .unwrap();
+    let sk = m.skeleton.as_ref().expect("the plant's TXF has a skeleton");
+    assert!(!sk.lines.is_empty() && !sk.points.is_empty());
+    let r = &m.instances[0];
+    let (c, radius) = m.sphere.placed(r);
+    let (w, h) = (256u32, 256u32);
+    let k = bake::lod::select::pixels_per_unit(h, 45.0);
+    // The sphere 36 px in radius (under the 40 px threshold), seen from 20° above the horizon.
+    let d = radius * k / 36.0;
+    let dir_to_eye = Vec3::new(0.94, 0.0, 0.34).normalize();
+    let eye = c + dir_to_eye * d;
+    let opts = RenderOptions {
+        width: w,
+        height: h,
+        eye: Some(eye.to_array()),
+        target: Some(c.to_array()),
+        fov_y_deg: 45.0,
+        msaa: 1,
+        ..RenderOptions::default()
+    };
+    let out = render_pack(&pack, &opts).unwrap();
+    assert_eq!(out.stats.skeleton_instances, 1, "{:?}", out.stats);
+    assert_eq!(out.stats.instances, 1);
+    assert_eq!(out.stats.impostor_instances, 0);
+    assert_eq!(out.stats.triangles, 0, "no triangles: {:?}", out.stats);
+    let mut behind = one;
+    behind.position = (Vec3::from(behind.position) + (eye - c) * 2.0 + Vec3::Z * 1000.0).to_array();
+    let bg_pack = write_pack(
+        &dir.path().join("bg.bake"),
+        &with_instances(false, &base, &name, &meta, &inst.models, vec![behind]),
+    );
+    let bg = render_pack(&bg_pack, &opts).unwrap();
+    assert_eq!(bg.stats.instances, 0);
+    // The CPU projection of the placed skeleton, in pixels from the top-left corner.
+    let cam = bake::render::resolve_view(&pack, &scene, &opts).camera;
+    let vp = cam.view_proj();
+    let (sn, cs) = r.rotation_deg.to_radians().sin_cos();
+    let place = |p: [f32; 3]| {
+        let q = Vec3::from(p) * r.scale;
+        Vec3::new(cs * q.x - sn * q.y, sn * q.x + cs * q.y, q.z) + Vec3::from(r.position)
+    };
+    let px = |p: Vec3| {
+        let clip = vp * p.extend(1.0);
+        let n = clip.xyz() / clip.w;
+        glam::Vec2::new((n.x + 1.0) * 0.5 * w as f32, (1.0 - n.y) * 0.5 * h as f32)
+    };
+    let segs: Vec<(glam::Vec2, glam::Vec2)> = sk
+        .lines
+        .chunks_exact(2)
+        .map(|s| (px(place(s[0])), px(place(s[1]))))
+        .collect();
+    let points: Vec<glam::Vec2> = sk.points.iter().map(|&p| px(place(p))).collect();
+    let seg_dist = |q: glam::Vec2, (a, b): (glam::Vec2, glam::Vec2)| {
+        let ab = b - a;
+        let t = ((q - a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
+        (a + ab * t - q).length()
+    };
+    let changed: Vec<glam::Vec2> = out
+        .image
+        .pixels
+        .iter()
+        .zip(&bg.image.pixels)
+        .enumerate()
+        .filter(|(_, (p, q))| (0..3).any(|ch| p[ch].abs_diff(q[ch]) > 2))
+        .map(|(i, _)| glam::Vec2::new((i as u32 % w) as f32 + 0.5, (i as u32 / w) as f32 + 0.5))
+        .collect();
+    assert!(changed.len() >= 20, "{} pixels changed", changed.len());
+    for q in &changed {
+        let near_seg = segs
+            .iter()
+            .map(|&s| seg_dist(*q, s))
+            .fold(f32::MAX, f32::min);
+        let near_pt = points
+            .iter()
+            .map(|p| (*p - *q).length())
+            .fold(f32::MAX, f32::min);
+        assert!(
+            near_seg.min(near_pt) <= 1.5,
+            "pixel {q} is {near_seg} px from every segment and {near_pt} from every point"
+        );
+    }
+    let (mut steps, mut hit) = (0, 0);
+    for &(a, b) in &segs {
+        let n = (b - a).length().ceil().max(1.0) as usize;
+        for i in 0..=n {
+            let s = a + (b - a) * (i as f32 / n as f32);
+            steps += 1;
+            if changed.iter().any(|q| (*q - s).length() <= 1.0) {
+                hit += 1;
+            }
+        }
+    }
+    assert!(
+        hit as f64 >= 0.9 * steps as f64,
+        "{hit} of {steps} steps along the segments drawn"
+    );
 }

@@ -75,7 +75,7 @@ pub fn bench_render(
     };
     let mut text = format!(
         "{}: {}×{} on {adapter}: {triangles} triangles ({} shadow), {instances} instances \
-         ({} culled, per level {:?}, {} impostors), {bytes} bytes uploaded; median of {}: load {:.1} ms, setup {:.1} ms, \
+         ({} culled, per level {:?}, {} impostors, {} skeletons), {bytes} bytes uploaded; median of {}: load {:.1} ms, setup {:.1} ms, \
          upload {:.1} ms, LOD selection {:.1} ms, draw+readback {:.1} ms ({:.1} Mtri/s); \
          {:.1} CPU s per render\n",
         path.display(),
@@ -85,6 +85,7 @@ pub fn bench_render(
         stats.instances_culled,
         stats.instances_per_level,
         stats.impostor_instances,
+        stats.skeleton_instances,
         runs.len(),
         load * 1e3,
         setup * 1e3,

@@ -38,7 +38,8 @@ pub const REPORT_SCHEMA: &str = "bake.build/1";
 
 /// Version constants of the stages: bump one when its output changes for the same inputs.
 pub mod versions {
-    pub const INGEST: u32 = 1;
+    /// 2: TXF line and point arrays kept as the mesh's skeleton (issue 14).
+    pub const INGEST: u32 = 2;
     /// 2: Xfrog's default material gets the thesis' leaf (issue 16).
     pub const MATERIAL: u32 = 2;
     pub const TERRAIN: u32 = 1;
@@ -49,7 +50,8 @@ pub mod versions {
     pub const PRT: u32 = 3;
     /// 1: the `lod` stage (issue 14): meshopt levels, leaf-card thinning, impostor atlas.
     /// 2: cards keep their triangles, a level's error counts the cards it removes (issue 14).
-    pub const LOD: u32 = 2;
+    /// 3: the model's skeleton (TXF line and point arrays) kept as the farthest representation.
+    pub const LOD: u32 = 3;
     pub const LIGHTMAP: u32 = 1;
     pub const ATLAS: u32 = 1;
     pub const ENVMAPS: u32 = 1;

@@ -128,9 +128,59 @@ fn texel(
 
 /// sRGB albedo of a material at `uv` (alpha 255).
 fn albedo(mesh: &Mesh, textures: &[Option<Rgba8Image>], material: u32, uv: [f32; 2]) -> [u8; 4] {
-    let Some(m) = mesh.materials.get(material as usize) else {
-        return [255, 0, 255, 255];
+    let (lin, _) = linear_albedo(mesh, textures, material, uv);
+    let e = |v: f32| (linear_to_srgb(v) * 255.0).round().clamp(0.0, 255.0) as u8;
+    [e(lin[0]), e(lin[1]), e(lin[2]), 255]
+}
+
+/// The model's mean albedo, sRGB with A = 255 (the skeleton's colour): the linear albedo
+/// averaged over the surface by area, each triangle sampled at three interior points
+/// (barycentric (4, 1, 1)/6 and its rotations), texels whose alpha is below 0.5 (cut out by the
+/// alpha test) left out. Mid grey for a mesh without visible area.
+pub fn mean_albedo(mesh: &Mesh, textures: &[Option<Rgba8Image>]) -> [u8; 4] {
+    let (mut sum, mut weight) = ([0.0f64; 3], 0.0f64);
+    for (t, tri) in mesh.indices.iter().enumerate() {
+        let p = tri.map(|v| glam::Vec3::from(mesh.positions[v as usize]));
+        let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length() as f64;
+        if area.is_nan() || area <= 0.0 {
+            continue;
+        }
+        let uv = tri.map(|v| mesh.uvs[v as usize]);
+        for r in 0..3 {
+            let b = [0, 1, 2].map(|k| if k == r { 4.0 / 6.0 } else { 1.0 / 6.0 });
+            let at = [0, 1].map(|c| b[0] * uv[0][c] + b[1] * uv[1][c] + b[2] * uv[2][c]);
+            let (lin, alpha) = linear_albedo(mesh, textures, mesh.triangle_materials[t], at);
+            if alpha < 0.5 {
+                continue;
+            }
+            for k in 0..3 {
+                sum[k] += area * lin[k] as f64;
+            }
+            weight += area;
+        }
+    }
+    if weight <= 0.0 {
+        return [128, 128, 128, 255];
+    }
+    let e = |v: f64| {
+        (linear_to_srgb((v / weight) as f32) * 255.0)
+            .round()
+            .clamp(0.0, 255.0) as u8
     };
+    [e(sum[0]), e(sum[1]), e(sum[2]), 255]
+}
+
+/// Linear albedo of a material at `uv` and the colour map's alpha there (1 without one).
+fn linear_albedo(
+    mesh: &Mesh,
+    textures: &[Option<Rgba8Image>],
+    material: u32,
+    uv: [f32; 2],
+) -> ([f32; 3], f32) {
+    let Some(m) = mesh.materials.get(material as usize) else {
+        return ([1.0, 0.0, 1.0], 1.0);
+    };
+    let mut alpha = 1.0;
     let mut lin = [0, 1, 2].map(|k| srgb_to_linear(m.diffuse[k].clamp(0.0, 1.0)));
     if let Some(img) = m
         .color_map
@@ -144,10 +194,10 @@ fn albedo(mesh: &Mesh, textures: &[Option<Rgba8Image>], material: u32, uv: [f32;
             for k in 0..3 {
                 lin[k] *= srgb_to_linear(t[k] as f32 / 255.0);
             }
+            alpha = t[3] as f32 / 255.0;
         }
     }
-    let e = |v: f32| (linear_to_srgb(v) * 255.0).round().clamp(0.0, 255.0) as u8;
-    [e(lin[0]), e(lin[1]), e(lin[2]), 255]
+    (lin, alpha)
 }
 
 /// The direction towards the eye of atlas tile (i, j) as a `Vec3` (re-exported for readers).

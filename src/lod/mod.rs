@@ -41,6 +41,8 @@ pub struct LodReport {
     pub cards: usize,
     pub levels: Vec<LevelReport>,
     pub impostor_error: Option<f32>,
+    /// Segments and points of the skeleton (0 and 0 without one).
+    pub skeleton: [u32; 2],
     pub simplify_seconds: f64,
     pub impostor_seconds: f64,
 }
@@ -105,6 +107,17 @@ pub fn bake_lod(
         arrays.impostor = Some(atlas);
     }
     let impostor_seconds = t1.elapsed().as_secs_f64();
+    // The model's own line and point arrays, kept as the farthest representation.
+    if !mesh.skeleton.is_empty() {
+        lod.skeleton = Some(section::SkeletonMeta {
+            segments: mesh.skeleton.lines.len() as u32,
+            points: mesh.skeleton.points.len() as u32,
+            albedo: impostor::mean_albedo(&mesh, &textures),
+            pixels: select::SKELETON_PIXELS,
+        });
+        arrays.skeleton_lines = mesh.skeleton.lines.iter().flatten().copied().collect();
+        arrays.skeleton_points = mesh.skeleton.points.clone();
+    }
     let name = section::lod_section_name(mesh_section);
     let report = LodReport {
         mesh: mesh_section.to_string(),
@@ -123,6 +136,10 @@ pub fn bake_lod(
             })
             .collect(),
         impostor_error,
+        skeleton: lod
+            .skeleton
+            .as_ref()
+            .map_or([0, 0], |s| [s.segments, s.points]),
         simplify_seconds,
         impostor_seconds,
     };

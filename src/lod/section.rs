@@ -48,6 +48,20 @@ pub struct LodMeta {
     /// The mesh's triangle and material counts when baked.
     pub mesh_triangles: u32,
     pub materials: u32,
+    /// The model's own skeleton (TXF line and point arrays), the farthest representation.
+    pub skeleton: Option<SkeletonMeta>,
+}
+
+/// Metadata of the skeleton representation (arrays `skeleton_lines`, `skeleton_points`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SkeletonMeta {
+    pub segments: u32,
+    pub points: u32,
+    /// The model's mean albedo, sRGB (A = 255): the colour the segments and points are drawn in.
+    pub albedo: [u8; 4],
+    /// Drawn where the model's bounding sphere projects to at most this radius in pixels
+    /// (`lod::select`, [`crate::lod::select::SKELETON_PIXELS`] by default).
+    pub pixels: f32,
 }
 
 /// One level: ranges into the section's arrays.
@@ -110,6 +124,9 @@ pub struct LodArrays {
     pub indices: Vec<[u32; 3]>,
     pub triangle_materials: Vec<u32>,
     pub impostor: Option<ImpostorAtlas>,
+    /// Segment end points (two per segment) and points of the skeleton, model space.
+    pub skeleton_lines: Vec<[f32; 3]>,
+    pub skeleton_points: Vec<[f32; 3]>,
 }
 
 /// The impostor atlas' texels (side × side each, row 0 at the top).
@@ -132,6 +149,9 @@ pub struct LodView<'a> {
     pub indices: &'a [[u32; 3]],
     pub triangle_materials: &'a [u32],
     pub impostor: Option<ImpostorView<'a>>,
+    /// Empty where the meta has no skeleton.
+    pub skeleton_lines: &'a [[f32; 3]],
+    pub skeleton_points: &'a [[f32; 3]],
 }
 
 #[derive(Debug, Clone)]
@@ -172,6 +192,10 @@ pub fn to_section(name: &str, meta: &LodMeta, a: &LodArrays) -> Section {
         b.array("impostor_color", ArrayFormat::U8, 4, &i.color)
             .array("impostor_normal", ArrayFormat::U8, 4, &i.normal)
             .array("impostor_depth", ArrayFormat::U8, 1, &i.depth);
+    }
+    if meta.skeleton.is_some() {
+        b.array("skeleton_lines", ArrayFormat::F32, 3, &a.skeleton_lines)
+            .array("skeleton_points", ArrayFormat::F32, 3, &a.skeleton_points);
     }
     b.finish()
 }
@@ -232,6 +256,7 @@ pub fn full_mesh_lod(mesh_section: &str, mesh: &Mesh) -> (LodMeta, LodArrays) {
         impostor: None,
         mesh_triangles: mesh.indices.len() as u32,
         materials: mesh.materials.len() as u32,
+        skeleton: None,
     };
     let arrays = LodArrays {
         positions: mesh.positions.clone(),
@@ -239,6 +264,8 @@ pub fn full_mesh_lod(mesh_section: &str, mesh: &Mesh) -> (LodMeta, LodArrays) {
         indices,
         triangle_materials: mats,
         impostor: None,
+        skeleton_lines: Vec::new(),
+        skeleton_points: Vec::new(),
     };
     (meta, arrays)
 }
@@ -258,12 +285,18 @@ pub fn from_view<'a>(
             depth: v.array("impostor_depth")?,
         }),
     };
+    let (skeleton_lines, skeleton_points): (&[[f32; 3]], &[[f32; 3]]) = match &meta.skeleton {
+        None => (&[], &[]),
+        Some(_) => (v.array("skeleton_lines")?, v.array("skeleton_points")?),
+    };
     let view = LodView {
         positions: v.array("positions")?,
         vertex_source: v.array("vertex_source")?,
         indices: v.array("indices")?,
         triangle_materials: v.array("triangle_materials")?,
         impostor,
+        skeleton_lines,
+        skeleton_points,
         meta,
     };
     if let Some(n) = mesh_vertices
@@ -330,7 +363,8 @@ pub fn check(v: &LodView) -> Check {
         return fail(format!("array \"positions\", element {i}"), "not finite");
     }
     check_levels(v)?;
-    check_impostor(v)
+    check_impostor(v)?;
+    check_skeleton(v)
 }
 
 fn check_levels(v: &LodView) -> Check {
@@ -399,6 +433,39 @@ fn check_levels(v: &LodView) -> Check {
                 "triangles not sorted by material, or ranges that do not match them",
             );
         }
+    }
+    Ok(())
+}
+
+/// The skeleton's arrays against its counts; finite positions, a positive pixel threshold.
+fn check_skeleton(v: &LodView) -> Check {
+    let Some(sk) = &v.meta.skeleton else {
+        return Ok(());
+    };
+    for (name, len, want) in [
+        (
+            "skeleton_lines",
+            v.skeleton_lines.len(),
+            2 * sk.segments as u64,
+        ),
+        ("skeleton_points", v.skeleton_points.len(), sk.points as u64),
+    ] {
+        if len as u64 != want {
+            return fail(
+                format!("array {name:?}"),
+                format!("{len} positions, the metadata says {want}"),
+            );
+        }
+    }
+    let finite = |p: &[f32; 3]| p.iter().all(|c| c.is_finite());
+    if !v.skeleton_lines.iter().chain(v.skeleton_points).all(finite) {
+        return fail("skeleton", "a position is not finite");
+    }
+    if !(sk.pixels.is_finite() && sk.pixels > 0.0) {
+        return fail(
+            "skeleton metadata",
+            format!("pixels {} is not positive", sk.pixels),
+        );
     }
     Ok(())
 }
@@ -483,9 +550,16 @@ pub fn summary(v: &SectionView) -> std::result::Result<Value, ParseError> {
         json!({"layout": i.layout, "grid": i.grid, "tile": i.tile, "atlas": [i.side(), i.side()],
             "radius": i.radius, "error": i.error, "switch_distance": imp_dist})
     });
+    let skeleton = m.skeleton.as_ref().map(|s| {
+        json!({"segments": s.segments, "points": s.points, "albedo": s.albedo,
+            "pixels": s.pixels,
+            "switch_distance": super::select::skeleton_switch_distance(m.radius, s.pixels, 1.0,
+                super::select::reference_k())})
+    });
     Ok(
         json!({"mesh_section": m.mesh_section, "mesh_vertices": m.mesh_vertices,
         "centre": m.centre, "radius": m.radius, "levels": levels, "impostor": impostor,
+        "skeleton": skeleton,
         "switch_view": {"height": super::select::REFERENCE_HEIGHT,
             "fov_y_deg": super::select::REFERENCE_FOV_Y_DEG, "tau": super::select::DEFAULT_TAU}}),
     )

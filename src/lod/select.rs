@@ -4,7 +4,11 @@
 //! alike. With `k = H / (2·tan(fov_y/2))` the pixels per model unit at distance 1 ([`pixels_per_unit`]),
 //! instance scale `s`, distance `d` from the eye to the instance's bounding-sphere centre and a
 //! pixel threshold `tau`, a representation of geometric error `e` (model units) is acceptable when
-//! its projected error `e·s·k/d` is at most `tau`. [`choose`] draws the impostor when the
+//! its projected error `e·s·k/d` is at most `tau`. [`choose`] draws the skeleton (the model's own
+//! line and point arrays, where the `lod` section has them) when the model's bounding sphere
+//! (radius `R`) projects to at most `P` pixels, `R·s·k/d ≤ P` (`P` = the section's
+//! `skeleton.pixels`, [`SKELETON_PIXELS`] by default: the skeleton is a size cutoff, not an error
+//! bound, so it is kept for models that cover a pixel or two), else the impostor when the
 //! impostor's own error passes, else the coarsest mesh level that passes (level 0, error 0, always
 //! passes). No hysteresis: an image depends only on the view.
 //!
@@ -18,6 +22,9 @@ use super::section::LodMeta;
 pub const REFERENCE_HEIGHT: u32 = 720;
 pub const REFERENCE_FOV_Y_DEG: f32 = 45.0;
 pub const DEFAULT_TAU: f32 = 1.0;
+/// The projected bounding radius (pixels) at and below which a model with a skeleton is drawn
+/// as its skeleton: one pixel, where the impostor's quad is 2 × 2 pixels.
+pub const SKELETON_PIXELS: f32 = 1.0;
 
 /// What an instance is drawn with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -26,6 +33,8 @@ pub enum Choice {
     Mesh(usize),
     /// The impostor atlas.
     Impostor,
+    /// The skeleton's segments and points.
+    Skeleton,
 }
 
 /// Pixels per model unit at distance 1 for an image `height` pixels high with vertical field of
@@ -47,6 +56,11 @@ fn passes(error: f32, scale: f32, distance: f32, k: f32, tau: f32) -> bool {
 /// The representation to draw: see the module documentation. `meta.levels` must be non-empty
 /// with non-decreasing errors (the section reader checks both); an empty list gives `Mesh(0)`.
 pub fn choose(meta: &LodMeta, scale: f32, distance: f32, k: f32, tau: f32) -> Choice {
+    if let Some(sk) = &meta.skeleton
+        && passes(meta.radius, scale, distance, k, sk.pixels)
+    {
+        return Choice::Skeleton;
+    }
     if let Some(imp) = &meta.impostor
         && passes(imp.error, scale, distance, k, tau)
     {
@@ -63,6 +77,12 @@ pub fn choose(meta: &LodMeta, scale: f32, distance: f32, k: f32, tau: f32) -> Ch
 /// (0 for the full mesh).
 pub fn switch_distance(error: f32, scale: f32, k: f32, tau: f32) -> f32 {
     error * scale.abs() * k / tau
+}
+
+/// The distance from which a model of bounding radius `radius` and instance scale `scale` is
+/// drawn as its skeleton: `radius·s·k/pixels`.
+pub fn skeleton_switch_distance(radius: f32, pixels: f32, scale: f32, k: f32) -> f32 {
+    radius * scale.abs() * k / pixels
 }
 
 /// Switch distances of every mesh level, then of the impostor if there is one, at instance
@@ -190,6 +210,45 @@ mod tests {
                     .chain([0.8])
                     .any(|e| (px(e) - tau).abs() < 1e-4 * tau);
                 assert!(near, "d {d} s {s} k {k} tau {tau}: {got:?} vs {want:?}");
+            }
+        }
+    }
+
+    /// Radius 1, k = 360, scale 2: the model covers 1 px of radius at d = 720, 0.5 px at 1440.
+    #[test]
+    fn the_skeleton_is_a_size_cutoff_before_the_impostor() {
+        let mut m = meta(&[0.0, 0.01, 0.1], Some(0.5));
+        m.skeleton = Some(crate::lod::section::SkeletonMeta {
+            segments: 1,
+            points: 0,
+            albedo: [0, 0, 0, 255],
+            pixels: 1.0,
+        });
+        let k = 360.0;
+        assert_eq!(choose(&m, 2.0, 719.0, k, 1.0), Choice::Impostor);
+        assert_eq!(choose(&m, 2.0, 721.0, k, 1.0), Choice::Skeleton);
+        assert_eq!(
+            choose(&m, -2.0, 721.0, k, 8.0),
+            Choice::Skeleton,
+            "independent of tau"
+        );
+        assert!((skeleton_switch_distance(1.0, 1.0, 2.0, k) - 720.0).abs() < 1e-3);
+        // A 4-pixel cutoff moves it 4× closer, past the impostor's own switch (360).
+        m.skeleton.as_mut().unwrap().pixels = 4.0;
+        assert_eq!(choose(&m, 2.0, 181.0, k, 1.0), Choice::Skeleton);
+        assert_eq!(choose(&m, 2.0, 179.0, k, 1.0), Choice::Mesh(2));
+        // Against brute force: projected radius R·s·k/d.
+        let mut r = crate::rng::Rng::new(3);
+        for _ in 0..1000 {
+            let (d, s, kk) = (
+                r.f32() * 5000.0,
+                0.1 + r.f32() * 3.0,
+                100.0 + r.f32() * 2000.0,
+            );
+            let px = s * kk / d.max(1e-30);
+            let got = choose(&m, s, d, kk, 1.0) == Choice::Skeleton;
+            if (px - 4.0).abs() > 1e-4 {
+                assert_eq!(got, px <= 4.0, "d {d} s {s} k {kk}");
             }
         }
     }

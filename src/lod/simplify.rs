@@ -638,6 +638,7 @@ impl Level {
             textures: mesh.textures.clone(),
             objects: mesh.objects.clone(),
             warnings: Vec::new(),
+            skeleton: Default::default(),
         }
     }
 }

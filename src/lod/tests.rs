@@ -406,3 +406,50 @@ fn impostor_error_covers_every_direction() {
     );
     eprintln!("impostor error at 8x8 of 64²: {e} × radius");
 }
+
+/// The skeleton's colour by hand: two untextured triangles of areas 0.5 and 2 (materials red
+/// 0.8 and grey 0.2, sRGB), the area mean in linear; a third triangle whose colour map is cut out
+/// (alpha 0) adds nothing.
+#[test]
+fn the_skeleton_albedo_is_the_area_mean_in_linear_without_cut_out_texels() {
+    use crate::color::{linear_to_srgb, srgb_to_linear};
+    use crate::model::{Material, Mesh, Rgba8Image};
+    let mat = |c: [f32; 3], map: Option<u32>| Material {
+        diffuse: [c[0], c[1], c[2], 1.0],
+        color_map: map,
+        ..Material::default()
+    };
+    let mesh = Mesh {
+        positions: vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [2.0, 0.0, 1.0],
+            [0.0, 2.0, 1.0],
+            [0.0, 0.0, 2.0],
+            [9.0, 0.0, 2.0],
+            [0.0, 9.0, 2.0],
+        ],
+        normals: vec![[0.0, 0.0, 1.0]; 9],
+        uvs: vec![[0.5, 0.5]; 9],
+        indices: vec![[0, 1, 2], [3, 4, 5], [6, 7, 8]],
+        triangle_materials: vec![0, 1, 2],
+        materials: vec![
+            mat([0.8, 0.0, 0.0], None),
+            mat([0.2, 0.2, 0.2], None),
+            mat([1.0, 1.0, 1.0], Some(0)),
+        ],
+        ..Mesh::default()
+    };
+    let cut = Rgba8Image {
+        width: 1,
+        height: 1,
+        pixels: vec![[255, 255, 255, 0]],
+    };
+    let got = crate::lod::impostor::mean_albedo(&mesh, &[Some(cut)]);
+    let (r, g) = (srgb_to_linear(0.8), srgb_to_linear(0.2));
+    let want = [(0.5 * r + 2.0 * g) / 2.5, 2.0 * g / 2.5, 2.0 * g / 2.5]
+        .map(|v| (linear_to_srgb(v) * 255.0).round() as u8);
+    assert_eq!(got, [want[0], want[1], want[2], 255]);
+}

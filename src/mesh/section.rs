@@ -65,7 +65,53 @@ pub fn to_section(
             1,
             &mesh.triangle_materials,
         );
+    // A skeleton's arrays only where the model has one (so other models' bytes are unchanged).
+    if !mesh.skeleton.lines.is_empty() {
+        b.array(
+            "skeleton_lines",
+            ArrayFormat::F32,
+            3,
+            &flat_lines(&mesh.skeleton.lines),
+        );
+    }
+    if !mesh.skeleton.points.is_empty() {
+        b.array(
+            "skeleton_points",
+            ArrayFormat::F32,
+            3,
+            &mesh.skeleton.points,
+        );
+    }
     b.finish()
+}
+
+/// Segments as a list of end points (two per segment).
+fn flat_lines(lines: &[[[f32; 3]; 2]]) -> Vec<[f32; 3]> {
+    lines.iter().flatten().copied().collect()
+}
+
+/// The section's skeleton (`skeleton_lines`: two end points per segment, `skeleton_points`),
+/// empty where it has none.
+pub fn skeleton_of(v: &SectionView) -> Result<crate::model::Skeleton, ParseError> {
+    let mut sk = crate::model::Skeleton::default();
+    if v.info("skeleton_lines").is_some() {
+        let ends: Vec<[f32; 3]> = v.array_vec("skeleton_lines")?;
+        if !ends.len().is_multiple_of(2) {
+            return Err(ParseError::new(
+                "mesh array \"skeleton_lines\"",
+                format!("{} end points do not form segments", ends.len()),
+            ));
+        }
+        sk.lines = ends.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+    }
+    if v.info("skeleton_points").is_some() {
+        sk.points = v.array_vec("skeleton_points")?;
+    }
+    let finite = |p: &[f32; 3]| p.iter().all(|c| c.is_finite());
+    if !sk.lines.iter().flatten().all(finite) || !sk.points.iter().all(finite) {
+        return Err(ParseError::new("mesh skeleton", "a position is not finite"));
+    }
+    Ok(sk)
 }
 
 /// Decodes a mesh section back into the model.
@@ -88,6 +134,7 @@ pub fn from_section(v: &SectionView) -> Result<(MeshMeta, Mesh), ParseError> {
             .collect(),
         objects: meta.objects.clone(),
         warnings: Vec::new(),
+        skeleton: skeleton_of(v)?,
     };
     mesh.validate()
         .map_err(|m| ParseError::new("mesh section", m))?;
@@ -107,6 +154,10 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
         "objects": meta.objects,
         "textures": meta.textures.iter().map(|t| t.name.clone()).collect::<Vec<_>>(),
         "source": meta.source,
+        "skeleton": {
+            "segments": v.info("skeleton_lines").map_or(0, |a| a.count / 2),
+            "points": v.info("skeleton_points").map_or(0, |a| a.count),
+        },
     }))
 }
 
@@ -120,4 +171,43 @@ pub fn data(v: &SectionView) -> Result<Value, ParseError> {
         "triangle_materials": m.triangle_materials,
         "materials": m.materials,
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn view_of(s: &Section) -> crate::pack::Pack {
+        crate::pack::Pack::from_sections(std::slice::from_ref(s), "t.bake")
+    }
+
+    #[test]
+    fn a_skeleton_round_trips_and_a_mesh_without_one_has_no_arrays() {
+        let mut mesh = Mesh {
+            positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            normals: vec![[0.0, 0.0, 1.0]; 3],
+            uvs: vec![[0.0; 2]; 3],
+            indices: vec![[0, 1, 2]],
+            triangle_materials: vec![0],
+            materials: vec![Material::default()],
+            ..Mesh::default()
+        };
+        let plain = to_section("mesh:m", "m.txf", &mesh, &[]);
+        let pack = view_of(&plain);
+        let v = pack.view_named("mesh:m").unwrap();
+        assert!(v.info("skeleton_lines").is_none() && v.info("skeleton_points").is_none());
+        assert_eq!(from_section(&v).unwrap().1, mesh);
+        mesh.skeleton.lines = vec![
+            [[0.0, 0.0, 0.0], [0.0, 0.0, 2.0]],
+            [[0.0, 0.0, 2.0], [1.0, 0.0, 3.0]],
+        ];
+        mesh.skeleton.points = vec![[0.5, 0.5, 2.5]];
+        let s = to_section("mesh:m", "m.txf", &mesh, &[]);
+        let pack = view_of(&s);
+        let v = pack.view_named("mesh:m").unwrap();
+        assert_eq!(from_section(&v).unwrap().1, mesh);
+        let sum = summary(&v).unwrap();
+        assert_eq!(sum["skeleton"]["segments"], 2);
+        assert_eq!(sum["skeleton"]["points"], 1);
+    }
 }

@@ -71,6 +71,8 @@ pub struct DrawCounts {
     pub instances: u64,
     /// Of `instances`, those drawn as impostors (two triangles each, counted in `triangles`).
     pub impostor_instances: u64,
+    /// Of `instances`, those drawn as skeletons (lines and points, not in `triangles`).
+    pub skeleton_instances: u64,
     /// Triangles of the shadow passes.
     pub shadow_triangles: u64,
     /// Of `triangles`, the terrain's (chunk surfaces and skirts, zero-area ones past the grid
@@ -590,6 +592,7 @@ fn scene_pass(
     counts.triangles += drawn.triangles;
     counts.instances += drawn.instances;
     super::impostor::draw(&mut pass, &pipes.impostor, scene, frame, counts);
+    super::skeleton::draw(&mut pass, &pipes.skeleton, scene, frame, counts);
 }
 
 /// The bucket pass of the camera.

@@ -1,7 +1,8 @@
 //! Which level of a model an instance draws: the `lod` section's rule
 //! ([`crate::lod::select::choose`]) where the model has one, else full detail. Bucket levels
 //! `0..=lod_levels.len()` are the mesh levels; a model with an impostor atlas has one more,
-//! `lod_levels.len() + 1`, drawn by [`super::impostor`].
+//! `lod_levels.len() + 1`, drawn by [`super::impostor`]; a model with a skeleton one more after
+//! that, drawn by [`super::skeleton`].
 
 use super::scene::ModelData;
 
@@ -21,7 +22,9 @@ impl<'a> ModelRule<'a> {
 
 impl super::cull::LevelRule for ModelRule<'_> {
     fn levels(&self) -> usize {
-        1 + self.model.lod_levels.len() + self.model.impostor.is_some() as usize
+        1 + self.model.lod_levels.len()
+            + self.model.impostor.is_some() as usize
+            + self.model.skeleton.is_some() as usize
     }
 
     fn level(&self, scale: f32, distance: f32) -> usize {
@@ -33,6 +36,10 @@ impl super::cull::LevelRule for ModelRule<'_> {
                 // Without an atlas in the pack, the coarsest mesh level stands in.
                 Choice::Impostor => {
                     self.model.lod_levels.len() + self.model.impostor.is_some() as usize
+                }
+                // The section's meta has a skeleton exactly when the scene's model has one.
+                Choice::Skeleton => {
+                    1 + self.model.lod_levels.len() + self.model.impostor.is_some() as usize
                 }
             },
         }

@@ -24,6 +24,7 @@ pub mod reference;
 pub mod sample;
 pub mod scene;
 pub mod shadow;
+pub mod skeleton;
 pub mod soft_shadow;
 pub mod svo_view;
 pub mod terrain_lod;
@@ -169,6 +170,8 @@ pub struct RenderStats {
     pub instances_per_level: Vec<u64>,
     /// Of `instances`, those drawn as impostor quads ([`impostor`]).
     pub impostor_instances: u64,
+    /// Of `instances`, those drawn as their skeleton's lines and points ([`skeleton`]).
+    pub skeleton_instances: u64,
     /// Triangles of the camera pass (terrain and models).
     pub triangles: u64,
     /// Triangles of the shadow pass(es).
@@ -406,6 +409,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         instances_culled: total_instances - counts.instances,
         instances_per_level: per_level,
         impostor_instances: counts.impostor_instances,
+        skeleton_instances: counts.skeleton_instances,
         triangles: counts.triangles,
         shadow_triangles: counts.shadow_triangles,
         terrain_triangles: counts.terrain_triangles,

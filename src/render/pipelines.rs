@@ -47,6 +47,8 @@ pub struct Pipelines {
     pub mesh_shadow: wgpu::RenderPipeline,
     /// The camera pass's impostor quads ([`super::impostor`]).
     pub impostor: super::impostor::ImpostorPipeline,
+    /// The skeletons' lines and points ([`super::skeleton`]).
+    pub skeleton: super::skeleton::SkeletonPipeline,
     /// Samples per pixel of the scene pass's targets.
     pub samples: u32,
 }
@@ -162,6 +164,8 @@ pub(super) struct PassDesc<'a> {
     /// Alpha to coverage (leaf cards under MSAA): the fragment's alpha becomes its sample mask,
     /// and the shader's `A2C` override turns the alpha test into a coverage ramp.
     a2c: bool,
+    /// Triangles, except the skeletons' lines and points.
+    topology: wgpu::PrimitiveTopology,
 }
 
 pub(super) fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipeline {
@@ -191,7 +195,7 @@ pub(super) fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipel
             buffers: d.buffers,
         },
         primitive: wgpu::PrimitiveState {
-            topology: wgpu::PrimitiveTopology::TriangleList,
+            topology: d.topology,
             // Plants are thin and seen from both sides; terrain and sky cannot be seen from behind.
             cull_mode: None,
             ..Default::default()
@@ -483,6 +487,7 @@ pub(super) fn hdr_pass<'a>(
         vertex: "vs_main",
         samples: 1,
         a2c: false,
+        topology: wgpu::PrimitiveTopology::TriangleList,
     }
 }
 
@@ -495,6 +500,11 @@ impl<'a> PassDesc<'a> {
             a2c: a2c && samples > 1,
             ..self
         }
+    }
+
+    /// The same pass drawing `topology` (line or point lists) instead of triangles.
+    pub(super) fn primitives(self, topology: wgpu::PrimitiveTopology) -> PassDesc<'a> {
+        PassDesc { topology, ..self }
     }
 }
 
@@ -578,14 +588,19 @@ impl Pipelines {
                 vertex: "vs_main",
                 samples: 1,
                 a2c: false,
+                topology: wgpu::PrimitiveTopology::TriangleList,
             },
         );
         let impostor = super::impostor::ImpostorPipeline::new(
             device, &l.globals, &l.shadow, &l.ambient, samples,
         );
+        let skeleton = super::skeleton::SkeletonPipeline::new(
+            device, &l.globals, &l.shadow, &l.ambient, samples,
+        );
         Pipelines {
             samples,
             impostor,
+            skeleton,
             globals_layout: l.globals,
             terrain_layout: l.terrain,
             material_layout: l.material,

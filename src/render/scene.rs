@@ -157,6 +157,18 @@ pub struct ModelData<'a> {
     /// The `lod:<model>` section's impostor atlas, drawn where the rule chooses it
     /// ([`super::impostor`]); `None`: the model has none.
     pub impostor: Option<ImpostorData>,
+    /// The model's skeleton (`lod` section), drawn past the impostor (src/render/skeleton.rs).
+    pub skeleton: Option<SkeletonData>,
+}
+
+/// A model's skeleton as the `lod` section stores it (model space).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkeletonData {
+    /// Segment end points, two per segment.
+    pub lines: Vec<[f32; 3]>,
+    pub points: Vec<[f32; 3]>,
+    /// sRGB, A = 255.
+    pub albedo: [u8; 4],
 }
 
 /// A model's impostor atlas as the `lod` section stores it (`grid·tile` texels square, row 0 at
@@ -634,6 +646,7 @@ fn load_model<'a>(
         lod_levels: Vec::new(),
         lod: None,
         impostor: None,
+        skeleton: None,
     };
     if let Some((source, atlas_indices)) = atlas_split(pack, section, n, indices.len())? {
         model.split_vertices(source, atlas_indices);
@@ -700,6 +713,11 @@ fn load_lod(pack: &Pack, section: &str, model: &mut ModelData) -> Result<()> {
         }),
         _ => None,
     };
+    model.skeleton = view.meta.skeleton.as_ref().map(|sk| SkeletonData {
+        lines: view.skeleton_lines.to_vec(),
+        points: view.skeleton_points.to_vec(),
+        albedo: sk.albedo,
+    });
     model.lod_levels = levels;
     model.lod = Some(view.meta);
     Ok(())

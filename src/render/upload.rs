@@ -93,6 +93,9 @@ pub struct ModelGpu {
     pub materials: Vec<wgpu::BindGroup>,
     /// The impostor atlas, drawn for the instances of bucket level `levels.len()`.
     pub impostor: Option<super::impostor::ImpostorGpu>,
+    /// The skeleton, drawn for the instances of bucket level `levels.len()` plus one where there
+    /// is an impostor.
+    pub skeleton: Option<super::skeleton::SkeletonGpu>,
 }
 
 /// Everything uploaded for a frame.
@@ -592,8 +595,13 @@ fn upload_model(
         Some(d) => Some(super::impostor::upload(up, &pipes.impostor, &m.section, d)?),
         None => None,
     };
+    let skeleton = m
+        .skeleton
+        .as_ref()
+        .map(|d| super::skeleton::upload(up, &pipes.skeleton, &m.section, d));
     Ok(ModelGpu {
         impostor,
+        skeleton,
         levels,
         instances,
         instance_count: m.instances.len() as u32,

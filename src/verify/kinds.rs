@@ -18,6 +18,8 @@ const MESH: Schema = &[
     ("uvs", &[F32], 2),
     ("indices", &[U32], 3),
     ("triangle_materials", &[U32], 1),
+    ("skeleton_lines", &[F32], 3),
+    ("skeleton_points", &[F32], 3),
 ];
 const TERRAIN: Schema = &[
     ("heights", &[F32], 1),
@@ -81,6 +83,8 @@ const LOD: Schema = &[
     ("impostor_color", &[U8], 4),
     ("impostor_normal", &[U8], 4),
     ("impostor_depth", &[U8], 1),
+    ("skeleton_lines", &[F32], 3),
+    ("skeleton_points", &[F32], 3),
 ];
 const LINESPACE: Schema = &[
     ("nodes", &[U32], 2),

@@ -23,6 +23,7 @@ fn mesh() -> Mesh {
         }],
         objects: vec!["tri".into()],
         warnings: Vec::new(),
+        skeleton: Default::default(),
     }
 }
 

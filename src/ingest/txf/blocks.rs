@@ -28,6 +28,9 @@ pub(super) struct SetData {
     pub(super) translucence: Option<f32>,
     pub(super) vertices: Vec<Vertex>,
     pub(super) triangles: Vec<[u32; 3]>,
+    /// Segments of the set's `<line_array>`s and points of its `<point_array>`s.
+    pub(super) lines: Vec<[[f32; 3]; 2]>,
+    pub(super) points: Vec<[f32; 3]>,
 }
 
 #[derive(Debug, Default)]
@@ -173,7 +176,7 @@ pub(super) fn read_set(c: &mut Cursor, offset: usize) -> Result<SetData, ParseEr
             }
             (Tok::Open("header"), _) => read_set_header(c, &mut set)?,
             (Tok::Open("vertex_array"), _) => read_vertex_array(c, &mut set)?,
-            (Tok::Open(n @ ("line_array" | "point_array")), _) => read_lod_array(c, n)?,
+            (Tok::Open(n @ ("line_array" | "point_array")), _) => read_lod_array(c, n, &mut set)?,
             (Tok::Open(n), _) => c.skip_element(n)?, // references and anything unknown
             (t, at) => return Err(c.unexpected(at, &t, "a set element or </Set>")),
         }
@@ -320,9 +323,16 @@ pub(super) fn read_vertex_array(c: &mut Cursor, set: &mut SetData) -> Result<(),
     }
 }
 
-/// Reads a `line_array` or `point_array` (LOD data) and drops it.
-pub(super) fn read_lod_array(c: &mut Cursor, name: &str) -> Result<(), ParseError> {
-    let fields: &[&str] = if name == "line_array" {
+/// Reads a `line_array` or `point_array` (Xfrog's LOD data) into the set: the line array's
+/// vertices joined by its index pairs as segments, the point array's vertices as points
+/// (positions only, model space, as the triangles' vertices).
+pub(super) fn read_lod_array(
+    c: &mut Cursor,
+    name: &str,
+    set: &mut SetData,
+) -> Result<(), ParseError> {
+    let lines = name == "line_array";
+    let fields: &[&str] = if lines {
         &["number_of_line_vertices"]
     } else {
         &[
@@ -332,20 +342,28 @@ pub(super) fn read_lod_array(c: &mut Cursor, name: &str) -> Result<(), ParseErro
         ]
     };
     let mut count: Option<u64> = None;
+    let mut vertices: Vec<[f32; 3]> = Vec::new();
     loop {
         match c.next()? {
-            (Tok::Close(n), _) if n == name => return Ok(()),
+            (Tok::Close(n), _) if n == name => {
+                if !lines {
+                    set.points.extend(vertices);
+                }
+                return Ok(());
+            }
             (Tok::Open("header"), _) => count = Some(read_array_header(c, fields)?),
             (Tok::Open("data"), at) => {
                 let n = count.ok_or_else(|| {
                     c.err(at, format!("<data> of {name} before its vertex count"))
                 })?;
-                c.payload(
+                let p = c.payload(
                     bytes_for(n, VERTEX_BYTES),
                     &format!("{name} payload of {n} vertices"),
                     "data",
                     vertex_score,
                 )?;
+                let offset = c.pos - p.len();
+                vertices.extend(decode_vertices(p, offset)?.iter().map(|v| v.position));
                 c.expect_close("data")?;
             }
             (Tok::Open("index"), _) => {
@@ -356,6 +374,24 @@ pub(super) fn read_lod_array(c: &mut Cursor, name: &str) -> Result<(), ParseErro
                         at,
                         format!("{name}: {} indices do not form pairs", p.len() / 4),
                     ));
+                }
+                let idx = |k: usize| u32::from_le_bytes(p[4 * k..4 * k + 4].try_into().unwrap());
+                for k in 0..p.len() / 8 {
+                    let (a, b) = (idx(2 * k) as usize, idx(2 * k + 1) as usize);
+                    match (vertices.get(a), vertices.get(b)) {
+                        (Some(&pa), Some(&pb)) if lines => set.lines.push([pa, pb]),
+                        (Some(_), Some(_)) => {}
+                        _ => {
+                            return Err(c.err(
+                                at,
+                                format!(
+                                    "{name}: segment {k} joins vertices {a} and {b}, \
+                                     but the array has {} vertices",
+                                    vertices.len()
+                                ),
+                            ));
+                        }
+                    }
                 }
             }
             (Tok::Open(n), _) => c.skip_element(n)?,

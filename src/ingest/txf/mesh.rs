@@ -38,6 +38,8 @@ pub(super) fn build_mesh(mut file: TxfFile) -> Result<Mesh, ParseError> {
         }
         fix_wrap_around(&mut set.vertices, &mut set.triangles);
         append_set(&mut mesh, &set, m);
+        mesh.skeleton.lines.append(&mut set.lines);
+        mesh.skeleton.points.append(&mut set.points);
         mesh.objects.push(name);
     }
     Ok(mesh)

@@ -14,8 +14,10 @@
 //! `number_of_vertices` vertices of 36 bytes `{f32 texcoord[3]; f32 normal[3]; f32 position[3]}`
 //! (little-endian) in `<data>`, then `<index>` with `number_of_index_values` u32 indices
 //! (3 per triangle); `<line_array>` (`number_of_line_vertices`, index pairs) and `<point_array>`
-//! (`number_of_subpoints + number_of_regpoints + number_of_suppoints` vertices) are read and
-//! skipped (they are LOD representations).
+//! (`number_of_subpoints + number_of_regpoints + number_of_suppoints` vertices) are Xfrog's LOD
+//! representations: kept as the mesh's [`crate::model::Skeleton`] (segments between the line
+//! array's vertices, the point array's vertices; positions only), which the `lod` stage keeps as
+//! the farthest representation. A segment index out of its array's range is an error.
 //!
 //! **Binary payloads.** The thesis does not say whether a payload starts right after its tag
 //! (`<data>` or `</number_of_index_values>`) or after that tag's 0x0A. Both are accepted: the

@@ -99,6 +99,39 @@ fn parses_a_tiny_file_value_by_value() {
     assert_eq!(mat.translucence, Some(0.25));
     assert_eq!(mat.color_map, Some(0));
     assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+    // The LOD arrays: one segment between the line array's two vertices, the 1 + 0 + 2 points.
+    assert_eq!(m.skeleton.lines, vec![[[9.0, 9.0, 9.0], [9.0, 9.0, 8.0]]]);
+    assert_eq!(
+        m.skeleton.points,
+        vec![[5.0, 5.0, 0.0], [5.0, 5.0, 1.0], [5.0, 5.0, 2.0]]
+    );
+}
+
+#[test]
+fn the_generated_plant_keeps_its_skeleton_and_ring_centres() {
+    // The fixture generator's own record of what it wrote is the oracle.
+    let model = crate::fixtures::plant::plant_model();
+    let m = parse(&crate::fixtures::plant::write_txf(&model)).unwrap();
+    let want_lines: Vec<[[f32; 3]; 2]> = model
+        .sets
+        .iter()
+        .flat_map(|s| {
+            s.lines.iter().map(|l| {
+                [
+                    s.line_vertices[l[0] as usize].position,
+                    s.line_vertices[l[1] as usize].position,
+                ]
+            })
+        })
+        .collect();
+    let want_points: Vec<[f32; 3]> = model
+        .sets
+        .iter()
+        .flat_map(|s| s.points.iter().map(|p| p.position))
+        .collect();
+    assert!(!want_lines.is_empty() && !want_points.is_empty());
+    assert_eq!(m.skeleton.lines, want_lines);
+    assert_eq!(m.skeleton.points, want_points);
 }
 
 #[test]
@@ -304,6 +337,16 @@ fn bad_inputs_name_the_place() {
     let e = err_of(&b);
     assert!(
         e.message.contains("set 7") && e.message.contains("vertex 4"),
+        "{e}"
+    );
+    // A line segment past its array's vertices names the array and the segment.
+    let mut b = HEAD.as_bytes().to_vec();
+    b.extend(set_bytes("3 5", &quad(), &[0, 1, 2], true));
+    let at = b.windows(8).rposition(|w| w == &idx(&[0, 1])[..]).unwrap();
+    b[at + 4..at + 8].copy_from_slice(&7u32.to_le_bytes());
+    let e = err_of(&b);
+    assert!(
+        e.message.contains("line_array") && e.message.contains("vertices 0 and 7"),
         "{e}"
     );
     // Not a multiple of 3.
