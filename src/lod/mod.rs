@@ -109,14 +109,15 @@ pub fn bake_lod(
     let impostor_seconds = t1.elapsed().as_secs_f64();
     // The model's own line and point arrays, kept as the farthest representation.
     if !mesh.skeleton.is_empty() {
+        let (lines, points) = reduce_skeleton(&mesh.skeleton);
         lod.skeleton = Some(section::SkeletonMeta {
-            segments: mesh.skeleton.lines.len() as u32,
-            points: mesh.skeleton.points.len() as u32,
+            segments: lines.len() as u32,
+            points: points.len() as u32,
             albedo: impostor::mean_albedo(&mesh, &textures),
             pixels: select::SKELETON_PIXELS,
         });
-        arrays.skeleton_lines = mesh.skeleton.lines.iter().flatten().copied().collect();
-        arrays.skeleton_points = mesh.skeleton.points.clone();
+        arrays.skeleton_lines = lines.iter().flatten().copied().collect();
+        arrays.skeleton_points = points;
     }
     let name = section::lod_section_name(mesh_section);
     let report = LodReport {
@@ -144,6 +145,36 @@ pub fn bake_lod(
         impostor_seconds,
     };
     Ok((section::to_section(&name, &lod, &arrays), report))
+}
+
+/// Segments and points a skeleton keeps (a model drawn as its skeleton covers a pixel or two:
+/// more cannot show, and each costs a line or a point per instance).
+pub const MAX_SKELETON_SEGMENTS: usize = 16;
+pub const MAX_SKELETON_POINTS: usize = 16;
+
+/// The skeleton the `lod` stage keeps: the [`MAX_SKELETON_SEGMENTS`] longest segments (ties to
+/// the earlier) and [`MAX_SKELETON_POINTS`] points evenly spaced in file order (point
+/// `⌊i·n/max⌋`), both in their original order.
+pub fn reduce_skeleton(sk: &crate::model::Skeleton) -> (Vec<[[f32; 3]; 2]>, Vec<[f32; 3]>) {
+    let len = |s: &[[f32; 3]; 2]| (0..3).map(|c| (s[1][c] - s[0][c]).powi(2)).sum::<f32>();
+    let mut order: Vec<usize> = (0..sk.lines.len()).collect();
+    order.sort_by(|&a, &b| {
+        len(&sk.lines[b])
+            .total_cmp(&len(&sk.lines[a]))
+            .then(a.cmp(&b))
+    });
+    order.truncate(MAX_SKELETON_SEGMENTS);
+    order.sort_unstable();
+    let lines = order.iter().map(|&i| sk.lines[i]).collect();
+    let n = sk.points.len();
+    let points = if n <= MAX_SKELETON_POINTS {
+        sk.points.clone()
+    } else {
+        (0..MAX_SKELETON_POINTS)
+            .map(|i| sk.points[i * n / MAX_SKELETON_POINTS])
+            .collect()
+    };
+    (lines, points)
 }
 
 /// The geometric error of the impostor: a point within `radius` of the centre, seen from a

@@ -453,3 +453,35 @@ fn the_skeleton_albedo_is_the_area_mean_in_linear_without_cut_out_texels() {
         .map(|v| (linear_to_srgb(v) * 255.0).round() as u8);
     assert_eq!(got, [want[0], want[1], want[2], 255]);
 }
+
+/// The kept skeleton by hand: of 20 segments of lengths 1..20 (shuffled), the 16 longest in
+/// file order; of 40 points, every 40/16-th (indices ⌊i·40/16⌋).
+#[test]
+fn a_skeleton_keeps_its_longest_segments_and_evenly_spaced_points() {
+    let lens: Vec<u32> = (0..20).map(|i| (i * 7) % 20 + 1).collect();
+    let sk = crate::model::Skeleton {
+        lines: lens
+            .iter()
+            .map(|&l| [[0.0, 0.0, 0.0], [0.0, 0.0, l as f32]])
+            .collect(),
+        points: (0..40).map(|i| [i as f32, 0.0, 0.0]).collect(),
+    };
+    let (lines, points) = crate::lod::reduce_skeleton(&sk);
+    let want: Vec<u32> = lens.iter().copied().filter(|&l| l > 4).collect();
+    assert_eq!(want.len(), 16);
+    assert_eq!(
+        lines.iter().map(|s| s[1][2] as u32).collect::<Vec<_>>(),
+        want
+    );
+    let idx: Vec<f32> = (0..16).map(|i| (i * 40 / 16) as f32).collect();
+    assert_eq!(points.iter().map(|p| p[0]).collect::<Vec<_>>(), idx);
+    // A small skeleton is kept whole.
+    let small = crate::model::Skeleton {
+        lines: sk.lines[..3].to_vec(),
+        points: sk.points[..5].to_vec(),
+    };
+    assert_eq!(
+        crate::lod::reduce_skeleton(&small),
+        (small.lines.clone(), small.points.clone())
+    );
+}
