@@ -496,6 +496,63 @@ fn with_instances(
         .collect()
 }
 
+/// The fixture's plant alone: the sections of [`impostor_sections`] with the first plant
+/// instance as the only instance (`at`: moved there, for a background), without or with terrain.
+struct OnePlant {
+    base: Vec<bake::pack::Section>,
+    name: String,
+    meta: bake::ingest::instances_section::InstancesMeta,
+    models: Vec<String>,
+    one: bake::model::Instance,
+    terrain: bool,
+}
+
+impl OnePlant {
+    fn new(
+        base: Vec<bake::pack::Section>,
+        name: String,
+        meta: bake::ingest::instances_section::InstancesMeta,
+        inst: &bake::model::Instances,
+        terrain: bool,
+    ) -> OnePlant {
+        let plant = meta
+            .mesh_sections
+            .iter()
+            .position(|m| m.ends_with("plant.txf"))
+            .expect("the fixture has a plant");
+        let one = inst
+            .items
+            .iter()
+            .find(|i| i.model as usize == plant)
+            .copied()
+            .unwrap();
+        OnePlant {
+            base,
+            name,
+            meta,
+            models: inst.models.clone(),
+            one,
+            terrain,
+        }
+    }
+
+    fn pack(&self, path: &std::path::Path, at: Option<[f32; 3]>) -> Pack {
+        let mut one = self.one;
+        if let Some(p) = at {
+            one.position = p;
+        }
+        let s = with_instances(
+            self.terrain,
+            &self.base,
+            &self.name,
+            &self.meta,
+            &self.models,
+            vec![one],
+        );
+        write_pack(path, &s)
+    }
+}
+
 /// Pixels of `img` that differ from the background `bg` (more than 2 steps in a channel), and
 /// their mean sRGB colour.
 fn coverage(img: &bake::model::Rgba8Image, bg: &bake::model::Rgba8Image) -> (usize, [f64; 3]) {
@@ -568,21 +625,9 @@ fn far_plant_views(terrain: bool) -> [bake::render::RenderOutput; 3] {
     use glam::Vec3;
     let dir = tempfile::tempdir().unwrap();
     let (base, name, meta, inst) = impostor_sections(dir.path());
-    let plant = meta
-        .mesh_sections
-        .iter()
-        .position(|m| m.ends_with("plant.txf"))
-        .expect("the fixture has a plant");
-    let one = inst
-        .items
-        .iter()
-        .find(|i| i.model as usize == plant)
-        .copied()
-        .unwrap();
-    let pack = write_pack(
-        &dir.path().join("one.bake"),
-        &with_instances(terrain, &base, &name, &meta, &inst.models, vec![one]),
-    );
+    let plant = OnePlant::new(base, name, meta, &inst, terrain);
+    let one = plant.one;
+    let pack = plant.pack(&dir.path().join("one.bake"), None);
     let scene = bake::render::scene::load_scene(&pack).unwrap();
     let m = scene
         .models
@@ -633,13 +678,8 @@ fn far_plant_views(terrain: bool) -> [bake::render::RenderOutput; 3] {
     assert_eq!(far.stats.triangles, 2 + far.stats.terrain_triangles);
     assert!(full.stats.triangles > 100 + far.stats.triangles);
     // The background: the plant moved behind the eye and 1 km up (its shadow far out of view).
-    let mut behind = one;
-    let back = Vec3::from(behind.position) + (eye - c) * 2.0 + Vec3::Z * 1000.0;
-    behind.position = back.to_array();
-    let bg_pack = write_pack(
-        &dir.path().join("bg.bake"),
-        &with_instances(terrain, &base, &name, &meta, &inst.models, vec![behind]),
-    );
+    let back = Vec3::from(one.position) + (eye - c) * 2.0 + Vec3::Z * 1000.0;
+    let bg_pack = plant.pack(&dir.path().join("bg.bake"), Some(back.to_array()));
     let bg = render_pack(&bg_pack, &opts(0.0)).unwrap();
     assert_eq!(bg.stats.instances, 0);
     if let Ok(o) = std::env::var("BAKE_IMPOSTOR_PNG") {
@@ -767,22 +807,8 @@ fn a_plant_below_its_skeleton_threshold_draws_its_lines_where_they_project() {
     use glam::{Vec3, Vec4Swizzles};
     let dir = tempfile::tempdir().unwrap();
     let (base, name, meta, inst) = impostor_sections(dir.path());
-    let base = with_skeleton_pixels(&base, 40.0);
-    let plant = meta
-        .mesh_sections
-        .iter()
-        .position(|m| m.ends_with("plant.txf"))
-        .expect("the fixture has a plant");
-    let one = inst
-        .items
-        .iter()
-        .find(|i| i.model as usize == plant)
-        .copied()
-        .unwrap();
-    let pack = write_pack(
-        &dir.path().join("one.bake"),
-        &with_instances(false, &base, &name, &meta, &inst.models, vec![one]),
-    );
+    let plant = OnePlant::new(with_skeleton_pixels(&base, 40.0), name, meta, &inst, false);
+    let pack = plant.pack(&dir.path().join("one.bake"), None);
     let scene = bake::render::scene::load_scene(&pack).unwrap();
     let m = scene
         .models
@@ -813,12 +839,8 @@ fn a_plant_below_its_skeleton_threshold_draws_its_lines_where_they_project() {
     assert_eq!(out.stats.instances, 1);
     assert_eq!(out.stats.impostor_instances, 0);
     assert_eq!(out.stats.triangles, 0, "no triangles: {:?}", out.stats);
-    let mut behind = one;
-    behind.position = (Vec3::from(behind.position) + (eye - c) * 2.0 + Vec3::Z * 1000.0).to_array();
-    let bg_pack = write_pack(
-        &dir.path().join("bg.bake"),
-        &with_instances(false, &base, &name, &meta, &inst.models, vec![behind]),
-    );
+    let back = Vec3::from(plant.one.position) + (eye - c) * 2.0 + Vec3::Z * 1000.0;
+    let bg_pack = plant.pack(&dir.path().join("bg.bake"), Some(back.to_array()));
     let bg = render_pack(&bg_pack, &opts).unwrap();
     assert_eq!(bg.stats.instances, 0);
     // The CPU projection of the placed skeleton, in pixels from the top-left corner.
