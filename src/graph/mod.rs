@@ -44,7 +44,9 @@ pub mod versions {
     pub const MATERIAL: u32 = 2;
     pub const TERRAIN: u32 = 1;
     /// 2: the sun's energy kept through resampling, the ring-mean replacement (issue 16).
-    pub const SKY: u32 = 2;
+    /// 3: resampling angles from tables shared between faces and a polynomial atan2 (≤ 1.2e-8
+    /// rad), f32 bilinear taps; irradiance summed per row (issue 19: values move in the last bits).
+    pub const SKY: u32 = 3;
     /// 2: duplicate vertices (position, normal, material) welded, sharing one transfer (issue 19).
     /// 3: no Russian roulette at the first hit (issue 19).
     pub const PRT: u32 = 3;

@@ -11,6 +11,7 @@ pub mod limits;
 pub mod max3ds;
 pub mod obj;
 pub mod raw;
+pub mod rgbe;
 pub mod sgi;
 pub mod skyimage;
 pub mod texture;

@@ -1,4 +1,4 @@
-//! HDR sky images: Radiance RGBE `.hdr` (crate `image`) and OpenEXR `.exr` (crate `exr`) read as
+//! HDR sky images: Radiance RGBE `.hdr` (`ingest::rgbe`) and OpenEXR `.exr` (crate `exr`) read as
 //! linear float RGB images, plus a small uncompressed RGBE writer for fixtures and tests.
 //!
 //! Readers take bytes ([`parse_hdr`], [`parse_exr`]) so tests and fuzzers drive them directly;
@@ -35,22 +35,30 @@ pub fn load(path: &Path) -> Result<FloatImage> {
     parsed.map_err(|e| Error::invalid(path, e))
 }
 
+/// Largest pixel buffer of a Radiance image (float RGB): the `image` crate's default limit.
+pub const MAX_HDR_BYTES: u64 = 512 << 20;
+
 /// Decodes a Radiance RGBE image (flat or run-length encoded scanlines).
+///
+/// The header is read first and its size checked before the pixel buffer is allocated; the
+/// scanlines are then decoded in parallel straight into it (`ingest::rgbe`).
 pub fn parse_hdr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
-    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), image::ImageFormat::Hdr);
-    // The default limits cap allocations (512 MiB), so a lying header cannot exhaust memory.
-    reader.limits(image::Limits::default());
-    let img = reader
-        .decode()
-        .map_err(|e| ParseError::new("Radiance header or scanlines", e.to_string()))?;
-    let rgb = img.to_rgb32f();
-    let (width, height) = rgb.dimensions();
-    check_size(width, height)?;
-    let pixels = rgb.pixels().map(|p| p.0).collect();
-    Ok(FloatImage {
-        width,
-        height,
-        pixels,
+    super::rgbe::parse(bytes, |width, height| {
+        check_size(width, height)?;
+        // A few header bytes cannot make us allocate more than this (the `image` crate's own
+        // default cap, which applied here while it decoded these files).
+        let bytes_needed = width as u64 * height as u64 * 12;
+        if bytes_needed > MAX_HDR_BYTES {
+            return Err(ParseError::new(
+                "Radiance header",
+                format!(
+                    "{width}×{height} pixels need {} MiB as float RGB; at most {} MiB for a Radiance image",
+                    bytes_needed >> 20,
+                    MAX_HDR_BYTES >> 20
+                ),
+            ));
+        }
+        Ok(())
     })
 }
 
@@ -264,6 +272,12 @@ mod tests {
         let e =
             parse_hdr(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 4\n\x01\x02").unwrap_err();
         assert!(e.place.contains("Radiance"), "{e}");
+        // A header that promises more than the allocation cap is refused before any pixel
+        // buffer exists (16384 × 8192 is within MAX_PIXELS but needs 1.5 GiB).
+        let e = parse_hdr(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8192 +X 16384\n\x02\x02")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("16384×8192 pixels need 1536 MiB"), "{e}");
         let e = parse_exr(b"not an exr file at all").unwrap_err();
         assert!(e.place.contains("OpenEXR"), "{e}");
         // The fuzzer's slow find (tests/data/fuzz/exr/): 533 bytes whose header promised a

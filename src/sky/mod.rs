@@ -26,6 +26,7 @@
 
 pub mod builtin;
 pub use crate::cube;
+mod resample;
 pub mod section;
 pub mod source_section;
 pub mod sun;
@@ -207,11 +208,11 @@ pub fn default_face_size(src: &SkySource) -> u32 {
     }
 }
 
-/// Reads the source in a world direction (Z up), bilinear.
+/// Reads the source in a world direction (Z up, need not be normalized), bilinear.
 fn sample_source(src: &SkySource, d: [f64; 3]) -> [f32; 3] {
     match src {
         SkySource::LatLong(img) => {
-            let (x, y) = cube::latlong_coords(d, img.width, img.height);
+            let (x, y) = cube::latlong_coords_fast(d, img.width, img.height);
             cube::sample_latlong(img, x, y)
         }
         SkySource::CubeYUp(c) => c.sample([d[0], d[2], -d[1]]),
@@ -268,18 +269,21 @@ fn coarse_median_luminance(src: &SkySource) -> f32 {
 /// the median sky) whose samples and corners differ by more than [`CONTRAST_REFINE`]× (in and
 /// around the sun) is averaged again over 4× finer samples, so the energy of features a few
 /// source pixels wide is kept: within 0.1 % for the true-size sun on a 2048-wide lat-long,
-/// against −5 … +15 % with one point sample per texel.
+/// against −5 … +15 % with one point sample per texel. Tiles of texels are the units of work
+/// (`resample`); a lat-long source shares its angle tables between faces there.
 pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeMap {
-    let (k, k_fine) = (
-        supersampling(src, face_size),
-        fine_supersampling(src, face_size),
-    );
-    let hot = HOT_REFINE * coarse_median_luminance(src);
+    let params = resample::TileParams {
+        n: face_size as usize,
+        k: supersampling(src, face_size) as usize,
+        k_fine: fine_supersampling(src, face_size) as usize,
+        hot: HOT_REFINE * coarse_median_luminance(src),
+        contrast: CONTRAST_REFINE,
+    };
+    let n = params.n;
     let (s_rot, c_rot) = (-rotate_deg.to_radians()).sin_cos();
-    let n = face_size as usize;
     // The source is read where the rotation came from: R_z(−angle)·d.
     let read = move |face: Face, s: f64, t: f64| {
-        let d = cube::normalize(face.direction(s, t));
+        let d = face.direction(s, t);
         let d = [
             c_rot * d[0] - s_rot * d[1],
             s_rot * d[0] + c_rot * d[1],
@@ -287,66 +291,90 @@ pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeM
         ];
         sample_source(src, d)
     };
-    // The solid-angle-weighted mean of k × k samples; also the samples' luminance range.
-    let mean = move |face: Face, col: f64, row: f64, k: u32| {
+    // The solid-angle-weighted mean of k × k samples of texel (col, row), sample by sample.
+    let fine = move |face: Face, col: usize, row: usize, k: usize| {
         let mut acc = [0.0f64; 3];
-        let (mut wsum, mut lo, mut hi) = (0.0, f32::INFINITY, f32::NEG_INFINITY);
+        let mut wsum = 0.0;
         for a in 0..k {
             for b in 0..k {
-                let s = 2.0 * (col + (a as f64 + 0.5) / k as f64) / n as f64 - 1.0;
-                let t = 2.0 * (row + (b as f64 + 0.5) / k as f64) / n as f64 - 1.0;
+                let s = 2.0 * (col as f64 + (a as f64 + 0.5) / k as f64) / n as f64 - 1.0;
+                let t = 2.0 * (row as f64 + (b as f64 + 0.5) / k as f64) / n as f64 - 1.0;
                 let r2 = 1.0 + s * s + t * t;
                 let w = 1.0 / (r2 * r2.sqrt());
                 let v = read(face, s, t);
-                let l = sun::luminance(v);
-                (lo, hi) = (lo.min(l), hi.max(l));
                 for c in 0..3 {
                     acc[c] += w * v[c] as f64;
                 }
                 wsum += w;
             }
         }
-        (acc.map(|v| (v / wsum) as f32), lo, hi)
+        acc.map(|v| (v / wsum) as f32)
     };
-    // Luminance at every texel corner, (n + 1)² per face (only where refining is possible).
-    let m = n + 1;
-    let corners: Vec<f32> = if k_fine > k {
-        (0..6 * m * m)
-            .into_par_iter()
-            .map(|i| {
-                let (face, rc) = (Face::ALL[i / (m * m)], i % (m * m));
-                let s = 2.0 * (rc % m) as f64 / n as f64 - 1.0;
-                let t = 2.0 * (rc / m) as f64 / n as f64 - 1.0;
-                sun::luminance(read(face, s, t))
-            })
-            .collect()
-    } else {
-        Vec::new()
+    let refine = params.k_fine > params.k;
+    let grids = resample::LatLongGrids::new(n, params.k);
+    let generic = GenericSource {
+        read: &read,
+        grids: &grids,
     };
-    let corners = &corners;
-    let texels = (0..6 * n)
+    let per_edge = n.div_ceil(resample::TILE);
+    let units: Vec<Vec<resample::Tile>> = (0..per_edge * per_edge)
         .into_par_iter()
-        .flat_map_iter(|fr| {
-            let (f, row) = (fr / n, fr % n);
-            let face = Face::ALL[f];
-            (0..n).map(move |col| {
-                let (v, mut lo, mut hi) = mean(face, col as f64, row as f64, k);
-                if k_fine > k {
-                    for (a, b) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                        let l = corners[f * m * m + (row + b) * m + col + a];
-                        (lo, hi) = (lo.min(l), hi.max(l));
-                    }
-                    if hi > hot && hi > CONTRAST_REFINE * lo.max(0.0) {
-                        return mean(face, col as f64, row as f64, k_fine).0;
-                    }
-                }
-                v
-            })
+        .map(|u| {
+            let block = (u / per_edge, u % per_edge);
+            let latlong = match src {
+                SkySource::LatLong(img) => Some(resample::LatLong::unit(
+                    img,
+                    &grids,
+                    (n, params.k),
+                    block,
+                    refine,
+                    rotate_deg.to_radians(),
+                )),
+                _ => None,
+            };
+            resample::unit_tiles(n, block)
+                .into_iter()
+                .map(|(face, r0, c0)| {
+                    let extent = resample::tile_extent(n, r0, c0);
+                    let texels = match &latlong {
+                        Some(ll) => resample::tile(&params, ll, &fine, face, (r0, c0), extent),
+                        None => resample::tile(&params, &generic, &fine, face, (r0, c0), extent),
+                    };
+                    (face, r0, c0, texels)
+                })
+                .collect()
         })
         .collect();
+    let mut texels = vec![[0.0f32; 3]; 6 * n * n];
+    for (face, r0, c0, tile) in units.iter().flatten() {
+        let cols = resample::tile_extent(n, *r0, *c0).1;
+        for (row, line) in tile.chunks(cols).enumerate() {
+            let at = (*face as usize * n + r0 + row) * n + c0;
+            texels[at..at + cols].copy_from_slice(line);
+        }
+    }
     CubeMap {
         size: face_size,
         texels,
+    }
+}
+
+/// Any source read direction by direction on the resampling grids.
+struct GenericSource<'a, R> {
+    read: &'a R,
+    grids: &'a resample::LatLongGrids,
+}
+
+impl<R: Fn(Face, f64, f64) -> [f32; 3] + Sync> resample::TileSource for GenericSource<'_, R> {
+    fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64) {
+        let (s, t) = (self.grids.us[i], self.grids.us[j]);
+        let r2 = 1.0 + s * s + t * t;
+        ((self.read)(face, s, t), 1.0 / (r2 * r2.sqrt()))
+    }
+
+    fn corner(&self, face: Face, i: usize, j: usize) -> f32 {
+        let (s, t) = (self.grids.corner_us[i], self.grids.corner_us[j]);
+        sun::luminance((self.read)(face, s, t))
     }
 }
 
@@ -385,8 +413,7 @@ pub fn bake_sky(src: &SkySource, opts: &SkyOptions) -> Result<SkyBake> {
     let full = source_to_cube(src, size, opts.rotate_deg);
     // The sun goes first: SH of a sky with its sun would ring (seed 000, 4.3).
     let (cube, sun) = sun::extract_sun(&full, &opts.sun);
-    let sky = sun::sky_irradiance(&cube);
-    let sh = sh::project_cube(&cube);
+    let (sky, sh) = rayon::join(|| sun::sky_irradiance(&cube), || sh::project_cube(&cube));
     Ok(SkyBake { cube, sun, sky, sh })
 }
 

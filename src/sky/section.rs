@@ -47,14 +47,16 @@ pub struct CubeSkyMeta {
 
 /// Encodes the sun-free sky cube map.
 pub fn cube_to_section(name: &str, source: &str, cube: &CubeMap, sky: &SkyIrradiance) -> Section {
-    let mut clamped = 0u64;
+    use rayon::prelude::*;
+    let clamped = cube
+        .texels
+        .par_iter()
+        .filter(|t| t.iter().any(|&v| v.is_nan() || v.abs() > F16_MAX))
+        .count() as u64;
     let texels: Vec<[u16; 4]> = cube
         .texels
-        .iter()
+        .par_iter()
         .map(|t| {
-            if t.iter().any(|&v| v.is_nan() || v.abs() > F16_MAX) {
-                clamped += 1;
-            }
             // NaN becomes 0; ±∞ and out-of-range values the largest half float.
             let h = |v: f32| {
                 f16::from_f32(if v.is_nan() {

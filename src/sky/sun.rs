@@ -105,9 +105,10 @@ pub use crate::color::luminance;
 
 /// Median luminance of the upper hemisphere's texels (the sky's typical brightness).
 fn median_sky_luminance(cube: &CubeMap, lum: &[f32]) -> f32 {
-    let mut up: Vec<f32> = (0..lum.len())
-        .filter(|&i| texel_index_direction(cube.size, i)[2] > 0.0)
-        .map(|i| lum[i])
+    let mut up: Vec<f32> = cube::texel_directions(cube.size)
+        .zip(lum)
+        .filter(|(d, _)| d[2] > 0.0)
+        .map(|(_, &l)| l)
         .collect();
     if up.is_empty() {
         return 0.0;
@@ -123,7 +124,10 @@ fn median_sky_luminance(cube: &CubeMap, lum: &[f32]) -> f32 {
 /// at least n + 1 texels.
 fn brightest_covering(cube: &CubeMap, omega: &[f64], area: f64) -> (Vec<usize>, usize) {
     let n2 = omega.len();
-    let lum: Vec<f32> = cube.texels.iter().map(|&t| luminance(t)).collect();
+    let lum: Vec<f32> = {
+        use rayon::prelude::*;
+        cube.texels.par_iter().map(|&t| luminance(t)).collect()
+    };
     let median = median_sky_luminance(cube, &lum);
     let threshold = if median > 0.0 {
         median * SUN_CONTRAST
@@ -190,8 +194,13 @@ fn ring_mean(cube: &CubeMap, omega: &[f64], sun: &[usize], dir: [f64; 3]) -> Opt
     let mut in_sun = sun.to_vec();
     in_sun.sort_unstable();
     let (mut acc, mut wsum) = ([0.0f64; 3], 0.0);
-    for (i, t) in cube.texels.iter().enumerate() {
-        let c = dot(texel_index_direction(cube.size, i));
+    for (i, (t, d)) in cube
+        .texels
+        .iter()
+        .zip(cube::texel_directions(cube.size))
+        .enumerate()
+    {
+        let c = dot(d);
         if c < cos_out || c > cos_in || in_sun.binary_search(&i).is_ok() {
             continue;
         }
@@ -273,19 +282,38 @@ pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
 
 /// The sky's irradiance on a horizontal surface, exact solid angles, and the thesis' estimate.
 pub fn sky_irradiance(cube: &CubeMap) -> SkyIrradiance {
+    use rayon::prelude::*;
     let omega = cube::solid_angle_table(cube.size);
-    let n2 = omega.len();
+    let n = cube.size as usize;
+    // Per face row (in parallel), then summed in row order: the same sums on any thread count.
+    let rows: Vec<([f64; 3], [f64; 3], usize)> = cube
+        .texels
+        .par_chunks(n)
+        .enumerate()
+        .map(|(fr, texels)| {
+            let (face, row) = (Face::ALL[fr / n], fr % n);
+            let (mut horizontal, mut sum, mut m) = ([0.0f64; 3], [0.0f64; 3], 0usize);
+            for (col, t) in texels.iter().enumerate() {
+                let d = cube::texel_direction(cube.size, face, col as u32, row as u32);
+                if d[2] <= 0.0 {
+                    continue;
+                }
+                m += 1;
+                for k in 0..3 {
+                    horizontal[k] += t[k] as f64 * d[2] * omega[row * n + col];
+                    sum[k] += t[k] as f64;
+                }
+            }
+            (horizontal, sum, m)
+        })
+        .collect();
     let (mut horizontal, mut sum, mut m) = ([0.0f64; 3], [0.0f64; 3], 0usize);
-    for (i, t) in cube.texels.iter().enumerate() {
-        let d = texel_index_direction(cube.size, i);
-        if d[2] <= 0.0 {
-            continue;
-        }
-        m += 1;
+    for (h, s, c) in rows {
         for k in 0..3 {
-            horizontal[k] += t[k] as f64 * d[2] * omega[i % n2];
-            sum[k] += t[k] as f64;
+            horizontal[k] += h[k];
+            sum[k] += s[k];
         }
+        m += c;
     }
     let tau = std::f64::consts::TAU;
     SkyIrradiance {

@@ -1,0 +1,383 @@
+//! The work of [`super::source_to_cube`]: tiles of cube texels, each the solid-angle-weighted mean
+//! of `k × k` source samples, refined where the sun is. For a lat-long source the trigonometry is
+//! shared between faces (it was four fifths of the stage).
+//!
+//! Sample points sit on one grid per face: subsample `i` of `N = n·k` along a face edge is at
+//! `u_i = 2(i + ½)/N − 1` (texel `col`, subsample `a`: `i = col·k + a`), texel corners at
+//! `c_j = 2j/n − 1`. On that grid the lat-long angles of the six faces come from a few tables:
+//!
+//! ```text
+//! face  direction       φ                θ
+//! +X    ( 1, −t, −s)    −atan t          π − S(t, s)      S(q, p) = atan2(√(1 + q²), p)
+//! −X    (−1, −t,  s)    π + atan t       S(t, s)
+//! +Y    ( s,  1,  t)    π/2 − atan s     S(s, t)
+//! −Y    ( s, −1, −t)    −π/2 + atan s    π − S(s, t)
+//! +Z    ( s, −t,  1)    Φ(s, t)          Z(s, t)          Φ = atan2(−t, s), Z = atan2(√(s² + t²), 1)
+//! −Z    (−s, −t, −1)    π − Φ(s, t)      π − Z(s, t)
+//! ```
+//!
+//! So one unit of work is a tile position (row block R, column block C): it computes S and the
+//! weights over (t ∈ R, s ∈ C) once and uses them for ±X at (R, C) and, transposed, for ±Y at
+//! (C, R); Φ and Z serve ±Z at (R, C). That is a third of the angle evaluations of a sample-by-
+//! sample resampling, and each tile reads a compact patch of the source.
+
+use super::cube::{self, Face};
+use crate::model::FloatImage;
+use std::f64::consts::{FRAC_PI_2, PI, TAU};
+
+/// Texels per edge of a tile.
+pub const TILE: usize = 16;
+
+/// The tiles of one work unit: (face, first row, first column, rows × columns texels).
+pub type Tile = (Face, usize, usize, Vec<[f32; 3]>);
+
+/// How a tile reads its source.
+pub trait TileSource: Sync {
+    /// The sample at subsample (i, j) of `face` (i along s, j along t) and its weight (the
+    /// solid-angle Jacobian 1/(1 + s² + t²)^{3/2}).
+    fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64);
+    /// The luminance at corner (i, j) of `face`.
+    fn corner(&self, face: Face, i: usize, j: usize) -> f32;
+}
+
+/// What a tile needs besides its source.
+#[derive(Debug, Clone, Copy)]
+pub struct TileParams {
+    /// Texels per face edge.
+    pub n: usize,
+    /// Subsamples per texel edge.
+    pub k: usize,
+    /// Subsamples per texel edge where the texel is refined (≥ k; equal: never refined).
+    pub k_fine: usize,
+    /// A texel is refined where its brightest sample or corner is above this …
+    pub hot: f32,
+    /// … and more than this factor above its darkest.
+    pub contrast: f32,
+}
+
+/// One tile of `face` (rows `r0..r0 + rows`, columns `c0..c0 + cols`); `fine(face, col, row, k)`
+/// is the generic k × k mean used for refined texels.
+pub fn tile(
+    p: &TileParams,
+    src: &impl TileSource,
+    fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + ?Sized),
+    face: Face,
+    (r0, c0): (usize, usize),
+    (rows, cols): (usize, usize),
+) -> Vec<[f32; 3]> {
+    let refine = p.k_fine > p.k;
+    let m = cols + 1;
+    let corners: Vec<f32> = if refine {
+        (0..(rows + 1) * m)
+            .map(|x| src.corner(face, c0 + x % m, r0 + x / m))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let k = p.k;
+    // The walk follows the source's rows: on ±X a face column (fixed s, varying t) runs along a
+    // lat-long row, a face row down a lat-long column; elsewhere rows run along rows (±Y) or it
+    // does not matter (±Z).
+    let along_columns = matches!(face, Face::PosX | Face::NegX);
+    let mut out = vec![[0.0f32; 3]; rows * cols];
+    for outer in 0..if along_columns { cols } else { rows } {
+        for inner in 0..if along_columns { rows } else { cols } {
+            let (row, col) = if along_columns {
+                (inner, outer)
+            } else {
+                (outer, inner)
+            };
+            let mut acc = [0.0f64; 3];
+            let (mut wsum, mut lo, mut hi) = (0.0, f32::INFINITY, f32::NEG_INFINITY);
+            for x in 0..k {
+                for y in 0..k {
+                    let (a, b) = if along_columns { (x, y) } else { (y, x) };
+                    let (v, w) = src.sample(face, (c0 + col) * k + a, (r0 + row) * k + b);
+                    if refine {
+                        let l = crate::color::luminance(v);
+                        (lo, hi) = (lo.min(l), hi.max(l));
+                    }
+                    for c in 0..3 {
+                        acc[c] += w * v[c] as f64;
+                    }
+                    wsum += w;
+                }
+            }
+            let mut v = acc.map(|c| (c / wsum) as f32);
+            if refine {
+                for (a, b) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let l = corners[(row + b) * m + col + a];
+                    (lo, hi) = (lo.min(l), hi.max(l));
+                }
+                if hi > p.hot && hi > p.contrast * lo.max(0.0) {
+                    v = fine(face, c0 + col, r0 + row, p.k_fine);
+                }
+            }
+            out[row * cols + col] = v;
+        }
+    }
+    out
+}
+
+/// The six tiles of the work unit at block (row block, column block) `(br, bc)`: ±X and ±Z at
+/// (br, bc), ±Y at (bc, br) (the transposed position, where [`LatLong`] shares its tables).
+pub fn unit_tiles(n: usize, (br, bc): (usize, usize)) -> [(Face, usize, usize); 6] {
+    let (r, c) = (br * TILE, bc * TILE);
+    [
+        (Face::PosX, r, c),
+        (Face::NegX, r, c),
+        (Face::PosY, c, r),
+        (Face::NegY, c, r),
+        (Face::PosZ, r, c),
+        (Face::NegZ, r, c),
+    ]
+    .map(|(f, r0, c0)| {
+        debug_assert!(r0 < n && c0 < n);
+        (f, r0, c0)
+    })
+}
+
+/// Rows and columns of the tile starting at (r0, c0).
+pub fn tile_extent(n: usize, r0: usize, c0: usize) -> (usize, usize) {
+    (TILE.min(n - r0), TILE.min(n - c0))
+}
+
+/// The tables of one block of a grid: rows q ∈ `q0..q0 + nq` (t of ±X/±Z, s of ±Y), columns
+/// p ∈ `p0..p0 + np`.
+struct Block {
+    q0: usize,
+    p0: usize,
+    np: usize,
+    /// S(u_q, u_p) = atan2(√(1 + u_q²), u_p).
+    side: Vec<f64>,
+    /// Φ(u_p, u_q) = atan2(−u_q, u_p).
+    top_phi: Vec<f64>,
+    /// Z(u_p, u_q) = atan2(√(u_p² + u_q²), 1).
+    top_theta: Vec<f64>,
+    /// 1/(1 + u_p² + u_q²)^{3/2} (symmetric, so one table for both orders).
+    weight: Vec<f64>,
+}
+
+impl Block {
+    fn new(us: &[f64], (q0, nq): (usize, usize), (p0, np): (usize, usize)) -> Block {
+        let len = nq * np;
+        let (mut side, mut top_phi, mut top_theta, mut weight) = (
+            Vec::with_capacity(len),
+            Vec::with_capacity(len),
+            Vec::with_capacity(len),
+            Vec::with_capacity(len),
+        );
+        for &q in &us[q0..q0 + nq] {
+            for &p in &us[p0..p0 + np] {
+                side.push(cube::fast_atan2((1.0 + q * q).sqrt(), p));
+                top_phi.push(cube::fast_atan2(-q, p));
+                top_theta.push(cube::fast_atan2((p * p + q * q).sqrt(), 1.0));
+                let r2 = 1.0 + p * p + q * q;
+                weight.push(1.0 / (r2 * r2.sqrt()));
+            }
+        }
+        Block {
+            q0,
+            p0,
+            np,
+            side,
+            top_phi,
+            top_theta,
+            weight,
+        }
+    }
+
+    fn at(&self, q: usize, p: usize) -> usize {
+        (q - self.q0) * self.np + p - self.p0
+    }
+}
+
+/// A lat-long source with the tables of one work unit: subsample and corner grids.
+pub struct LatLong<'a> {
+    img: &'a FloatImage,
+    /// atan(u_i) of every subsample, and of every corner.
+    atan: &'a [f64],
+    atan_corner: &'a [f64],
+    samples: Block,
+    corners: Option<Block>,
+    /// The sky's rotation about +Z in [0, 2π): the source is read at φ − rot.
+    rot: f64,
+}
+
+/// The per-grid tables shared by every work unit: coordinates and their arctangents.
+pub struct LatLongGrids {
+    pub us: Vec<f64>,
+    pub atan: Vec<f64>,
+    pub corner_us: Vec<f64>,
+    pub atan_corner: Vec<f64>,
+}
+
+impl LatLongGrids {
+    pub fn new(n: usize, k: usize) -> LatLongGrids {
+        let big = n * k;
+        let us: Vec<f64> = (0..big)
+            .map(|i| 2.0 * (i as f64 + 0.5) / big as f64 - 1.0)
+            .collect();
+        let corner_us: Vec<f64> = (0..=n).map(|j| 2.0 * j as f64 / n as f64 - 1.0).collect();
+        let atan = us.iter().map(|&u| cube::fast_atan2(u, 1.0)).collect();
+        let atan_corner = corner_us
+            .iter()
+            .map(|&u| cube::fast_atan2(u, 1.0))
+            .collect();
+        LatLongGrids {
+            us,
+            atan,
+            corner_us,
+            atan_corner,
+        }
+    }
+}
+
+impl<'a> LatLong<'a> {
+    /// The tables of the unit at block (br, bc) of an n-texel face with k subsamples per texel
+    /// (`corners`: also the corner grid's).
+    pub fn unit(
+        img: &'a FloatImage,
+        grids: &'a LatLongGrids,
+        (n, k): (usize, usize),
+        (br, bc): (usize, usize),
+        corners: bool,
+        rotate_rad: f64,
+    ) -> LatLong<'a> {
+        let (r0, c0) = (br * TILE, bc * TILE);
+        let (rows, cols) = tile_extent(n, r0, c0);
+        let samples = Block::new(&grids.us, (r0 * k, rows * k), (c0 * k, cols * k));
+        let corners = corners.then(|| Block::new(&grids.corner_us, (r0, rows + 1), (c0, cols + 1)));
+        LatLong {
+            img,
+            atan: &grids.atan,
+            atan_corner: &grids.atan_corner,
+            samples,
+            corners,
+            rot: rotate_rad.rem_euclid(TAU),
+        }
+    }
+
+    /// Lat-long pixel coordinates of grid point (i, j) of `face` (i along s, j along t).
+    fn coords(&self, block: &Block, atan: &[f64], face: Face, i: usize, j: usize) -> (f64, f64) {
+        let (phi, theta) = match face {
+            Face::PosX => (-atan[j], PI - block.side[block.at(j, i)]),
+            Face::NegX => (PI + atan[j], block.side[block.at(j, i)]),
+            Face::PosY => (FRAC_PI_2 - atan[i], block.side[block.at(i, j)]),
+            Face::NegY => (atan[i] - FRAC_PI_2, PI - block.side[block.at(i, j)]),
+            Face::PosZ => (
+                block.top_phi[block.at(j, i)],
+                block.top_theta[block.at(j, i)],
+            ),
+            Face::NegZ => (
+                PI - block.top_phi[block.at(j, i)],
+                PI - block.top_theta[block.at(j, i)],
+            ),
+        };
+        // φ − rot lies in (−3π, 2π): at most two turns bring it into [0, 2π).
+        let mut phi = phi - self.rot;
+        while phi < 0.0 {
+            phi += TAU;
+        }
+        while phi >= TAU {
+            phi -= TAU;
+        }
+        let (w, h) = (self.img.width as f64, self.img.height as f64);
+        (phi * (w / TAU), theta * (h / PI))
+    }
+
+    fn weight(block: &Block, face: Face, i: usize, j: usize) -> f64 {
+        match face {
+            Face::PosY | Face::NegY => block.weight[block.at(i, j)],
+            _ => block.weight[block.at(j, i)],
+        }
+    }
+
+    /// [`Self::coords`] of a subsample, for tests.
+    #[cfg(test)]
+    pub fn sample_coords(&self, face: Face, i: usize, j: usize) -> (f64, f64) {
+        self.coords(&self.samples, self.atan, face, i, j)
+    }
+}
+
+impl TileSource for LatLong<'_> {
+    fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64) {
+        let (x, y) = self.coords(&self.samples, self.atan, face, i, j);
+        (
+            cube::sample_latlong(self.img, x, y),
+            Self::weight(&self.samples, face, i, j),
+        )
+    }
+
+    fn corner(&self, face: Face, i: usize, j: usize) -> f32 {
+        let block = self
+            .corners
+            .as_ref()
+            .expect("corner tables exist where texels are refined");
+        let (x, y) = self.coords(block, self.atan_corner, face, i, j);
+        crate::color::luminance(cube::sample_latlong(self.img, x, y))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Oracle: libm's acos and atan2 of the normalized, rotated direction of the grid point.
+    fn exact(face: Face, s: f64, t: f64, rotate_rad: f64, w: u32, h: u32) -> (f64, f64) {
+        let d = cube::normalize(face.direction(s, t));
+        let (sr, cr) = (-rotate_rad).sin_cos();
+        let d = [cr * d[0] - sr * d[1], sr * d[0] + cr * d[1], d[2]];
+        cube::latlong_coords(d, w, h)
+    }
+
+    #[test]
+    fn the_shared_tables_give_every_faces_exact_lat_long_coordinates() {
+        let img = FloatImage {
+            width: 64,
+            height: 32,
+            pixels: vec![[0.0; 3]; 64 * 32],
+        };
+        let mut worst = 0.0f64;
+        for (n, k) in [(5, 1), (37, 2), (20, 3)] {
+            let grids = LatLongGrids::new(n, k);
+            let per_edge = n.div_ceil(TILE);
+            for rot in [0.0f64, 37.0, -200.0, 359.9] {
+                let rot = rot.to_radians();
+                for u in 0..per_edge * per_edge {
+                    let block = (u / per_edge, u % per_edge);
+                    let ll = LatLong::unit(&img, &grids, (n, k), block, true, rot);
+                    for (face, r0, c0) in unit_tiles(n, block) {
+                        let (rows, cols) = tile_extent(n, r0, c0);
+                        let mut check = |got: (f64, f64), want: (f64, f64)| {
+                            let dx = (got.0 - want.0).abs();
+                            // (At a pole, the centre of ±Z when n·k is odd, φ is arbitrary.)
+                            let pole = want.1 == 0.0 || want.1 == img.height as f64;
+                            let dx = if pole {
+                                0.0
+                            } else {
+                                dx.min(img.width as f64 - dx)
+                            };
+                            worst = worst.max(dx).max((got.1 - want.1).abs());
+                        };
+                        for j in r0 * k..(r0 + rows) * k {
+                            for i in c0 * k..(c0 + cols) * k {
+                                let (s, t) = (grids.us[i], grids.us[j]);
+                                check(ll.sample_coords(face, i, j), exact(face, s, t, rot, 64, 32));
+                            }
+                        }
+                        let block = ll.corners.as_ref().unwrap();
+                        for j in r0..=r0 + rows {
+                            for i in c0..=c0 + cols {
+                                let (s, t) = (grids.corner_us[i], grids.corner_us[j]);
+                                let got = ll.coords(block, &grids.atan_corner, face, i, j);
+                                check(got, exact(face, s, t, rot, 64, 32));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(worst < 1e-6, "worst {worst} px");
+    }
+}
