@@ -226,7 +226,7 @@ mod tests {
     }
 
     #[test]
-    fn hdr_round_trips_through_the_image_crate_decoder() {
+    fn hdr_round_trips_through_the_writer_and_the_decoder() {
         let img = gradient(13, 7);
         let back = parse_hdr(&write_hdr(&img)).unwrap();
         assert_eq!((back.width, back.height), (13, 7));
