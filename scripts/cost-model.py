@@ -33,6 +33,9 @@ def parse_ninja(text):
             outs = head[:j].split()
             rest = head[j + 1:].split()
             rule, deps = rest[0], rest[1:]
+            if rule == "plan":  # the generator edge that remakes build.ninja: not an action
+                cur = None
+                continue
             ins = []
             mode = "explicit"
             for d in deps:

@@ -434,3 +434,54 @@ fn a_plan_with_a_relative_bake_moves_with_its_folder() {
     let built = std::fs::read(moved.join("build/scene.bake")).unwrap();
     assert_eq!(built, reference(&moved.join("build"), "ref.bake"));
 }
+
+#[test]
+fn the_plan_remakes_itself_when_the_scene_changes() {
+    if !common::tool_available("ninja", "the Ninja build of a changed scene") {
+        return;
+    }
+    let root = tempfile::tempdir().unwrap();
+    let build = planned(root.path());
+    ninja(&build, &[]);
+    assert!(ninja(&build, &["-n"]).contains("no work to do"));
+
+    // The scene changes: one plant moves, another is removed (the file is rewritten, newer).
+    let eco = root.path().join("fx/scene.eco");
+    let text = std::fs::read_to_string(&eco).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let first = lines.iter().position(|l| l.starts_with("plant ")).unwrap();
+    let mut changed: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+    changed[first] = "plant 0.5000 0.5000 1.000 90.0".into();
+    changed.remove(first + 1);
+    std::fs::write(&eco, changed.join("\n") + "\n").unwrap();
+    let mtime = |p: &Path| std::fs::metadata(p).unwrap().modified().unwrap();
+    assert!(mtime(&eco) > mtime(&build.join("build.ninja")));
+
+    // One `ninja` remakes build.ninja first, then builds the changed scene: the pack of a
+    // single-process bake of the changed scene.
+    let out = ninja(&build, &[]);
+    assert!(
+        out.contains("bake plan (the scene or the pipeline changed)"),
+        "{out}"
+    );
+    let built = std::fs::read(build.join("scene.bake")).unwrap();
+    assert!(
+        built == reference(&build, "reference.bake"),
+        "the rebuilt pack differs from `bake SCENE.eco` of the changed scene"
+    );
+    assert!(ninja(&build, &["-n"]).contains("no work to do"));
+
+    // The remade build.ninja is the one `bake plan` writes from scratch with the same arguments.
+    let args = plan_args(&["--lightmap-shards", "2"]);
+    let mut fresh: Vec<&str> = args.clone();
+    let o = fresh.iter().position(|a| *a == "-o").unwrap();
+    fresh[o + 1] = "fresh";
+    ok(
+        run_in(root.path(), &common::bake_bin(), &fresh),
+        "bake plan",
+    );
+    let remade = std::fs::read_to_string(build.join("build.ninja")).unwrap();
+    let again = std::fs::read_to_string(root.path().join("fresh/build.ninja")).unwrap();
+    assert_eq!(remade, again);
+    assert!(remade.contains("generator = 1"), "{remade}");
+}

@@ -61,6 +61,12 @@ pub struct Plan {
     pub output: PathBuf,
     /// Every source file (not made by an action) some action reads.
     pub sources: Vec<PathBuf>,
+    /// The `bake plan` arguments that make this plan again when run in its folder (paths relative
+    /// to it; without the engine, `-o` and `--bake`, which the emitter adds).
+    pub replan_args: Vec<String>,
+    /// The files whose change makes the plan itself stale: the scene files given and the pipeline
+    /// file (a model's contents only change its actions' outputs).
+    pub replan_inputs: Vec<PathBuf>,
 }
 
 /// `path` (absolute or relative to the working directory) made absolute without touching the
@@ -447,10 +453,22 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
         .collect();
     sources.sort();
     sources.dedup();
+    let mut replan_args = common.clone();
+    if let Some(n) = opts.shards {
+        replan_args.extend(["--shards".into(), n.to_string()]);
+    }
+    if let Some(n) = opts.lightmap_shards {
+        replan_args.extend(["--lightmap-shards".into(), n.to_string()]);
+    }
+    if opts.output.is_some() {
+        replan_args.extend(["--output".into(), arg(&output)]);
+    }
     Ok(Plan {
         actions,
         output,
         sources,
+        replan_args,
+        replan_inputs: with_pipeline(scenes_rel),
     })
 }
 

@@ -1,5 +1,5 @@
 //! The plan as a Ninja file (`bake plan --emit ninja`): one build statement per action, run by
-//! `ninja -C DIR`.
+//! `ninja -C DIR`, and one that makes `build.ninja` again when the scene or pipeline changes.
 
 use super::{Plan, shell_quote};
 use crate::error::Result;
@@ -48,6 +48,21 @@ pub fn build_ninja(plan: &Plan, bake: &Path) -> String {
             escape_value(&a.id)
         ));
     }
+    // The plan remakes itself where the scene or the pipeline file changed: Ninja checks its
+    // manifest first and, when it is older than these, runs `bake plan` again and restarts.
+    let mut replan: Vec<String> = vec!["plan".into()];
+    replan.extend(plan.replan_args.iter().cloned());
+    replan.extend(["--emit", "ninja", "-o", "."].map(String::from));
+    replan.extend(["--bake".into(), bake.display().to_string()]);
+    let replan: Vec<String> = replan.iter().map(|s| shell_quote(s)).collect();
+    let from: Vec<String> = plan.replan_inputs.iter().map(|p| escape_path(p)).collect();
+    t.push_str(&format!(
+        "rule plan\n  command = {} -q $args\n  description = bake plan (the scene or the pipeline changed)\n  generator = 1\n\n\
+         build build.ninja: plan {} | {tool}\n  args = {}\n\n",
+        escape_value(&shell_quote(&bake.display().to_string())),
+        from.join(" "),
+        escape_value(&replan.join(" "))
+    ));
     t.push_str(&format!("default {}\n", escape_path(&plan.output)));
     t
 }
