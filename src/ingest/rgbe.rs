@@ -85,17 +85,12 @@ pub fn header(bytes: &[u8]) -> Result<(u32, u32, usize), ParseError> {
     }
 }
 
-/// Decodes the scanlines after the header into `pixels` (`width × height`, row 0 first).
-pub fn decode(
-    bytes: &[u8],
-    (width, height): (u32, u32),
-    data: usize,
-    pixels: &mut [[f32; 3]],
-) -> Result<(), ParseError> {
+/// Pass 1, sequential: where each scanline starts, every length checked (runs are skipped, not
+/// expanded). Needs no pixel buffer, so a truncated file fails before one is allocated.
+fn locate(bytes: &[u8], (width, height): (u32, u32), data: usize) -> Result<Vec<Line>, ParseError> {
     let w = width as usize;
-    debug_assert_eq!(pixels.len(), w * height as usize);
-    // Pass 1, sequential: where each scanline starts (runs are skipped, not expanded).
-    let mut lines = Vec::with_capacity(height as usize);
+    // (Every scanline takes at least 4 bytes: the capacity is bounded by the file, not the header.)
+    let mut lines = Vec::with_capacity((height as usize).min(bytes.len() / 4 + 1));
     let mut at = data;
     for row in 0..height as usize {
         let line = match bytes.get(at..at + 4) {
@@ -109,15 +104,18 @@ pub fn decode(
         };
         lines.push(line);
     }
-    // Pass 2, parallel: each (checked) scanline into its row.
-    pixels.par_chunks_mut(w).zip(lines).for_each_init(
-        || vec![[0u8; 4]; w],
+    Ok(lines)
+}
+
+/// Pass 2, parallel: each located (checked) scanline into its row of `pixels`.
+fn expand(bytes: &[u8], width: usize, lines: Vec<Line>, pixels: &mut [[f32; 3]]) {
+    pixels.par_chunks_mut(width).zip(lines).for_each_init(
+        || vec![[0u8; 4]; width],
         |rgbe, (out, line)| match line {
             Line::Components(from) => decode_components(bytes, from, rgbe, out),
             Line::Flat(from) => decode_flat(bytes, from, out),
         },
     );
-    Ok(())
 }
 
 fn ended(row: usize, at: usize) -> ParseError {
@@ -234,10 +232,11 @@ fn decode_flat(bytes: &[u8], mut at: usize, out: &mut [[f32; 3]]) {
     while pos < width {
         let p = &bytes[at..at + 4];
         if is_marker(p) {
-            let len = p[3] as usize * mult;
+            // (Saturating as in `skip_flat`, which checked that the run fits.)
+            let len = (p[3] as usize).saturating_mul(mult);
             out[pos..pos + len].fill(prev);
             pos += len;
-            mult *= 256;
+            mult = mult.saturating_mul(256);
         } else {
             prev = to_float([p[0], p[1], p[2], p[3]]);
             out[pos] = prev;
@@ -266,8 +265,9 @@ pub fn parse(
 ) -> Result<FloatImage, ParseError> {
     let (width, height, data) = header(bytes)?;
     check(width, height)?;
+    let lines = locate(bytes, (width, height), data)?;
     let mut pixels = vec![[0.0f32; 3]; width as usize * height as usize];
-    decode(bytes, (width, height), data, &mut pixels)?;
+    expand(bytes, width as usize, lines, &mut pixels);
     Ok(FloatImage {
         width,
         height,
@@ -446,6 +446,18 @@ mod tests {
                 .contains("reaching pixel 201")
         );
         assert!(oracle(&over).is_err());
+        // Ten zero-length run markers in a row (the multiplier passes 256⁸): no overflow, no run.
+        let mut zeros = head(4, 1);
+        zeros.extend([9, 9, 9, 130]);
+        for _ in 0..10 {
+            zeros.extend([1, 1, 1, 0]);
+        }
+        zeros.extend([8, 8, 8, 130, 7, 7, 7, 130, 6, 6, 6, 130]);
+        let px = ours(&zeros).unwrap();
+        assert_eq!(
+            px[1..].iter().map(|p| p[0] * 64.0).collect::<Vec<_>>(),
+            [8.0, 7.0, 6.0]
+        );
         // Headers.
         for (bytes, place) in [
             (&b"RADIANCE\n\n-Y 1 +X 1\n"[..], "line 1"),
