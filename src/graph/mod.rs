@@ -67,6 +67,24 @@ pub mod versions {
     pub const SVO: u32 = 1;
     /// 2: the compact section layout (issue 15).
     pub const LINESPACE: u32 = 2;
+
+    /// Every stage's version. The whole build's key includes them, so an output written by a
+    /// build whose stages had other versions is not taken as up to date.
+    pub const ALL: [(&str, u32); 13] = [
+        ("ingest", INGEST),
+        ("material", MATERIAL),
+        ("terrain", TERRAIN),
+        ("sky", SKY),
+        ("prt", PRT),
+        ("lod", LOD),
+        ("lightmap", LIGHTMAP),
+        ("atlas", ATLAS),
+        ("envmaps", ENVMAPS),
+        ("cluster", CLUSTER),
+        ("bittree", BITTREE),
+        ("svo", SVO),
+        ("linespace", LINESPACE),
+    ];
 }
 
 /// Where stage units are cached.
@@ -865,9 +883,21 @@ pub(crate) fn ingest_model(name: &str, path: &Path, policy: &ingest::ReadPolicy)
     })
 }
 
-/// The key of a whole build: version, pipeline, command-line inputs and every file's content.
+/// The key of a whole build: version, the stages' versions, pipeline, command-line inputs and
+/// every file's content.
 pub(crate) fn build_key(opts: &BuildOptions, version: &str, files: &[FileDep]) -> Key {
+    build_key_with(opts, version, &versions::ALL, files)
+}
+
+/// [`build_key`] with the stages' versions given.
+fn build_key_with(
+    opts: &BuildOptions,
+    version: &str,
+    stages: &[(&str, u32)],
+    files: &[FileDep],
+) -> Key {
     let mut k = KeyBuilder::new(version, "build", 1, "");
+    k.options(&stages);
     k.options(&opts.pipeline);
     k.options(&(
         &opts.scenes,
@@ -961,4 +991,31 @@ pub fn write_depfile(path: &Path, target: &Path, files: &[PathBuf]) -> Result<()
     }
     text.push('\n');
     crate::pack::write_atomic(path, text.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_stage_version_enters_the_build_key() {
+        // An output baked before a stage's version changed must not count as up to date (it
+        // did: the key held only the crate version, and `bake SCENE.eco` kept a stale pack).
+        let opts = BuildOptions::default();
+        let now = build_key(&opts, "0.1.0", &[]).hex();
+        assert_eq!(
+            now,
+            build_key_with(&opts, "0.1.0", &versions::ALL, &[]).hex()
+        );
+        let mut names: Vec<&str> = versions::ALL.iter().map(|s| s.0).collect();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), versions::ALL.len());
+        for i in 0..versions::ALL.len() {
+            let mut bumped = versions::ALL;
+            bumped[i].1 += 1;
+            let key = build_key_with(&opts, "0.1.0", &bumped, &[]).hex();
+            assert_ne!(key, now, "{}", bumped[i].0);
+        }
+    }
 }
