@@ -100,6 +100,13 @@ pub fn face_coords(d: [f64; 3]) -> (Face, f64, f64) {
     }
 }
 
+/// dω / (ds dt) at face coordinates (s, t): 1 / (1 + s² + t²)^{3/2} (the weight of a sample when
+/// a texel is averaged over its solid angle).
+pub fn solid_angle_density(s: f64, t: f64) -> f64 {
+    let r2 = 1.0 + s * s + t * t;
+    1.0 / (r2 * r2.sqrt())
+}
+
 /// `F(s, t)`: the solid angle of the face rectangle [0, s] × [0, t] (signed).
 fn area_element(s: f64, t: f64) -> f64 {
     (s * t).atan2((s * s + t * t + 1.0).sqrt())

@@ -299,8 +299,7 @@ pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeM
             for b in 0..k {
                 let s = 2.0 * (col as f64 + (a as f64 + 0.5) / k as f64) / n as f64 - 1.0;
                 let t = 2.0 * (row as f64 + (b as f64 + 0.5) / k as f64) / n as f64 - 1.0;
-                let r2 = 1.0 + s * s + t * t;
-                let w = 1.0 / (r2 * r2.sqrt());
+                let w = cube::solid_angle_density(s, t);
                 let v = read(face, s, t);
                 for c in 0..3 {
                     acc[c] += w * v[c] as f64;
@@ -312,7 +311,7 @@ pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeM
     };
     let refine = params.k_fine > params.k;
     let grids = resample::LatLongGrids::new(n, params.k);
-    let generic = GenericSource {
+    let generic = resample::Generic {
         read: &read,
         grids: &grids,
     };
@@ -356,25 +355,6 @@ pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeM
     CubeMap {
         size: face_size,
         texels,
-    }
-}
-
-/// Any source read direction by direction on the resampling grids.
-struct GenericSource<'a, R> {
-    read: &'a R,
-    grids: &'a resample::LatLongGrids,
-}
-
-impl<R: Fn(Face, f64, f64) -> [f32; 3] + Sync> resample::TileSource for GenericSource<'_, R> {
-    fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64) {
-        let (s, t) = (self.grids.us[i], self.grids.us[j]);
-        let r2 = 1.0 + s * s + t * t;
-        ((self.read)(face, s, t), 1.0 / (r2 * r2.sqrt()))
-    }
-
-    fn corner(&self, face: Face, i: usize, j: usize) -> f32 {
-        let (s, t) = (self.grids.corner_us[i], self.grids.corner_us[j]);
-        sun::luminance((self.read)(face, s, t))
     }
 }
 

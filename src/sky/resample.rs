@@ -123,6 +123,7 @@ pub fn tile(
 /// (br, bc), ±Y at (bc, br) (the transposed position, where [`LatLong`] shares its tables).
 pub fn unit_tiles(n: usize, (br, bc): (usize, usize)) -> [(Face, usize, usize); 6] {
     let (r, c) = (br * TILE, bc * TILE);
+    debug_assert!(r < n && c < n);
     [
         (Face::PosX, r, c),
         (Face::NegX, r, c),
@@ -131,10 +132,6 @@ pub fn unit_tiles(n: usize, (br, bc): (usize, usize)) -> [(Face, usize, usize); 
         (Face::PosZ, r, c),
         (Face::NegZ, r, c),
     ]
-    .map(|(f, r0, c0)| {
-        debug_assert!(r0 < n && c0 < n);
-        (f, r0, c0)
-    })
 }
 
 /// Rows and columns of the tile starting at (r0, c0).
@@ -172,8 +169,7 @@ impl Block {
                 side.push(cube::fast_atan2((1.0 + q * q).sqrt(), p));
                 top_phi.push(cube::fast_atan2(-q, p));
                 top_theta.push(cube::fast_atan2((p * p + q * q).sqrt(), 1.0));
-                let r2 = 1.0 + p * p + q * q;
-                weight.push(1.0 / (r2 * r2.sqrt()));
+                weight.push(cube::solid_angle_density(p, q));
             }
         }
         Block {
@@ -192,6 +188,24 @@ impl Block {
     }
 }
 
+/// Any source, read direction by direction (`read(face, s, t)`) on the resampling grids.
+pub struct Generic<'a, R> {
+    pub read: &'a R,
+    pub grids: &'a LatLongGrids,
+}
+
+impl<R: Fn(Face, f64, f64) -> [f32; 3] + Sync> TileSource for Generic<'_, R> {
+    fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64) {
+        let (s, t) = (self.grids.us[i], self.grids.us[j]);
+        ((self.read)(face, s, t), cube::solid_angle_density(s, t))
+    }
+
+    fn corner(&self, face: Face, i: usize, j: usize) -> f32 {
+        let (s, t) = (self.grids.corner_us[i], self.grids.corner_us[j]);
+        crate::color::luminance((self.read)(face, s, t))
+    }
+}
+
 /// A lat-long source with the tables of one work unit: subsample and corner grids.
 pub struct LatLong<'a> {
     img: &'a FloatImage,
@@ -204,7 +218,8 @@ pub struct LatLong<'a> {
     rot: f64,
 }
 
-/// The per-grid tables shared by every work unit: coordinates and their arctangents.
+/// The grids shared by every work unit: coordinates (of any source) and their arctangents (of
+/// a lat-long source).
 pub struct LatLongGrids {
     pub us: Vec<f64>,
     pub atan: Vec<f64>,
