@@ -18,7 +18,9 @@
 #      single-process `bake SCENE.eco` with the same arguments;
 #   6. `bazel clean` and a second build against the same server: every action is now a remote
 #      cache hit (the results the bot reported, stored by BuildGrid in its action cache), the
-#      pack unchanged.
+#      pack unchanged;
+#   7. for comparison, `bazel clean` and the same build with local spawns (no server): its wall
+#      time is printed beside the remote one, and its pack is the same.
 #
 # A script of its own (not a phase of scripts/bazel-remote.sh): .ci/run gives it its own
 # `timeout`, it needs PostgreSQL and a bot that the cache test does not, and a failure here
@@ -79,13 +81,13 @@ BOT_PID=""
 PG_STARTED=""
 if [ "$(id -u)" = 0 ]; then
   # postgres refuses to run as root.
-  if id -u postgres >/dev/null 2>&1; then
-    PG_USER=postgres
-  else
-    PG_USER=bake-pg
-    id -u "$PG_USER" >/dev/null 2>&1 \
-      || useradd --system --no-create-home --home-dir /nonexistent --shell /usr/sbin/nologin "$PG_USER"
+  # BAKE_PG_USER= another user (created if missing).
+  PG_USER=${BAKE_PG_USER:-}
+  if [ -z "$PG_USER" ]; then
+    if id -u postgres >/dev/null 2>&1; then PG_USER=postgres; else PG_USER=bake-pg; fi
   fi
+  id -u "$PG_USER" >/dev/null 2>&1 \
+    || useradd --system --no-create-home --home-dir /nonexistent --shell /usr/sbin/nologin "$PG_USER"
   chown "$PG_USER" "$PGDIR"
   as_pg() { runuser -u "$PG_USER" -- "$@"; }
 else
@@ -102,7 +104,7 @@ cleanup() {
     kill -KILL "$BOT_PID" 2>/dev/null
   fi
   if [ -d "$WORK/ws" ]; then
-    (cd "$WORK/ws" && timeout 60 "$BAZEL" --output_user_root="$WORK/root" shutdown >/dev/null 2>&1)
+    (cd "$WORK/ws" && timeout 60 "$BAZEL" --output_user_root="$WORK/root" --max_idle_secs=300 shutdown >/dev/null 2>&1)
   fi
   if [ -n "$SERVER_PID" ] && kill -0 "$SERVER_PID" 2>/dev/null; then
     kill -TERM "$SERVER_PID" 2>/dev/null
@@ -213,7 +215,8 @@ echo "== the plan"
 ACTIONS=$(grep -c '^bake_unit(' "$WORK/ws/BUILD.bazel")
 
 cd "$WORK/ws"
-bz() { timeout 240 "$BAZEL" --output_user_root="$WORK/root" "$@"; }
+# --max_idle_secs: a Bazel server left behind by a killed run ends by itself.
+bz() { timeout 240 "$BAZEL" --output_user_root="$WORK/root" --max_idle_secs=300 "$@"; }
 # A build that needs the bot fails at once if the bot stops (it exits on an error it cannot
 # retry) instead of waiting for its leases until the timeout.
 bz_build() {
@@ -299,5 +302,16 @@ check_log "$WORK/again.json" "$ACTIONS" cached
 cmp "$WORK/remote.bake" bazel-bin/scene.bake
 LEASES=$(grep -c '"event": "completed"' "$WORK/bot.jsonl")
 [ "$LEASES" = "$ACTIONS" ] || { echo "the bot ran $LEASES leases, expected $ACTIONS (none for cache hits)"; exit 1; }
+
+echo "== for comparison: bazel clean, the same build with local spawns and no server"
+bz clean
+S=$(date +%s%N)
+bz_build "$WORK/local.log" //:scene --spawn_strategy=local --jobs=8 --noshow_progress
+E=$(date +%s%N)
+grep -E "processes|Elapsed" "$WORK/local.log"
+grep -q "^INFO: $ACTIONS processes: $ACTIONS local\.$" "$WORK/local.log" \
+  || { echo "the local build did not run $ACTIONS local actions"; cat "$WORK/local.log"; exit 1; }
+cmp "$WORK/remote.bake" bazel-bin/scene.bake
+echo "local build: $(secs "$S" "$E") s wall, same pack"
 
 echo "PASS: Bazel 2.1.0 + BuildGrid 0.4.4 (PostgreSQL scheduler) + reapi-bot.py: $ACTIONS/$ACTIONS actions executed remotely ($LEASES leases), then $ACTIONS/$ACTIONS remote cache hits; pack identical to bake SCENE.eco ($(( $(date +%s) - T0 )) s in all)"

@@ -21,6 +21,12 @@ What it implements
     `output_directories` as `Tree` messages, plus stdout and stderr, uploaded to the CAS
     (FindMissingBlobs, then BatchUpdateBlobs, ByteStream Write for large blobs), and the
     `ActionResult` filled (exit code, outputs, stdout/stderr digests, worker timestamps).
+    A command past its timeout is killed and its lease reported DEADLINE_EXCEEDED; a lease the
+    server cancels (dropped from the session) kills its command and is reported CANCELLED.
+  * Transient RPC errors of the session calls (UNAVAILABLE, RESOURCE_EXHAUSTED,
+    DEADLINE_EXCEEDED, ABORTED) are retried with a growing pause until the deadline; any other
+    error of a session stops the whole bot with exit status 1, so a test waiting on it fails
+    at once instead of waiting for leases nobody runs.
   * --workers N bot sessions in threads, each with capacity 1 (one lease at a time), so N
     actions run side by side. While a command runs, its session sends keep-alive updates.
   * One JSON line per lease to --log (`"event": "completed"` with lease id, action digest, exit
@@ -37,8 +43,12 @@ What it does not implement
     platform properties are not otherwise looked at.
   * No output symlinks reported as symlinks (a symlink output is read through as a file), no
     compression, no partial-execution metadata or log streams, no instance-name wildcards,
-    SHA-256 digests only, no retry of a failed RPC inside a lease (the lease fails INTERNAL and
-    BuildGrid retries it).
+    SHA-256 digests only, no retry of a failed CAS call inside a lease (the lease fails INTERNAL
+    and BuildGrid retries it, up to the scheduler's max-job-attempts).
+  * No limit on the local blob cache (--work/blobs): it lives as long as the --work folder.
+
+Usage (scripts/bazel-remote-exec.sh runs it so):
+  reapi-bot.py --server 127.0.0.1:PORT --workers 2 --work DIR --log DIR/bot.jsonl --deadline 420
 """
 
 import argparse
