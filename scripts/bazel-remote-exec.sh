@@ -221,16 +221,18 @@ bz() { timeout 240 "$BAZEL" --output_user_root="$WORK/root" --max_idle_secs=300 
 # retry) instead of waiting for its leases until the timeout.
 bz_build() {
   local log=$1; shift
-  bz build "$@" > "$log" 2>&1 &
+  : > "$log"
+  kill -0 "$BOT_PID" 2>/dev/null || { cat "$WORK/bot.out"; echo "FAIL: the bot is not running"; exit 1; }
+  timeout 240 "$BAZEL" --output_user_root="$WORK/root" --max_idle_secs=300 build "$@" > "$log" 2>&1 &
   local pid=$!
-  while kill -0 "$pid" 2>/dev/null; do
+  while sleep 0.5; kill -0 "$pid" 2>/dev/null; do
     if ! kill -0 "$BOT_PID" 2>/dev/null; then
-      kill -TERM "$pid" 2>/dev/null; wait "$pid" 2>/dev/null || true
-      cat "$log"; echo "the bot stopped during the build"; exit 1
+      kill -TERM "$pid" 2>/dev/null
+      wait "$pid" 2>/dev/null || true
+      cat "$log"; echo "FAIL: the bot stopped during the build"; exit 1
     fi
-    sleep 0.5
   done
-  wait "$pid" || { cat "$log"; echo "bazel build failed"; exit 1; }
+  wait "$pid" || { cat "$log"; echo "FAIL: bazel build"; exit 1; }
 }
 # Nothing may run on this machine outside the bot: every spawn remote, no local fallback.
 FLAGS=(--remote_executor=grpc://127.0.0.1:$PORT --spawn_strategy=remote --genrule_strategy=remote
@@ -306,7 +308,8 @@ LEASES=$(grep -c '"event": "completed"' "$WORK/bot.jsonl")
 echo "== for comparison: bazel clean, the same build with local spawns and no server"
 bz clean
 S=$(date +%s%N)
-bz_build "$WORK/local.log" //:scene --spawn_strategy=local --jobs=8 --noshow_progress
+bz build //:scene --spawn_strategy=local --jobs=8 --noshow_progress > "$WORK/local.log" 2>&1 \
+  || { cat "$WORK/local.log"; echo "FAIL: the local build"; exit 1; }
 E=$(date +%s%N)
 grep -E "processes|Elapsed" "$WORK/local.log"
 grep -q "^INFO: $ACTIONS processes: $ACTIONS local\.$" "$WORK/local.log" \
