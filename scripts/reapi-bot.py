@@ -467,6 +467,9 @@ def execute(cas, action, work_dir, default_timeout, bot_name, on_tick):
                 result.output_files.add(path=rel, digest=d, is_executable=bool(os.stat(path).st_mode & 0o100))
             elif os.path.isdir(path) and rel in command.output_paths:
                 tree = collect_tree(path, blobs)
+                for sub in [tree.root] + list(tree.children):
+                    data = sub.SerializeToString()
+                    blobs[digest_of(data).hash] = (digest_of(data), data)
                 data = tree.SerializeToString()
                 d = digest_of(data)
                 blobs[d.hash] = (d, data)
