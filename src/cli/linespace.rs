@@ -7,6 +7,7 @@ use crate::linespace::ntree::{NTreeOptions, Refine, build_ntree};
 use crate::linespace::query::AreaLight;
 use crate::linespace::section;
 use crate::linespace::shaft::ShaftTable;
+use crate::voxel::geometry::SceneStage;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -31,9 +32,10 @@ pub struct LinespaceArgs {
 
 pub use crate::linespace::world_triangles;
 
-pub fn run(args: &LinespaceArgs, _g: &Global) -> Result<Outcome> {
+pub fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
-    let (geo, pack) = load_geometry(&args.input, &mut warnings)?;
+    let limits = g.ingest_defaults().limits;
+    let (geo, pack) = load_geometry(&args.input, SceneStage::Linespace, &limits, &mut warnings)?;
     let tris = world_triangles(&geo.mesh);
     if tris.is_empty() {
         return Err(Error::invalid_at(
@@ -125,11 +127,16 @@ pub struct LinespaceBenchArgs {
 }
 
 /// `bake bench linespace` (crate::bench::linespace): the model, if one is named, is loaded here.
-pub fn bench(a: &LinespaceBenchArgs, _g: &Global) -> Result<Outcome> {
+pub fn bench(a: &LinespaceBenchArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
+    let limits = g.ingest_defaults().limits;
     let scene = match &a.model {
         Some(p) => Some((
-            world_triangles(&load_geometry(p, &mut warnings)?.0.mesh),
+            world_triangles(
+                &load_geometry(p, SceneStage::Linespace, &limits, &mut warnings)?
+                    .0
+                    .mesh,
+            ),
             p.display().to_string(),
         )),
         None => None,

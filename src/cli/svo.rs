@@ -3,8 +3,9 @@
 
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
+use crate::ingest::limits::Limits;
 use crate::pack::{Pack, PackWriter};
-use crate::voxel::geometry::{Geometry, pack_geometry};
+use crate::voxel::geometry::{Geometry, SceneStage, pack_geometry, placed_size};
 use crate::voxel::section;
 use crate::voxel::svo::voxels_to_svo;
 use crate::voxel::voxelize::{VoxelizeOptions, mesh_to_voxels};
@@ -31,10 +32,17 @@ pub fn is_pack(path: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("bake"))
 }
 
-/// Reads the geometry of a model file or a pack; missing textures become warnings.
-pub fn load_geometry(path: &Path, warnings: &mut Vec<String>) -> Result<(Geometry, Option<Pack>)> {
+/// Reads the geometry of a model file or a pack for `stage`; missing textures become warnings.
+/// A pack's placed scene is checked against the memory budget before it is built.
+pub fn load_geometry(
+    path: &Path,
+    stage: SceneStage,
+    limits: &Limits,
+    warnings: &mut Vec<String>,
+) -> Result<(Geometry, Option<Pack>)> {
     if is_pack(path) {
         let pack = Pack::open(path)?;
+        placed_size(&pack)?.check(stage, limits, path)?;
         let g = pack_geometry(&pack)?;
         return Ok((g, Some(pack)));
     }
@@ -78,9 +86,10 @@ pub fn start_pack(
     }
 }
 
-pub fn run(args: &SvoArgs, _g: &Global) -> Result<Outcome> {
+pub fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
-    let (geo, pack) = load_geometry(&args.input, &mut warnings)?;
+    let limits = g.ingest_defaults().limits;
+    let (geo, pack) = load_geometry(&args.input, SceneStage::Svo, &limits, &mut warnings)?;
     if geo.mesh.indices.is_empty() {
         return Err(Error::invalid_at(
             &args.input,
@@ -150,10 +159,14 @@ pub struct SvoBenchArgs {
 }
 
 /// `bake bench svo`: voxelization + octree build, best of `repeat`.
-pub fn bench(a: &SvoBenchArgs, _g: &Global) -> Result<Outcome> {
+pub fn bench(a: &SvoBenchArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
+    let limits = g.ingest_defaults().limits;
     let (geo, name) = match &a.model {
-        Some(p) => (load_geometry(p, &mut warnings)?.0, p.display().to_string()),
+        Some(p) => (
+            load_geometry(p, SceneStage::Svo, &limits, &mut warnings)?.0,
+            p.display().to_string(),
+        ),
         None => (
             Geometry {
                 mesh: crate::voxel::geometry::procedural_blob(250, 140),

@@ -444,6 +444,28 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     let policy_key = format!("{policy:?}");
     let mut mesh_sections = Vec::new();
     let mut triangles = 0u64;
+    // Each model's (vertices, triangles), for the placed scene's size.
+    let mut model_sizes = Vec::with_capacity(plan.models.len());
+    // The svo and line-space units read the placed scene as one mesh (200,000 trees are ~10⁹
+    // triangles): refused as soon as the models ingested so far (a lower bound of the scene)
+    // cannot fit the memory budget, before their PRT and the lighting.
+    let check_placed = |model_sizes: &[Option<(u64, u64)>]| -> Result<()> {
+        use crate::voxel::geometry::{PlacedSize, SceneStage};
+        let placed = PlacedSize::of_scene(
+            plan.scene.terrain.as_ref().map(|t| (t.width, t.height)),
+            model_sizes,
+            &plan.scene.instances.items,
+        );
+        for (on, stage) in [
+            (p.stages.svo, SceneStage::Svo),
+            (p.stages.linespace, SceneStage::Linespace),
+        ] {
+            if on {
+                placed.check(stage, &opts.ingest.limits, first)?;
+            }
+        }
+        Ok(())
+    };
     for (name, path) in &plan.models {
         let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
         mesh_sections.push(mesh_name.clone());
@@ -494,6 +516,8 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         };
         let vertices = count("positions");
         triangles += count("indices").unwrap_or(0);
+        model_sizes.push(vertices.zip(count("indices")));
+        check_placed(&model_sizes)?;
         g.finish_sections(sections)?;
         if p.stages.prt {
             let mut k = g.key("prt", versions::PRT, name);
@@ -532,6 +556,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         }
     }
     let instances = plan.scene.instances.items.len();
+    check_placed(&model_sizes)?;
     g.finish_sections(vec![crate::ingest::instances_section::to_section(
         "instances",
         &plan.scene.instances,

@@ -10,6 +10,7 @@ use crate::graph::{BAKE_VERSION, BuildOptions, Pipeline};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
 use crate::pack::{Pack, Section, StreamWriter, hex};
+use crate::voxel::geometry::{self, SceneStage};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -429,7 +430,8 @@ pub fn svo(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> 
     let sections = read_packs(inputs)?;
     let name = s.view_name()?;
     let view = Pack::from_sections(&sections, &name);
-    let geo = crate::voxel::geometry::pack_geometry(&view)?;
+    geometry::placed_size(&view)?.check(SceneStage::Svo, &s.ingest.limits, s.first()?)?;
+    let geo = geometry::pack_geometry(&view)?;
     let v = crate::voxel::voxelize::mesh_to_voxels(&geo.mesh, &geo.textures, &s.pipeline.svo)?;
     let tree = crate::voxel::svo::voxels_to_svo(&v);
     let sec = crate::voxel::section::to_section("svo", &name, &tree, s.pipeline.svo.solid);
@@ -441,7 +443,8 @@ pub fn linespace(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitRe
     let sections = read_packs(inputs)?;
     let name = s.view_name()?;
     let view = Pack::from_sections(&sections, &name);
-    let geo = crate::voxel::geometry::pack_geometry(&view)?;
+    geometry::placed_size(&view)?.check(SceneStage::Linespace, &s.ingest.limits, s.first()?)?;
+    let geo = geometry::pack_geometry(&view)?;
     let tris = crate::linespace::world_triangles(&geo.mesh);
     let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(
         s.pipeline.linespace.n,

@@ -3,8 +3,10 @@
 //! triangulated height field plus every instance's mesh placed on it).
 
 use crate::error::{ParseError, Result};
+use crate::ingest::limits::{Limits, human};
 use crate::model::{Instance, Material, Mesh, Rgba8Image, Terrain};
 use crate::pack::Pack;
+use std::path::Path;
 
 /// A world-space mesh and the decoded images of its `textures` (same indices; None = missing).
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -158,6 +160,149 @@ pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
         }
     }
     Ok(g)
+}
+
+/// A stage that reads the whole placed scene as one mesh ([`pack_geometry`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SceneStage {
+    Svo,
+    Linespace,
+}
+
+impl SceneStage {
+    pub fn name(self) -> &'static str {
+        match self {
+            SceneStage::Svo => "svo",
+            SceneStage::Linespace => "linespace",
+        }
+    }
+
+    /// Bytes the stage keeps per triangle besides the mesh: the voxelizer's set-up and bucket
+    /// entry, or the N-tree's world-space corners and one reference.
+    pub fn bytes_per_triangle(self) -> u64 {
+        match self {
+            SceneStage::Svo => (std::mem::size_of::<super::voxelize::TriSetup>() + 16) as u64,
+            SceneStage::Linespace => (std::mem::size_of::<[[f32; 3]; 3]>() + 4) as u64,
+        }
+    }
+}
+
+/// The size of the placed scene as one mesh, known before it is built: the terrain's grid
+/// plus every instance's model (the counts [`pack_geometry`] produces).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PlacedSize {
+    pub instances: u64,
+    pub vertices: u64,
+    pub triangles: u64,
+}
+
+impl PlacedSize {
+    /// From a terrain grid (width, height), each model's (vertices, triangles) (None: not
+    /// placed, as [`pack_geometry`] skips a model without a mesh) and the instances.
+    pub fn of_scene(
+        terrain: Option<(u32, u32)>,
+        models: &[Option<(u64, u64)>],
+        instances: &[Instance],
+    ) -> PlacedSize {
+        let mut size = PlacedSize::default();
+        if let Some((w, h)) = terrain {
+            let (w, h) = (w.max(1) as u64, h.max(1) as u64);
+            size.vertices = w * h;
+            size.triangles = 2 * (w - 1) * (h - 1);
+        }
+        for i in instances {
+            if let Some(Some((v, t))) = models.get(i.model as usize) {
+                size.instances += 1;
+                size.vertices = size.vertices.saturating_add(*v);
+                size.triangles = size.triangles.saturating_add(*t);
+            }
+        }
+        size
+    }
+
+    /// Bytes of the mesh itself: position, normal and texture coordinate per vertex (32 B),
+    /// indices and a material per triangle (16 B).
+    pub fn mesh_bytes(&self) -> u64 {
+        self.vertices
+            .saturating_mul(32)
+            .saturating_add(self.triangles.saturating_mul(16))
+    }
+
+    /// What `stage` needs at least: the mesh and its own per-triangle data.
+    pub fn stage_bytes(&self, stage: SceneStage) -> u64 {
+        self.mesh_bytes()
+            .saturating_add(self.triangles.saturating_mul(stage.bytes_per_triangle()))
+    }
+
+    /// Refuses (exit 4, naming `file`) a placed scene that `stage` could not hold within the
+    /// memory budget, before anything is allocated.
+    pub fn check(&self, stage: SceneStage, limits: &Limits, file: &Path) -> Result<()> {
+        let bytes = self.stage_bytes(stage);
+        if bytes <= limits.max_memory {
+            return Ok(());
+        }
+        Err(crate::error::Error::invalid(
+            file,
+            ParseError::new(
+                "instances",
+                format!(
+                    "the {stage} stage reads the placed scene as one mesh: {} instances, {} \
+                     vertices and {} triangles with the terrain, at least {}, more than the {} \
+                     budget (--max-memory); turn the stage off (--set stages.{stage}=false), \
+                     place fewer instances, or raise --max-memory",
+                    self.instances,
+                    self.vertices,
+                    self.triangles,
+                    human(bytes),
+                    human(limits.max_memory),
+                    stage = stage.name(),
+                ),
+            ),
+        ))
+    }
+}
+
+/// [`PlacedSize`] of what [`pack_geometry`] would build from `pack`, from the sections'
+/// headers and the instance records (no mesh is decoded).
+pub fn placed_size(pack: &Pack) -> Result<PlacedSize> {
+    let terrain = match pack.of_kind(crate::terrain::source_section::KIND).next() {
+        Some(e) => {
+            let meta: crate::terrain::source_section::TerrainMeta =
+                pack.view(e)?.meta().map_err(|e| invalid(pack, e))?;
+            Some((meta.width, meta.height))
+        }
+        None => None,
+    };
+    let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
+        // Without instances every mesh is taken once.
+        let mut size = PlacedSize::of_scene(terrain, &[], &[]);
+        let names: Vec<String> = pack
+            .of_kind(crate::mesh::section::KIND)
+            .map(|e| e.name.clone())
+            .collect();
+        for n in names {
+            let (v, t) = mesh_counts(pack, &n)?;
+            size.vertices = size.vertices.saturating_add(v);
+            size.triangles = size.triangles.saturating_add(t);
+        }
+        return Ok(size);
+    };
+    let view = pack.view(e)?;
+    let (meta, inst) =
+        crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
+    let models: Vec<Option<(u64, u64)>> = meta
+        .mesh_sections
+        .iter()
+        .map(|s| pack.find(s).map(|_| mesh_counts(pack, s)).transpose())
+        .collect::<Result<_>>()?;
+    Ok(PlacedSize::of_scene(terrain, &models, &inst.items))
+}
+
+/// (vertices, triangles) of a mesh section, from its array headers.
+fn mesh_counts(pack: &Pack, name: &str) -> Result<(u64, u64)> {
+    let view = pack.view_named(name)?;
+    let count = |array: &str| view.info(array).map_or(0, |a| a.count);
+    Ok((count("positions"), count("indices")))
 }
 
 /// A closed, bumpy, scan-like procedural surface of `2 · cols · rows` triangles (a sphere

@@ -1,0 +1,127 @@
+//! The placed scene that the svo and line-space stages read as one mesh is sized before it is
+//! built, and refused (exit 4, naming the file and the budget) when it cannot fit --max-memory:
+//! at the theses' scale (200,000 trees, ~10⁹ placed triangles) it used to be built and
+//! killed by the kernel at 22 GB.
+
+mod common;
+
+use bake::pack::Pack;
+use bake::voxel::geometry::{SceneStage, pack_geometry, placed_size};
+
+#[test]
+fn the_placed_size_is_the_mesh_that_pack_geometry_builds() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack = Pack::open(&common::preview_fixture_pack(dir.path())).unwrap();
+    let size = placed_size(&pack).unwrap();
+    // Oracle: the mesh itself, built.
+    let geo = pack_geometry(&pack).unwrap();
+    let m = &geo.mesh;
+    assert_eq!(size.vertices, m.positions.len() as u64);
+    assert_eq!(size.triangles, m.indices.len() as u64);
+    assert_eq!(size.instances, 100, "the fixture places 100 instances");
+    // The estimate of the mesh's bytes is exactly what its per-vertex and per-triangle arrays
+    // hold (so the budget check is a lower bound of the stage's memory, never above it).
+    let arrays = 12 * m.positions.len()
+        + 12 * m.normals.len()
+        + 8 * m.uvs.len()
+        + 12 * m.indices.len()
+        + 4 * m.triangle_materials.len();
+    assert_eq!(size.mesh_bytes(), arrays as u64);
+    assert!(size.stage_bytes(SceneStage::Svo) > size.stage_bytes(SceneStage::Linespace));
+    assert!(size.stage_bytes(SceneStage::Linespace) > size.mesh_bytes());
+}
+
+#[test]
+fn a_placed_scene_over_the_budget_is_refused_before_it_is_built() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let size = placed_size(&Pack::open(&pack_path).unwrap()).unwrap();
+    for (cmd, stage) in [
+        ("svo", SceneStage::Svo),
+        ("linespace", SceneStage::Linespace),
+    ] {
+        let need = size.stage_bytes(stage);
+        let out = dir.path().join(format!("{cmd}.bake"));
+        // One byte short: refused, nothing written.
+        let o = common::bake(&[
+            cmd,
+            pack_path.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--max-memory",
+            &(need - 1).to_string(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(4), "{cmd}: {err}");
+        assert!(err.contains("scene.bake"), "{cmd}: names the pack: {err}");
+        assert!(
+            err.contains(&format!(
+                "the {cmd} stage reads the placed scene as one mesh"
+            )) && err.contains("100 instances")
+                && err.contains(&format!("{} triangles", size.triangles))
+                && err.contains("--max-memory"),
+            "{cmd}: {err}"
+        );
+        assert!(!out.exists(), "{cmd}: no output after a refusal");
+        // Exactly the estimate: accepted (the check is not a blanket refusal).
+        let mut args = vec![
+            cmd,
+            pack_path.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        let budget = need.to_string();
+        args.extend(["--max-memory", &budget, "-q"]);
+        if cmd == "svo" {
+            args.extend(["--resolution", "32"]);
+        } else {
+            args.extend(["--depth", "1"]);
+        }
+        let o = common::bake(&args);
+        assert!(
+            o.status.success(),
+            "{cmd}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        assert!(out.exists());
+    }
+}
+
+#[test]
+fn the_graph_refuses_the_placed_scene_before_the_lighting() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let size = placed_size(&Pack::open(&pack_path).unwrap()).unwrap();
+    let budget = (size.stage_bytes(SceneStage::Svo) - 1).to_string();
+    let out = dir.path().join("svo-scene.bake");
+    let scene = dir.path().join("scene.eco");
+    let o = common::bake(&[
+        scene.to_str().unwrap(),
+        "--sky",
+        dir.path().join("sky.hdr").to_str().unwrap(),
+        "--preview",
+        "--set",
+        "stages.svo=true",
+        "--no-cache",
+        "--progress",
+        "ndjson",
+        "--max-memory",
+        &budget,
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(4), "{err}");
+    assert!(
+        err.contains("scene.eco") && err.contains("the svo stage"),
+        "{err}"
+    );
+    assert!(!out.exists(), "no pack after a refusal");
+    // After the models (whose sizes it needs), before the sky and the scene's lighting: the
+    // progress events name the stages that ran.
+    let ran = |stage: &str| err.contains(&format!("\"stage\":\"{stage}\""));
+    assert!(ran("ingest") && ran("prt"), "{err}");
+    for later in ["sky", "lightmap", "envmaps", "cluster", "svo"] {
+        assert!(!ran(later), "{later} ran before the refusal: {err}");
+    }
+}
