@@ -191,7 +191,10 @@ impl SceneStage {
 /// plus every instance's model (the counts [`pack_geometry`] produces).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct PlacedSize {
+    /// Instances placed (those whose model is known and has a mesh) …
     pub instances: u64,
+    /// … of the scene's instances.
+    pub scene_instances: u64,
     pub vertices: u64,
     pub triangles: u64,
 }
@@ -204,7 +207,10 @@ impl PlacedSize {
         models: &[Option<(u64, u64)>],
         instances: &[Instance],
     ) -> PlacedSize {
-        let mut size = PlacedSize::default();
+        let mut size = PlacedSize {
+            scene_instances: instances.len() as u64,
+            ..PlacedSize::default()
+        };
         if let Some((w, h)) = terrain {
             let (w, h) = (w.max(1) as u64, h.max(1) as u64);
             size.vertices = w * h;
@@ -241,16 +247,23 @@ impl PlacedSize {
         if bytes <= limits.max_memory {
             return Ok(());
         }
+        let placed = if self.instances == self.scene_instances {
+            format!("{} instances", self.instances)
+        } else {
+            format!(
+                "{} of its {} instances (those of the models read so far)",
+                self.instances, self.scene_instances
+            )
+        };
         Err(crate::error::Error::invalid(
             file,
             ParseError::new(
                 "instances",
                 format!(
-                    "the {stage} stage reads the placed scene as one mesh: {} instances, {} \
+                    "the {stage} stage reads the placed scene as one mesh: {placed}, {} \
                      vertices and {} triangles with the terrain, at least {}, more than the {} \
                      budget (--max-memory); turn the stage off (--set stages.{stage}=false), \
                      place fewer instances, or raise --max-memory",
-                    self.instances,
                     self.vertices,
                     self.triangles,
                     human(bytes),
