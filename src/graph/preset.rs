@@ -287,6 +287,7 @@ impl Pipeline {
             }
         }
         self.lod.check()?;
+        self.prt.check()?;
         if self.units.envmap_shard_instances == 0 {
             return Err("units.envmap_shard_instances must be at least 1".into());
         }
