@@ -125,7 +125,7 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
     text.push_str(&format!("{}: {} bytes\n", output.display(), bytes.len()));
     Ok(Outcome {
         json: serde_json::json!({"output": output, "bytes": bytes.len(), "samples": args.samples,
-            "bounces": args.bounces, "meshes": reports}),
+            "bounces": args.bounces, "tracer": args.tracer, "meshes": reports}),
         text,
         warnings,
     })
