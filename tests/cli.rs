@@ -433,3 +433,68 @@ fn base64_encode(data: &[u8]) -> String {
     }
     s
 }
+
+/// `tracer = "embree"` in a binary built without the cargo feature is refused before any work,
+/// naming the feature and how to build it (never a silent fallback to the CPU tracer).
+#[cfg(not(feature = "embree"))]
+#[test]
+fn embree_tracer_without_the_feature_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.bake");
+    let out = out.to_str().unwrap();
+    let names_the_feature = |o: &Output| {
+        let e = stderr(o);
+        assert!(
+            e.contains("embree") && e.contains("--features embree"),
+            "{e}"
+        );
+    };
+    // --set on the build command: a usage error.
+    let o = bake(&[
+        "fixtures/scene/scene.eco",
+        "--set",
+        "prt.tracer=embree",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    names_the_feature(&o);
+    assert!(!Path::new(out).exists());
+    // `bake prt --tracer embree`: a usage error too.
+    let o = bake(&[
+        "prt",
+        "fixtures/scene/plant.txf",
+        "--tracer",
+        "embree",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    names_the_feature(&o);
+    // A pipeline file asking for it: invalid input naming the file.
+    let text = std::fs::read_to_string("pipelines/default.toml")
+        .unwrap()
+        .replace("tracer = \"cpu\"", "tracer = \"embree\"");
+    let pipeline = write(dir.path(), "embree.toml", text.as_bytes());
+    let o = bake(&[
+        "fixtures/scene/scene.eco",
+        "--pipeline",
+        &pipeline,
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
+    names_the_feature(&o);
+    assert!(stderr(&o).contains("embree.toml"), "{}", stderr(&o));
+    // An unknown tracer is a usage error listing the known ones.
+    let o = bake(&[
+        "prt",
+        "fixtures/scene/plant.txf",
+        "--tracer",
+        "optix",
+        "-o",
+        out,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("cpu"), "{}", stderr(&o));
+}

@@ -12,7 +12,9 @@
 //! direction, pseudo-random bounces) and `adaptive` ([`prt::bake_prt_adaptive`]: the same
 //! mean count, spread over the sides in proportion to their standard deviation) and `filtered`
 //! (`fixed`, then each vertex averaged with its neighbours of like normal, [`crate::prt::filter`];
-//! its time includes baking the neighbourhoods, and its projected time is per vertex baked).
+//! its time includes baking the neighbourhoods, and its projected time is per vertex baked)
+//! and `embree` (`fixed` on the Embree backend, `tracer = "embree"`; cargo feature `embree`:
+//! the same sampler, so its error is that of `fixed` and only the time differs).
 
 use super::cpu_seconds;
 use crate::error::{Error, Result};
@@ -39,15 +41,23 @@ pub enum Method {
     /// `fixed`, then [`crate::prt::filter`] over each measured vertex's neighbourhood (which
     /// is baked too, and timed).
     Filtered,
+    /// `fixed` traced on Embree ([`prt::PrtTracer::Embree`]; cargo feature `embree`).
+    Embree,
 }
 
 impl Method {
-    pub const ALL: [Method; 3] = [Method::Fixed, Method::Adaptive, Method::Filtered];
+    pub const ALL: [Method; 4] = [
+        Method::Fixed,
+        Method::Adaptive,
+        Method::Filtered,
+        Method::Embree,
+    ];
     pub fn name(self) -> &'static str {
         match self {
             Method::Fixed => "fixed",
             Method::Adaptive => "adaptive",
             Method::Filtered => "filtered",
+            Method::Embree => "embree",
         }
     }
 }
@@ -104,6 +114,9 @@ pub struct PrtErrorReport {
     pub reference_seconds: f64,
     pub reference_cached: bool,
     pub build_seconds: f64,
+    /// Embree scene build time (method `embree` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub embree_build_seconds: Option<f64>,
     pub runs: Vec<ErrorRun>,
 }
 
@@ -134,6 +147,20 @@ pub fn bench_prt_error(
     let start = Instant::now();
     let bvh = ModelBvh::build_split(mesh, masks, opts.prt.preset, opts.prt.alpha_split)?;
     let build_seconds = start.elapsed().as_secs_f64();
+    // The Embree scene, before anything slow runs: a binary without the feature refuses here.
+    let start = Instant::now();
+    let embree = opts
+        .methods
+        .contains(&Method::Embree)
+        .then(|| {
+            let o = PrtOptions {
+                tracer: prt::PrtTracer::Embree,
+                ..opts.prt.clone()
+            };
+            prt::PrtScene::build(mesh, masks, &o)
+        })
+        .transpose()?;
+    let embree_build_seconds = embree.as_ref().map(|_| start.elapsed().as_secs_f64());
     let start = Instant::now();
     let (halves, cached) = reference(&bvh, mesh, materials, &verts, opts)?;
     let reference_seconds = start.elapsed().as_secs_f64();
@@ -147,6 +174,18 @@ pub fn bench_prt_error(
             };
             let (t, wall, cpu, baked) = match method {
                 Method::Filtered => filtered(&bvh, mesh, materials, &o, &verts, opts),
+                Method::Embree => {
+                    let scene = embree.as_ref().expect("built above for this method");
+                    let o = PrtOptions {
+                        tracer: prt::PrtTracer::Embree,
+                        ..o
+                    };
+                    let (start, cpu0) = (Instant::now(), cpu_seconds());
+                    let t = scene.bake_subset(mesh, materials, &o, &verts);
+                    let wall = start.elapsed().as_secs_f64();
+                    let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
+                    (t, wall, cpu, verts.len())
+                }
                 _ => {
                     let (start, cpu0) = (Instant::now(), cpu_seconds());
                     let t = bake(method, &bvh, mesh, materials, &o, &verts);
@@ -184,6 +223,7 @@ pub fn bench_prt_error(
         reference_seconds,
         reference_cached: cached,
         build_seconds,
+        embree_build_seconds,
         runs,
     })
 }
@@ -229,7 +269,7 @@ fn bake(
     verts: &[u32],
 ) -> Transfer {
     match method {
-        Method::Fixed | Method::Filtered => {
+        Method::Fixed | Method::Filtered | Method::Embree => {
             prt::bake_prt_subset(bvh, mesh, materials, o, verts, &|_| {})
         }
         Method::Adaptive => prt::bake_prt_adaptive(
@@ -251,8 +291,11 @@ fn reference(
     verts: &[u32],
     opts: &PrtErrorOptions,
 ) -> Result<([Transfer; 2], bool)> {
+    // The reference is always traced on the CPU backend (obvhs): an independent oracle for
+    // the `embree` method.
     let half = PrtOptions {
         samples: opts.reference_samples / 2,
+        tracer: prt::PrtTracer::Cpu,
         ..opts.prt.clone()
     };
     let file = opts.cache.as_ref().map(|dir| {

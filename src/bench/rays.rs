@@ -9,6 +9,10 @@
 //! all threads; each is timed three times and the fastest run counts. The machine is shared, so
 //! CPU time (Linux schedstat) is measured beside wall time and the efficiency is the ratio of
 //! rays per CPU-second.
+//!
+//! With `--embree` (cargo feature `embree`): the raw rays through Embree's own BVH with the same
+//! alpha test as a filter function, and the PRT loop on the Embree backend (`tracer = "embree"`,
+//! the same sampler and the same rays definition as the PRT rays above).
 
 use super::{Timing, cpu_seconds, time_best};
 use crate::error::Result;
@@ -97,6 +101,30 @@ pub struct RaysBenchReport {
     /// PRT rays per second over Embree rays per second (wall).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prt_over_embree: Option<f64>,
+    /// PRT rays per second with the Embree backend (`tracer = "embree"`), counted as
+    /// `prt_rays_per_second` counts them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prt_embree_rays: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prt_embree_rays_per_second: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prt_embree_rays_per_cpu_second: Option<f64>,
+    /// PRT-on-Embree rays per second over raw Embree rays per second (wall; the goal of issue
+    /// 19 is at least 0.7).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prt_embree_over_embree: Option<f64>,
+    /// The same ratio per CPU-second (where CPU time is measured).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prt_embree_over_embree_cpu: Option<f64>,
+}
+
+/// The Embree side of the benchmark.
+#[derive(Debug, Clone, Copy)]
+struct EmbreeTimes {
+    build: f64,
+    raw: Timing,
+    prt_rays: u64,
+    prt: Timing,
 }
 
 /// Runs the benchmark on `mesh` with its materials and alpha masks.
@@ -162,7 +190,9 @@ pub fn bench_rays(
     let prt_cpu = per(prt_rays, prt.cpu);
     let wall_eff = (raw_rays as f64 / raw.wall).recip() * (prt_rays as f64 / prt.wall);
     let embree = if opts.embree {
-        Some(embree_timing(mesh, masks, &rays)?)
+        Some(embree_timing(
+            mesh, materials, masks, &verts, &opts.prt, &rays,
+        )?)
     } else {
         None
     };
@@ -193,35 +223,65 @@ pub fn bench_rays(
         ),
         presets,
         full_bake,
-        embree_rays_per_second: embree.map(|(_, t)| raw_rays as f64 / t.wall),
-        embree_rays_per_cpu_second: embree.and_then(|(_, t)| per(raw_rays, t.cpu)),
-        embree_build_seconds: embree.map(|(b, _)| b),
-        prt_over_embree: embree.map(|(_, t)| prt_rays as f64 / prt.wall * t.wall / raw_rays as f64),
+        embree_rays_per_second: embree.map(|e| raw_rays as f64 / e.raw.wall),
+        embree_rays_per_cpu_second: embree.and_then(|e| per(raw_rays, e.raw.cpu)),
+        embree_build_seconds: embree.map(|e| e.build),
+        prt_over_embree: embree.map(|e| prt_rays as f64 / prt.wall * e.raw.wall / raw_rays as f64),
+        prt_embree_rays: embree.map(|e| e.prt_rays),
+        prt_embree_rays_per_second: embree.map(|e| e.prt_rays as f64 / e.prt.wall),
+        prt_embree_rays_per_cpu_second: embree.and_then(|e| per(e.prt_rays, e.prt.cpu)),
+        prt_embree_over_embree: embree
+            .map(|e| e.prt_rays as f64 / e.prt.wall * e.raw.wall / raw_rays as f64),
+        prt_embree_over_embree_cpu: embree.and_then(|e| {
+            per(e.prt_rays, e.prt.cpu)
+                .zip(per(raw_rays, e.raw.cpu))
+                .map(|(p, r)| p / r)
+        }),
     })
 }
 
-/// The raw rays through Embree with the alpha test: (build seconds, timing).
+/// The raw rays through Embree with the alpha test, and the PRT of `verts` on Embree.
 #[cfg(feature = "embree")]
-fn embree_timing(mesh: &Mesh, masks: &[Option<AlphaMask>], rays: &[Ray]) -> Result<(f64, Timing)> {
+fn embree_timing(
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    masks: &[Option<AlphaMask>],
+    verts: &[u32],
+    o: &PrtOptions,
+    rays: &[Ray],
+) -> Result<EmbreeTimes> {
     let start = Instant::now();
     let scene = crate::trace::embree::EmbreeScene::build(mesh, masks)?;
     let build = start.elapsed().as_secs_f64();
-    let t = time_best(|| {
+    let raw = time_best(|| {
         let hits: usize = rays
             .par_iter()
             .map(|r| scene.closest_hit(r).is_some() as usize)
             .sum();
         std::hint::black_box(hits);
     });
-    Ok((build, t))
+    let o = PrtOptions {
+        tracer: prt::PrtTracer::Embree,
+        ..o.clone()
+    };
+    let (prt_rays, prt) = prt_timing(&scene, mesh, materials, verts, &o);
+    Ok(EmbreeTimes {
+        build,
+        raw,
+        prt_rays,
+        prt,
+    })
 }
 
 #[cfg(not(feature = "embree"))]
 fn embree_timing(
     _mesh: &Mesh,
+    _materials: &[PrtMaterial],
     _masks: &[Option<AlphaMask>],
+    _verts: &[u32],
+    _o: &PrtOptions,
     _rays: &[Ray],
-) -> Result<(f64, Timing)> {
+) -> Result<EmbreeTimes> {
     Err(crate::error::Error::runtime(
         "--embree needs a build with the cargo feature `embree` (cargo build --features embree)",
     ))
@@ -260,8 +320,8 @@ fn raw_timing(bvh: &ModelBvh, rays: &[Ray]) -> Timing {
 }
 
 /// PRT over `verts`: (rays traced, timing).
-fn prt_timing(
-    bvh: &ModelBvh,
+fn prt_timing<T: crate::trace::ModelTracer>(
+    bvh: &T,
     mesh: &Mesh,
     materials: &[PrtMaterial],
     verts: &[u32],

@@ -8,7 +8,7 @@ use crate::error::{Error, Result};
 use crate::ingest::{IngestOptions, InputKind};
 use crate::pack::Pack;
 use crate::prt::pack::{mesh_textures, mesh_vertex_count, prt_pack};
-use crate::prt::transfer::{self as prt, PrtOptions};
+use crate::prt::transfer::{self as prt, PrtOptions, PrtTracer};
 use crate::trace::BuildPreset;
 use std::path::{Path, PathBuf};
 
@@ -35,6 +35,16 @@ pub struct PrtArgs {
     /// Seed of the sample scrambles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Ray-tracing backend: cpu (obvhs) or embree (needs a build with the cargo feature
+    /// `embree`).
+    #[arg(long, default_value = "cpu", value_parser = parse_tracer)]
+    pub tracer: PrtTracer,
+}
+
+/// A [`PrtTracer`] as the options spell it.
+fn parse_tracer(s: &str) -> std::result::Result<PrtTracer, String> {
+    serde_json::from_value(serde_json::Value::String(s.to_string()))
+        .map_err(|_| format!("unknown tracer {s:?}: expected cpu or embree"))
 }
 
 fn check_sampling(samples: u32, bounces: u32) -> Result<()> {
@@ -73,8 +83,11 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
         preset: args.preset,
         default_translucence: args.translucence,
         seed: args.seed,
+        tracer: args.tracer,
         ..PrtOptions::default()
     };
+    opts.check()
+        .map_err(|m| Error::usage(format!("--tracer {}: {m}", args.tracer.name())))?;
     let is_pack = InputKind::of(&args.input).is_none();
     let (pack, mut warnings) = open_or_ingest(&args.input)?;
     let total = mesh_vertex_count(&pack);
@@ -112,7 +125,7 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
     text.push_str(&format!("{}: {} bytes\n", output.display(), bytes.len()));
     Ok(Outcome {
         json: serde_json::json!({"output": output, "bytes": bytes.len(), "samples": args.samples,
-            "bounces": args.bounces, "meshes": reports}),
+            "bounces": args.bounces, "tracer": args.tracer, "meshes": reports}),
         text,
         warnings,
     })
@@ -213,11 +226,18 @@ pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
     if let (Some(e), Some(b)) = (r.embree_rays_per_second, r.embree_build_seconds) {
         text.push_str(&format!(
             "raw Embree  {:>8.3}  {:>8}   (raw rays, Embree BVH, alpha filter; build {:.3} s)\n\
-             PRT / Embree {:>7.3}\n",
+             PRT / Embree {:>7.3}\n\
+             PRT Embree  {:>8.3}  {:>8}   (PRT loop on the Embree backend)\n\
+             PRT Embree / raw Embree {:>7.3} wall, {} per CPU-s\n",
             e / 1e6,
             cpu(r.embree_rays_per_cpu_second),
             b,
-            r.prt_over_embree.unwrap_or(0.0)
+            r.prt_over_embree.unwrap_or(0.0),
+            r.prt_embree_rays_per_second.unwrap_or(0.0) / 1e6,
+            cpu(r.prt_embree_rays_per_cpu_second),
+            r.prt_embree_over_embree.unwrap_or(0.0),
+            r.prt_embree_over_embree_cpu
+                .map_or("-".into(), |v| format!("{v:.3}")),
         ));
     }
     if let Some(b) = &r.full_bake {
@@ -286,7 +306,8 @@ pub struct PrtErrorBenchArgs {
     /// Paths per side of the measured runs (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "64,256,1024,4096")]
     pub samples: Vec<u32>,
-    /// Samplers to compare (comma-separated: fixed, adaptive, filtered).
+    /// Samplers to compare (comma-separated: fixed, adaptive, filtered, embree; embree is
+    /// fixed on the Embree backend and needs the cargo feature `embree`).
     #[arg(long, value_delimiter = ',', default_value = "fixed,adaptive")]
     pub methods: Vec<String>,
     /// Radius of the filtered method, relative to the model's bounding-box diagonal.
@@ -323,7 +344,7 @@ pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
                 .find(|k| k.name() == m)
                 .ok_or_else(|| {
                     Error::usage(format!(
-                        "--methods {m}: expected fixed, adaptive or filtered"
+                        "--methods {m}: expected fixed, adaptive, filtered or embree"
                     ))
                 })
         })

@@ -287,6 +287,7 @@ impl Pipeline {
             }
         }
         self.lod.check()?;
+        self.prt.check()?;
         if self.units.envmap_shard_instances == 0 {
             return Err("units.envmap_shard_instances must be at least 1".into());
         }
@@ -352,6 +353,35 @@ pub fn resolve(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `prt.tracer` is spelled out, enters the PRT stage's key through its options, and a
+    /// backend the binary lacks is refused (never a silent fallback).
+    #[test]
+    fn prt_tracer_is_spelled_keyed_and_checked() {
+        use crate::prt::transfer::PrtTracer;
+        let mut p = Pipeline::default_pipeline();
+        assert!(p.to_toml().contains("tracer = \"cpu\""), "{}", p.to_toml());
+        let key = |o: &PrtOptions| {
+            let mut k = crate::graph::cache::KeyBuilder::new("0", "prt", 1, "m");
+            k.options(o);
+            k.finish()
+        };
+        let embree = PrtOptions {
+            tracer: PrtTracer::Embree,
+            ..p.prt.clone()
+        };
+        assert_ne!(key(&p.prt), key(&embree));
+        let r = p.set("prt.tracer=embree");
+        if cfg!(feature = "embree") {
+            r.unwrap();
+            assert_eq!(p.prt.tracer, PrtTracer::Embree);
+        } else {
+            let e = r.unwrap_err().to_string();
+            assert!(e.contains("--features embree"), "{e}");
+            assert_eq!(p.prt.tracer, PrtTracer::Cpu);
+        }
+        assert!(p.set("prt.tracer=optix").is_err());
+    }
 
     fn repo_file(name: &str) -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR"))

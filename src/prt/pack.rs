@@ -20,7 +20,6 @@ use crate::model::Rgba8Image;
 use crate::pack::fit_name;
 use crate::pack::section::SectionView;
 use crate::pack::{ArrayFormat, Pack, PackWriter, Section, SectionBuilder};
-use crate::trace::ModelBvh;
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
@@ -222,15 +221,15 @@ pub fn prt_mesh(
     };
     let mats = prt::prt_materials(&mesh, &textures, o.default_translucence);
     let masks = prt::alpha_masks(&mesh, &textures);
-    let bvh = ModelBvh::build_split(&mesh, &masks, o.preset, o.alpha_split)?;
-    if bvh.skipped_triangles() > 0 {
+    let scene = prt::PrtScene::build(&mesh, &masks, &o)?;
+    if scene.skipped_triangles() > 0 {
         warnings.push(format!(
             "{}: {} triangles with non-finite positions left out of the BVH",
             mesh_section,
-            bvh.skipped_triangles()
+            scene.skipped_triangles()
         ));
     }
-    let t = prt::bake_prt_with(&bvh, &mesh, &mats, &o, progress);
+    let t = scene.bake(&mesh, &mats, &o, progress);
     let name = section_name(mesh_section);
     let section = to_section(&name, mesh_section, &t, &mats);
     let report = MeshPrtReport {

@@ -36,7 +36,9 @@
 use crate::error::Result;
 use crate::model::Mesh;
 pub use crate::trace::materials::{PrtMaterial, alpha_masks, prt_materials};
-use crate::trace::{AlphaMask, BuildPreset, ModelBvh, Ray, Rng, cosine_hemisphere, mix64};
+use crate::trace::{
+    AlphaMask, BuildPreset, ModelBvh, ModelTracer, Ray, Rng, cosine_hemisphere, mix64,
+};
 use glam::Vec3A;
 use rayon::prelude::*;
 
@@ -50,6 +52,19 @@ pub const SIDES: usize = 2;
 pub const SETS: usize = 2;
 /// RGB transfer coefficients per vertex.
 pub const PER_VERTEX: usize = SIDES * SETS * COEFFS;
+
+/// The ray-tracing backend of the PRT ([`ModelTracer`]): `cpu` (obvhs, every build) or
+/// `embree` (Embree 3, builds with the cargo feature `embree` only; elsewhere the option is
+/// refused, see [`PrtOptions::check`]). The sampler is the same on every backend, so the
+/// transfer agrees up to rare float-level differences of the hits; each backend on its own is
+/// deterministic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PrtTracer {
+    #[default]
+    Cpu,
+    Embree,
+}
 
 /// Options of the PRT stage.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -68,6 +83,8 @@ pub struct PrtOptions {
     pub default_translucence: f32,
     /// Seed of the per-vertex sample scrambles.
     pub seed: u64,
+    /// Ray-tracing backend ([`PrtTracer`]).
+    pub tracer: PrtTracer,
 }
 
 impl PrtOptions {
@@ -81,6 +98,7 @@ impl PrtOptions {
             offset: 1e-4,
             default_translucence: 0.3,
             seed: 0,
+            tracer: PrtTracer::Cpu,
         }
     }
     /// Final quality: 1,024 paths per side, 4 bounces.
@@ -101,6 +119,37 @@ impl PrtOptions {
             bounces: 3,
             ..Self::preview()
         }
+    }
+}
+
+impl PrtTracer {
+    /// The backend's name as options spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            PrtTracer::Cpu => "cpu",
+            PrtTracer::Embree => "embree",
+        }
+    }
+
+    /// Whether this binary can trace on the backend (`embree`: the cargo feature `embree`).
+    pub fn available(self) -> std::result::Result<(), String> {
+        match self {
+            PrtTracer::Cpu => Ok(()),
+            PrtTracer::Embree if cfg!(feature = "embree") => Ok(()),
+            PrtTracer::Embree => Err(
+                "prt.tracer = \"embree\" needs a bake built with the cargo feature `embree` \
+                 (Debian: apt-get install libembree-dev; then cargo build --release --features \
+                 embree); this binary has only tracer = \"cpu\""
+                    .into(),
+            ),
+        }
+    }
+}
+
+impl PrtOptions {
+    /// Options this binary cannot run (a tracer it was built without).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        self.tracer.available()
     }
 }
 
@@ -131,22 +180,99 @@ impl Transfer {
     }
 }
 
-/// Bakes the transfer of `mesh`: builds its BVH, then [`bake_prt_with`].
+/// Bakes the transfer of `mesh`: builds the scene of `opts.tracer`, then [`bake_prt_with`].
 pub fn bake_prt(
     mesh: &Mesh,
     materials: &[PrtMaterial],
     masks: &[Option<AlphaMask>],
     opts: &PrtOptions,
 ) -> Result<Transfer> {
-    let bvh = ModelBvh::build_split(mesh, masks, opts.preset, opts.alpha_split)?;
-    Ok(bake_prt_with(&bvh, mesh, materials, opts, &|_| {}))
+    let scene = PrtScene::build(mesh, masks, opts)?;
+    Ok(scene.bake(mesh, materials, opts, &|_| {}))
 }
 
-/// Bakes the transfer against a prebuilt BVH of `mesh`, tracing each set of duplicate vertices
-/// once ([`weld_vertices`]). `progress` is called with the number of vertices finished since its
-/// last call.
-pub fn bake_prt_with(
-    bvh: &ModelBvh,
+/// A model's scene on the backend [`PrtOptions::tracer`] names.
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per model, built once and traced millions of times"
+)]
+pub enum PrtScene {
+    Cpu(ModelBvh),
+    #[cfg(feature = "embree")]
+    Embree(crate::trace::embree::EmbreeScene),
+}
+
+impl PrtScene {
+    /// Builds the scene of `mesh` (`masks` as for [`ModelBvh::build`]); a backend this binary
+    /// was built without is a usage error.
+    pub fn build(mesh: &Mesh, masks: &[Option<AlphaMask>], opts: &PrtOptions) -> Result<Self> {
+        opts.check().map_err(crate::error::Error::usage)?;
+        match opts.tracer {
+            PrtTracer::Cpu => Ok(PrtScene::Cpu(ModelBvh::build_split(
+                mesh,
+                masks,
+                opts.preset,
+                opts.alpha_split,
+            )?)),
+            #[cfg(feature = "embree")]
+            PrtTracer::Embree => {
+                mesh.validate().map_err(|m| {
+                    crate::error::Error::runtime(format!("cannot build an Embree scene: {m}"))
+                })?;
+                Ok(PrtScene::Embree(crate::trace::embree::EmbreeScene::build(
+                    mesh, masks,
+                )?))
+            }
+            #[cfg(not(feature = "embree"))]
+            PrtTracer::Embree => unreachable!("refused by PrtOptions::check"),
+        }
+    }
+
+    /// Triangles the backend left out (non-finite positions).
+    pub fn skipped_triangles(&self) -> usize {
+        match self {
+            PrtScene::Cpu(b) => b.skipped_triangles(),
+            #[cfg(feature = "embree")]
+            PrtScene::Embree(e) => e.skipped_triangles(),
+        }
+    }
+
+    /// [`bake_prt_with`] on this scene.
+    pub fn bake(
+        &self,
+        mesh: &Mesh,
+        materials: &[PrtMaterial],
+        opts: &PrtOptions,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Transfer {
+        match self {
+            PrtScene::Cpu(b) => bake_prt_with(b, mesh, materials, opts, progress),
+            #[cfg(feature = "embree")]
+            PrtScene::Embree(e) => bake_prt_with(e, mesh, materials, opts, progress),
+        }
+    }
+
+    /// [`bake_prt_subset`] on this scene.
+    pub fn bake_subset(
+        &self,
+        mesh: &Mesh,
+        materials: &[PrtMaterial],
+        opts: &PrtOptions,
+        vertices: &[u32],
+    ) -> Transfer {
+        match self {
+            PrtScene::Cpu(b) => bake_prt_subset(b, mesh, materials, opts, vertices, &|_| {}),
+            #[cfg(feature = "embree")]
+            PrtScene::Embree(e) => bake_prt_subset(e, mesh, materials, opts, vertices, &|_| {}),
+        }
+    }
+}
+
+/// Bakes the transfer against a prebuilt scene of `mesh` (any [`ModelTracer`]), tracing each
+/// set of duplicate vertices once ([`weld_vertices`]). `progress` is called with the number of
+/// vertices finished since its last call.
+pub fn bake_prt_with<T: ModelTracer>(
+    bvh: &T,
     mesh: &Mesh,
     materials: &[PrtMaterial],
     opts: &PrtOptions,
@@ -226,8 +352,8 @@ pub fn weld_key_count(mesh: &Mesh) -> usize {
 
 /// The transfer of the listed vertices only (in that order; benchmarks trace a sample of a
 /// large model). Out-of-range indices count as skipped.
-pub fn bake_prt_subset(
-    bvh: &ModelBvh,
+pub fn bake_prt_subset<T: ModelTracer>(
+    bvh: &T,
     mesh: &Mesh,
     materials: &[PrtMaterial],
     opts: &PrtOptions,
@@ -301,8 +427,8 @@ impl Adaptive {
 /// each side's sequence after the pilot's paths, which are kept. Deterministic and independent
 /// of the thread count: λ comes from a sequential bisection over the pilot's variances in vertex
 /// order. (N depends on the pilot's own paths, a small bias the error benchmark measures.)
-pub fn bake_prt_adaptive(
-    bvh: &ModelBvh,
+pub fn bake_prt_adaptive<T: ModelTracer>(
+    bvh: &T,
     mesh: &Mesh,
     materials: &[PrtMaterial],
     opts: &PrtOptions,
@@ -370,8 +496,8 @@ struct Pilot {
 type VertexResult = Option<(Box<[[f32; 3]; PER_VERTEX]>, u64)>;
 
 /// Everything the per-vertex loop reads.
-struct Ctx<'a> {
-    bvh: &'a ModelBvh,
+struct Ctx<'a, T: ModelTracer> {
+    bvh: &'a T,
     mesh: &'a Mesh,
     materials: Vec<PrtMaterial>,
     /// Material of each vertex (of the first triangle using it), `u32::MAX` if unused.
@@ -382,13 +508,8 @@ struct Ctx<'a> {
     opts: &'a PrtOptions,
 }
 
-impl<'a> Ctx<'a> {
-    fn new(
-        bvh: &'a ModelBvh,
-        mesh: &'a Mesh,
-        materials: &[PrtMaterial],
-        opts: &'a PrtOptions,
-    ) -> Self {
+impl<'a, T: ModelTracer> Ctx<'a, T> {
+    fn new(bvh: &'a T, mesh: &'a Mesh, materials: &[PrtMaterial], opts: &'a PrtOptions) -> Self {
         let n = mesh.positions.len();
         let mut vertex_material = vec![u32::MAX; n];
         let mut face_normal = vec![Vec3A::ZERO; n];

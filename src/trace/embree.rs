@@ -4,11 +4,13 @@
 //! coordinate, nearest texel, repeating, opaque at alpha >= 0.5 through [`AlphaMask`]).
 //!
 //! A minimal self-written binding over the C API (no crate); every `unsafe` of the project's
-//! Embree use is in this module. Used by `bake bench rays --embree`; no stage uses it yet.
+//! Embree use is in this module. [`EmbreeScene`] implements [`ModelTracer`], so the PRT stage
+//! traces on it with `tracer = "embree"` (`bake bench rays --embree` measures it).
 
-use super::{AlphaMask, Hit, Ray};
+use super::{AlphaMask, Hit, ModelTracer, Ray};
 use crate::error::{Error, Result};
 use crate::model::Mesh;
+use glam::Vec3A;
 use std::ffi::c_void;
 use std::os::raw::{c_char, c_int, c_uint};
 
@@ -42,6 +44,19 @@ struct IntersectContext {
     flags: c_int,
     filter: FilterFn,
     inst_id: [c_uint; 1],
+}
+
+/// `struct RTCRay` (rtcore_ray.h), 16-byte aligned: what rtcOccluded1 reads and writes.
+#[repr(C, align(16))]
+struct RayOnly {
+    org: [f32; 3],
+    tnear: f32,
+    dir: [f32; 3],
+    time: f32,
+    tfar: f32,
+    mask: c_uint,
+    id: c_uint,
+    flags: c_uint,
 }
 
 /// `struct RTCRay` + `struct RTCHit` = `struct RTCRayHit` (rtcore_ray.h), 16-byte aligned.
@@ -81,10 +96,12 @@ unsafe extern "C" {
     ) -> *mut c_void;
     fn rtcSetGeometryUserData(geometry: RtcGeometry, ptr: *mut c_void);
     fn rtcSetGeometryIntersectFilterFunction(geometry: RtcGeometry, filter: FilterFn);
+    fn rtcSetGeometryOccludedFilterFunction(geometry: RtcGeometry, filter: FilterFn);
     fn rtcCommitGeometry(geometry: RtcGeometry);
     fn rtcAttachGeometry(scene: RtcScene, geometry: RtcGeometry) -> c_uint;
     fn rtcReleaseGeometry(geometry: RtcGeometry);
     fn rtcIntersect1(scene: RtcScene, context: *mut IntersectContext, rayhit: *mut RayHit);
+    fn rtcOccluded1(scene: RtcScene, context: *mut IntersectContext, ray: *mut RayOnly);
 }
 
 /// What the filter function reads: per triangle its corner texture coordinates and mask.
@@ -96,12 +113,25 @@ struct AlphaData {
     masks: Vec<AlphaMask>,
 }
 
+/// A triangle as [`super::ModelBvh::hit_point`] reads it: corner 0 and the two edges from it.
+#[derive(Debug, Clone, Copy)]
+struct Corner {
+    v0: Vec3A,
+    e1: Vec3A,
+    e2: Vec3A,
+}
+
 /// An Embree scene of one mesh, alpha-tested like [`super::ModelBvh`].
 pub struct EmbreeScene {
     device: RtcDevice,
     scene: RtcScene,
     /// Owned here so the filter's user pointer stays valid while the scene lives.
     _alpha: Box<AlphaData>,
+    /// Per triangle (Embree's primID is the mesh's triangle index).
+    corners: Vec<Corner>,
+    materials: Vec<u32>,
+    bounds: (Vec3A, Vec3A),
+    skipped: usize,
 }
 
 // SAFETY: Embree devices and committed scenes are thread-safe for concurrent rtcIntersect1
@@ -188,6 +218,25 @@ impl EmbreeScene {
         {
             return Err(Error::runtime("embree: a triangle index is out of range"));
         }
+        let p = |i: u32| Vec3A::from(mesh.positions[i as usize]);
+        let corners: Vec<Corner> = mesh
+            .indices
+            .iter()
+            .map(|&[a, b, c]| Corner {
+                v0: p(a),
+                e1: p(b) - p(a),
+                e2: p(c) - p(a),
+            })
+            .collect();
+        let skipped = mesh
+            .indices
+            .iter()
+            .filter(|t| !t.iter().all(|&i| p(i).is_finite()))
+            .count();
+        let (lo, hi) = mesh.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
+        let materials = (0..mesh.indices.len())
+            .map(|t| mesh.triangle_materials.get(t).copied().unwrap_or(0))
+            .collect();
         let alpha = Box::new(AlphaData {
             uv,
             mask,
@@ -219,6 +268,7 @@ impl EmbreeScene {
             std::ptr::copy_nonoverlapping(mesh.indices.as_ptr(), ib, nt);
             rtcSetGeometryUserData(geom, &*alpha as *const AlphaData as *mut c_void);
             rtcSetGeometryIntersectFilterFunction(geom, Some(alpha_filter));
+            rtcSetGeometryOccludedFilterFunction(geom, Some(alpha_filter));
             rtcCommitGeometry(geom);
             rtcAttachGeometry(scene, geom);
             rtcReleaseGeometry(geom);
@@ -227,8 +277,40 @@ impl EmbreeScene {
                 device,
                 scene,
                 _alpha: alpha,
+                corners,
+                materials,
+                bounds: (lo.into(), hi.into()),
+                skipped,
             })
         }
+    }
+
+    /// Triangles Embree leaves out (non-finite corners), as [`super::ModelBvh::skipped_triangles`].
+    pub fn skipped_triangles(&self) -> usize {
+        self.skipped
+    }
+
+    /// Whether an alpha-tested hit lies on the ray segment (rtcOccluded1, stops at the first).
+    pub fn any_hit(&self, ray: &Ray) -> bool {
+        let mut r = RayOnly {
+            org: ray.origin.to_array(),
+            tnear: ray.tmin,
+            dir: ray.dir.to_array(),
+            time: 0.0,
+            tfar: ray.tmax,
+            mask: u32::MAX,
+            id: 0,
+            flags: 0,
+        };
+        let mut ctx = IntersectContext {
+            flags: 0,
+            filter: None,
+            inst_id: [INVALID_ID],
+        };
+        // SAFETY: the scene is committed and alive; ctx and r are valid, r 16-byte aligned.
+        unsafe { rtcOccluded1(self.scene, &mut ctx, &mut r) };
+        // Embree sets tfar to -inf when the ray is occluded.
+        r.tfar == f32::NEG_INFINITY
     }
 
     /// Closest alpha-tested hit (`slot` is the triangle index; Embree has no slots).
@@ -263,6 +345,28 @@ impl EmbreeScene {
             u: rh.u,
             v: rh.v,
         })
+    }
+}
+
+impl ModelTracer for EmbreeScene {
+    #[inline]
+    fn closest_hit(&self, ray: &Ray) -> Option<Hit> {
+        EmbreeScene::closest_hit(self, ray)
+    }
+    #[inline]
+    fn any_hit(&self, ray: &Ray) -> bool {
+        EmbreeScene::any_hit(self, ray)
+    }
+    /// The same arithmetic as [`super::ModelBvh::hit_point`] on the same corners.
+    #[inline]
+    fn hit_point(&self, hit: &Hit) -> (Vec3A, Vec3A, u32) {
+        let c = &self.corners[hit.triangle as usize];
+        let position = c.v0 + c.e1 * hit.u + c.e2 * hit.v;
+        let ng = c.e1.cross(c.e2).normalize_or_zero();
+        (position, ng, self.materials[hit.triangle as usize])
+    }
+    fn bounds(&self) -> (Vec3A, Vec3A) {
+        self.bounds
     }
 }
 

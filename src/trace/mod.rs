@@ -95,6 +95,40 @@ pub fn cosine_hemisphere(n: Vec3A, u1: f32, u2: f32) -> Vec3A {
 
 pub use crate::rng::{Rng, mix64};
 
+/// What a path tracer over one model needs of its ray-tracing backend: the closest hit and
+/// an any-hit query, both with the alpha test, and the surface at a hit. Implemented by
+/// [`ModelBvh`] (obvhs) and, with the cargo feature `embree`, by `embree::EmbreeScene`; the
+/// PRT's path loop is generic over it, so one sampler drives every backend.
+pub trait ModelTracer: Sync {
+    /// The closest opaque hit along the ray segment.
+    fn closest_hit(&self, ray: &Ray) -> Option<Hit>;
+    /// Whether any opaque hit lies on the ray segment.
+    fn any_hit(&self, ray: &Ray) -> bool;
+    /// Position, unit geometric normal ((p1 − p0) × (p2 − p0) normalized, zero where the
+    /// triangle degenerates) and material at a hit this tracer returned.
+    fn hit_point(&self, hit: &Hit) -> (Vec3A, Vec3A, u32);
+    /// Axis-aligned bounds of the model's positions (`Mesh::bounds`).
+    fn bounds(&self) -> (Vec3A, Vec3A);
+}
+
+impl ModelTracer for ModelBvh {
+    #[inline]
+    fn closest_hit(&self, ray: &Ray) -> Option<Hit> {
+        ModelBvh::closest_hit(self, ray)
+    }
+    #[inline]
+    fn any_hit(&self, ray: &Ray) -> bool {
+        ModelBvh::any_hit(self, ray)
+    }
+    #[inline]
+    fn hit_point(&self, hit: &Hit) -> (Vec3A, Vec3A, u32) {
+        ModelBvh::hit_point(self, hit)
+    }
+    fn bounds(&self) -> (Vec3A, Vec3A) {
+        ModelBvh::bounds(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
