@@ -216,3 +216,229 @@ mod prt {
         assert!(one == two && two == again, "the Embree PRT bytes differ");
     }
 }
+
+/// The two-level scene of the light-map and environment-map stages on Embree
+/// (`trace::EmbreeSceneBvh`: Embree instances of one Embree scene per model, the heightfield as
+/// user geometry) against `trace::SceneBvh` (obvhs, the oracle) on a small generated scene: a
+/// few alpha-leaved trees instanced on a terrain.
+mod scene {
+    use bake::envmap::bake::EnvmapOptions;
+    use bake::lightmap::{BakeLight, LightmapOptions};
+    use bake::trace::pack_scene::TraceScene;
+    use bake::trace::{Ray, Rng, SceneTracer, Tracer};
+    use glam::Vec3A;
+    use std::sync::OnceLock;
+
+    /// The generated scene (60 instances of 3 trees on a 65² terrain), built once: sources,
+    /// terrain and sky only.
+    fn scene() -> &'static (TraceScene, BakeLight) {
+        static SCENE: OnceLock<(TraceScene, BakeLight)> = OnceLock::new();
+        SCENE.get_or_init(|| {
+            let dir = tempfile::tempdir().unwrap();
+            let p = bake::fixtures::large::LargeScene {
+                instances: 60,
+                models: 3,
+                terrain: 65,
+            };
+            for (name, bytes) in bake::fixtures::large::large_files(&p) {
+                std::fs::write(dir.path().join(name), bytes).unwrap();
+            }
+            let mut opts = bake::graph::BuildOptions {
+                scenes: vec![dir.path().join("scene.eco")],
+                output: Some(dir.path().join("scene.bake")),
+                sky: Some(dir.path().join("sky.hdr")),
+                cache: bake::graph::CacheMode::Off,
+                ..Default::default()
+            }
+            .preview();
+            let s = &mut opts.pipeline.stages;
+            (s.prt, s.lod, s.lightmap, s.atlas, s.envmaps, s.cluster) =
+                (false, false, false, false, false, false);
+            (s.bittree, s.svo, s.linespace) = (false, false, false);
+            bake::graph::build(&opts, &bake::graph::progress::Silent).unwrap();
+            let pack = bake::pack::Pack::open(&dir.path().join("scene.bake")).unwrap();
+            let ts = bake::trace::pack_scene::trace_scene(&pack).unwrap();
+            let light = bake::lightmap::scene_lighting(&pack).unwrap();
+            (ts, light)
+        })
+    }
+
+    /// ‖a − b‖ / ‖b‖ over every float.
+    fn rel_rms(a: &[f32], b: &[f32]) -> f64 {
+        assert_eq!(a.len(), b.len());
+        let (mut d, mut n) = (0.0f64, 0.0f64);
+        for (x, y) in a.iter().zip(b) {
+            d += ((x - y) as f64).powi(2);
+            n += (*y as f64).powi(2);
+        }
+        (d / n.max(1e-30)).sqrt()
+    }
+
+    #[test]
+    fn embree_scene_hits_equal_the_obvhs_scene() {
+        let (ts, _) = scene();
+        let cpu: &dyn SceneTracer = ts.tracer(Tracer::Cpu).unwrap();
+        let emb = ts.tracer(Tracer::Embree).unwrap();
+        let terrain = ts.instance_count as u32;
+        assert_eq!(cpu.instances(), emb.instances());
+        let t = ts.terrain.as_ref().unwrap();
+        let (lo, hi) = (
+            Vec3A::new(t.origin[0], t.origin[1], 0.0),
+            Vec3A::new(t.origin[0] + t.extent[0], t.origin[1] + t.extent[1], 12.0),
+        );
+        let mut rng = Rng::hashed(11);
+        let (mut n, mut hits, mut differ, mut terrain_hits, mut instance_hits) = (0, 0, 0, 0, 0);
+        let mut any_differ = 0;
+        for k in 0..20000 {
+            // From instance probes (as the env maps) and from random points above the ground.
+            let (o, skip) = if k % 2 == 0 {
+                let i = rng.below(ts.instance_count as u32);
+                let tr = ts.bvh.instances()[i as usize];
+                let o = Vec3A::from(tr.translation) + Vec3A::Z * (1.0 + 3.0 * rng.f32());
+                (o, Some(i))
+            } else {
+                let o = lo + (hi - lo) * Vec3A::new(rng.f32(), rng.f32(), rng.f32());
+                (o, None)
+            };
+            let o = Vec3A::new(o.x, o.y, o.z.max(t.height_at(o.x, o.y) + 0.05));
+            let d = Vec3A::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5)
+                .normalize_or(Vec3A::Z);
+            let r = Ray::new(o, d, 1e-4);
+            n += 1;
+            let (a, b) = (
+                cpu.closest_hit_excluding(&r, skip),
+                emb.closest_hit_excluding(&r, skip),
+            );
+            match (a, b) {
+                (Some(a), Some(b)) => {
+                    hits += 1;
+                    assert_ne!(Some(b.instance), skip, "the skipped instance is ignored");
+                    if a.instance == terrain && b.instance == terrain {
+                        // The same intersector on the same world ray: the same hit.
+                        assert_eq!(a.hit, b.hit);
+                        terrain_hits += 1;
+                    } else if a.instance == b.instance && a.hit.triangle == b.hit.triangle {
+                        assert!((a.hit.t - b.hit.t).abs() <= 1e-4 * a.hit.t.max(1.0));
+                        let (sa, sb) = (cpu.surface(&a), emb.surface(&b));
+                        assert!((sa.position - sb.position).length() <= 1e-3 * a.hit.t.max(1.0));
+                        assert!((sa.shading_normal - sb.shading_normal).length() < 1e-2);
+                        instance_hits += 1;
+                    } else if (a.hit.t - b.hit.t).abs() > 1e-4 * a.hit.t.max(1.0) {
+                        differ += 1;
+                    }
+                }
+                (None, None) => {}
+                _ => differ += 1,
+            }
+            if cpu.any_hit(&r) != emb.any_hit(&r) {
+                any_differ += 1;
+            }
+        }
+        eprintln!(
+            "{n} rays: {hits} hits ({terrain_hits} terrain, {instance_hits} same triangle), \
+             {differ} differ, any-hit differs on {any_differ}"
+        );
+        assert!(
+            terrain_hits > n / 10 && instance_hits > n / 20,
+            "too few hits"
+        );
+        assert!(differ * 1000 <= n, "{differ} of {n} rays differ");
+        assert!(
+            any_differ * 1000 <= n,
+            "{any_differ} of {n} any-hits differ"
+        );
+    }
+
+    fn envmaps(tracer: Tracer, seed: u64) -> Vec<f32> {
+        let (ts, light) = scene();
+        let o = EnvmapOptions {
+            samples: 64,
+            seed,
+            tracer,
+        };
+        let maps = bake::envmap::instance_maps(ts, light, &o, 0..ts.instance_count).unwrap();
+        maps.iter()
+            .flat_map(|(h, s)| h.iter().chain(s.iter()).flatten().copied())
+            .collect()
+    }
+
+    fn lightmap(tracer: Tracer) -> Vec<f32> {
+        let (ts, light) = scene();
+        let o = LightmapOptions {
+            resolution: Some(48),
+            samples: 16,
+            sun_samples: 4,
+            tracer,
+            ..Default::default()
+        };
+        let (texels, _) = bake::lightmap::bake_terrain_lightmap_rows(ts, light, &o, 0..48)
+            .unwrap()
+            .unwrap();
+        texels.iter().flatten().copied().collect()
+    }
+
+    #[test]
+    fn embree_env_maps_equal_cpu_far_below_the_noise() {
+        let cpu = envmaps(Tracer::Cpu, 0);
+        let emb = envmaps(Tracer::Embree, 0);
+        let other = envmaps(Tracer::Cpu, 1);
+        let (d, noise) = (rel_rms(&emb, &cpu), rel_rms(&other, &cpu));
+        eprintln!("env maps: embree vs cpu {d:.3e}, cpu seed 1 vs seed 0 {noise:.3e}");
+        assert!(noise > 1e-3, "the negative control differs: {noise}");
+        assert!(d < 0.05 * noise, "embree {d} against the noise {noise}");
+    }
+
+    #[test]
+    fn embree_terrain_light_map_equals_cpu_far_below_the_noise() {
+        let cpu = lightmap(Tracer::Cpu);
+        let emb = lightmap(Tracer::Embree);
+        let (ts, light) = scene();
+        // Negative control: the same map with other sample streams (other seeds per texel).
+        let o = LightmapOptions {
+            resolution: Some(48),
+            samples: 16,
+            sun_samples: 4,
+            ..Default::default()
+        };
+        let t = ts.terrain.as_ref().unwrap();
+        let sky_irr = light.sky.to_irradiance();
+        let mut other = Vec::new();
+        for k in 0..48u32 * 48 {
+            let (i, j) = (k % 48, k / 48);
+            let x = t.origin[0] + (i as f32 + 0.5) / 48.0 * t.extent[0];
+            let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / 48.0) * t.extent[1];
+            let p = Vec3A::new(x, y, t.height_at(x, y));
+            let n = Vec3A::from(bake::lightmap::height_normal(t, x, y));
+            let e = bake::lightmap::texel_irradiance(
+                &ts.bvh,
+                &ts.albedo,
+                light,
+                &sky_irr,
+                p,
+                n,
+                k as u64 + (1 << 32),
+                &o,
+            );
+            other.extend(e);
+        }
+        let (d, noise) = (rel_rms(&emb, &cpu), rel_rms(&other, &cpu));
+        eprintln!("terrain light map: embree vs cpu {d:.3e}, other streams vs cpu {noise:.3e}");
+        assert!(noise > 1e-3, "the negative control differs: {noise}");
+        assert!(d < 0.05 * noise, "embree {d} against the noise {noise}");
+    }
+
+    #[test]
+    fn embree_lighting_is_byte_identical_across_threads() {
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| (envmaps(Tracer::Embree, 0), lightmap(Tracer::Embree)))
+        };
+        let (a, b) = (run(1), run(2));
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.0), bits(&b.0), "env maps");
+        assert_eq!(bits(&a.1), bits(&b.1), "light map");
+    }
+}

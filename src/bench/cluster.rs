@@ -298,6 +298,7 @@ fn trace_reference(
         let o = crate::envmap::bake::EnvmapOptions {
             samples: (samples / 2).max(1),
             seed,
+            ..crate::envmap::bake::EnvmapOptions::DEFAULT
         };
         let (mut sky, mut sun): (Vec<_>, Vec<_>) = trace(&o, &subset).into_iter().unzip();
         crate::envmap::to_world_frame(&mut sky, &mut sun, &rot);
@@ -341,7 +342,11 @@ fn pack_scene(path: &Path, a: &ClusterBench) -> Result<BenchScene> {
                 subset,
                 &rotations,
                 a.reference_samples,
-                |o, s| crate::envmap::instance_maps_subset(ts, light, o, s),
+                // The options are the CPU tracer's, which always builds.
+                |o, s| {
+                    crate::envmap::instance_maps_subset(ts, light, o, s)
+                        .expect("the cpu tracer always builds")
+                },
             ))
         }
         _ => None,
@@ -355,8 +360,10 @@ fn pack_scene(path: &Path, a: &ClusterBench) -> Result<BenchScene> {
                 let o = crate::envmap::bake::EnvmapOptions {
                     samples: (meta.samples / 2).max(1),
                     seed,
+                    ..crate::envmap::bake::EnvmapOptions::DEFAULT
                 };
-                let maps = crate::envmap::instance_maps_subset(ts, light, &o, &all);
+                let maps = crate::envmap::instance_maps_subset(ts, light, &o, &all)
+                    .expect("the cpu tracer always builds");
                 let (mut sky, mut sun): (Vec<_>, Vec<_>) = maps.into_iter().unzip();
                 crate::envmap::to_world_frame(&mut sky, &mut sun, &rotations);
                 section::flatten(&sky, &sun)
@@ -452,6 +459,7 @@ fn traced_scene(a: &ClusterBench) -> Result<BenchScene> {
         &crate::envmap::bake::EnvmapOptions {
             samples: a.samples,
             seed: 1,
+            ..crate::envmap::bake::EnvmapOptions::DEFAULT
         },
     );
     let (mut sky_maps, mut sun_maps): (Vec<_>, Vec<_>) = maps.into_iter().unzip();

@@ -59,18 +59,19 @@ pub fn half_estimates(
     let opts = |samples: u32, seed: u64| crate::envmap::bake::EnvmapOptions {
         samples: samples.max(1),
         seed,
+        ..crate::envmap::bake::EnvmapOptions::DEFAULT
     };
-    let half = |seed: u64| {
-        let maps = crate::envmap::instance_maps(&scene, &light, &opts(samples / 2, seed), 0..n);
-        world(maps, &rot)
+    let half = |seed: u64| -> Result<Vec<f32>> {
+        let maps = crate::envmap::instance_maps(&scene, &light, &opts(samples / 2, seed), 0..n)?;
+        Ok(world(maps, &rot))
     };
-    let a = half(0x00a1_1ce5);
-    let b = half(0x00b0_b005);
+    let a = half(0x00a1_1ce5)?;
+    let b = half(0x00b0_b005)?;
     let ro = opts(ref_samples, 0x0072_ef00);
-    let reference: Vec<crate::envmap::bake::InstanceMaps> = subset
-        .iter()
-        .flat_map(|&i| crate::envmap::instance_maps(&scene, &light, &ro, i..i + 1))
-        .collect();
+    let mut reference: Vec<crate::envmap::bake::InstanceMaps> = Vec::new();
+    for &i in subset {
+        reference.extend(crate::envmap::instance_maps(&scene, &light, &ro, i..i + 1)?);
+    }
     let sub_rot: Vec<f32> = subset.iter().map(|&i| rot[i]).collect();
     let reference = world(reference, &sub_rot);
     let pos = scene.instances.items.iter().map(|i| i.position).collect();

@@ -42,7 +42,7 @@ pub fn bench_lightmap(input: Option<&Path>, samples: u32, repeat: u32) -> Result
     let scene_s = best(&mut || crate::trace::pack_scene::trace_scene(&pack).map(|_| ()))?;
     let scene = crate::trace::pack_scene::trace_scene(&pack)?;
     let terrain_s = best(&mut || {
-        crate::lightmap::bake_terrain_lightmap(&scene, &light, &opts);
+        crate::lightmap::bake_terrain_lightmap(&scene, &light, &opts)?;
         Ok(())
     })?;
     let mut sections = Vec::new();

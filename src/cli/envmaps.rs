@@ -16,6 +16,10 @@ pub struct EnvmapsArgs {
     /// Rays per instance.
     #[arg(long, default_value_t = 256)]
     pub samples: u32,
+    /// Ray-tracing backend: cpu (obvhs and the heightfield) or embree (needs a build with the
+    /// cargo feature `embree`).
+    #[arg(long, default_value = "cpu", value_parser = super::prt::parse_tracer)]
+    pub tracer: crate::trace::Tracer,
 }
 
 pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
@@ -23,8 +27,11 @@ pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
     let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
     let opts = EnvmapOptions {
         samples: args.samples,
+        tracer: args.tracer,
         ..Default::default()
     };
+    opts.check()
+        .map_err(|m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name())))?;
     let start = std::time::Instant::now();
     let sections = crate::envmap::envmap_sections(&pack, &opts)?;
     let seconds = start.elapsed().as_secs_f64();

@@ -32,6 +32,10 @@ pub struct LightmapArgs {
     /// Gutter texels around every chart.
     #[arg(long, default_value_t = 2)]
     pub gutter: u32,
+    /// Ray-tracing backend: cpu (obvhs and the heightfield) or embree (needs a build with the
+    /// cargo feature `embree`).
+    #[arg(long, default_value = "cpu", value_parser = super::prt::parse_tracer)]
+    pub tracer: crate::trace::Tracer,
 }
 
 pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
@@ -47,8 +51,11 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
             gutter: args.gutter.max(1),
             ..Default::default()
         },
+        tracer: args.tracer,
         ..Default::default()
     };
+    opts.check()
+        .map_err(|m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name())))?;
     let start = std::time::Instant::now();
     let mut sections = crate::lightmap::lightmap_sections(&pack, &opts)?;
     sections.extend(crate::lightmap::atlas_sections(&pack, &opts)?);

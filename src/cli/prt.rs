@@ -42,7 +42,7 @@ pub struct PrtArgs {
 }
 
 /// A [`PrtTracer`] as the options spell it.
-fn parse_tracer(s: &str) -> std::result::Result<PrtTracer, String> {
+pub(crate) fn parse_tracer(s: &str) -> std::result::Result<PrtTracer, String> {
     serde_json::from_value(serde_json::Value::String(s.to_string()))
         .map_err(|_| format!("unknown tracer {s:?}: expected cpu or embree"))
 }

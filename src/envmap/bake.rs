@@ -20,7 +20,7 @@
 //! Unbiased for that light model; it converges to the brute-force answer as samples grow.
 
 use crate::sh::{self, ShIrradiance, ShRadiance};
-use crate::trace::{Ray, SceneBvh};
+use crate::trace::{Ray, SceneTracer, Tracer};
 use glam::Vec3A;
 use rayon::prelude::*;
 
@@ -36,7 +36,7 @@ pub struct SunLight {
 /// What the estimator traces against.
 pub struct EnvmapScene<'a> {
     /// Instances (and the terrain as one more instance, if any).
-    pub bvh: &'a SceneBvh,
+    pub bvh: &'a dyn SceneTracer,
     /// Number of plant instances: BVH instances `0..count` get maps; later ones (terrain) do not.
     pub count: usize,
     /// Probe height above each instance's position, metres.
@@ -53,6 +53,8 @@ pub struct EnvmapScene<'a> {
 pub struct EnvmapOptions {
     pub samples: u32,
     pub seed: u64,
+    /// Ray-tracing backend ([`Tracer`]: `cpu` | `embree`).
+    pub tracer: Tracer,
 }
 
 impl EnvmapOptions {
@@ -60,7 +62,13 @@ impl EnvmapOptions {
     pub const DEFAULT: EnvmapOptions = EnvmapOptions {
         samples: 256,
         seed: 0x00e0_2005,
+        tracer: Tracer::Cpu,
     };
+
+    /// Options this binary cannot run (a tracer it was built without).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        self.tracer.available_as("envmaps.tracer")
+    }
 }
 
 impl Default for EnvmapOptions {
@@ -176,7 +184,7 @@ fn radiance_along(
     }
 }
 
-fn blocked(bvh: &SceneBvh, skip: u32, p: Vec3A, d: Vec3A) -> bool {
+fn blocked(bvh: &dyn SceneTracer, skip: u32, p: Vec3A, d: Vec3A) -> bool {
     bvh.closest_hit_excluding(&Ray::new(p, d, 1e-4), Some(skip))
         .is_some()
 }

@@ -358,7 +358,7 @@ pub fn envmap_sections(
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = crate::lightmap::scene_lighting(pack)?;
     let scene = crate::trace::pack_scene::trace_scene(pack)?;
-    let maps = instance_maps(&scene, &light, opts, 0..scene.instance_count);
+    let maps = instance_maps(&scene, &light, opts, 0..scene.instance_count)?;
     Ok(vec![envmaps_section(&maps, opts)])
 }
 
@@ -369,8 +369,10 @@ pub fn instance_maps(
     light: &crate::lightmap::BakeLight,
     opts: &bake::EnvmapOptions,
     range: std::ops::Range<usize>,
-) -> Vec<bake::InstanceMaps> {
-    with_envmap_scene(scene, light, |es| bake::bake_envmaps_range(es, opts, range))
+) -> crate::error::Result<Vec<bake::InstanceMaps>> {
+    with_envmap_scene(scene, light, opts, |es| {
+        bake::bake_envmaps_range(es, opts, range)
+    })
 }
 
 /// The maps of the instances `subset` of a pack's scene (in that order).
@@ -379,8 +381,8 @@ pub fn instance_maps_subset(
     light: &crate::lightmap::BakeLight,
     opts: &bake::EnvmapOptions,
     subset: &[usize],
-) -> Vec<bake::InstanceMaps> {
-    with_envmap_scene(scene, light, |es| {
+) -> crate::error::Result<Vec<bake::InstanceMaps>> {
+    with_envmap_scene(scene, light, opts, |es| {
         bake::bake_envmaps_subset(es, opts, subset)
     })
 }
@@ -388,8 +390,9 @@ pub fn instance_maps_subset(
 fn with_envmap_scene<T>(
     scene: &crate::trace::pack_scene::TraceScene,
     light: &crate::lightmap::BakeLight,
+    opts: &bake::EnvmapOptions,
     f: impl FnOnce(&bake::EnvmapScene) -> T,
-) -> T {
+) -> crate::error::Result<T> {
     let probe_height = scene
         .instances
         .items
@@ -397,7 +400,7 @@ fn with_envmap_scene<T>(
         .map(|i| 0.5 * scene.model_height[i.model as usize] * i.scale)
         .collect();
     let es = bake::EnvmapScene {
-        bvh: &scene.bvh,
+        bvh: scene.tracer(opts.tracer)?,
         count: scene.instance_count,
         probe_height,
         albedo: scene.albedo.clone(),
@@ -407,7 +410,7 @@ fn with_envmap_scene<T>(
             irradiance,
         }),
     };
-    f(&es)
+    Ok(f(&es))
 }
 
 /// Compression the stage reaches: the raw maps (`dim` f32 per instance) over the stored samples

@@ -345,6 +345,16 @@ fn file_dep(path: &Path) -> FileDep {
     }
 }
 
+/// A lighting stage's tracer in its key: absent for `cpu` (the keys, and so the cached units,
+/// of the CPU backend are those from before the option existed), named otherwise.
+fn keyed_tracer(o: &mut Value, t: crate::trace::Tracer) {
+    if t != crate::trace::Tracer::Cpu
+        && let Some(m) = o.as_object_mut()
+    {
+        m.insert("tracer".into(), t.name().into());
+    }
+}
+
 fn report_of(r: &impl Serialize) -> Value {
     serde_json::to_value(r).unwrap_or(Value::Null)
 }
@@ -669,11 +679,12 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
     };
     let lm = &p.lightmap;
     if s.lightmap {
-        let o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode});
+        let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode});
+        keyed_tracer(&mut o, lm.tracer);
         let key = keyed(g, "lightmap", versions::LIGHTMAP, "terrain", &o);
         let out = g.unit("lightmap", "terrain", key, None, |_| {
             let (ts, light) = traced()?;
-            let s = crate::lightmap::terrain_sections(ts, light, lm);
+            let s = crate::lightmap::terrain_sections(ts, light, lm)?;
             Ok(Output {
                 report: json!({"texels": texels(&s)}),
                 sections: s,
@@ -683,7 +694,8 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
         g.finish_sections(out)?;
     }
     if s.atlas {
-        let o = json!({"samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode, "max_instances": lm.max_instances, "atlas": lm.atlas});
+        let mut o = json!({"samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode, "max_instances": lm.max_instances, "atlas": lm.atlas});
+        keyed_tracer(&mut o, lm.tracer);
         let key = keyed(g, "atlas", versions::ATLAS, "objects", &o);
         let out = g.unit("atlas", "objects", key, None, |_| {
             let (ts, light) = traced()?;
@@ -700,7 +712,11 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
         let n = scene.instances.items.len();
         let shard = p.units.envmap_shard_instances.max(1) as usize;
         let mut maps: Vec<crate::envmap::bake::InstanceMaps> = Vec::with_capacity(n);
-        let o = report_of(&p.envmaps);
+        let mut o = report_of(&p.envmaps);
+        if let Some(m) = o.as_object_mut() {
+            m.remove("tracer");
+        }
+        keyed_tracer(&mut o, p.envmaps.tracer);
         for start in (0..n.max(1)).step_by(shard) {
             let range = start..(start + shard).min(n);
             let unit = format!("instances {}..{}", range.start, range.end);
@@ -708,7 +724,7 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
             let r = range.clone();
             let out = g.unit("envmaps", &unit, key, Some(range.len() as u64), |_| {
                 let (ts, light) = traced()?;
-                let m = crate::envmap::instance_maps(ts, light, &p.envmaps, r.clone());
+                let m = crate::envmap::instance_maps(ts, light, &p.envmaps, r.clone())?;
                 Ok(Output {
                     report: json!({"instances": m.len(), "rays": m.len() as u64 * p.envmaps.samples as u64}),
                     sections: vec![shard_section(&m)],

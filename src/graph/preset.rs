@@ -288,6 +288,8 @@ impl Pipeline {
         }
         self.lod.check()?;
         self.prt.check()?;
+        self.lightmap.check()?;
+        self.envmaps.check()?;
         if self.units.envmap_shard_instances == 0 {
             return Err("units.envmap_shard_instances must be at least 1".into());
         }

@@ -25,7 +25,7 @@ pub mod section;
 
 use crate::sh::{ShIrradiance, ShRadiance};
 use crate::trace::pack_scene::TraceScene;
-use crate::trace::{Ray, SceneBvh};
+use crate::trace::{Ray, SceneTracer, Tracer};
 use glam::Vec3A;
 use rayon::prelude::*;
 
@@ -51,6 +51,8 @@ pub struct LightmapOptions {
     /// Models placed at most this many times get an atlas light map (one tile per instance).
     pub max_instances: u32,
     pub atlas: atlas::AtlasOptions,
+    /// Ray-tracing backend of the terrain and object light maps ([`Tracer`]: `cpu` | `embree`).
+    pub tracer: Tracer,
 }
 
 impl LightmapOptions {
@@ -63,7 +65,13 @@ impl LightmapOptions {
         mode: LightmapMode::Physical,
         max_instances: 16,
         atlas: atlas::AtlasOptions::DEFAULT,
+        tracer: Tracer::Cpu,
     };
+
+    /// Options this binary cannot run (a tracer it was built without).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        self.tracer.available_as("lightmap.tracer")
+    }
 }
 
 impl Default for LightmapOptions {
@@ -94,8 +102,8 @@ pub fn bake_terrain_lightmap(
     scene: &TraceScene,
     light: &BakeLight,
     opts: &LightmapOptions,
-) -> Option<Lightmap> {
-    bake_terrain_lightmap_parts(scene, light, opts).map(|(m, _)| m)
+) -> crate::error::Result<Option<Lightmap>> {
+    Ok(bake_terrain_lightmap_parts(scene, light, opts)?.map(|(m, _)| m))
 }
 
 /// [`bake_terrain_lightmap`] and the direct-sun part of every texel (equal to
@@ -104,17 +112,21 @@ pub fn bake_terrain_lightmap_parts(
     scene: &TraceScene,
     light: &BakeLight,
     opts: &LightmapOptions,
-) -> Option<(Lightmap, Vec<[f32; 3]>)> {
-    let (w, h) = terrain_lightmap_size(scene, opts)?;
-    let (texels, direct) = bake_terrain_lightmap_rows(scene, light, opts, 0..h)?;
-    Some((
+) -> crate::error::Result<Option<(Lightmap, Vec<[f32; 3]>)>> {
+    let Some((w, h)) = terrain_lightmap_size(scene, opts) else {
+        return Ok(None);
+    };
+    let Some((texels, direct)) = bake_terrain_lightmap_rows(scene, light, opts, 0..h)? else {
+        return Ok(None);
+    };
+    Ok(Some((
         Lightmap {
             width: w,
             height: h,
             texels,
         },
         direct,
-    ))
+    )))
 }
 
 /// Texels per side of the terrain's light map (`None` without a terrain).
@@ -133,14 +145,18 @@ pub type TexelRows = (Vec<[f32; 3]>, Vec<[f32; 3]>);
 
 /// The texels (irradiance, direct-sun part) of rows `rows` of the terrain light map, exactly as
 /// the whole map holds them (each texel is seeded by its index): a shard of the light map.
+/// Traced on `opts.tracer` (an error only where that backend cannot be built).
 pub fn bake_terrain_lightmap_rows(
     scene: &TraceScene,
     light: &BakeLight,
     opts: &LightmapOptions,
     rows: std::ops::Range<u32>,
-) -> Option<TexelRows> {
-    let t = scene.terrain.as_ref()?;
-    let (w, h) = terrain_lightmap_size(scene, opts)?;
+) -> crate::error::Result<Option<TexelRows>> {
+    let (Some(t), Some((w, h))) = (scene.terrain.as_ref(), terrain_lightmap_size(scene, opts))
+    else {
+        return Ok(None);
+    };
+    let bvh = scene.tracer(opts.tracer)?;
     let rows = rows.start.min(h)..rows.end.min(h);
     let sky_irr = light.sky.to_irradiance();
     let (texels, direct): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (rows.start * w..rows.end * w)
@@ -152,19 +168,10 @@ pub fn bake_terrain_lightmap_rows(
             let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / h as f32) * t.extent[1];
             let p = Vec3A::new(x, y, t.height_at(x, y));
             let n = Vec3A::from(height_normal(t, x, y));
-            texel_irradiance_parts(
-                &scene.bvh,
-                &scene.albedo,
-                light,
-                &sky_irr,
-                p,
-                n,
-                k as u64,
-                opts,
-            )
+            texel_irradiance_parts(bvh, &scene.albedo, light, &sky_irr, p, n, k as u64, opts)
         })
         .unzip();
-    Some((texels, direct))
+    Ok(Some((texels, direct)))
 }
 
 /// Normal of the bilinear height field at (x, y) by central differences over one grid step.
@@ -179,7 +186,7 @@ pub fn height_normal(t: &crate::model::Terrain, x: f32, y: f32) -> [f32; 3] {
 /// Irradiance at one surface point.
 #[allow(clippy::too_many_arguments)]
 pub fn texel_irradiance(
-    bvh: &SceneBvh,
+    bvh: &dyn SceneTracer,
     albedo: &[[f32; 3]],
     light: &BakeLight,
     sky_irr: &ShIrradiance,
@@ -195,7 +202,7 @@ pub fn texel_irradiance(
 /// [`terrain_direct_sun`] recomputes), from one pass.
 #[allow(clippy::too_many_arguments)]
 pub fn texel_irradiance_parts(
-    bvh: &SceneBvh,
+    bvh: &dyn SceneTracer,
     albedo: &[[f32; 3]],
     light: &BakeLight,
     sky_irr: &ShIrradiance,
@@ -254,7 +261,7 @@ pub fn texel_irradiance_parts(
 
 /// Outgoing diffuse radiance of a hit surface lit by the sun (shadowed) and the unoccluded sky.
 fn bounce_radiance(
-    bvh: &SceneBvh,
+    bvh: &dyn SceneTracer,
     albedo: &[[f32; 3]],
     light: &BakeLight,
     sky_irr: &ShIrradiance,
@@ -284,7 +291,7 @@ fn bounce_radiance(
 }
 
 /// Fraction of the sun's disc visible from p: stratified points on the disc, one shadow ray each.
-pub fn sun_visibility(bvh: &SceneBvh, p: Vec3A, s: Vec3A, samples: u32, texel: u64) -> f32 {
+pub fn sun_visibility(bvh: &dyn SceneTracer, p: Vec3A, s: Vec3A, samples: u32, texel: u64) -> f32 {
     let n = samples.max(1);
     let (tx, bx) = crate::trace::frame(s);
     let shift = cp_rotation(texel ^ 0x5u64 << 60);
@@ -343,7 +350,7 @@ pub fn lightmap_sections(
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = scene_lighting(pack)?;
     let scene = crate::trace::pack_scene::trace_scene(pack)?;
-    Ok(terrain_sections(&scene, &light, opts))
+    terrain_sections(&scene, &light, opts)
 }
 
 /// [`lightmap_sections`] with the scene and its light at hand (empty without a terrain).
@@ -351,11 +358,11 @@ pub fn terrain_sections(
     scene: &TraceScene,
     light: &BakeLight,
     opts: &LightmapOptions,
-) -> Vec<crate::pack::Section> {
-    let Some((map, direct)) = bake_terrain_lightmap_parts(scene, light, opts) else {
-        return Vec::new();
+) -> crate::error::Result<Vec<crate::pack::Section>> {
+    let Some((map, direct)) = bake_terrain_lightmap_parts(scene, light, opts)? else {
+        return Ok(Vec::new());
     };
-    terrain_sections_of(&map, &direct, opts)
+    Ok(terrain_sections_of(&map, &direct, opts))
 }
 
 /// The terrain light map's section from its texels and their direct-sun part.
@@ -384,6 +391,9 @@ pub fn terrain_sections_of(
 /// [`bake_terrain_lightmap`] and [`texel_irradiance`] add it (same texel positions, normals, ray
 /// origins, disc samples and per-texel seeds): `E_sun · max(0, n·s) · V`, V = 1 in thesis mode.
 /// The renderer's ambient term is the light map without it (the direct term draws the sun).
+/// Traced on the CPU scene (the section does not say which backend baked it; an Embree-baked
+/// map's own direct part, stored beside it, differs from this one only by rare float-level
+/// hit differences).
 pub fn terrain_direct_sun(
     scene: &TraceScene,
     light: &BakeLight,
@@ -438,6 +448,7 @@ pub fn object_sections(
     let bad = |e| crate::error::Error::invalid(pack.path(), e);
     let (imeta, _) = crate::ingest::instances_section::from_section(&pack.view_named("instances")?)
         .map_err(bad)?;
+    let bvh = scene.tracer(opts.tracer)?;
     let models: Vec<u32> = scene.instances.items.iter().map(|i| i.model).collect();
     let placed = objects::placed_models(&models, imeta.mesh_sections.len(), opts.max_instances);
     let mut out = Vec::new();
@@ -453,7 +464,7 @@ pub fn object_sections(
         };
         // Seeds above the terrain's texel indices (< 2³²), one stream family per model.
         let seed = crate::trace::mix64((m as u64 + 1) << 40);
-        let map = objects::bake_object_lightmap(&scene.bvh, &scene.albedo, light, p, seed, opts)
+        let map = objects::bake_object_lightmap(bvh, &scene.albedo, light, p, seed, opts)
             .map_err(|e| crate::error::Error::runtime(format!("light map of {name}: {e}")))?;
         let meta = atlas_section::AtlasMeta {
             surface: name.clone(),

@@ -14,7 +14,7 @@
 use super::atlas::{AtlasLayout, build_atlas, dilate, rasterize};
 use super::{BakeLight, LightmapOptions, texel_irradiance};
 use crate::model::Mesh;
-use crate::trace::SceneBvh;
+use crate::trace::SceneTracer;
 use glam::Vec3A;
 use rayon::prelude::*;
 
@@ -106,7 +106,7 @@ fn tile_rect(s: usize, columns: u32, tile: u32, width: u32, height: u32) -> [f32
 /// meshes; texels are independent, so the result does not depend on the thread count. An error
 /// if the mesh's charts do not fit the largest tile.
 pub fn bake_object_lightmap(
-    bvh: &SceneBvh,
+    bvh: &dyn SceneTracer,
     albedo: &[[f32; 3]],
     light: &BakeLight,
     placed: PlacedMesh,
@@ -121,7 +121,7 @@ pub fn bake_object_lightmap(
 
 /// [`bake_object_lightmap`] with a given layout.
 pub fn bake_with_layout(
-    bvh: &SceneBvh,
+    bvh: &dyn SceneTracer,
     albedo: &[[f32; 3]],
     light: &BakeLight,
     placed: PlacedMesh,
@@ -193,7 +193,7 @@ pub fn bake_with_layout(
 /// The direct-sun part of [`texel_irradiance`] at the same point with the same per-texel seed
 /// (so the same disc samples): `E_sun · max(0, n·s) · V`, V = 1 in thesis mode.
 pub fn texel_direct_sun(
-    bvh: &SceneBvh,
+    bvh: &dyn SceneTracer,
     light: &BakeLight,
     p: Vec3A,
     n: Vec3A,

@@ -236,7 +236,7 @@ fn traced_packs(s: &SceneArgs, inputs: &[PathBuf]) -> Result<Traced> {
 /// The terrain light map over the packs of the terrain, the models, the instances and the sky.
 pub fn lightmap(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
     let (ts, light) = traced_packs(s, inputs)?;
-    let outs = crate::lightmap::terrain_sections(&ts, &light, &s.pipeline.lightmap);
+    let outs = crate::lightmap::terrain_sections(&ts, &light, &s.pipeline.lightmap)?;
     finish("lightmap", out, outs, Vec::new())
 }
 
@@ -266,7 +266,7 @@ pub fn lightmap_rows(
         let r = shard_range(shard.0, shard.1, h as usize);
         let rows = r.start as u32..r.end as u32;
         let (texels, direct) =
-            crate::lightmap::bake_terrain_lightmap_rows(&ts, &light, lm, rows.clone())
+            crate::lightmap::bake_terrain_lightmap_rows(&ts, &light, lm, rows.clone())?
                 .unwrap_or_default();
         let mut b = crate::pack::SectionBuilder::new(LIGHTMAP_ROWS_KIND, LIGHTMAP_ROWS_KIND);
         b.meta(&RowsMeta {
@@ -367,7 +367,7 @@ pub fn envmaps_shard(
 ) -> Result<UnitReport> {
     let (ts, light) = traced_packs(s, inputs)?;
     let range = shard_range(shard.0, shard.1, ts.instances.items.len());
-    let maps = crate::envmap::instance_maps(&ts, &light, &s.pipeline.envmaps, range);
+    let maps = crate::envmap::instance_maps(&ts, &light, &s.pipeline.envmaps, range)?;
     finish(
         "envmaps-shard",
         out,

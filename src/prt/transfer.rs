@@ -53,18 +53,9 @@ pub const SETS: usize = 2;
 /// RGB transfer coefficients per vertex.
 pub const PER_VERTEX: usize = SIDES * SETS * COEFFS;
 
-/// The ray-tracing backend of the PRT ([`ModelTracer`]): `cpu` (obvhs, every build) or
-/// `embree` (Embree 3, builds with the cargo feature `embree` only; elsewhere the option is
-/// refused, see [`PrtOptions::check`]). The sampler is the same on every backend, so the
-/// transfer agrees up to rare float-level differences of the hits; each backend on its own is
-/// deterministic.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum PrtTracer {
-    #[default]
-    Cpu,
-    Embree,
-}
+/// The ray-tracing backend of the PRT ([`ModelTracer`]): the shared [`crate::trace::Tracer`]
+/// (`cpu` | `embree`; `embree` only with the cargo feature, see [`PrtOptions::check`]).
+pub type PrtTracer = crate::trace::Tracer;
 
 /// Options of the PRT stage.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -118,30 +109,6 @@ impl PrtOptions {
             samples: 256,
             bounces: 3,
             ..Self::preview()
-        }
-    }
-}
-
-impl PrtTracer {
-    /// The backend's name as options spell it.
-    pub fn name(self) -> &'static str {
-        match self {
-            PrtTracer::Cpu => "cpu",
-            PrtTracer::Embree => "embree",
-        }
-    }
-
-    /// Whether this binary can trace on the backend (`embree`: the cargo feature `embree`).
-    pub fn available(self) -> std::result::Result<(), String> {
-        match self {
-            PrtTracer::Cpu => Ok(()),
-            PrtTracer::Embree if cfg!(feature = "embree") => Ok(()),
-            PrtTracer::Embree => Err(
-                "prt.tracer = \"embree\" needs a bake built with the cargo feature `embree` \
-                 (Debian: apt-get install libembree-dev; then cargo build --release --features \
-                 embree); this binary has only tracer = \"cpu\""
-                    .into(),
-            ),
         }
     }
 }

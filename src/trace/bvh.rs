@@ -467,6 +467,30 @@ impl ModelBvh {
         rays.par_iter().map(|r| self.any_hit(r)).collect()
     }
 
+    /// The mesh this BVH was built from (positions, texture coordinates, triangles and their
+    /// materials; no normals) and the alpha mask of every material, for another backend
+    /// (`trace::embree`) to build the same alpha-tested model.
+    pub fn source(&self) -> (Mesh, Vec<Option<AlphaMask>>) {
+        let mesh = Mesh {
+            positions: self.positions.iter().map(|p| p.to_array()).collect(),
+            uvs: self.uvs.clone(),
+            indices: self.indices.clone(),
+            triangle_materials: self.triangle_materials.clone(),
+            ..Mesh::default()
+        };
+        let masks = self
+            .material_mask
+            .iter()
+            .map(|&m| (m != NO_MASK).then(|| self.masks[m as usize].clone()))
+            .collect();
+        (mesh, masks)
+    }
+
+    /// The first BVH slot of triangle `t` (`u32::MAX`: not in the BVH).
+    pub fn slot_of(&self, t: u32) -> u32 {
+        self.first_slot.get(t as usize).copied().unwrap_or(NO_SLOT)
+    }
+
     /// Position, unit geometric normal and material at a hit, from the slot data only (the
     /// fast path for path tracing; [`ModelBvh::surface`] interpolates every attribute).
     #[inline]

@@ -15,6 +15,8 @@ pub mod pack_scene;
 pub mod scene;
 
 pub use bvh::{AlphaMask, BuildPreset, ModelBvh, SurfacePoint};
+#[cfg(feature = "embree")]
+pub use embree::EmbreeSceneBvh;
 pub use heightfield::{Heightfield, TerrainPoint};
 pub use scene::{InstanceTransform, SceneBvh, SceneHit};
 
@@ -126,6 +128,90 @@ impl ModelTracer for ModelBvh {
     }
     fn bounds(&self) -> (Vec3A, Vec3A) {
         ModelBvh::bounds(self)
+    }
+}
+
+/// A ray-tracing backend as the stages' options spell it (`prt.tracer`, `lightmap.tracer`,
+/// `envmaps.tracer`): `cpu` (obvhs and the heightfield quadtree, every build) or `embree`
+/// (Embree 3, builds with the cargo feature `embree` only; elsewhere the option is refused, see
+/// [`Tracer::available`]). The samplers are the same on every backend, so the outputs agree up
+/// to rare float-level differences of the hits; each backend on its own is deterministic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Tracer {
+    #[default]
+    Cpu,
+    Embree,
+}
+
+impl Tracer {
+    /// The backend's name as options spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Tracer::Cpu => "cpu",
+            Tracer::Embree => "embree",
+        }
+    }
+
+    /// Whether this binary can trace on the backend (`embree`: the cargo feature `embree`).
+    pub fn available(self) -> std::result::Result<(), String> {
+        self.available_as("prt.tracer")
+    }
+
+    /// [`Tracer::available`] with the option's key (`lightmap.tracer`, ...) in the refusal.
+    pub fn available_as(self, key: &str) -> std::result::Result<(), String> {
+        match self {
+            Tracer::Cpu => Ok(()),
+            Tracer::Embree if cfg!(feature = "embree") => Ok(()),
+            Tracer::Embree => Err(format!(
+                "{key} = \"embree\" needs a bake built with the cargo feature `embree` \
+                 (Debian: apt-get install libembree-dev; then cargo build --release --features \
+                 embree); this binary has only tracer = \"cpu\""
+            )),
+        }
+    }
+}
+
+/// What the light-map and environment-map stages need of a two-level scene (instances of models
+/// plus the terrain as the last instance): the closest hit with one instance ignored, an any-hit
+/// query, both alpha-tested, and the world-space surface at a hit. Implemented by [`SceneBvh`]
+/// (obvhs instances and the heightfield quadtree) and, with the cargo feature `embree`, by
+/// `embree::EmbreeSceneBvh` (Embree instances of one Embree scene per model, the heightfield as
+/// user geometry); the stages' estimators take `&dyn SceneTracer`, so one sampler drives both.
+pub trait SceneTracer: Sync + Send {
+    /// The model instances (the terrain, if any, is instance number `instances().len()`).
+    fn instances(&self) -> &[InstanceTransform];
+    /// The closest opaque hit over all instances but `skip` (`t` is the world ray's).
+    fn closest_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit>;
+    /// The closest opaque hit over all instances.
+    fn closest_hit(&self, ray: &Ray) -> Option<SceneHit> {
+        self.closest_hit_excluding(ray, None)
+    }
+    /// Whether any instance blocks the ray segment.
+    fn any_hit(&self, ray: &Ray) -> bool;
+    /// The hit's surface in world space.
+    fn surface(&self, hit: &SceneHit) -> SurfacePoint;
+}
+
+impl SceneTracer for SceneBvh {
+    fn instances(&self) -> &[InstanceTransform] {
+        SceneBvh::instances(self)
+    }
+    #[inline]
+    fn closest_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit> {
+        SceneBvh::closest_hit_excluding(self, ray, skip)
+    }
+    #[inline]
+    fn closest_hit(&self, ray: &Ray) -> Option<SceneHit> {
+        SceneBvh::closest_hit(self, ray)
+    }
+    #[inline]
+    fn any_hit(&self, ray: &Ray) -> bool {
+        SceneBvh::any_hit(self, ray)
+    }
+    #[inline]
+    fn surface(&self, hit: &SceneHit) -> SurfacePoint {
+        SceneBvh::surface(self, hit)
     }
 }
 

@@ -7,7 +7,9 @@
 use crate::error::{Error, Result};
 use crate::model::{Instances, Mesh, Rgba8Image, Terrain};
 use crate::pack::Pack;
-use crate::trace::{BuildPreset, Heightfield, InstanceTransform, ModelBvh, SceneBvh};
+use crate::trace::{
+    BuildPreset, Heightfield, InstanceTransform, ModelBvh, SceneBvh, SceneTracer, Tracer,
+};
 use std::sync::Arc;
 
 /// How the terrain is traced.
@@ -31,6 +33,39 @@ pub struct TraceScene {
     /// Height of each model's bounds (model units), for probe placement.
     pub model_height: Vec<f32>,
     pub instances: Instances,
+    /// The same scene on Embree, built on first use ([`TraceScene::tracer`]).
+    embree: std::sync::OnceLock<Box<dyn SceneTracer>>,
+}
+
+impl TraceScene {
+    /// The scene on a ray-tracing backend: `cpu` is [`TraceScene::bvh`]; `embree` (cargo
+    /// feature `embree`) is its Embree twin, built on the first call and kept. Without the
+    /// feature `embree` is refused, naming it.
+    pub fn tracer(&self, t: Tracer) -> Result<&dyn SceneTracer> {
+        match t {
+            Tracer::Cpu => Ok(&self.bvh),
+            Tracer::Embree => self.embree(),
+        }
+    }
+
+    #[cfg(feature = "embree")]
+    fn embree(&self) -> Result<&dyn SceneTracer> {
+        if self.embree.get().is_none() {
+            let e = crate::trace::EmbreeSceneBvh::build(&self.bvh)?;
+            let _ = self.embree.set(Box::new(e));
+        }
+        Ok(&**self.embree.get().expect("set above"))
+    }
+
+    #[cfg(not(feature = "embree"))]
+    fn embree(&self) -> Result<&dyn SceneTracer> {
+        let _ = &self.embree;
+        Err(Error::usage(
+            Tracer::Embree
+                .available_as("tracer")
+                .expect_err("no embree feature"),
+        ))
+    }
 }
 
 /// The terrain grid as a triangle mesh in world space (two triangles per cell).
@@ -198,6 +233,7 @@ pub fn trace_scene_with(pack: &Pack, mode: TerrainMode) -> Result<TraceScene> {
         albedo,
         model_height,
         instances,
+        embree: std::sync::OnceLock::new(),
     })
 }
 

@@ -231,19 +231,40 @@ impl SceneBvh {
 
     /// The hit's surface in world space.
     pub fn surface(&self, h: &SceneHit) -> SurfacePoint {
-        if let Some(t) = &self.terrain
-            && Some(h.instance) == self.terrain_instance()
-        {
-            return t.surface(&h.hit);
-        }
-        let inst = &self.instances[h.instance as usize];
-        let s = self.models[inst.model as usize].surface(&h.hit);
-        SurfacePoint {
-            position: inst.point_to_world(s.position),
-            geometric_normal: inst.normal_to_world(s.geometric_normal),
-            shading_normal: inst.normal_to_world(s.shading_normal),
-            ..s
-        }
+        surface_of(&self.models, &self.instances, self.terrain.as_deref(), h)
+    }
+
+    /// The model BVHs (for another backend built from the same scene).
+    pub(crate) fn models(&self) -> &[Arc<ModelBvh>] {
+        &self.models
+    }
+
+    /// The heightfield terrain, if any.
+    pub(crate) fn terrain(&self) -> Option<&Arc<Heightfield>> {
+        self.terrain.as_ref()
+    }
+}
+
+/// A scene hit's surface in world space: the terrain's (instance number `instances.len()`) or
+/// the instance's model surface transformed; shared by every [`super::SceneTracer`].
+pub(crate) fn surface_of(
+    models: &[Arc<ModelBvh>],
+    instances: &[InstanceTransform],
+    terrain: Option<&Heightfield>,
+    h: &SceneHit,
+) -> SurfacePoint {
+    if let Some(t) = terrain
+        && h.instance as usize == instances.len()
+    {
+        return t.surface(&h.hit);
+    }
+    let inst = &instances[h.instance as usize];
+    let s = models[inst.model as usize].surface(&h.hit);
+    SurfacePoint {
+        position: inst.point_to_world(s.position),
+        geometric_normal: inst.normal_to_world(s.geometric_normal),
+        shading_normal: inst.normal_to_world(s.shading_normal),
+        ..s
     }
 }
 
