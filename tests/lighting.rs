@@ -176,6 +176,7 @@ fn envmap_of_an_instance_on_a_flat_ground_matches_the_analytic_projection() {
         &EnvmapOptions {
             samples: 4096,
             seed: 1,
+            ..EnvmapOptions::DEFAULT
         },
     );
     let (ch, cs) = maps[0];
@@ -226,10 +227,18 @@ fn envmaps_converge_to_a_brute_force_reference() {
         &EnvmapOptions {
             samples: 32768,
             seed: 99,
+            ..EnvmapOptions::DEFAULT
         },
     )[0];
     let err = |samples| {
-        let m = bake_envmaps(&sc, &EnvmapOptions { samples, seed: 7 })[0];
+        let m = bake_envmaps(
+            &sc,
+            &EnvmapOptions {
+                samples,
+                seed: 7,
+                ..EnvmapOptions::DEFAULT
+            },
+        )[0];
         let d: f32 =
             m.0.iter()
                 .chain(m.1.iter())
@@ -269,6 +278,7 @@ fn envmaps_are_rotated_into_the_instance_frame_and_deterministic() {
     let opts = EnvmapOptions {
         samples: 8192,
         seed: 3,
+        ..EnvmapOptions::DEFAULT
     };
     let m0 = bake_envmaps(&mk(&bvh0), &opts)[0].0;
     let m90 = bake_envmaps(&mk(&bvh90), &opts)[0].0;
@@ -288,6 +298,7 @@ fn envmaps_are_rotated_into_the_instance_frame_and_deterministic() {
                     &EnvmapOptions {
                         samples: 256,
                         seed: 5,
+                        ..EnvmapOptions::DEFAULT
                     },
                 )
             })

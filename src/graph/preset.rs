@@ -385,6 +385,40 @@ mod tests {
         assert!(p.set("prt.tracer=optix").is_err());
     }
 
+    /// `lightmap.tracer` and `envmaps.tracer` are spelled out in every preset, parse with the
+    /// PRT's spelling, and a backend the binary lacks is refused naming the option and the
+    /// feature.
+    #[test]
+    fn lighting_tracers_are_spelled_and_checked() {
+        use crate::trace::Tracer;
+        for name in PRESETS {
+            let p = Pipeline::preset(name).unwrap();
+            let toml = p.to_toml();
+            assert_eq!(
+                toml.matches("tracer = \"cpu\"").count(),
+                3,
+                "{name}: {toml}"
+            );
+        }
+        for key in ["lightmap.tracer", "envmaps.tracer"] {
+            let mut p = Pipeline::default_pipeline();
+            let r = p.set(&format!("{key}=embree"));
+            if cfg!(feature = "embree") {
+                r.unwrap();
+                assert_eq!(
+                    (p.lightmap.tracer == Tracer::Embree) as u8
+                        + (p.envmaps.tracer == Tracer::Embree) as u8,
+                    1
+                );
+            } else {
+                let e = r.unwrap_err().to_string();
+                assert!(e.contains(key) && e.contains("--features embree"), "{e}");
+                assert_eq!(p, Pipeline::default_pipeline());
+            }
+            assert!(p.set(&format!("{key}=optix")).is_err());
+        }
+    }
+
     fn repo_file(name: &str) -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("pipelines")

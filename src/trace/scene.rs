@@ -235,12 +235,12 @@ impl SceneBvh {
     }
 
     /// The model BVHs (for another backend built from the same scene).
-    pub(crate) fn models(&self) -> &[Arc<ModelBvh>] {
+    pub fn models(&self) -> &[Arc<ModelBvh>] {
         &self.models
     }
 
     /// The heightfield terrain, if any.
-    pub(crate) fn terrain(&self) -> Option<&Arc<Heightfield>> {
+    pub fn terrain(&self) -> Option<&Arc<Heightfield>> {
         self.terrain.as_ref()
     }
 }
