@@ -471,6 +471,33 @@ fn embree_tracer_without_the_feature_is_a_clear_error() {
     ]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     names_the_feature(&o);
+    // The light-map and env-map stages: the same refusal, naming their option.
+    for key in ["lightmap.tracer", "envmaps.tracer"] {
+        let o = bake(&[
+            "fixtures/scene/scene.eco",
+            "--set",
+            &format!("{key}=embree"),
+            "-o",
+            out,
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+        names_the_feature(&o);
+        assert!(stderr(&o).contains(key), "{}", stderr(&o));
+        assert!(!Path::new(out).exists());
+    }
+    for cmd in ["lightmap", "envmaps"] {
+        let o = bake(&[
+            cmd,
+            "fixtures/scene/scene.eco",
+            "--tracer",
+            "embree",
+            "-o",
+            out,
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{cmd}: {}", stderr(&o));
+        names_the_feature(&o);
+        assert!(!Path::new(out).exists());
+    }
     // A pipeline file asking for it: invalid input naming the file.
     let text = std::fs::read_to_string("pipelines/default.toml")
         .unwrap()

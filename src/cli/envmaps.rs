@@ -23,6 +23,11 @@ pub struct EnvmapsArgs {
 }
 
 pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
+    // Refused before any work.
+    let refused = |m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name()));
+    args.tracer
+        .available_as("envmaps.tracer")
+        .map_err(refused)?;
     let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
     let opts = EnvmapOptions {
@@ -30,8 +35,6 @@ pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
         tracer: args.tracer,
         ..Default::default()
     };
-    opts.check()
-        .map_err(|m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name())))?;
     let start = std::time::Instant::now();
     let sections = crate::envmap::envmap_sections(&pack, &opts)?;
     let seconds = start.elapsed().as_secs_f64();

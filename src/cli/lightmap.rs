@@ -39,6 +39,11 @@ pub struct LightmapArgs {
 }
 
 pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
+    // Refused before any work.
+    let refused = |m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name()));
+    args.tracer
+        .available_as("lightmap.tracer")
+        .map_err(refused)?;
     let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
     let opts = LightmapOptions {
@@ -54,8 +59,6 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
         tracer: args.tracer,
         ..Default::default()
     };
-    opts.check()
-        .map_err(|m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name())))?;
     let start = std::time::Instant::now();
     let mut sections = crate::lightmap::lightmap_sections(&pack, &opts)?;
     sections.extend(crate::lightmap::atlas_sections(&pack, &opts)?);
