@@ -220,7 +220,11 @@ mod prt {
 /// The two-level scene of the light-map and environment-map stages on Embree
 /// (`trace::EmbreeSceneBvh`: Embree instances of one Embree scene per model, the heightfield as
 /// user geometry) against `trace::SceneBvh` (obvhs, the oracle) on a small generated scene: a
-/// few alpha-leaved trees instanced on a terrain.
+/// few alpha-leaved trees instanced on a terrain. Ray by ray (the ignored instance, terrain hits
+/// bit-identical, hits on alpha-tested leaves), then the env maps, the terrain light map and the
+/// object (atlas) light maps of `tracer = "embree"` against `"cpu"`: equal far below the
+/// Monte-Carlo noise (negative controls: another seed, other per-texel streams), and the Embree
+/// bakes byte-identical on 1 and 2 threads.
 mod scene {
     use bake::envmap::bake::EnvmapOptions;
     use bake::lightmap::{BakeLight, LightmapOptions};
@@ -231,36 +235,80 @@ mod scene {
 
     /// The generated scene (60 instances of 3 trees on a 65² terrain), built once: sources,
     /// terrain and sky only.
+    /// The scene, its light and the pack's bytes, built once.
+    #[allow(clippy::type_complexity)]
+    static SCENE: OnceLock<((TraceScene, BakeLight), Vec<u8>)> = OnceLock::new();
+
     fn scene() -> &'static (TraceScene, BakeLight) {
-        static SCENE: OnceLock<(TraceScene, BakeLight)> = OnceLock::new();
-        SCENE.get_or_init(|| {
-            let dir = tempfile::tempdir().unwrap();
-            let p = bake::fixtures::large::LargeScene {
-                instances: 60,
-                models: 3,
-                terrain: 65,
-            };
-            for (name, bytes) in bake::fixtures::large::large_files(&p) {
-                std::fs::write(dir.path().join(name), bytes).unwrap();
-            }
-            let mut opts = bake::graph::BuildOptions {
-                scenes: vec![dir.path().join("scene.eco")],
-                output: Some(dir.path().join("scene.bake")),
-                sky: Some(dir.path().join("sky.hdr")),
-                cache: bake::graph::CacheMode::Off,
-                ..Default::default()
-            }
-            .preview();
-            let s = &mut opts.pipeline.stages;
-            (s.prt, s.lod, s.lightmap, s.atlas, s.envmaps, s.cluster) =
-                (false, false, false, false, false, false);
-            (s.bittree, s.svo, s.linespace) = (false, false, false);
-            bake::graph::build(&opts, &bake::graph::progress::Silent).unwrap();
-            let pack = bake::pack::Pack::open(&dir.path().join("scene.bake")).unwrap();
-            let ts = bake::trace::pack_scene::trace_scene(&pack).unwrap();
-            let light = bake::lightmap::scene_lighting(&pack).unwrap();
-            (ts, light)
-        })
+        &SCENE.get_or_init(build_scene).0
+    }
+
+    fn pack_bytes() -> &'static [u8] {
+        &SCENE.get_or_init(build_scene).1
+    }
+
+    /// The generated scene (60 instances of 3 trees on a 65² terrain): sources, terrain and sky
+    /// only.
+    fn build_scene() -> ((TraceScene, BakeLight), Vec<u8>) {
+        let dir = tempfile::tempdir().unwrap();
+        let p = bake::fixtures::large::LargeScene {
+            instances: 60,
+            models: 3,
+            terrain: 65,
+        };
+        for (name, bytes) in bake::fixtures::large::large_files(&p) {
+            std::fs::write(dir.path().join(name), bytes).unwrap();
+        }
+        let mut opts = bake::graph::BuildOptions {
+            scenes: vec![dir.path().join("scene.eco")],
+            output: Some(dir.path().join("scene.bake")),
+            sky: Some(dir.path().join("sky.hdr")),
+            cache: bake::graph::CacheMode::Off,
+            ..Default::default()
+        }
+        .preview();
+        let s = &mut opts.pipeline.stages;
+        (s.prt, s.lod, s.lightmap, s.atlas, s.envmaps, s.cluster) =
+            (false, false, false, false, false, false);
+        (s.bittree, s.svo, s.linespace) = (false, false, false);
+        bake::graph::build(&opts, &bake::graph::progress::Silent).unwrap();
+        let bytes = std::fs::read(dir.path().join("scene.bake")).unwrap();
+        let pack = bake::pack::Pack::from_bytes(&bytes, "scene.bake").unwrap();
+        let ts = bake::trace::pack_scene::trace_scene(&pack).unwrap();
+        let light = bake::lightmap::scene_lighting(&pack).unwrap();
+        ((ts, light), bytes)
+    }
+
+    /// Object (atlas) light maps of every tree (placed 20 times each) on Embree against cpu.
+    #[test]
+    fn embree_object_light_maps_equal_cpu() {
+        let (ts, light) = scene();
+        let pack = bake::pack::Pack::from_bytes(pack_bytes(), "scene.bake").unwrap();
+        let o = |tracer| LightmapOptions {
+            samples: 8,
+            sun_samples: 2,
+            max_instances: 100,
+            tracer,
+            ..Default::default()
+        };
+        let floats = |tracer| -> Vec<f32> {
+            let s = bake::lightmap::object_sections(&pack, ts, light, &o(tracer)).unwrap();
+            assert!(!s.is_empty());
+            s.iter()
+                .flat_map(|s| {
+                    let v = bake::pack::section::SectionView::parse(&s.payload, 0).unwrap();
+                    let (_, m) = bake::lightmap::atlas_section::from_section(&v).unwrap();
+                    m.texels.into_iter().flatten()
+                })
+                .collect()
+        };
+        let (cpu, emb) = (floats(Tracer::Cpu), floats(Tracer::Embree));
+        let d = rel_rms(&emb, &cpu);
+        eprintln!(
+            "object light maps: {} floats, embree vs cpu {d:.3e}",
+            cpu.len()
+        );
+        assert!(d < 1e-3, "{d}");
     }
 
     /// ‖a − b‖ / ‖b‖ over every float.
@@ -305,7 +353,10 @@ mod scene {
         );
         let mut rng = Rng::hashed(11);
         let (mut n, mut hits, mut differ, mut terrain_hits, mut instance_hits) = (0, 0, 0, 0, 0);
-        let (mut any_differ, mut beyond, mut max_dt) = (0, 0, 0.0f32);
+        let (mut any_differ, mut beyond, mut max_dt, mut alpha_hits) = (0, 0, 0.0f32, 0);
+        // Per model and material: alpha-tested?
+        let masked: Vec<Vec<Option<bake::trace::AlphaMask>>> =
+            ts.bvh.models().iter().map(|m| m.source().1).collect();
         for k in 0..rays {
             // From instance probes (as the env maps) and from random points above the ground.
             let (o, skip) = if k % 2 == 0 {
@@ -351,6 +402,13 @@ mod scene {
                             beyond += 1;
                         }
                         instance_hits += 1;
+                        let model = ts.bvh.instances()[a.instance as usize].model as usize;
+                        if masked[model]
+                            .get(sa.material as usize)
+                            .is_some_and(|m| m.is_some())
+                        {
+                            alpha_hits += 1;
+                        }
                     } else if (a.hit.t - b.hit.t).abs()
                         > 1e-4 * a.hit.t.max(1.0) + 2e-6 * o.length()
                     {
@@ -378,8 +436,9 @@ mod scene {
         eprintln!(
             "{n} rays: {hits} hits ({terrain_hits} terrain, {instance_hits} same triangle), \
              {differ} differ, any-hit differs on {any_differ}; same triangle: largest |Δt| \
-             {max_dt:.2e}, {beyond} beyond the tolerance"
+             {max_dt:.2e}, {beyond} beyond the tolerance; {alpha_hits} on alpha-tested leaves"
         );
+        assert!(alpha_hits > 0, "no hit on an alpha-tested leaf");
         assert!(
             beyond * 1000 <= n,
             "{beyond} of {n} hits beyond the tolerance"
