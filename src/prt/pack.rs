@@ -230,7 +230,15 @@ pub fn prt_mesh(
             bvh.skipped_triangles()
         ));
     }
-    let t = prt::bake_prt_with(&bvh, &mesh, &mats, &o, progress);
+    let t = match o.tracer {
+        prt::PrtTracer::Cpu => prt::bake_prt_with(&bvh, &mesh, &mats, &o, progress),
+        prt::PrtTracer::Gpu => {
+            let gpu = crate::gpu::shared_gpu().map_err(|e| {
+                Error::runtime(format!("{mesh_section}: prt.tracer = \"gpu\": {e}"))
+            })?;
+            super::gpu::bake_prt_gpu(gpu, &bvh, &mesh, &mats, &o, progress)?
+        }
+    };
     let name = section_name(mesh_section);
     let section = to_section(&name, mesh_section, &t, &mats);
     let report = MeshPrtReport {

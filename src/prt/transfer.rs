@@ -68,6 +68,21 @@ pub struct PrtOptions {
     pub default_translucence: f32,
     /// Seed of the per-vertex sample scrambles.
     pub seed: u64,
+    /// Which tracer follows the paths: the CPU (default, bit-reproducible everywhere) or a
+    /// wgpu compute shader ([`crate::prt::gpu`]: the same estimator, deterministic per device
+    /// but not bit-equal to the CPU or to another device).
+    pub tracer: PrtTracer,
+}
+
+/// The tracer of the PRT stage (`prt.tracer` in a pipeline).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PrtTracer {
+    /// obvhs on the CPU threads.
+    #[default]
+    Cpu,
+    /// A wgpu compute shader over the same CWBVH ([`crate::prt::gpu`]).
+    Gpu,
 }
 
 impl PrtOptions {
@@ -81,6 +96,7 @@ impl PrtOptions {
             offset: 1e-4,
             default_translucence: 0.3,
             seed: 0,
+            tracer: PrtTracer::Cpu,
         }
     }
     /// Final quality: 1,024 paths per side, 4 bounces.
@@ -152,13 +168,31 @@ pub fn bake_prt_with(
     opts: &PrtOptions,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Transfer {
+    let Ok(t) =
+        bake_welded::<std::convert::Infallible>(bvh, mesh, materials, opts, progress, |u| {
+            Ok(bake_prt_subset(bvh, mesh, materials, opts, u, progress))
+        });
+    t
+}
+
+/// Welds duplicate vertices ([`weld_vertices`]), bakes the representatives with `subset` (the
+/// transfer of the listed vertices, in order: [`bake_prt_subset`] or the GPU tracer's), and
+/// copies each representative's transfer to the vertices welded to it.
+pub fn bake_welded<E>(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    opts: &PrtOptions,
+    progress: &(dyn Fn(u64) + Sync),
+    subset: impl FnOnce(&[u32]) -> std::result::Result<Transfer, E>,
+) -> std::result::Result<Transfer, E> {
     let reps = weld_vertices(mesh);
     let unique: Vec<u32> = (0..reps.len() as u32)
         .filter(|&v| reps[v as usize] == v)
         .collect();
-    let mut t = bake_prt_subset(bvh, mesh, materials, opts, &unique, progress);
+    let mut t = subset(&unique)?;
     if unique.len() == reps.len() {
-        return t;
+        return Ok(t);
     }
     // Copy each representative's transfer to the vertices welded to it.
     let mut slot = vec![0u32; reps.len()];
@@ -177,7 +211,7 @@ pub fn bake_prt_with(
     t.coeffs = coeffs;
     t.vertices = reps.len() as u32;
     t.skipped_vertices = skipped;
-    t
+    Ok(t)
 }
 
 /// Welds duplicate vertices: for each vertex, the first vertex with the same position, normal
@@ -248,7 +282,7 @@ pub fn bake_prt_subset(
 }
 
 /// The transfer of the vertices' results, in order.
-fn collect_transfer(per_vertex: Vec<VertexResult>, opts: &PrtOptions) -> Transfer {
+pub(crate) fn collect_transfer(per_vertex: Vec<VertexResult>, opts: &PrtOptions) -> Transfer {
     let n = per_vertex.len();
     let mut t = Transfer {
         vertices: n as u32,
@@ -367,7 +401,7 @@ struct Pilot {
 }
 
 /// One vertex's coefficients and ray count, or `None` if it was skipped.
-type VertexResult = Option<(Box<[[f32; 3]; PER_VERTEX]>, u64)>;
+pub(crate) type VertexResult = Option<(Box<[[f32; 3]; PER_VERTEX]>, u64)>;
 
 /// Everything the per-vertex loop reads.
 struct Ctx<'a> {
@@ -520,17 +554,14 @@ impl<'a> Ctx<'a> {
         ks: std::ops::Range<u32>,
         acc: &mut SideSums,
     ) -> u64 {
-        let n = if side == 0 { n } else { -n };
-        let origin = p + n * self.eps;
-        let key = self.opts.seed ^ ((v as u64) << 1 | side as u64);
-        let shift = mix64(key);
-        let (sx, sy) = (shift as u32, (shift >> 32) as u32);
+        let s = self.side_start(v, side, p, n);
+        let n = s.normal;
         let mut rays = 0;
         for k in ks {
-            let (u1, u2) = sobol_scrambled(k, sx, sy);
+            let (u1, u2) = sobol_scrambled(k, s.shift.0, s.shift.1);
             let d = cosine_hemisphere(n, u1, u2);
-            let mut rng = Rng::hashed(mix64(key) ^ (k as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-            let (escape, r) = self.trace(origin, d, &mut rng);
+            let mut rng = Rng::hashed(s.path_seed(k));
+            let (escape, r) = self.trace(s.origin, d, &mut rng);
             rays += r;
             if let Some((dir, beta, bounces)) = escape {
                 let y = crate::sh::eval_basis16(dir.to_array());
@@ -550,6 +581,19 @@ impl<'a> Ctx<'a> {
             }
         }
         rays
+    }
+
+    /// Where the paths of side `side` of vertex `v` (at `p`, unit normal `n`) start.
+    fn side_start(&self, v: usize, side: usize, p: Vec3A, n: Vec3A) -> SideStart {
+        let n = if side == 0 { n } else { -n };
+        let key = self.opts.seed ^ ((v as u64) << 1 | side as u64);
+        let shift = mix64(key);
+        SideStart {
+            origin: p + n * self.eps,
+            normal: n,
+            shift: (shift as u32, (shift >> 32) as u32),
+            key_hash: mix64(key),
+        }
     }
 
     /// Follows one path; returns (escape direction, throughput, bounces) if it left the model,
@@ -598,6 +642,63 @@ impl<'a> Ctx<'a> {
     }
 }
 
+/// Where the paths of one vertex side start, and their random numbers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SideStart {
+    /// The vertex moved off its surface by the ray offset along `normal`.
+    pub origin: Vec3A,
+    /// The side's unit normal (the vertex normal, negated for the back side).
+    pub normal: Vec3A,
+    /// The digital shift of the side's Sobol points (x, y).
+    pub shift: (u32, u32),
+    /// `mix64` of the side's key: path k's bounce stream is `Rng::hashed(path_seed(k))`.
+    pub key_hash: u64,
+}
+
+/// The multiplier that spreads the path index over the bounce stream's seed.
+pub const PATH_SEED_MUL: u64 = 0xD1B5_4A32_D192_ED03;
+
+impl SideStart {
+    /// The seed of path k's bounce stream ([`Rng::hashed`]).
+    pub fn path_seed(&self, k: u32) -> u64 {
+        self.key_hash ^ (k as u64).wrapping_mul(PATH_SEED_MUL)
+    }
+}
+
+/// What another tracer needs to follow the same paths as [`bake_prt_subset`]: the ray offset,
+/// the materials (padded as the CPU pads them: unknown materials absorb everything) and per
+/// listed vertex its albedo and the starts of its two sides (`None`: skipped, zero transfer).
+#[derive(Debug, Clone)]
+pub struct PathStarts {
+    pub eps: f32,
+    pub materials: Vec<PrtMaterial>,
+    pub vertices: Vec<Option<([f32; 3], [SideStart; SIDES])>>,
+}
+
+/// The [`PathStarts`] of `vertices` (in order).
+pub fn path_starts(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    opts: &PrtOptions,
+    vertices: &[u32],
+) -> PathStarts {
+    let ctx = Ctx::new(bvh, mesh, materials, opts);
+    let starts = vertices
+        .iter()
+        .map(|&v| {
+            let v = v as usize;
+            let (mat, n, p) = ctx.vertex_frame(v)?;
+            Some((mat.albedo, [0, 1].map(|side| ctx.side_start(v, side, p, n))))
+        })
+        .collect();
+    PathStarts {
+        eps: ctx.eps,
+        materials: ctx.materials.clone(),
+        vertices: starts,
+    }
+}
+
 /// Escape direction, throughput, bounces taken.
 type Escape = (Vec3A, [f32; 3], u32);
 
@@ -624,7 +725,7 @@ impl SideSums {
 }
 
 /// Point k of the 2-D Sobol (0,2)-sequence, XOR-scrambled, in [0, 1)².
-fn sobol_scrambled(k: u32, sx: u32, sy: u32) -> (f32, f32) {
+pub fn sobol_scrambled(k: u32, sx: u32, sy: u32) -> (f32, f32) {
     let mut v = 1u32 << 31;
     let mut y = 0u32;
     let mut i = k;
