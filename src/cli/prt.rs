@@ -35,6 +35,9 @@ pub struct PrtArgs {
     /// Seed of the sample scrambles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Which tracer follows the paths (gpu: fails with exit 5 where no GPU adapter exists).
+    #[arg(long, value_enum, default_value_t = prt::PrtTracer::Cpu)]
+    pub tracer: prt::PrtTracer,
 }
 
 fn check_sampling(samples: u32, bounces: u32) -> Result<()> {
@@ -73,6 +76,7 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
         preset: args.preset,
         default_translucence: args.translucence,
         seed: args.seed,
+        tracer: args.tracer,
         ..PrtOptions::default()
     };
     let is_pack = InputKind::of(&args.input).is_none();
@@ -286,7 +290,7 @@ pub struct PrtErrorBenchArgs {
     /// Paths per side of the measured runs (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "64,256,1024,4096")]
     pub samples: Vec<u32>,
-    /// Samplers to compare (comma-separated: fixed, adaptive, filtered).
+    /// Samplers to compare (comma-separated: fixed, adaptive, filtered, gpu).
     #[arg(long, value_delimiter = ',', default_value = "fixed,adaptive")]
     pub methods: Vec<String>,
     /// Radius of the filtered method, relative to the model's bounding-box diagonal.
@@ -323,7 +327,7 @@ pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
                 .find(|k| k.name() == m)
                 .ok_or_else(|| {
                     Error::usage(format!(
-                        "--methods {m}: expected fixed, adaptive or filtered"
+                        "--methods {m}: expected fixed, adaptive, filtered or gpu"
                     ))
                 })
         })
