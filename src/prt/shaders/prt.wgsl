@@ -156,8 +156,9 @@ fn safe_inverse(x: f32) -> f32 {
     return 1.0 / x;
 }
 
-fn node_byte(base: u32, array_word: u32, i: u32) -> u32 {
-    return (nodes[base + array_word + (i >> 2u)] >> ((i & 3u) * 8u)) & 0xffu;
+// Byte i (0..8) of an 8-byte node array held as two words.
+fn byte_of(w: vec2<u32>, i: u32) -> u32 {
+    return (select(w.x, w.y, i >= 4u) >> ((i & 3u) * 8u)) & 0xffu;
 }
 
 // The hit mask of a node's children (obvhs `CwBvhNode::intersect_ray`): internal children
@@ -173,16 +174,29 @@ fn intersect_node(ni: u32, o: vec3<f32>, idir: vec3<f32>, neg: vec3<bool>, tmax:
     );
     let adj_idir = ext * idir;
     let adj_o = (p - o) * idir;
+    // The child metadata and quantized planes, loaded once; the ray's octant picks which of
+    // each axis' planes is the entry and which the exit.
+    let metas = vec2<u32>(nodes[base + 6u], nodes[base + 7u]);
+    let min_x = vec2<u32>(nodes[base + 8u], nodes[base + 9u]);
+    let max_x = vec2<u32>(nodes[base + 10u], nodes[base + 11u]);
+    let min_y = vec2<u32>(nodes[base + 12u], nodes[base + 13u]);
+    let max_y = vec2<u32>(nodes[base + 14u], nodes[base + 15u]);
+    let min_z = vec2<u32>(nodes[base + 16u], nodes[base + 17u]);
+    let max_z = vec2<u32>(nodes[base + 18u], nodes[base + 19u]);
+    let near_x = select(min_x, max_x, neg.x);
+    let far_x = select(max_x, min_x, neg.x);
+    let near_y = select(min_y, max_y, neg.y);
+    let far_y = select(max_y, min_y, neg.y);
+    let near_z = select(min_z, max_z, neg.z);
+    let far_z = select(max_z, min_z, neg.z);
     var mask = 0u;
     for (var c = 0u; c < 8u; c++) {
-        let cm = node_byte(base, 6u, c);
+        let cm = byte_of(metas, c);
         if cm == 0u {
             continue;
         }
-        let lo = vec3<f32>(f32(node_byte(base, 8u, c)), f32(node_byte(base, 12u, c)), f32(node_byte(base, 16u, c)));
-        let hi = vec3<f32>(f32(node_byte(base, 10u, c)), f32(node_byte(base, 14u, c)), f32(node_byte(base, 18u, c)));
-        let qmin = select(lo, hi, neg);
-        let qmax = select(hi, lo, neg);
+        let qmin = vec3<f32>(f32(byte_of(near_x, c)), f32(byte_of(near_y, c)), f32(byte_of(near_z, c)));
+        let qmax = vec3<f32>(f32(byte_of(far_x, c)), f32(byte_of(far_y, c)), f32(byte_of(far_z, c)));
         let t0 = qmin * adj_idir + adj_o;
         let t1 = qmax * adj_idir + adj_o;
         let tmin = max(max(max(t0.x, t0.y), t0.z), BOX_EPSILON);
