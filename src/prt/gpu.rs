@@ -214,5 +214,68 @@ pub fn bake_prt_gpu_subset(
     Ok(collect_transfer(per_vertex, opts))
 }
 
+/// Closest hits (distance, mesh triangle) and any-hit answers of single rays (t ≥ 0, no
+/// upper bound) traced by the shader's traversal: the check of the GPU walk against
+/// [`ModelBvh::closest_hit`] and its brute force.
+pub fn closest_hits(
+    gpu: &Gpu,
+    bvh: &ModelBvh,
+    rays: &[crate::trace::Ray],
+) -> Result<Vec<(Option<(f32, u32)>, bool)>> {
+    let count =
+        u32::try_from(rays.len()).map_err(|_| Error::runtime("GPU rays: more than 2³² rays"))?;
+    let data = bvh.gpu_data();
+    let words = |v: Option<&Vec<u32>>| -> Vec<u8> {
+        v.map_or_else(Vec::new, |w| bytemuck::cast_slice(w).to_vec())
+    };
+    let ray_words: Vec<u32> = rays
+        .iter()
+        .flat_map(|r| {
+            let (o, d) = (r.origin.to_array(), r.dir.to_array());
+            [o[0], o[1], o[2], 0.0, d[0], d[1], d[2], 0.0].map(f32::to_bits)
+        })
+        .collect();
+    let g = gpu;
+    let inputs = [
+        compute::storage(g, "prt nodes", &words(data.as_ref().map(|d| &d.nodes)))?,
+        compute::storage(g, "prt slots", &words(data.as_ref().map(|d| &d.slots)))?,
+        compute::storage(g, "prt masks", &words(data.as_ref().map(|d| &d.masks)))?,
+        compute::storage(
+            g,
+            "prt mask bits",
+            &words(data.as_ref().map(|d| &d.mask_bits)),
+        )?,
+        compute::storage(g, "prt materials", &[0; 16])?,
+        compute::storage(g, "prt rays", bytemuck::cast_slice(&ray_words))?,
+    ];
+    let inputs: Vec<&wgpu::Buffer> = inputs.iter().collect();
+    let kernel = Kernel::new(g, "prt rays", &[PRT_WGSL], "rays", inputs.len() as u32)?;
+    let (grid, stride) = compute::grid_for(count);
+    let params = Params {
+        first: 0,
+        count,
+        stride,
+        chunks: 1,
+        samples: 0,
+        chunk_samples: 0,
+        bounces: 0,
+        eps: 0.0,
+        has_bvh: data.is_some() as u32,
+        pad: [0; 3],
+    };
+    let uniform = compute::uniform(g, "prt params", bytemuck::bytes_of(&params));
+    let bytes = 16 * count as u64;
+    let output = compute::output(g, "prt ray results", bytes);
+    let raw = kernel.run(g, &uniform, &inputs, &output, grid, bytes)?;
+    let words: &[u32] = bytemuck::cast_slice(&raw);
+    Ok(words
+        .chunks_exact(4)
+        .map(|w| {
+            let hit = (w[1] != u32::MAX).then(|| (f32::from_bits(w[0]), w[1]));
+            (hit, w[2] == 1)
+        })
+        .collect())
+}
+
 #[cfg(test)]
 mod tests;

@@ -243,3 +243,45 @@ fn the_pack_stage_bakes_with_the_gpu_tracer() {
     let rel = rel_rms(&g, &c);
     assert!(rel < 0.05, "same seed, GPU vs CPU: {rel}");
 }
+
+#[test]
+fn gpu_traversal_finds_the_brute_force_hits_on_the_alpha_tested_plant() {
+    let Some(gpu) = device() else { return };
+    let (mesh, tex) = procedural_plant(1500, 4);
+    let masks = vec![Some(AlphaMask::from_rgba8(&tex)), None];
+    let bvh = ModelBvh::build(&mesh, &masks, Default::default()).unwrap();
+    let opaque = ModelBvh::build(&mesh, &[], Default::default()).unwrap();
+    let (lo, hi) = bvh.bounds();
+    let mut rng = crate::trace::Rng::hashed(41);
+    let rays: Vec<crate::trace::Ray> = (0..4000)
+        .map(|_| {
+            let f = glam::Vec3A::new(rng.f32(), rng.f32(), rng.f32());
+            let d = glam::Vec3A::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5);
+            crate::trace::Ray::new(lo + (hi - lo) * f, d.normalize_or(glam::Vec3A::Z), 0.0)
+        })
+        .collect();
+    let got = closest_hits(gpu, &bvh, &rays).unwrap();
+    let (mut hits, mut masked, mut other) = (0, 0, 0);
+    for (r, (g, any)) in rays.iter().zip(&got) {
+        let want = bvh.brute_force_closest_hit(r);
+        assert_eq!(*any, want.is_some(), "any-hit of {r:?}");
+        match (g, want) {
+            (None, None) => {}
+            (Some((t, tri)), Some(w)) => {
+                hits += 1;
+                // Equal up to float rounding (the GPU may fuse multiply-adds); another
+                // triangle only at a tie.
+                assert!(
+                    (t - w.t).abs() <= 1e-4 * w.t.max(1.0),
+                    "{r:?}: GPU t {t} (triangle {tri}) vs {w:?}"
+                );
+                other += (*tri != w.triangle) as u32;
+            }
+            _ => panic!("{r:?}: GPU {g:?} vs brute force {want:?}"),
+        }
+        // Rays whose answer the alpha test changes.
+        masked += (opaque.closest_hit(r).map(|h| h.t) != want.map(|h| h.t)) as u32;
+    }
+    assert!(hits > 500 && masked > 100, "{hits} hits, {masked} masked");
+    assert!(other <= 2, "{other} hits on another triangle");
+}

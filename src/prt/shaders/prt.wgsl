@@ -472,3 +472,23 @@ fn paths(@builtin(global_invocation_id) gid: vec3<u32>) {
     records[rb + 96u] = rays;
     records[rb + 97u] = 0u;
 }
+
+// Single rays for the tests (`prt::gpu::closest_hits`): `starts` holds 8 words per ray (origin,
+// 0, direction, 0); `records` gets 4 per ray: the closest hit's t and mesh triangle
+// (0xffffffff: none), and whether the any-hit query found a hit.
+@compute @workgroup_size(64)
+fn rays(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.y * params.stride + gid.x;
+    if i >= params.count {
+        return;
+    }
+    let b = i * 8u;
+    let o = vec3<f32>(bitcast<f32>(starts[b]), bitcast<f32>(starts[b + 1u]), bitcast<f32>(starts[b + 2u]));
+    let d = vec3<f32>(bitcast<f32>(starts[b + 4u]), bitcast<f32>(starts[b + 5u]), bitcast<f32>(starts[b + 6u]));
+    let h = trace_ray(o, d, false);
+    let a = trace_ray(o, d, true);
+    records[i * 4u] = bitcast<u32>(h.t);
+    records[i * 4u + 1u] = select(0xffffffffu, slots[h.slot * SLOT_WORDS + 15u], h.found);
+    records[i * 4u + 2u] = select(0u, 1u, a.found);
+    records[i * 4u + 3u] = 0u;
+}
