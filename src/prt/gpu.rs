@@ -214,6 +214,10 @@ pub fn bake_prt_gpu_subset(
     Ok(collect_transfer(per_vertex, opts))
 }
 
+/// A single ray's answers: its closest hit (distance, mesh triangle), and whether the any-hit
+/// query found one.
+pub type RayAnswer = (Option<(f32, u32)>, bool);
+
 /// Closest hits (distance, mesh triangle) and any-hit answers of single rays (t ≥ 0, no
 /// upper bound) traced by the shader's traversal: the check of the GPU walk against
 /// [`ModelBvh::closest_hit`] and its brute force.
@@ -221,7 +225,7 @@ pub fn closest_hits(
     gpu: &Gpu,
     bvh: &ModelBvh,
     rays: &[crate::trace::Ray],
-) -> Result<Vec<(Option<(f32, u32)>, bool)>> {
+) -> Result<Vec<RayAnswer>> {
     let count =
         u32::try_from(rays.len()).map_err(|_| Error::runtime("GPU rays: more than 2³² rays"))?;
     let data = bvh.gpu_data();
