@@ -26,7 +26,10 @@ use crate::trace::ModelBvh;
 use crate::voxel::compute::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 
-const PRT_WGSL: &str = include_str!("shaders/prt.wgsl");
+const PRT_WGSL: &str = concat!(
+    include_str!("../sh/basis.wgsl"),
+    include_str!("shaders/prt.wgsl")
+);
 
 /// u32 words per work item's record: 2 sets × 16 coefficients × RGB, rays, padding.
 const RECORD: usize = 98;

@@ -350,32 +350,9 @@ fn trace_ray(o: vec3<f32>, d: vec3<f32>, any: bool) -> Hit {
 
 var<private> sums: array<f32, 96>;
 
-// The order-4 SH basis (src/sh.rs `eval_basis16`) times the throughput, added to the sets.
+// The order-4 SH basis (src/sh/basis.wgsl, prepended) times the throughput, added to the sets.
 fn add_escape(d: vec3<f32>, beta: vec3<f32>, bounced: bool) {
-    let x = d.x;
-    let y = d.y;
-    let z = d.z;
-    let x2 = x * x;
-    let y2 = y * y;
-    let z2 = z * z;
-    var b = array<f32, 16>(
-        0.2820948,
-        -0.4886025 * y,
-        0.4886025 * z,
-        -0.4886025 * x,
-        1.0925484 * x * y,
-        -1.0925484 * y * z,
-        0.31539157 * (3.0 * z2 - 1.0),
-        -1.0925484 * x * z,
-        0.5462742 * (x2 - y2),
-        -0.5900436 * y * (3.0 * x2 - y2),
-        2.8906114 * x * y * z,
-        -0.4570458 * y * (5.0 * z2 - 1.0),
-        0.37317633 * z * (5.0 * z2 - 3.0),
-        -0.4570458 * x * (5.0 * z2 - 1.0),
-        1.4453057 * z * (x2 - y2),
-        -0.5900436 * x * (x2 - 3.0 * y2),
-    );
+    var b = sh_basis16(d);
     let sets = select(1u, 2u, bounced);
     for (var st = 0u; st < sets; st++) {
         for (var i = 0u; i < 16u; i++) {
