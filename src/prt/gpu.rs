@@ -26,6 +26,21 @@ use crate::trace::ModelBvh;
 use crate::voxel::compute::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 
+/// Entries of the shader's traversal stack (`trace_ray`'s `array<vec2<u32>, 32>`).
+const STACK_ENTRIES: u32 = 32;
+
+/// A BVH deeper than the shader's stack would lose subtrees silently: refused instead.
+fn check_depth(data: Option<&crate::trace::bvh::GpuBvhData>) -> Result<()> {
+    match data {
+        Some(d) if d.depth > STACK_ENTRIES => Err(Error::runtime(format!(
+            "the model's BVH is {} levels deep; the GPU tracer's traversal stack holds {} \
+             (use prt.tracer = \"cpu\")",
+            d.depth, STACK_ENTRIES
+        ))),
+        _ => Ok(()),
+    }
+}
+
 const PRT_WGSL: &str = concat!(
     include_str!("../sh/basis.wgsl"),
     include_str!("shaders/prt.wgsl")
@@ -105,6 +120,7 @@ pub fn bake_prt_gpu_subset(
     }
 
     let data = bvh.gpu_data();
+    check_depth(data.as_ref())?;
     let words = |v: Option<&Vec<u32>>| -> Vec<u8> {
         v.map_or_else(Vec::new, |w| bytemuck::cast_slice(w).to_vec())
     };
@@ -232,6 +248,7 @@ pub fn closest_hits(
     let count =
         u32::try_from(rays.len()).map_err(|_| Error::runtime("GPU rays: more than 2³² rays"))?;
     let data = bvh.gpu_data();
+    check_depth(data.as_ref())?;
     let words = |v: Option<&Vec<u32>>| -> Vec<u8> {
         v.map_or_else(Vec::new, |w| bytemuck::cast_slice(w).to_vec())
     };

@@ -541,11 +541,23 @@ impl ModelBvh {
                 bits.extend([w as u32, (w >> 32) as u32]);
             }
         }
+        // Levels of internal nodes below the root: a node's internal children (one per set bit
+        // of `imask`) are stored contiguously from `child_base_idx`.
+        let mut depth = 0u32;
+        let mut todo = vec![(0usize, 1u32)];
+        while let Some((i, level)) = todo.pop() {
+            depth = depth.max(level);
+            let n = &bvh.nodes[i];
+            for c in 0..n.imask.count_ones() as usize {
+                todo.push((n.child_base_idx as usize + c, level + 1));
+            }
+        }
         Some(GpuBvhData {
             nodes,
             slots,
             masks,
             mask_bits: bits,
+            depth,
         })
     }
 
@@ -595,6 +607,9 @@ pub struct GpuBvhData {
     pub slots: Vec<u32>,
     pub masks: Vec<u32>,
     pub mask_bits: Vec<u32>,
+    /// Node levels on the longest path from the root (the root alone: 1): a stack traversal
+    /// pushes at most one entry per level.
+    pub depth: u32,
 }
 
 /// Opaque-texel counts of a mask over texel rectangles (a summed-area table), for classifying

@@ -285,3 +285,36 @@ fn gpu_traversal_finds_the_brute_force_hits_on_the_alpha_tested_plant() {
     assert!(hits > 500 && masked > 100, "{hits} hits, {masked} masked");
     assert!(other <= 2, "{other} hits on another triangle");
 }
+
+#[test]
+fn a_bvh_deeper_than_the_shaders_stack_is_refused_not_traced_with_lost_subtrees() {
+    // The constant is the shader's stack.
+    assert!(
+        PRT_WGSL.contains(&format!("array<vec2<u32>, {STACK_ENTRIES}>")),
+        "trace_ray's stack is not {STACK_ENTRIES} entries"
+    );
+    // A real BVH: at least log₈ of its primitives deep (8-wide nodes with ≤ 3 primitives per
+    // child), and within the stack.
+    let (mesh, _, masks) = plant();
+    let bvh = ModelBvh::build(&mesh, &masks, crate::trace::BuildPreset::Fast).unwrap();
+    let data = bvh.gpu_data().expect("a plant has a BVH");
+    let leaves = (bvh.primitive_count() as f64 / 24.0).max(1.0);
+    assert!(
+        data.depth as f64 >= 1.0 + leaves.log(8.0).floor() && data.depth <= STACK_ENTRIES,
+        "depth {} for {} primitives",
+        data.depth,
+        bvh.primitive_count()
+    );
+    assert!(check_depth(Some(&data)).is_ok());
+    // One level past the stack: an error naming both numbers, not a silent drop.
+    let deep = crate::trace::bvh::GpuBvhData {
+        depth: STACK_ENTRIES + 1,
+        ..data
+    };
+    let e = check_depth(Some(&deep)).unwrap_err().to_string();
+    assert!(e.contains("33 levels") && e.contains("holds 32"), "{e}");
+    assert!(
+        check_depth(None).is_ok(),
+        "an empty model has nothing to traverse"
+    );
+}
