@@ -38,31 +38,13 @@ REPO=$PWD
 TOOLS=${BAKE_TOOLS:-$REPO/target/bazel-tools}
 BAKE=${BAKE:-$REPO/target/debug/bake}
 WORKERS=${BAKE_BOT_WORKERS:-2}
-mkdir -p "$TOOLS"
-TOOLS=$(cd "$TOOLS" && pwd)
 T0=$(date +%s)
-
-if [ ! -x "$BAKE" ]; then cargo build --quiet; fi
-BAKE=$(cd "$(dirname "$BAKE")" && pwd)/$(basename "$BAKE")
-
-echo "== tools in $TOOLS"
-BAZEL=$TOOLS/node_modules/@bazel/bazel-linux_x64/bazel-2.1.0-linux-x86_64
-if [ ! -x "$BAZEL" ]; then
-  command -v npm >/dev/null || { echo "npm is needed (apt-get install npm)"; exit 1; }
-  npm install --silent --no-audit --no-fund --prefix "$TOOLS" @bazel/bazel@2.1.0 >/dev/null
-fi
-# npm leaves the platform binary without its executable bit (see scripts/bazel-remote.sh).
-[ -x "$BAZEL" ] || chmod +x "$BAZEL"
-PY=$TOOLS/venv/bin/python
-if [ ! -x "$TOOLS/venv/bin/bgd" ]; then
-  python3 -m venv "$TOOLS/venv"
-  "$TOOLS/venv/bin/pip" install --quiet buildgrid==0.4.4
-fi
+# shellcheck source=scripts/bazel-tools.sh
+. "$REPO/scripts/bazel-tools.sh"
 # BuildGrid's scheduler talks to PostgreSQL through psycopg2 (its LISTEN/NOTIFY code imports it).
 if ! "$PY" -c 'import psycopg2' 2>/dev/null; then
   "$TOOLS/venv/bin/pip" install --quiet psycopg2-binary==2.9.13
 fi
-BGD=$TOOLS/venv/bin/bgd
 
 PG_BIN=${BAKE_PG_BIN:-}
 if [ -z "$PG_BIN" ]; then

@@ -17,26 +17,8 @@ REPO=$PWD
 TOOLS=${BAKE_TOOLS:-$REPO/target/bazel-tools}
 BAKE=${BAKE:-$REPO/target/debug/bake}
 PORT=${BAKE_REAPI_PORT:-50077}
-mkdir -p "$TOOLS"
-TOOLS=$(cd "$TOOLS" && pwd)
-
-if [ ! -x "$BAKE" ]; then cargo build --quiet; fi
-BAKE=$(cd "$(dirname "$BAKE")" && pwd)/$(basename "$BAKE")
-
-echo "== tools in $TOOLS"
-BAZEL=$TOOLS/node_modules/@bazel/bazel-linux_x64/bazel-2.1.0-linux-x86_64
-if [ ! -x "$BAZEL" ]; then
-  command -v npm >/dev/null || { echo "npm is needed (apt-get install npm)"; exit 1; }
-  npm install --silent --no-audit --no-fund --prefix "$TOOLS" @bazel/bazel@2.1.0 >/dev/null
-fi
-# npm leaves the platform binary without its executable bit here (mode 0644); this script
-# calls the binary directly, not through the package's launcher, so it sets the bit itself.
-[ -x "$BAZEL" ] || chmod +x "$BAZEL"
-BGD=$TOOLS/venv/bin/bgd
-if [ ! -x "$BGD" ]; then
-  python3 -m venv "$TOOLS/venv"
-  "$TOOLS/venv/bin/pip" install --quiet buildgrid==0.4.4   # the version this script was written against
-fi
+# shellcheck source=scripts/bazel-tools.sh
+. "$REPO/scripts/bazel-tools.sh"
 "$BAZEL" --version 2>/dev/null | head -1 || true
 
 WORK=$(mktemp -d)

@@ -75,6 +75,19 @@ pub fn init_gpu(choice: BackendChoice) -> Result<Gpu> {
     )))
 }
 
+/// The process' one device of the default choice ([`BackendChoice::Auto`]), opened on first
+/// use and kept: for stages that use the GPU as a tool (`prt.tracer = "gpu"`), so that a scene
+/// of many models opens one device. Fails, every time, with [`init_gpu`]'s message where no
+/// adapter exists.
+pub fn shared_gpu() -> Result<&'static Gpu> {
+    static SHARED: std::sync::OnceLock<std::result::Result<Gpu, String>> =
+        std::sync::OnceLock::new();
+    SHARED
+        .get_or_init(|| init_gpu(BackendChoice::Auto).map_err(|e| e.to_string()))
+        .as_ref()
+        .map_err(|e| Error::runtime(e.clone()))
+}
+
 fn try_backend(backends: wgpu::Backends) -> std::result::Result<Gpu, String> {
     let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
         backends,

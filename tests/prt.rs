@@ -148,3 +148,79 @@ fn bench_prt_error_reports_the_documented_keys() {
         .collect();
     assert!(fixed[1] < fixed[0], "{fixed:?}");
 }
+
+#[test]
+fn prt_tracer_gpu_without_an_adapter_fails_with_exit_5_and_says_why() {
+    // Every Vulkan ICD and EGL vendor hidden: no adapter on a Mesa machine (CI's lavapipe).
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("p.bake");
+    let o = std::process::Command::new(common::bake_bin())
+        .args([
+            "prt",
+            &fixture("plant.txf"),
+            "--tracer",
+            "gpu",
+            "--samples",
+            "4",
+        ])
+        .arg("-o")
+        .arg(&out)
+        .env("VK_ICD_FILENAMES", dir.path().join("none.json"))
+        .env(
+            "__EGL_VENDOR_LIBRARY_FILENAMES",
+            dir.path().join("none.json"),
+        )
+        .env("LIBGL_DRIVERS_PATH", dir.path())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    if o.status.success() {
+        eprintln!("SKIPPED: an adapter was found with the drivers hidden (not Mesa)");
+        return;
+    }
+    assert_eq!(o.status.code(), Some(5), "{stderr}");
+    assert!(
+        stderr.contains("prt.tracer = \"gpu\"") && stderr.contains("no usable GPU adapter"),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "no pack written");
+}
+
+#[test]
+fn bench_prt_error_measures_the_gpu_method_beside_fixed() {
+    let o = std::process::Command::new(common::bake_bin())
+        .args([
+            "bench",
+            "prt-error",
+            "--triangles",
+            "300",
+            "--vertices",
+            "40",
+        ])
+        .args(["--reference-samples", "256", "--samples", "64", "--methods"])
+        .args(["fixed,gpu", "--no-cache", "--json"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    if o.status.code() == Some(5) && stderr.contains("no usable GPU adapter") {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "no GPU adapter under CI: {stderr}"
+        );
+        eprintln!("SKIPPED: no GPU adapter");
+        return;
+    }
+    assert!(o.status.success(), "{stderr}");
+    let doc: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(doc["adapter"].is_string(), "{doc}");
+    let runs = doc["runs"].as_array().expect("runs");
+    let error = |m: &str| {
+        runs.iter()
+            .find(|r| r["method"] == m)
+            .and_then(|r| r["rms_difference"].as_f64())
+            .unwrap_or_else(|| panic!("{m}: {doc}"))
+    };
+    // The same estimator and seed: the same difference from the reference.
+    let (f, g) = (error("fixed"), error("gpu"));
+    assert!((g / f - 1.0).abs() < 0.05, "fixed {f}, gpu {g}");
+}

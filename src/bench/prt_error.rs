@@ -14,7 +14,9 @@
 //! (`fixed`, then each vertex averaged with its neighbours of like normal, [`crate::prt::filter`];
 //! its time includes baking the neighbourhoods, and its projected time is per vertex baked)
 //! and `embree` (`fixed` on the Embree backend, `tracer = "embree"`; cargo feature `embree`:
-//! the same sampler, so its error is that of `fixed` and only the time differs).
+//! the same sampler, so its error is that of `fixed` and only the time differs) and `gpu`
+//! (`fixed`'s estimator on the GPU, [`crate::prt::gpu`]: its time includes uploading the BVH and
+//! compiling the shader, not opening the device; the report names the adapter).
 
 use super::cpu_seconds;
 use crate::error::{Error, Result};
@@ -43,14 +45,17 @@ pub enum Method {
     Filtered,
     /// `fixed` traced on Embree ([`prt::PrtTracer::Embree`]; cargo feature `embree`).
     Embree,
+    /// `fixed` traced by the wgpu compute shader ([`crate::prt::gpu`]).
+    Gpu,
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [
+    pub const ALL: [Method; 5] = [
         Method::Fixed,
         Method::Adaptive,
         Method::Filtered,
         Method::Embree,
+        Method::Gpu,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -58,6 +63,7 @@ impl Method {
             Method::Adaptive => "adaptive",
             Method::Filtered => "filtered",
             Method::Embree => "embree",
+            Method::Gpu => "gpu",
         }
     }
 }
@@ -108,6 +114,8 @@ pub struct PrtErrorReport {
     pub unique_vertices: usize,
     pub bounces: u32,
     pub threads: usize,
+    /// The GPU adapter of the `gpu` method (absent without it).
+    pub adapter: Option<String>,
     pub reference_samples: u32,
     /// The reference's own relative RMS noise (subtracted from every run's error).
     pub reference_noise: f64,
@@ -144,6 +152,11 @@ pub fn bench_prt_error(
             opts.vertices
         })
         .collect();
+    // The device is opened before any timing (once per process).
+    let adapter = match opts.methods.contains(&Method::Gpu) {
+        true => Some(crate::gpu::shared_gpu()?.adapter.to_string()),
+        false => None,
+    };
     let start = Instant::now();
     let bvh = ModelBvh::build_split(mesh, masks, opts.prt.preset, opts.prt.alpha_split)?;
     let build_seconds = start.elapsed().as_secs_f64();
@@ -188,7 +201,7 @@ pub fn bench_prt_error(
                 }
                 _ => {
                     let (start, cpu0) = (Instant::now(), cpu_seconds());
-                    let t = bake(method, &bvh, mesh, materials, &o, &verts);
+                    let t = bake(method, &bvh, mesh, materials, &o, &verts)?;
                     let wall = start.elapsed().as_secs_f64();
                     let cpu = cpu0.zip(cpu_seconds()).map(|(a, b)| b - a);
                     (t, wall, cpu, verts.len())
@@ -218,6 +231,7 @@ pub fn bench_prt_error(
         unique_vertices: prt::weld_key_count(mesh),
         bounces: opts.prt.bounces,
         threads: rayon::current_num_threads(),
+        adapter,
         reference_samples: opts.reference_samples,
         reference_noise: noise,
         reference_seconds,
@@ -267,8 +281,8 @@ fn bake(
     materials: &[PrtMaterial],
     o: &PrtOptions,
     verts: &[u32],
-) -> Transfer {
-    match method {
+) -> Result<Transfer> {
+    Ok(match method {
         Method::Fixed | Method::Filtered | Method::Embree => {
             prt::bake_prt_subset(bvh, mesh, materials, o, verts, &|_| {})
         }
@@ -280,7 +294,11 @@ fn bake(
             verts,
             Adaptive::for_samples(o.samples),
         ),
-    }
+        Method::Gpu => {
+            let gpu = crate::gpu::shared_gpu()?;
+            crate::prt::gpu::bake_prt_gpu_subset(gpu, bvh, mesh, materials, o, verts, &|_| {})?
+        }
+    })
 }
 
 /// The reference's two halves, from the cache or baked (and then cached); `true` if cached.
@@ -396,6 +414,9 @@ pub fn report_text(r: &PrtErrorReport) -> String {
         r.reference_seconds,
         if r.reference_cached { " (cached)" } else { "" },
     );
+    if let Some(a) = &r.adapter {
+        text.push_str(&format!("gpu method on {a}\n"));
+    }
     for run in &r.runs {
         text.push_str(&format!(
             "{:<10} {:>7}   {:>8.3} %   {:>8.2}   {:>8}   {:>10.1}\n",

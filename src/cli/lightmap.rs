@@ -34,7 +34,7 @@ pub struct LightmapArgs {
     pub gutter: u32,
     /// Ray-tracing backend: cpu (obvhs and the heightfield) or embree (needs a build with the
     /// cargo feature `embree`).
-    #[arg(long, default_value = "cpu", value_parser = super::prt::parse_tracer)]
+    #[arg(long, default_value = "cpu", value_parser = crate::trace::Tracer::parse)]
     pub tracer: crate::trace::Tracer,
 }
 

@@ -8,7 +8,7 @@ use crate::error::{Error, Result};
 use crate::ingest::{IngestOptions, InputKind};
 use crate::pack::Pack;
 use crate::prt::pack::{mesh_textures, mesh_vertex_count, prt_pack};
-use crate::prt::transfer::{self as prt, PrtOptions, PrtTracer};
+use crate::prt::transfer::{self as prt, PrtOptions};
 use crate::trace::BuildPreset;
 use std::path::{Path, PathBuf};
 
@@ -35,16 +35,9 @@ pub struct PrtArgs {
     /// Seed of the sample scrambles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Ray-tracing backend: cpu (obvhs) or embree (needs a build with the cargo feature
-    /// `embree`).
-    #[arg(long, default_value = "cpu", value_parser = parse_tracer)]
-    pub tracer: PrtTracer,
-}
-
-/// A [`PrtTracer`] as the options spell it.
-pub(crate) fn parse_tracer(s: &str) -> std::result::Result<PrtTracer, String> {
-    serde_json::from_value(serde_json::Value::String(s.to_string()))
-        .map_err(|_| format!("unknown tracer {s:?}: expected cpu or embree"))
+    /// Which tracer follows the paths (gpu: fails with exit 5 where no GPU adapter exists).
+    #[arg(long, value_enum, default_value_t = prt::PrtTracer::Cpu)]
+    pub tracer: prt::PrtTracer,
 }
 
 fn check_sampling(samples: u32, bounces: u32) -> Result<()> {
@@ -306,8 +299,9 @@ pub struct PrtErrorBenchArgs {
     /// Paths per side of the measured runs (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "64,256,1024,4096")]
     pub samples: Vec<u32>,
-    /// Samplers to compare (comma-separated: fixed, adaptive, filtered, embree; embree is
-    /// fixed on the Embree backend and needs the cargo feature `embree`).
+    /// Samplers to compare (comma-separated: fixed, adaptive, filtered, embree, gpu; embree is
+    /// fixed on the Embree backend and needs the cargo feature `embree`, gpu the same sampler
+    /// as a wgpu compute shader).
     #[arg(long, value_delimiter = ',', default_value = "fixed,adaptive")]
     pub methods: Vec<String>,
     /// Radius of the filtered method, relative to the model's bounding-box diagonal.
@@ -344,7 +338,7 @@ pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
                 .find(|k| k.name() == m)
                 .ok_or_else(|| {
                     Error::usage(format!(
-                        "--methods {m}: expected fixed, adaptive, filtered or embree"
+                        "--methods {m}: expected fixed, adaptive, filtered, embree or gpu"
                     ))
                 })
         })

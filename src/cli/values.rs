@@ -5,6 +5,7 @@
 use crate::gpu::BackendChoice;
 use crate::lightmap::LightmapMode;
 use crate::linespace::ntree::Refine;
+use crate::prt::transfer::PrtTracer;
 use crate::render::Terms;
 use crate::render::ambient::PrtLayout;
 use crate::render::svo_view::SvoShow;
@@ -77,6 +78,12 @@ value_enum!(TransferFunction {
 value_enum!(LightmapMode {
     Physical => "physical",
     Thesis => "thesis",
+});
+
+value_enum!(PrtTracer {
+    Cpu => "cpu": "obvhs on the CPU threads (bit-reproducible everywhere)",
+    Embree => "embree": "Embree 3 (a bake built with the cargo feature embree)",
+    Gpu => "gpu": "a wgpu compute shader (deterministic per device, not bit-equal to the CPU)",
 });
 
 value_enum!(BuildPreset {

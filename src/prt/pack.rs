@@ -229,7 +229,16 @@ pub fn prt_mesh(
             scene.skipped_triangles()
         ));
     }
-    let t = scene.bake(&mesh, &mats, &o, progress);
+    let t = match (&scene, o.tracer) {
+        // The GPU walks the CPU backend's CWBVH.
+        (prt::PrtScene::Cpu(bvh), prt::PrtTracer::Gpu) => {
+            let gpu = crate::gpu::shared_gpu().map_err(|e| {
+                Error::runtime(format!("{mesh_section}: prt.tracer = \"gpu\": {e}"))
+            })?;
+            super::gpu::bake_prt_gpu(gpu, bvh, &mesh, &mats, &o, progress)?
+        }
+        _ => scene.bake(&mesh, &mats, &o, progress),
+    };
     let name = section_name(mesh_section);
     let section = to_section(&name, mesh_section, &t, &mats);
     let report = MeshPrtReport {

@@ -53,9 +53,20 @@ pub const SETS: usize = 2;
 /// RGB transfer coefficients per vertex.
 pub const PER_VERTEX: usize = SIDES * SETS * COEFFS;
 
-/// The ray-tracing backend of the PRT ([`ModelTracer`]): the shared [`crate::trace::Tracer`]
-/// (`cpu` | `embree`; `embree` only with the cargo feature, see [`PrtOptions::check`]).
-pub type PrtTracer = crate::trace::Tracer;
+/// The ray-tracing backend of the PRT: `cpu` (obvhs on the CPU threads, every build),
+/// `embree` (Embree 3 through [`ModelTracer`]; builds with the cargo feature `embree` only,
+/// elsewhere the option is refused, see [`PrtOptions::check`]) or `gpu` (a wgpu compute shader
+/// over the same CWBVH, [`crate::prt::gpu`]). The sampler is the same on every backend, so the
+/// transfer agrees up to rare float-level differences of the hits; each backend on its own is
+/// deterministic (the GPU's per device: not bit-equal to the CPU or to another device).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PrtTracer {
+    #[default]
+    Cpu,
+    Embree,
+    Gpu,
+}
 
 /// Options of the PRT stage.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -109,6 +120,32 @@ impl PrtOptions {
             samples: 256,
             bounces: 3,
             ..Self::preview()
+        }
+    }
+}
+
+impl PrtTracer {
+    /// The backend's name as options spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            PrtTracer::Cpu => "cpu",
+            PrtTracer::Embree => "embree",
+            PrtTracer::Gpu => "gpu",
+        }
+    }
+
+    /// Whether this binary can trace on the backend (`embree`: the cargo feature `embree`;
+    /// `gpu` is in every build and needs an adapter at run time).
+    pub fn available(self) -> std::result::Result<(), String> {
+        match self {
+            PrtTracer::Cpu | PrtTracer::Gpu => Ok(()),
+            PrtTracer::Embree if cfg!(feature = "embree") => Ok(()),
+            PrtTracer::Embree => Err(
+                "prt.tracer = \"embree\" needs a bake built with the cargo feature `embree` \
+                 (Debian: apt-get install libembree-dev; then cargo build --release --features \
+                 embree); this binary has tracer = \"cpu\" and \"gpu\""
+                    .into(),
+            ),
         }
     }
 }
@@ -175,7 +212,8 @@ impl PrtScene {
     pub fn build(mesh: &Mesh, masks: &[Option<AlphaMask>], opts: &PrtOptions) -> Result<Self> {
         opts.check().map_err(crate::error::Error::usage)?;
         match opts.tracer {
-            PrtTracer::Cpu => Ok(PrtScene::Cpu(ModelBvh::build_split(
+            // The GPU tracer walks this BVH's CWBVH on the device.
+            PrtTracer::Cpu | PrtTracer::Gpu => Ok(PrtScene::Cpu(ModelBvh::build_split(
                 mesh,
                 masks,
                 opts.preset,
@@ -245,13 +283,31 @@ pub fn bake_prt_with<T: ModelTracer>(
     opts: &PrtOptions,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Transfer {
+    let Ok(t) =
+        bake_welded::<std::convert::Infallible, T>(bvh, mesh, materials, opts, progress, |u| {
+            Ok(bake_prt_subset(bvh, mesh, materials, opts, u, progress))
+        });
+    t
+}
+
+/// Welds duplicate vertices ([`weld_vertices`]), bakes the representatives with `subset` (the
+/// transfer of the listed vertices, in order: [`bake_prt_subset`] or the GPU tracer's), and
+/// copies each representative's transfer to the vertices welded to it.
+pub fn bake_welded<E, T: ModelTracer>(
+    bvh: &T,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    opts: &PrtOptions,
+    progress: &(dyn Fn(u64) + Sync),
+    subset: impl FnOnce(&[u32]) -> std::result::Result<Transfer, E>,
+) -> std::result::Result<Transfer, E> {
     let reps = weld_vertices(mesh);
     let unique: Vec<u32> = (0..reps.len() as u32)
         .filter(|&v| reps[v as usize] == v)
         .collect();
-    let mut t = bake_prt_subset(bvh, mesh, materials, opts, &unique, progress);
+    let mut t = subset(&unique)?;
     if unique.len() == reps.len() {
-        return t;
+        return Ok(t);
     }
     // Copy each representative's transfer to the vertices welded to it.
     let mut slot = vec![0u32; reps.len()];
@@ -270,7 +326,7 @@ pub fn bake_prt_with<T: ModelTracer>(
     t.coeffs = coeffs;
     t.vertices = reps.len() as u32;
     t.skipped_vertices = skipped;
-    t
+    Ok(t)
 }
 
 /// Welds duplicate vertices: for each vertex, the first vertex with the same position, normal
@@ -341,7 +397,7 @@ pub fn bake_prt_subset<T: ModelTracer>(
 }
 
 /// The transfer of the vertices' results, in order.
-fn collect_transfer(per_vertex: Vec<VertexResult>, opts: &PrtOptions) -> Transfer {
+pub(crate) fn collect_transfer(per_vertex: Vec<VertexResult>, opts: &PrtOptions) -> Transfer {
     let n = per_vertex.len();
     let mut t = Transfer {
         vertices: n as u32,
@@ -460,7 +516,7 @@ struct Pilot {
 }
 
 /// One vertex's coefficients and ray count, or `None` if it was skipped.
-type VertexResult = Option<(Box<[[f32; 3]; PER_VERTEX]>, u64)>;
+pub(crate) type VertexResult = Option<(Box<[[f32; 3]; PER_VERTEX]>, u64)>;
 
 /// Everything the per-vertex loop reads.
 struct Ctx<'a, T: ModelTracer> {
@@ -608,17 +664,14 @@ impl<'a, T: ModelTracer> Ctx<'a, T> {
         ks: std::ops::Range<u32>,
         acc: &mut SideSums,
     ) -> u64 {
-        let n = if side == 0 { n } else { -n };
-        let origin = p + n * self.eps;
-        let key = self.opts.seed ^ ((v as u64) << 1 | side as u64);
-        let shift = mix64(key);
-        let (sx, sy) = (shift as u32, (shift >> 32) as u32);
+        let s = self.side_start(v, side, p, n);
+        let n = s.normal;
         let mut rays = 0;
         for k in ks {
-            let (u1, u2) = sobol_scrambled(k, sx, sy);
+            let (u1, u2) = sobol_scrambled(k, s.shift.0, s.shift.1);
             let d = cosine_hemisphere(n, u1, u2);
-            let mut rng = Rng::hashed(mix64(key) ^ (k as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-            let (escape, r) = self.trace(origin, d, &mut rng);
+            let mut rng = Rng::hashed(s.path_seed(k));
+            let (escape, r) = self.trace(s.origin, d, &mut rng);
             rays += r;
             if let Some((dir, beta, bounces)) = escape {
                 let y = crate::sh::eval_basis16(dir.to_array());
@@ -638,6 +691,19 @@ impl<'a, T: ModelTracer> Ctx<'a, T> {
             }
         }
         rays
+    }
+
+    /// Where the paths of side `side` of vertex `v` (at `p`, unit normal `n`) start.
+    fn side_start(&self, v: usize, side: usize, p: Vec3A, n: Vec3A) -> SideStart {
+        let n = if side == 0 { n } else { -n };
+        let key = self.opts.seed ^ ((v as u64) << 1 | side as u64);
+        let shift = mix64(key);
+        SideStart {
+            origin: p + n * self.eps,
+            normal: n,
+            shift: (shift as u32, (shift >> 32) as u32),
+            key_hash: mix64(key),
+        }
     }
 
     /// Follows one path; returns (escape direction, throughput, bounces) if it left the model,
@@ -686,6 +752,63 @@ impl<'a, T: ModelTracer> Ctx<'a, T> {
     }
 }
 
+/// Where the paths of one vertex side start, and their random numbers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SideStart {
+    /// The vertex moved off its surface by the ray offset along `normal`.
+    pub origin: Vec3A,
+    /// The side's unit normal (the vertex normal, negated for the back side).
+    pub normal: Vec3A,
+    /// The digital shift of the side's Sobol points (x, y).
+    pub shift: (u32, u32),
+    /// `mix64` of the side's key: path k's bounce stream is `Rng::hashed(path_seed(k))`.
+    pub key_hash: u64,
+}
+
+/// The multiplier that spreads the path index over the bounce stream's seed.
+pub const PATH_SEED_MUL: u64 = 0xD1B5_4A32_D192_ED03;
+
+impl SideStart {
+    /// The seed of path k's bounce stream ([`Rng::hashed`]).
+    pub fn path_seed(&self, k: u32) -> u64 {
+        self.key_hash ^ (k as u64).wrapping_mul(PATH_SEED_MUL)
+    }
+}
+
+/// What another tracer needs to follow the same paths as [`bake_prt_subset`]: the ray offset,
+/// the materials (padded as the CPU pads them: unknown materials absorb everything) and per
+/// listed vertex its albedo and the starts of its two sides (`None`: skipped, zero transfer).
+#[derive(Debug, Clone)]
+pub struct PathStarts {
+    pub eps: f32,
+    pub materials: Vec<PrtMaterial>,
+    pub vertices: Vec<Option<([f32; 3], [SideStart; SIDES])>>,
+}
+
+/// The [`PathStarts`] of `vertices` (in order).
+pub fn path_starts(
+    bvh: &ModelBvh,
+    mesh: &Mesh,
+    materials: &[PrtMaterial],
+    opts: &PrtOptions,
+    vertices: &[u32],
+) -> PathStarts {
+    let ctx = Ctx::new(bvh, mesh, materials, opts);
+    let starts = vertices
+        .iter()
+        .map(|&v| {
+            let v = v as usize;
+            let (mat, n, p) = ctx.vertex_frame(v)?;
+            Some((mat.albedo, [0, 1].map(|side| ctx.side_start(v, side, p, n))))
+        })
+        .collect();
+    PathStarts {
+        eps: ctx.eps,
+        materials: ctx.materials.clone(),
+        vertices: starts,
+    }
+}
+
 /// Escape direction, throughput, bounces taken.
 type Escape = (Vec3A, [f32; 3], u32);
 
@@ -712,7 +835,7 @@ impl SideSums {
 }
 
 /// Point k of the 2-D Sobol (0,2)-sequence, XOR-scrambled, in [0, 1)².
-fn sobol_scrambled(k: u32, sx: u32, sy: u32) -> (f32, f32) {
+pub fn sobol_scrambled(k: u32, sx: u32, sy: u32) -> (f32, f32) {
     let mut v = 1u32 << 31;
     let mut y = 0u32;
     let mut i = k;

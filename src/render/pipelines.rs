@@ -21,7 +21,10 @@ pub(super) const DIRECT_WGSL: &str = include_str!("shaders/direct.wgsl");
 /// Format of the sun's shadow map (orthographic, normal Z: cleared to 1, nearer is smaller).
 pub const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const TONEMAP_WGSL: &str = include_str!("shaders/tonemap.wgsl");
-pub(super) const AMBIENT_WGSL: &str = include_str!("shaders/ambient.wgsl");
+pub(super) const AMBIENT_WGSL: &str = concat!(
+    include_str!("../sh/basis.wgsl"),
+    include_str!("shaders/ambient.wgsl")
+);
 
 /// Every pipeline and layout of a frame.
 pub struct Pipelines {

@@ -26,7 +26,7 @@ const COMMON_WGSL: &str = include_str!("shaders/common.wgsl");
 const TERRAIN_WGSL: &str = include_str!("shaders/terrain.wgsl");
 const MESH_WGSL: &str = include_str!("shaders/mesh.wgsl");
 const DIRECT_WGSL: &str = include_str!("shaders/direct.wgsl");
-const AMBIENT_WGSL: &str = include_str!("shaders/ambient.wgsl");
+use super::pipelines::AMBIENT_WGSL;
 const WORLD_TERRAIN_WGSL: &str = include_str!("shaders/world_terrain.wgsl");
 const WORLD_MESH_WGSL: &str = include_str!("shaders/world_mesh.wgsl");
 

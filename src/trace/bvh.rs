@@ -525,6 +525,66 @@ impl ModelBvh {
         }
     }
 
+    /// The BVH as flat u32 words for a GPU tracer ([`GpuBvhData`]), or `None` for an empty
+    /// model (nothing to hit).
+    pub fn gpu_data(&self) -> Option<GpuBvhData> {
+        let bvh = self.bvh.as_ref()?;
+        let mut nodes = Vec::with_capacity(bvh.nodes.len() * GPU_NODE_WORDS);
+        for n in &bvh.nodes {
+            nodes.extend([n.p.x.to_bits(), n.p.y.to_bits(), n.p.z.to_bits()]);
+            nodes.push(u32::from_le_bytes([n.e[0], n.e[1], n.e[2], n.imask]));
+            nodes.extend([n.child_base_idx, n.primitive_base_idx]);
+            for bytes in [
+                &n.child_meta,
+                &n.child_min_x,
+                &n.child_max_x,
+                &n.child_min_y,
+                &n.child_max_y,
+                &n.child_min_z,
+                &n.child_max_z,
+            ] {
+                let w = u64::from_le_bytes(*bytes);
+                nodes.extend([w as u32, (w >> 32) as u32]);
+            }
+        }
+        let mut slots = Vec::with_capacity(self.slots.len() * GPU_SLOT_WORDS);
+        for ((t, info), uv) in self.slots.iter().zip(&self.slot_info).zip(&self.slot_uv) {
+            for v in [t.v0, t.e1, t.e2] {
+                slots.extend(v.to_array().map(f32::to_bits));
+            }
+            slots.extend(uv.as_flattened().iter().map(|c| c.to_bits()));
+            slots.extend([info.triangle, info.mask, info.material, 0, 0]);
+        }
+        // Each mask's bits as u32 words (bit i of the mask is bit i % 32 of word i / 32, as in
+        // the u64 words on a little-endian machine), concatenated.
+        let mut masks = Vec::with_capacity(self.masks.len() * 4);
+        let mut bits = Vec::new();
+        for m in &self.masks {
+            masks.extend([m.width, m.height, bits.len() as u32, 0]);
+            for &w in &m.bits {
+                bits.extend([w as u32, (w >> 32) as u32]);
+            }
+        }
+        // Levels of internal nodes below the root: a node's internal children (one per set bit
+        // of `imask`) are stored contiguously from `child_base_idx`.
+        let mut depth = 0u32;
+        let mut todo = vec![(0usize, 1u32)];
+        while let Some((i, level)) = todo.pop() {
+            depth = depth.max(level);
+            let n = &bvh.nodes[i];
+            for c in 0..n.imask.count_ones() as usize {
+                todo.push((n.child_base_idx as usize + c, level + 1));
+            }
+        }
+        Some(GpuBvhData {
+            nodes,
+            slots,
+            masks,
+            mask_bits: bits,
+            depth,
+        })
+    }
+
     /// Raw obvhs traversal with obvhs' own triangle test and no alpha: the baseline the
     /// `bench rays` efficiency is measured against. Returns the hit distance.
     pub fn raw_closest_t(&self, tris: &[obvhs::triangle::Triangle], ray: &Ray) -> f32 {
@@ -547,6 +607,33 @@ impl ModelBvh {
             })
             .collect()
     }
+}
+
+/// u32 words per node in [`GpuBvhData::nodes`].
+pub const GPU_NODE_WORDS: usize = 20;
+/// u32 words per slot in [`GpuBvhData::slots`].
+pub const GPU_SLOT_WORDS: usize = 20;
+
+/// A [`ModelBvh`] flattened for a GPU tracer (all little-endian u32 words; floats as their bits).
+///
+/// - `nodes`: per obvhs `CwBvhNode`, 20 words: `p` (3 f32); `e[0..3]` and `imask` as the four
+///   bytes of one word; `child_base_idx`; `primitive_base_idx`; then `child_meta`,
+///   `child_min_x`, `child_max_x`, `child_min_y`, `child_max_y`, `child_min_z`, `child_max_z`,
+///   8 bytes each as two words (byte i of the array is byte i % 4 of word i / 4).
+/// - `slots`: per BVH primitive (obvhs' `primitive_id` is the slot), 20 words: `v0`, `e1 = v1 −
+///   v0`, `e2 = v2 − v0` (9 f32); `uv0`, `uv1 − uv0`, `uv2 − uv0` (6 f32); the mesh triangle,
+///   the mask index (`u32::MAX`: no alpha test), the material, two zero words.
+/// - `masks`: per alpha mask, 4 words: width, height, first word in `mask_bits`, 0.
+/// - `mask_bits`: every mask's texels, one bit each, row 0 at the top ([`AlphaMask`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GpuBvhData {
+    pub nodes: Vec<u32>,
+    pub slots: Vec<u32>,
+    pub masks: Vec<u32>,
+    pub mask_bits: Vec<u32>,
+    /// Node levels on the longest path from the root (the root alone: 1): a stack traversal
+    /// pushes at most one entry per level.
+    pub depth: u32,
 }
 
 /// Opaque-texel counts of a mask over texel rectangles (a summed-area table), for classifying

@@ -131,10 +131,11 @@ impl ModelTracer for ModelBvh {
     }
 }
 
-/// A ray-tracing backend as the stages' options spell it (`prt.tracer`, `lightmap.tracer`,
-/// `envmaps.tracer`): `cpu` (obvhs and the heightfield quadtree, every build) or `embree`
-/// (Embree 3, builds with the cargo feature `embree` only; elsewhere the option is refused, see
-/// [`Tracer::available`]). The samplers are the same on every backend, so the outputs agree up
+/// The ray-tracing backend of the light-map and env-map stages as their options spell it
+/// (`lightmap.tracer`, `envmaps.tracer`; the same spelling as `prt.tracer`, which also has
+/// `gpu`): `cpu` (obvhs and the heightfield quadtree, every build) or `embree` (Embree 3, builds
+/// with the cargo feature `embree` only; elsewhere the option is refused, see
+/// [`Tracer::available_as`]). The samplers are the same on every backend, so the outputs agree up
 /// to rare float-level differences of the hits; each backend on its own is deterministic.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -153,12 +154,17 @@ impl Tracer {
         }
     }
 
-    /// Whether this binary can trace on the backend (`embree`: the cargo feature `embree`).
-    pub fn available(self) -> std::result::Result<(), String> {
-        self.available_as("prt.tracer")
+    /// A backend as the options and `--tracer` spell it.
+    pub fn parse(s: &str) -> std::result::Result<Tracer, String> {
+        match s {
+            "cpu" => Ok(Tracer::Cpu),
+            "embree" => Ok(Tracer::Embree),
+            _ => Err(format!("unknown tracer {s:?}: expected cpu or embree")),
+        }
     }
 
-    /// [`Tracer::available`] with the option's key (`lightmap.tracer`, ...) in the refusal.
+    /// Whether this binary can trace on the backend (`embree`: the cargo feature `embree`);
+    /// the refusal names the option `key` (`lightmap.tracer`, ...) and the feature.
     pub fn available_as(self, key: &str) -> std::result::Result<(), String> {
         match self {
             Tracer::Cpu => Ok(()),
