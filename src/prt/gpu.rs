@@ -41,6 +41,27 @@ fn check_depth(data: Option<&crate::trace::bvh::GpuBvhData>) -> Result<()> {
     }
 }
 
+/// The BVH's storage buffers (nodes, slots, masks, mask bits) after the depth check, and
+/// whether there is a BVH at all (an empty model has none).
+fn bvh_buffers(g: &Gpu, bvh: &ModelBvh) -> Result<([wgpu::Buffer; 4], bool)> {
+    let data = bvh.gpu_data();
+    check_depth(data.as_ref())?;
+    let words = |v: Option<&Vec<u32>>| -> Vec<u8> {
+        v.map_or_else(Vec::new, |w| bytemuck::cast_slice(w).to_vec())
+    };
+    let buffers = [
+        compute::storage(g, "prt nodes", &words(data.as_ref().map(|d| &d.nodes)))?,
+        compute::storage(g, "prt slots", &words(data.as_ref().map(|d| &d.slots)))?,
+        compute::storage(g, "prt masks", &words(data.as_ref().map(|d| &d.masks)))?,
+        compute::storage(
+            g,
+            "prt mask bits",
+            &words(data.as_ref().map(|d| &d.mask_bits)),
+        )?,
+    ];
+    Ok((buffers, data.is_some()))
+}
+
 const PRT_WGSL: &str = concat!(
     include_str!("../sh/basis.wgsl"),
     include_str!("shaders/prt.wgsl")
@@ -119,11 +140,6 @@ pub fn bake_prt_gpu_subset(
         ));
     }
 
-    let data = bvh.gpu_data();
-    check_depth(data.as_ref())?;
-    let words = |v: Option<&Vec<u32>>| -> Vec<u8> {
-        v.map_or_else(Vec::new, |w| bytemuck::cast_slice(w).to_vec())
-    };
     let mats: Vec<[f32; 4]> = starts
         .materials
         .iter()
@@ -151,15 +167,12 @@ pub fn bake_prt_gpu_subset(
         }
     }
     let g = gpu;
+    let ([nodes, slots, masks, mask_bits], has_bvh) = bvh_buffers(g, bvh)?;
     let inputs = [
-        compute::storage(g, "prt nodes", &words(data.as_ref().map(|d| &d.nodes)))?,
-        compute::storage(g, "prt slots", &words(data.as_ref().map(|d| &d.slots)))?,
-        compute::storage(g, "prt masks", &words(data.as_ref().map(|d| &d.masks)))?,
-        compute::storage(
-            g,
-            "prt mask bits",
-            &words(data.as_ref().map(|d| &d.mask_bits)),
-        )?,
+        nodes,
+        slots,
+        masks,
+        mask_bits,
         compute::storage(g, "prt materials", bytemuck::cast_slice(&mats))?,
         compute::storage(g, "prt starts", bytemuck::cast_slice(&start_words))?,
     ];
@@ -187,7 +200,7 @@ pub fn bake_prt_gpu_subset(
             chunk_samples: CHUNK_SAMPLES,
             bounces: opts.bounces,
             eps: starts.eps,
-            has_bvh: data.is_some() as u32,
+            has_bvh: has_bvh as u32,
             pad: [0; 3],
         };
         let uniform = compute::uniform(g, "prt params", bytemuck::bytes_of(&params));
@@ -247,11 +260,6 @@ pub fn closest_hits(
 ) -> Result<Vec<RayAnswer>> {
     let count =
         u32::try_from(rays.len()).map_err(|_| Error::runtime("GPU rays: more than 2³² rays"))?;
-    let data = bvh.gpu_data();
-    check_depth(data.as_ref())?;
-    let words = |v: Option<&Vec<u32>>| -> Vec<u8> {
-        v.map_or_else(Vec::new, |w| bytemuck::cast_slice(w).to_vec())
-    };
     let ray_words: Vec<u32> = rays
         .iter()
         .flat_map(|r| {
@@ -260,15 +268,12 @@ pub fn closest_hits(
         })
         .collect();
     let g = gpu;
+    let ([nodes, slots, masks, mask_bits], has_bvh) = bvh_buffers(g, bvh)?;
     let inputs = [
-        compute::storage(g, "prt nodes", &words(data.as_ref().map(|d| &d.nodes)))?,
-        compute::storage(g, "prt slots", &words(data.as_ref().map(|d| &d.slots)))?,
-        compute::storage(g, "prt masks", &words(data.as_ref().map(|d| &d.masks)))?,
-        compute::storage(
-            g,
-            "prt mask bits",
-            &words(data.as_ref().map(|d| &d.mask_bits)),
-        )?,
+        nodes,
+        slots,
+        masks,
+        mask_bits,
         compute::storage(g, "prt materials", &[0; 16])?,
         compute::storage(g, "prt rays", bytemuck::cast_slice(&ray_words))?,
     ];
@@ -284,7 +289,7 @@ pub fn closest_hits(
         chunk_samples: 0,
         bounces: 0,
         eps: 0.0,
-        has_bvh: data.is_some() as u32,
+        has_bvh: has_bvh as u32,
         pad: [0; 3],
     };
     let uniform = compute::uniform(g, "prt params", bytemuck::bytes_of(&params));
