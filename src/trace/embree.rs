@@ -403,16 +403,7 @@ impl EmbreeScene {
 
     /// Whether an alpha-tested hit lies on the ray segment (rtcOccluded1, stops at the first).
     pub fn any_hit(&self, ray: &Ray) -> bool {
-        let mut r = RayOnly {
-            org: ray.origin.to_array(),
-            tnear: ray.tmin,
-            dir: ray.dir.to_array(),
-            time: 0.0,
-            tfar: ray.tmax,
-            mask: u32::MAX,
-            id: 0,
-            flags: 0,
-        };
+        let mut r = RayOnly::of(ray);
         let mut ctx = Context::new(None);
         // SAFETY: the scene is committed and alive; ctx and r are valid, r 16-byte aligned.
         unsafe { rtcOccluded1(self.scene, &mut ctx.base, &mut r) };
@@ -422,22 +413,7 @@ impl EmbreeScene {
 
     /// Closest alpha-tested hit (`slot` is the triangle index; Embree has no slots).
     pub fn closest_hit(&self, ray: &Ray) -> Option<Hit> {
-        let mut rh = RayHit {
-            org: ray.origin.to_array(),
-            tnear: ray.tmin,
-            dir: ray.dir.to_array(),
-            time: 0.0,
-            tfar: ray.tmax,
-            mask: u32::MAX,
-            id: 0,
-            flags: 0,
-            ng: [0.0; 3],
-            u: 0.0,
-            v: 0.0,
-            prim_id: INVALID_ID,
-            geom_id: INVALID_ID,
-            inst_id: [INVALID_ID],
-        };
+        let mut rh = RayHit::of(ray);
         let mut ctx = Context::new(None);
         // SAFETY: the scene is committed and alive; ctx and rh are valid, rh 16-byte aligned.
         unsafe { rtcIntersect1(self.scene, &mut ctx.base, &mut rh) };
