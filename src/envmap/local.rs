@@ -77,8 +77,8 @@ pub fn fit(residual: &[f32], dim: usize, p: usize) -> LocalPart {
 /// [`fit`], and with `noise` (the dim × dim covariance of the maps' Monte-Carlo noise per
 /// instance, row-major) each component's coefficients shrunk by max(0, 1 − ν_k / λ_k) (ν_k the
 /// noise variance along the component, λ_k its mean squared coefficient): a Wiener filter of
-/// the per-instance part. Experimental (`bake bench cluster --denoise`; the pipeline's envmaps
-/// do not carry a noise estimate yet).
+/// the per-instance part. The cluster stage's default with the `envmaps` section's noise
+/// estimate (the tracer's two independent halves; `ClusterOptions::denoise`).
 pub fn fit_denoised(residual: &[f32], dim: usize, p: usize, noise: Option<&[f64]>) -> LocalPart {
     fit_denoised_scaled(residual, dim, p, noise, None)
 }
