@@ -59,6 +59,8 @@ pub fn half_estimates(
     let opts = |samples: u32, seed: u64| crate::envmap::bake::EnvmapOptions {
         samples: samples.max(1),
         seed,
+        // One N-point set per half (the difference of the two halves is the noise).
+        noise_estimate: false,
         ..crate::envmap::bake::EnvmapOptions::DEFAULT
     };
     let half = |seed: u64| -> Result<Vec<f32>> {

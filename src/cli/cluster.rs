@@ -53,6 +53,9 @@ pub struct ClusterArgs {
 /// The byte budget and the local part (issue 20; docs/FORMAT.md, `clusters`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct BudgetArgs {
+    /// Do not Wiener-filter the local part with the `envmaps` section's noise estimate.
+    #[arg(long)]
+    pub no_denoise: bool,
     /// Principal components of the per-instance local part (0: none).
     #[arg(long, default_value_t = ClusterOptions::DEFAULT.local)]
     pub local: u32,
@@ -75,6 +78,7 @@ pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
         local: args.budget.local,
         max_bytes: args.budget.max_bytes,
         compression: args.budget.compression,
+        denoise: !args.budget.no_denoise,
         ..Default::default()
     };
     let start = std::time::Instant::now();
@@ -162,10 +166,15 @@ pub struct ClusterBenchArgs {
     /// reference is traced on its scene) instead of a generated scene.
     #[arg(long, conflicts_with = "cause")]
     pub pack: Option<PathBuf>,
-    /// With `--pack`: measure the maps' noise covariance (two more half-ray traces) and
-    /// Wiener-filter the local part with it (experimental).
+    /// With `--pack`: measure the maps' noise covariance by two more half-ray traces (for a
+    /// pack whose `envmaps` carry no noise estimate) and Wiener-filter the local part with it.
+    /// Without it, the pack's own estimate is used as the stage does (unless --no-denoise).
     #[arg(long, requires = "pack")]
     pub denoise: bool,
+    /// With `--pack`: scale the noise per instance by the pack's own per-instance estimate
+    /// (`noise_variance`): a heteroscedastic Wiener filter (experimental).
+    #[arg(long, requires = "pack", conflicts_with = "denoise")]
+    pub heteroscedastic: bool,
 }
 
 pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
@@ -188,6 +197,7 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
                 local: a.budget.local,
                 max_bytes: a.budget.max_bytes,
                 compression: a.budget.compression,
+                denoise: !a.budget.no_denoise,
             },
             synthetic: a.synthetic,
             noise_level: a.noise_level,
@@ -202,6 +212,7 @@ pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
             python: a.python.clone(),
             repeat: a.repeat,
             denoise: a.denoise,
+            heteroscedastic: a.heteroscedastic,
         })?
     };
     Ok(Outcome {

@@ -20,6 +20,10 @@ pub struct EnvmapsArgs {
     /// cargo feature `embree`).
     #[arg(long, default_value = "cpu", value_parser = crate::trace::Tracer::parse)]
     pub tracer: crate::trace::Tracer,
+    /// Trace one rotated N-point set per instance instead of two independently rotated halves
+    /// (no noise estimate in the section; the cluster stage then cannot denoise).
+    #[arg(long)]
+    pub no_noise_estimate: bool,
 }
 
 pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
@@ -33,6 +37,7 @@ pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
     let opts = EnvmapOptions {
         samples: args.samples,
         tracer: args.tracer,
+        noise_estimate: !args.no_noise_estimate,
         ..Default::default()
     };
     let start = std::time::Instant::now();

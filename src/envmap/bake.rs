@@ -6,6 +6,14 @@
 //! raised by half its model's height × scale), `samples` directions on a spherical Fibonacci set
 //! rotated by a per-instance random rotation (deterministic: seeded by the instance index) are
 //! traced into the two-level scene; each is weighted 4π/N.
+//!
+//! Noise estimate (issue 20, item 2; option `noise_estimate`, on by default): the N rays are
+//! traced as two independent halves, each a ⌈N/2⌉- or ⌊N/2⌋-point spherical Fibonacci set with
+//! its own random rotation (independent: the difference of two halves of one low-discrepancy set
+//! would not estimate the full set's error). The map is the ray-count-weighted mean of the two
+//! half estimates A and B (each weighted 4π/N per ray, so it is the same sum as one N-ray set),
+//! and the difference D = A − B (world frame) gives the noise covariance of the mean,
+//! E[D Dᵀ]/4, at no extra ray cost (`super::envmaps_section` sums it over all instances).
 //! - A ray that escapes sees the sun-free sky: C_H += L_sky(d)·y(d)·4π/N.
 //! - A ray that hits a surface with albedo ρ and normal n (facing the ray) sees its outgoing
 //!   diffuse radiance: the sun's part ρ/π·E_sun·max(0, n·s)·V_sun(x) goes to C_S, the sky's part
@@ -55,6 +63,9 @@ pub struct EnvmapOptions {
     pub seed: u64,
     /// Ray-tracing backend ([`Tracer`]: `cpu` | `embree`).
     pub tracer: Tracer,
+    /// Trace the rays as two independently rotated halves and keep their difference (the
+    /// `envmaps` section's noise estimate); false: one rotated N-point set, no noise estimate.
+    pub noise_estimate: bool,
 }
 
 impl EnvmapOptions {
@@ -63,6 +74,7 @@ impl EnvmapOptions {
         samples: 256,
         seed: 0x00e0_2005,
         tracer: Tracer::Cpu,
+        noise_estimate: true,
     };
 
     /// Options this binary cannot run (a tracer it was built without).
@@ -80,6 +92,30 @@ impl Default for EnvmapOptions {
 /// Per-instance (C_H, C_S) in the instance's frame.
 pub type InstanceMaps = ([[f32; 3]; 16], [[f32; 3]; 16]);
 
+/// Floats of one instance's half difference: C_H then C_S, `[coefficient][rgb]`
+/// (`section::flatten`'s order).
+pub const NOISE_DIM: usize = 96;
+
+/// One instance's half difference A − B in the **world** frame (the frame the cluster stage
+/// works in), flattened as [`NOISE_DIM`].
+pub type HalfDifference = [f32; NOISE_DIM];
+
+/// The traced maps of some instances and, with [`EnvmapOptions::noise_estimate`], each one's
+/// half difference (else empty).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Traced {
+    pub maps: Vec<InstanceMaps>,
+    pub diffs: Vec<HalfDifference>,
+}
+
+impl Traced {
+    /// Appends another batch (a later shard).
+    pub fn extend(&mut self, other: Traced) {
+        self.maps.extend(other.maps);
+        self.diffs.extend(other.diffs);
+    }
+}
+
 /// Bakes the maps of every instance (parallel, deterministic).
 pub fn bake_envmaps(scene: &EnvmapScene, opts: &EnvmapOptions) -> Vec<InstanceMaps> {
     bake_envmaps_range(scene, opts, 0..scene.count)
@@ -91,12 +127,18 @@ pub fn bake_envmaps_range(
     opts: &EnvmapOptions,
     range: std::ops::Range<usize>,
 ) -> Vec<InstanceMaps> {
-    let sky_irr = scene.sky.to_irradiance();
+    trace_envmaps_range(scene, opts, range).maps
+}
+
+/// The maps of instances `range` (clamped to the scene's count) and their half differences.
+pub fn trace_envmaps_range(
+    scene: &EnvmapScene,
+    opts: &EnvmapOptions,
+    range: std::ops::Range<usize>,
+) -> Traced {
     let range = range.start.min(scene.count)..range.end.min(scene.count);
-    range
-        .into_par_iter()
-        .map(|i| bake_one(scene, &sky_irr, i, opts))
-        .collect()
+    let idx: Vec<usize> = range.collect();
+    trace_envmaps_subset(scene, opts, &idx)
 }
 
 /// The maps of the instances `subset` (indices below the scene's count), in that order: a
@@ -106,11 +148,25 @@ pub fn bake_envmaps_subset(
     opts: &EnvmapOptions,
     subset: &[usize],
 ) -> Vec<InstanceMaps> {
+    trace_envmaps_subset(scene, opts, subset).maps
+}
+
+/// [`bake_envmaps_subset`] with the half differences.
+pub fn trace_envmaps_subset(scene: &EnvmapScene, opts: &EnvmapOptions, subset: &[usize]) -> Traced {
     let sky_irr = scene.sky.to_irradiance();
-    subset
+    let (maps, diffs): (Vec<InstanceMaps>, Vec<Option<HalfDifference>>) = subset
         .par_iter()
         .map(|&i| bake_one(scene, &sky_irr, i, opts))
-        .collect()
+        .unzip();
+    Traced {
+        maps,
+        diffs: diffs.into_iter().flatten().collect(),
+    }
+}
+
+/// Whether these options trace two halves (and so give a noise estimate).
+pub fn traces_halves(opts: &EnvmapOptions) -> bool {
+    opts.noise_estimate && opts.samples >= 2
 }
 
 fn bake_one(
@@ -118,33 +174,60 @@ fn bake_one(
     sky_irr: &ShIrradiance,
     i: usize,
     opts: &EnvmapOptions,
-) -> InstanceMaps {
+) -> (InstanceMaps, Option<HalfDifference>) {
     let inst = scene.bvh.instances()[i];
     let p = Vec3A::from(inst.translation) + Vec3A::Z * scene.probe_height[i];
     let n = opts.samples.max(1);
     let w = 4.0 * std::f64::consts::PI / n as f64;
-    let rot = random_rotation(crate::trace::mix64(
-        opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-    ));
-    let mut ch = [[0.0f64; 3]; 16];
-    let mut cs = [[0.0f64; 3]; 16];
-    for k in 0..n {
-        let d = rot * fibonacci_direction(k, n);
-        let (lh, ls) = radiance_along(scene, sky_irr, i as u32, p, d);
-        let y = sh::eval_basis16(d.to_array());
-        for c in 0..16 {
-            for ch_k in 0..3 {
-                ch[c][ch_k] += (lh[ch_k] * y[c]) as f64 * w;
-                cs[c][ch_k] += (ls[ch_k] * y[c]) as f64 * w;
+    let base = opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    // One rotated set of `m` points, each ray weighted `w`; sums in the world frame.
+    let set = |seed: u64, m: u32| {
+        let rot = random_rotation(crate::trace::mix64(seed));
+        let mut ch = [[0.0f64; 3]; 16];
+        let mut cs = [[0.0f64; 3]; 16];
+        for k in 0..m {
+            let d = rot * fibonacci_direction(k, m);
+            let (lh, ls) = radiance_along(scene, sky_irr, i as u32, p, d);
+            let y = sh::eval_basis16(d.to_array());
+            for c in 0..16 {
+                for ch_k in 0..3 {
+                    ch[c][ch_k] += (lh[ch_k] * y[c]) as f64 * w;
+                    cs[c][ch_k] += (ls[ch_k] * y[c]) as f64 * w;
+                }
             }
         }
-    }
+        (ch, cs)
+    };
+    let (ch, cs, diff) = if traces_halves(opts) {
+        // Two independent halves: ⌈n/2⌉ and ⌊n/2⌋ points, their own rotations. The sum of the
+        // two (each ray weighted 4π/n) is the n-ray estimate; each half alone, rescaled to
+        // its own ray count, is an estimate A or B.
+        let (na, nb) = (n - n / 2, n / 2);
+        let (ha, sa) = set(base, na);
+        let (hb, sb) = set(crate::trace::mix64(base ^ 0x6a09_e667_f3bc_c909), nb);
+        let (fa, fb) = (n as f64 / na as f64, n as f64 / nb as f64);
+        let mut d = [0.0f32; NOISE_DIM];
+        for (half, (a, b)) in [(&ha, &hb), (&sa, &sb)].into_iter().enumerate() {
+            for c in 0..16 {
+                for k in 0..3 {
+                    d[half * 48 + c * 3 + k] = (a[c][k] * fa - b[c][k] * fb) as f32;
+                }
+            }
+        }
+        let add = |a: [[f64; 3]; 16], b: [[f64; 3]; 16]| {
+            std::array::from_fn(|c| std::array::from_fn(|k| a[c][k] + b[c][k]))
+        };
+        (add(ha, hb), add(sa, sb), Some(d))
+    } else {
+        let (ch, cs) = set(base, n);
+        (ch, cs, None)
+    };
     let to_f32 = |m: [[f64; 3]; 16]| m.map(|c| c.map(|v| v as f32));
     // Into the instance's frame: C_local(d) = C_world(Rz(θ)·d).
     let angle = -(inst.rotation_deg as f64).to_radians();
     let h = ShRadiance { coeffs: to_f32(ch) }.rotated_z(angle);
     let s = ShRadiance { coeffs: to_f32(cs) }.rotated_z(angle);
-    (h.coeffs, s.coeffs)
+    ((h.coeffs, s.coeffs), diff)
 }
 
 /// Radiance from direction d at p: (sky part, sun part).

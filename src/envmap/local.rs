@@ -77,9 +77,22 @@ pub fn fit(residual: &[f32], dim: usize, p: usize) -> LocalPart {
 /// [`fit`], and with `noise` (the dim × dim covariance of the maps' Monte-Carlo noise per
 /// instance, row-major) each component's coefficients shrunk by max(0, 1 − ν_k / λ_k) (ν_k the
 /// noise variance along the component, λ_k its mean squared coefficient): a Wiener filter of
-/// the per-instance part. Experimental (`bake bench cluster --denoise`; the pipeline's envmaps
-/// do not carry a noise estimate yet).
+/// the per-instance part. The cluster stage's default with the `envmaps` section's noise
+/// estimate (the tracer's two independent halves; `ClusterOptions::denoise`).
 pub fn fit_denoised(residual: &[f32], dim: usize, p: usize, noise: Option<&[f64]>) -> LocalPart {
+    fit_denoised_scaled(residual, dim, p, noise, None)
+}
+
+/// [`fit_denoised`] with the noise scaled per instance (heteroscedastic): instance i's noise
+/// covariance taken as `scale[i]` × the mean covariance `noise`, so its coefficients shrink by
+/// max(0, 1 − scale_i ν_k / λ_k). Experimental (`bake bench cluster --heteroscedastic`).
+pub fn fit_denoised_scaled(
+    residual: &[f32],
+    dim: usize,
+    p: usize,
+    noise: Option<&[f64]>,
+    scale: Option<&[f32]>,
+) -> LocalPart {
     let n = residual.len() / dim.max(1);
     let p = p.min(dim);
     const BLOCK: usize = 1024;
@@ -144,7 +157,9 @@ pub fn fit_denoised(residual: &[f32], dim: usize, p: usize, noise: Option<&[f64]
         .collect();
     let mut proj = proj;
     if let Some(nc) = noise {
-        let shrink: Vec<f32> = (0..p)
+        // Per component: ν_k (the noise variance along it) and λ_k (its mean squared
+        // coefficient).
+        let nl: Vec<(f64, f64)> = (0..p)
             .map(|k| {
                 let b = &basis[k * dim..(k + 1) * dim];
                 let nu: f64 = (0..dim)
@@ -156,15 +171,18 @@ pub fn fit_denoised(residual: &[f32], dim: usize, p: usize, noise: Option<&[f64]
                     .map(|i| (proj[i * p + k] as f64).powi(2))
                     .sum::<f64>()
                     / n.max(1) as f64;
-                if lambda > 0.0 {
-                    (1.0 - nu / lambda).max(0.0) as f32
-                } else {
-                    0.0
-                }
+                (nu, lambda)
             })
             .collect();
-        for (i, a) in proj.iter_mut().enumerate() {
-            *a *= shrink[i % p];
+        for (j, a) in proj.iter_mut().enumerate() {
+            let (nu, lambda) = nl[j % p];
+            let s = scale.map_or(1.0, |s| s[j / p] as f64);
+            let f = if lambda > 0.0 {
+                (1.0 - s * nu / lambda).max(0.0)
+            } else {
+                0.0
+            };
+            *a *= f as f32;
         }
     }
     let mut scale = vec![0.0f32; p];

@@ -90,14 +90,28 @@ pub fn compress(
     compress_denoised(positions, values, dim, opts, None)
 }
 
-/// [`compress`] with the local part Wiener-filtered by a noise covariance
-/// ([`local::fit_denoised`]; experimental, the bench's `--denoise`).
+/// [`compress`] with the local part Wiener-filtered by a noise covariance (dim × dim, the
+/// maps' frame; [`local::fit_denoised`]): the stage's default with the `envmaps` section's
+/// noise estimate.
 pub fn compress_denoised(
     positions: &[[f32; 3]],
     values: &[f32],
     dim: usize,
     opts: &ClusterOptions,
     noise: Option<&[f64]>,
+) -> Compressed {
+    compress_denoised_scaled(positions, values, dim, opts, noise, None)
+}
+
+/// [`compress_denoised`] with a per-instance noise scale ([`local::fit_denoised_scaled`];
+/// experimental, the bench's `--heteroscedastic`).
+pub fn compress_denoised_scaled(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    opts: &ClusterOptions,
+    noise: Option<&[f64]>,
+    scale: Option<&[f32]>,
 ) -> Compressed {
     let n = positions.len();
     let budget = opts.budget(n, dim);
@@ -124,7 +138,7 @@ pub fn compress_denoised(
     // The shared part's own errors, with the stored (mean) sample values.
     c.errors = relative_errors(&rec, values, dim, c.rms);
     let residual: Vec<f32> = values.par_iter().zip(&rec).map(|(v, r)| v - r).collect();
-    let l = local::fit_denoised(&residual, dim, p, noise);
+    let l = local::fit_denoised_scaled(&residual, dim, p, noise, scale);
     l.add_all(&mut rec);
     let errors = relative_errors(&rec, values, dim, c.rms);
     Compressed {
@@ -192,8 +206,33 @@ pub fn cluster_and_weigh(
     opts: &ClusterOptions,
     store_weights: bool,
 ) -> (ClustersMeta, Compressed, Option<NeighbourWeights>) {
-    let z = compress(positions, values, dim, opts);
+    cluster_and_weigh_noisy(positions, values, dim, opts, store_weights, None)
+}
+
+/// [`cluster_and_weigh`] with the input's noise estimate (`envmaps` section): with
+/// [`ClusterOptions::denoise`] the local part is Wiener-filtered with its covariance, and the
+/// metadata states the noise.
+pub fn cluster_and_weigh_noisy(
+    positions: &[[f32; 3]],
+    values: &[f32],
+    dim: usize,
+    opts: &ClusterOptions,
+    store_weights: bool,
+    noise: Option<&section::EnvmapNoise>,
+) -> (ClustersMeta, Compressed, Option<NeighbourWeights>) {
+    let filter = noise.filter(|_| opts.denoise && dim == section::DIM);
+    let z = compress_denoised(
+        positions,
+        values,
+        dim,
+        opts,
+        filter.map(|nz| nz.covariance.as_slice()),
+    );
     let c = &z.clustering;
+    let input_noise_relative = match noise {
+        Some(nz) if c.rms > 0.0 => (nz.mean_variance().sqrt() / c.rms as f64) as f32,
+        _ => 0.0,
+    };
     let weights = store_weights.then(|| instance_weights(positions, values, dim, c));
     let meta = ClustersMeta {
         instances: positions.len() as u64,
@@ -210,6 +249,8 @@ pub fn cluster_and_weigh(
         local_components: z.local.as_ref().map_or(0, |l| l.components as u32),
         max_bytes: z.budget.unwrap_or(0),
         shared_rms_error_relative: c.rms_error(),
+        input_noise_relative,
+        denoised: filter.is_some() && z.local.is_some(),
     };
     (meta, z, weights)
 }
@@ -358,8 +399,8 @@ pub fn envmap_sections(
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
     let light = crate::lightmap::scene_lighting(pack)?;
     let scene = crate::trace::pack_scene::trace_scene(pack)?;
-    let maps = instance_maps(&scene, &light, opts, 0..scene.instance_count)?;
-    Ok(vec![envmaps_section(&maps, opts)])
+    let traced = instance_traced(&scene, &light, opts, 0..scene.instance_count)?;
+    Ok(vec![envmaps_section(&traced, opts)])
 }
 
 /// The maps of the instances in `range` (a shard; every instance's maps depend on its index
@@ -372,6 +413,18 @@ pub fn instance_maps(
 ) -> crate::error::Result<Vec<bake::InstanceMaps>> {
     with_envmap_scene(scene, light, opts, |es| {
         bake::bake_envmaps_range(es, opts, range)
+    })
+}
+
+/// [`instance_maps`] with the half differences (the noise estimate, [`bake::Traced`]).
+pub fn instance_traced(
+    scene: &crate::trace::pack_scene::TraceScene,
+    light: &crate::lightmap::BakeLight,
+    opts: &bake::EnvmapOptions,
+    range: std::ops::Range<usize>,
+) -> crate::error::Result<bake::Traced> {
+    with_envmap_scene(scene, light, opts, |es| {
+        bake::trace_envmaps_range(es, opts, range)
     })
 }
 
@@ -474,22 +527,28 @@ pub fn compression_warning(
     })
 }
 
-/// The `envmaps` section of every instance's maps.
-pub fn envmaps_section(
-    maps: &[bake::InstanceMaps],
-    opts: &bake::EnvmapOptions,
-) -> crate::pack::Section {
+/// The `envmaps` section of every instance's maps, with the noise estimate when every instance
+/// has a half difference (summed in fixed blocks of instances: the same bytes whatever the
+/// thread count or the shards).
+pub fn envmaps_section(traced: &bake::Traced, opts: &bake::EnvmapOptions) -> crate::pack::Section {
+    let maps = &traced.maps;
     let sky: Vec<[[f32; 3]; 16]> = maps.iter().map(|m| m.0).collect();
     let sun: Vec<[[f32; 3]; 16]> = maps.iter().map(|m| m.1).collect();
+    let noise = (!maps.is_empty() && traced.diffs.len() == maps.len())
+        .then(|| section::noise_from_differences(&traced.diffs));
     let meta = section::EnvmapsMeta {
         instances: maps.len() as u64,
         order: 4,
         samples: opts.samples,
-        estimator:
+        estimator: if noise.is_some() {
+            "spherical Fibonacci rays from a probe at half the model height, two independently rotated halves; one diffuse bounce"
+        } else {
             "spherical Fibonacci rays from a probe at half the model height; one diffuse bounce"
-                .into(),
+        }
+        .into(),
+        noise_pairs: noise.as_ref().map_or(0, |_| maps.len() as u64),
     };
-    section::envmaps_to_section("envmaps", &meta, &sky, &sun)
+    section::envmaps_to_section("envmaps", &meta, &sky, &sun, noise.as_ref())
 }
 
 /// The clustering stage on a pack with `instances` and `envmaps`: the `clusters` section, whose
@@ -512,7 +571,9 @@ pub fn cluster_sections_warned(
     let bad = |e| crate::error::Error::invalid(pack.path(), e);
     let (_, inst) = crate::ingest::instances_section::from_section(&pack.view_named("instances")?)
         .map_err(bad)?;
-    let (_, sky, sun) = section::envmaps_from_section(&pack.view_named("envmaps")?).map_err(bad)?;
+    let ev = pack.view_named("envmaps")?;
+    let (emeta, sky, sun) = section::envmaps_from_section(&ev).map_err(bad)?;
+    let noise = section::envmaps_noise_from_section(&ev, &emeta).map_err(bad)?;
     if sky.len() != inst.items.len() {
         return Err(crate::error::Error::invalid_at(
             pack.path(),
@@ -525,8 +586,14 @@ pub fn cluster_sections_warned(
     let (mut sky, mut sun) = (sky, sun);
     to_world_frame(&mut sky, &mut sun, &rotations);
     let values = section::flatten(&sky, &sun);
-    let (meta, z, weights) =
-        cluster_and_weigh(&positions, &values, section::DIM, opts, store_weights);
+    let (meta, z, weights) = cluster_and_weigh_noisy(
+        &positions,
+        &values,
+        section::DIM,
+        opts,
+        store_weights,
+        noise.as_ref(),
+    );
     let wref = weights.as_ref().map(|(n, w)| (n.as_slice(), w.as_slice()));
     let warning = compression_warning(&positions, &values, section::DIM, &z, opts);
     Ok((
@@ -779,6 +846,72 @@ mod tests {
             let (z, b) = run(t);
             assert_eq!(z, z1, "{t} threads");
             assert!(b == b1, "{t} threads: the section's bytes differ");
+        }
+    }
+
+    #[test]
+    fn the_denoised_stage_states_the_noise_is_closer_to_the_reference_and_thread_independent() {
+        // Hard local occlusion plus white noise of known σ (1 % of the RMS per coefficient):
+        // given that covariance (σ² I, as the tracer's estimate would be), the stage states
+        // σ, filters the local part, lands closer to the noise-free maps than without the
+        // filter, and writes the same bytes with 1, 2 and 5 threads.
+        let (pos, noisy, reference) = occluded_scene(3000, 53);
+        let dim = section::DIM;
+        let rms = (noisy.iter().map(|v| (*v as f64).powi(2)).sum::<f64>() / noisy.len() as f64)
+            .sqrt() as f32;
+        let truth_rms = (reference.iter().map(|v| (*v as f64).powi(2)).sum::<f64>()
+            / reference.len() as f64)
+            .sqrt();
+        // occluded_scene's noise: 0.01 × the RMS of its smooth field, which is about the
+        // reference's RMS; taken from the data: the input minus the reference.
+        let var = noisy
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| ((a - b) as f64).powi(2))
+            .sum::<f64>()
+            / noisy.len() as f64;
+        let mut cov = vec![0.0f64; dim * dim];
+        for c in 0..dim {
+            cov[c * dim + c] = var;
+        }
+        let nz = section::EnvmapNoise {
+            covariance: cov,
+            variance: vec![(var * dim as f64) as f32; pos.len()],
+        };
+        let opts = ClusterOptions::DEFAULT;
+        let run = |threads, noise: Option<&section::EnvmapNoise>| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    let (meta, z, _) =
+                        cluster_and_weigh_noisy(&pos, &noisy, dim, &opts, false, noise);
+                    let sec =
+                        section::clusters_to_section("clusters", &meta, &z, &pos, &noisy, None);
+                    let mut pw = crate::pack::PackWriter::new();
+                    pw.insert(sec);
+                    (meta, z, pw.to_bytes().unwrap())
+                })
+        };
+        let (meta, z, bytes) = run(1, Some(&nz));
+        assert!(meta.denoised && z.local.is_some());
+        let stated = meta.input_noise_relative as f64;
+        let want = var.sqrt() / rms as f64;
+        assert!((stated / want - 1.0).abs() < 1e-3, "{stated} vs {want}");
+        let (plain_meta, plain, _) = run(1, None);
+        assert!(!plain_meta.denoised && plain_meta.input_noise_relative == 0.0);
+        let err = |z: &Compressed| {
+            let rec = reconstruct_all(&pos, &noisy, dim, z);
+            rel_rms(&rec, &reference, truth_rms as f32)
+        };
+        let (e_f, e_p) = (err(&z), err(&plain));
+        eprintln!("against the noise-free maps: denoised {e_f:.5}, plain {e_p:.5}");
+        assert!(e_f <= e_p, "denoised {e_f} vs plain {e_p}");
+        for t in [2, 5] {
+            let (_, zt, b) = run(t, Some(&nz));
+            assert_eq!(zt, z, "{t} threads");
+            assert!(b == bytes, "{t} threads: the section's bytes differ");
         }
     }
 

@@ -22,6 +22,107 @@ pub struct EnvmapsMeta {
     pub order: u32,
     pub samples: u32,
     pub estimator: String,
+    /// Instances whose half difference went into the noise estimate (arrays
+    /// `noise_covariance`, `noise_variance`); 0: no noise estimate. Added in version 2 of the
+    /// section (envmaps stage version 2); version 1 metadata ends before it and reads as 0.
+    pub noise_pairs: u64,
+}
+
+/// Version 1 of [`EnvmapsMeta`] (no noise estimate).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct EnvmapsMetaV1 {
+    instances: u64,
+    order: u32,
+    samples: u32,
+    estimator: String,
+}
+
+impl EnvmapsMeta {
+    /// Decodes version 2 metadata, or version 1 (without a noise estimate).
+    pub fn decode(v: &SectionView) -> Result<EnvmapsMeta, ParseError> {
+        match v.meta::<EnvmapsMeta>() {
+            Ok(m) => Ok(m),
+            Err(e) => {
+                let o: EnvmapsMetaV1 = v.meta().map_err(|_| e)?;
+                Ok(EnvmapsMeta {
+                    instances: o.instances,
+                    order: o.order,
+                    samples: o.samples,
+                    estimator: o.estimator,
+                    noise_pairs: 0,
+                })
+            }
+        }
+    }
+}
+
+/// The tracer's noise estimate of the maps (from the two independent half estimates of every
+/// instance, `bake::bake_one`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EnvmapNoise {
+    /// DIM × DIM, row-major: the noise covariance of one instance's map (the mean of the two
+    /// halves), averaged over the instances, Σ_i D_i D_iᵀ / (4n) with D_i = A_i − B_i, in the
+    /// **world** frame, flattened as [`flatten`].
+    pub covariance: Vec<f64>,
+    /// Per instance: the trace of its own estimate, |D_i|² / 4 (rotation-invariant).
+    pub variance: Vec<f32>,
+}
+
+impl EnvmapNoise {
+    /// Mean noise variance per coefficient (trace / DIM).
+    pub fn mean_variance(&self) -> f64 {
+        (0..DIM).map(|i| self.covariance[i * DIM + i]).sum::<f64>() / DIM as f64
+    }
+}
+
+/// Instances per block of the covariance sum: every block is summed on its own (f64) and the
+/// blocks in order, so the result depends on neither the thread count nor the shards.
+const NOISE_BLOCK: usize = 1024;
+
+/// The noise estimate from the instances' half differences (world frame, `DIM` each).
+pub fn noise_from_differences(diffs: &[[f32; DIM]]) -> EnvmapNoise {
+    use rayon::prelude::*;
+    let n = diffs.len();
+    let partial: Vec<Vec<f64>> = diffs
+        .par_chunks(NOISE_BLOCK)
+        .map(|blk| {
+            let mut m = vec![0.0f64; DIM * DIM];
+            for d in blk {
+                for a in 0..DIM {
+                    let da = d[a] as f64;
+                    if da == 0.0 {
+                        continue;
+                    }
+                    let row = &mut m[a * DIM..(a + 1) * DIM];
+                    for (x, &db) in row[a..].iter_mut().zip(&d[a..]) {
+                        *x += da * db as f64;
+                    }
+                }
+            }
+            m
+        })
+        .collect();
+    let mut m = vec![0.0f64; DIM * DIM];
+    for blk in &partial {
+        for (a, b) in m.iter_mut().zip(blk) {
+            *a += b;
+        }
+    }
+    let scale = 1.0 / (4.0 * n.max(1) as f64);
+    for a in 0..DIM {
+        for b in a..DIM {
+            m[a * DIM + b] *= scale;
+            m[b * DIM + a] = m[a * DIM + b];
+        }
+    }
+    let variance = diffs
+        .par_iter()
+        .map(|d| (d.iter().map(|&x| x as f64 * x as f64).sum::<f64>() / 4.0) as f32)
+        .collect();
+    EnvmapNoise {
+        covariance: m,
+        variance,
+    }
 }
 
 pub fn envmaps_to_section(
@@ -29,12 +130,70 @@ pub fn envmaps_to_section(
     meta: &EnvmapsMeta,
     sky: &[[[f32; 3]; COEFFS]],
     sun: &[[[f32; 3]; COEFFS]],
+    noise: Option<&EnvmapNoise>,
 ) -> Section {
     let mut b = SectionBuilder::new(ENVMAPS_KIND, name);
     b.meta(meta)
         .array("sky", ArrayFormat::F32, 48, sky)
         .array("sun", ArrayFormat::F32, 48, sun);
+    if let Some(nz) = noise {
+        let cov: Vec<[f32; DIM]> = nz
+            .covariance
+            .chunks_exact(DIM)
+            .map(|r| std::array::from_fn(|c| r[c] as f32))
+            .collect();
+        b.array("noise_covariance", ArrayFormat::F32, DIM as u32, &cov)
+            .array("noise_variance", ArrayFormat::F32, 1, &nz.variance);
+    }
     b.finish()
+}
+
+/// The section's noise estimate, if it has one (checked against its metadata).
+pub fn envmaps_noise_from_section(
+    v: &SectionView,
+    meta: &EnvmapsMeta,
+) -> Result<Option<EnvmapNoise>, ParseError> {
+    if meta.noise_pairs == 0 {
+        return Ok(None);
+    }
+    let cov: Vec<[f32; DIM]> = v.array_vec("noise_covariance")?;
+    let variance: Vec<f32> = v.array_vec("noise_variance")?;
+    let cov: Vec<f32> = cov.concat();
+    if cov.len() != DIM * DIM || variance.len() as u64 != meta.instances {
+        return Err(ParseError::new(
+            "envmaps section",
+            format!(
+                "noise estimate: {} covariance floats (want {}), {} variances for {} instances",
+                cov.len(),
+                DIM * DIM,
+                variance.len(),
+                meta.instances
+            ),
+        ));
+    }
+    Ok(Some(EnvmapNoise {
+        covariance: cov.iter().map(|&x| x as f64).collect(),
+        variance,
+    }))
+}
+
+/// Where the noise is: the fractions of the noise variance (the covariance's trace) in C_H and
+/// C_S, and in SH bands 0..3 (both maps, all colours).
+pub fn noise_breakdown(nz: &EnvmapNoise) -> Value {
+    let diag: Vec<f64> = (0..DIM).map(|i| nz.covariance[i * DIM + i]).collect();
+    let total: f64 = diag.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+    let sky: f64 = diag[..DIM / 2].iter().sum();
+    let mut bands = [0.0f64; 4];
+    for (i, &d) in diag.iter().enumerate() {
+        let c = (i % (DIM / 2)) / 3;
+        let l = (c as f64).sqrt().floor() as usize;
+        bands[l.min(3)] += d;
+    }
+    json!({
+        "sky_fraction": sky / total,
+        "sun_fraction": 1.0 - sky / total,
+        "band_fractions": bands.map(|b| b / total),
+    })
 }
 
 /// Decodes to (meta, sky, sun).
@@ -49,7 +208,7 @@ pub fn envmaps_from_section(
     ),
     ParseError,
 > {
-    let meta: EnvmapsMeta = v.meta()?;
+    let meta = EnvmapsMeta::decode(v)?;
     let sky: Vec<[[f32; 3]; COEFFS]> = v.array_vec("sky")?;
     let sun: Vec<[[f32; 3]; COEFFS]> = v.array_vec("sun")?;
     if sky.len() as u64 != meta.instances || sun.len() as u64 != meta.instances {
@@ -75,15 +234,32 @@ pub fn flatten(sky: &[[[f32; 3]; COEFFS]], sun: &[[[f32; 3]; COEFFS]]) -> Vec<f3
 }
 
 pub fn envmaps_summary(v: &SectionView) -> Result<Value, ParseError> {
-    let m: EnvmapsMeta = v.meta()?;
-    Ok(
-        json!({"instances": m.instances, "order": m.order, "samples": m.samples, "estimator": m.estimator}),
-    )
+    let m = EnvmapsMeta::decode(v)?;
+    let mut doc = json!({"instances": m.instances, "order": m.order, "samples": m.samples,
+        "estimator": m.estimator, "noise_pairs": m.noise_pairs});
+    if let Some(nz) = envmaps_noise_from_section(v, &m)? {
+        let (_, sky, sun) = envmaps_from_section(v)?;
+        let values = flatten(&sky, &sun);
+        let ms =
+            values.iter().map(|&x| x as f64 * x as f64).sum::<f64>() / values.len().max(1) as f64;
+        let var = nz.mean_variance();
+        doc["noise"] = json!({
+            "rms": var.sqrt(),
+            "relative": if ms > 0.0 { (var / ms).sqrt() } else { 0.0 },
+            "where": noise_breakdown(&nz),
+        });
+    }
+    Ok(doc)
 }
 
 pub fn envmaps_data(v: &SectionView) -> Result<Value, ParseError> {
-    let (_, sky, sun) = envmaps_from_section(v)?;
-    Ok(json!({"sky": sky, "sun": sun}))
+    let (m, sky, sun) = envmaps_from_section(v)?;
+    let mut doc = json!({"sky": sky, "sun": sun});
+    if let Some(nz) = envmaps_noise_from_section(v, &m)? {
+        doc["noise_covariance"] = json!(nz.covariance);
+        doc["noise_variance"] = json!(nz.variance);
+    }
+    Ok(doc)
 }
 
 /// What the runtime needs to reconstruct every instance's maps.
@@ -110,6 +286,31 @@ pub struct ClustersMeta {
     pub max_bytes: u64,
     /// RMS error of the shared part alone (before the local part), relative as above.
     pub shared_rms_error_relative: f32,
+    /// The input maps' Monte-Carlo noise (the `envmaps` section's estimate: √(trace / dim) of
+    /// its covariance), relative as above; 0: the input carries no noise estimate. Added in
+    /// version 4 of the section (cluster stage version 4); older metadata reads as 0.
+    pub input_noise_relative: f32,
+    /// The local part was Wiener-filtered with that noise (`local::fit_denoised`).
+    pub denoised: bool,
+}
+
+/// Version 3 of [`ClustersMeta`] (no noise fields).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct ClustersMetaV3 {
+    instances: u64,
+    clusters: u64,
+    dim: u32,
+    k: u32,
+    radius: f32,
+    constant_term: bool,
+    error_bound: f32,
+    rms_error_relative: f32,
+    max_error_relative: f32,
+    ill_conditioned: u64,
+    weights: bool,
+    local_components: u32,
+    max_bytes: u64,
+    shared_rms_error_relative: f32,
 }
 
 /// Version 2 of [`ClustersMeta`] (no local part).
@@ -129,11 +330,32 @@ struct ClustersMetaV2 {
 }
 
 impl ClustersMeta {
-    /// Decodes version 3 metadata, or version 2 (without a local part).
+    /// Decodes version 4 metadata, or version 3 (without the noise fields) or 2 (without a
+    /// local part).
     pub fn decode(v: &SectionView) -> Result<ClustersMeta, ParseError> {
         match v.meta::<ClustersMeta>() {
             Ok(m) => Ok(m),
             Err(e) => {
+                if let Ok(o) = v.meta::<ClustersMetaV3>() {
+                    return Ok(ClustersMeta {
+                        instances: o.instances,
+                        clusters: o.clusters,
+                        dim: o.dim,
+                        k: o.k,
+                        radius: o.radius,
+                        constant_term: o.constant_term,
+                        error_bound: o.error_bound,
+                        rms_error_relative: o.rms_error_relative,
+                        max_error_relative: o.max_error_relative,
+                        ill_conditioned: o.ill_conditioned,
+                        weights: o.weights,
+                        local_components: o.local_components,
+                        max_bytes: o.max_bytes,
+                        shared_rms_error_relative: o.shared_rms_error_relative,
+                        input_noise_relative: 0.0,
+                        denoised: false,
+                    });
+                }
                 let o: ClustersMetaV2 = v.meta().map_err(|_| e)?;
                 Ok(ClustersMeta {
                     instances: o.instances,
@@ -150,6 +372,8 @@ impl ClustersMeta {
                     local_components: 0,
                     max_bytes: 0,
                     shared_rms_error_relative: o.rms_error_relative,
+                    input_noise_relative: 0.0,
+                    denoised: false,
                 })
             }
         }
@@ -235,6 +459,7 @@ pub fn clusters_summary(v: &SectionView) -> Result<Value, ParseError> {
         "rms_error_relative": m.rms_error_relative, "max_error_relative": m.max_error_relative,
         "shared_rms_error_relative": m.shared_rms_error_relative,
         "local_components": m.local_components, "max_bytes": m.max_bytes,
+        "input_noise_relative": m.input_noise_relative, "denoised": m.denoised,
         "ill_conditioned": m.ill_conditioned, "raw_bytes": raw, "packed_bytes": packed,
         "compression": if packed > 0 { raw as f64 / packed as f64 } else { 0.0 },
     }))

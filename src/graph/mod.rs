@@ -56,11 +56,15 @@ pub mod versions {
     pub const LOD: u32 = 3;
     pub const LIGHTMAP: u32 = 1;
     pub const ATLAS: u32 = 1;
-    pub const ENVMAPS: u32 = 1;
+    /// 2: the rays traced as two independently rotated halves, whose difference is the
+    /// section's noise estimate (`noise_covariance`, `noise_variance`; issue 20, item 2).
+    pub const ENVMAPS: u32 = 2;
     /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
     /// 3: a byte budget (20x by default), the per-instance local part and split fraction 1.0
     /// (issue 20, item 2).
-    pub const CLUSTER: u32 = 3;
+    /// 4: the local part Wiener-filtered with the `envmaps` section's noise estimate by default
+    /// (`denoise`), the metadata states `input_noise_relative` (issue 20, item 2).
+    pub const CLUSTER: u32 = 4;
     /// 2: instances within 1 mm of each other share a leaf (the `shared` array) instead of
     /// forcing deeper levels or failing (issue 16).
     pub const BITTREE: u32 = 2;
@@ -711,7 +715,7 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
     if s.envmaps {
         let n = scene.instances.items.len();
         let shard = p.units.envmap_shard_instances.max(1) as usize;
-        let mut maps: Vec<crate::envmap::bake::InstanceMaps> = Vec::with_capacity(n);
+        let mut maps = crate::envmap::bake::Traced::default();
         let mut o = report_of(&p.envmaps);
         if let Some(m) = o.as_object_mut() {
             m.remove("tracer");
@@ -724,9 +728,9 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
             let r = range.clone();
             let out = g.unit("envmaps", &unit, key, Some(range.len() as u64), |_| {
                 let (ts, light) = traced()?;
-                let m = crate::envmap::instance_maps(ts, light, &p.envmaps, r.clone())?;
+                let m = crate::envmap::instance_traced(ts, light, &p.envmaps, r.clone())?;
                 Ok(Output {
-                    report: json!({"instances": m.len(), "rays": m.len() as u64 * p.envmaps.samples as u64}),
+                    report: json!({"instances": m.maps.len(), "rays": m.maps.len() as u64 * p.envmaps.samples as u64}),
                     sections: vec![shard_section(&m)],
                     ..Default::default()
                 })
@@ -861,20 +865,21 @@ pub(crate) fn texels(sections: &[Section]) -> u64 {
 /// Kind of the cache-only section that holds one shard's environment maps.
 const SHARD_KIND: &str = "envmaps-shard";
 
-pub(crate) fn shard_section(maps: &[crate::envmap::bake::InstanceMaps]) -> Section {
-    let flat: Vec<[f32; 3]> = maps
+pub(crate) fn shard_section(t: &crate::envmap::bake::Traced) -> Section {
+    let flat: Vec<[f32; 3]> = t
+        .maps
         .iter()
         .flat_map(|(h, s)| h.iter().chain(s.iter()).copied())
         .collect();
     let mut b = SectionBuilder::new(SHARD_KIND, SHARD_KIND);
     b.array("maps", ArrayFormat::F32, 3, &flat);
+    if !t.diffs.is_empty() {
+        b.array("noise", ArrayFormat::F32, 96, &t.diffs);
+    }
     b.finish()
 }
 
-pub(crate) fn shard_maps(
-    sections: &[Section],
-    n: usize,
-) -> Result<Vec<crate::envmap::bake::InstanceMaps>> {
+pub(crate) fn shard_maps(sections: &[Section], n: usize) -> Result<crate::envmap::bake::Traced> {
     let bad = || Error::runtime("environment-map shard: unexpected cache entry contents");
     let s = sections
         .first()
@@ -885,7 +890,7 @@ pub(crate) fn shard_maps(
     if flat.len() != n * 32 {
         return Err(bad());
     }
-    Ok(flat
+    let maps = flat
         .chunks_exact(32)
         .map(|c| {
             (
@@ -893,7 +898,15 @@ pub(crate) fn shard_maps(
                 std::array::from_fn(|i| c[16 + i]),
             )
         })
-        .collect())
+        .collect();
+    let diffs: Vec<[f32; 96]> = match v.info("noise") {
+        Some(_) => v.array_vec("noise").map_err(|_| bad())?,
+        None => Vec::new(),
+    };
+    if !diffs.is_empty() && diffs.len() != n {
+        return Err(bad());
+    }
+    Ok(crate::envmap::bake::Traced { maps, diffs })
 }
 
 /// Reads one model and its textures into `texture:<model>/...` and `mesh:<model>` sections.

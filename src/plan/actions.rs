@@ -367,7 +367,7 @@ pub fn envmaps_shard(
 ) -> Result<UnitReport> {
     let (ts, light) = traced_packs(s, inputs)?;
     let range = shard_range(shard.0, shard.1, ts.instances.items.len());
-    let maps = crate::envmap::instance_maps(&ts, &light, &s.pipeline.envmaps, range)?;
+    let maps = crate::envmap::instance_traced(&ts, &light, &s.pipeline.envmaps, range)?;
     finish(
         "envmaps-shard",
         out,
@@ -378,7 +378,7 @@ pub fn envmaps_shard(
 
 /// The `envmaps` section from the shards' packs, in shard order.
 pub fn envmaps_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<UnitReport> {
-    let mut maps = Vec::new();
+    let mut maps = crate::envmap::bake::Traced::default();
     for p in shards {
         let sections = read_packs(std::slice::from_ref(p))?;
         let n = sections

@@ -106,7 +106,12 @@ fn schema(kind: &str) -> Option<Schema> {
         "material" => &[("params", &[F32], 24)],
         "tangents" => &[("tangents", &[F32], 4)],
         "lightmap" => LIGHTMAP,
-        "envmaps" => &[("sky", &[F32], 48), ("sun", &[F32], 48)],
+        "envmaps" => &[
+            ("sky", &[F32], 48),
+            ("sun", &[F32], 48),
+            ("noise_covariance", &[F32], 96),
+            ("noise_variance", &[F32], 1),
+        ],
         "clusters" => CLUSTERS,
         "bittree" => BITTREE,
         "prt" => &[("transfer", &[F32], 3), ("gpu", &[F32], 4)],
@@ -149,7 +154,9 @@ pub fn decode(kind: &str, v: &SectionView) -> Result<(), crate::error::ParseErro
             crate::lightmap::atlas_section::from_section(v).map(drop)
         }
         "lightmap" => crate::lightmap::section::from_section(v).map(drop),
-        "envmaps" => crate::envmap::section::envmaps_from_section(v).map(drop),
+        "envmaps" => crate::envmap::section::envmaps_from_section(v).and_then(|(m, _, _)| {
+            crate::envmap::section::envmaps_noise_from_section(v, &m).map(drop)
+        }),
         "clusters" => crate::envmap::section::clusters_summary(v).map(drop),
         "bittree" => crate::bittree::section::from_section(v).map(drop),
         "prt" => crate::prt::pack::from_section(v).map(drop),

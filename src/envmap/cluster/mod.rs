@@ -76,6 +76,9 @@ pub struct ClusterOptions {
     /// Target compression when `max_bytes` is None (raw maps over samples + local part);
     /// 0: no budget (split until the bound holds, as before version 3).
     pub compression: f32,
+    /// Wiener-filter the local part with the `envmaps` section's noise estimate, when it has
+    /// one (`local::fit_denoised`; cluster stage version 4).
+    pub denoise: bool,
 }
 
 impl ClusterOptions {
@@ -89,6 +92,7 @@ impl ClusterOptions {
         local: 8,
         max_bytes: None,
         compression: 20.0,
+        denoise: true,
     };
 
     /// The byte budget for n instances of `dim` floats (None: unlimited).

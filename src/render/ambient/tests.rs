@@ -319,8 +319,9 @@ fn cluster_pack(records: &[Instance], maps: &[(Sh16, Sh16)], weights: bool) -> P
         order: 4,
         samples: 1,
         estimator: "test".into(),
+        noise_pairs: 0,
     };
-    w.insert(es::envmaps_to_section("envmaps", &emeta, &sky, &sun));
+    w.insert(es::envmaps_to_section("envmaps", &emeta, &sky, &sun, None));
     let samples: Vec<u32> = (0..records.len() as u32).step_by(3).collect();
     // The clustering stage's samples are in the world frame (its own rotation back).
     let (mut wsky, mut wsun) = (sky.clone(), sun.clone());
@@ -345,6 +346,8 @@ fn cluster_pack(records: &[Instance], maps: &[(Sh16, Sh16)], weights: bool) -> P
         local_components: 0,
         max_bytes: 0,
         shared_rms_error_relative: 0.0,
+        input_noise_relative: 0.0,
+        denoised: false,
     };
     let mut b = SectionBuilder::new(es::CLUSTERS_KIND, "clusters");
     b.meta(&meta)
