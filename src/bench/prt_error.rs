@@ -21,7 +21,7 @@
 use super::cpu_seconds;
 use crate::error::{Error, Result};
 use crate::model::Mesh;
-use crate::prt::error::{TransferError, transfer_error};
+use crate::prt::error::{Shares, TransferError, error_shares, signal_shares, transfer_error};
 use crate::prt::filter::{FilterOptions, Neighbourhoods, filter_vertices};
 use crate::prt::transfer::{self as prt, Adaptive, PrtMaterial, PrtOptions, Transfer};
 use crate::trace::{AlphaMask, ModelBvh};
@@ -99,6 +99,8 @@ pub struct ErrorRun {
     /// Uncorrected relative RMS difference from the reference.
     pub rms_difference: f64,
     pub rays: u64,
+    /// Where the squared error lies (by side, set, SH band; each part noise-corrected).
+    pub error_shares: Shares,
     /// `wall_seconds` scaled to every vertex of the model (BVH build excluded).
     pub projected_wall_seconds: f64,
     pub projected_cpu_seconds: Option<f64>,
@@ -121,6 +123,8 @@ pub struct PrtErrorReport {
     pub reference_noise: f64,
     pub reference_seconds: f64,
     pub reference_cached: bool,
+    /// Where the reference's signal energy lies (by side, set, SH band).
+    pub signal_shares: Shares,
     pub build_seconds: f64,
     /// Embree scene build time (method `embree` only).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -218,6 +222,7 @@ pub fn bench_prt_error(
                 rms_error: e.rms_error,
                 rms_difference: e.rms_difference,
                 rays: t.rays,
+                error_shares: error_shares(&t, &halves[0], &halves[1]),
                 projected_wall_seconds: wall * scale,
                 projected_cpu_seconds: cpu.map(|c| c * scale),
             });
@@ -236,6 +241,7 @@ pub fn bench_prt_error(
         reference_noise: noise,
         reference_seconds,
         reference_cached: cached,
+        signal_shares: signal_shares(&halves[0], &halves[1]),
         build_seconds,
         embree_build_seconds,
         runs,

@@ -8,7 +8,7 @@
 //! ‖A − R‖² − ‖R₁ − R₂‖²/4, R = (R₁ + R₂)/2, estimates A's true mean square error (bias
 //! included) without a converged reference.
 
-use super::transfer::Transfer;
+use super::transfer::{COEFFS, SETS, SIDES, Transfer};
 
 /// The error of an estimate against a two-half reference, each as a fraction of the
 /// reference's RMS (0.01 = 1 %).
@@ -76,6 +76,75 @@ pub fn transfer_error(estimate: &Transfer, r1: &Transfer, r2: &Transfer) -> Tran
         rms_difference: difference.sqrt() / scale,
         reference_noise: noise.sqrt() / scale,
     }
+}
+
+/// Where a quantity lies over the parts of a transfer: fractions (summing to 1 in each group)
+/// by vertex side (front, back), by set (all paths, bounced paths) and by SH band (0–3).
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct Shares {
+    pub side: [f64; SIDES],
+    pub set: [f64; SETS],
+    pub band: [f64; 4],
+}
+
+/// The band of SH coefficient `i` (l with l² ≤ i < (l + 1)²).
+fn band(i: usize) -> usize {
+    (i as f64).sqrt() as usize
+}
+
+/// Sums `f(component index, channel value pairs)` per side, set and band, then normalizes each
+/// group to fractions of its total (negative parts, from the noise correction, count as 0).
+fn shares(n: usize, mut f: impl FnMut(usize) -> f64) -> Shares {
+    let (mut side, mut set, mut bands) = ([0.0; SIDES], [0.0; SETS], [0.0; 4]);
+    for k in 0..n {
+        let v = f(k);
+        let i = k % COEFFS;
+        let s = (k / COEFFS) % SETS;
+        let d = (k / (COEFFS * SETS)) % SIDES;
+        side[d] += v;
+        set[s] += v;
+        bands[band(i)] += v;
+    }
+    fn norm<const N: usize>(a: [f64; N]) -> [f64; N] {
+        let a = a.map(|x: f64| x.max(0.0));
+        let t: f64 = a.iter().sum();
+        if t > 0.0 { a.map(|x| x / t) } else { a }
+    }
+    Shares {
+        side: norm(side),
+        set: norm(set),
+        band: norm(bands),
+    }
+}
+
+/// Where the reference's signal energy (its squared coefficients) lies.
+pub fn signal_shares(r1: &Transfer, r2: &Transfer) -> Shares {
+    let r = mean_transfer(r1, r2);
+    shares(r.coeffs.len(), |k| {
+        r.coeffs[k].iter().map(|&x| (x as f64).powi(2)).sum()
+    })
+}
+
+/// Where the estimate's squared error lies, each part corrected for the reference's noise as
+/// [`transfer_error`] is (‖A − R‖² − ‖R₁ − R₂‖²/4 over the part's components).
+pub fn error_shares(estimate: &Transfer, r1: &Transfer, r2: &Transfer) -> Shares {
+    assert_eq!(
+        estimate.coeffs.len(),
+        r1.coeffs.len(),
+        "transfers of different vertices"
+    );
+    shares(estimate.coeffs.len(), |k| {
+        (0..3)
+            .map(|c| {
+                let (a, x, y) = (
+                    estimate.coeffs[k][c] as f64,
+                    r1.coeffs[k][c] as f64,
+                    r2.coeffs[k][c] as f64,
+                );
+                (a - 0.5 * (x + y)).powi(2) - (x - y).powi(2) / 4.0
+            })
+            .sum()
+    })
 }
 
 #[cfg(test)]
