@@ -21,15 +21,11 @@
 //! (C, R); Φ and Z serve ±Z at (R, C). That is a third of the angle evaluations of a sample-by-
 //! sample resampling, and each tile reads a compact patch of the source.
 
-use super::cube::{self, Face};
-use crate::model::FloatImage;
+use super::cube::{self, Face, LatLongPixels};
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
 /// Texels per edge of a tile.
 pub const TILE: usize = 16;
-
-/// The tiles of one work unit: (face, first row, first column, rows × columns texels).
-pub type Tile = (Face, usize, usize, Vec<[f32; 3]>);
 
 /// How a tile reads its source.
 pub trait TileSource: Sync {
@@ -55,16 +51,18 @@ pub struct TileParams {
     pub contrast: f32,
 }
 
-/// One tile of `face` (rows `r0..r0 + rows`, columns `c0..c0 + cols`); `fine(face, col, row, k)`
-/// is the generic k × k mean used for refined texels.
+/// One tile of `face` (rows `r0..r0 + rows`, columns `c0..c0 + cols`) into `out` (its rows, in
+/// place in the cube); `fine(face, col, row, k)` is the generic k × k mean used for refined
+/// texels.
 pub fn tile(
     p: &TileParams,
     src: &impl TileSource,
     fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + ?Sized),
     face: Face,
     (r0, c0): (usize, usize),
-    (rows, cols): (usize, usize),
-) -> Vec<[f32; 3]> {
+    out: &mut [&mut [[f32; 3]]],
+) {
+    let (rows, cols) = (out.len(), out.first().map_or(0, |r| r.len()));
     let refine = p.k_fine > p.k;
     let m = cols + 1;
     let corners: Vec<f32> = if refine {
@@ -79,7 +77,6 @@ pub fn tile(
     // lat-long row, a face row down a lat-long column; elsewhere rows run along rows (±Y) or it
     // does not matter (±Z).
     let along_columns = matches!(face, Face::PosX | Face::NegX);
-    let mut out = vec![[0.0f32; 3]; rows * cols];
     for outer in 0..if along_columns { cols } else { rows } {
         for inner in 0..if along_columns { rows } else { cols } {
             let (row, col) = if along_columns {
@@ -113,10 +110,71 @@ pub fn tile(
                     v = fine(face, c0 + col, r0 + row, p.k_fine);
                 }
             }
-            out[row * cols + col] = v;
+            out[row][col] = v;
         }
     }
-    out
+}
+
+/// Every work unit's tiles, in parallel, written in place into `texels` (the cube's, face-major):
+/// `source(block)` is the unit's source (its tables).
+pub fn units<S: TileSource>(
+    texels: &mut [[f32; 3]],
+    p: &TileParams,
+    source: impl Fn((usize, usize)) -> S + Sync,
+    fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + Sync + ?Sized),
+) {
+    use rayon::prelude::*;
+    let n = p.n;
+    unit_rows(texels, n)
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(u, mut rows)| {
+            let per_edge = n.div_ceil(TILE);
+            let block = (u / per_edge, u % per_edge);
+            let src = source(block);
+            let mut at = 0;
+            for (face, r0, c0) in unit_tiles(n, block) {
+                let (nr, _) = tile_extent(n, r0, c0);
+                tile(p, &src, fine, face, (r0, c0), &mut rows[at..at + nr]);
+                at += nr;
+            }
+        });
+}
+
+/// The cube's texels cut into the row pieces of each unit's tiles: for unit `u`, the rows of
+/// its six tiles in [`unit_tiles`] order (the faces' storage order), each tile's from the top.
+/// The pieces are disjoint, so the units write them in parallel without a copy.
+fn unit_rows(texels: &mut [[f32; 3]], n: usize) -> Vec<Vec<&mut [[f32; 3]]>> {
+    let per_edge = n.div_ceil(TILE);
+    let mut units: Vec<Vec<&mut [[f32; 3]]>> = (0..per_edge * per_edge)
+        .map(|_| Vec::with_capacity(6 * TILE))
+        .collect();
+    for (face_row, line) in texels.chunks_mut(n).enumerate() {
+        let (face, row) = (Face::ALL[face_row / n], face_row % n);
+        for (col_block, piece) in line.chunks_mut(TILE).enumerate() {
+            // ±Y's tile at (row block, column block) belongs to the transposed unit.
+            let u = match face {
+                Face::PosY | Face::NegY => col_block * per_edge + row / TILE,
+                _ => (row / TILE) * per_edge + col_block,
+            };
+            units[u].push(piece);
+        }
+    }
+    units
+}
+
+/// [`units`] of a lat-long source into `texels`, each unit with its tables ([`LatLong::unit`]).
+pub fn latlong_units<I: LatLongPixels + ?Sized>(
+    p: &TileParams,
+    img: &I,
+    grids: &LatLongGrids,
+    rotate_rad: f64,
+    fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + Sync + ?Sized),
+    texels: &mut [[f32; 3]],
+) {
+    let refine = p.k_fine > p.k;
+    let source = |block| LatLong::unit(img, grids, (p.n, p.k), block, refine, rotate_rad);
+    units(texels, p, source, fine)
 }
 
 /// The six tiles of the work unit at block (row block, column block) `(br, bc)`: ±X and ±Z at
@@ -189,6 +247,7 @@ impl Block {
 }
 
 /// Any source, read direction by direction (`read(face, s, t)`) on the resampling grids.
+#[derive(Clone, Copy)]
 pub struct Generic<'a, R> {
     pub read: &'a R,
     pub grids: &'a LatLongGrids,
@@ -207,8 +266,8 @@ impl<R: Fn(Face, f64, f64) -> [f32; 3] + Sync> TileSource for Generic<'_, R> {
 }
 
 /// A lat-long source with the tables of one work unit: subsample and corner grids.
-pub struct LatLong<'a> {
-    img: &'a FloatImage,
+pub struct LatLong<'a, I: ?Sized> {
+    img: &'a I,
     /// atan(u_i) of every subsample, and of every corner.
     atan: &'a [f64],
     atan_corner: &'a [f64],
@@ -248,17 +307,17 @@ impl LatLongGrids {
     }
 }
 
-impl<'a> LatLong<'a> {
+impl<'a, I: LatLongPixels + ?Sized> LatLong<'a, I> {
     /// The tables of the unit at block (br, bc) of an n-texel face with k subsamples per texel
     /// (`corners`: also the corner grid's).
     pub fn unit(
-        img: &'a FloatImage,
+        img: &'a I,
         grids: &'a LatLongGrids,
         (n, k): (usize, usize),
         (br, bc): (usize, usize),
         corners: bool,
         rotate_rad: f64,
-    ) -> LatLong<'a> {
+    ) -> LatLong<'a, I> {
         let (r0, c0) = (br * TILE, bc * TILE);
         let (rows, cols) = tile_extent(n, r0, c0);
         let samples = Block::new(&grids.us, (r0 * k, rows * k), (c0 * k, cols * k));
@@ -297,7 +356,8 @@ impl<'a> LatLong<'a> {
         while phi >= TAU {
             phi -= TAU;
         }
-        let (w, h) = (self.img.width as f64, self.img.height as f64);
+        let (w, h) = self.img.size();
+        let (w, h) = (w as f64, h as f64);
         (phi * (w / TAU), theta * (h / PI))
     }
 
@@ -315,7 +375,7 @@ impl<'a> LatLong<'a> {
     }
 }
 
-impl TileSource for LatLong<'_> {
+impl<I: LatLongPixels + ?Sized> TileSource for LatLong<'_, I> {
     fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64) {
         let (x, y) = self.coords(&self.samples, self.atan, face, i, j);
         (
@@ -348,7 +408,7 @@ mod tests {
 
     #[test]
     fn the_shared_tables_give_every_faces_exact_lat_long_coordinates() {
-        let img = FloatImage {
+        let img = crate::model::FloatImage {
             width: 64,
             height: 32,
             pixels: vec![[0.0; 3]; 64 * 32],

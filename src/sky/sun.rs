@@ -215,6 +215,13 @@ fn ring_mean(cube: &CubeMap, omega: &[f64], sun: &[usize], dir: [f64; 3]) -> Opt
 
 /// Separates the sun from the sky: returns the sun-free cube map and the sun.
 pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
+    let mut out = cube.clone();
+    let sun = extract_sun_in_place(&mut out, opts);
+    (out, sun)
+}
+
+/// [`extract_sun`] without a copy: replaces the sun's texels of `cube` and returns the sun.
+pub fn extract_sun_in_place(cube: &mut CubeMap, opts: &SunOptions) -> Sun {
     let omega = cube::solid_angle_table(cube.size);
     let n2 = omega.len();
     let a = std::f64::consts::PI * SUN_ANGULAR_RADIUS * SUN_ANGULAR_RADIUS;
@@ -238,7 +245,13 @@ pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
     let replacement =
         ring_mean(cube, &omega, &order[..n], direction).unwrap_or(cube.texels[order[n]]);
     let next = cube.texels[order[n]];
-    let mut out = cube.clone();
+    let peak = luminance(cube.texels[order[0]]);
+    // Over the whole map: a clipped region can be larger than the sun's enlarged area.
+    let plateau = cube
+        .texels
+        .iter()
+        .filter(|&&t| luminance(t) >= peak * (1.0 - PLATEAU_TOLERANCE))
+        .count() as u32;
     let (mut irr, mut mean_excess, mut solid_angle) = ([0.0f64; 3], [0.0f64; 3], 0.0);
     for &i in &order[..n] {
         let t = cube.texels[i];
@@ -254,16 +267,10 @@ pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
             mean_excess[k] += (t[k] - next[k]) as f64 / n as f64;
         }
         solid_angle += w;
-        out.texels[i] = rep;
+        // (Each sun texel is read, then replaced, once: `order` holds distinct texels.)
+        cube.texels[i] = rep;
     }
-    let peak = luminance(cube.texels[order[0]]);
-    // Over the whole map: a clipped region can be larger than the sun's enlarged area.
-    let plateau = cube
-        .texels
-        .iter()
-        .filter(|&&t| luminance(t) >= peak * (1.0 - PLATEAU_TOLERANCE))
-        .count() as u32;
-    let sun = Sun {
+    Sun {
         direction: direction.map(|c| c as f32),
         direction_brightest: brightest.map(|c| c as f32),
         irradiance: irr.map(|c| c as f32),
@@ -276,8 +283,7 @@ pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
         clipped: peak > 0.0 && plateau >= PLATEAU_MIN_TEXELS,
         enlargement: opts.enlargement,
         angular_radius: SUN_ANGULAR_RADIUS,
-    };
-    (out, sun)
+    }
 }
 
 /// The sky's irradiance on a horizontal surface, exact solid angles, and the thesis' estimate.
