@@ -350,6 +350,15 @@ pub trait LatLongPixels: Sync {
     /// (width, height) in pixels.
     fn size(&self) -> (u32, u32);
     fn pixel(&self, i: usize) -> [f32; 3];
+    /// Whether every pixel of `row` is provably below luminance `below` (finite, no negative
+    /// component): false when unsure.
+    fn row_below(&self, row: u32, below: f32) -> bool {
+        let w = self.size().0 as usize;
+        (0..w).all(|c| {
+            let p = self.pixel(row as usize * w + c);
+            p.iter().all(|&v| v >= 0.0) && crate::color::luminance(p) < below
+        })
+    }
 }
 
 impl LatLongPixels for FloatImage {

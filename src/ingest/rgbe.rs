@@ -402,6 +402,19 @@ impl crate::cube::LatLongPixels for RgbeImage {
     fn pixel(&self, i: usize) -> [f32; 3] {
         RgbeImage::pixel(self, i)
     }
+
+    /// First from the row's largest exponent (a pixel is at most 255 · 2^(e − 136), and the
+    /// luminance weights sum to 1), pixel by pixel only where that bound is not enough.
+    fn row_below(&self, row: u32, below: f32) -> bool {
+        let w = 4 * self.width as usize;
+        let line = &self.quads()[row as usize * w..(row as usize + 1) * w];
+        let e = line.chunks_exact(4).fold(0u8, |m, p| m.max(p[3]));
+        let bound = to_float([255, 255, 255, e])[0];
+        bound * 1.0001 < below
+            || line
+                .chunks_exact(4)
+                .all(|p| crate::color::luminance(to_float([p[0], p[1], p[2], p[3]])) < below)
+    }
 }
 
 /// Reads a whole file as an [`RgbeImage`]: header, size check (`check`), every scanline located

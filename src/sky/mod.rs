@@ -288,6 +288,13 @@ fn coarse_median_luminance(src: &SkySource) -> f32 {
 /// against −5 … +15 % with one point sample per texel. Tiles of texels are the units of work
 /// (`resample`); a lat-long source shares its angle tables between faces there.
 pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeMap {
+    resample_to_cube(src, face_size, rotate_deg, true)
+}
+
+/// [`source_to_cube`]; `skip_cold`: tiles of a lat-long source that read only rows darker than
+/// the refinement threshold skip the refinement test (`resample::ColdRows`; the same cube, as
+/// `tests::skipping_cold_tiles_changes_no_texel` checks).
+fn resample_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64, skip_cold: bool) -> CubeMap {
     let params = resample::TileParams {
         n: face_size as usize,
         k: supersampling(src, face_size) as usize,
@@ -336,9 +343,11 @@ pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeM
     let mut texels = vec![[0.0f32; 3]; 6 * n * n];
     let out = texels.as_mut_slice();
     match src {
-        SkySource::LatLong(img) => resample::latlong_units(&params, img, &grids, rot, &fine, out),
+        SkySource::LatLong(img) => {
+            resample::latlong_units(&params, img, &grids, (rot, skip_cold), &fine, out)
+        }
         SkySource::LatLongRgbe(img) => {
-            resample::latlong_units(&params, img, &grids, rot, &fine, out)
+            resample::latlong_units(&params, img, &grids, (rot, skip_cold), &fine, out)
         }
         SkySource::CubeYUp(_) | SkySource::Cube(_) => {
             resample::units(out, &params, |_| generic, &fine)

@@ -34,6 +34,11 @@ pub trait TileSource: Sync {
     fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64);
     /// The luminance at corner (i, j) of `face`.
     fn corner(&self, face: Face, i: usize, j: usize) -> f32;
+    /// Whether a texel of this unit's tile on `face` can be refined (false only where the
+    /// source proves every sample and corner there below [`TileParams::hot`]).
+    fn may_refine(&self, _face: Face) -> bool {
+        true
+    }
 }
 
 /// What a tile needs besides its source.
@@ -63,7 +68,7 @@ pub fn tile(
     out: &mut [&mut [[f32; 3]]],
 ) {
     let (rows, cols) = (out.len(), out.first().map_or(0, |r| r.len()));
-    let refine = p.k_fine > p.k;
+    let refine = p.k_fine > p.k && src.may_refine(face);
     let m = cols + 1;
     let corners: Vec<f32> = if refine {
         (0..(rows + 1) * m)
@@ -163,18 +168,59 @@ fn unit_rows(texels: &mut [[f32; 3]], n: usize) -> Vec<Vec<&mut [[f32; 3]]>> {
     units
 }
 
-/// [`units`] of a lat-long source into `texels`, each unit with its tables ([`LatLong::unit`]).
+/// [`units`] of a lat-long source into `texels`, each unit with its tables ([`LatLong::unit`]);
+/// `skip_cold`: use [`ColdRows`].
 pub fn latlong_units<I: LatLongPixels + ?Sized>(
     p: &TileParams,
     img: &I,
     grids: &LatLongGrids,
-    rotate_rad: f64,
+    (rotate_rad, skip_cold): (f64, bool),
     fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + Sync + ?Sized),
     texels: &mut [[f32; 3]],
 ) {
-    let refine = p.k_fine > p.k;
+    let cold = if p.k_fine > p.k && skip_cold {
+        ColdRows::of(img, p.hot)
+    } else {
+        ColdRows::none()
+    };
+    let refine = (p.k_fine > p.k).then_some(&cold);
     let source = |block| LatLong::unit(img, grids, (p.n, p.k), block, refine, rotate_rad);
     units(texels, p, source, fine)
+}
+
+/// The lat-long rows whose pixels are all provably darker than the refinement threshold: a
+/// tile that reads only such rows has no sample or corner above it (a bilinear sample's
+/// luminance is a convex combination of its four pixels'), so it is not refined and its corners
+/// need not be read. Most tiles of a sunny sky are such (the sun's rows are a few).
+pub struct ColdRows {
+    cold: Vec<bool>,
+}
+
+impl ColdRows {
+    /// The rows of `img` below `hot` (with a margin of 10⁻³ for rounding: a sample's luminance
+    /// exceeds the largest of its pixels' by a few ulps at most).
+    pub fn of<I: LatLongPixels + ?Sized>(img: &I, hot: f32) -> ColdRows {
+        use rayon::prelude::*;
+        if !(hot.is_finite() && hot > 0.0) {
+            return ColdRows::none();
+        }
+        let below = hot * (1.0 - 1e-3);
+        let cold = (0..img.size().1)
+            .into_par_iter()
+            .map(|row| img.row_below(row, below))
+            .collect();
+        ColdRows { cold }
+    }
+
+    /// No row known to be cold.
+    pub fn none() -> ColdRows {
+        ColdRows { cold: Vec::new() }
+    }
+
+    /// Whether every row from `lo` to `hi` (inclusive) is cold.
+    fn all(&self, lo: usize, hi: usize) -> bool {
+        self.cold.get(lo..=hi).is_some_and(|r| r.iter().all(|&c| c))
+    }
 }
 
 /// The six tiles of the work unit at block (row block, column block) `(br, bc)`: ±X and ±Z at
@@ -246,6 +292,43 @@ impl Block {
     }
 }
 
+/// Per face, whether the unit's tile there may read a row that is not cold: the colatitudes of
+/// its samples span [min, max] of the block's tables (mirrored, π − θ, on +X, −Y, −Z), its
+/// corners lie within half a subsample diagonal of them (at most √2/N rad on a face of N
+/// subsamples, θ being 1-Lipschitz on the sphere), and a bilinear sample at y reads rows
+/// ⌊y − ½⌋ and the one below.
+fn hot_faces(samples: &Block, cold: &ColdRows, height: u32, big_n: usize) -> [bool; 6] {
+    let range = |v: &[f64]| {
+        v.iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            })
+    };
+    let (side, top) = (range(&samples.side), range(&samples.top_theta));
+    let flip = |(lo, hi): (f64, f64)| (PI - hi, PI - lo);
+    let h = height as f64;
+    let margin = std::f64::consts::SQRT_2 / big_n as f64;
+    let rows = |(lo, hi): (f64, f64)| {
+        let y = |theta: f64| ((theta * (h / PI) - 0.5).clamp(0.0, h - 1.0)).floor() as usize;
+        // (One more row each side for the rounding of the tables.)
+        let (a, b) = (y(lo - margin), y(hi + margin));
+        (a.saturating_sub(1), (b + 2).min(height as usize - 1))
+    };
+    let hot = |range: (f64, f64)| {
+        let (a, b) = rows(range);
+        !cold.all(a, b)
+    };
+    // Face::ALL order: +X, −X, +Y, −Y, +Z, −Z.
+    [
+        hot(flip(side)),
+        hot(side),
+        hot(side),
+        hot(flip(side)),
+        hot(top),
+        hot(flip(top)),
+    ]
+}
+
 /// Any source, read direction by direction (`read(face, s, t)`) on the resampling grids.
 #[derive(Clone, Copy)]
 pub struct Generic<'a, R> {
@@ -273,6 +356,8 @@ pub struct LatLong<'a, I: ?Sized> {
     atan_corner: &'a [f64],
     samples: Block,
     corners: Option<Block>,
+    /// Per face ([`Face::ALL`] order): whether its tile may have refined texels.
+    may_refine: [bool; 6],
     /// The sky's rotation about +Z in [0, 2π): the source is read at φ − rot.
     rot: f64,
 }
@@ -315,19 +400,26 @@ impl<'a, I: LatLongPixels + ?Sized> LatLong<'a, I> {
         grids: &'a LatLongGrids,
         (n, k): (usize, usize),
         (br, bc): (usize, usize),
-        corners: bool,
+        refine: Option<&ColdRows>,
         rotate_rad: f64,
     ) -> LatLong<'a, I> {
         let (r0, c0) = (br * TILE, bc * TILE);
         let (rows, cols) = tile_extent(n, r0, c0);
         let samples = Block::new(&grids.us, (r0 * k, rows * k), (c0 * k, cols * k));
-        let corners = corners.then(|| Block::new(&grids.corner_us, (r0, rows + 1), (c0, cols + 1)));
+        let may_refine = match refine {
+            Some(cold) => hot_faces(&samples, cold, img.size().1, n * k),
+            None => [false; 6],
+        };
+        let corners = may_refine
+            .contains(&true)
+            .then(|| Block::new(&grids.corner_us, (r0, rows + 1), (c0, cols + 1)));
         LatLong {
             img,
             atan: &grids.atan,
             atan_corner: &grids.atan_corner,
             samples,
             corners,
+            may_refine,
             rot: rotate_rad.rem_euclid(TAU),
         }
     }
@@ -384,11 +476,15 @@ impl<I: LatLongPixels + ?Sized> TileSource for LatLong<'_, I> {
         )
     }
 
+    fn may_refine(&self, face: Face) -> bool {
+        self.may_refine[face as usize]
+    }
+
     fn corner(&self, face: Face, i: usize, j: usize) -> f32 {
         let block = self
             .corners
             .as_ref()
-            .expect("corner tables exist where texels are refined");
+            .expect("corner tables exist where texels may be refined");
         let (x, y) = self.coords(block, self.atan_corner, face, i, j);
         crate::color::luminance(cube::sample_latlong(self.img, x, y))
     }
@@ -421,7 +517,8 @@ mod tests {
                 let rot = rot.to_radians();
                 for u in 0..per_edge * per_edge {
                     let block = (u / per_edge, u % per_edge);
-                    let ll = LatLong::unit(&img, &grids, (n, k), block, true, rot);
+                    let ll =
+                        LatLong::unit(&img, &grids, (n, k), block, Some(&ColdRows::none()), rot);
                     for (face, r0, c0) in unit_tiles(n, block) {
                         let (rows, cols) = tile_extent(n, r0, c0);
                         let mut check = |got: (f64, f64), want: (f64, f64)| {

@@ -279,6 +279,30 @@ fn a_radiance_sky_read_as_rgbe_bakes_to_the_float_images_bits() {
 }
 
 #[test]
+fn skipping_cold_tiles_changes_no_texel() {
+    // Oracle: the resampling with every tile testing for refinement. Suns high, low, on a face
+    // edge and near a pole; lat-long float and RGBE sources; rotated.
+    for d in [
+        [0.5, -0.3, 0.6],
+        [0.9, 0.3, 0.08],
+        [1.0, -0.999, 0.4],
+        [0.05, 0.02, 1.0],
+    ] {
+        let (img, _) = latlong_with_sun(512, 256, cube::normalize(d), 4.0);
+        let file = std::env::temp_dir().join(format!("bake-cold-{}.hdr", std::process::id()));
+        std::fs::write(&file, crate::ingest::skyimage::write_hdr(&img)).unwrap();
+        let rgbe = load_sky(std::slice::from_ref(&file)).unwrap();
+        std::fs::remove_file(&file).unwrap();
+        for src in [SkySource::LatLong(img), rgbe] {
+            for (n, rot) in [(64, 0.0), (37, 123.0)] {
+                let all = resample_to_cube(&src, n, rot, false);
+                assert_eq!(resample_to_cube(&src, n, rot, true), all, "{d:?} {n}");
+            }
+        }
+    }
+}
+
+#[test]
 fn bake_is_deterministic_across_thread_counts() {
     let img = latlong_of(256, 128, |d| {
         let s = smooth(d);
