@@ -131,6 +131,8 @@ pub fn solid_angle_table(size: u32) -> Vec<f64> {
     let m = size as usize + 1;
     let coord = |i: usize| 2.0 * i as f64 / n - 1.0;
     let f: Vec<f64> = (0..m * m)
+        .into_par_iter()
+        .with_min_len(4096)
         .map(|i| area_element(coord(i % m), coord(i / m)))
         .collect();
     (0..size as usize)

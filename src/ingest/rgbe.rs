@@ -297,10 +297,23 @@ fn expand_flat(bytes: &[u8], mut at: usize, out: &mut [[u8; 4]]) {
     }
 }
 
-/// `c · 2^(e − 136)`; e = 0 is black (2^(e − 128) built from its bits, a subnormal for e = 1).
+/// 2^(e − 136) for every exponent byte e; 0 for e = 0 (2^(e − 128) built from its bits, a
+/// subnormal for e = 1, then the exact division by 256).
+const SCALE: [f32; 256] = {
+    let mut t = [0.0f32; 256];
+    let mut e = 0;
+    while e < 256 {
+        let bits = if e > 1 { (e - 1) << 23 } else { e << 22 };
+        t[e as usize] = f32::from_bits(bits) * (1.0 / 256.0);
+        e += 1;
+    }
+    t
+};
+
+/// `c · 2^(e − 136)`; e = 0 is black.
+#[inline]
 fn to_float(p: [u8; 4]) -> [f32; 3] {
-    let e = p[3] as u32;
-    let scale = f32::from_bits(if e > 1 { (e - 1) << 23 } else { e << 22 }) * (1.0 / 256.0);
+    let scale = SCALE[p[3] as usize];
     [
         scale * p[0] as f32,
         scale * p[1] as f32,
@@ -403,17 +416,51 @@ impl crate::cube::LatLongPixels for RgbeImage {
         RgbeImage::pixel(self, i)
     }
 
+    fn row_below(&self, row: u32, below: f32) -> bool {
+        self.view().row_below(row, below)
+    }
+}
+
+/// An [`RgbeImage`]'s pixels borrowed as quadruples: what the resampling's inner loop reads
+/// (one bounds check a pixel).
+#[derive(Clone, Copy)]
+pub struct RgbeView<'a> {
+    width: u32,
+    height: u32,
+    quads: &'a [[u8; 4]],
+}
+
+impl RgbeImage {
+    pub fn view(&self) -> RgbeView<'_> {
+        RgbeView {
+            width: self.width,
+            height: self.height,
+            quads: self.quads().as_chunks::<4>().0,
+        }
+    }
+}
+
+impl crate::cube::LatLongPixels for RgbeView<'_> {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    #[inline]
+    fn pixel(&self, i: usize) -> [f32; 3] {
+        to_float(self.quads[i])
+    }
+
     /// First from the row's largest exponent (a pixel is at most 255 · 2^(e − 136), and the
     /// luminance weights sum to 1), pixel by pixel only where that bound is not enough.
     fn row_below(&self, row: u32, below: f32) -> bool {
-        let w = 4 * self.width as usize;
-        let line = &self.quads()[row as usize * w..(row as usize + 1) * w];
-        let e = line.chunks_exact(4).fold(0u8, |m, p| m.max(p[3]));
+        let w = self.width as usize;
+        let line = &self.quads[row as usize * w..(row as usize + 1) * w];
+        let e = line.iter().fold(0u8, |m, p| m.max(p[3]));
         let bound = to_float([255, 255, 255, e])[0];
         bound * 1.0001 < below
             || line
-                .chunks_exact(4)
-                .all(|p| crate::color::luminance(to_float([p[0], p[1], p[2], p[3]])) < below)
+                .iter()
+                .all(|&p| crate::color::luminance(to_float(p)) < below)
     }
 }
 

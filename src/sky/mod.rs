@@ -347,7 +347,7 @@ fn resample_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64, skip_cold:
             resample::latlong_units(&params, img, &grids, (rot, skip_cold), &fine, out)
         }
         SkySource::LatLongRgbe(img) => {
-            resample::latlong_units(&params, img, &grids, (rot, skip_cold), &fine, out)
+            resample::latlong_units(&params, &img.view(), &grids, (rot, skip_cold), &fine, out)
         }
         SkySource::CubeYUp(_) | SkySource::Cube(_) => {
             resample::units(out, &params, |_| generic, &fine)
@@ -391,10 +391,17 @@ pub fn bake_sky(src: &SkySource, opts: &SkyOptions) -> Result<SkyBake> {
             opts.sun.enlargement
         )));
     }
-    let mut cube = source_to_cube(src, size, opts.rotate_deg);
+    // One table of exact texel solid angles serves the three sums over texels below.
+    let (mut cube, omega) = rayon::join(
+        || source_to_cube(src, size, opts.rotate_deg),
+        || cube::solid_angle_table(size),
+    );
     // The sun goes first: SH of a sky with its sun would ring (seed 000, 4.3).
-    let sun = sun::extract_sun_in_place(&mut cube, &opts.sun);
-    let (sky, sh) = rayon::join(|| sun::sky_irradiance(&cube), || sh::project_cube(&cube));
+    let sun = sun::extract_sun_in_place(&mut cube, &omega, &opts.sun);
+    let (sky, sh) = rayon::join(
+        || sun::sky_irradiance_with(&cube, &omega),
+        || sh::project_cube_with(&cube, &omega),
+    );
     Ok(SkyBake { cube, sun, sky, sh })
 }
 
