@@ -375,7 +375,8 @@ impl LatLongPixels for FloatImage {
 }
 
 /// Bilinear lookup in a lat-long image at continuous pixel coordinates: wraps in φ, clamps in θ.
-#[inline]
+/// (Inlined into the resampling's sample loop, where it is most of the sky stage's time.)
+#[inline(always)]
 pub fn sample_latlong<I: LatLongPixels + ?Sized>(img: &I, x: f64, y: f64) -> [f32; 3] {
     let (w, h) = img.size();
     let (w, h) = (w as i64, h as i64);

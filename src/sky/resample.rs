@@ -425,6 +425,7 @@ impl<'a, I: LatLongPixels + ?Sized> LatLong<'a, I> {
     }
 
     /// Lat-long pixel coordinates of grid point (i, j) of `face` (i along s, j along t).
+    #[inline(always)]
     fn coords(&self, block: &Block, atan: &[f64], face: Face, i: usize, j: usize) -> (f64, f64) {
         let (phi, theta) = match face {
             Face::PosX => (-atan[j], PI - block.side[block.at(j, i)]),
@@ -468,6 +469,7 @@ impl<'a, I: LatLongPixels + ?Sized> LatLong<'a, I> {
 }
 
 impl<I: LatLongPixels + ?Sized> TileSource for LatLong<'_, I> {
+    #[inline(always)]
     fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64) {
         let (x, y) = self.coords(&self.samples, self.atan, face, i, j);
         (
