@@ -131,6 +131,8 @@ pub fn solid_angle_table(size: u32) -> Vec<f64> {
     let m = size as usize + 1;
     let coord = |i: usize| 2.0 * i as f64 / n - 1.0;
     let f: Vec<f64> = (0..m * m)
+        .into_par_iter()
+        .with_min_len(4096)
         .map(|i| area_element(coord(i % m), coord(i / m)))
         .collect();
     (0..size as usize)
@@ -343,10 +345,41 @@ pub fn latlong_row_solid_angle(row: u32, width: u32, height: u32) -> f64 {
     std::f64::consts::TAU / width as f64 * (t0.cos() - t1.cos())
 }
 
+/// A lat-long image as [`sample_latlong`] reads it: its size and any pixel (row-major, row 0 at
+/// the top) as linear float RGB. A [`FloatImage`], or a Radiance image kept as RGBE quadruples
+/// (`ingest::rgbe::RgbeImage`, decoded pixel by pixel to the same bits).
+pub trait LatLongPixels: Sync {
+    /// (width, height) in pixels.
+    fn size(&self) -> (u32, u32);
+    fn pixel(&self, i: usize) -> [f32; 3];
+    /// Whether every pixel of `row` is provably below luminance `below` (finite, no negative
+    /// component): false when unsure.
+    fn row_below(&self, row: u32, below: f32) -> bool {
+        let w = self.size().0 as usize;
+        (0..w).all(|c| {
+            let p = self.pixel(row as usize * w + c);
+            p.iter().all(|&v| v >= 0.0) && crate::color::luminance(p) < below
+        })
+    }
+}
+
+impl LatLongPixels for FloatImage {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    #[inline]
+    fn pixel(&self, i: usize) -> [f32; 3] {
+        self.pixels[i]
+    }
+}
+
 /// Bilinear lookup in a lat-long image at continuous pixel coordinates: wraps in φ, clamps in θ.
-#[inline]
-pub fn sample_latlong(img: &FloatImage, x: f64, y: f64) -> [f32; 3] {
-    let (w, h) = (img.width as i64, img.height as i64);
+/// (Inlined into the resampling's sample loop, where it is most of the sky stage's time.)
+#[inline(always)]
+pub fn sample_latlong<I: LatLongPixels + ?Sized>(img: &I, x: f64, y: f64) -> [f32; 3] {
+    let (w, h) = img.size();
+    let (w, h) = (w as i64, h as i64);
     let (xf, yf) = (x - 0.5, (y - 0.5).clamp(0.0, (h - 1) as f64));
     // floor by truncation (`f64::floor` is a libm call on the baseline x86-64 target).
     let floor = |v: f64| {
@@ -363,7 +396,7 @@ pub fn sample_latlong(img: &FloatImage, x: f64, y: f64) -> [f32; 3] {
     };
     let c1 = if c0 + 1 == w { 0 } else { c0 + 1 };
     let r1 = (y0 + 1).min(h - 1);
-    let px = |row: i64, col: i64| img.pixels[(row * w + col) as usize];
+    let px = |row: i64, col: i64| img.pixel((row * w + col) as usize);
     let (a, b, c, d) = (px(y0, c0), px(y0, c1), px(r1, c0), px(r1, c1));
     let (w00, w10, w01, w11) = (
         (1.0 - fx) * (1.0 - fy),

@@ -413,8 +413,12 @@ fn accumulate(row: &mut [[f64; 3]; COEFFS], d: [f32; 3], value: [f32; 3], weight
 /// Projects a cube map to order 4: `L_i = Σ_texels L · y_i(centre) · ω_texel` with the exact
 /// texel solid angles (so a constant map gives exactly `L00 = 2√π·L`).
 pub fn project_cube(cube: &CubeMap) -> ShRadiance {
+    project_cube_with(cube, &cube::solid_angle_table(cube.size))
+}
+
+/// [`project_cube`] with the cube's [`cube::solid_angle_table`] computed already.
+pub fn project_cube_with(cube: &CubeMap, omega: &[f64]) -> ShRadiance {
     let n = cube.size as usize;
-    let omega = cube::solid_angle_table(cube.size);
     let rows: Vec<_> = (0..6 * n)
         .into_par_iter()
         .map(|fr| {

@@ -498,6 +498,10 @@ fn embree_tracer_without_the_feature_is_a_clear_error() {
         names_the_feature(&o);
         assert!(!Path::new(out).exists());
     }
+    // `bake bench lightmap --tracer embree`: refused before the fixture scene is built.
+    let o = bake(&["bench", "lightmap", "--tracer", "embree"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    names_the_feature(&o);
     // A pipeline file asking for it: invalid input naming the file.
     let text = std::fs::read_to_string("pipelines/default.toml")
         .unwrap()

@@ -5,6 +5,7 @@ use super::{Report, time_min};
 use crate::error::Result;
 use crate::lightmap::LightmapOptions;
 use crate::pack::Pack;
+use crate::trace::Tracer;
 use std::path::Path;
 
 /// The fixture scene (`bake fixtures`) ingested with its HDR sky's `sky`/`sun`/`sh` sections.
@@ -25,9 +26,14 @@ pub fn fixture_pack(dir: &std::path::Path) -> Result<Pack> {
     Pack::from_bytes(&w.to_bytes()?, "fixture scene")
 }
 
-/// `bake bench lightmap`: scene BVH build, terrain light map and placed-object atlases, timed
-/// separately (best of `repeat`).
-pub fn bench_lightmap(input: Option<&Path>, samples: u32, repeat: u32) -> Result<Report> {
+/// `bake bench lightmap`: scene build (the BVH, and Embree's twin for `tracer` embree), terrain
+/// light map and placed-object atlases on `tracer`, timed separately (best of `repeat`).
+pub fn bench_lightmap(
+    input: Option<&Path>,
+    samples: u32,
+    repeat: u32,
+    tracer: Tracer,
+) -> Result<Report> {
     let dir = tempfile::tempdir().map_err(|e| crate::error::Error::io("temporary folder", e))?;
     let pack = match input {
         Some(p) => Pack::open(p)?,
@@ -35,12 +41,18 @@ pub fn bench_lightmap(input: Option<&Path>, samples: u32, repeat: u32) -> Result
     };
     let opts = LightmapOptions {
         samples,
+        tracer,
         ..Default::default()
     };
     let light = crate::lightmap::scene_lighting(&pack)?;
     let best = |f: &mut dyn FnMut() -> Result<()>| time_min(repeat, f).map(|(t, ())| t);
-    let scene_s = best(&mut || crate::trace::pack_scene::trace_scene(&pack).map(|_| ()))?;
+    let scene_s = best(&mut || {
+        let scene = crate::trace::pack_scene::trace_scene(&pack)?;
+        scene.tracer(tracer).map(|_| ())
+    })?;
     let scene = crate::trace::pack_scene::trace_scene(&pack)?;
+    // (Embree's scene is built on first use: before the timed light maps.)
+    scene.tracer(tracer)?;
     let terrain_s = best(&mut || {
         crate::lightmap::bake_terrain_lightmap(&scene, &light, &opts)?;
         Ok(())
@@ -61,11 +73,13 @@ pub fn bench_lightmap(input: Option<&Path>, samples: u32, repeat: u32) -> Result
     let threads = rayon::current_num_threads();
     let json = serde_json::json!({"scene_seconds": scene_s, "terrain_seconds": terrain_s,
         "objects_seconds": objects_s, "object_atlases": sections.len(), "object_texels_covered": covered,
-        "samples": samples, "sun_samples": opts.sun_samples, "threads": threads});
+        "samples": samples, "sun_samples": opts.sun_samples, "threads": threads,
+        "tracer": tracer.name()});
     Ok(Report {
         text: format!(
-            "scene BVH {scene_s:.3} s, terrain light map {terrain_s:.3} s, {} object atlas(es) \
+            "scene ({}) {scene_s:.3} s, terrain light map {terrain_s:.3} s, {} object atlas(es) \
              ({covered} covered texels) {objects_s:.3} s; {} samples, {threads} threads\n",
+            tracer.name(),
             sections.len(),
             samples
         ),

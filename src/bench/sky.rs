@@ -125,13 +125,20 @@ fn cmgen_to_bake(c: [[f32; 3]; 16]) -> crate::sh::ShRadiance {
 /// seconds): read and decode, resampling into the cube, sun extraction, sky irradiance, SH,
 /// the pack's bytes (sections, compression, checksums) and the file write.
 pub fn profile_sky(input: &Path, face_size: u32, repeat: u32, out: &Path) -> Result<Report> {
-    let (t_decode, img) = time_median(repeat, || crate::ingest::skyimage::load(input))?;
-    let src = sky::image_to_source(img).map_err(|e| Error::invalid(input, e))?;
+    // The steps of `sky::bake_sky` after `sky::load_sky` (a Radiance lat-long stays RGBE).
+    let input_list = [input.to_path_buf()];
+    let (t_decode, src) = time_median(repeat, || sky::load_sky(&input_list))?;
     let (t_cube, full) = time_median(repeat, || Ok(sky::source_to_cube(&src, face_size, 0.0)))?;
+    let (t_omega, omega) = time_median(repeat, || Ok(crate::cube::solid_angle_table(face_size)))?;
     let sun_opts = SkyOptions::default().sun;
-    let (t_sun, (cube, sun)) = time_median(repeat, || Ok(sky::sun::extract_sun(&full, &sun_opts)))?;
-    let (t_irr, irr) = time_median(repeat, || Ok(sky::sun::sky_irradiance(&cube)))?;
-    let (t_sh, sh) = time_median(repeat, || Ok(crate::sh::project_cube(&cube)))?;
+    // (Each repetition extracts from a fresh copy of the cube; the copy is timed too.)
+    let (t_sun, (cube, sun)) = time_median(repeat, || {
+        let mut cube = full.clone();
+        let sun = sky::sun::extract_sun_in_place(&mut cube, &omega, &sun_opts);
+        Ok((cube, sun))
+    })?;
+    let (t_irr, irr) = time_median(repeat, || Ok(sky::sun::sky_irradiance_with(&cube, &omega)))?;
+    let (t_sh, sh) = time_median(repeat, || Ok(crate::sh::project_cube_with(&cube, &omega)))?;
     let bake = sky::SkyBake {
         cube,
         sun,
@@ -149,6 +156,7 @@ pub fn profile_sky(input: &Path, face_size: u32, repeat: u32, out: &Path) -> Res
     let steps = [
         ("decode", t_decode),
         ("cube", t_cube),
+        ("solid_angles", t_omega),
         ("sun", t_sun),
         ("irradiance", t_irr),
         ("sh", t_sh),

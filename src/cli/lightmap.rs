@@ -96,6 +96,10 @@ pub struct LightmapBenchArgs {
     /// Repetitions (the best time is reported).
     #[arg(long, default_value_t = 3)]
     pub repeat: u32,
+    /// Ray-tracing backend, as `bake lightmap --tracer`: cpu or embree (needs a build with the
+    /// cargo feature `embree`).
+    #[arg(long, default_value = "cpu", value_parser = crate::trace::Tracer::parse)]
+    pub tracer: crate::trace::Tracer,
 }
 
 /// The fixture scene (`bake fixtures`) ingested with its HDR sky's `sky`/`sun`/`sh` sections.
@@ -103,6 +107,11 @@ pub use crate::bench::lightmap::fixture_pack;
 
 /// `bake bench lightmap` (crate::bench::lightmap).
 pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
-    let r = crate::bench::lightmap::bench_lightmap(a.input.as_deref(), a.samples, a.repeat)?;
+    // Refused before any work, as `bake lightmap` does.
+    a.tracer
+        .available_as("lightmap.tracer")
+        .map_err(|m| crate::error::Error::usage(format!("--tracer {}: {m}", a.tracer.name())))?;
+    let r =
+        crate::bench::lightmap::bench_lightmap(a.input.as_deref(), a.samples, a.repeat, a.tracer)?;
     Ok(r.into())
 }

@@ -22,8 +22,9 @@ use rayon::prelude::*;
 enum Line {
     /// Per-component run-length encoding; the offset of its first run (after `2 2 h l`).
     Components(usize),
-    /// RGBE quadruples, maybe with old run markers, from this offset.
-    Flat(usize),
+    /// RGBE quadruples from this offset; `plain`: without old run markers (exactly 4 bytes a
+    /// pixel, so the pixels can be read in place).
+    Flat { at: usize, plain: bool },
 }
 
 /// The header: width, height, and the offset of the first scanline.
@@ -95,12 +96,19 @@ fn locate(bytes: &[u8], (width, height): (u32, u32), data: usize) -> Result<Vec<
     for row in 0..height as usize {
         let line = match bytes.get(at..at + 4) {
             Some([2, 2, h, _]) if *h < 128 => Line::Components(at + 4),
-            Some(_) => Line::Flat(at),
+            Some(_) => Line::Flat { at, plain: true },
             None => return Err(ended(row, at)),
         };
-        at = match line {
-            Line::Components(from) => skip_components(bytes, w, from, row)?,
-            Line::Flat(from) => skip_flat(bytes, w, from, row)?,
+        let line = match line {
+            Line::Components(from) => {
+                at = skip_components(bytes, w, from, row)?;
+                line
+            }
+            Line::Flat { at: from, .. } => {
+                let (end, plain) = skip_flat(bytes, w, from, row)?;
+                at = end;
+                Line::Flat { at: from, plain }
+            }
         };
         lines.push(line);
     }
@@ -112,10 +120,26 @@ fn expand(bytes: &[u8], width: usize, lines: Vec<Line>, pixels: &mut [[f32; 3]])
     pixels.par_chunks_mut(width).zip(lines).for_each_init(
         || vec![[0u8; 4]; width],
         |rgbe, (out, line)| match line {
-            Line::Components(from) => decode_components(bytes, from, rgbe, out),
-            Line::Flat(from) => decode_flat(bytes, from, out),
+            Line::Components(from) => {
+                expand_components(bytes, from, rgbe);
+                for (o, p) in out.iter_mut().zip(rgbe.iter()) {
+                    *o = to_float(*p);
+                }
+            }
+            Line::Flat { at, .. } => decode_flat(bytes, at, out),
         },
     );
+}
+
+/// Pass 2 for [`RgbeImage`], parallel: each located (checked) scanline into its row of `quads`.
+fn expand_quads(bytes: &[u8], width: usize, lines: Vec<Line>, quads: &mut [[u8; 4]]) {
+    quads
+        .par_chunks_mut(width)
+        .zip(lines)
+        .for_each(|(out, line)| match line {
+            Line::Components(from) => expand_components(bytes, from, out),
+            Line::Flat { at, .. } => expand_flat(bytes, at, out),
+        });
 }
 
 fn ended(row: usize, at: usize) -> ParseError {
@@ -161,9 +185,9 @@ fn skip_components(
     Ok(at)
 }
 
-/// Expands a checked per-component scanline.
-fn decode_components(bytes: &[u8], mut at: usize, rgbe: &mut [[u8; 4]], out: &mut [[f32; 3]]) {
-    let width = out.len();
+/// Expands a checked per-component scanline into its RGBE quadruples.
+fn expand_components(bytes: &[u8], mut at: usize, rgbe: &mut [[u8; 4]]) {
+    let width = rgbe.len();
     for component in 0..4 {
         let mut pos = 0;
         while pos < width {
@@ -184,18 +208,21 @@ fn decode_components(bytes: &[u8], mut at: usize, rgbe: &mut [[u8; 4]], out: &mu
             }
         }
     }
-    for (o, p) in out.iter_mut().zip(rgbe.iter()) {
-        *o = to_float(*p);
-    }
 }
 
 fn is_marker(p: &[u8]) -> bool {
     p[0] == 1 && p[1] == 1 && p[2] == 1
 }
 
-/// The offset after a flat scanline (old run markers counted), checked.
-fn skip_flat(bytes: &[u8], width: usize, mut at: usize, row: usize) -> Result<usize, ParseError> {
-    let (mut pos, mut mult) = (0usize, 1usize);
+/// The offset after a flat scanline (old run markers counted), checked, and whether it had no
+/// run marker.
+fn skip_flat(
+    bytes: &[u8],
+    width: usize,
+    mut at: usize,
+    row: usize,
+) -> Result<(usize, bool), ParseError> {
+    let (mut pos, mut mult, mut plain) = (0usize, 1usize, true);
     while pos < width {
         let p = bytes.get(at..at + 4).ok_or_else(|| ended(row, at))?;
         if is_marker(p) {
@@ -208,13 +235,14 @@ fn skip_flat(bytes: &[u8], width: usize, mut at: usize, row: usize) -> Result<us
             }
             pos += len;
             mult = mult.saturating_mul(256);
+            plain = false;
         } else {
             pos += 1;
             mult = 1;
         }
         at += 4;
     }
-    Ok(at)
+    Ok((at, plain))
 }
 
 fn first_marker(row: usize, at: usize) -> ParseError {
@@ -247,15 +275,235 @@ fn decode_flat(bytes: &[u8], mut at: usize, out: &mut [[f32; 3]]) {
     }
 }
 
-/// `c · 2^(e − 136)`; e = 0 is black (2^(e − 128) built from its bits, a subnormal for e = 1).
+/// Expands a checked flat scanline into its RGBE quadruples (a run repeats the pixel before it).
+fn expand_flat(bytes: &[u8], mut at: usize, out: &mut [[u8; 4]]) {
+    let width = out.len();
+    let (mut pos, mut mult) = (0usize, 1usize);
+    let mut prev = [0u8; 4];
+    while pos < width {
+        let p = [bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]];
+        if is_marker(&p) {
+            let len = (p[3] as usize).saturating_mul(mult);
+            out[pos..pos + len].fill(prev);
+            pos += len;
+            mult = mult.saturating_mul(256);
+        } else {
+            prev = p;
+            out[pos] = p;
+            pos += 1;
+            mult = 1;
+        }
+        at += 4;
+    }
+}
+
+/// 2^(e − 136) for every exponent byte e; 0 for e = 0 (2^(e − 128) built from its bits, a
+/// subnormal for e = 1, then the exact division by 256).
+const SCALE: [f32; 256] = {
+    let mut t = [0.0f32; 256];
+    let mut e = 0;
+    while e < 256 {
+        let bits = if e > 1 { (e - 1) << 23 } else { e << 22 };
+        t[e as usize] = f32::from_bits(bits) * (1.0 / 256.0);
+        e += 1;
+    }
+    t
+};
+
+/// `c · 2^(e − 136)`; e = 0 is black.
+#[inline]
 fn to_float(p: [u8; 4]) -> [f32; 3] {
-    let e = p[3] as u32;
-    let scale = f32::from_bits(if e > 1 { (e - 1) << 23 } else { e << 22 }) * (1.0 / 256.0);
+    let scale = SCALE[p[3] as usize];
     [
         scale * p[0] as f32,
         scale * p[1] as f32,
         scale * p[2] as f32,
     ]
+}
+
+/// A Radiance image kept as its RGBE quadruples, 4 bytes a pixel (a third of the float image),
+/// for readers that decode only the pixels they read, as the sky's resampling does: a pixel
+/// decodes ([`RgbeImage::pixel`]) to the same bits as in [`parse`]'s float image. A file of flat
+/// scanlines without run markers (what most writers, bake's included, produce) is used in
+/// place, without a copy.
+#[derive(Clone)]
+pub struct RgbeImage {
+    pub width: u32,
+    pub height: u32,
+    /// The file's bytes (pixels in place from `offset`) or the expanded pixels (`offset` 0).
+    bytes: std::sync::Arc<RgbeBytes>,
+    offset: usize,
+}
+
+/// The bytes of a Radiance file: read into memory, or mapped.
+pub enum RgbeBytes {
+    Owned(Vec<u8>),
+    /// A read-only map of the file (its pixels are only ever read in place: a run-length
+    /// encoded file is copied before its runs are expanded, so a file changed under the map
+    /// cannot change the scanline structure that [`locate`] checked).
+    Mapped(memmap2::Mmap),
+}
+
+impl std::ops::Deref for RgbeBytes {
+    type Target = [u8];
+
+    fn deref(&self) -> &[u8] {
+        match self {
+            RgbeBytes::Owned(v) => v,
+            RgbeBytes::Mapped(m) => m,
+        }
+    }
+}
+
+impl std::fmt::Debug for RgbeImage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RgbeImage")
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .finish_non_exhaustive()
+    }
+}
+
+impl PartialEq for RgbeImage {
+    fn eq(&self, other: &Self) -> bool {
+        (self.width, self.height) == (other.width, other.height) && self.quads() == other.quads()
+    }
+}
+
+impl RgbeImage {
+    /// The pixels' RGBE bytes, 4 a pixel, row-major.
+    fn quads(&self) -> &[u8] {
+        let len = 4 * self.width as usize * self.height as usize;
+        &self.bytes[self.offset..self.offset + len]
+    }
+
+    /// The RGBE quadruple of pixel `i` (row-major, row 0 at the top).
+    #[inline]
+    pub fn quad(&self, i: usize) -> [u8; 4] {
+        let at = self.offset + 4 * i;
+        let p = &self.bytes[at..at + 4];
+        [p[0], p[1], p[2], p[3]]
+    }
+
+    /// Pixel `i` as linear float RGB: `c · 2^(e − 136)`, the bits [`parse`] gives.
+    #[inline]
+    pub fn pixel(&self, i: usize) -> [f32; 3] {
+        to_float(self.quad(i))
+    }
+
+    /// The whole image as floats (the same bits as [`parse`]).
+    pub fn to_float_image(&self) -> FloatImage {
+        let pixels = self
+            .quads()
+            .par_chunks(4)
+            .map(|p| to_float([p[0], p[1], p[2], p[3]]))
+            .collect();
+        FloatImage {
+            width: self.width,
+            height: self.height,
+            pixels,
+        }
+    }
+}
+
+impl crate::cube::LatLongPixels for RgbeImage {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    #[inline]
+    fn pixel(&self, i: usize) -> [f32; 3] {
+        RgbeImage::pixel(self, i)
+    }
+
+    fn row_below(&self, row: u32, below: f32) -> bool {
+        self.view().row_below(row, below)
+    }
+}
+
+/// An [`RgbeImage`]'s pixels borrowed as quadruples: what the resampling's inner loop reads
+/// (one bounds check a pixel).
+#[derive(Clone, Copy)]
+pub struct RgbeView<'a> {
+    width: u32,
+    height: u32,
+    quads: &'a [[u8; 4]],
+}
+
+impl RgbeImage {
+    pub fn view(&self) -> RgbeView<'_> {
+        RgbeView {
+            width: self.width,
+            height: self.height,
+            quads: self.quads().as_chunks::<4>().0,
+        }
+    }
+}
+
+impl crate::cube::LatLongPixels for RgbeView<'_> {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    #[inline]
+    fn pixel(&self, i: usize) -> [f32; 3] {
+        to_float(self.quads[i])
+    }
+
+    /// First from the row's largest exponent (a pixel is at most 255 · 2^(e − 136), and the
+    /// luminance weights sum to 1), pixel by pixel only where that bound is not enough.
+    fn row_below(&self, row: u32, below: f32) -> bool {
+        let w = self.width as usize;
+        let line = &self.quads[row as usize * w..(row as usize + 1) * w];
+        let e = line.iter().fold(0u8, |m, p| m.max(p[3]));
+        let bound = to_float([255, 255, 255, e])[0];
+        bound * 1.0001 < below
+            || line
+                .iter()
+                .all(|&p| crate::color::luminance(to_float(p)) < below)
+    }
+}
+
+/// Reads a whole file as an [`RgbeImage`]: header, size check (`check`), every scanline located
+/// and checked (the same errors as [`parse`]); the pixels are then used in place (flat scanlines
+/// without run markers) or expanded in parallel.
+pub fn parse_rgbe(
+    bytes: RgbeBytes,
+    check: impl FnOnce(u32, u32) -> Result<(), ParseError>,
+) -> Result<RgbeImage, ParseError> {
+    let (width, height, data) = header(&bytes)?;
+    check(width, height)?;
+    let mut lines = locate(&bytes, (width, height), data)?;
+    let row = 4 * width as usize;
+    let in_place = lines
+        .iter()
+        .enumerate()
+        .all(|(r, l)| matches!(*l, Line::Flat { at, plain: true } if at == data + r * row));
+    if in_place {
+        return Ok(RgbeImage {
+            width,
+            height,
+            bytes: std::sync::Arc::new(bytes),
+            offset: data,
+        });
+    }
+    // Runs are expanded from bytes that cannot change after `locate` checked them.
+    let bytes = match bytes {
+        RgbeBytes::Mapped(m) => {
+            let owned = m.to_vec();
+            lines = locate(&owned, (width, height), data)?;
+            owned
+        }
+        RgbeBytes::Owned(v) => v,
+    };
+    let mut quads = vec![[0u8; 4]; width as usize * height as usize];
+    expand_quads(&bytes, width as usize, lines, &mut quads);
+    Ok(RgbeImage {
+        width,
+        height,
+        bytes: std::sync::Arc::new(RgbeBytes::Owned(quads.into_flattened())),
+        offset: 0,
+    })
 }
 
 /// Decodes a whole file: header, size check (`check`), pixels.
@@ -399,6 +647,47 @@ mod tests {
         assert_eq!(ours(&old).unwrap(), want);
         assert_eq!(want[5..5 + 257], vec![want[4]; 257][..]);
         assert_eq!(want[1..4], vec![want[0]; 3][..]);
+    }
+
+    #[test]
+    fn rgbe_images_decode_to_the_float_images_bits() {
+        // Oracle: `parse` (itself checked against the `image` crate above). Flat files are used
+        // in place; run-length and old-marker files are expanded.
+        let (w, h) = (300, 9);
+        let px = pixels(w, h);
+        let mut flat = head(w, h);
+        for p in &px {
+            let mut p = *p;
+            if (p[0], p[1]) == (2, 2) || (p[0], p[1], p[2]) == (1, 1, 1) {
+                p[0] = 9;
+            }
+            flat.extend(p);
+        }
+        let mut runs = head(w, h);
+        for line in px.chunks(w) {
+            runs.extend(encode_components(line));
+        }
+        let mut old = head(4, 1);
+        old.extend([10, 20, 30, 130, 1, 1, 1, 2, 40, 50, 60, 128]);
+        for (bytes, in_place) in [(&flat, true), (&runs, false), (&old, false)] {
+            let want = ours(bytes).unwrap();
+            let img = parse_rgbe(RgbeBytes::Owned(bytes.clone()), |_, _| Ok(())).unwrap();
+            assert_eq!(img.offset != 0, in_place);
+            for (i, p) in want.iter().enumerate() {
+                assert_eq!(img.pixel(i).map(f32::to_bits), p.map(f32::to_bits));
+            }
+            assert_eq!(img.to_float_image().pixels, want);
+        }
+        // Broken files fail as in `parse`, with the same message.
+        for bytes in [
+            &runs[..runs.len() - 1],
+            &runs[..runs.len() / 2],
+            &flat[..flat.len() - 3],
+        ] {
+            let want = ours(bytes).unwrap_err().to_string();
+            let got = parse_rgbe(RgbeBytes::Owned(bytes.to_vec()), |_, _| Ok(()));
+            assert_eq!(got.unwrap_err().to_string(), want);
+        }
     }
 
     #[test]

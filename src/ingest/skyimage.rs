@@ -5,6 +5,7 @@
 //! [`load`] reads a file and picks the reader by extension. The image is returned as stored
 //! (row 0 at the top); what layout it has (lat-long, cross, face) is decided by `crate::sky`.
 
+use super::rgbe::{RgbeBytes, RgbeImage};
 use crate::error::{Error, ParseError, Result, read_file};
 use crate::model::FloatImage;
 use std::io::Cursor;
@@ -35,6 +36,64 @@ pub fn load(path: &Path) -> Result<FloatImage> {
     parsed.map_err(|e| Error::invalid(path, e))
 }
 
+/// A sky image as [`load_keeping_rgbe`] reads it.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SkyImage {
+    Float(FloatImage),
+    /// A Radiance image as its RGBE quadruples (a third of the float image's memory).
+    Rgbe(RgbeImage),
+}
+
+impl SkyImage {
+    /// (width, height) in pixels.
+    pub fn size(&self) -> (u32, u32) {
+        match self {
+            SkyImage::Float(i) => (i.width, i.height),
+            SkyImage::Rgbe(i) => (i.width, i.height),
+        }
+    }
+
+    /// The image as floats (decoded now for an RGBE image).
+    pub fn into_float(self) -> FloatImage {
+        match self {
+            SkyImage::Float(i) => i,
+            SkyImage::Rgbe(i) => i.to_float_image(),
+        }
+    }
+}
+
+/// Reads an HDR sky image like [`load`], but keeps a Radiance image as its RGBE quadruples
+/// (in place in the file's bytes where the scanlines are flat): for the sky stage, which reads
+/// each pixel a few times and would otherwise build a float image three times the size.
+pub fn load_keeping_rgbe(path: &Path) -> Result<SkyImage> {
+    if !is_hdr(path) {
+        return load(path).map(SkyImage::Float);
+    }
+    let bytes = map_or_read(path)?;
+    super::rgbe::parse_rgbe(bytes, check_hdr_size)
+        .map(SkyImage::Rgbe)
+        .map_err(|e| Error::invalid(path, e))
+}
+
+/// A file's bytes, mapped (no copy: the page cache's pages are the pixels), or read where it
+/// cannot be mapped (a pipe, an empty file).
+fn map_or_read(path: &Path) -> Result<RgbeBytes> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    // SAFETY: a read-only map of an input file, as `pack::hash_file` makes; a file changed
+    // under the bake is the user's race (`RgbeBytes::Mapped` says what stays safe).
+    match unsafe { memmap2::MmapOptions::new().populate().map(&file) } {
+        Ok(map) if !map.is_empty() => Ok(RgbeBytes::Mapped(map)),
+        _ => read_file(path).map(RgbeBytes::Owned),
+    }
+}
+
+/// A Radiance file by its extension (.hdr, .pic).
+fn is_hdr(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("hdr") || e.eq_ignore_ascii_case("pic"))
+}
+
 /// Largest pixel buffer of a Radiance image (float RGB): the `image` crate's default limit.
 pub const MAX_HDR_BYTES: u64 = 512 << 20;
 
@@ -43,23 +102,26 @@ pub const MAX_HDR_BYTES: u64 = 512 << 20;
 /// The header is read first and its size checked before the pixel buffer is allocated; the
 /// scanlines are then decoded in parallel straight into it (`ingest::rgbe`).
 pub fn parse_hdr(bytes: &[u8]) -> Result<FloatImage, ParseError> {
-    super::rgbe::parse(bytes, |width, height| {
-        check_size(width, height)?;
-        // A few header bytes cannot make us allocate more than this (the `image` crate's own
-        // default cap, which applied here while it decoded these files).
-        let bytes_needed = width as u64 * height as u64 * 12;
-        if bytes_needed > MAX_HDR_BYTES {
-            return Err(ParseError::new(
-                "Radiance header",
-                format!(
-                    "{width}×{height} pixels need {} MiB as float RGB; at most {} MiB for a Radiance image",
-                    bytes_needed >> 20,
-                    MAX_HDR_BYTES >> 20
-                ),
-            ));
-        }
-        Ok(())
-    })
+    super::rgbe::parse(bytes, check_hdr_size)
+}
+
+/// The size checks of a Radiance header, before any pixel buffer is allocated.
+fn check_hdr_size(width: u32, height: u32) -> Result<(), ParseError> {
+    check_size(width, height)?;
+    // A few header bytes cannot make us allocate more than this (the `image` crate's own
+    // default cap, which applied here while it decoded these files).
+    let bytes_needed = width as u64 * height as u64 * 12;
+    if bytes_needed > MAX_HDR_BYTES {
+        return Err(ParseError::new(
+            "Radiance header",
+            format!(
+                "{width}×{height} pixels need {} MiB as float RGB; at most {} MiB for a Radiance image",
+                bytes_needed >> 20,
+                MAX_HDR_BYTES >> 20
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Decodes the first RGB(A) layer of an OpenEXR image (any compression the `exr` crate reads).

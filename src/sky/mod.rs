@@ -32,6 +32,8 @@ pub mod source_section;
 pub mod sun;
 
 use crate::error::{Error, ParseError, Result};
+use crate::ingest::rgbe::RgbeImage;
+use crate::ingest::skyimage::SkyImage;
 use crate::model::FloatImage;
 use crate::sh::{self, ShRadiance};
 use cube::{CubeMap, Face};
@@ -44,6 +46,9 @@ use sun::{SkyIrradiance, Sun, SunOptions};
 pub enum SkySource {
     /// A lat-long image in the project's convention (Z up).
     LatLong(FloatImage),
+    /// The same from a Radiance file, kept as its RGBE quadruples: the resampling decodes the
+    /// pixels it reads (to the bits of the float image), so the float image is never built.
+    LatLongRgbe(RgbeImage),
     /// Six faces in the GPU face convention, **Y up** (from a cross or face files).
     CubeYUp(CubeMap),
     /// A cube map already in world axes (Z up), e.g. the built-in sky.
@@ -96,8 +101,13 @@ pub const MAX_FACE_SIZE: u32 = 4096;
 pub fn load_sky(paths: &[PathBuf]) -> Result<SkySource> {
     match paths {
         [one] => {
-            let img = crate::ingest::skyimage::load(one)?;
-            image_to_source(img).map_err(|e| Error::invalid(one, e))
+            let img = crate::ingest::skyimage::load_keeping_rgbe(one)?;
+            match img {
+                SkyImage::Rgbe(img) if img.width == 2 * img.height => {
+                    Ok(SkySource::LatLongRgbe(img))
+                }
+                img => image_to_source(img.into_float()).map_err(|e| Error::invalid(one, e)),
+            }
         }
         [..] if paths.len() == 6 => {
             let mut faces = Vec::with_capacity(6);
@@ -203,7 +213,8 @@ fn faces_to_source(faces: &[(&Path, FloatImage)]) -> Result<SkySource> {
 /// A face size matching the source's resolution (a lat-long W wide has W/4 texels per 90°).
 pub fn default_face_size(src: &SkySource) -> u32 {
     match src {
-        SkySource::LatLong(img) => (img.width / 4).clamp(1, 1024),
+        SkySource::LatLong(FloatImage { width, .. })
+        | SkySource::LatLongRgbe(RgbeImage { width, .. }) => (width / 4).clamp(1, 1024),
         SkySource::CubeYUp(c) | SkySource::Cube(c) => c.size,
     }
 }
@@ -215,6 +226,10 @@ fn sample_source(src: &SkySource, d: [f64; 3]) -> [f32; 3] {
             let (x, y) = cube::latlong_coords_fast(d, img.width, img.height);
             cube::sample_latlong(img, x, y)
         }
+        SkySource::LatLongRgbe(img) => {
+            let (x, y) = cube::latlong_coords_fast(d, img.width, img.height);
+            cube::sample_latlong(img, x, y)
+        }
         SkySource::CubeYUp(c) => c.sample([d[0], d[2], -d[1]]),
         SkySource::Cube(c) => c.sample(d),
     }
@@ -223,7 +238,8 @@ fn sample_source(src: &SkySource, d: [f64; 3]) -> [f32; 3] {
 /// Source pixels per cube texel edge at a face's centre.
 fn source_per_texel(src: &SkySource, face_size: u32) -> f64 {
     let source_texels_per_face = match src {
-        SkySource::LatLong(img) => img.width as f64 / 4.0,
+        SkySource::LatLong(FloatImage { width, .. })
+        | SkySource::LatLongRgbe(RgbeImage { width, .. }) => *width as f64 / 4.0,
         SkySource::CubeYUp(c) | SkySource::Cube(c) => c.size as f64,
     };
     source_texels_per_face / face_size as f64
@@ -272,6 +288,13 @@ fn coarse_median_luminance(src: &SkySource) -> f32 {
 /// against −5 … +15 % with one point sample per texel. Tiles of texels are the units of work
 /// (`resample`); a lat-long source shares its angle tables between faces there.
 pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeMap {
+    resample_to_cube(src, face_size, rotate_deg, true)
+}
+
+/// [`source_to_cube`]; `skip_cold`: tiles of a lat-long source that read only rows darker than
+/// the refinement threshold skip the refinement test (`resample::ColdRows`; the same cube, as
+/// `tests::skipping_cold_tiles_changes_no_texel` checks).
+fn resample_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64, skip_cold: bool) -> CubeMap {
     let params = resample::TileParams {
         n: face_size as usize,
         k: supersampling(src, face_size) as usize,
@@ -309,47 +332,25 @@ pub fn source_to_cube(src: &SkySource, face_size: u32, rotate_deg: f64) -> CubeM
         }
         acc.map(|v| (v / wsum) as f32)
     };
-    let refine = params.k_fine > params.k;
     let grids = resample::LatLongGrids::new(n, params.k);
     let generic = resample::Generic {
         read: &read,
         grids: &grids,
     };
-    let per_edge = n.div_ceil(resample::TILE);
-    let units: Vec<Vec<resample::Tile>> = (0..per_edge * per_edge)
-        .into_par_iter()
-        .map(|u| {
-            let block = (u / per_edge, u % per_edge);
-            let latlong = match src {
-                SkySource::LatLong(img) => Some(resample::LatLong::unit(
-                    img,
-                    &grids,
-                    (n, params.k),
-                    block,
-                    refine,
-                    rotate_deg.to_radians(),
-                )),
-                _ => None,
-            };
-            resample::unit_tiles(n, block)
-                .into_iter()
-                .map(|(face, r0, c0)| {
-                    let extent = resample::tile_extent(n, r0, c0);
-                    let texels = match &latlong {
-                        Some(ll) => resample::tile(&params, ll, &fine, face, (r0, c0), extent),
-                        None => resample::tile(&params, &generic, &fine, face, (r0, c0), extent),
-                    };
-                    (face, r0, c0, texels)
-                })
-                .collect()
-        })
-        .collect();
+    let rot = rotate_deg.to_radians();
+    // (Written in place by the units: a fresh buffer is zeroed by the kernel, page by page, in
+    // the threads that first write it.)
     let mut texels = vec![[0.0f32; 3]; 6 * n * n];
-    for (face, r0, c0, tile) in units.iter().flatten() {
-        let cols = resample::tile_extent(n, *r0, *c0).1;
-        for (row, line) in tile.chunks(cols).enumerate() {
-            let at = (*face as usize * n + r0 + row) * n + c0;
-            texels[at..at + cols].copy_from_slice(line);
+    let out = texels.as_mut_slice();
+    match src {
+        SkySource::LatLong(img) => {
+            resample::latlong_units(&params, img, &grids, (rot, skip_cold), &fine, out)
+        }
+        SkySource::LatLongRgbe(img) => {
+            resample::latlong_units(&params, &img.view(), &grids, (rot, skip_cold), &fine, out)
+        }
+        SkySource::CubeYUp(_) | SkySource::Cube(_) => {
+            resample::units(out, &params, |_| generic, &fine)
         }
     }
     CubeMap {
@@ -390,10 +391,17 @@ pub fn bake_sky(src: &SkySource, opts: &SkyOptions) -> Result<SkyBake> {
             opts.sun.enlargement
         )));
     }
-    let full = source_to_cube(src, size, opts.rotate_deg);
+    // One table of exact texel solid angles serves the three sums over texels below.
+    let (mut cube, omega) = rayon::join(
+        || source_to_cube(src, size, opts.rotate_deg),
+        || cube::solid_angle_table(size),
+    );
     // The sun goes first: SH of a sky with its sun would ring (seed 000, 4.3).
-    let (cube, sun) = sun::extract_sun(&full, &opts.sun);
-    let (sky, sh) = rayon::join(|| sun::sky_irradiance(&cube), || sh::project_cube(&cube));
+    let sun = sun::extract_sun_in_place(&mut cube, &omega, &opts.sun);
+    let (sky, sh) = rayon::join(
+        || sun::sky_irradiance_with(&cube, &omega),
+        || sh::project_cube_with(&cube, &omega),
+    );
     Ok(SkyBake { cube, sun, sky, sh })
 }
 

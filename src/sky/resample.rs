@@ -21,15 +21,11 @@
 //! (C, R); Φ and Z serve ±Z at (R, C). That is a third of the angle evaluations of a sample-by-
 //! sample resampling, and each tile reads a compact patch of the source.
 
-use super::cube::{self, Face};
-use crate::model::FloatImage;
+use super::cube::{self, Face, LatLongPixels};
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
 /// Texels per edge of a tile.
 pub const TILE: usize = 16;
-
-/// The tiles of one work unit: (face, first row, first column, rows × columns texels).
-pub type Tile = (Face, usize, usize, Vec<[f32; 3]>);
 
 /// How a tile reads its source.
 pub trait TileSource: Sync {
@@ -38,6 +34,11 @@ pub trait TileSource: Sync {
     fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64);
     /// The luminance at corner (i, j) of `face`.
     fn corner(&self, face: Face, i: usize, j: usize) -> f32;
+    /// Whether a texel of this unit's tile on `face` can be refined (false only where the
+    /// source proves every sample and corner there below [`TileParams::hot`]).
+    fn may_refine(&self, _face: Face) -> bool {
+        true
+    }
 }
 
 /// What a tile needs besides its source.
@@ -55,17 +56,19 @@ pub struct TileParams {
     pub contrast: f32,
 }
 
-/// One tile of `face` (rows `r0..r0 + rows`, columns `c0..c0 + cols`); `fine(face, col, row, k)`
-/// is the generic k × k mean used for refined texels.
+/// One tile of `face` (rows `r0..r0 + rows`, columns `c0..c0 + cols`) into `out` (its rows, in
+/// place in the cube); `fine(face, col, row, k)` is the generic k × k mean used for refined
+/// texels.
 pub fn tile(
     p: &TileParams,
     src: &impl TileSource,
     fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + ?Sized),
     face: Face,
     (r0, c0): (usize, usize),
-    (rows, cols): (usize, usize),
-) -> Vec<[f32; 3]> {
-    let refine = p.k_fine > p.k;
+    out: &mut [&mut [[f32; 3]]],
+) {
+    let (rows, cols) = (out.len(), out.first().map_or(0, |r| r.len()));
+    let refine = p.k_fine > p.k && src.may_refine(face);
     let m = cols + 1;
     let corners: Vec<f32> = if refine {
         (0..(rows + 1) * m)
@@ -79,7 +82,6 @@ pub fn tile(
     // lat-long row, a face row down a lat-long column; elsewhere rows run along rows (±Y) or it
     // does not matter (±Z).
     let along_columns = matches!(face, Face::PosX | Face::NegX);
-    let mut out = vec![[0.0f32; 3]; rows * cols];
     for outer in 0..if along_columns { cols } else { rows } {
         for inner in 0..if along_columns { rows } else { cols } {
             let (row, col) = if along_columns {
@@ -113,10 +115,112 @@ pub fn tile(
                     v = fine(face, c0 + col, r0 + row, p.k_fine);
                 }
             }
-            out[row * cols + col] = v;
+            out[row][col] = v;
         }
     }
-    out
+}
+
+/// Every work unit's tiles, in parallel, written in place into `texels` (the cube's, face-major):
+/// `source(block)` is the unit's source (its tables).
+pub fn units<S: TileSource>(
+    texels: &mut [[f32; 3]],
+    p: &TileParams,
+    source: impl Fn((usize, usize)) -> S + Sync,
+    fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + Sync + ?Sized),
+) {
+    use rayon::prelude::*;
+    let n = p.n;
+    unit_rows(texels, n)
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(u, mut rows)| {
+            let per_edge = n.div_ceil(TILE);
+            let block = (u / per_edge, u % per_edge);
+            let src = source(block);
+            let mut at = 0;
+            for (face, r0, c0) in unit_tiles(n, block) {
+                let (nr, _) = tile_extent(n, r0, c0);
+                tile(p, &src, fine, face, (r0, c0), &mut rows[at..at + nr]);
+                at += nr;
+            }
+        });
+}
+
+/// The cube's texels cut into the row pieces of each unit's tiles: for unit `u`, the rows of
+/// its six tiles in [`unit_tiles`] order (the faces' storage order), each tile's from the top.
+/// The pieces are disjoint, so the units write them in parallel without a copy.
+fn unit_rows(texels: &mut [[f32; 3]], n: usize) -> Vec<Vec<&mut [[f32; 3]]>> {
+    let per_edge = n.div_ceil(TILE);
+    let mut units: Vec<Vec<&mut [[f32; 3]]>> = (0..per_edge * per_edge)
+        .map(|_| Vec::with_capacity(6 * TILE))
+        .collect();
+    for (face_row, line) in texels.chunks_mut(n).enumerate() {
+        let (face, row) = (Face::ALL[face_row / n], face_row % n);
+        for (col_block, piece) in line.chunks_mut(TILE).enumerate() {
+            // ±Y's tile at (row block, column block) belongs to the transposed unit.
+            let u = match face {
+                Face::PosY | Face::NegY => col_block * per_edge + row / TILE,
+                _ => (row / TILE) * per_edge + col_block,
+            };
+            units[u].push(piece);
+        }
+    }
+    units
+}
+
+/// [`units`] of a lat-long source into `texels`, each unit with its tables ([`LatLong::unit`]);
+/// `skip_cold`: use [`ColdRows`].
+pub fn latlong_units<I: LatLongPixels + ?Sized>(
+    p: &TileParams,
+    img: &I,
+    grids: &LatLongGrids,
+    (rotate_rad, skip_cold): (f64, bool),
+    fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + Sync + ?Sized),
+    texels: &mut [[f32; 3]],
+) {
+    let cold = if p.k_fine > p.k && skip_cold {
+        ColdRows::of(img, p.hot)
+    } else {
+        ColdRows::none()
+    };
+    let refine = (p.k_fine > p.k).then_some(&cold);
+    let source = |block| LatLong::unit(img, grids, (p.n, p.k), block, refine, rotate_rad);
+    units(texels, p, source, fine)
+}
+
+/// The lat-long rows whose pixels are all provably darker than the refinement threshold: a
+/// tile that reads only such rows has no sample or corner above it (a bilinear sample's
+/// luminance is a convex combination of its four pixels'), so it is not refined and its corners
+/// need not be read. Most tiles of a sunny sky are such (the sun's rows are a few).
+pub struct ColdRows {
+    cold: Vec<bool>,
+}
+
+impl ColdRows {
+    /// The rows of `img` below `hot` (with a margin of 10⁻³ for rounding: a sample's luminance
+    /// exceeds the largest of its pixels' by a few ulps at most).
+    pub fn of<I: LatLongPixels + ?Sized>(img: &I, hot: f32) -> ColdRows {
+        use rayon::prelude::*;
+        if !(hot.is_finite() && hot > 0.0) {
+            return ColdRows::none();
+        }
+        let below = hot * (1.0 - 1e-3);
+        let cold = (0..img.size().1)
+            .into_par_iter()
+            .map(|row| img.row_below(row, below))
+            .collect();
+        ColdRows { cold }
+    }
+
+    /// No row known to be cold.
+    pub fn none() -> ColdRows {
+        ColdRows { cold: Vec::new() }
+    }
+
+    /// Whether every row from `lo` to `hi` (inclusive) is cold.
+    fn all(&self, lo: usize, hi: usize) -> bool {
+        self.cold.get(lo..=hi).is_some_and(|r| r.iter().all(|&c| c))
+    }
 }
 
 /// The six tiles of the work unit at block (row block, column block) `(br, bc)`: ±X and ±Z at
@@ -188,7 +292,45 @@ impl Block {
     }
 }
 
+/// Per face, whether the unit's tile there may read a row that is not cold: the colatitudes of
+/// its samples span [min, max] of the block's tables (mirrored, π − θ, on +X, −Y, −Z), its
+/// corners lie within half a subsample diagonal of them (at most √2/N rad on a face of N
+/// subsamples, θ being 1-Lipschitz on the sphere), and a bilinear sample at y reads rows
+/// ⌊y − ½⌋ and the one below.
+fn hot_faces(samples: &Block, cold: &ColdRows, height: u32, big_n: usize) -> [bool; 6] {
+    let range = |v: &[f64]| {
+        v.iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+                (lo.min(x), hi.max(x))
+            })
+    };
+    let (side, top) = (range(&samples.side), range(&samples.top_theta));
+    let flip = |(lo, hi): (f64, f64)| (PI - hi, PI - lo);
+    let h = height as f64;
+    let margin = std::f64::consts::SQRT_2 / big_n as f64;
+    let rows = |(lo, hi): (f64, f64)| {
+        let y = |theta: f64| ((theta * (h / PI) - 0.5).clamp(0.0, h - 1.0)).floor() as usize;
+        // (One more row each side for the rounding of the tables.)
+        let (a, b) = (y(lo - margin), y(hi + margin));
+        (a.saturating_sub(1), (b + 2).min(height as usize - 1))
+    };
+    let hot = |range: (f64, f64)| {
+        let (a, b) = rows(range);
+        !cold.all(a, b)
+    };
+    // Face::ALL order: +X, −X, +Y, −Y, +Z, −Z.
+    [
+        hot(flip(side)),
+        hot(side),
+        hot(side),
+        hot(flip(side)),
+        hot(top),
+        hot(flip(top)),
+    ]
+}
+
 /// Any source, read direction by direction (`read(face, s, t)`) on the resampling grids.
+#[derive(Clone, Copy)]
 pub struct Generic<'a, R> {
     pub read: &'a R,
     pub grids: &'a LatLongGrids,
@@ -207,13 +349,15 @@ impl<R: Fn(Face, f64, f64) -> [f32; 3] + Sync> TileSource for Generic<'_, R> {
 }
 
 /// A lat-long source with the tables of one work unit: subsample and corner grids.
-pub struct LatLong<'a> {
-    img: &'a FloatImage,
+pub struct LatLong<'a, I: ?Sized> {
+    img: &'a I,
     /// atan(u_i) of every subsample, and of every corner.
     atan: &'a [f64],
     atan_corner: &'a [f64],
     samples: Block,
     corners: Option<Block>,
+    /// Per face ([`Face::ALL`] order): whether its tile may have refined texels.
+    may_refine: [bool; 6],
     /// The sky's rotation about +Z in [0, 2π): the source is read at φ − rot.
     rot: f64,
 }
@@ -248,32 +392,40 @@ impl LatLongGrids {
     }
 }
 
-impl<'a> LatLong<'a> {
+impl<'a, I: LatLongPixels + ?Sized> LatLong<'a, I> {
     /// The tables of the unit at block (br, bc) of an n-texel face with k subsamples per texel
     /// (`corners`: also the corner grid's).
     pub fn unit(
-        img: &'a FloatImage,
+        img: &'a I,
         grids: &'a LatLongGrids,
         (n, k): (usize, usize),
         (br, bc): (usize, usize),
-        corners: bool,
+        refine: Option<&ColdRows>,
         rotate_rad: f64,
-    ) -> LatLong<'a> {
+    ) -> LatLong<'a, I> {
         let (r0, c0) = (br * TILE, bc * TILE);
         let (rows, cols) = tile_extent(n, r0, c0);
         let samples = Block::new(&grids.us, (r0 * k, rows * k), (c0 * k, cols * k));
-        let corners = corners.then(|| Block::new(&grids.corner_us, (r0, rows + 1), (c0, cols + 1)));
+        let may_refine = match refine {
+            Some(cold) => hot_faces(&samples, cold, img.size().1, n * k),
+            None => [false; 6],
+        };
+        let corners = may_refine
+            .contains(&true)
+            .then(|| Block::new(&grids.corner_us, (r0, rows + 1), (c0, cols + 1)));
         LatLong {
             img,
             atan: &grids.atan,
             atan_corner: &grids.atan_corner,
             samples,
             corners,
+            may_refine,
             rot: rotate_rad.rem_euclid(TAU),
         }
     }
 
     /// Lat-long pixel coordinates of grid point (i, j) of `face` (i along s, j along t).
+    #[inline(always)]
     fn coords(&self, block: &Block, atan: &[f64], face: Face, i: usize, j: usize) -> (f64, f64) {
         let (phi, theta) = match face {
             Face::PosX => (-atan[j], PI - block.side[block.at(j, i)]),
@@ -297,7 +449,8 @@ impl<'a> LatLong<'a> {
         while phi >= TAU {
             phi -= TAU;
         }
-        let (w, h) = (self.img.width as f64, self.img.height as f64);
+        let (w, h) = self.img.size();
+        let (w, h) = (w as f64, h as f64);
         (phi * (w / TAU), theta * (h / PI))
     }
 
@@ -315,7 +468,8 @@ impl<'a> LatLong<'a> {
     }
 }
 
-impl TileSource for LatLong<'_> {
+impl<I: LatLongPixels + ?Sized> TileSource for LatLong<'_, I> {
+    #[inline(always)]
     fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64) {
         let (x, y) = self.coords(&self.samples, self.atan, face, i, j);
         (
@@ -324,11 +478,15 @@ impl TileSource for LatLong<'_> {
         )
     }
 
+    fn may_refine(&self, face: Face) -> bool {
+        self.may_refine[face as usize]
+    }
+
     fn corner(&self, face: Face, i: usize, j: usize) -> f32 {
         let block = self
             .corners
             .as_ref()
-            .expect("corner tables exist where texels are refined");
+            .expect("corner tables exist where texels may be refined");
         let (x, y) = self.coords(block, self.atan_corner, face, i, j);
         crate::color::luminance(cube::sample_latlong(self.img, x, y))
     }
@@ -348,7 +506,7 @@ mod tests {
 
     #[test]
     fn the_shared_tables_give_every_faces_exact_lat_long_coordinates() {
-        let img = FloatImage {
+        let img = crate::model::FloatImage {
             width: 64,
             height: 32,
             pixels: vec![[0.0; 3]; 64 * 32],
@@ -361,7 +519,8 @@ mod tests {
                 let rot = rot.to_radians();
                 for u in 0..per_edge * per_edge {
                     let block = (u / per_edge, u % per_edge);
-                    let ll = LatLong::unit(&img, &grids, (n, k), block, true, rot);
+                    let ll =
+                        LatLong::unit(&img, &grids, (n, k), block, Some(&ColdRows::none()), rot);
                     for (face, r0, c0) in unit_tiles(n, block) {
                         let (rows, cols) = tile_extent(n, r0, c0);
                         let mut check = |got: (f64, f64), want: (f64, f64)| {

@@ -53,22 +53,21 @@ pub fn cube_to_section(name: &str, source: &str, cube: &CubeMap, sky: &SkyIrradi
         .par_iter()
         .filter(|t| t.iter().any(|&v| v.is_nan() || v.abs() > F16_MAX))
         .count() as u64;
-    let texels: Vec<[u16; 4]> = cube
-        .texels
-        .par_iter()
-        .map(|t| {
-            // NaN becomes 0; ±∞ and out-of-range values the largest half float.
-            let h = |v: f32| {
-                f16::from_f32(if v.is_nan() {
-                    0.0
-                } else {
-                    v.clamp(-F16_MAX, F16_MAX)
-                })
-                .to_bits()
-            };
-            [h(t[0]), h(t[1]), h(t[2]), h(1.0)]
+    // NaN becomes 0; ±∞ and out-of-range values the largest half float.
+    let h = |v: f32| {
+        f16::from_f32(if v.is_nan() {
+            0.0
+        } else {
+            v.clamp(-F16_MAX, F16_MAX)
         })
-        .collect();
+        .to_bits()
+    };
+    // (Converted straight into the section's buffer, in parallel.)
+    let fill = move |out: &mut [[u16; 4]]| {
+        out.par_iter_mut()
+            .zip(&cube.texels)
+            .for_each(|(o, t)| *o = [h(t[0]), h(t[1]), h(t[2]), h(1.0)]);
+    };
     let meta = CubeSkyMeta {
         width: cube.size,
         height: cube.size,
@@ -80,7 +79,8 @@ pub fn cube_to_section(name: &str, source: &str, cube: &CubeMap, sky: &SkyIrradi
         sky: *sky,
     };
     let mut b = SectionBuilder::new(SKY_KIND, name);
-    b.meta(&meta).array("texels", ArrayFormat::F16, 4, &texels);
+    b.meta(&meta)
+        .array_fill("texels", ArrayFormat::F16, 4, cube.texels.len(), fill);
     b.finish()
 }
 

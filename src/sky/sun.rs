@@ -105,10 +105,23 @@ pub use crate::color::luminance;
 
 /// Median luminance of the upper hemisphere's texels (the sky's typical brightness).
 fn median_sky_luminance(cube: &CubeMap, lum: &[f32]) -> f32 {
-    let mut up: Vec<f32> = cube::texel_directions(cube.size)
-        .zip(lum)
-        .filter(|(d, _)| d[2] > 0.0)
-        .map(|(_, &l)| l)
+    use rayon::prelude::*;
+    let size = cube.size;
+    let n = size as usize;
+    // (z > 0 of the unnormalized direction is z > 0 of the texel's unit direction.)
+    let mut up: Vec<f32> = lum
+        .par_chunks(n)
+        .enumerate()
+        .flat_map_iter(|(fr, line)| {
+            let (face, t) = (
+                Face::ALL[fr / n],
+                2.0 * ((fr % n) as f64 + 0.5) / n as f64 - 1.0,
+            );
+            line.iter().enumerate().filter_map(move |(col, &l)| {
+                let s = 2.0 * (col as f64 + 0.5) / n as f64 - 1.0;
+                (face.direction(s, t)[2] > 0.0).then_some(l)
+            })
+        })
         .collect();
     if up.is_empty() {
         return 0.0;
@@ -123,29 +136,30 @@ fn median_sky_luminance(cube: &CubeMap, lum: &[f32]) -> f32 {
 /// disc: blurred, painted or seen at low resolution), up to [`MAX_SUN_AREA`]. The order holds
 /// at least n + 1 texels.
 fn brightest_covering(cube: &CubeMap, omega: &[f64], area: f64) -> (Vec<usize>, usize) {
+    use rayon::prelude::*;
     let n2 = omega.len();
-    let lum: Vec<f32> = {
-        use rayon::prelude::*;
-        cube.texels.par_iter().map(|&t| luminance(t)).collect()
-    };
+    let lum: Vec<f32> = cube.texels.par_iter().map(|&t| luminance(t)).collect();
     let median = median_sky_luminance(cube, &lum);
     let threshold = if median > 0.0 {
         median * SUN_CONTRAST
     } else {
         f32::INFINITY
     };
-    let hot = lum.iter().filter(|&&l| l > threshold).count();
+    let hot = lum.par_iter().filter(|&&l| l > threshold).count();
     let min_omega = omega.iter().cloned().fold(f64::INFINITY, f64::min);
     let bound = ((area / min_omega).ceil() as usize + 2)
         .max(hot + 2)
         .min(cube.texels.len());
-    let mut idx: Vec<usize> = (0..cube.texels.len()).collect();
     let order = |a: &usize, b: &usize| lum[*b].total_cmp(&lum[*a]).then(a.cmp(b));
-    if bound < idx.len() {
-        idx.select_nth_unstable_by(bound, order);
-        idx.truncate(bound);
-    }
+    // The `bound` first texels of that order: every texel at least as bright as the bound-th
+    // brightest luminance (found from each chunk's own brightest, in parallel), sorted.
+    let floor = bound_th_brightest(&lum, bound);
+    let mut idx: Vec<usize> = (0..lum.len())
+        .into_par_iter()
+        .filter(|&i| lum[i].total_cmp(&floor).is_ge())
+        .collect();
     idx.sort_unstable_by(order);
+    idx.truncate(bound);
     let mut covered = 0.0;
     let mut n = 0;
     while n + 1 < idx.len()
@@ -156,6 +170,29 @@ fn brightest_covering(cube: &CubeMap, omega: &[f64], area: f64) -> (Vec<usize>, 
     }
     let n = n.max(1).min(idx.len().saturating_sub(1));
     (idx, n)
+}
+
+/// The `k`-th largest of `lum` (1-based, `f32::total_cmp` order; the smallest if k ≥ len): the
+/// k-th largest of the union of every chunk's k largest.
+fn bound_th_brightest(lum: &[f32], k: usize) -> f32 {
+    use rayon::prelude::*;
+    let desc = |a: &f32, b: &f32| b.total_cmp(a);
+    let k_largest = |v: &mut Vec<f32>| {
+        if v.len() > k {
+            v.select_nth_unstable_by(k - 1, desc);
+            v.truncate(k);
+        }
+    };
+    let mut tops: Vec<f32> = lum
+        .par_chunks(1 << 14)
+        .flat_map_iter(|c| {
+            let mut v = c.to_vec();
+            k_largest(&mut v);
+            v
+        })
+        .collect();
+    k_largest(&mut tops);
+    tops.into_iter().min_by(f32::total_cmp).unwrap_or(0.0)
 }
 
 /// Unit direction of texel `i` of the cube (face-major index).
@@ -180,6 +217,7 @@ fn cos_near_sun() -> f64 {
 /// circumsolar sky is the brightest; elsewhere (a bright ground or cloud, a steep aureole whose
 /// ring value is below the sky under the disc) it biased the sun's irradiance by percents.
 fn ring_mean(cube: &CubeMap, omega: &[f64], sun: &[usize], dir: [f64; 3]) -> Option<[f32; 3]> {
+    use rayon::prelude::*;
     let n2 = omega.len();
     let dot = |d: [f64; 3]| d[0] * dir[0] + d[1] * dir[1] + d[2] * dir[2];
     let cos_in = sun
@@ -193,17 +231,36 @@ fn ring_mean(cube: &CubeMap, omega: &[f64], sun: &[usize], dir: [f64; 3]) -> Opt
         .cos();
     let mut in_sun = sun.to_vec();
     in_sun.sort_unstable();
+    // The ring's texels, found in parallel, in index order (so the sum below is the same on any
+    // thread count).
+    let n = cube.size as usize;
+    // Texels surely outside cos_out, from the unnormalized direction v (v·dir < cos_out·|v|,
+    // with a margin far above rounding), skip the exact test.
+    let surely_out = move |v: [f64; 3]| {
+        let (c, l2) = (dot(v), v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        cos_out > 0.0 && (c <= 0.0 || c * c < cos_out * cos_out * l2 * (1.0 - 1e-9))
+    };
+    let ring: Vec<usize> = (0..6 * n)
+        .into_par_iter()
+        .flat_map_iter(|fr| {
+            let (face, row) = (Face::ALL[fr / n], (fr % n) as u32);
+            let (in_sun, size) = (&in_sun, cube.size);
+            let t = 2.0 * (row as f64 + 0.5) / n as f64 - 1.0;
+            (0..n).filter_map(move |col| {
+                let i = fr * n + col;
+                let s = 2.0 * (col as f64 + 0.5) / n as f64 - 1.0;
+                if surely_out(face.direction(s, t)) {
+                    return None;
+                }
+                let c = dot(cube::texel_direction(size, face, col as u32, row));
+                let out = c < cos_out || c > cos_in || in_sun.binary_search(&i).is_ok();
+                (!out).then_some(i)
+            })
+        })
+        .collect();
     let (mut acc, mut wsum) = ([0.0f64; 3], 0.0);
-    for (i, (t, d)) in cube
-        .texels
-        .iter()
-        .zip(cube::texel_directions(cube.size))
-        .enumerate()
-    {
-        let c = dot(d);
-        if c < cos_out || c > cos_in || in_sun.binary_search(&i).is_ok() {
-            continue;
-        }
+    for i in ring {
+        let t = &cube.texels[i];
         let w = omega[i % n2];
         for k in 0..3 {
             acc[k] += t[k] as f64 * w;
@@ -215,10 +272,18 @@ fn ring_mean(cube: &CubeMap, omega: &[f64], sun: &[usize], dir: [f64; 3]) -> Opt
 
 /// Separates the sun from the sky: returns the sun-free cube map and the sun.
 pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
-    let omega = cube::solid_angle_table(cube.size);
+    let mut out = cube.clone();
+    let sun = extract_sun_in_place(&mut out, &cube::solid_angle_table(cube.size), opts);
+    (out, sun)
+}
+
+/// [`extract_sun`] without a copy: replaces the sun's texels of `cube` and returns the sun
+/// (`omega`: the cube's [`cube::solid_angle_table`]).
+pub fn extract_sun_in_place(cube: &mut CubeMap, omega: &[f64], opts: &SunOptions) -> Sun {
+    use rayon::prelude::*;
     let n2 = omega.len();
     let a = std::f64::consts::PI * SUN_ANGULAR_RADIUS * SUN_ANGULAR_RADIUS;
-    let (order, n) = brightest_covering(cube, &omega, opts.enlargement.max(0.0) * a);
+    let (order, n) = brightest_covering(cube, omega, opts.enlargement.max(0.0) * a);
     // The direction: the centroid of the excess over T_{n+1}.
     let next_lum = luminance(cube.texels[order[n]]) as f64;
     let mut centroid = [0.0f64; 3];
@@ -236,9 +301,15 @@ pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
         brightest
     };
     let replacement =
-        ring_mean(cube, &omega, &order[..n], direction).unwrap_or(cube.texels[order[n]]);
+        ring_mean(cube, omega, &order[..n], direction).unwrap_or(cube.texels[order[n]]);
     let next = cube.texels[order[n]];
-    let mut out = cube.clone();
+    let peak = luminance(cube.texels[order[0]]);
+    // Over the whole map: a clipped region can be larger than the sun's enlarged area.
+    let plateau = cube
+        .texels
+        .par_iter()
+        .filter(|&&t| luminance(t) >= peak * (1.0 - PLATEAU_TOLERANCE))
+        .count() as u32;
     let (mut irr, mut mean_excess, mut solid_angle) = ([0.0f64; 3], [0.0f64; 3], 0.0);
     for &i in &order[..n] {
         let t = cube.texels[i];
@@ -254,16 +325,10 @@ pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
             mean_excess[k] += (t[k] - next[k]) as f64 / n as f64;
         }
         solid_angle += w;
-        out.texels[i] = rep;
+        // (Each sun texel is read, then replaced, once: `order` holds distinct texels.)
+        cube.texels[i] = rep;
     }
-    let peak = luminance(cube.texels[order[0]]);
-    // Over the whole map: a clipped region can be larger than the sun's enlarged area.
-    let plateau = cube
-        .texels
-        .iter()
-        .filter(|&&t| luminance(t) >= peak * (1.0 - PLATEAU_TOLERANCE))
-        .count() as u32;
-    let sun = Sun {
+    Sun {
         direction: direction.map(|c| c as f32),
         direction_brightest: brightest.map(|c| c as f32),
         irradiance: irr.map(|c| c as f32),
@@ -276,14 +341,17 @@ pub fn extract_sun(cube: &CubeMap, opts: &SunOptions) -> (CubeMap, Sun) {
         clipped: peak > 0.0 && plateau >= PLATEAU_MIN_TEXELS,
         enlargement: opts.enlargement,
         angular_radius: SUN_ANGULAR_RADIUS,
-    };
-    (out, sun)
+    }
 }
 
 /// The sky's irradiance on a horizontal surface, exact solid angles, and the thesis' estimate.
 pub fn sky_irradiance(cube: &CubeMap) -> SkyIrradiance {
+    sky_irradiance_with(cube, &cube::solid_angle_table(cube.size))
+}
+
+/// [`sky_irradiance`] with the cube's [`cube::solid_angle_table`] computed already.
+pub fn sky_irradiance_with(cube: &CubeMap, omega: &[f64]) -> SkyIrradiance {
     use rayon::prelude::*;
-    let omega = cube::solid_angle_table(cube.size);
     let n = cube.size as usize;
     // Per face row (in parallel), then summed in row order: the same sums on any thread count.
     let rows: Vec<([f64; 3], [f64; 3], usize)> = cube
