@@ -460,6 +460,7 @@ mod scene {
             samples: 64,
             seed,
             tracer,
+            ..EnvmapOptions::DEFAULT
         };
         let maps = bake::envmap::instance_maps(ts, light, &o, 0..ts.instance_count).unwrap();
         maps.iter()
