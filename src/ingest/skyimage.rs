@@ -75,6 +75,12 @@ pub fn load_keeping_rgbe(path: &Path) -> Result<SkyImage> {
         .map_err(|e| Error::invalid(path, e))
 }
 
+/// Parses a Radiance file's bytes as [`load_keeping_rgbe`] does (the same size checks as
+/// [`parse_hdr`]); its pixels decode to [`parse_hdr`]'s bits (the fuzz target checks both agree).
+pub fn parse_hdr_rgbe(bytes: Vec<u8>) -> Result<RgbeImage, ParseError> {
+    super::rgbe::parse_rgbe(RgbeBytes::Owned(bytes), check_hdr_size)
+}
+
 /// A file's bytes, mapped (no copy: the page cache's pages are the pixels), or read where it
 /// cannot be mapped (a pipe, an empty file).
 fn map_or_read(path: &Path) -> Result<RgbeBytes> {
