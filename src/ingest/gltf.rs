@@ -502,6 +502,9 @@ impl Ctx<'_> {
         };
         let mut out = Material {
             name,
+            // glTF's `doubleSided` (default false, also for the default material): a one-sided
+            // material's back faces are culled, so the PRT stage need not light them.
+            double_sided: m.double_sided(),
             ..Material::default()
         };
         if m.index().is_some() {
@@ -886,9 +889,12 @@ mod tests {
             m.textures[paint.color_map.unwrap() as usize].name,
             "tex a.png"
         );
-        assert_eq!(
-            m.materials[m.triangle_materials[1] as usize].name,
-            "default"
+        assert!(!paint.double_sided, "glTF doubleSided defaults to false");
+        let default = &m.materials[m.triangle_materials[1] as usize];
+        assert_eq!(default.name, "default");
+        assert!(
+            !default.double_sided,
+            "glTF's default material is one-sided"
         );
         assert!(m.warnings.iter().any(|w| w.contains("TEXCOORD_0")));
         assert_eq!(m.validate(), Ok(()));
@@ -897,6 +903,25 @@ mod tests {
     #[test]
     fn node_transforms_axes_strips_and_materials() {
         check_scene(&parse(&embedded([0, 1, 2], [0.0; 3], NODES)).unwrap());
+    }
+
+    #[test]
+    fn double_sided_is_read_from_the_material() {
+        let json = String::from_utf8(embedded([0, 1, 2], [0.0; 3], NODES)).unwrap();
+        let two = json.replace(
+            r#""name": "Paint","#,
+            r#""name": "Paint", "doubleSided": true,"#,
+        );
+        assert_ne!(two, json);
+        let m = parse(two.as_bytes()).unwrap();
+        assert!(m.materials[m.triangle_materials[0] as usize].double_sided);
+        assert!(!m.materials[m.triangle_materials[1] as usize].double_sided);
+        let one = json.replace(
+            r#""name": "Paint","#,
+            r#""name": "Paint", "doubleSided": false,"#,
+        );
+        let m = parse(one.as_bytes()).unwrap();
+        assert!(!m.materials[m.triangle_materials[0] as usize].double_sided);
     }
 
     #[test]
