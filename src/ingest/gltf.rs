@@ -925,6 +925,66 @@ mod tests {
     }
 
     #[test]
+    fn a_one_sided_gltf_material_gets_a_zero_back_transfer_through_the_pack() {
+        // File → ingest (mesh section with `one_sided_materials`) → PRT stage: the triangle of
+        // the one-sided "Paint" has a zero back side, the default material's strip too (glTF's
+        // default material is one-sided), and `prt.sides = "both"` traces them all.
+        let dir = tempfile::tempdir().unwrap();
+        let json = String::from_utf8(embedded([0, 1, 2], [0.0; 3], NODES)).unwrap();
+        let two = json.replace(
+            r#""name": "Paint","#,
+            r#""name": "Paint", "doubleSided": true,"#,
+        );
+        let bake = |doc: &str, sides| {
+            let file = dir.path().join("m.gltf");
+            std::fs::write(&file, doc).unwrap();
+            let (w, _) = crate::pipeline::ingest_to_pack(&file, &Default::default()).unwrap();
+            let pack = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "m.bake").unwrap();
+            let opts = crate::prt::transfer::PrtOptions {
+                samples: 16,
+                bounces: 1,
+                sides,
+                ..Default::default()
+            };
+            let (w, _, _) = crate::prt::pack::prt_pack(&pack, &opts, &|_| {}).unwrap();
+            let out = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "o.bake").unwrap();
+            let mesh_name = out
+                .of_kind(crate::mesh::section::KIND)
+                .next()
+                .unwrap()
+                .name
+                .clone();
+            let (_, mesh) =
+                crate::mesh::section::from_section(&out.view_named(&mesh_name).unwrap()).unwrap();
+            let prt_name = crate::prt::pack::section_name(&mesh_name);
+            let (_, t) =
+                crate::prt::pack::from_section(&out.view_named(&prt_name).unwrap()).unwrap();
+            (mesh, t)
+        };
+        use crate::prt::transfer::PrtSides;
+        let zero = |t: &crate::prt::transfer::Transfer, v: usize, side: usize| {
+            (0..2).all(|set| t.get(v, side, set).iter().all(|c| *c == [0.0; 3]))
+        };
+        let (mesh, auto) = bake(&json, PrtSides::Auto);
+        assert!(mesh.materials.iter().all(|m| !m.double_sided));
+        for v in 0..mesh.positions.len() {
+            assert!(!zero(&auto, v, 0) && zero(&auto, v, 1), "vertex {v}");
+        }
+        let (_, both) = bake(&json, PrtSides::Both);
+        for v in 0..mesh.positions.len() {
+            assert!(!zero(&both, v, 1), "vertex {v}");
+            assert_eq!(auto.get(v, 0, 0), both.get(v, 0, 0));
+        }
+        assert!(auto.rays < both.rays);
+        let (mesh, two_sided) = bake(&two, PrtSides::Auto);
+        let paint = mesh.indices[0];
+        for v in 0..mesh.positions.len() {
+            let back_traced = !zero(&two_sided, v, 1);
+            assert_eq!(back_traced, paint.contains(&(v as u32)), "vertex {v}");
+        }
+    }
+
+    #[test]
     fn glb_and_external_buffer_give_the_same_mesh() {
         let bin = buffer([0, 1, 2], [0.0; 3]);
         check_scene(&parse(&glb(&document(None, NODES), &bin)).unwrap());

@@ -177,7 +177,7 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     let positions: Vec<[f32; 3]> = v.array_vec("positions")?;
     let (lo, hi) = bounds_of(&positions).unwrap_or(([0.0; 3], [0.0; 3]));
     let tris = v.info("indices").map_or(0, |a| a.count);
-    Ok(json!({
+    let mut out = json!({
         "vertices": positions.len(),
         "triangles": tris,
         "materials": meta.materials.len(),
@@ -185,25 +185,34 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
         "objects": meta.objects,
         "textures": meta.textures.iter().map(|t| t.name.clone()).collect::<Vec<_>>(),
         "source": meta.source,
-        "one_sided_materials": one_sided_of(v)?,
         "skeleton": {
             "segments": v.info("skeleton_lines").map_or(0, |a| a.count / 2),
             "points": v.info("skeleton_points").map_or(0, |a| a.count),
         },
-    }))
+    });
+    // Only where there are any, so the summary of double-sided meshes reads as before.
+    let one_sided = one_sided_of(v)?;
+    if !one_sided.is_empty() {
+        out["one_sided_materials"] = json!(one_sided);
+    }
+    Ok(out)
 }
 
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {
     let (_, m) = from_section(v)?;
-    Ok(json!({
+    let mut out = json!({
         "positions": m.positions,
         "normals": m.normals,
         "uvs": m.uvs,
         "indices": m.indices,
         "triangle_materials": m.triangle_materials,
         "materials": m.materials,
-        "one_sided_materials": one_sided_materials(&m),
-    }))
+    });
+    let one_sided = one_sided_materials(&m);
+    if !one_sided.is_empty() {
+        out["one_sided_materials"] = json!(one_sided);
+    }
+    Ok(out)
 }
 
 #[cfg(test)]
