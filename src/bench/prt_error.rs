@@ -447,3 +447,25 @@ pub fn report_text(r: &PrtErrorReport) -> String {
     }
     text
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reference_key_includes_the_sides_and_the_one_sided_materials() {
+        let (mut mesh, tex) = crate::prt::plant::procedural_plant(100, 1);
+        let mats = prt::prt_materials(&mesh, &[Some(tex)], 0.3);
+        let verts = [0u32, 1, 2];
+        let with = |sides| PrtOptions {
+            sides,
+            ..PrtOptions::default()
+        };
+        let key = |mesh: &Mesh, sides| reference_key(mesh, &mats, &verts, &with(sides));
+        let auto = key(&mesh, prt::PrtSides::Auto);
+        assert_ne!(auto, key(&mesh, prt::PrtSides::Both));
+        assert_ne!(auto, key(&mesh, prt::PrtSides::Front));
+        mesh.materials[0].double_sided = false;
+        assert_ne!(auto, key(&mesh, prt::PrtSides::Auto));
+    }
+}
