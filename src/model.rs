@@ -39,6 +39,18 @@ pub struct Material {
     /// Index into [`Mesh::textures`] of a normal map, if the input had one.
     pub normal_map: Option<u32>,
     pub source: MaterialSource,
+    /// Whether both faces of the surface are seen (glTF `doubleSided`; true for every other
+    /// input: TXF leaves are seen from both sides, OBJ/MTL and 3DS carry no reliable flag).
+    /// A one-sided (opaque, closed) surface is only ever seen from the front: the PRT stage
+    /// skips its back side under `prt.sides = "auto"`. Not in the serde form (the mesh
+    /// section's postcard metadata is unchanged): the mesh section stores the one-sided
+    /// materials in its own array, `one_sided_materials`.
+    #[serde(skip, default = "double_sided_default")]
+    pub double_sided: bool,
+}
+
+fn double_sided_default() -> bool {
+    true
 }
 
 impl Default for Material {
@@ -56,6 +68,7 @@ impl Default for Material {
             color_map: None,
             normal_map: None,
             source: MaterialSource::FixedFunction,
+            double_sided: true,
         }
     }
 }

@@ -173,6 +173,31 @@ mod prt {
     }
 
     #[test]
+    fn embree_prt_skips_the_back_of_one_sided_materials_as_the_cpu_does() {
+        let (mut mesh, mats, masks) = plant();
+        mesh.materials[0].double_sided = false;
+        let cpu = bake_prt(&mesh, &mats, &masks, &opts(PrtTracer::Cpu, 0)).unwrap();
+        let embree = bake_prt(&mesh, &mats, &masks, &opts(PrtTracer::Embree, 0)).unwrap();
+        let both = PrtOptions {
+            sides: bake::prt::transfer::PrtSides::Both,
+            ..opts(PrtTracer::Embree, 0)
+        };
+        let embree_both = bake_prt(&mesh, &mats, &masks, &both).unwrap();
+        let zero = |t: &Transfer, v: usize| {
+            (0..2).all(|set| t.get(v, 1, set).iter().all(|c| *c == [0.0; 3]))
+        };
+        let mut skipped = 0;
+        for v in 0..cpu.vertices as usize {
+            assert_eq!(zero(&cpu, v), zero(&embree, v), "vertex {v}");
+            skipped += (zero(&embree, v) && !zero(&embree_both, v)) as usize;
+        }
+        assert!(skipped > 0);
+        assert!(embree.rays < embree_both.rays);
+        let other = bake_prt(&mesh, &mats, &masks, &opts(PrtTracer::Cpu, 1)).unwrap();
+        assert!(relative(&embree, &cpu) < 0.05 * relative(&other, &cpu));
+    }
+
+    #[test]
     fn embree_prt_is_deterministic_across_runs_and_threads() {
         let (mesh, mats, masks) = plant();
         let o = opts(PrtTracer::Embree, 0);

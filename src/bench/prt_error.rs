@@ -115,6 +115,8 @@ pub struct PrtErrorReport {
     /// Vertices left after welding those with equal position, normal and material.
     pub unique_vertices: usize,
     pub bounces: u32,
+    /// Sides traced by the runs and the reference (`prt.sides`).
+    pub sides: prt::PrtSides,
     pub threads: usize,
     /// The GPU adapter of the `gpu` method (absent without it).
     pub adapter: Option<String>,
@@ -234,6 +236,7 @@ pub fn bench_prt_error(
         vertices: total,
         vertices_measured: verts.len(),
         unique_vertices: prt::weld_key_count(mesh),
+        sides: opts.prt.sides,
         bounces: opts.prt.bounces,
         threads: rayon::current_num_threads(),
         adapter,
@@ -363,6 +366,13 @@ fn reference_key(
         h.update(bytemuck::cast_slice(&m.albedo));
         h.update(&m.translucence.to_le_bytes());
     }
+    // `prt.sides = "auto"` reads the mesh's one-sided materials.
+    let one_sided: Vec<u8> = mesh
+        .materials
+        .iter()
+        .map(|m| !m.double_sided as u8)
+        .collect();
+    h.update(&one_sided);
     h.update(bytemuck::cast_slice(verts));
     h.update(serde_json::to_string(half).unwrap_or_default().as_bytes());
     h.finalize().to_hex()[..32].to_string()
@@ -405,7 +415,7 @@ fn write_reference(file: &Path, halves: &[Transfer; 2]) -> Result<()> {
 /// The report as text: one line per run.
 pub fn report_text(r: &PrtErrorReport) -> String {
     let mut text = format!(
-        "{}: {} triangles, {} vertices ({} unique), {} measured, {} bounces, {} threads\n\
+        "{}: {} triangles, {} vertices ({} unique), {} measured, {} bounces, sides {}, {} threads\n\
          reference: {} paths per side (two halves), noise {:.3} %, {:.1} s{}\n\
          method     samples   RMS error   wall s (measured)   CPU s   projected wall s (all vertices)\n",
         r.model,
@@ -414,6 +424,7 @@ pub fn report_text(r: &PrtErrorReport) -> String {
         r.unique_vertices,
         r.vertices_measured,
         r.bounces,
+        r.sides.name(),
         r.threads,
         r.reference_samples,
         r.reference_noise * 100.0,
@@ -435,4 +446,26 @@ pub fn report_text(r: &PrtErrorReport) -> String {
         ));
     }
     text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reference_key_includes_the_sides_and_the_one_sided_materials() {
+        let (mut mesh, tex) = crate::prt::plant::procedural_plant(100, 1);
+        let mats = prt::prt_materials(&mesh, &[Some(tex)], 0.3);
+        let verts = [0u32, 1, 2];
+        let with = |sides| PrtOptions {
+            sides,
+            ..PrtOptions::default()
+        };
+        let key = |mesh: &Mesh, sides| reference_key(mesh, &mats, &verts, &with(sides));
+        let auto = key(&mesh, prt::PrtSides::Auto);
+        assert_ne!(auto, key(&mesh, prt::PrtSides::Both));
+        assert_ne!(auto, key(&mesh, prt::PrtSides::Front));
+        mesh.materials[0].double_sided = false;
+        assert_ne!(auto, key(&mesh, prt::PrtSides::Auto));
+    }
 }

@@ -38,6 +38,9 @@ pub struct PrtArgs {
     /// Which tracer follows the paths (gpu: fails with exit 5 where no GPU adapter exists).
     #[arg(long, value_enum, default_value_t = prt::PrtTracer::Cpu)]
     pub tracer: prt::PrtTracer,
+    /// Which vertex sides are traced; a side not traced has a zero transfer.
+    #[arg(long, value_enum, default_value_t = prt::PrtSides::Auto)]
+    pub sides: prt::PrtSides,
 }
 
 fn check_sampling(samples: u32, bounces: u32) -> Result<()> {
@@ -77,6 +80,7 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
         default_translucence: args.translucence,
         seed: args.seed,
         tracer: args.tracer,
+        sides: args.sides,
         ..PrtOptions::default()
     };
     opts.check()
@@ -118,7 +122,8 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
     text.push_str(&format!("{}: {} bytes\n", output.display(), bytes.len()));
     Ok(Outcome {
         json: serde_json::json!({"output": output, "bytes": bytes.len(), "samples": args.samples,
-            "bounces": args.bounces, "tracer": args.tracer, "meshes": reports}),
+            "bounces": args.bounces, "tracer": args.tracer, "sides": args.sides,
+            "meshes": reports}),
         text,
         warnings,
     })
@@ -315,6 +320,10 @@ pub struct PrtErrorBenchArgs {
     /// BVH build preset.
     #[arg(long, value_enum, default_value_t = BuildPreset::default())]
     pub preset: BuildPreset,
+    /// Which vertex sides are traced, by the runs and the reference alike (a side not traced
+    /// is zero in both; the reference's cache key includes it).
+    #[arg(long, value_enum, default_value_t = prt::PrtSides::Auto)]
+    pub sides: prt::PrtSides,
     /// Folder of the cached references.
     #[arg(long, default_value = "target/prt-error")]
     pub cache: PathBuf,
@@ -354,6 +363,7 @@ pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
         prt: PrtOptions {
             bounces: a.bounces,
             preset: a.preset,
+            sides: a.sides,
             ..PrtOptions::default()
         },
         cache: (!a.no_cache).then(|| a.cache.clone()),

@@ -5,7 +5,7 @@
 use crate::gpu::BackendChoice;
 use crate::lightmap::LightmapMode;
 use crate::linespace::ntree::Refine;
-use crate::prt::transfer::PrtTracer;
+use crate::prt::transfer::{PrtSides, PrtTracer};
 use crate::render::Terms;
 use crate::render::ambient::PrtLayout;
 use crate::render::svo_view::SvoShow;
@@ -32,6 +32,12 @@ value_enum!(BackendChoice {
     Auto => "auto": "Vulkan, then GL",
     Vulkan => "vulkan",
     Gl => "gl",
+});
+
+value_enum!(PrtSides {
+    Auto => "auto": "The back side only for double-sided materials (glTF doubleSided; every other input)",
+    Both => "both": "Front and back of every vertex",
+    Front => "front": "The front side only (the back transfer is zero)",
 });
 
 value_enum!(Terms {

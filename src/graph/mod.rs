@@ -39,7 +39,8 @@ pub const REPORT_SCHEMA: &str = "bake.build/1";
 /// Version constants of the stages: bump one when its output changes for the same inputs.
 pub mod versions {
     /// 2: TXF line and point arrays kept as the mesh's skeleton (issue 14).
-    pub const INGEST: u32 = 2;
+    /// 3: glTF materials keep `doubleSided` (`Material::double_sided`; issue 19).
+    pub const INGEST: u32 = 3;
     /// 2: Xfrog's default material gets the thesis' leaf (issue 16).
     pub const MATERIAL: u32 = 2;
     pub const TERRAIN: u32 = 1;
@@ -49,7 +50,9 @@ pub mod versions {
     pub const SKY: u32 = 3;
     /// 2: duplicate vertices (position, normal, material) welded, sharing one transfer (issue 19).
     /// 3: no Russian roulette at the first hit (issue 19).
-    pub const PRT: u32 = 3;
+    /// 4: `prt.sides` (default `auto`): the back side of one-sided materials is not traced
+    /// (zero transfer; issue 19).
+    pub const PRT: u32 = 4;
     /// 1: the `lod` stage (issue 14): meshopt levels, leaf-card thinning, impostor atlas.
     /// 2: cards keep their triangles, a level's error counts the cards it removes (issue 14).
     /// 3: the model's skeleton (TXF line and point arrays) kept as the farthest representation.

@@ -502,6 +502,9 @@ impl Ctx<'_> {
         };
         let mut out = Material {
             name,
+            // glTF's `doubleSided` (default false, also for the default material): a one-sided
+            // material's back faces are culled, so the PRT stage need not light them.
+            double_sided: m.double_sided(),
             ..Material::default()
         };
         if m.index().is_some() {
@@ -886,9 +889,12 @@ mod tests {
             m.textures[paint.color_map.unwrap() as usize].name,
             "tex a.png"
         );
-        assert_eq!(
-            m.materials[m.triangle_materials[1] as usize].name,
-            "default"
+        assert!(!paint.double_sided, "glTF doubleSided defaults to false");
+        let default = &m.materials[m.triangle_materials[1] as usize];
+        assert_eq!(default.name, "default");
+        assert!(
+            !default.double_sided,
+            "glTF's default material is one-sided"
         );
         assert!(m.warnings.iter().any(|w| w.contains("TEXCOORD_0")));
         assert_eq!(m.validate(), Ok(()));
@@ -897,6 +903,85 @@ mod tests {
     #[test]
     fn node_transforms_axes_strips_and_materials() {
         check_scene(&parse(&embedded([0, 1, 2], [0.0; 3], NODES)).unwrap());
+    }
+
+    #[test]
+    fn double_sided_is_read_from_the_material() {
+        let json = String::from_utf8(embedded([0, 1, 2], [0.0; 3], NODES)).unwrap();
+        let two = json.replace(
+            r#""name": "Paint","#,
+            r#""name": "Paint", "doubleSided": true,"#,
+        );
+        assert_ne!(two, json);
+        let m = parse(two.as_bytes()).unwrap();
+        assert!(m.materials[m.triangle_materials[0] as usize].double_sided);
+        assert!(!m.materials[m.triangle_materials[1] as usize].double_sided);
+        let one = json.replace(
+            r#""name": "Paint","#,
+            r#""name": "Paint", "doubleSided": false,"#,
+        );
+        let m = parse(one.as_bytes()).unwrap();
+        assert!(!m.materials[m.triangle_materials[0] as usize].double_sided);
+    }
+
+    #[test]
+    fn a_one_sided_gltf_material_gets_a_zero_back_transfer_through_the_pack() {
+        // File → ingest (mesh section with `one_sided_materials`) → PRT stage: the triangle of
+        // the one-sided "Paint" has a zero back side, the default material's strip too (glTF's
+        // default material is one-sided), and `prt.sides = "both"` traces them all.
+        let dir = tempfile::tempdir().unwrap();
+        let json = String::from_utf8(embedded([0, 1, 2], [0.0; 3], NODES)).unwrap();
+        let two = json.replace(
+            r#""name": "Paint","#,
+            r#""name": "Paint", "doubleSided": true,"#,
+        );
+        let bake = |doc: &str, sides| {
+            let file = dir.path().join("m.gltf");
+            std::fs::write(&file, doc).unwrap();
+            let (w, _) = crate::pipeline::ingest_to_pack(&file, &Default::default()).unwrap();
+            let pack = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "m.bake").unwrap();
+            let opts = crate::prt::transfer::PrtOptions {
+                samples: 16,
+                bounces: 1,
+                sides,
+                ..Default::default()
+            };
+            let (w, _, _) = crate::prt::pack::prt_pack(&pack, &opts, &|_| {}).unwrap();
+            let out = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "o.bake").unwrap();
+            let mesh_name = out
+                .of_kind(crate::mesh::section::KIND)
+                .next()
+                .unwrap()
+                .name
+                .clone();
+            let (_, mesh) =
+                crate::mesh::section::from_section(&out.view_named(&mesh_name).unwrap()).unwrap();
+            let prt_name = crate::prt::pack::section_name(&mesh_name);
+            let (_, t) =
+                crate::prt::pack::from_section(&out.view_named(&prt_name).unwrap()).unwrap();
+            (mesh, t)
+        };
+        use crate::prt::transfer::PrtSides;
+        let zero = |t: &crate::prt::transfer::Transfer, v: usize, side: usize| {
+            (0..2).all(|set| t.get(v, side, set).iter().all(|c| *c == [0.0; 3]))
+        };
+        let (mesh, auto) = bake(&json, PrtSides::Auto);
+        assert!(mesh.materials.iter().all(|m| !m.double_sided));
+        for v in 0..mesh.positions.len() {
+            assert!(!zero(&auto, v, 0) && zero(&auto, v, 1), "vertex {v}");
+        }
+        let (_, both) = bake(&json, PrtSides::Both);
+        for v in 0..mesh.positions.len() {
+            assert!(!zero(&both, v, 1), "vertex {v}");
+            assert_eq!(auto.get(v, 0, 0), both.get(v, 0, 0));
+        }
+        assert!(auto.rays < both.rays);
+        let (mesh, two_sided) = bake(&two, PrtSides::Auto);
+        let paint = mesh.indices[0];
+        for v in 0..mesh.positions.len() {
+            let back_traced = !zero(&two_sided, v, 1);
+            assert_eq!(back_traced, paint.contains(&(v as u32)), "vertex {v}");
+        }
     }
 
     #[test]

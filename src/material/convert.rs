@@ -285,6 +285,7 @@ mod tests {
             color_map: Some(1),
             normal_map: None,
             source: MaterialSource::FixedFunction,
+            double_sided: true,
         }
     }
 
@@ -366,6 +367,7 @@ mod tests {
             color_map: Some(2),
             normal_map: None,
             source: MaterialSource::FixedFunction,
+            double_sided: true,
         };
         assert!(!is_default_opengl(&m));
         let s = material_to_schlick(&m);

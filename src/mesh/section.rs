@@ -65,6 +65,12 @@ pub fn to_section(
             1,
             &mesh.triangle_materials,
         );
+    // The one-sided materials (glTF `doubleSided: false`) only where there are any (so other
+    // models' bytes are unchanged; a pack without the array reads as all double-sided).
+    let one_sided = one_sided_materials(mesh);
+    if !one_sided.is_empty() {
+        b.array("one_sided_materials", ArrayFormat::U32, 1, &one_sided);
+    }
     // A skeleton's arrays only where the model has one (so other models' bytes are unchanged).
     if !mesh.skeleton.lines.is_empty() {
         b.array(
@@ -114,16 +120,41 @@ pub fn skeleton_of(v: &SectionView) -> Result<crate::model::Skeleton, ParseError
     Ok(sk)
 }
 
+/// The indices of the mesh's one-sided materials ([`Material::double_sided`] false).
+pub fn one_sided_materials(mesh: &Mesh) -> Vec<u32> {
+    (0..mesh.materials.len() as u32)
+        .filter(|&i| !mesh.materials[i as usize].double_sided)
+        .collect()
+}
+
+/// The section's `one_sided_materials` array (empty where absent).
+fn one_sided_of(v: &SectionView) -> Result<Vec<u32>, ParseError> {
+    if v.info("one_sided_materials").is_none() {
+        return Ok(Vec::new());
+    }
+    v.array_vec("one_sided_materials")
+}
+
 /// Decodes a mesh section back into the model.
 pub fn from_section(v: &SectionView) -> Result<(MeshMeta, Mesh), ParseError> {
     let meta: MeshMeta = v.meta()?;
+    let mut materials = meta.materials.clone();
+    for i in one_sided_of(v)? {
+        let m = materials.get_mut(i as usize).ok_or_else(|| {
+            ParseError::new(
+                "mesh array \"one_sided_materials\"",
+                format!("material {i} of {}", meta.materials.len()),
+            )
+        })?;
+        m.double_sided = false;
+    }
     let mesh = Mesh {
         positions: v.array_vec("positions")?,
         normals: v.array_vec("normals")?,
         uvs: v.array_vec("uvs")?,
         indices: v.array_vec("indices")?,
         triangle_materials: v.array_vec("triangle_materials")?,
-        materials: meta.materials.clone(),
+        materials,
         textures: meta
             .textures
             .iter()
@@ -146,7 +177,7 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     let positions: Vec<[f32; 3]> = v.array_vec("positions")?;
     let (lo, hi) = bounds_of(&positions).unwrap_or(([0.0; 3], [0.0; 3]));
     let tris = v.info("indices").map_or(0, |a| a.count);
-    Ok(json!({
+    let mut out = json!({
         "vertices": positions.len(),
         "triangles": tris,
         "materials": meta.materials.len(),
@@ -158,19 +189,30 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
             "segments": v.info("skeleton_lines").map_or(0, |a| a.count / 2),
             "points": v.info("skeleton_points").map_or(0, |a| a.count),
         },
-    }))
+    });
+    // Only where there are any, so the summary of double-sided meshes reads as before.
+    let one_sided = one_sided_of(v)?;
+    if !one_sided.is_empty() {
+        out["one_sided_materials"] = json!(one_sided);
+    }
+    Ok(out)
 }
 
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {
     let (_, m) = from_section(v)?;
-    Ok(json!({
+    let mut out = json!({
         "positions": m.positions,
         "normals": m.normals,
         "uvs": m.uvs,
         "indices": m.indices,
         "triangle_materials": m.triangle_materials,
         "materials": m.materials,
-    }))
+    });
+    let one_sided = one_sided_materials(&m);
+    if !one_sided.is_empty() {
+        out["one_sided_materials"] = json!(one_sided);
+    }
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -179,6 +221,38 @@ mod tests {
 
     fn view_of(s: &Section) -> crate::pack::Pack {
         crate::pack::Pack::from_sections(std::slice::from_ref(s), "t.bake")
+    }
+
+    #[test]
+    fn one_sided_materials_round_trip_and_double_sided_meshes_keep_their_bytes() {
+        let mut mesh = Mesh {
+            positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            normals: vec![[0.0, 0.0, 1.0]; 3],
+            uvs: vec![[0.0; 2]; 3],
+            indices: vec![[0, 1, 2]],
+            triangle_materials: vec![1],
+            materials: vec![Material::default(); 3],
+            ..Mesh::default()
+        };
+        let plain = to_section("mesh:m", "m.gltf", &mesh, &[]);
+        let pack = view_of(&plain);
+        let v = pack.view_named("mesh:m").unwrap();
+        assert!(v.info("one_sided_materials").is_none());
+        assert_eq!(from_section(&v).unwrap().1, mesh);
+        mesh.materials[1].double_sided = false;
+        let one = to_section("mesh:m", "m.gltf", &mesh, &[]);
+        let pack = view_of(&one);
+        let v = pack.view_named("mesh:m").unwrap();
+        let back = from_section(&v).unwrap().1;
+        assert_eq!(back, mesh);
+        assert_eq!(
+            back.materials
+                .iter()
+                .map(|m| m.double_sided)
+                .collect::<Vec<_>>(),
+            [true, false, true]
+        );
+        assert_eq!(summary(&v).unwrap()["one_sided_materials"], json!([1]));
     }
 
     #[test]

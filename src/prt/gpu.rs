@@ -148,9 +148,9 @@ pub fn bake_prt_gpu_subset(
     let mut start_words = Vec::with_capacity(sides as usize * START_WORDS);
     for v in &starts.vertices {
         for side in 0..SIDES {
-            match v {
-                Some((_, s)) => {
-                    let s = &s[side];
+            // A side not traced (`prt.sides`) is written as skipped: the shader sums nothing.
+            match v.as_ref().and_then(|(_, s)| s[side].as_ref()) {
+                Some(s) => {
                     start_words.extend(s.origin.to_array().map(f32::to_bits));
                     start_words.extend(s.normal.to_array().map(f32::to_bits));
                     start_words.extend([

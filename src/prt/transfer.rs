@@ -20,6 +20,13 @@
 //! in: the runtime applies it (eq. 4.8, `L_P = (P_FH·C_H + P_FS·C_S)(1 − t) + (P_BH·C_H +
 //! P_BS·C_S)·t`). That renderer integration is not part of this stage.
 //!
+//! Sides ([`PrtSides`], `prt.sides`): under `auto` (the default) the back side is traced only
+//! for vertices whose material is double-sided ([`crate::model::Material::double_sided`]: glTF's
+//! `doubleSided`, true for every other input); a one-sided material is opaque and seen from the
+//! front only, so its back transfer is never used and stays zero (the layout is unchanged).
+//! `both` traces every back side (the behaviour before), `front` none. The front side's paths do
+//! not depend on whether the back is traced: its bytes are the same under every choice.
+//!
 //! Sampling: the first direction of sample k is the k-th point of the 2-D Sobol (0,2)-sequence
 //! with a random digital shift (XOR scramble, the base-2 form of a Cranley–Patterson rotation)
 //! derived from a hash of (vertex, side); later bounces use a SplitMix64 stream seeded by
@@ -68,6 +75,31 @@ pub enum PrtTracer {
     Gpu,
 }
 
+/// Which sides of a vertex the PRT traces (`prt.sides`); a side not traced has a zero transfer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PrtSides {
+    /// The back side only for vertices of double-sided materials
+    /// ([`crate::model::Material::double_sided`]).
+    #[default]
+    Auto,
+    /// Front and back of every vertex.
+    Both,
+    /// The front side only.
+    Front,
+}
+
+impl PrtSides {
+    /// The option's name as options spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            PrtSides::Auto => "auto",
+            PrtSides::Both => "both",
+            PrtSides::Front => "front",
+        }
+    }
+}
+
 /// Options of the PRT stage.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -87,6 +119,8 @@ pub struct PrtOptions {
     pub seed: u64,
     /// Ray-tracing backend ([`PrtTracer`]).
     pub tracer: PrtTracer,
+    /// Sides traced ([`PrtSides`]): `auto` skips the back of one-sided materials.
+    pub sides: PrtSides,
 }
 
 impl PrtOptions {
@@ -101,6 +135,7 @@ impl PrtOptions {
             default_translucence: 0.3,
             seed: 0,
             tracer: PrtTracer::Cpu,
+            sides: PrtSides::Auto,
         }
     }
     /// Final quality: 1,024 paths per side, 4 bounces.
@@ -465,7 +500,11 @@ pub fn bake_prt_adaptive<T: ModelTracer>(
         .with_min_len(16)
         .map(|&v| ctx.pilot(v as usize, pilot))
         .collect();
-    let sigmas: Vec<f64> = first.iter().flatten().flat_map(|p| p.sigma).collect();
+    let sigmas: Vec<f64> = first
+        .iter()
+        .flatten()
+        .flat_map(|p| p.sigma[..p.sides].iter().copied())
+        .collect();
     let max = opts
         .samples
         .saturating_mul(adaptive.max_factor.max(1))
@@ -512,6 +551,8 @@ fn allocation_scale(sigmas: &[f64], lo: u32, hi: u32, target: f64) -> f64 {
 struct Pilot {
     sums: Box<[[f32; 3]; PER_VERTEX]>,
     sigma: [f64; SIDES],
+    /// Sides traced (the first `sides` of `sigma` count).
+    sides: usize,
     rays: u64,
 }
 
@@ -587,7 +628,7 @@ impl<'a, T: ModelTracer> Ctx<'a, T> {
         let (mat, n, p) = self.vertex_frame(v)?;
         let mut out = Box::new([[0.0f32; 3]; PER_VERTEX]);
         let mut rays = 0;
-        for side in 0..SIDES {
+        for side in 0..self.traced_sides(v) {
             let mut acc = SideSums::default();
             rays += self.side(v, side, p, n, 0..self.opts.samples, &mut acc);
             let scale = 1.0 / self.opts.samples.max(1) as f64;
@@ -597,6 +638,22 @@ impl<'a, T: ModelTracer> Ctx<'a, T> {
             }
         }
         Some((out, rays))
+    }
+
+    /// How many sides of vertex `v` are traced (1: the front only, 2: both), by
+    /// [`PrtOptions::sides`] and the material of the first triangle using it.
+    fn traced_sides(&self, v: usize) -> usize {
+        match self.opts.sides {
+            PrtSides::Both => SIDES,
+            PrtSides::Front => 1,
+            PrtSides::Auto => {
+                let m = self.vertex_material.get(v).copied().unwrap_or(u32::MAX);
+                match self.mesh.materials.get(m as usize) {
+                    Some(m) if !m.double_sided => 1,
+                    _ => SIDES,
+                }
+            }
+        }
     }
 
     /// The material, unit normal and position of vertex `v`, or `None` if it is skipped.
@@ -613,7 +670,8 @@ impl<'a, T: ModelTracer> Ctx<'a, T> {
         let mut sums = Box::new([[0.0f32; 3]; PER_VERTEX]);
         let mut sigma = [0.0; SIDES];
         let mut rays = 0;
-        for side in 0..SIDES {
+        let sides = self.traced_sides(v);
+        for side in 0..sides {
             let mut acc = SideSums::default();
             rays += self.side(v, side, p, n, 0..pilot, &mut acc);
             sigma[side] = acc.variance(pilot, mat.albedo).sqrt();
@@ -622,7 +680,12 @@ impl<'a, T: ModelTracer> Ctx<'a, T> {
                 *o = a.map(|x| x as f32);
             }
         }
-        Some(Pilot { sums, sigma, rays })
+        Some(Pilot {
+            sums,
+            sigma,
+            sides,
+            rays,
+        })
     }
 
     /// The second pass of [`bake_prt_adaptive`]: continues each side of `v` after the pilot's
@@ -637,7 +700,7 @@ impl<'a, T: ModelTracer> Ctx<'a, T> {
         let (mat, n, p) = self.vertex_frame(v)?;
         let mut out = pilot.sums;
         let mut rays = pilot.rays;
-        for side in 0..SIDES {
+        for side in 0..pilot.sides {
             let total = count(pilot.sigma[side]).max(first);
             let mut acc = SideSums::default();
             rays += self.side(v, side, p, n, first..total, &mut acc);
@@ -777,13 +840,17 @@ impl SideStart {
 
 /// What another tracer needs to follow the same paths as [`bake_prt_subset`]: the ray offset,
 /// the materials (padded as the CPU pads them: unknown materials absorb everything) and per
-/// listed vertex its albedo and the starts of its two sides (`None`: skipped, zero transfer).
+/// listed vertex its albedo and the starts of its sides (`None`: skipped, zero transfer; a side
+/// `None`: not traced under [`PrtOptions::sides`], zero transfer).
 #[derive(Debug, Clone)]
 pub struct PathStarts {
     pub eps: f32,
     pub materials: Vec<PrtMaterial>,
-    pub vertices: Vec<Option<([f32; 3], [SideStart; SIDES])>>,
+    pub vertices: Vec<Option<VertexStarts>>,
 }
+
+/// One vertex's albedo and the starts of its sides (`None`: the side is not traced).
+pub type VertexStarts = ([f32; 3], [Option<SideStart>; SIDES]);
 
 /// The [`PathStarts`] of `vertices` (in order).
 pub fn path_starts(
@@ -799,7 +866,11 @@ pub fn path_starts(
         .map(|&v| {
             let v = v as usize;
             let (mat, n, p) = ctx.vertex_frame(v)?;
-            Some((mat.albedo, [0, 1].map(|side| ctx.side_start(v, side, p, n))))
+            let sides = ctx.traced_sides(v);
+            Some((
+                mat.albedo,
+                [0, 1].map(|side| (side < sides).then(|| ctx.side_start(v, side, p, n))),
+            ))
         })
         .collect();
     PathStarts {

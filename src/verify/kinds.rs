@@ -18,6 +18,7 @@ const MESH: Schema = &[
     ("uvs", &[F32], 2),
     ("indices", &[U32], 3),
     ("triangle_materials", &[U32], 1),
+    ("one_sided_materials", &[U32], 1),
     ("skeleton_lines", &[F32], 3),
     ("skeleton_points", &[F32], 3),
 ];

@@ -225,3 +225,56 @@ fn error_shares_find_the_part_that_differs_and_discount_the_reference_noise() {
     close(&s.set, &[0.5, 0.5]);
     close(&s.band, &[1.0 / 16.0, 3.0 / 16.0, 5.0 / 16.0, 7.0 / 16.0]);
 }
+
+#[test]
+fn front_only_error_against_a_front_only_reference_is_the_front_sides_exact_error() {
+    use crate::prt::transfer::PrtSides;
+    let mesh = quad_grid(12);
+    let m = [PrtMaterial {
+        albedo: ALBEDO,
+        translucence: 0.0,
+    }];
+    let bake_sides = |samples, seed, sides| {
+        let o = PrtOptions {
+            samples,
+            bounces: 2,
+            seed,
+            sides,
+            ..PrtOptions::default()
+        };
+        bake_prt(&mesh, &m, &[], &o).unwrap()
+    };
+    let front = |samples, seed| bake_sides(samples, seed, PrtSides::Front);
+    let a = front(8, 0);
+    let (r1, r2) = (front(8, 101), front(8, 202));
+    // The exact front-only transfer: the oracle's back sides zeroed.
+    let mut e = exact(a.vertices as usize);
+    for v in 0..a.vertices as usize {
+        let at = (v * 2 + 1) * 2 * COEFFS;
+        e.coeffs[at..at + 2 * COEFFS].fill([0.0; 3]);
+    }
+    let truth = mean_square_difference(&a, &e).sqrt() / rms(&e);
+    let err = transfer_error(&a, &r1, &r2);
+    assert!(truth > 1e-3, "{truth}");
+    assert!(
+        (err.rms_error / truth - 1.0).abs() < 0.15,
+        "corrected {} vs exact {truth}",
+        err.rms_error
+    );
+    let shares = error_shares(&a, &r1, &r2);
+    assert_eq!(shares.side[1], 0.0, "{shares:?}");
+    assert!((shares.side[0] - 1.0).abs() < 1e-12, "{shares:?}");
+    // The front side is the same bytes as under `both` at the same seed, so only the back
+    // differs; on this mirror-symmetric grid the relative error is the same as with both sides.
+    let both = bake_sides(8, 0, PrtSides::Both);
+    for v in 0..a.vertices as usize {
+        for set in 0..2 {
+            assert_eq!(a.get(v, 0, set), both.get(v, 0, set));
+        }
+    }
+    let both_truth = true_error(&both);
+    assert!(
+        (truth / both_truth - 1.0).abs() < 0.15,
+        "{truth} vs {both_truth}"
+    );
+}

@@ -318,3 +318,68 @@ fn a_bvh_deeper_than_the_shaders_stack_is_refused_not_traced_with_lost_subtrees(
         "an empty model has nothing to traverse"
     );
 }
+
+#[test]
+fn one_sided_materials_are_traced_front_only_as_on_the_cpu() {
+    let Some(gpu) = device() else { return };
+    let (mut mesh, mats, masks) = plant();
+    mesh.materials[0].double_sided = false;
+    let bvh = ModelBvh::build(&mesh, &masks, Default::default()).unwrap();
+    let o = opts(128, 3, 0);
+    let cpu_o = PrtOptions {
+        tracer: prt::PrtTracer::Cpu,
+        ..o.clone()
+    };
+    let gpu_auto = bake_prt_gpu(gpu, &bvh, &mesh, &mats, &o, &|_| {}).unwrap();
+    let cpu_auto = prt::bake_prt_with(&bvh, &mesh, &mats, &cpu_o, &|_| {});
+    let cpu_both = prt::bake_prt_with(
+        &bvh,
+        &mesh,
+        &mats,
+        &PrtOptions {
+            sides: prt::PrtSides::Both,
+            ..cpu_o.clone()
+        },
+        &|_| {},
+    );
+    // Where the CPU left a side zero (one-sided leaves' backs), so did the GPU.
+    let (mut zero_sides, mut total) = (0, 0);
+    for v in 0..mesh.positions.len() {
+        for side in 0..2 {
+            let c = cpu_auto.get(v, side, 0);
+            let g = gpu_auto.get(v, side, 0);
+            let zero = |t: &[[f32; 3]]| t.iter().all(|x| *x == [0.0; 3]);
+            if zero(c) && !zero(cpu_both.get(v, side, 0)) {
+                assert!(zero(g), "vertex {v} side {side}");
+                zero_sides += 1;
+            }
+            total += 1;
+        }
+    }
+    assert!(
+        zero_sides > 0 && zero_sides < total,
+        "{zero_sides} of {total}"
+    );
+    // The same seed: equal to the CPU's up to roundings (as for `both`).
+    let noise = rel_rms(
+        &prt::bake_prt_with(
+            &bvh,
+            &mesh,
+            &mats,
+            &PrtOptions {
+                seed: 2,
+                ..cpu_o.clone()
+            },
+            &|_| {},
+        ),
+        &cpu_auto,
+    );
+    let same = rel_rms(&gpu_auto, &cpu_auto) / noise;
+    assert!(
+        same < SAME_SEED,
+        "GPU vs CPU, same seed: {same:.5} × the noise"
+    );
+    let rays = (gpu_auto.rays as f64 / cpu_auto.rays as f64 - 1.0).abs();
+    assert!(rays < 0.01, "ray counts differ by {:.2} %", rays * 100.0);
+    assert!(cpu_auto.rays < cpu_both.rays);
+}

@@ -419,3 +419,162 @@ fn duplicate_vertices_are_welded_and_share_their_transfer() {
     // Unoccluded paths are one ray each: 8 vertices traced, not 12.
     assert_eq!(t.rays, 8 * 2 * 64);
 }
+
+fn bits(t: &Transfer) -> Vec<u32> {
+    t.coeffs.iter().flatten().map(|f| f.to_bits()).collect()
+}
+
+fn with_sides(samples: u32, bounces: u32, sides: PrtSides) -> PrtOptions {
+    PrtOptions {
+        sides,
+        ..opts(samples, bounces)
+    }
+}
+
+#[test]
+fn one_sided_unoccluded_quad_has_the_front_cosine_and_a_zero_back() {
+    // The ground quad twice: material 0 one-sided, material 1 double-sided. Unoccluded, so the
+    // front is ρ·max(0, cos θ)/π about +Z, the double-sided back the same about −Z, the
+    // one-sided back zero under `auto`, and each path is one ray.
+    let mut mesh = mesh_with_materials(2);
+    mesh.materials[0].double_sided = false;
+    ground(&mut mesh, 0);
+    ground(&mut mesh, 1);
+    let m = [mat(0.5, 0.0), mat(0.5, 0.0)];
+    let n = 1024;
+    let auto = bake_prt(&mesh, &m, &[], &with_sides(n, 2, PrtSides::Auto)).unwrap();
+    let both = bake_prt(&mesh, &m, &[], &with_sides(n, 2, PrtSides::Both)).unwrap();
+    let front = bake_prt(&mesh, &m, &[], &with_sides(n, 2, PrtSides::Front)).unwrap();
+    assert_eq!(PrtOptions::default().sides, PrtSides::Auto);
+    // Rays: 4 one-sided vertices × 1 side + 4 double-sided × 2 sides; `front` exactly half.
+    assert_eq!(auto.rays, (4 + 8) * n as u64);
+    assert_eq!(both.rays, 16 * n as u64);
+    assert_eq!(front.rays, 8 * n as u64);
+    let cc = clamped_cosine_over_pi();
+    for v in 0..8 {
+        // The front side is the same bytes whatever the back does (per-side seeds).
+        for set in 0..SETS {
+            assert_eq!(auto.get(v, 0, set), both.get(v, 0, set), "vertex {v}");
+            assert_eq!(front.get(v, 0, set), both.get(v, 0, set), "vertex {v}");
+            assert!(front.get(v, 1, set).iter().all(|c| *c == [0.0; 3]));
+        }
+        let f = auto.get(v, 0, 0);
+        assert!((f[0][0] as f64 - 0.5 * cc[0]).abs() < 0.01, "{:?}", f[0]);
+        assert!((f[2][0] as f64 - 0.5 * cc[2]).abs() < 0.01, "{:?}", f[2]);
+        let back = auto.get(v, 1, 0);
+        if v < 4 {
+            assert!(
+                back.iter().all(|c| *c == [0.0; 3]),
+                "one-sided back {back:?}"
+            );
+        } else {
+            assert_eq!(back, both.get(v, 1, 0));
+            // About −Z: band 0 as the front, the z coefficient negated.
+            assert!(
+                (back[0][0] as f64 - 0.5 * cc[0]).abs() < 0.01,
+                "{:?}",
+                back[0]
+            );
+            assert!(
+                (back[2][0] as f64 + 0.5 * cc[2]).abs() < 0.01,
+                "{:?}",
+                back[2]
+            );
+        }
+    }
+}
+
+#[test]
+fn sides_on_the_plant_keep_the_front_bytes_and_halve_the_rays() {
+    // The alpha-tested plant, its leaf material one-sided: `auto` traces the leaves' front
+    // only (bytes equal to `both` there), the bark's two sides (bytes equal to `both`), and
+    // is the same on any thread count; with every material one-sided it is `front`.
+    let (mut mesh, tex) = crate::prt::plant::procedural_plant(600, 3);
+    let textures = [Some(tex)];
+    let m = prt_materials(&mesh, &textures, 0.3);
+    let masks = alpha_masks(&mesh, &textures);
+    let bake = |mesh: &Mesh, sides, threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| bake_prt(mesh, &m, &masks, &with_sides(32, 3, sides)).unwrap())
+    };
+    let both = bake(&mesh, PrtSides::Both, 2);
+    // Every input but glTF is double-sided: `auto` is `both` on the plant as generated.
+    assert!(mesh.materials.iter().all(|m| m.double_sided));
+    assert_eq!(bits(&bake(&mesh, PrtSides::Auto, 2)), bits(&both));
+    mesh.materials[0].double_sided = false;
+    let (auto1, auto2) = (
+        bake(&mesh, PrtSides::Auto, 1),
+        bake(&mesh, PrtSides::Auto, 2),
+    );
+    assert_eq!(bits(&auto1), bits(&auto2));
+    assert_eq!(auto1.rays, auto2.rays);
+    let ctx_material = |v: usize| {
+        mesh.indices
+            .iter()
+            .zip(&mesh.triangle_materials)
+            .find(|(t, _)| t.contains(&(v as u32)))
+            .map(|(_, &m)| m)
+    };
+    let (mut leaf, mut bark) = (0, 0);
+    for v in 0..mesh.positions.len() {
+        for set in 0..SETS {
+            assert_eq!(auto1.get(v, 0, set), both.get(v, 0, set), "front of {v}");
+        }
+        match ctx_material(v) {
+            Some(0) => {
+                leaf += 1;
+                for set in 0..SETS {
+                    assert!(auto1.get(v, 1, set).iter().all(|c| *c == [0.0; 3]));
+                }
+            }
+            Some(_) => {
+                bark += 1;
+                for set in 0..SETS {
+                    assert_eq!(auto1.get(v, 1, set), both.get(v, 1, set), "back of {v}");
+                }
+            }
+            None => {}
+        }
+    }
+    assert!(leaf > 0 && bark > 0, "{leaf} leaf, {bark} bark vertices");
+    assert!(
+        both.coeffs.iter().any(|c| c[0] != 0.0) && auto1.rays < both.rays,
+        "{} vs {} rays",
+        auto1.rays,
+        both.rays
+    );
+    // Every material one-sided: `auto` = `front`, about half the rays of `both`.
+    for mat in &mut mesh.materials {
+        mat.double_sided = false;
+    }
+    let all_one = bake(&mesh, PrtSides::Auto, 2);
+    let front = bake(&mesh, PrtSides::Front, 2);
+    assert_eq!(bits(&all_one), bits(&front));
+    assert_eq!(all_one.rays, front.rays);
+    let ratio = front.rays as f64 / both.rays as f64;
+    assert!((0.35..0.65).contains(&ratio), "front/both rays {ratio:.3}");
+}
+
+#[test]
+fn adaptive_sampling_spends_nothing_on_sides_not_traced() {
+    let (mut mesh, tex) = crate::prt::plant::procedural_plant(300, 3);
+    for mat in &mut mesh.materials {
+        mat.double_sided = false;
+    }
+    let textures = [Some(tex)];
+    let m = prt_materials(&mesh, &textures, 0.3);
+    let masks = alpha_masks(&mesh, &textures);
+    let bvh = ModelBvh::build(&mesh, &masks, Default::default()).unwrap();
+    let verts: Vec<u32> = (0..mesh.positions.len() as u32).collect();
+    let o = with_sides(64, 3, PrtSides::Auto);
+    let t = bake_prt_adaptive(&bvh, &mesh, &m, &o, &verts, Adaptive::for_samples(64));
+    for v in 0..verts.len() {
+        for set in 0..SETS {
+            assert!(t.get(v, 1, set).iter().all(|c| *c == [0.0; 3]));
+        }
+    }
+    assert!(t.coeffs.iter().any(|c| c[0] != 0.0));
+}
