@@ -603,25 +603,30 @@ mod tests {
         out
     }
 
+    /// A w×h file of [`pixels`] twice: as flat quadruples (no pixel may look like a marker or a
+    /// component header) and as per-component runs (readers take them from width 8 on; ours and
+    /// the oracle both accept narrower ones, so they are tested too).
+    fn flat_and_runs(w: usize, h: usize) -> (Vec<u8>, Vec<u8>) {
+        let px = pixels(w, h);
+        let mut flat = head(w, h);
+        for p in &px {
+            let mut p = *p;
+            if (p[0], p[1]) == (2, 2) || (p[0], p[1], p[2]) == (1, 1, 1) {
+                p[0] = 9;
+            }
+            flat.extend(p);
+        }
+        let mut runs = head(w, h);
+        for line in px.chunks(w) {
+            runs.extend(encode_components(line));
+        }
+        (flat, runs)
+    }
+
     #[test]
     fn every_encoding_decodes_to_the_image_crates_bits() {
         for (w, h) in [(1, 1), (7, 3), (64, 5), (300, 9)] {
-            let px = pixels(w, h);
-            // Flat quadruples (no pixel may look like a marker or a component header).
-            let mut flat = head(w, h);
-            for p in &px {
-                let mut p = *p;
-                if (p[0], p[1]) == (2, 2) || (p[0], p[1], p[2]) == (1, 1, 1) {
-                    p[0] = 9;
-                }
-                flat.extend(p);
-            }
-            // Per-component runs (readers take them from width 8 on; ours and the oracle both
-            // accept narrower ones, so they are tested too).
-            let mut runs = head(w, h);
-            for line in px.chunks(w) {
-                runs.extend(encode_components(line));
-            }
+            let (flat, runs) = flat_and_runs(w, h);
             for bytes in [&flat, &runs] {
                 let want = oracle(bytes).unwrap();
                 let got = ours(bytes).unwrap();
@@ -654,19 +659,7 @@ mod tests {
         // Oracle: `parse` (itself checked against the `image` crate above). Flat files are used
         // in place; run-length and old-marker files are expanded.
         let (w, h) = (300, 9);
-        let px = pixels(w, h);
-        let mut flat = head(w, h);
-        for p in &px {
-            let mut p = *p;
-            if (p[0], p[1]) == (2, 2) || (p[0], p[1], p[2]) == (1, 1, 1) {
-                p[0] = 9;
-            }
-            flat.extend(p);
-        }
-        let mut runs = head(w, h);
-        for line in px.chunks(w) {
-            runs.extend(encode_components(line));
-        }
+        let (flat, runs) = flat_and_runs(w, h);
         let mut old = head(4, 1);
         old.extend([10, 20, 30, 130, 1, 1, 1, 2, 40, 50, 60, 128]);
         for (bytes, in_place) in [(&flat, true), (&runs, false), (&old, false)] {
