@@ -201,26 +201,14 @@ fn envmap_of_an_instance_on_a_flat_ground_matches_the_analytic_projection() {
 #[test]
 fn envmaps_converge_to_a_brute_force_reference() {
     // A cluttered scene: boxes around the instance, a sun. Error against 32k samples shrinks with N.
-    let boxes = disc(1.0, 32);
-    let mut inst = vec![at(0, [0.0, 0.0, 0.0])];
-    for k in 0..12 {
-        let a = k as f32 * 0.5;
-        inst.push(at(0, [3.0 * a.cos(), 3.0 * a.sin(), 0.5 + 0.2 * k as f32]));
-    }
-    inst.push(at(1, [0.0, 0.0, 0.0]));
-    let n = inst.len();
-    let bvh = scene(vec![boxes, flat_terrain(200.0)], inst);
-    let s = Vec3A::new(0.5, 0.3, 0.8).normalize();
+    let (bvh, n) = cluttered();
     let sc = EnvmapScene {
         bvh: &bvh,
         count: 1,
         probe_height: vec![0.5],
         albedo: vec![[0.6; 3]; n],
         sky: linear_sky(1.0, 0.5),
-        sun: Some(bake::envmap::bake::SunLight {
-            direction: s.to_array(),
-            irradiance: [50.0; 3],
-        }),
+        sun: sun(),
     };
     let reference = bake_envmaps(
         &sc,

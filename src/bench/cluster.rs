@@ -92,7 +92,7 @@ pub fn bench_cluster(a: &ClusterBench) -> Result<Report> {
     } = scene?;
     let opts = a.cluster;
     let (t_compress, z) = time_once(|| {
-        crate::envmap::compress_denoised_scaled(
+        crate::envmap::compress_denoised(
             &positions,
             &values,
             DIM,

@@ -71,22 +71,18 @@ impl LocalPart {
 /// the quantized coefficients. Deterministic whatever the thread count (fixed blocks, summed in
 /// order).
 pub fn fit(residual: &[f32], dim: usize, p: usize) -> LocalPart {
-    fit_denoised(residual, dim, p, None)
+    fit_denoised(residual, dim, p, None, None)
 }
 
 /// [`fit`], and with `noise` (the dim × dim covariance of the maps' Monte-Carlo noise per
 /// instance, row-major) each component's coefficients shrunk by max(0, 1 − ν_k / λ_k) (ν_k the
 /// noise variance along the component, λ_k its mean squared coefficient): a Wiener filter of
 /// the per-instance part. The cluster stage's default with the `envmaps` section's noise
-/// estimate (the tracer's two independent halves; `ClusterOptions::denoise`).
-pub fn fit_denoised(residual: &[f32], dim: usize, p: usize, noise: Option<&[f64]>) -> LocalPart {
-    fit_denoised_scaled(residual, dim, p, noise, None)
-}
-
-/// [`fit_denoised`] with the noise scaled per instance (heteroscedastic): instance i's noise
-/// covariance taken as `scale[i]` × the mean covariance `noise`, so its coefficients shrink by
-/// max(0, 1 − scale_i ν_k / λ_k). Experimental (`bake bench cluster --heteroscedastic`).
-pub fn fit_denoised_scaled(
+/// estimate (the tracer's two independent halves; `ClusterOptions::denoise`). With `scale`
+/// (heteroscedastic; experimental, `bake bench cluster --heteroscedastic`), instance i's noise
+/// covariance is taken as `scale[i]` × the mean covariance `noise`, so its coefficients shrink
+/// by max(0, 1 − scale_i ν_k / λ_k).
+pub fn fit_denoised(
     residual: &[f32],
     dim: usize,
     p: usize,
@@ -376,7 +372,7 @@ mod tests {
             e
         };
         let plain = err(&fit(&noisy, dim, 6));
-        let filtered = err(&fit_denoised(&noisy, dim, 6, Some(&cov)));
+        let filtered = err(&fit_denoised(&noisy, dim, 6, Some(&cov), None));
         assert!(filtered < 0.6 * plain, "{filtered} vs {plain}");
     }
 }

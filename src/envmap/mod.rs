@@ -87,25 +87,14 @@ pub fn compress(
     dim: usize,
     opts: &ClusterOptions,
 ) -> Compressed {
-    compress_denoised(positions, values, dim, opts, None)
+    compress_denoised(positions, values, dim, opts, None, None)
 }
 
 /// [`compress`] with the local part Wiener-filtered by a noise covariance (dim × dim, the
 /// maps' frame; [`local::fit_denoised`]): the stage's default with the `envmaps` section's
-/// noise estimate.
+/// noise estimate; `scale`, a per-instance noise scale, is the bench's experimental
+/// `--heteroscedastic`.
 pub fn compress_denoised(
-    positions: &[[f32; 3]],
-    values: &[f32],
-    dim: usize,
-    opts: &ClusterOptions,
-    noise: Option<&[f64]>,
-) -> Compressed {
-    compress_denoised_scaled(positions, values, dim, opts, noise, None)
-}
-
-/// [`compress_denoised`] with a per-instance noise scale ([`local::fit_denoised_scaled`];
-/// experimental, the bench's `--heteroscedastic`).
-pub fn compress_denoised_scaled(
     positions: &[[f32; 3]],
     values: &[f32],
     dim: usize,
@@ -138,7 +127,7 @@ pub fn compress_denoised_scaled(
     // The shared part's own errors, with the stored (mean) sample values.
     c.errors = relative_errors(&rec, values, dim, c.rms);
     let residual: Vec<f32> = values.par_iter().zip(&rec).map(|(v, r)| v - r).collect();
-    let l = local::fit_denoised_scaled(&residual, dim, p, noise, scale);
+    let l = local::fit_denoised(&residual, dim, p, noise, scale);
     l.add_all(&mut rec);
     let errors = relative_errors(&rec, values, dim, c.rms);
     Compressed {
@@ -227,6 +216,7 @@ pub fn cluster_and_weigh_noisy(
         dim,
         opts,
         filter.map(|nz| nz.covariance.as_slice()),
+        None,
     );
     let c = &z.clustering;
     let input_noise_relative = match noise {
