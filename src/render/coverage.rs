@@ -7,11 +7,14 @@
 //! discards everywhere). So where the pixel's mip level `λ` passes the 4×4 level, the fragment's
 //! coverage blends from the alpha test towards the colour map's level-0 coverage `c₀` (times the
 //! material's opacity, [`far_coverage`]): `t = clamp(min(λ, top) − (top − 2), 0, 1)` with `top`
-//! the 1×1 level (0 below three levels), coverage `= mix(test, c₀, t)`. Under MSAA the
-//! hardware's alpha to coverage turns it into samples; without MSAA (and in the CPU reference's
-//! rays) a sample passes where the coverage reaches its threshold: the 4×4 ordered-dither
-//! (Bayer) value of the pixel, or `(s + ½)/4` for the reference's four samples. `mesh.wgsl`
-//! computes the same (`far_weight`, `bayer4`).
+//! the 1×1 level (0 below three levels). Without MSAA a fragment passes where
+//! `mix(α ≥ ½, c₀, t)` reaches the pixel's 4×4 ordered-dither (Bayer) threshold. Under MSAA the
+//! fragment is kept where `mix(1, c₀, t)` reaches that threshold and writes the alpha-to-coverage
+//! value `mix(ramp, 1, t)`: the pixel-level dither carries the far coverage, because how a device
+//! turns a fractional alpha into samples is its own (lavapipe keeps ⌊4α⌋ of 4, which halved a
+//! coverage of 0.45). The CPU reference's four rays test `mix(α ≥ ½, 1, t)` against `(s + ½)/4`
+//! for sample s, with the same pixel dither ([`AlphaTest`]). `mesh.wgsl` computes the same
+//! (`far_weight`, `bayer4`).
 
 /// λ of a colour map of level-0 size `(w, h)` for the texture-coordinate derivatives
 /// `d = (∂u/∂x, ∂v/∂x, ∂u/∂y, ∂v/∂y)`: log₂ of the larger footprint side in level-0 texels (the
@@ -37,6 +40,25 @@ pub fn far_weight(levels: usize, lambda: f32) -> f32 {
 pub fn hard_coverage(alpha: f32, far: f32, t: f32) -> f32 {
     let test = if alpha >= 0.5 { 1.0 } else { 0.0 };
     test + (far - test) * t
+}
+
+/// The alpha test of one primary ray: the pixel's dither threshold and, under MSAA, the
+/// sample's threshold `(s + ½)/samples`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AlphaTest {
+    pub dither: f32,
+    pub sample: Option<f32>,
+}
+
+impl AlphaTest {
+    /// Whether a hit of filtered alpha `alpha` (times the opacity) passes, for a colour map of
+    /// level-0 coverage `far` at far weight `t` (see the module note).
+    pub fn passes(&self, alpha: f32, far: f32, t: f32) -> bool {
+        match self.sample {
+            None => hard_coverage(alpha, far, t) >= self.dither,
+            Some(s) => 1.0 + (far - 1.0) * t >= self.dither && hard_coverage(alpha, 1.0, t) >= s,
+        }
+    }
 }
 
 /// The 4×4 ordered-dither threshold of pixel (x, y), in (0, 1): `(index + ½)/16`.

@@ -277,12 +277,12 @@ impl<'s, 'a> Reference<'s, 'a> {
     /// The closest hit of a primary ray, alpha-tested as the GPU tests it: where the hit's
     /// colour map has mips, the alpha of the pixel's mip level (trilinear, the footprint that
     /// `footprint` sets) times the opacity against 0.5, blended towards the map's level-0
-    /// coverage past its 4×4 level and compared with the sample's `threshold` in (0, 1)
-    /// ([`super::coverage`]); the ray goes on past a rejected hit.
+    /// coverage past its 4×4 level and tested with the ray's `test`
+    /// ([`super::coverage::AlphaTest`]); the ray goes on past a rejected hit.
     pub fn trace_primary(
         &self,
         ray: &Ray,
-        threshold: f32,
+        test: super::coverage::AlphaTest,
         footprint: impl Fn(&mut HitRecord),
     ) -> Option<HitRecord> {
         let Some(bvh) = &self.primary else {
@@ -310,7 +310,7 @@ impl<'s, 'a> Reference<'s, 'a> {
                 mips.levels.len(),
                 super::coverage::mip_lambda((w, h), hit.uv_derivatives),
             );
-            if super::coverage::hard_coverage(alpha, mat.far_coverage, t) >= threshold {
+            if test.passes(alpha, mat.far_coverage, t) {
                 return Some(hit);
             }
             r = Ray::new(r.origin, r.dir, hit.t * (1.0 + 1e-6) + 1e-6);
@@ -414,12 +414,12 @@ impl<'s, 'a> Reference<'s, 'a> {
                 (0..w).map(move |x| {
                     let mut l = [0.0f32; 3];
                     for (k, &[ox, oy]) in offsets.iter().enumerate() {
-                        // The alpha threshold of each sample: (k + ½)/4 under MSAA (alpha to
-                        // coverage's share of samples), the pixel's dither value without.
-                        let thr = if offsets.len() > 1 {
-                            (k as f32 + 0.5) / offsets.len() as f32
-                        } else {
-                            super::coverage::bayer4(x, y)
+                        // The alpha test of each sample: (k + ½)/4 under MSAA (alpha to
+                        // coverage's share of samples) and the pixel's dither value.
+                        let thr = super::coverage::AlphaTest {
+                            dither: super::coverage::bayer4(x, y),
+                            sample: (offsets.len() > 1)
+                                .then(|| (k as f32 + 0.5) / offsets.len() as f32),
                         };
                         let p = (x as f32 + ox, y as f32 + oy);
                         let s = self.sample_with(view, size, terms, p, thr);
@@ -445,18 +445,21 @@ impl<'s, 'a> Reference<'s, 'a> {
         terms: Terms,
         (px, py): (f32, f32),
     ) -> [f32; 3] {
-        let thr = super::coverage::bayer4(px.max(0.0) as u32, py.max(0.0) as u32);
+        let thr = super::coverage::AlphaTest {
+            dither: super::coverage::bayer4(px.max(0.0) as u32, py.max(0.0) as u32),
+            sample: None,
+        };
         self.sample_with(view, size, terms, (px, py), thr)
     }
 
-    /// [`Reference::sample`] with the alpha test's `threshold` given.
+    /// [`Reference::sample`] with the alpha test given.
     fn sample_with(
         &self,
         view: &View,
         (w, h): (u32, u32),
         terms: Terms,
         (px, py): (f32, f32),
-        threshold: f32,
+        threshold: super::coverage::AlphaTest,
     ) -> [f32; 3] {
         let cam: &Camera = &view.camera;
         let d = cam.pixel_ray((px, py), (w, h));

@@ -211,9 +211,11 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
     let t = far_weight(material.alpha.x, log2(max(rho, 1e-30)));
     var coverage = 1.0;
     if (A2C) {
+        // The far coverage by the pixel dither (a device's own alpha-to-coverage pattern may
+        // round a fraction down), the near ramp by alpha to coverage.
         let near = clamp((a - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
-        coverage = mix(near, material.alpha.y, t);
-        if (coverage <= 0.0) {
+        coverage = mix(near, 1.0, t);
+        if (coverage <= 0.0 || mix(1.0, material.alpha.y, t) < bayer4(in.position.xy)) {
             discard;
         }
     } else {
