@@ -228,8 +228,8 @@ pub enum InstanceSource {
     /// The `instances` section's records (or one instance per mesh without one).
     #[default]
     Instances,
-    /// The `bittree` section: cell-centre positions (x, y) on the terrain, quantized rotations
-    /// (see [`bittree_instances`]).
+    /// The `bittree` section: positions (x, y) from the leaf cells and their residuals on the
+    /// terrain, quantized rotations (see [`bittree_instances`]).
     Bittree,
 }
 
