@@ -290,9 +290,8 @@ mod tests {
         let bound = cell / 131072.0 + 1e-5;
         let mut worst = 0.0f32;
         for (k, &i) in order.iter().enumerate() {
-            for a in 0..2 {
-                worst = worst.max((d.positions[k][a] - xy[i as usize][a]).abs());
-            }
+            let (got, want) = (d.positions[k], xy[i as usize]);
+            worst = worst.max((got[0] - want[0]).abs().max((got[1] - want[1]).abs()));
             assert_eq!(d.model[k] as u32, items[i as usize].model);
         }
         assert!(worst <= bound, "worst {worst} m, bound {bound} m");
