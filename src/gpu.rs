@@ -20,7 +20,7 @@ use std::sync::{Arc, Mutex};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum BackendChoice {
-    /// Vulkan, then GL.
+    /// Vulkan, then GL; or what [`BACKEND_ENV`] names ([`BackendChoice::resolve`]).
     #[default]
     Auto,
     Vulkan,
@@ -101,7 +101,7 @@ pub fn init_gpu(choice: BackendChoice) -> Result<Gpu> {
     }
     Err(Error::runtime(format!(
         "no usable GPU adapter (install Mesa's lavapipe: packages mesa-vulkan-drivers \
-         libvulkan1): {}",
+         libvulkan1; or for GL its llvmpipe: libegl1 libegl-mesa0 libgl1-mesa-dri): {}",
         tried.join("; ")
     )))
 }
