@@ -84,7 +84,7 @@ pub fn scene_to_pack(scene: &Scene, eco: &Path, names: &SourceNames) -> (PackWri
     let mut w = PackWriter::new();
     let mut warnings = scene.warnings.clone();
     if let Some(t) = &scene.terrain {
-        add_terrain(&mut w, &names.name(eco), t);
+        add_terrain(&mut w, &SourceNames::first_name(eco), t);
     }
     let mut mesh_sections = Vec::new();
     for m in &scene.models {
@@ -131,10 +131,10 @@ pub fn ingest_to_pack(input: &Path, opts: &IngestOptions) -> Result<(PackWriter,
             warnings.extend(mesh.warnings.iter().cloned());
             add_mesh(&mut w, &name, input, &names, &mesh, &mut warnings);
         }
-        Ingested::Terrain(t) => add_terrain(&mut w, &names.name(input), &t),
+        Ingested::Terrain(t) => add_terrain(&mut w, &SourceNames::first_name(input), &t),
         Ingested::Sky(img) => w.insert(crate::sky::source_section::to_section(
             "sky",
-            &names.name(input),
+            &SourceNames::first_name(input),
             &img,
         )),
         Ingested::Scene(scene) => {

@@ -123,7 +123,7 @@ pub fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
         None => args.input.with_extension("bake"),
     });
     let mut w = start_pack(&args.input, pack.as_ref(), &geo, &mut warnings);
-    let source = crate::ingest::confine::SourceNames::around(&args.input).name(&args.input);
+    let source = crate::ingest::confine::SourceNames::first_name(&args.input);
     w.insert(section::to_section("svo", &source, &svo, args.solid));
     w.write(&output)?;
     let mut json = section::summary_of(&svo);

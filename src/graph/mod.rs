@@ -486,7 +486,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     let plan = ingest::eco::scene_plan(&opts.scenes, &opts.ingest)?;
     let names = ingest::eco::scene_names(first, &opts.ingest);
     // What the sections record as the scene's source: the first ECO file by name.
-    let scene_source = names.name(first);
+    let scene_source = SourceNames::first_name(first);
     let mut g = Graph {
         cache: cache_dir.clone().map(Cache::new),
         version,
@@ -1064,7 +1064,11 @@ fn build_key_with(
     let scenes: Vec<String> = opts
         .scenes
         .iter()
-        .map(|p| names.inside(p).unwrap_or_else(|| names.name(p)))
+        .enumerate()
+        .map(|(i, p)| match i {
+            0 => SourceNames::first_name(p),
+            _ => names.inside(p).unwrap_or_else(|| names.name(p)),
+        })
         .collect();
     k.options(&(
         &scenes,

@@ -153,6 +153,13 @@ impl SourceNames {
         SourceNames { roots }
     }
 
+    /// The name of the scene's first ECO file (or a command's single input), `scene:<file
+    /// name>`: by its place, so it needs no file system (a plan's action that reads only packs
+    /// names its scene as the bake does).
+    pub fn first_name(first: &Path) -> String {
+        format!("scene:{}", file_name(first))
+    }
+
     /// The roots of a single input file (its folder).
     pub fn around(file: &Path) -> SourceNames {
         SourceNames::new(file, &[], &[])

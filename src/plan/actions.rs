@@ -45,7 +45,7 @@ impl SceneArgs {
 
     /// What the sections record as the scene's source: the first ECO file by name.
     fn source(&self) -> Result<String> {
-        Ok(self.names()?.name(self.first()?))
+        Ok(ingest::confine::SourceNames::first_name(self.first()?))
     }
 
     fn policy(&self) -> Result<ingest::ReadPolicy> {
