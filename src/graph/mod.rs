@@ -46,7 +46,8 @@ pub const REPORT_SCHEMA: &str = "bake.build/1";
 pub mod versions {
     /// 2: TXF line and point arrays kept as the mesh's skeleton (issue 14).
     /// 3: glTF materials keep `doubleSided` (`Material::double_sided`; issue 19).
-    pub const INGEST: u32 = 3;
+    /// 4: sources recorded by source name (`scene:plant.txf`), not as typed (issue 36).
+    pub const INGEST: u32 = 4;
     /// 2: Xfrog's default material gets the thesis' leaf (issue 16).
     pub const MATERIAL: u32 = 2;
     pub const TERRAIN: u32 = 1;

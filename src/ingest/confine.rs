@@ -13,6 +13,8 @@
 //!
 //! Files named on the command line (`--sky`, `--color-map`, the input itself) are the user's
 //! choice and are not checked.
+//!
+//! The same roots, labelled, name files in packs and cache keys ([`SourceNames`]).
 
 use crate::error::{Error, ParseError, Result};
 use std::path::{Component, Path, PathBuf};
