@@ -405,3 +405,57 @@ fn the_ninja_plan_gives_the_direct_bakes_pack_however_the_paths_were_written() {
         assert!(built == direct, "{style:?}: the files differ");
     }
 }
+
+#[test]
+fn an_entry_of_the_first_checkout_never_skips_a_refusal_in_the_second() {
+    // The second checkout's leaf texture is a symlink out of its roots, to the same bytes: the
+    // ingest unit's key is the first checkout's (same model, name and layout), but the entry's
+    // `models/0:leaf.rgb` does not place inside the second checkout's roots, so the unit runs
+    // and the confinement refuses the texture.
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let (a, b) = (root.join("a"), root.join("b"));
+    checkout(&a);
+    checkout(&b);
+    let cache = root.join("cache");
+    let cache_arg = cache.to_str().unwrap();
+    bake(
+        root,
+        &a,
+        Style::Absolute,
+        &root.join("a.bake"),
+        &["--cache", cache_arg, "-q"],
+    );
+    std::fs::create_dir_all(root.join("elsewhere")).unwrap();
+    std::fs::rename(b.join("lib/leaf.rgb"), root.join("elsewhere/leaf.rgb")).unwrap();
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(root.join("elsewhere/leaf.rgb"), b.join("lib/leaf.rgb"))
+            .unwrap();
+        let (cwd, [scene, sky, lib]) = spelled(root, &b, Style::Absolute);
+        let mut args: Vec<String> = vec![
+            scene,
+            "--sky".into(),
+            sky,
+            "--models".into(),
+            lib,
+            "--cache".into(),
+            cache_arg.into(),
+            "-o".into(),
+            root.join("b.bake").display().to_string(),
+        ];
+        args.extend(PIPELINE.iter().map(|a| a.to_string()));
+        let o = Command::new(common::bake_bin())
+            .args(&args)
+            .current_dir(cwd)
+            .env("NODEVICE_SELECT", "1")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(4), "{err}");
+        assert!(
+            err.contains("leaf.rgb") && err.contains("--allow-path"),
+            "{err}"
+        );
+    }
+}

@@ -386,13 +386,17 @@ fn named_files(names: &SourceNames, files: &[FileDep]) -> Vec<FileDep> {
 }
 
 /// A cache entry's named files as real paths in this bake's roots; `None` where a name does
-/// not place (an `outside:` name, a label this bake does not have): the entry is then a miss.
+/// not place (an `outside:` name, a label this bake does not have) or where the placed path
+/// has another name here (a symlink out of its root: the confinement would refuse it): the
+/// entry is then a miss, so a hit never skips a refusal.
 fn placed_files(names: &SourceNames, files: &[FileDep]) -> Option<Vec<FileDep>> {
     files
         .iter()
         .map(|f| {
-            Some(FileDep {
-                path: names.path_of(&f.path.to_string_lossy())?,
+            let name = f.path.to_string_lossy();
+            let path = names.path_of(&name)?;
+            (names.inside(&path).as_deref() == Some(&*name)).then(|| FileDep {
+                path,
                 blake3: f.blake3.clone(),
             })
         })
