@@ -2,6 +2,7 @@
 //! single inputs into packs, the BitTree's area.
 
 use crate::error::Result;
+use crate::ingest::confine::SourceNames;
 use crate::ingest::{self, IngestOptions, Ingested};
 use crate::model::{Mesh, Scene, Terrain};
 use crate::pack::PackWriter;
@@ -9,12 +10,14 @@ use crate::pack::fit_name;
 use rayon::prelude::*;
 use std::path::Path;
 
-/// Adds a model's mesh and its decoded textures. Missing or undecodable textures become warnings
-/// (the mesh still renders, untextured).
+/// Adds a model's mesh (read from `source`) and its decoded textures, their sources named by
+/// `names`. Missing or undecodable textures become warnings (the mesh still renders,
+/// untextured).
 pub fn add_mesh(
     w: &mut PackWriter,
     model: &str,
     source: &Path,
+    names: &SourceNames,
     mesh: &Mesh,
     warnings: &mut Vec<String>,
 ) {
@@ -32,7 +35,7 @@ pub fn add_mesh(
                 ));
                 w.insert(crate::texture::source_section::to_section(
                     &name,
-                    &t.path.display().to_string(),
+                    &names.name(&t.path),
                     &img,
                 ));
                 sections.push(Some(name));
@@ -46,50 +49,46 @@ pub fn add_mesh(
     let name = fit_name(crate::mesh::section::mesh_section_name(model));
     w.insert(crate::mesh::section::to_section(
         &name,
-        &source.display().to_string(),
+        &names.name(source),
         mesh,
         &sections,
     ));
 }
 
-/// Adds a terrain and its colour map.
-pub fn add_terrain(w: &mut PackWriter, source: &Path, t: &Terrain) {
+/// Adds a terrain and its colour map; `source` is the name of the file that named them.
+pub fn add_terrain(w: &mut PackWriter, source: &str, t: &Terrain) {
     for s in terrain_sections(source, t) {
         w.insert(s);
     }
 }
 
-/// The sections of an ingested terrain: its colour map (if any) and the terrain.
-pub fn terrain_sections(source: &Path, t: &Terrain) -> Vec<crate::pack::Section> {
+/// The sections of an ingested terrain: its colour map (if any) and the terrain; `source` is
+/// the name ([`SourceNames`]) of the file that named them (the ECO file, or the RAW file).
+pub fn terrain_sections(source: &str, t: &Terrain) -> Vec<crate::pack::Section> {
     let mut out = Vec::new();
     let color = t.color.as_ref().map(|img| {
         let name = crate::texture::source_section::texture_section_name("terrain", "color");
         out.push(crate::texture::source_section::to_section(
-            &name,
-            &source.display().to_string(),
-            img,
+            &name, source, img,
         ));
         name
     });
     out.push(crate::terrain::source_section::to_section(
-        "terrain",
-        &source.display().to_string(),
-        t,
-        color,
+        "terrain", source, t, color,
     ));
     out
 }
 
-/// Every section of a scene.
-pub fn scene_to_pack(scene: &Scene, eco: &Path) -> (PackWriter, Vec<String>) {
+/// Every section of a scene read from `eco`, its files named by `names`.
+pub fn scene_to_pack(scene: &Scene, eco: &Path, names: &SourceNames) -> (PackWriter, Vec<String>) {
     let mut w = PackWriter::new();
     let mut warnings = scene.warnings.clone();
     if let Some(t) = &scene.terrain {
-        add_terrain(&mut w, eco, t);
+        add_terrain(&mut w, &SourceNames::first_name(eco), t);
     }
     let mut mesh_sections = Vec::new();
     for m in &scene.models {
-        add_mesh(&mut w, &m.name, &m.path, &m.mesh, &mut warnings);
+        add_mesh(&mut w, &m.name, &m.path, names, &m.mesh, &mut warnings);
         mesh_sections.push(fit_name(crate::mesh::section::mesh_section_name(&m.name)));
     }
     w.insert(crate::ingest::instances_section::to_section(
@@ -122,6 +121,7 @@ pub fn instance_area(scene: &Scene) -> crate::model::Rect {
 pub fn ingest_to_pack(input: &Path, opts: &IngestOptions) -> Result<(PackWriter, Vec<String>)> {
     let mut w = PackWriter::new();
     let mut warnings = Vec::new();
+    let names = ingest::eco::scene_names(input, opts);
     match ingest::ingest_file(input, opts)? {
         Ingested::Mesh(mesh) => {
             let name = input
@@ -129,16 +129,16 @@ pub fn ingest_to_pack(input: &Path, opts: &IngestOptions) -> Result<(PackWriter,
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
             warnings.extend(mesh.warnings.iter().cloned());
-            add_mesh(&mut w, &name, input, &mesh, &mut warnings);
+            add_mesh(&mut w, &name, input, &names, &mesh, &mut warnings);
         }
-        Ingested::Terrain(t) => add_terrain(&mut w, input, &t),
+        Ingested::Terrain(t) => add_terrain(&mut w, &SourceNames::first_name(input), &t),
         Ingested::Sky(img) => w.insert(crate::sky::source_section::to_section(
             "sky",
-            &input.display().to_string(),
+            &SourceNames::first_name(input),
             &img,
         )),
         Ingested::Scene(scene) => {
-            let (sw, sw_warn) = scene_to_pack(&scene, input);
+            let (sw, sw_warn) = scene_to_pack(&scene, input, &names);
             w = sw;
             warnings = sw_warn;
         }

@@ -60,7 +60,7 @@ pub fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
     let mut w = super::svo::start_pack(&args.input, pack.as_ref(), &geo, &mut warnings);
     w.insert(section::to_section(
         "linespace",
-        &args.input.display().to_string(),
+        &crate::ingest::confine::SourceNames::first_name(&args.input),
         &tree,
     ));
     w.write(&output)?;

@@ -83,11 +83,9 @@ pub fn run(args: &SkyArgs, g: &Global) -> Result<Outcome> {
         );
         (SkySource::Cube(sky::builtin::builtin_sky(&p)), name)
     } else {
-        let names: Vec<_> = args
-            .inputs
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect();
+        // Named relative to the first input's folder (docs/FORMAT.md, "Source names").
+        let roots = crate::ingest::confine::SourceNames::around(&args.inputs[0]);
+        let names: Vec<_> = args.inputs.iter().map(|p| roots.name(p)).collect();
         (sky::load_sky(&args.inputs)?, names.join(" "))
     };
     let opts = SkyOptions {

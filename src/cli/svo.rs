@@ -80,7 +80,8 @@ pub fn start_pack(
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            crate::pipeline::add_mesh(&mut w, &name, input, &geo.mesh, warnings);
+            let names = crate::ingest::confine::SourceNames::around(input);
+            crate::pipeline::add_mesh(&mut w, &name, input, &names, &geo.mesh, warnings);
             w
         }
     }
@@ -122,7 +123,7 @@ pub fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
         None => args.input.with_extension("bake"),
     });
     let mut w = start_pack(&args.input, pack.as_ref(), &geo, &mut warnings);
-    let source = args.input.display().to_string();
+    let source = crate::ingest::confine::SourceNames::first_name(&args.input);
     w.insert(section::to_section("svo", &source, &svo, args.solid));
     w.write(&output)?;
     let mut json = section::summary_of(&svo);

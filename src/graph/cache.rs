@@ -57,7 +57,8 @@ impl KeyBuilder {
         self
     }
 
-    /// One input: a name (section name or file path as written in the outputs) and its hash.
+    /// One input: a name (a section name or a file's source name, never a path:
+    /// [`crate::ingest::confine::SourceNames`]) and its hash.
     pub fn input(&mut self, name: &str, hash: &[u8; 32]) -> &mut Self {
         self.part(b"input");
         self.part(name.as_bytes());
@@ -80,7 +81,9 @@ pub struct Warning {
 }
 
 /// A file a unit read, with its content hash (`None`: it was looked for and did not exist,
-/// so that its appearing later invalidates the entry).
+/// so that its appearing later invalidates the entry). In memory `path` is the real path; in a
+/// cache entry and the `build` record it is the file's source name
+/// ([`crate::ingest::confine::SourceNames`]), placed again in the roots of the bake that reads it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FileDep {
     pub path: PathBuf,

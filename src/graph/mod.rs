@@ -13,12 +13,18 @@
 //! holds the pack in memory. The output also records a `build` section (the build key and every
 //! file read with its hash): a run whose inputs and options hash the same leaves the output
 //! alone without reading anything else.
+//!
+//! Nothing location-dependent enters a section or a key: sources, the build record and the
+//! ingest keys name files relative to the scene's roots ([`SourceNames`]), cache entries record
+//! the files they read by those names, so the same scene baked from another folder, or by
+//! another spelling of its path, gives the same bytes and hits the same entries.
 
 pub mod cache;
 pub mod preset;
 pub mod progress;
 
 use crate::error::{Error, Result};
+use crate::ingest::confine::{self, SourceNames};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
 use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder, StreamWriter, hex};
@@ -40,7 +46,8 @@ pub const REPORT_SCHEMA: &str = "bake.build/1";
 pub mod versions {
     /// 2: TXF line and point arrays kept as the mesh's skeleton (issue 14).
     /// 3: glTF materials keep `doubleSided` (`Material::double_sided`; issue 19).
-    pub const INGEST: u32 = 3;
+    /// 4: sources recorded by source name (`scene:plant.txf`), not as typed (issue 36).
+    pub const INGEST: u32 = 4;
     /// 2: Xfrog's default material gets the thesis' leaf (issue 16).
     pub const MATERIAL: u32 = 2;
     pub const TERRAIN: u32 = 1;
@@ -210,7 +217,10 @@ struct Graph<'a> {
     observer: &'a dyn Observer,
     records: Vec<StageRecord>,
     warnings: Vec<Warning>,
+    /// Every file read, by its real (canonical) path.
     files: BTreeSet<PathBuf>,
+    /// The location-independent names of the scene's files.
+    names: SourceNames,
     /// Every finished section, mapped from the output being written.
     done: Vec<Section>,
     out: StreamWriter,
@@ -243,8 +253,15 @@ impl Graph<'_> {
         if let Some(cache) = &self.cache {
             status = "miss";
             match cache.get(&key) {
-                Lookup::Hit(e) if files_unchanged(&e.meta.files) => hit = Some(e),
-                Lookup::Hit(_) | Lookup::Miss => {}
+                Lookup::Hit(e) => {
+                    // The entry's files by name, placed in this bake's roots.
+                    if let Some(files) = placed_files(&self.names, &e.meta.files)
+                        && files_unchanged(&files)
+                    {
+                        hit = Some((e, files));
+                    }
+                }
+                Lookup::Miss => {}
                 Lookup::Corrupt(why) => self.warnings.push(Warning {
                     id: "cache.corrupt-entry".into(),
                     place: format!("{stage} {unit}"),
@@ -253,9 +270,9 @@ impl Graph<'_> {
             }
         }
         let (sections, report, warnings, files) = match hit {
-            Some(e) => {
+            Some((e, files)) => {
                 status = "hit";
-                (e.sections, e.meta.report, e.meta.warnings, e.meta.files)
+                (e.sections, e.meta.report, e.meta.warnings, files)
             }
             None => {
                 let obs = self.observer;
@@ -276,7 +293,7 @@ impl Graph<'_> {
                         unit: unit.into(),
                         report: o.report.clone(),
                         warnings: warnings.clone(),
-                        files: o.files.clone(),
+                        files: named_files(&self.names, &o.files),
                         sections: o.sections.iter().map(|s| s.name.clone()).collect(),
                     };
                     if let Err(e) = cache.put(&key, &o.sections, &meta) {
@@ -294,7 +311,7 @@ impl Graph<'_> {
             files
                 .iter()
                 .filter(|f| f.blake3.is_some())
-                .map(|f| f.path.clone()),
+                .map(|f| confine::resolve(&f.path)),
         );
         self.warnings.extend(warnings);
         let (c1, _) = process_usage();
@@ -353,6 +370,57 @@ fn files_unchanged(files: &[FileDep]) -> bool {
             (None, Err(_)) => !f.path.exists(),
             _ => false,
         })
+}
+
+/// A unit's files as its cache entry records them: by name ([`SourceNames`]), so that the entry
+/// serves the same scene in another folder. (A unit's files lie inside the roots: models and
+/// what they reference are confined.)
+fn named_files(names: &SourceNames, files: &[FileDep]) -> Vec<FileDep> {
+    files
+        .iter()
+        .map(|f| FileDep {
+            path: PathBuf::from(names.inside(&f.path).unwrap_or_else(|| names.name(&f.path))),
+            blake3: f.blake3.clone(),
+        })
+        .collect()
+}
+
+/// A cache entry's named files as real paths in this bake's roots; `None` where a name does
+/// not place (an `outside:` name, a label this bake does not have) or where the placed path
+/// has another name here (a symlink out of its root: the confinement would refuse it): the
+/// entry is then a miss, so a hit never skips a refusal.
+fn placed_files(names: &SourceNames, files: &[FileDep]) -> Option<Vec<FileDep>> {
+    files
+        .iter()
+        .map(|f| {
+            let name = f.path.to_string_lossy();
+            let path = names.path_of(&name)?;
+            (names.inside(&path).as_deref() == Some(&*name)).then(|| FileDep {
+                path,
+                blake3: f.blake3.clone(),
+            })
+        })
+        .collect()
+}
+
+/// The build record's files: each real file by its name, with its hash, sorted by name.
+pub(crate) fn record_files(names: &SourceNames, files: &[FileDep]) -> Vec<FileDep> {
+    let mut out: Vec<FileDep> = files
+        .iter()
+        .map(|f| {
+            let name = match &f.blake3 {
+                Some(h) => names.name_hex(&f.path, h),
+                None => names.name(&f.path),
+            };
+            FileDep {
+                path: PathBuf::from(name),
+                blake3: f.blake3.clone(),
+            }
+        })
+        .collect();
+    out.sort_by(|a, b| a.path.cmp(&b.path));
+    out.dedup();
+    out
 }
 
 fn file_dep(path: &Path) -> FileDep {
@@ -421,6 +489,9 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     }
 
     let plan = ingest::eco::scene_plan(&opts.scenes, &opts.ingest)?;
+    let names = ingest::eco::scene_names(first, &opts.ingest);
+    // What the sections record as the scene's source: the first ECO file by name.
+    let scene_source = SourceNames::first_name(first);
     let mut g = Graph {
         cache: cache_dir.clone().map(Cache::new),
         version,
@@ -428,13 +499,16 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         records: Vec::new(),
         warnings: Vec::new(),
         files: BTreeSet::new(),
+        names,
         done: Vec::new(),
         out: StreamWriter::create(&output)?,
         name: first.display().to_string(),
         t0,
     };
-    g.files.extend(plan.files.iter().cloned());
-    g.files.extend(opts.pipeline_file.iter().cloned());
+    g.files
+        .extend(plan.files.iter().map(|f| confine::resolve(f)));
+    g.files
+        .extend(opts.pipeline_file.iter().map(|f| confine::resolve(f)));
     g.warnings
         .extend(plan.scene.warnings.iter().map(|m| Warning {
             id: "ingest.eco".into(),
@@ -445,7 +519,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
 
     // The terrain: its sections from the plan, then the prepared terrain.
     if let Some(t) = &plan.scene.terrain {
-        let mut sections = crate::pipeline::terrain_sections(first, t);
+        let mut sections = crate::pipeline::terrain_sections(&scene_source, t);
         if p.stages.terrain {
             let mut k = g.key("terrain", versions::TERRAIN, "terrain");
             for s in &sections {
@@ -466,9 +540,11 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     }
 
     // Per model: ingest, material, PRT. Models read under the scene's policy (roots and
-    // limits), which enters the ingest keys so that a hit never skips a refusal.
+    // limits), which enters the ingest keys so that a hit never skips a refusal: the roots by
+    // their places relative to each other (what decides whether a reference from one reaches
+    // another), not where they lie, so that the same tree elsewhere hits the same entries.
     let policy = ingest::eco::scene_policy(first, &opts.ingest);
-    let policy_key = format!("{policy:?}");
+    let policy_key = format!("{:?} {:?}", g.names.layout(), policy.limits);
     let mut mesh_sections = Vec::new();
     let mut triangles = 0u64;
     // Each model's (vertices, triangles), for the placed scene's size.
@@ -496,14 +572,15 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     for (name, path) in &plan.models {
         let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
         mesh_sections.push(mesh_name.clone());
-        let source = path.display().to_string();
+        let source = g.names.name(path);
         let model_hash = cache::hash_file(path)?;
-        g.files.insert(path.clone());
+        g.files.insert(confine::resolve(path));
         let mut k = g.key("ingest", versions::INGEST, name);
         k.options(&policy_key);
         k.input(&source, &model_hash);
+        let names = g.names.clone();
         let mut sections = g.unit("ingest", name, k.finish(), None, |_| {
-            ingest_model(name, path, &policy)
+            ingest_model(name, path, &policy, &names)
         })?;
         if p.stages.material {
             let mut k = g.key("material", versions::MATERIAL, name);
@@ -596,8 +673,9 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         k.options(&p.sky);
         match &opts.sky {
             Some(path) => {
-                k.input(&path.display().to_string(), &cache::hash_file(path)?);
-                g.files.insert(path.clone());
+                // The sky's contents only: its output does not depend on where it lies.
+                k.input("--sky", &cache::hash_file(path)?);
+                g.files.insert(confine::resolve(path));
             }
             None => {
                 k.options(&format!("{:?}", crate::sky::builtin::BuiltinSky::default()));
@@ -623,11 +701,12 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         g.finish_sections(out)?;
     }
 
-    scene_units(&mut g, p, &plan.scene)?;
+    scene_units(&mut g, p, &plan.scene, &scene_source)?;
 
-    // The record of this build: its key and every file read.
+    // The record of this build: its key and every file read (by name).
     let files: Vec<PathBuf> = g.files.iter().cloned().collect();
     let deps: Vec<FileDep> = files.iter().map(|f| file_dep(f)).collect();
+    let deps = record_files(&g.names, &deps);
     let build_key = build_key(opts, &g.version, &deps);
     g.finish_sections(vec![build_section(&BuildMeta {
         key: build_key.hex(),
@@ -660,7 +739,12 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
 }
 
 /// The per-scene units: light maps, environment maps, clustering, BitTree, SVO, line space.
-fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Result<()> {
+fn scene_units(
+    g: &mut Graph,
+    p: &Pipeline,
+    scene: &crate::model::Scene,
+    scene_source: &str,
+) -> Result<()> {
     let s = &p.stages;
     // What the lighting units read: the placed models with their textures, the terrain, the
     // sky's sun and SH (not the PRT, materials or tangents).
@@ -820,10 +904,12 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
             }
             Ok(geometry.get().expect("set above"))
         };
-        let source = g.name.clone();
+        // The sections record the scene's source, so it is part of their keys.
+        let source = scene_source.to_string();
         if s.svo {
             let mut k = g.key("svo", versions::SVO, "scene");
             k.options(&p.svo);
+            k.options(&source);
             for (n, h) in &geo_inputs {
                 k.input(n, h);
             }
@@ -843,6 +929,7 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scene: &crate::model::Scene) -> Resu
         if s.linespace {
             let mut k = g.key("linespace", versions::LINESPACE, "scene");
             k.options(&p.linespace);
+            k.options(&source);
             for (n, h) in &geo_inputs {
                 k.input(n, h);
             }
@@ -922,12 +1009,18 @@ pub(crate) fn shard_maps(sections: &[Section], n: usize) -> Result<crate::envmap
     Ok(crate::envmap::bake::Traced { maps, diffs })
 }
 
-/// Reads one model and its textures into `texture:<model>/...` and `mesh:<model>` sections.
-pub(crate) fn ingest_model(name: &str, path: &Path, policy: &ingest::ReadPolicy) -> Result<Output> {
+/// Reads one model and its textures into `texture:<model>/...` and `mesh:<model>` sections,
+/// their sources named by `names`.
+pub(crate) fn ingest_model(
+    name: &str,
+    path: &Path,
+    policy: &ingest::ReadPolicy,
+    names: &SourceNames,
+) -> Result<Output> {
     let mesh = ingest::load_mesh_in(path, policy)?;
     let mut warnings: Vec<String> = mesh.warnings.clone();
     let mut w = crate::pack::PackWriter::new();
-    crate::pipeline::add_mesh(&mut w, name, path, &mesh, &mut warnings);
+    crate::pipeline::add_mesh(&mut w, name, path, names, &mesh, &mut warnings);
     let mut files: Vec<FileDep> = ingest::mesh_side_files(path)
         .iter()
         .map(|p| file_dep(p))
@@ -951,7 +1044,9 @@ pub(crate) fn ingest_model(name: &str, path: &Path, policy: &ingest::ReadPolicy)
 }
 
 /// The key of a whole build: version, the stages' versions, pipeline, command-line inputs and
-/// every file's content.
+/// every file's content. `files` are named ([`record_files`]), and the command line enters by
+/// names and counts, so the key does not depend on where the scene lies or how its path was
+/// written (the files say which sky, colour map and models were read).
 pub(crate) fn build_key(opts: &BuildOptions, version: &str, files: &[FileDep]) -> Key {
     build_key_with(opts, version, &versions::ALL, files)
 }
@@ -966,11 +1061,26 @@ fn build_key_with(
     let mut k = KeyBuilder::new(version, "build", 1, "");
     k.options(&stages);
     k.options(&opts.pipeline);
+    let names = opts
+        .scenes
+        .first()
+        .map(|f| ingest::eco::scene_names(f, &opts.ingest))
+        .unwrap_or_default();
+    let scenes: Vec<String> = opts
+        .scenes
+        .iter()
+        .enumerate()
+        .map(|(i, p)| match i {
+            0 => SourceNames::first_name(p),
+            _ => names.inside(p).unwrap_or_else(|| names.name(p)),
+        })
+        .collect();
     k.options(&(
-        &opts.scenes,
-        &opts.sky,
-        &opts.ingest.model_dirs,
-        &opts.ingest.color_map,
+        &scenes,
+        opts.sky.is_some(),
+        opts.ingest.model_dirs.len(),
+        opts.ingest.allow_paths.len(),
+        opts.ingest.color_map.is_some(),
     ));
     for f in files {
         let h = f.blake3.as_deref().unwrap_or("absent");
@@ -1020,10 +1130,33 @@ fn up_to_date(opts: &BuildOptions, output: &Path, version: &str) -> Option<Build
     let pack = Pack::open(output).ok()?;
     let e = pack.of_kind(BUILD_KIND).next()?;
     let meta: BuildMeta = pack.view(e).ok()?.meta().ok()?;
+    // The recorded files by name, placed in this build's roots; an `outside:` name is one of
+    // the files given on the command line (its name holds its hash: a changed file is not
+    // found, and the output is stale).
+    let first = opts.scenes.first()?;
+    let names = ingest::eco::scene_names(first, &opts.ingest);
+    let given: Vec<&PathBuf> = [&opts.sky, &opts.ingest.color_map, &opts.pipeline_file]
+        .into_iter()
+        .flatten()
+        .collect();
+    let placed: Vec<PathBuf> = meta
+        .files
+        .iter()
+        .map(|f| {
+            let name = f.path.to_string_lossy();
+            names.path_of(&name).or_else(|| {
+                given
+                    .iter()
+                    .find(|g| names.name(g.as_path()) == name)
+                    .map(|g| confine::resolve(g))
+            })
+        })
+        .collect::<Option<_>>()?;
     let now: Vec<FileDep> = {
         use rayon::prelude::*;
-        meta.files.par_iter().map(|f| file_dep(&f.path)).collect()
+        placed.par_iter().map(|f| file_dep(f)).collect()
     };
+    let now = record_files(&names, &now);
     if now != meta.files || build_key(opts, version, &now).hex() != meta.key {
         return None;
     }
@@ -1036,7 +1169,11 @@ fn up_to_date(opts: &BuildOptions, output: &Path, version: &str) -> Option<Build
         models: meta.models as usize,
         instances: meta.instances as usize,
         triangles: meta.triangles,
-        files: meta.files.iter().map(|f| f.path.clone()).collect(),
+        files: {
+            let mut files = placed;
+            files.sort();
+            files
+        },
         ..Default::default()
     })
 }

@@ -13,6 +13,8 @@
 //!
 //! Files named on the command line (`--sky`, `--color-map`, the input itself) are the user's
 //! choice and are not checked.
+//!
+//! The same roots, labelled, name files in packs and cache keys ([`SourceNames`]).
 
 use crate::error::{Error, ParseError, Result};
 use std::path::{Component, Path, PathBuf};
@@ -102,6 +104,169 @@ impl Roots {
     }
 }
 
+/// Location-independent names of the files a scene reads, what sections, cache keys and the
+/// build record store instead of paths (docs/FORMAT.md, "Source names"), so that the same scene
+/// bakes to the same bytes from any folder, by any spelling of its path.
+///
+/// A file inside a root is named by the root's label and its path inside the root (after
+/// symlinks are resolved, `/`-separated): `scene:terrain.raw` (the folder of the first ECO file,
+/// or of a command's single input), `models/0:tree.txf` (the i-th `--models` folder, 0-based in
+/// command-line order), `allow/1:tex/bark.png` (the i-th `--allow-path` folder). Where roots
+/// nest, the first in that order names the file. A file outside every root (a `--sky` or
+/// `--color-map` file elsewhere, a pipeline file) is named by its file name and the first 16 hex
+/// digits of its contents' BLAKE3 hash: `outside:sky.hdr@1f0e2d3c4b5a6978`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SourceNames {
+    /// (label, canonical folder); folders that do not exist are left out (their labels keep
+    /// their numbers).
+    roots: Vec<(String, PathBuf)>,
+}
+
+/// Label of a name outside every root.
+pub const OUTSIDE: &str = "outside";
+
+impl SourceNames {
+    /// The roots of a scene whose first ECO file (or single input) is `first`.
+    pub fn new(first: &Path, model_dirs: &[PathBuf], allow_paths: &[PathBuf]) -> SourceNames {
+        let dir = first.parent().unwrap_or(Path::new(""));
+        let labelled = std::iter::once(("scene".to_string(), dir))
+            .chain(
+                model_dirs
+                    .iter()
+                    .enumerate()
+                    .map(|(i, d)| (format!("models/{i}"), d.as_path())),
+            )
+            .chain(
+                allow_paths
+                    .iter()
+                    .enumerate()
+                    .map(|(i, d)| (format!("allow/{i}"), d.as_path())),
+            );
+        let roots = labelled
+            .filter_map(|(label, d)| {
+                let d = if d.as_os_str().is_empty() {
+                    Path::new(".")
+                } else {
+                    d
+                };
+                std::fs::canonicalize(d).ok().map(|c| (label, c))
+            })
+            .collect();
+        SourceNames { roots }
+    }
+
+    /// The name of the scene's first ECO file (or a command's single input), `scene:<file
+    /// name>`: by its place, so it needs no file system (a plan's action that reads only packs
+    /// names its scene as the bake does).
+    pub fn first_name(first: &Path) -> String {
+        format!("scene:{}", file_name(first))
+    }
+
+    /// The roots of a single input file (its folder).
+    pub fn around(file: &Path) -> SourceNames {
+        SourceNames::new(file, &[], &[])
+    }
+
+    /// `label:path` of a file inside a root, `None` outside every root.
+    pub fn inside(&self, path: &Path) -> Option<String> {
+        let resolved = resolve(path);
+        self.roots.iter().find_map(|(label, dir)| {
+            let rel = resolved.strip_prefix(dir).ok()?;
+            let parts: Vec<String> = rel
+                .components()
+                .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                .collect();
+            Some(format!("{label}:{}", parts.join("/")))
+        })
+    }
+
+    /// The name of `path` whose contents hash to `hash` (used only outside every root).
+    pub fn name_hashed(&self, path: &Path, hash: &[u8; 32]) -> String {
+        self.inside(path)
+            .unwrap_or_else(|| outside_name(path, hash))
+    }
+
+    /// [`SourceNames::name_hashed`] with the hash in hex (as [`crate::pack::hex`] writes it).
+    pub fn name_hex(&self, path: &Path, hex: &str) -> String {
+        self.inside(path).unwrap_or_else(|| {
+            format!(
+                "{OUTSIDE}:{}@{}",
+                file_name(path),
+                hex.get(..16).unwrap_or(hex)
+            )
+        })
+    }
+
+    /// The name of `path`; a file outside every root is read for its hash (an unreadable one
+    /// is named by its file name alone).
+    pub fn name(&self, path: &Path) -> String {
+        if let Some(n) = self.inside(path) {
+            return n;
+        }
+        match std::fs::read(path) {
+            Ok(bytes) => outside_name(path, blake3::hash(&bytes).as_bytes()),
+            Err(_) => format!("{OUTSIDE}:{}", file_name(path)),
+        }
+    }
+
+    /// The real (canonical) path a root-relative name stands for; `None` for an `outside:`
+    /// name, an unknown label or a path that would leave its root.
+    pub fn path_of(&self, name: &str) -> Option<PathBuf> {
+        let (label, rel) = name.split_once(':')?;
+        let (_, dir) = self.roots.iter().find(|(l, _)| l == label)?;
+        let mut out = dir.clone();
+        for part in rel.split('/').filter(|p| !p.is_empty()) {
+            if part == "." || part == ".." {
+                return None;
+            }
+            out.push(part);
+        }
+        Some(out)
+    }
+
+    /// Each root's label and its place relative to the scene's folder (lexically, between
+    /// canonical folders): what decides whether a reference from one root reaches another, and
+    /// the same wherever the whole tree lies. Part of the ingest units' cache keys.
+    pub fn layout(&self) -> Vec<(String, String)> {
+        let Some((_, base)) = self.roots.first() else {
+            return Vec::new();
+        };
+        self.roots
+            .iter()
+            .map(|(label, dir)| (label.clone(), relative_between(dir, base)))
+            .collect()
+    }
+}
+
+fn file_name(path: &Path) -> String {
+    path.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+fn outside_name(path: &Path, hash: &[u8; 32]) -> String {
+    let hex: String = hash[..8].iter().map(|b| format!("{b:02x}")).collect();
+    format!("{OUTSIDE}:{}@{hex}", file_name(path))
+}
+
+/// `path` relative to `base` (both canonical), `/`-separated, `.` for the same folder.
+fn relative_between(path: &Path, base: &Path) -> String {
+    let p: Vec<Component> = path.components().collect();
+    let b: Vec<Component> = base.components().collect();
+    let common = p.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    let mut parts: Vec<String> = vec!["..".into(); b.len() - common];
+    parts.extend(
+        p[common..]
+            .iter()
+            .map(|c| c.as_os_str().to_string_lossy().into_owned()),
+    );
+    if parts.is_empty() {
+        ".".into()
+    } else {
+        parts.join("/")
+    }
+}
+
 /// 3DS and GLB references are reported by byte offset, text files by line.
 fn is_binary(path: &Path) -> bool {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
@@ -187,6 +352,59 @@ mod tests {
             let more = Roots::new([scene.as_path(), outside.as_path()]);
             assert!(more.resolve(&scene.join("link.txf")).0);
         }
+    }
+
+    #[test]
+    fn source_names_are_relative_to_the_roots_wherever_the_scene_lies() {
+        let dir = tempfile::tempdir().unwrap();
+        for tree in ["a", "b/deeper"] {
+            let top = dir.path().join(tree);
+            std::fs::create_dir_all(top.join("scene/sub")).unwrap();
+            std::fs::create_dir_all(top.join("lib")).unwrap();
+            std::fs::write(top.join("scene/sub/t.png"), b"t").unwrap();
+            std::fs::write(top.join("lib/tree.txf"), b"x").unwrap();
+        }
+        let names = |top: &Path| {
+            SourceNames::new(
+                &top.join("scene/scene.eco"),
+                &[top.join("lib"), top.join("missing")],
+                &[top.join("scene/sub")],
+            )
+        };
+        let (a, b) = (
+            names(&dir.path().join("a")),
+            names(&dir.path().join("b/deeper")),
+        );
+        for (n, top) in [
+            (&a, dir.path().join("a")),
+            (&b, dir.path().join("b/deeper")),
+        ] {
+            assert_eq!(
+                n.name(&top.join("scene/sub/../sub/t.png")),
+                "scene:sub/t.png"
+            );
+            assert_eq!(n.name(&top.join("lib/tree.txf")), "models/0:tree.txf");
+            assert_eq!(n.name(&top.join("scene/scene.eco")), "scene:scene.eco");
+            assert_eq!(
+                n.path_of("models/0:tree.txf").unwrap(),
+                std::fs::canonicalize(top.join("lib/tree.txf")).unwrap()
+            );
+            assert_eq!(n.path_of("models/1:x"), None);
+            assert_eq!(n.path_of("scene:../x"), None);
+        }
+        assert_eq!(a.layout(), b.layout());
+        assert_eq!(
+            a.layout()[1],
+            ("models/0".to_string(), "../lib".to_string())
+        );
+        assert_eq!(a.layout()[2], ("allow/0".to_string(), "sub".to_string()));
+        // Outside every root: the file name and the contents' hash, the same in both trees.
+        std::fs::write(dir.path().join("sky.hdr"), b"sky").unwrap();
+        let outside = a.name(&dir.path().join("sky.hdr"));
+        assert!(outside.starts_with("outside:sky.hdr@"), "{outside}");
+        assert_eq!(outside.len(), "outside:sky.hdr@".len() + 16);
+        assert_eq!(outside, b.name(&dir.path().join("sky.hdr")));
+        assert_eq!(a.path_of(&outside), None);
     }
 
     #[test]

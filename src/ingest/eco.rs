@@ -434,6 +434,12 @@ pub fn scene_policy(first: &Path, opts: &IngestOptions) -> super::ReadPolicy {
     }
 }
 
+/// The location-independent names of a scene's files ([`super::confine::SourceNames`]): its
+/// roots as [`scene_policy`] has them, labelled.
+pub fn scene_names(first: &Path, opts: &IngestOptions) -> super::confine::SourceNames {
+    super::confine::SourceNames::new(first, &opts.model_dirs, &opts.allow_paths)
+}
+
 /// The further ECO files of a scene lie inside its roots too.
 fn check_further_eco_files(paths: &[PathBuf], roots: &super::confine::Roots) -> Result<()> {
     for p in paths {

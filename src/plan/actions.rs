@@ -38,6 +38,16 @@ impl SceneArgs {
         Ok(self.first()?.display().to_string())
     }
 
+    /// The location-independent names of the scene's files.
+    fn names(&self) -> Result<ingest::confine::SourceNames> {
+        Ok(ingest::eco::scene_names(self.first()?, &self.ingest))
+    }
+
+    /// What the sections record as the scene's source: the first ECO file by name.
+    fn source(&self) -> Result<String> {
+        Ok(ingest::confine::SourceNames::first_name(self.first()?))
+    }
+
     fn policy(&self) -> Result<ingest::ReadPolicy> {
         Ok(ingest::eco::scene_policy(self.first()?, &self.ingest))
     }
@@ -96,7 +106,7 @@ pub fn terrain(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
     let plan = s.plan()?;
     let mut sections = Vec::new();
     if let Some(t) = &plan.scene.terrain {
-        sections = crate::pipeline::terrain_sections(s.first()?, t);
+        sections = crate::pipeline::terrain_sections(&s.source()?, t);
         if s.pipeline.stages.terrain {
             let view = Pack::from_sections(&sections, &s.view_name()?);
             let (prepared, _) = crate::terrain::bake_terrain(&view)?;
@@ -128,7 +138,7 @@ pub fn model(
         .map_err(|m| Error::usage(format!("pipeline: {m}")))?;
     let policy = s.policy()?;
     let model_hash = cache::hash_file(path)?;
-    let o = crate::graph::ingest_model(name, path, &policy)?;
+    let o = crate::graph::ingest_model(name, path, &policy, &s.names()?)?;
     let mut sections = o.sections;
     let mut warnings = o.warnings;
     if s.pipeline.stages.material {
@@ -434,7 +444,7 @@ pub fn svo(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> 
     let geo = geometry::pack_geometry(&view)?;
     let v = crate::voxel::voxelize::mesh_to_voxels(&geo.mesh, &geo.textures, &s.pipeline.svo)?;
     let tree = crate::voxel::svo::voxels_to_svo(&v);
-    let sec = crate::voxel::section::to_section("svo", &name, &tree, s.pipeline.svo.solid);
+    let sec = crate::voxel::section::to_section("svo", &s.source()?, &tree, s.pipeline.svo.solid);
     finish("svo", out, vec![sec], Vec::new())
 }
 
@@ -450,7 +460,7 @@ pub fn linespace(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitRe
         s.pipeline.linespace.n,
     ));
     let tree = crate::linespace::ntree::build_ntree(&tris, &s.pipeline.linespace, &shafts)?;
-    let sec = crate::linespace::section::to_section("linespace", &name, &tree);
+    let sec = crate::linespace::section::to_section("linespace", &s.source()?, &tree);
     finish("linespace", out, vec![sec], Vec::new())
 }
 
@@ -508,6 +518,7 @@ pub fn record(s: &SceneArgs, deps: &[PathBuf], out: &Path) -> Result<UnitReport>
             },
         });
     }
+    let file_deps = crate::graph::record_files(&s.names()?, &file_deps);
     let opts = BuildOptions {
         scenes: s.scenes.clone(),
         sky: s.sky.clone(),
