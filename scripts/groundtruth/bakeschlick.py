@@ -78,7 +78,10 @@ class BakeSchlick(mi.BSDF):
             layer["color"] = mi.Color3f(c) if c is not None else mi.Color3f(0.0)
             self.layers.append(layer)
         self.translucence = mi.Float(props.get("translucence", 0.0))
+        # A texture, or a constant colour (the BRDF check's probes).
         self.color_map = props.get("color_map", None)
+        if self.color_map is not None and not isinstance(self.color_map, mi.Texture):
+            self.color_map = mi.Color3f(self.color_map)
         tau = float(props.get("translucence", 0.0))
         self.p_other = min(tau, 0.5) if tau > 0.0 else 0.0
         flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
@@ -92,7 +95,9 @@ class BakeSchlick(mi.BSDF):
     def _map(self, si, active):
         if self.color_map is None:
             return mi.Color3f(1.0)
-        return self.color_map.eval(si, active)
+        if isinstance(self.color_map, mi.Texture):
+            return self.color_map.eval(si, active)
+        return self.color_map
 
     def _f(self, si, wo, active):
         return eval_schlick(
