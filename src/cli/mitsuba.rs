@@ -35,6 +35,10 @@ pub struct MitsubaArgs {
     /// Default `max_depth` of scene.xml's volpath integrator.
     #[arg(long, default_value_t = 12)]
     pub max_depth: u32,
+    /// Each model as a shapegroup with one instance per record (default: one world-space mesh
+    /// per model and material; Mitsuba's JIT variants compile each instance into the kernel).
+    #[arg(long)]
+    pub shapegroups: bool,
 }
 
 pub fn run(args: &MitsubaArgs, _g: &Global) -> Result<Outcome> {
@@ -49,6 +53,7 @@ pub fn run(args: &MitsubaArgs, _g: &Global) -> Result<Outcome> {
     let opts = crate::mitsuba::ExportOptions {
         envmap_height: args.envmap_height,
         max_depth: args.max_depth,
+        instancing: args.shapegroups,
     };
     let pack = Pack::open(&args.pack)?;
     let s = crate::mitsuba::export(&pack, &view, &opts, &args.output)?;
