@@ -157,6 +157,22 @@ def conventions(out):
     want = albedo / math.pi * e * s[2]
     got = float(img.mean())
     results.append(("plane under the sun: albedo/π·E·cos θ", got, want, 1e-3))
+    # A fully transparent mask card above the plane changes nothing at direct.xml's max_depth 2:
+    # volpath passes masks without counting a bounce, on camera and on shadow rays.
+    sc = plane_scene(
+        {
+            "type": "directional",
+            "direction": [-s[0], -s[1], -s[2]],
+            "irradiance": {"type": "rgb", "value": e},
+        }
+    )
+    sc["card"] = {
+        "type": "rectangle",
+        "to_world": mi.ScalarTransform4f().translate([0, 0, 1]).scale([10, 10, 1]),
+        "bsdf": {"type": "mask", "opacity": {"type": "uniform", "value": 0.0}, "bsdf": {"type": "diffuse"}},
+    }
+    got = float(np.array(mi.render(mi.load_dict(sc))).mean())
+    results.append(("the same under a transparent mask card (volpath, max_depth 2)", got, want, 1e-3))
     # A uniform sky of radiance L = 2 (a constant envmap image with the exporter's to_world).
     env = np.full((33, 64, 3), 2.0, dtype=np.float32)
     path = out / "conventions_sky.exr"
@@ -189,6 +205,32 @@ def conventions(out):
     vals = [float(envmap_eval(em, np.array([v]))[0, 0]) for v in toward]
     results.append(("envmap: bright toward d", vals[0], 1.0, 1e-3))
     results.append(("envmap: dark away from d (−d, d turned 90°, d mirrored)", max(vals[1:]), 0.0, 1e-3))
+    # The plugin's sampling against its own eval: for a leaf-like material (glossy wax over a
+    # translucent diffuse layer), the mean sample weight f·cos/pdf equals ∫ f cos over the sphere
+    # estimated with uniform directions (a wrong pdf shows as a bias).
+    props = {"type": "bakeschlick", "translucence": 0.3}
+    for side, layer in (
+        ("top", dict(roughness=0.1, isotropy=1.0, diffuse=0.0, glossy=1.0, specular=0.0, color=[0.075] * 3)),
+        ("bottom", dict(roughness=1.0, isotropy=1.0, diffuse=1.0, glossy=0.0, specular=0.0, color=[0.35, 0.6, 0.25])),
+    ):
+        for k, v in layer.items():
+            props[f"{side}_{k}"] = {"type": "rgb", "value": v} if k == "color" else v
+    bsdf = mi.load_dict(props)
+    n = 1 << 18
+    rng = np.random.default_rng(35)
+    for theta in (0.3, 1.2):
+        si = dr.zeros(mi.SurfaceInteraction3f, n)
+        si.wi = vec3(np.tile([math.sin(theta), 0.0, math.cos(theta)], (n, 1)))
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+        ctx = mi.BSDFContext()
+        _, w = bsdf.sample(ctx, si, mi.Float(rng.random(n, dtype=np.float32)),
+                           mi.Point2f(rng.random(n, dtype=np.float32), rng.random(n, dtype=np.float32)))
+        sampled = float(np.array(w, dtype=np.float64).reshape(3, n)[1].mean())
+        u = rng.normal(size=(n, 3))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        f = np.array(bsdf.eval(ctx, si, vec3(u)), dtype=np.float64).reshape(3, n)[1]
+        uniform = float(f.mean() * 4 * math.pi)
+        results.append((f"bakeschlick: sampled albedo = ∫ f cos at θ = {theta}", sampled, uniform, 0.01))
     ok = True
     for name, got, want, tol in results:
         good = abs(got - want) <= tol * max(1.0, abs(want))
