@@ -3,7 +3,15 @@
 //!
 //! Adapter choice: Vulkan first, then GL; on each backend a normal request first, then a
 //! fallback-adapter request, then any enumerated adapter. A CPU adapter (`DeviceType::Cpu`) is
-//! accepted: that is how `bake render` runs on a machine without a GPU.
+//! accepted: that is how `bake render` runs on a machine without a GPU. The environment
+//! variable `BAKE_BACKEND=vulkan|gl|auto` overrides [`BackendChoice::Auto`] (what every command
+//! and test uses unless told `--backend`): the tests run once per backend that way.
+//!
+//! The GL backend differs from Vulkan where wgpu's GL layer fixes what Vulkan leaves to the
+//! view, and the renderer asks [`Gpu`] rather than assume Vulkan's behaviour:
+//! [`Gpu::array_layers`] (a texture's GL target follows its layer count at creation, so a
+//! one-layer array texture is given two), and [`init_gpu`] turns on seamless cube-map filtering
+//! on desktop GL (always on in Vulkan and GLES 3; wgpu leaves desktop GL's default, off).
 
 use crate::error::{Error, Result};
 use std::sync::{Arc, Mutex};
@@ -12,14 +20,34 @@ use std::sync::{Arc, Mutex};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum BackendChoice {
-    /// Vulkan, then GL.
+    /// Vulkan, then GL; or what [`BACKEND_ENV`] names ([`BackendChoice::resolve`]).
     #[default]
     Auto,
     Vulkan,
     Gl,
 }
 
+/// The environment variable that overrides [`BackendChoice::Auto`].
+pub const BACKEND_ENV: &str = "BAKE_BACKEND";
+
 impl BackendChoice {
+    /// `Auto` as [`BACKEND_ENV`] sets it (`vulkan`, `gl`, or `auto`/unset/empty for Vulkan then
+    /// GL); an explicit choice stays. Another value of the variable is a usage error.
+    pub fn resolve(self) -> Result<BackendChoice> {
+        if self != BackendChoice::Auto {
+            return Ok(self);
+        }
+        let value = std::env::var(BACKEND_ENV).unwrap_or_default();
+        match value.trim().to_ascii_lowercase().as_str() {
+            "" | "auto" => Ok(BackendChoice::Auto),
+            "vulkan" => Ok(BackendChoice::Vulkan),
+            "gl" => Ok(BackendChoice::Gl),
+            _ => Err(Error::usage(format!(
+                "{BACKEND_ENV}={value:?}: expected vulkan, gl or auto"
+            ))),
+        }
+    }
+
     fn order(self) -> &'static [wgpu::Backends] {
         match self {
             BackendChoice::Auto => &[wgpu::Backends::VULKAN, wgpu::Backends::GL],
@@ -55,14 +83,17 @@ pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub adapter: AdapterSummary,
+    /// The API the device runs on.
+    pub backend: wgpu::Backend,
     /// Validation, out-of-memory and device-lost messages collected by callbacks.
     errors: Arc<Mutex<Vec<String>>>,
 }
 
-/// Opens a device on the first backend in `choice` that has an adapter.
+/// Opens a device on the first backend in `choice` (`Auto` as [`BackendChoice::resolve`] sets
+/// it) that has an adapter.
 pub fn init_gpu(choice: BackendChoice) -> Result<Gpu> {
     let mut tried = Vec::new();
-    for &backends in choice.order() {
+    for &backends in choice.resolve()?.order() {
         match try_backend(backends) {
             Ok(gpu) => return Ok(gpu),
             Err(e) => tried.push(format!("{backends:?}: {e}")),
@@ -70,7 +101,7 @@ pub fn init_gpu(choice: BackendChoice) -> Result<Gpu> {
     }
     Err(Error::runtime(format!(
         "no usable GPU adapter (install Mesa's lavapipe: packages mesa-vulkan-drivers \
-         libvulkan1): {}",
+         libvulkan1; or for GL its llvmpipe: libegl1 libegl-mesa0 libgl1-mesa-dri): {}",
         tried.join("; ")
     )))
 }
@@ -116,6 +147,9 @@ fn try_backend(backends: wgpu::Backends) -> std::result::Result<Gpu, String> {
         ..Default::default()
     }))
     .map_err(|e| format!("{summary}: request_device failed: {e}"))?;
+    if info.backend == wgpu::Backend::Gl {
+        gl_seamless_cube_maps(&device);
+    }
     let errors = Arc::new(Mutex::new(Vec::new()));
     let sink = errors.clone();
     device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
@@ -129,9 +163,43 @@ fn try_backend(backends: wgpu::Backends) -> std::result::Result<Gpu, String> {
         device,
         queue,
         adapter: summary,
+        backend: info.backend,
         errors,
     })
 }
+
+/// Turns on seamless cube-map filtering in a desktop GL context: GL's default samples each face
+/// alone, clamped at its edges (a visible seam in the sky box, off by up to half a texel's
+/// neighbour across the edge), where Vulkan and GLES 3 always filter across faces as the CPU
+/// reference does (`CubeMap::sample`). wgpu never sets it and never clears it; the state belongs
+/// to the device's one context.
+#[cfg(any(
+    windows,
+    target_os = "linux",
+    target_os = "android",
+    target_os = "freebsd"
+))]
+fn gl_seamless_cube_maps(device: &wgpu::Device) {
+    use glow::HasContext;
+    // SAFETY: the device is a live GL device (the caller checked the backend); the context is
+    // locked (and made current) for the two calls, and the flag is one wgpu-hal never touches.
+    unsafe {
+        if let Some(hal) = device.as_hal::<wgpu::hal::api::Gles>() {
+            let gl = hal.context().lock();
+            if !gl.version().is_embedded {
+                gl.enable(glow::TEXTURE_CUBE_MAP_SEAMLESS);
+            }
+        }
+    }
+}
+
+#[cfg(not(any(
+    windows,
+    target_os = "linux",
+    target_os = "android",
+    target_os = "freebsd"
+)))]
+fn gl_seamless_cube_maps(_device: &wgpu::Device) {}
 
 fn request_adapter(instance: &wgpu::Instance, backends: wgpu::Backends) -> Option<wgpu::Adapter> {
     for force_fallback_adapter in [false, true] {
@@ -190,6 +258,17 @@ impl Gpu {
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| Error::runtime(format!("GPU wait failed on {}: {e}", self.adapter)))?;
         self.check()
+    }
+
+    /// The layers to give a texture of `layers` layers that is bound as a `D2Array` view:
+    /// `layers`, but at least 2 on GL, where wgpu makes a one-layer texture a `TEXTURE_2D` (the
+    /// target follows the layer count at creation) that an array sampler does not read (a shadow
+    /// lookup then returns 0: all in shadow).
+    pub fn array_layers(&self, layers: u32) -> u32 {
+        match self.backend {
+            wgpu::Backend::Gl => layers.max(2),
+            _ => layers,
+        }
     }
 
     /// The largest 2D texture side the device accepts.

@@ -268,7 +268,61 @@ pub fn bilinear_height(
     a * (1.0 - ty) + b * ty
 }
 
+/// Height at world (x, y) on the drawn and traced terrain surface: two triangles per grid cell,
+/// split along the diagonal from sample (i, j) to (i + 1, j + 1) (`trace::heightfield`,
+/// `render::terrain_lod`), clamped to the terrain's edge. It differs from [`bilinear_height`]
+/// inside a cell by up to a quarter of the cell's twist `|h00 − h10 − h01 + h11|`; a point at the
+/// bilinear height of a concave cell lies below the triangles.
+pub fn mesh_height(
+    heights: &[f32],
+    (width, height): (u32, u32),
+    origin: [f32; 2],
+    extent: [f32; 2],
+    x: f32,
+    y: f32,
+) -> f32 {
+    let w = width.max(1);
+    let h = height.max(1);
+    let grid = |v: f32, o: f32, e: f32, n: u32| {
+        if n > 1 {
+            ((v - o) / e * (n - 1) as f32).clamp(0.0, (n - 1) as f32)
+        } else {
+            0.0
+        }
+    };
+    let fx = grid(x, origin[0], extent[0], w);
+    let fy = grid(y, origin[1], extent[1], h);
+    let i0 = (fx.floor() as u32).min(w.saturating_sub(2));
+    let j0 = (fy.floor() as u32).min(h.saturating_sub(2));
+    let i1 = (i0 + 1).min(w - 1);
+    let j1 = (j0 + 1).min(h - 1);
+    let tx = fx - i0 as f32;
+    let ty = fy - j0 as f32;
+    let at = |i: u32, j: u32| heights[(j * width + i) as usize];
+    let (h00, h10, h01, h11) = (at(i0, j0), at(i1, j0), at(i0, j1), at(i1, j1));
+    if tx >= ty {
+        // Triangle (i, j) (i+1, j) (i+1, j+1).
+        h00 + tx * (h10 - h00) + ty * (h11 - h10)
+    } else {
+        // Triangle (i, j) (i+1, j+1) (i, j+1).
+        h00 + ty * (h01 - h00) + tx * (h11 - h01)
+    }
+}
+
 impl Terrain {
+    /// Height at world (x, y) on the two-triangle surface that is drawn and traced
+    /// ([`mesh_height`]).
+    pub fn mesh_height_at(&self, x: f32, y: f32) -> f32 {
+        mesh_height(
+            &self.heights,
+            (self.width, self.height),
+            self.origin,
+            self.extent,
+            x,
+            y,
+        )
+    }
+
     /// Height at grid sample (i, j).
     pub fn sample(&self, i: u32, j: u32) -> f32 {
         self.heights[(j * self.width + i) as usize]

@@ -41,8 +41,15 @@ pub fn to_section(
     let mut rotation = Vec::with_capacity(order.len());
     let mut model = Vec::with_capacity(order.len());
     let mut layer = Vec::with_capacity(order.len());
+    let mut residual = Vec::with_capacity(order.len());
+    let cells = (side_of(tree.children) as f64).powi(tree.levels as i32);
     for &k in &order {
         let i = &inst.items[k as usize];
+        residual.push(encode_residual(
+            [i.position[0], i.position[1]],
+            &area,
+            cells,
+        ));
         scale.push(i.scale);
         rotation.push((i.rotation_deg.rem_euclid(360.0) / 360.0 * 65536.0).round() as u32 as u16);
         model.push(
@@ -67,14 +74,49 @@ pub fn to_section(
         .array("scale", ArrayFormat::F32, 1, &scale)
         .array("rotation", ArrayFormat::U16, 1, &rotation)
         .array("model", ArrayFormat::U16, 1, &model)
-        .array("layer", ArrayFormat::U16, 1, &layer);
+        .array("layer", ArrayFormat::U16, 1, &layer)
+        .array("residual", ArrayFormat::U16, 2, &residual);
     if !tree.shared.is_empty() {
         b.array("shared", ArrayFormat::U32, 1, &tree.shared);
     }
     Ok(b.finish())
 }
 
-/// Decoded instances: (x, y) cell centres, scale, rotation in degrees, model, layer.
+/// Steps of the `residual` array across a leaf cell, per axis.
+pub const RESIDUAL_STEPS: f64 = 65536.0;
+
+fn side_of(children: u32) -> u32 {
+    match children {
+        4 => 2,
+        16 => 4,
+        _ => 8,
+    }
+}
+
+/// The position of `p` within its leaf cell of a `cells` × `cells` grid over `area`, in
+/// [`RESIDUAL_STEPS`] steps per axis (clamped into the area like the cell itself).
+fn encode_residual(p: [f32; 2], area: &Rect, cells: f64) -> [u16; 2] {
+    [0, 1].map(|k| {
+        let t = ((p[k] - area.origin[k]) as f64 / area.extent[k] as f64).clamp(0.0, 1.0) * cells;
+        let c = t.floor().min(cells - 1.0);
+        ((t - c) * RESIDUAL_STEPS)
+            .floor()
+            .clamp(0.0, RESIDUAL_STEPS - 1.0) as u16
+    })
+}
+
+/// The decoded position of a point whose leaf cell has centre `centre` and size `cell`, from its
+/// residual: the middle of its residual step, within `cell / 2¹⁷` of the encoded position.
+fn decode_residual(centre: [f32; 2], cell: [f64; 2], q: [u16; 2]) -> [f32; 2] {
+    [0, 1].map(|k| {
+        let lo = centre[k] as f64 - 0.5 * cell[k];
+        (lo + (q[k] as f64 + 0.5) / RESIDUAL_STEPS * cell[k]) as f32
+    })
+}
+
+/// Decoded instances: (x, y) positions (the leaf cell's centre moved by the instance's residual,
+/// within `cell / 2¹⁷` of the encoded position; the cell centre for a section without a
+/// `residual` array), scale, rotation in degrees, model, layer.
 pub struct Decoded {
     pub meta: BitTreeMeta,
     pub positions: Vec<[f32; 2]>,
@@ -109,8 +151,26 @@ pub fn from_section(v: &SectionView) -> Result<Decoded, ParseError> {
             format!("{} children, {} levels", tree.children, tree.levels),
         ));
     }
-    let positions =
+    let mut positions =
         decode_bittree(&tree).map_err(|e| ParseError::new("bittree section", e.to_string()))?;
+    if v.info("residual").is_some() {
+        let residual: Vec<[u16; 2]> = v.array_vec("residual")?;
+        if residual.len() != positions.len() {
+            return Err(ParseError::new(
+                "bittree section",
+                format!(
+                    "{} residuals for {} instances",
+                    residual.len(),
+                    positions.len()
+                ),
+            ));
+        }
+        let cells = (side_of(tree.children) as f64).powi(tree.levels as i32);
+        let cell = [0, 1].map(|k| tree.area.extent[k] as f64 / cells);
+        for (p, q) in positions.iter_mut().zip(&residual) {
+            *p = decode_residual(*p, cell, *q);
+        }
+    }
     let scale: Vec<f32> = v.array_vec("scale")?;
     let rotation: Vec<u16> = v.array_vec("rotation")?;
     let model: Vec<u16> = v.array_vec("model")?;
@@ -162,6 +222,13 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
         "shared_leaf_instances": v.info("shared").map_or(0, |a| a.count),
         "position_bytes": meta.bit_len.div_ceil(8),
         "cell_size": [meta.area.extent[0] as f64 / cells, meta.area.extent[1] as f64 / cells],
+        "residual_bytes": v.info("residual").map_or(0, |a| a.byte_len()),
+        "position_error_max": if v.info("residual").is_some() {
+            json!([meta.area.extent[0] as f64 / cells / (2.0 * RESIDUAL_STEPS),
+                   meta.area.extent[1] as f64 / cells / (2.0 * RESIDUAL_STEPS)])
+        } else {
+            json!([meta.area.extent[0] as f64 / cells / 2.0, meta.area.extent[1] as f64 / cells / 2.0])
+        },
         "bytes_per_instance": per, "explicit_bytes": meta.count * EXPLICIT_BYTES,
         "ratio_to_explicit": if meta.count > 0 { bytes as f64 / (meta.count * EXPLICIT_BYTES) as f64 } else { 0.0 },
     }))
@@ -181,6 +248,57 @@ mod tests {
     use super::*;
     use crate::model::Instance;
     use crate::pack::PackWriter;
+
+    /// Drawn = lit (issue 35): with coarse leaf cells (2 levels of 16 children over 64 m: 4 m
+    /// cells, many instances per leaf) every decoded position lies within cell/2¹⁷ of its
+    /// instance, in leaf order; without the residual it was the cell centre, up to 2.8 m away.
+    #[test]
+    fn residuals_put_every_decoded_instance_within_a_residual_step_of_its_position() {
+        let mut rng = crate::rng::Rng::new(11);
+        let items: Vec<Instance> = (0..2000)
+            .map(|k| Instance {
+                model: k % 5,
+                position: [3.0 + rng.f32() * 64.0, -7.0 + rng.f32() * 64.0, 0.0],
+                scale: 1.0,
+                rotation_deg: 0.0,
+                layer: 0,
+            })
+            .collect();
+        let inst = Instances {
+            models: (0..5).map(|k| format!("m{k}")).collect(),
+            items: items.clone(),
+        };
+        let area = Rect {
+            origin: [3.0, -7.0],
+            extent: [64.0, 64.0],
+        };
+        let opts = BitTreeOptions {
+            children: 16,
+            max_levels: 2,
+        };
+        let mut w = PackWriter::new();
+        w.insert(to_section("bittree", &inst, area, &opts).unwrap());
+        let pack = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap();
+        let d = from_section(&pack.view_named("bittree").unwrap()).unwrap();
+        assert_eq!(d.meta.levels, 2);
+        let xy: Vec<[f32; 2]> = items
+            .iter()
+            .map(|i| [i.position[0], i.position[1]])
+            .collect();
+        let order = crate::bittree::leaf_order(&xy, &area, 16, 2);
+        let cell = 64.0 / 16.0;
+        let bound = cell / 131072.0 + 1e-5;
+        let mut worst = 0.0f32;
+        for (k, &i) in order.iter().enumerate() {
+            let (got, want) = (d.positions[k], xy[i as usize]);
+            worst = worst.max((got[0] - want[0]).abs().max((got[1] - want[1]).abs()));
+            assert_eq!(d.model[k] as u32, items[i as usize].model);
+        }
+        assert!(worst <= bound, "worst {worst} m, bound {bound} m");
+        let s = summary(&pack.view_named("bittree").unwrap()).unwrap();
+        assert_eq!(s["residual_bytes"], 2000 * 4);
+        assert!(s["position_error_max"][0].as_f64().unwrap() <= 0.01);
+    }
 
     #[test]
     fn section_round_trip_keeps_attributes_in_leaf_order() {

@@ -29,7 +29,7 @@ macro_rules! value_enum {
 }
 
 value_enum!(BackendChoice {
-    Auto => "auto": "Vulkan, then GL",
+    Auto => "auto": "Vulkan, then GL (BAKE_BACKEND=vulkan|gl picks one)",
     Vulkan => "vulkan",
     Gl => "gl",
 });

@@ -52,16 +52,24 @@ pub mod versions {
     /// 3: no Russian roulette at the first hit (issue 19).
     /// 4: `prt.sides` (default `auto`): the back side of one-sided materials is not traced
     /// (zero transfer; issue 19).
-    pub const PRT: u32 = 4;
+    /// 5: one linear albedo and translucence for every stage (`material::convert::diffuse_albedo`,
+    /// `translucence`): authored colours no longer sRGB-decoded, authored materials opaque
+    /// (issue 35).
+    pub const PRT: u32 = 5;
     /// 1: the `lod` stage (issue 14): meshopt levels, leaf-card thinning, impostor atlas.
     /// 2: cards keep their triangles, a level's error counts the cards it removes (issue 14).
     /// 3: the model's skeleton (TXF line and point arrays) kept as the farthest representation.
-    pub const LOD: u32 = 3;
-    pub const LIGHTMAP: u32 = 1;
-    pub const ATLAS: u32 = 1;
+    /// 4: impostor and skeleton colours from the linear albedo (issue 35).
+    pub const LOD: u32 = 4;
+    /// 2: texels sampled on the drawn two-triangle surface; the linear albedo; a terrain
+    /// without colour map has albedo 0.216 as drawn (issue 35).
+    pub const LIGHTMAP: u32 = 2;
+    /// 2: the linear albedo (issue 35).
+    pub const ATLAS: u32 = 2;
     /// 2: the rays traced as two independently rotated halves, whose difference is the
     /// section's noise estimate (`noise_covariance`, `noise_variance`; issue 20, item 2).
-    pub const ENVMAPS: u32 = 2;
+    /// 3: the linear albedo and the terrain's drawn albedo (issue 35).
+    pub const ENVMAPS: u32 = 3;
     /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
     /// 3: a byte budget (20x by default), the per-instance local part and split fraction 1.0
     /// (issue 20, item 2).
@@ -70,8 +78,10 @@ pub mod versions {
     pub const CLUSTER: u32 = 4;
     /// 2: instances within 1 mm of each other share a leaf (the `shared` array) instead of
     /// forcing deeper levels or failing (issue 16).
-    pub const BITTREE: u32 = 2;
-    pub const SVO: u32 = 1;
+    /// 3: per-instance residuals within the leaf cell (`residual`, issue 35).
+    pub const BITTREE: u32 = 3;
+    /// 2: voxel colours from the linear albedo (issue 35).
+    pub const SVO: u32 = 2;
     /// 2: the compact section layout (issue 15).
     pub const LINESPACE: u32 = 2;
 

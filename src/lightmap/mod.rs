@@ -166,7 +166,7 @@ pub fn bake_terrain_lightmap_rows(
             let x = t.origin[0] + (i as f32 + 0.5) / w as f32 * t.extent[0];
             // Row 0 is north (y = y₀ + extent).
             let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / h as f32) * t.extent[1];
-            let p = Vec3A::new(x, y, t.height_at(x, y));
+            let p = Vec3A::new(x, y, t.mesh_height_at(x, y));
             let n = Vec3A::from(height_normal(t, x, y));
             texel_irradiance_parts(bvh, &scene.albedo, light, &sky_irr, p, n, k as u64, opts)
         })
@@ -418,7 +418,7 @@ pub fn terrain_direct_sun(
             let vis = match meta.mode {
                 LightmapMode::Thesis => 1.0,
                 LightmapMode::Physical => {
-                    let o = Vec3A::new(x, y, t.height_at(x, y)) + n * 1e-3;
+                    let o = Vec3A::new(x, y, t.mesh_height_at(x, y)) + n * 1e-3;
                     sun_visibility(&scene.bvh, o, s, meta.sun_samples, k as u64)
                 }
             };

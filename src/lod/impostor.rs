@@ -181,7 +181,7 @@ fn linear_albedo(
         return ([1.0, 0.0, 1.0], 1.0);
     };
     let mut alpha = 1.0;
-    let mut lin = [0, 1, 2].map(|k| srgb_to_linear(m.diffuse[k].clamp(0.0, 1.0)));
+    let mut lin = crate::material::convert::diffuse_albedo(m);
     if let Some(img) = m
         .color_map
         .and_then(|i| textures.get(i as usize))

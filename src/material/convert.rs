@@ -131,6 +131,32 @@ pub fn material_to_schlick(m: &Material) -> SchlickMaterial {
     out
 }
 
+/// The diffuse albedo of an input material, linear RGB without its colour map: the bottom
+/// layer's colour of [`material_to_schlick`] (authored OpenGL/3DS/MTL colours are lighting
+/// coefficients and so linear; glTF's base colour factor is linear; the thesis' leaf is white
+/// under its colour map). The one albedo of every stage that traces light (PRT, light maps,
+/// env maps, voxels, impostors) and of the renderer; multiply by the colour map's linear texel.
+pub fn diffuse_albedo(m: &Material) -> [f32; 3] {
+    material_to_schlick(m).layers[1].color
+}
+
+/// The translucence the light-tracing stages use for `m`: the converted material's
+/// ([`material_to_schlick`]: the TXF set's value, else 0 for authored and untextured default
+/// materials), except a textured default material (the thesis' leaf) without a TXF value, which
+/// takes `leaf_default` (the PRT option `default_translucence`, 0.3 as in the leaf's Schlick
+/// material unless set otherwise).
+pub fn translucence(m: &Material, leaf_default: f32) -> f32 {
+    let t = if is_default_material(m)
+        && m.color_map.is_some()
+        && m.translucence.is_none_or(|t| t <= 0.0)
+    {
+        leaf_default
+    } else {
+        material_to_schlick(m).translucence
+    };
+    unit(t)
+}
+
 fn unit(x: f32) -> f32 {
     if x.is_finite() {
         x.clamp(0.0, 1.0)

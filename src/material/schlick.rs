@@ -1,11 +1,12 @@
 //! The two-layer Schlick material (seed 000, Table 3.1) and its BRDF.
 //!
 //! Schlick, "An Inexpensive BRDF Model for Physically-based Rendering" (1994). One layer reflects
-//! `S(u)·D(t, v, v', w)` with the Fresnel approximation `S(u) = C + (1 − C)(1 − u)^5` and the
-//! directional factor
+//! `C·a/π + S(u)·D(t, v, v', w)` with the Fresnel approximation `S(u) = C + (1 − C)(1 − u)^5`
+//! on the glossy lobe (the Lambertian part `a/π` carries the colour `C` alone: deviation 3 below)
+//! and the directional factor
 //!
 //! ```text
-//! D = a/π + b·[G(v)G(v')·Z(t)·A(w) / (4π v v')] + c·δ(mirror)
+//! D = b·[G(v)G(v')·Z(t)·A(w) / (4π v v')] + c·δ(mirror)
 //! Z(t) = r / (1 + r t² − t²)²          (r = roughness: Z/π is exactly GGX with α² = r)
 //! A(w) = sqrt(p / (p² − p² w² + w²))   (p = isotropy, w = cos of the half vector's azimuth to the tangent)
 //! G(v) = 2v / (v + sqrt(r + (1 − r)v²))  (Smith masking of Z; Schlick: v / (r − r v + v))
@@ -25,7 +26,12 @@
 //! 86°), so `G` is the Smith masking function that belongs to `Z` (GGX), with which the single-
 //! scattering lobe never reflects more than arrives. His glossy term also adds `(1 − G(v)G(v'))/π` to refill the energy the
 //! shadowing removes; that refill can push the albedo of a white, rough, anisotropic layer past 1,
-//! so it is left out (the white-furnace test holds the model to energy conservation).
+//! so it is left out (the white-furnace test holds the model to energy conservation). Third, a
+//! layer of reflectivity `C = 0` is no interface (`S ≡ 0`, the exact Fresnel term of index 1)
+//! and a layer's Lambertian part is `C·a/π` without `S(u)`: so an authored OpenGL colour of
+//! specular 0 is exactly Lambertian (issue 35: the top layer's `(1 − u)^5` took 55 % of a plate's
+//! light at a 6° view without reflecting it), while the thesis' leaf keeps its wax layer's
+//! Fresnel loss.
 
 use serde::{Deserialize, Serialize};
 use std::f32::consts::PI;
@@ -82,8 +88,14 @@ impl SchlickLayer {
         2.0 * v / (v + (r + (1.0 - r) * v * v).sqrt())
     }
 
-    /// Schlick's Fresnel approximation for colour channel `k`.
+    /// Schlick's Fresnel approximation for colour channel `k`. A layer of reflectivity 0 in
+    /// every channel is no interface (the exact Fresnel term of a refractive index of 1, which
+    /// Schlick's approximation misses): it reflects nothing and lets all light through, so an
+    /// authored material of specular 0 is its Lambertian bottom layer.
     fn fresnel(&self, u: f32, k: usize) -> f32 {
+        if self.color == [0.0; 3] {
+            return 0.0;
+        }
         let c = self.color[k];
         c + (1.0 - c) * (1.0 - u.clamp(0.0, 1.0)).powi(5)
     }
@@ -104,9 +116,12 @@ impl SchlickLayer {
 
     /// The layer's non-delta reflectance `S(u)·(a/π + b·glossy)` for light from `wi` seen from `wo`
     /// (both above the surface), given the half vector `h` and `u = wo·h`.
+    /// The diffuse part is Lambertian, `C·a/π` (a body colour has no Fresnel factor; with
+    /// `S(u)` on it a diffuse layer of colour 0.5 reflected up to 4 % more at grazing views);
+    /// the glossy lobe carries `S(u)`.
     fn reflectance(&self, wi: [f32; 3], wo: [f32; 3], h: [f32; 3], u: f32) -> [f32; 3] {
-        let d = self.diffuse / PI + self.glossy * self.glossy_lobe(wi, wo, h);
-        [0, 1, 2].map(|k| self.fresnel(u, k) * d)
+        let g = self.glossy * self.glossy_lobe(wi, wo, h);
+        [0, 1, 2].map(|k| self.color[k] * self.diffuse / PI + self.fresnel(u, k) * g)
     }
 }
 
@@ -246,6 +261,40 @@ mod tests {
     }
 
     use super::*;
+
+    /// An authored OpenGL material of specular 0 (top layer C = 0) is Lambertian: its diffuse
+    /// colour / π at every pair of directions, grazing ones included (issue 35: a flat plate
+    /// lost 15 % of Lambert at 18° and 55 % at 6° to the top layer's Fresnel term).
+    #[test]
+    fn authored_specular_zero_is_lambertian() {
+        let m = crate::model::Material {
+            diffuse: [1.0, 0.5, 0.25, 1.0],
+            specular: [0.0, 0.0, 0.0, 1.0],
+            shininess: 10.0,
+            ..Default::default()
+        };
+        let s = crate::material::convert::material_to_schlick(&m);
+        let mut rng = crate::rng::Rng::new(7);
+        for _ in 0..2000 {
+            let mut dir = || {
+                let z: f32 = rng.f32().max(1e-3);
+                let phi = std::f32::consts::TAU * rng.f32();
+                let r = (1.0 - z * z).sqrt();
+                [r * phi.cos(), r * phi.sin(), z]
+            };
+            let (wi, wo) = (dir(), dir());
+            let f = s.eval(wi, wo, [1.0; 3]);
+            for k in 0..3 {
+                let want = [1.0, 0.5, 0.25][k] / PI;
+                assert!((f[k] - want).abs() < 1e-6, "{wi:?} {wo:?}: {f:?}");
+            }
+        }
+        // The thesis' leaf keeps its wax layer's Fresnel loss at grazing views.
+        let leaf = crate::material::convert::LEAF_DEFAULT;
+        let f = leaf.eval([0.0, 0.0, 1.0], [0.995, 0.0, 0.0998], [1.0; 3]);
+        let f0 = leaf.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0; 3]);
+        assert!(f[0] < 0.9 * f0[0], "{f:?} {f0:?}");
+    }
 
     fn layer(r: f32, p: f32, w: [f32; 3], c: f32) -> SchlickLayer {
         SchlickLayer {

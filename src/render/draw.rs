@@ -353,6 +353,8 @@ fn shadow_group(
     enc: &mut wgpu::CommandEncoder,
 ) -> wgpu::BindGroup {
     let (side, layers) = shadows.map_or((1, 1), |s| (s.size, s.cascades.len() as u32));
+    // The shader reads a `D2Array` view: on GL a one-layer texture could not give one.
+    let layers = gpu.array_layers(layers);
     let map = gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: Some("shadow maps"),
         size: wgpu::Extent3d {

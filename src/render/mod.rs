@@ -14,6 +14,7 @@
 pub mod ambient;
 pub mod ambient_gpu;
 pub mod camera;
+pub mod coverage;
 pub mod cull;
 pub mod draw;
 pub mod impostor;

@@ -276,10 +276,13 @@ impl<'s, 'a> Reference<'s, 'a> {
 
     /// The closest hit of a primary ray, alpha-tested as the GPU tests it: where the hit's
     /// colour map has mips, the alpha of the pixel's mip level (trilinear, the footprint that
-    /// `footprint` sets) times the opacity against 0.5; the ray goes on past a rejected hit.
+    /// `footprint` sets) times the opacity against 0.5, blended towards the map's level-0
+    /// coverage past its 4×4 level and tested with the ray's `test`
+    /// ([`super::coverage::AlphaTest`]); the ray goes on past a rejected hit.
     pub fn trace_primary(
         &self,
         ray: &Ray,
+        test: super::coverage::AlphaTest,
         footprint: impl Fn(&mut HitRecord),
     ) -> Option<HitRecord> {
         let Some(bvh) = &self.primary else {
@@ -301,7 +304,13 @@ impl<'s, 'a> Reference<'s, 'a> {
                 return Some(hit);
             };
             let opacity = mat.schlick.map_or(1.0, |s| s.opacity);
-            if trilinear(mips, hit.uv, hit.uv_derivatives)[3] * opacity >= 0.5 {
+            let alpha = trilinear(mips, hit.uv, hit.uv_derivatives)[3] * opacity;
+            let [w, h, ..] = mips.levels[0];
+            let t = super::coverage::far_weight(
+                mips.levels.len(),
+                super::coverage::mip_lambda((w, h), hit.uv_derivatives),
+            );
+            if test.passes(alpha, mat.far_coverage, t) {
                 return Some(hit);
             }
             r = Ray::new(r.origin, r.dir, hit.t * (1.0 + 1e-6) + 1e-6);
@@ -404,8 +413,16 @@ impl<'s, 'a> Reference<'s, 'a> {
             .flat_map_iter(|y| {
                 (0..w).map(move |x| {
                     let mut l = [0.0f32; 3];
-                    for &[ox, oy] in offsets {
-                        let s = self.sample(view, size, terms, (x as f32 + ox, y as f32 + oy));
+                    for (k, &[ox, oy]) in offsets.iter().enumerate() {
+                        // The alpha test of each sample: (k + ½)/4 under MSAA (alpha to
+                        // coverage's share of samples) and the pixel's dither value.
+                        let thr = super::coverage::AlphaTest {
+                            dither: super::coverage::bayer4(x, y),
+                            sample: (offsets.len() > 1)
+                                .then(|| (k as f32 + 0.5) / offsets.len() as f32),
+                        };
+                        let p = (x as f32 + ox, y as f32 + oy);
+                        let s = self.sample_with(view, size, terms, p, thr);
                         l = [l[0] + s[0], l[1] + s[1], l[2] + s[2]];
                     }
                     l.map(|c| c / n)
@@ -419,13 +436,30 @@ impl<'s, 'a> Reference<'s, 'a> {
         self.sample(view, size, terms, (x as f32 + 0.5, y as f32 + 0.5))
     }
 
-    /// Radiance of the ray through image point `(px, py)` (pixels from the top-left corner).
+    /// Radiance of the ray through image point `(px, py)` (pixels from the top-left corner),
+    /// alpha-tested with the pixel's dither threshold (as without MSAA).
     pub fn sample(
+        &self,
+        view: &View,
+        size: (u32, u32),
+        terms: Terms,
+        (px, py): (f32, f32),
+    ) -> [f32; 3] {
+        let thr = super::coverage::AlphaTest {
+            dither: super::coverage::bayer4(px.max(0.0) as u32, py.max(0.0) as u32),
+            sample: None,
+        };
+        self.sample_with(view, size, terms, (px, py), thr)
+    }
+
+    /// [`Reference::sample`] with the alpha test given.
+    fn sample_with(
         &self,
         view: &View,
         (w, h): (u32, u32),
         terms: Terms,
         (px, py): (f32, f32),
+        threshold: super::coverage::AlphaTest,
     ) -> [f32; 3] {
         let cam: &Camera = &view.camera;
         let d = cam.pixel_ray((px, py), (w, h));
@@ -450,7 +484,7 @@ impl<'s, 'a> Reference<'s, 'a> {
             }
             hit.uv_derivatives = dd;
         };
-        match self.trace_primary(&ray, footprint) {
+        match self.trace_primary(&ray, threshold, footprint) {
             None => {
                 let s = sky_radiance(self.scene, d);
                 let disc = sun_disc(&view.lighting, d);
@@ -613,7 +647,8 @@ impl<'s, 'a> Reference<'s, 'a> {
         let p = hit.position;
         let uv = [(p.x - ox) / ex, 1.0 - (p.y - oy) / ey];
         // Without a colour map the terrain is sRGB 128 grey, like the GPU upload.
-        let grey = [srgb_to_linear(128.0 / 255.0); 4];
+        let d = crate::terrain::default_albedo();
+        let grey = [d[0], d[1], d[2], 1.0];
         let c = t
             .color
             .as_ref()
@@ -760,11 +795,8 @@ pub fn trilinear_with(
     texel: impl Fn(usize, u32, u32) -> [f32; 4],
 ) -> [f32; 4] {
     let [w, h, ..] = levels[0];
-    let (w, h) = (w as f32, h as f32);
-    let rho_x = ((d[0] * w).powi(2) + (d[1] * h).powi(2)).sqrt();
-    let rho_y = ((d[2] * w).powi(2) + (d[3] * h).powi(2)).sqrt();
     let top = (levels.len() - 1) as f32;
-    let lambda = rho_x.max(rho_y).max(1e-30).log2().clamp(0.0, top);
+    let lambda = super::coverage::mip_lambda((w, h), d).clamp(0.0, top);
     let l0 = lambda.floor() as usize;
     let l1 = (l0 + 1).min(levels.len() - 1);
     let f = lambda - l0 as f32;

@@ -47,12 +47,15 @@ pub struct TerrainData<'a> {
 /// One material as the preview shades it.
 #[derive(Debug, Clone)]
 pub struct MaterialData<'a> {
-    /// Linear RGB (the input's diffuse colour decoded from sRGB), alpha 1.
+    /// Linear RGB ([`crate::material::convert::diffuse_albedo`]), alpha 1.
     pub base_color: [f32; 4],
     pub color_map: Option<ImageData<'a>>,
     /// The colour map's mip chain where the material stage processed it: drawn trilinear in
     /// place of `color_map` (whose alpha test the CPU reference's rays keep).
     pub color_mips: Option<ColorMips<'a>>,
+    /// Coverage far leaf cards are drawn with: the colour chain's level-0 fraction of texels
+    /// whose alpha times the opacity passes ½ ([`super::coverage`]; 1 without a chain).
+    pub far_coverage: f32,
     /// The two-layer Schlick material of the `material:<model>/<i>` section; `None`: Lambert.
     pub schlick: Option<crate::material::schlick::SchlickMaterial>,
     /// The tangent-space normal map's mip chain (`normal` array of the processed texture):
@@ -255,8 +258,8 @@ pub enum InstanceSource {
     /// The `instances` section's records (or one instance per mesh without one).
     #[default]
     Instances,
-    /// The `bittree` section: cell-centre positions (x, y) on the terrain, quantized rotations
-    /// (see [`bittree_instances`]).
+    /// The `bittree` section: positions (x, y) from the leaf cells and their residuals on the
+    /// terrain, quantized rotations (see [`bittree_instances`]).
     Bittree,
 }
 
@@ -539,8 +542,9 @@ fn load_models<'a>(
 }
 
 /// The instances as the `bittree` section `name` holds them (seed 000 §5.1.1), in the order of
-/// the `instances` section's `list`: x and y the centre of the instance's deepest cell (within
-/// half a cell of its position), z the terrain's height there (the list's z without a terrain),
+/// the `instances` section's `list`: x and y from the instance's deepest cell and its residual
+/// (within cell/2¹⁷ of its position, docs/FORMAT.md; the cell centre in packs without
+/// residuals), z the terrain's height there (the list's z without a terrain),
 /// scale, rotation (to 2⁻¹⁶ of a turn), model and layer from the arrays beside the bits.
 ///
 /// The per-instance caches (env maps, clusters, light-map UVs) are indexed by the list, so each
@@ -833,7 +837,8 @@ fn atlas_split(
     Ok(None)
 }
 
-/// The preview's view of each material: diffuse colour decoded from sRGB, colour map section.
+/// The preview's view of each material: its linear diffuse albedo
+/// ([`crate::material::convert::diffuse_albedo`], the tracer's), colour map section.
 /// A mesh without materials gets the OpenGL default one.
 fn load_materials<'a>(
     pack: &'a Pack,
@@ -842,16 +847,12 @@ fn load_materials<'a>(
     warnings: &mut Vec<String>,
 ) -> Result<Vec<MaterialData<'a>>> {
     if meta.materials.is_empty() {
-        let d = crate::model::Material::default().diffuse;
+        let d = crate::material::convert::diffuse_albedo(&crate::model::Material::default());
         return Ok(vec![MaterialData {
-            base_color: [
-                srgb_to_linear(d[0]),
-                srgb_to_linear(d[1]),
-                srgb_to_linear(d[2]),
-                1.0,
-            ],
+            base_color: [d[0], d[1], d[2], 1.0],
             color_map: None,
             color_mips: None,
+            far_coverage: 1.0,
             schlick: None,
             normal_map: None,
             height_mips: None,
@@ -878,15 +879,13 @@ fn load_materials<'a>(
             (Some(_), Some(s)) => load_color_mips(pack, s)?.unzip(),
             _ => (None, None),
         };
-        let d = m.diffuse;
+        let d = crate::material::convert::diffuse_albedo(m);
         let (schlick, normal_map) = load_schlick(pack, section, out.len(), warnings)?;
         out.push(MaterialData {
-            base_color: [
-                srgb_to_linear(d[0]),
-                srgb_to_linear(d[1]),
-                srgb_to_linear(d[2]),
-                1.0,
-            ],
+            base_color: [d[0], d[1], d[2], 1.0],
+            far_coverage: color_mips.as_ref().map_or(1.0, |c| {
+                super::coverage::far_coverage(c, schlick.map_or(1.0, |s| s.opacity))
+            }),
             color_map,
             color_mips,
             schlick,

@@ -30,8 +30,13 @@ use super::pipelines::AMBIENT_WGSL;
 const WORLD_TERRAIN_WGSL: &str = include_str!("shaders/world_terrain.wgsl");
 const WORLD_MESH_WGSL: &str = include_str!("shaders/world_mesh.wgsl");
 
-/// Format of the world-position target (xyz: receiver, w: 1 where geometry was drawn).
-const WORLD_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+/// Format of the world-position target (xyz: receiver, w: 1 where geometry was drawn): the
+/// four `f32`s' bits (`fs_world` writes `bitcast<vec4<u32>>`), so the copy to the receiver buffer
+/// is exactly what an `Rgba32Float` target held. Unsigned integers because every adapter renders
+/// to `Rgba32Uint` (WebGPU and GLES 3.0 guarantee it), while wgpu's GL backend refuses
+/// `Rgba32Float` as a render attachment (a desktop GL context does not list
+/// `GL_EXT_color_buffer_float`), and `Rgba16Float` would round the receivers to 11 bits.
+const WORLD_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
 /// Format of the visibility texture.
 pub const VISIBILITY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
 /// Pixels per padded row: 64 × 4 B and 64 × 16 B rows are multiples of wgpu's 256-byte copy

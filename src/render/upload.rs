@@ -22,13 +22,16 @@ pub struct TerrainParams {
 }
 const _: () = assert!(size_of::<TerrainParams>() == 32);
 
-/// Material parameters: repr(C), Pod, 16 bytes.
+/// Material parameters: repr(C), Pod, 32 bytes.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct MaterialParams {
     pub base_color: [f32; 4],
+    /// x: mip levels of the colour map as uploaded, y: its far coverage
+    /// (`MaterialData::far_coverage`, src/render/coverage.rs), z, w: 0.
+    pub alpha: [f32; 4],
 }
-const _: () = assert!(size_of::<MaterialParams>() == 16);
+const _: () = assert!(size_of::<MaterialParams>() == 32);
 
 /// The direct-sun material (shaders/mesh.wgsl `DirectMaterial`): the material section's record
 /// and how to use it. repr(C), Pod, 112 bytes.
@@ -410,7 +413,7 @@ fn upload_terrain(
     let grey = ImageData {
         width: 1,
         height: 1,
-        texels: &[[128, 128, 128, 255]],
+        texels: &[crate::terrain::DEFAULT_COLOR_SRGB8],
     };
     let color = up.color_map("terrain colour", t.color.as_ref().unwrap_or(&grey))?;
     let normals = up.normal_map(
@@ -536,13 +539,17 @@ fn upload_model(
     let mut materials = Vec::with_capacity(m.materials.len());
     for (k, mat) in m.materials.iter().enumerate() {
         let label = format!("{}: material {k}", m.section);
-        let view = match (&mat.color_mips, &mat.color_map) {
-            (Some(mips), _) => up.mips(&label, mips, wgpu::TextureFormat::Rgba16Float, 8)?,
-            (None, Some(img)) => up.color_map(&label, img)?,
-            (None, None) => white.clone(),
+        let (view, levels) = match (&mat.color_mips, &mat.color_map) {
+            (Some(mips), _) => (
+                up.mips(&label, mips, wgpu::TextureFormat::Rgba16Float, 8)?,
+                mips.levels.len(),
+            ),
+            (None, Some(img)) => (up.color_map(&label, img)?, 1),
+            (None, None) => (white.clone(), 1),
         };
         let params = MaterialParams {
             base_color: mat.base_color,
+            alpha: [levels as f32, mat.far_coverage, 0.0, 0.0],
         };
         let params = up.buffer("material", bytemuck::bytes_of(&params), U::UNIFORM);
         let direct = up.buffer(

@@ -21,6 +21,16 @@ pub struct TerrainReport {
     pub quadtree_levels: Vec<usize>,
 }
 
+/// The colour of a terrain without a colour map: sRGB 128 grey (the renderer uploads it as its
+/// one-texel colour map).
+pub const DEFAULT_COLOR_SRGB8: [u8; 4] = [128, 128, 128, 255];
+
+/// The linear albedo of a terrain without a colour map ([`DEFAULT_COLOR_SRGB8`] decoded, 0.216):
+/// the one value the tracing stages and the renderer use.
+pub fn default_albedo() -> [f32; 3] {
+    [crate::color::srgb_to_linear(DEFAULT_COLOR_SRGB8[0] as f32 / 255.0); 3]
+}
+
 /// Prepares every terrain section of `pack`; returns the replacement sections.
 pub fn bake_terrain(pack: &Pack) -> Result<(Vec<Section>, TerrainReport)> {
     let mut out = Vec::new();

@@ -2,8 +2,10 @@
 //! (albedo and translucence, [`prt_materials`]) and the alpha masks of alpha-tested colour maps
 //! ([`alpha_masks`]). The PRT stage and the trace scene of a pack both build them here.
 //!
-//! albedo = sRGB-decoded diffuse colour × the mean linear colour of the colour map's opaque
-//! texels; translucence = the TXF set's translucence, else the caller's default.
+//! albedo = [`crate::material::convert::diffuse_albedo`] (linear, the one albedo of every stage
+//! and the renderer) × the mean linear colour of the colour map's opaque texels; translucence =
+//! [`crate::material::convert::translucence`] (the converted material's, the caller's default
+//! for the thesis' leaf without a TXF value).
 
 use super::AlphaMask;
 use crate::model::{Mesh, Rgba8Image};
@@ -60,15 +62,11 @@ pub fn prt_materials(
                 .and_then(|i| textures.get(i as usize))
                 .and_then(|t| t.as_ref())
                 .map_or([1.0; 3], mean_color);
-            let albedo = std::array::from_fn(|k| srgb_to_linear(m.diffuse[k]) * map[k]);
-            let t = m.translucence.unwrap_or(default_translucence);
+            let base = crate::material::convert::diffuse_albedo(m);
+            let albedo = std::array::from_fn(|k| base[k] * map[k]);
             PrtMaterial {
                 albedo,
-                translucence: if t.is_finite() {
-                    t.clamp(0.0, 1.0)
-                } else {
-                    0.0
-                },
+                translucence: crate::material::convert::translucence(m, default_translucence),
             }
         })
         .collect()

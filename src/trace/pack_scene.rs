@@ -190,7 +190,9 @@ pub fn trace_scene_with(pack: &Pack, mode: TerrainMode) -> Result<TraceScene> {
                 .as_ref()
                 .and_then(|s| pack.view_named(s).ok())
                 .and_then(|v| crate::texture::source_section::from_section(&v).ok());
-            albedo.push(color.map_or([0.3; 3], |(_, img)| mean_linear(&img)));
+            albedo.push(color.map_or(crate::terrain::default_albedo(), |(_, img)| {
+                mean_linear(&img)
+            }));
             match mode {
                 TerrainMode::Heightfield => {
                     // The terrain stage's quadtree when the section has one.

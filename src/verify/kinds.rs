@@ -66,6 +66,7 @@ const BITTREE: Schema = &[
     ("rotation", &[U16], 1),
     ("model", &[U16], 1),
     ("layer", &[U16], 1),
+    ("residual", &[U16], 2),
     ("shared", &[U32], 1),
 ];
 const SVO: Schema = &[

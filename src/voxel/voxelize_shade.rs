@@ -70,7 +70,7 @@ impl<'a> Shader<'a> {
                         .is_some_and(|t| t.pixels.iter().any(|p| p[3] < 255))
                 });
                 MaterialShade {
-                    color: [0, 1, 2].map(|k| srgb_to_linear(m.diffuse[k].clamp(0.0, 1.0))),
+                    color: crate::material::convert::diffuse_albedo(m),
                     alpha: m.diffuse[3].clamp(0.0, 1.0) * (1.0 - m.transparency.clamp(0.0, 1.0)),
                     texture,
                     texture_alpha,

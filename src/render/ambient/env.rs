@@ -119,6 +119,10 @@ pub(super) fn cluster_maps(pack: &Pack, records: &[InstanceRecord]) -> Result<Ve
             meta.dim
         )));
     }
+    if records.is_empty() && meta.instances == 0 {
+        // A scene of a terrain alone: no instance has a map.
+        return Ok(Vec::new());
+    }
     if meta.instances as usize != records.len() || pts.is_empty() {
         return Err(invalid(format!(
             "{} instances and {} samples for a scene of {} instances",

@@ -59,8 +59,12 @@ fn schlick_shadowing(l: SchlickLayer, v: f32) -> f32 {
     return 2.0 * v / (v + sqrt(r + (1.0 - r) * v * v));
 }
 
-// S(u) = C + (1 - C)(1 - u)^5.
+// S(u) = C + (1 - C)(1 - u)^5; a layer of reflectivity C = 0 is no interface: S = 0
+// (SchlickLayer::fresnel in src/material/schlick.rs).
 fn schlick_fresnel(l: SchlickLayer, u: f32) -> vec3<f32> {
+    if (all(l.color == vec3<f32>(0.0))) {
+        return vec3<f32>(0.0);
+    }
     let m = 1.0 - clamp(u, 0.0, 1.0);
     let m2 = m * m;
     return l.color + (vec3<f32>(1.0) - l.color) * (m2 * m2 * m);
@@ -84,9 +88,10 @@ fn schlick_glossy_lobe(l: SchlickLayer, wi: vec3<f32>, wo: vec3<f32>, h: vec3<f3
     return schlick_shadowing(l, v) * schlick_shadowing(l, vp) * z * a / (4.0 * PI * v * vp);
 }
 
+// Lambertian part C·a/π (no Fresnel factor), glossy lobe × S(u).
 fn schlick_reflectance(l: SchlickLayer, wi: vec3<f32>, wo: vec3<f32>, h: vec3<f32>, u: f32) -> vec3<f32> {
-    let d = l.diffuse / PI + l.glossy * schlick_glossy_lobe(l, wi, wo, h);
-    return schlick_fresnel(l, u) * d;
+    let g = l.glossy * schlick_glossy_lobe(l, wi, wo, h);
+    return l.color * (l.diffuse / PI) + schlick_fresnel(l, u) * g;
 }
 
 // `SchlickMaterial::eval`: light from wi, seen from wo, tangent frame, two-sided, translucent.

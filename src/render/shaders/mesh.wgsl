@@ -7,6 +7,8 @@
 struct MaterialParams {
     // linear RGB diffuse colour, alpha 1
     base_color: vec4<f32>,
+    // x: the colour map's mip levels, y: its level-0 coverage (src/render/coverage.rs)
+    alpha: vec4<f32>,
 };
 
 @group(1) @binding(0) var<uniform> material: MaterialParams;
@@ -135,6 +137,24 @@ fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
 // into the fragment's sample mask; without it the test is a hard discard.
 override A2C: bool = false;
 
+// Far leaf cards (src/render/coverage.rs): the weight of the level-0 coverage at mip level
+// lambda of a chain of `levels` levels, 0 up to the 4×4 level, 1 from the 2×2 level on.
+fn far_weight(levels: f32, lambda: f32) -> f32 {
+    if (levels < 3.0) {
+        return 0.0;
+    }
+    let top = levels - 1.0;
+    return clamp(min(lambda, top) - (top - 2.0), 0.0, 1.0);
+}
+
+// The 4×4 ordered-dither threshold of a pixel, (index + 0.5)/16.
+fn bayer4(p: vec2<f32>) -> f32 {
+    let m = array<u32, 16>(0u, 8u, 2u, 10u, 12u, 4u, 14u, 6u, 3u, 11u, 1u, 9u, 15u, 7u, 13u, 5u);
+    let x = u32(p.x) & 3u;
+    let y = u32(p.y) & 3u;
+    return (f32(m[y * 4u + x]) + 0.5) / 16.0;
+}
+
 // Parallax mapping with offset limiting (Welch 2004; seed 000 §4.7.3), where
 // globals.cam_right.w is 1 (`bake render --parallax`) and the material has a height map: the
 // surface stands d = (2h − 1) · bump metres off the triangle, and the texture is read at the
@@ -186,14 +206,24 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
     let ts = nm.xyz * 2.0 - 1.0;
     let a = texel.a * direct_material.mode.z;
     let w = fwidth(a);
+    // The mip level's λ from the level-0 footprint, as the CPU reference's `mip_lambda`.
+    let dims = vec2<f32>(textureDimensions(color_map, 0));
+    let rho = max(length(dpdx(in.uv) * dims), length(dpdy(in.uv) * dims));
+    let t = far_weight(material.alpha.x, log2(max(rho, 1e-30)));
     var coverage = 1.0;
     if (A2C) {
-        coverage = clamp((a - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
-        if (coverage <= 0.0) {
+        // The far coverage by the pixel dither (a device's own alpha-to-coverage pattern may
+        // round a fraction down), the near ramp by alpha to coverage.
+        let near = clamp((a - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
+        coverage = mix(near, 1.0, t);
+        if (coverage <= 0.0 || mix(1.0, material.alpha.y, t) < bayer4(in.position.xy)) {
             discard;
         }
-    } else if (a < 0.5) {
-        discard;
+    } else {
+        let c = mix(select(0.0, 1.0, a >= 0.5), material.alpha.y, t);
+        if (c < bayer4(in.position.xy)) {
+            discard;
+        }
     }
     if (region_pass()) {
         return vec4<f32>(model_region(direct_material.record[5].w != 0.0), coverage);

@@ -136,6 +136,8 @@ fn vertical_rays_from_above_and_below_hit_the_two_triangle_surface() {
         let y = t.origin[1] + fy * t.extent[1] / 22.0;
         let z = two_triangle_height(&t, fx, fy);
         let tol = 1e-3 * (1.0 + z.abs());
+        // The light map's sample height (`Terrain::mesh_height_at`) is this surface.
+        assert!((t.mesh_height_at(x, y) - z).abs() < tol);
         for (oz, dz) in [(zhi + 5.0, -1.0), (zlo - 5.0, 1.0)] {
             let r = Ray::new(Vec3A::new(x, y, oz), Vec3A::new(0.0, 0.0, dz), 0.0);
             let h = hf

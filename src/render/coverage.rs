@@ -1,0 +1,115 @@
+//! Alpha coverage of leaf cards far away (issue 35: shrubs beyond about 30 m vanished while their
+//! shadows stayed).
+//!
+//! The material stage keeps each mip level's alpha-tested area equal to level 0's (Castaño's
+//! scaling, src/texture/mips.rs) as far as a level's texel count allows; at 2×2 and 1×1 it
+//! cannot (a leaf of coverage 0.475 has a 1×1 level of alpha 0.475, which the test at 0.5
+//! discards everywhere). So where the pixel's mip level `λ` passes the 4×4 level, the fragment's
+//! coverage blends from the alpha test towards the colour map's level-0 coverage `c₀` (times the
+//! material's opacity, [`far_coverage`]): `t = clamp(min(λ, top) − (top − 2), 0, 1)` with `top`
+//! the 1×1 level (0 below three levels). Without MSAA a fragment passes where
+//! `mix(α ≥ ½, c₀, t)` reaches the pixel's 4×4 ordered-dither (Bayer) threshold. Under MSAA the
+//! fragment is kept where `mix(1, c₀, t)` reaches that threshold and writes the alpha-to-coverage
+//! value `mix(ramp, 1, t)`: the pixel-level dither carries the far coverage, because how a device
+//! turns a fractional alpha into samples is its own (lavapipe keeps ⌊4α⌋ of 4, which halved a
+//! coverage of 0.45). The CPU reference's four rays test `mix(α ≥ ½, 1, t)` against `(s + ½)/4`
+//! for sample s, with the same pixel dither ([`AlphaTest`]). `mesh.wgsl` computes the same
+//! (`far_weight`, `bayer4`).
+
+/// λ of a colour map of level-0 size `(w, h)` for the texture-coordinate derivatives
+/// `d = (∂u/∂x, ∂v/∂x, ∂u/∂y, ∂v/∂y)`: log₂ of the larger footprint side in level-0 texels (the
+/// Vulkan spec's scale factor), unclamped.
+pub fn mip_lambda((w, h): (u32, u32), d: [f32; 4]) -> f32 {
+    let (w, h) = (w as f32, h as f32);
+    let rho_x = ((d[0] * w).powi(2) + (d[1] * h).powi(2)).sqrt();
+    let rho_y = ((d[2] * w).powi(2) + (d[3] * h).powi(2)).sqrt();
+    rho_x.max(rho_y).max(1e-30).log2()
+}
+
+/// The weight `t` of the level-0 coverage at mip level `lambda` of a chain of `levels` levels.
+pub fn far_weight(levels: usize, lambda: f32) -> f32 {
+    if levels < 3 {
+        return 0.0;
+    }
+    let top = (levels - 1) as f32;
+    (lambda.min(top) - (top - 2.0)).clamp(0.0, 1.0)
+}
+
+/// The coverage of a hit with filtered alpha `alpha` (times the opacity) for a hard test:
+/// `mix(alpha ≥ ½, far, t)`.
+pub fn hard_coverage(alpha: f32, far: f32, t: f32) -> f32 {
+    let test = if alpha >= 0.5 { 1.0 } else { 0.0 };
+    test + (far - test) * t
+}
+
+/// The alpha test of one primary ray: the pixel's dither threshold and, under MSAA, the
+/// sample's threshold `(s + ½)/samples`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AlphaTest {
+    pub dither: f32,
+    pub sample: Option<f32>,
+}
+
+impl AlphaTest {
+    /// Whether a hit of filtered alpha `alpha` (times the opacity) passes, for a colour map of
+    /// level-0 coverage `far` at far weight `t` (see the module note).
+    pub fn passes(&self, alpha: f32, far: f32, t: f32) -> bool {
+        match self.sample {
+            None => hard_coverage(alpha, far, t) >= self.dither,
+            Some(s) => 1.0 + (far - 1.0) * t >= self.dither && hard_coverage(alpha, 1.0, t) >= s,
+        }
+    }
+}
+
+/// The 4×4 ordered-dither threshold of pixel (x, y), in (0, 1): `(index + ½)/16`.
+pub fn bayer4(x: u32, y: u32) -> f32 {
+    const M: [[u32; 4]; 4] = [[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]];
+    (M[(y & 3) as usize][(x & 3) as usize] as f32 + 0.5) / 16.0
+}
+
+/// The fraction of level-0 texels of a colour chain whose alpha times `opacity` passes ½: the
+/// coverage far leaf cards are drawn with.
+pub fn far_coverage(mips: &super::scene::ColorMips, opacity: f32) -> f32 {
+    let [w, h, ..] = mips.levels[0];
+    let n = (w as usize) * (h as usize);
+    if n == 0 {
+        return 1.0;
+    }
+    let pass = (0..h)
+        .flat_map(|j| (0..w).map(move |i| (i, j)))
+        .filter(|&(i, j)| mips.texel(0, i, j)[3] * opacity >= 0.5)
+        .count();
+    pass as f32 / n as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_weight_ramps_from_the_4x4_level_to_the_2x2_level() {
+        // A 256² chain: 9 levels, 4×4 at λ = 6, 2×2 at 7, 1×1 at 8.
+        assert_eq!(far_weight(9, 0.0), 0.0);
+        assert_eq!(far_weight(9, 6.0), 0.0);
+        assert!((far_weight(9, 6.5) - 0.5).abs() < 1e-6);
+        assert_eq!(far_weight(9, 7.0), 1.0);
+        assert_eq!(far_weight(9, 20.0), 1.0);
+        // One level (no mips) or tiny chains: the plain test.
+        assert_eq!(far_weight(1, 20.0), 0.0);
+        assert_eq!(far_weight(2, 20.0), 0.0);
+    }
+
+    #[test]
+    fn the_dither_thresholds_cover_the_unit_interval_evenly() {
+        let mut t: Vec<f32> = (0..16).map(|k| bayer4(k % 4, k / 4)).collect();
+        t.sort_by(f32::total_cmp);
+        for (k, v) in t.iter().enumerate() {
+            assert!((v - (k as f32 + 0.5) / 16.0).abs() < 1e-7);
+        }
+        // A coverage c passes round(16 c) of the 16 thresholds.
+        for c in [0.0f32, 0.1, 0.475, 0.5, 0.9, 1.0] {
+            let pass = t.iter().filter(|&&x| c >= x).count();
+            assert_eq!(pass, (16.0 * c).round() as usize, "{c}");
+        }
+    }
+}

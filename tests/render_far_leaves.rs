@@ -1,0 +1,201 @@
+//! Far leaf cards keep their coverage (issue 35, item 1: shrubs beyond about 30 m vanished while
+//! their shadows stayed). A jittered grid of 280 leaf cards, each a disc of coverage c₀ ≈ 0.45
+//! on a 64² colour map processed by the material stage (Castaño's mips: the 2×2 level sits at
+//! the threshold, the 1×1 level has alpha ≈ 0.45), is drawn 55 m away, where a card is 1.5
+//! pixels wide and the sampler reads between the 2×2 and 1×1 levels. The oracle is analytic: a card parallel to the image plane at depth D covers
+//! (f/D)² pixels (f the focal length in pixels), so the grid's leaves cover 600·(f/D)²·c₀
+//! pixels. The drawn area is measured as Σ L/L_leaf over the image (linear radiance from the
+//! 8-bit output, L_leaf from a close view of one card), against a black sky, with MSAA (alpha to
+//! coverage) and without (the ordered-dither test). Before the fix both drew nothing; after it
+//! 0.97 (MSAA) and 0.95 of the analytic area on lavapipe.
+
+use bake::ingest::instances_section as instances;
+use bake::mesh::section as mesh;
+use bake::model::{FloatImage, Instance, Instances, Material, Mesh, Rgba8Image, TextureRef};
+use bake::pack::{Pack, PackWriter};
+use bake::render::{Lighting, RenderOptions, render_pack};
+use bake::sky::source_section as sky;
+use bake::texture::source_section as texture;
+
+mod common;
+use common::srgb_decode;
+
+const W: u32 = 128;
+const H: u32 = 96;
+const FOV: f32 = 60.0;
+const EXPOSURE: f32 = 1.0;
+const DIST: f32 = 55.0;
+const COLS: u32 = 20;
+const ROWS: u32 = 14;
+const SPACING: f32 = 3.0;
+/// Each card moves by up to ± this in x and z (hashed), so the cards sample the pixel grid
+/// at every phase.
+const JITTER: f32 = 1.0;
+const TEX: u32 = 64;
+/// Disc radius in texels: coverage π r² / 64² ≈ 0.45.
+const RADIUS: f32 = 24.3;
+
+fn leaf_texture() -> Rgba8Image {
+    let mut pixels = Vec::new();
+    for j in 0..TEX {
+        for i in 0..TEX {
+            let (x, y) = (i as f32 + 0.5 - 32.0, j as f32 + 0.5 - 32.0);
+            let inside = x * x + y * y <= RADIUS * RADIUS;
+            pixels.push(if inside {
+                [200, 200, 200, 255]
+            } else {
+                [200, 200, 200, 0]
+            });
+        }
+    }
+    Rgba8Image {
+        width: TEX,
+        height: TEX,
+        pixels,
+    }
+}
+
+fn coverage0() -> f32 {
+    let t = leaf_texture();
+    t.pixels.iter().filter(|p| p[3] >= 128).count() as f32 / t.pixels.len() as f32
+}
+
+/// A 1×1 m card in the XZ plane (x ∈ [−½, ½], z ∈ [0, 1]) facing −Y, an authored white material
+/// of specular 0 (Lambertian) under the leaf texture.
+fn card() -> Mesh {
+    Mesh {
+        positions: vec![
+            [-0.5, 0.0, 0.0],
+            [0.5, 0.0, 0.0],
+            [0.5, 0.0, 1.0],
+            [-0.5, 0.0, 1.0],
+        ],
+        normals: vec![[0.0, -1.0, 0.0]; 4],
+        uvs: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+        triangle_materials: vec![0, 0],
+        materials: vec![Material {
+            diffuse: [1.0, 1.0, 1.0, 1.0],
+            color_map: Some(0),
+            ..Material::default()
+        }],
+        textures: vec![TextureRef {
+            name: "leaf.png".into(),
+            path: "leaf.png".into(),
+        }],
+        ..Mesh::default()
+    }
+}
+
+fn jitter(k: u64) -> f32 {
+    ((bake::rng::mix64(k) >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * JITTER
+}
+
+fn grid() -> Instances {
+    let items = (0..ROWS * COLS)
+        .map(|k| Instance {
+            model: 0,
+            position: [
+                (k % COLS) as f32 * SPACING + jitter(2 * k as u64),
+                0.0,
+                (k / COLS) as f32 * SPACING + jitter(2 * k as u64 + 1),
+            ],
+            scale: 1.0,
+            rotation_deg: 0.0,
+            layer: 0,
+        })
+        .collect();
+    Instances {
+        models: vec!["card".into()],
+        items,
+    }
+}
+
+fn base_sections(w: &mut PackWriter) {
+    let leaf = bake::texture::source_section::texture_section_name("card", "leaf.png");
+    w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
+    let name = mesh::mesh_section_name("card");
+    w.insert(mesh::to_section(&name, "test", &card(), &[Some(leaf)]));
+    w.insert(instances::to_section("instances", &grid(), vec![name]));
+    let black = FloatImage {
+        width: 16,
+        height: 8,
+        pixels: vec![[0.0; 3]; 128],
+    };
+    w.insert(sky::to_section("sky", "test", &black));
+}
+
+/// The pack with the material stage's sections (processed mips, Schlick materials).
+fn build_pack() -> Pack {
+    let mut w = PackWriter::new();
+    base_sections(&mut w);
+    let raw = Pack::from_bytes(&w.to_bytes().unwrap(), "raw.bake").unwrap();
+    let (sections, _) =
+        bake::material::bake_materials(&raw, &bake::material::MaterialOptions::default()).unwrap();
+    let mut w = PackWriter::new();
+    base_sections(&mut w);
+    for s in sections {
+        w.insert(s);
+    }
+    Pack::from_bytes(&w.to_bytes().unwrap(), "far.bake").unwrap()
+}
+
+fn options(eye: [f32; 3], target: [f32; 3], msaa: u32) -> RenderOptions {
+    RenderOptions {
+        width: W,
+        height: H,
+        eye: Some(eye),
+        target: Some(target),
+        fov_y_deg: FOV,
+        exposure: Some(EXPOSURE),
+        lighting: Some(Lighting {
+            sun_direction: glam::Vec3::new(0.0, -1.0, 0.1).normalize().to_array(),
+            sun_irradiance: [1.0; 3],
+            ambient: [0.0; 3],
+            sun_solid_angle: 0.0,
+        }),
+        msaa,
+        ..RenderOptions::default()
+    }
+}
+
+/// Linear radiance (green channel) of an 8-bit pixel: the tone map 1 − exp(−L·s) inverted.
+fn radiance(p: [u8; 4]) -> f32 {
+    let ls = srgb_decode(p[1]).min(0.9999);
+    -(1.0 - ls).ln() / EXPOSURE
+}
+
+fn drawn_area(pack: &Pack, msaa: u32) -> (f32, f32) {
+    // L_leaf: a close view straight at one card's centre (the disc fills the middle).
+    let (x0, z0) = (jitter(0), jitter(1) + 0.5);
+    let near = render_pack(pack, &options([x0, -0.6, z0], [x0, 0.0, z0], msaa)).unwrap();
+    let l_leaf = radiance(near.image.pixels[((H / 2) * W + W / 2) as usize]);
+    assert!(l_leaf > 0.05, "leaf radiance {l_leaf}");
+    // The grid's centre, seen along +Y from DIST away.
+    let c = [
+        (COLS - 1) as f32 * SPACING / 2.0,
+        0.0,
+        (ROWS - 1) as f32 * SPACING / 2.0 + 0.5,
+    ];
+    let far = render_pack(pack, &options([c[0], -DIST, c[2]], c, msaa)).unwrap();
+    let drawn: f32 = far.image.pixels.iter().map(|&p| radiance(p) / l_leaf).sum();
+    let f = H as f32 / 2.0 / (FOV.to_radians() / 2.0).tan();
+    let want = (ROWS * COLS) as f32 * (f / DIST).powi(2) * coverage0();
+    (drawn, want)
+}
+
+#[test]
+fn far_leaf_cards_are_drawn_with_their_level_0_coverage() {
+    let c0 = coverage0();
+    assert!((0.4..0.5).contains(&c0), "coverage {c0}");
+    let pack = build_pack();
+    for msaa in [4, 1] {
+        let (drawn, want) = drawn_area(&pack, msaa);
+        let ratio = drawn / want;
+        eprintln!("msaa {msaa}: {drawn:.1} px of leaves drawn, {want:.1} expected ({ratio:.3})");
+        assert!(
+            (0.8..=1.2).contains(&ratio),
+            "msaa {msaa}: drawn {drawn:.1} px of leaves, {want:.1} expected (ratio {ratio:.3})"
+        );
+    }
+}
