@@ -79,7 +79,7 @@ pub struct ExportSummary {
 #[derive(Debug, Clone, Copy)]
 pub struct ExportOptions {
     /// Rows of the envmap (its columns are twice as many, less one); 0: from the sky cube's
-    /// face size (2 × face + 1, at most 1025).
+    /// face size (4 × face + 1, at most 2049: the horizon of a sky keeps its edge).
     pub envmap_height: u32,
     /// `max_depth` of `scene.xml`'s integrator (a default the harness may override).
     pub max_depth: u32,
@@ -675,7 +675,7 @@ fn write_envmap(
     warnings: &mut Vec<String>,
 ) -> Result<[u32; 2]> {
     let h = match (height, &scene.sky.cube) {
-        (0, Some(c)) => (2 * c.size + 1).min(1025),
+        (0, Some(c)) => (4 * c.size + 1).min(2049),
         (0, None) => scene.sky.height + 1,
         (h, _) => h.max(3),
     };

@@ -3,8 +3,9 @@
 The formulas of docs/MATERIALS.md and src/material/schlick.rs `SchlickMaterial::eval`, directions in
 the shading frame (n = +Z, tangent = +X):
 
-    layer:  S(u)·[a/π + b·G(v)G(v')·Z(t)·A(w)/(4π v v')]      (the specular δ term c is not drawn)
-            S(u) = C + (1 − C)(1 − u)^5, Z(t) = r/(1 + r t² − t²)², A(w) = sqrt(p/(p² − p² w² + w²)),
+    layer:  C·a/π + S(u)·[b·G(v)G(v')·Z(t)·A(w)/(4π v v')]   (the specular δ term c is not drawn)
+            S(u) = C + (1 − C)(1 − u)^5 (S ≡ 0 where C = 0 in every channel: no interface),
+            Z(t) = r/(1 + r t² − t²)², A(w) = sqrt(p/(p² − p² w² + w²)),
             G(v) = 2v/(v + sqrt(r + (1 − r) v²))
     stack:  f = (1 − τ)·[f_top + (1 − S_top(v'))(1 − S_top(v))·f_bottom]   (same side, two-sided)
             f = τ·C_bottom·map/π                                        (opposite sides)
@@ -24,7 +25,8 @@ LAYER_KEYS = ("roughness", "isotropy", "diffuse", "glossy", "specular")
 def _fresnel(color, u):
     m = 1.0 - dr.clip(u, 0.0, 1.0)
     m2 = m * m
-    return color + (1.0 - color) * (m2 * m2 * m)
+    none = (color.x == 0.0) & (color.y == 0.0) & (color.z == 0.0)
+    return dr.select(none, 0.0, color + (1.0 - color) * (m2 * m2 * m))
 
 
 def _shadowing(r, v):
@@ -45,8 +47,8 @@ def _glossy_lobe(layer, wi, wo, h):
 
 
 def _reflectance(layer, color, wi, wo, h, u):
-    d = layer["diffuse"] / dr.pi + layer["glossy"] * _glossy_lobe(layer, wi, wo, h)
-    return _fresnel(color, u) * d
+    g = layer["glossy"] * _glossy_lobe(layer, wi, wo, h)
+    return color * (layer["diffuse"] / dr.pi) + _fresnel(color, u) * g
 
 
 def eval_schlick(top, bottom, translucence, wi, wo, cmap):

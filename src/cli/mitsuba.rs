@@ -29,7 +29,7 @@ pub struct MitsubaArgs {
     /// Vertical field of view in degrees.
     #[arg(long, default_value_t = crate::render::camera::DEFAULT_FOV_Y_DEG)]
     pub fov: f32,
-    /// Rows of the envmap (0: twice the sky cube's face size, plus one, at most 1025).
+    /// Rows of the envmap (0: four times the sky cube's face size, plus one, at most 2049).
     #[arg(long, default_value_t = 0)]
     pub envmap_height: u32,
     /// Default `max_depth` of scene.xml's volpath integrator.
