@@ -14,6 +14,7 @@ pub mod lightmap;
 pub mod linespace;
 pub mod lod;
 pub mod material;
+pub mod mitsuba;
 pub mod pipeline;
 pub mod plan;
 pub mod prt;
