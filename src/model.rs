@@ -232,55 +232,17 @@ pub struct Terrain {
     pub color: Option<Rgba8Image>,
 }
 
-/// Bilinear height at world (x, y) of a height grid of `width × height` samples (row-major,
-/// row 0 at `origin[1]`) spanning `extent`, clamped to the grid's edge ([`Terrain::height_at`]).
-pub fn bilinear_height(
+/// The grid cell holding world (x, y) of a height grid of `width × height` samples (row-major,
+/// row 0 at `origin[1]`) spanning `extent`, clamped to the grid's edge: its corner heights
+/// `[h(i, j), h(i+1, j), h(i, j+1), h(i+1, j+1)]` and the position (tx, ty) in [0, 1]² within it.
+fn grid_cell(
     heights: &[f32],
     (width, height): (u32, u32),
     origin: [f32; 2],
     extent: [f32; 2],
     x: f32,
     y: f32,
-) -> f32 {
-    let w = width.max(1);
-    let h = height.max(1);
-    let fx = if w > 1 {
-        (x - origin[0]) / extent[0] * (w - 1) as f32
-    } else {
-        0.0
-    };
-    let fy = if h > 1 {
-        (y - origin[1]) / extent[1] * (h - 1) as f32
-    } else {
-        0.0
-    };
-    let fx = fx.clamp(0.0, (w - 1) as f32);
-    let fy = fy.clamp(0.0, (h - 1) as f32);
-    let i0 = (fx.floor() as u32).min(w.saturating_sub(2));
-    let j0 = (fy.floor() as u32).min(h.saturating_sub(2));
-    let i1 = (i0 + 1).min(w - 1);
-    let j1 = (j0 + 1).min(h - 1);
-    let tx = fx - i0 as f32;
-    let ty = fy - j0 as f32;
-    let at = |i: u32, j: u32| heights[(j * width + i) as usize];
-    let a = at(i0, j0) * (1.0 - tx) + at(i1, j0) * tx;
-    let b = at(i0, j1) * (1.0 - tx) + at(i1, j1) * tx;
-    a * (1.0 - ty) + b * ty
-}
-
-/// Height at world (x, y) on the drawn and traced terrain surface: two triangles per grid cell,
-/// split along the diagonal from sample (i, j) to (i + 1, j + 1) (`trace::heightfield`,
-/// `render::terrain_lod`), clamped to the terrain's edge. It differs from [`bilinear_height`]
-/// inside a cell by up to a quarter of the cell's twist `|h00 − h10 − h01 + h11|`; a point at the
-/// bilinear height of a concave cell lies below the triangles.
-pub fn mesh_height(
-    heights: &[f32],
-    (width, height): (u32, u32),
-    origin: [f32; 2],
-    extent: [f32; 2],
-    x: f32,
-    y: f32,
-) -> f32 {
+) -> ([f32; 4], f32, f32) {
     let w = width.max(1);
     let h = height.max(1);
     let grid = |v: f32, o: f32, e: f32, n: u32| {
@@ -296,10 +258,44 @@ pub fn mesh_height(
     let j0 = (fy.floor() as u32).min(h.saturating_sub(2));
     let i1 = (i0 + 1).min(w - 1);
     let j1 = (j0 + 1).min(h - 1);
-    let tx = fx - i0 as f32;
-    let ty = fy - j0 as f32;
     let at = |i: u32, j: u32| heights[(j * width + i) as usize];
-    let (h00, h10, h01, h11) = (at(i0, j0), at(i1, j0), at(i0, j1), at(i1, j1));
+    (
+        [at(i0, j0), at(i1, j0), at(i0, j1), at(i1, j1)],
+        fx - i0 as f32,
+        fy - j0 as f32,
+    )
+}
+
+/// Bilinear height at world (x, y) of a height grid of `width × height` samples (row-major,
+/// row 0 at `origin[1]`) spanning `extent`, clamped to the grid's edge ([`Terrain::height_at`]).
+pub fn bilinear_height(
+    heights: &[f32],
+    size: (u32, u32),
+    origin: [f32; 2],
+    extent: [f32; 2],
+    x: f32,
+    y: f32,
+) -> f32 {
+    let ([h00, h10, h01, h11], tx, ty) = grid_cell(heights, size, origin, extent, x, y);
+    let a = h00 * (1.0 - tx) + h10 * tx;
+    let b = h01 * (1.0 - tx) + h11 * tx;
+    a * (1.0 - ty) + b * ty
+}
+
+/// Height at world (x, y) on the drawn and traced terrain surface: two triangles per grid cell,
+/// split along the diagonal from sample (i, j) to (i + 1, j + 1) (`trace::heightfield`,
+/// `render::terrain_lod`), clamped to the terrain's edge. It differs from [`bilinear_height`]
+/// inside a cell by up to a quarter of the cell's twist `|h00 − h10 − h01 + h11|`; a point at the
+/// bilinear height of a concave cell lies below the triangles.
+pub fn mesh_height(
+    heights: &[f32],
+    size: (u32, u32),
+    origin: [f32; 2],
+    extent: [f32; 2],
+    x: f32,
+    y: f32,
+) -> f32 {
+    let ([h00, h10, h01, h11], tx, ty) = grid_cell(heights, size, origin, extent, x, y);
     if tx >= ty {
         // Triangle (i, j) (i+1, j) (i+1, j+1).
         h00 + tx * (h10 - h00) + ty * (h11 - h10)
