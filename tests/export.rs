@@ -331,8 +331,12 @@ fn the_khronos_validator_finds_no_errors() {
         .arg(&glb)
         .output()
         .expect("run node");
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let issues: Value = serde_json::from_slice(&o.stdout).expect("the validator's JSON");
+    let issues: Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+        panic!(
+            "the validator printed no JSON ({e}): {}",
+            String::from_utf8_lossy(&o.stderr)
+        )
+    });
     let errors: Vec<&Value> = issues["messages"]
         .as_array()
         .unwrap()
@@ -340,6 +344,7 @@ fn the_khronos_validator_finds_no_errors() {
         .filter(|m| m["severity"] == 0)
         .collect();
     assert_eq!(issues["numErrors"], 0, "{errors:#?}");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     eprintln!(
         "gltf-validator: {} errors, {} warnings, {} infos",
         issues["numErrors"], issues["numWarnings"], issues["numInfos"]
