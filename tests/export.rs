@@ -384,3 +384,104 @@ fn a_pack_without_meshes_is_refused_and_nothing_is_written() {
     let o = common::bake(&["export", pack.to_str().unwrap(), "-o", "scene.obj"]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[test]
+fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin() {
+    // A 130 × 70 RAW terrain (129 × 69 cells: 3 × 2 chunks of at most 64² cells) merged with an
+    // OBJ model: no instances section, no material sections (the mesh's own material is used).
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (w, h) = (130u32, 70u32);
+    let raw: Vec<u8> = (0..h)
+        .flat_map(|j| (0..w).map(move |i| ((i * 7 + j * 3) % 256) as u8))
+        .collect();
+    std::fs::write(d.join("t.raw"), &raw).unwrap();
+    std::fs::write(
+        d.join("box.obj"),
+        common::box_obj([0.0, 0.0, 0.0], [1.0, 2.0, 3.0], 1),
+    )
+    .unwrap();
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    for args in [
+        vec![
+            "ingest",
+            &p("t.raw"),
+            "--size",
+            "130x70",
+            "--scale",
+            "0.05",
+            "-o",
+            &p("t.bake"),
+        ],
+        vec!["ingest", &p("box.obj"), "-o", &p("b.bake")],
+        vec!["merge", &p("t.bake"), &p("b.bake"), "-o", &p("m.bake")],
+    ] {
+        let args: Vec<&str> = args.iter().map(|s| s.as_ref()).collect();
+        let o = common::bake(&[&args[..], &["--quiet"]].concat());
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    let report = common::json(&common::bake(&[
+        "export",
+        &p("m.bake"),
+        "-o",
+        &p("m.glb"),
+        "--json",
+    ]));
+    assert_eq!(report["terrain_chunks"], 6);
+    assert_eq!(report["instances"], 0);
+    let bytes = std::fs::read(d.join("m.glb")).unwrap();
+    let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    assert!(
+        json.get("extensionsUsed").is_none(),
+        "no extension without instances"
+    );
+    let terrain = doc.meshes().find(|m| m.name() == Some("terrain")).unwrap();
+    assert_eq!(terrain.primitives().count(), 6);
+    let pack = Pack::open(&d.join("m.bake")).unwrap();
+    let (tm, t) =
+        bake::terrain::source_section::from_section(&pack.view_named("terrain").unwrap()).unwrap();
+    let blob = &buffers[0].0;
+    let mut vertices = 0;
+    let mut triangles = 0;
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for prim in terrain.primitives() {
+        let pos = prim.get(&gltf::Semantic::Positions).unwrap();
+        let uv = prim.get(&gltf::Semantic::TexCoords(0)).unwrap();
+        let ps = floats::<3>(&doc, blob, pos.index());
+        let uvs = floats::<2>(&doc, blob, uv.index());
+        for (q, u) in ps.iter().zip(&uvs) {
+            // Sample (i, j) at x0 + i·dx, y0 + j·dy, its height, UV (i/(W−1), 1 − j/(H−1)).
+            let i = ((q[0] - tm.origin[0]) / tm.extent[0] * (w - 1) as f32).round() as u32;
+            let j = ((q[1] - tm.origin[1]) / tm.extent[1] * (h - 1) as f32).round() as u32;
+            assert_eq!(q[2], t.heights[(j * w + i) as usize]);
+            assert!((u[0] - i as f32 / (w - 1) as f32).abs() < 1e-6);
+            assert!((u[1] - (1.0 - j as f32 / (h - 1) as f32)).abs() < 1e-6);
+            for k in 0..3 {
+                lo[k] = lo[k].min(q[k]);
+                hi[k] = hi[k].max(q[k]);
+            }
+        }
+        vertices += ps.len();
+        triangles += prim.indices().unwrap().count() / 3;
+    }
+    assert_eq!(triangles, 2 * 129 * 69);
+    // Chunks repeat their border samples: cells 0..64, 64..128, 128..129 across (65, 65 and 2
+    // vertex columns), 0..64, 64..69 up (65 and 6 rows).
+    assert_eq!(vertices, (65 + 65 + 2) * (65 + 6));
+    assert_eq!([lo[0], lo[1]], tm.origin);
+    assert_eq!(
+        [hi[0], hi[1]],
+        [tm.origin[0] + tm.extent[0], tm.origin[1] + tm.extent[1]]
+    );
+    // The model: one plain node, no instancing, under the root; its material from the mesh.
+    let node = doc.nodes().find(|n| n.name() == Some("box.obj")).unwrap();
+    assert!(node.mesh().is_some());
+    assert_eq!(node.transform().decomposed().0, [0.0; 3]);
+    assert_eq!(doc.materials().count(), 2);
+}

@@ -635,7 +635,10 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
         "extras": {"pack": pack_name, "axes": "children in bake's frame: Z up, metres; this node maps (x, y, z) to (x, z, -y)"}}));
     let root = ex.doc.nodes.len() - 1;
 
-    let mut used = vec!["EXT_mesh_gpu_instancing"];
+    let mut used = Vec::new();
+    if report.instances > 0 {
+        used.push("EXT_mesh_gpu_instancing");
+    }
     if !lights.is_empty() {
         used.push("KHR_lights_punctual");
     }
@@ -661,7 +664,6 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
     }
     let mut gltf = json!({
         "asset": {"version": "2.0", "generator": format!("bake {} export", env!("CARGO_PKG_VERSION"))},
-        "extensionsUsed": used,
         "scene": 0,
         "scenes": [{"name": pack_name, "nodes": [root]}],
         "nodes": doc.nodes,
@@ -677,6 +679,9 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
         // Trilinear, repeat (9987 LINEAR_MIPMAP_LINEAR, 9729 LINEAR, 10497 REPEAT).
         gltf["samplers"] =
             json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]);
+    }
+    if !used.is_empty() {
+        gltf["extensionsUsed"] = json!(used);
     }
     if !lights.is_empty() {
         gltf["extensions"] = json!({"KHR_lights_punctual": {"lights": lights}});
