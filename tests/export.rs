@@ -323,32 +323,47 @@ fn the_khronos_validator_finds_no_errors() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let (_, glb, _) = exported(dir.path(), "glb");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
-    let o = std::process::Command::new("node")
-        .arg(&script)
-        .arg(&validator)
-        .arg(&glb)
-        .output()
-        .expect("run node");
-    let issues: Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
-        panic!(
-            "the validator printed no JSON ({e}): {}",
-            String::from_utf8_lossy(&o.stderr)
-        )
-    });
-    let errors: Vec<&Value> = issues["messages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|m| m["severity"] == 0)
-        .collect();
-    assert_eq!(issues["numErrors"], 0, "{errors:#?}");
+    let (pack, glb, _) = exported(dir.path(), "glb");
+    // The same pack as JSON glTF with the buffer embedded.
+    let gltf = dir.path().join("scene.gltf");
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        gltf.to_str().unwrap(),
+        "--quiet",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    eprintln!(
-        "gltf-validator: {} errors, {} warnings, {} infos",
-        issues["numErrors"], issues["numWarnings"], issues["numInfos"]
-    );
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
+    for file in [glb, gltf] {
+        let o = std::process::Command::new("node")
+            .arg(&script)
+            .arg(&validator)
+            .arg(&file)
+            .output()
+            .expect("run node");
+        let issues: Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+            panic!(
+                "the validator printed no JSON ({e}): {}",
+                String::from_utf8_lossy(&o.stderr)
+            )
+        });
+        let errors: Vec<&Value> = issues["messages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|m| m["severity"] == 0)
+            .collect();
+        assert_eq!(issues["numErrors"], 0, "{}: {errors:#?}", file.display());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        eprintln!(
+            "gltf-validator on {}: {} errors, {} warnings, {} infos",
+            file.display(),
+            issues["numErrors"],
+            issues["numWarnings"],
+            issues["numInfos"]
+        );
+    }
 }
 
 #[test]
