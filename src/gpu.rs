@@ -278,8 +278,14 @@ impl Gpu {
 
     /// Reads a 2D texture with 4-byte texels back into tightly packed rows.
     pub fn read_texture_rgba8(&self, texture: &wgpu::Texture) -> Result<Vec<u8>> {
+        self.read_texture(texture, 4)
+    }
+
+    /// Reads a single-sample 2D texture of `texel_bytes` bytes per texel back to the CPU as
+    /// tightly packed rows, row 0 first.
+    pub fn read_texture(&self, texture: &wgpu::Texture, texel_bytes: u32) -> Result<Vec<u8>> {
         let (w, h) = (texture.width(), texture.height());
-        let row = w * 4;
+        let row = w * texel_bytes;
         // copy_texture_to_buffer wants rows padded to 256 bytes.
         let padded =
             row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;

@@ -23,6 +23,7 @@ pub mod linespace;
 pub mod lod;
 pub mod material;
 pub mod mesh;
+pub mod mitsuba;
 pub mod model;
 pub mod pack;
 pub mod pipeline;

@@ -53,6 +53,8 @@ enum Command {
     Envmaps(cli::envmaps::EnvmapsArgs),
     /// Render a pack offscreen to a PNG (wgpu; runs on Mesa's lavapipe or llvmpipe without a GPU).
     Render(cli::render::RenderArgs),
+    /// Write the placed scene as a Mitsuba 3 scene (the ground-truth harness, docs/VALIDATION.md).
+    Mitsuba(cli::mitsuba::MitsubaArgs),
     /// Convert materials to two-layer Schlick, process textures, add tangents.
     Material(cli::material::MaterialArgs),
     /// Prepare terrains: four-tap height texture, normal map, min/max quadtree.
@@ -97,6 +99,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Envmaps(a) => cli::envmaps::run(a, g),
         Command::Fixtures(a) => cli::fixtures::run(a, g),
         Command::Render(a) => cli::render::run(a, g),
+        Command::Mitsuba(a) => cli::mitsuba::run(a, g),
         Command::Svo(a) => cli::svo::run(a, g),
         Command::Linespace(a) => cli::linespace::run(a, g),
         Command::Validate(a) => cli::validate::run(a, g),

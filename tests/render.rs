@@ -905,3 +905,221 @@ fn instances_are_decoded_from_the_bittree_at_load() {
     assert_eq!(gb.stats.instances_from, InstanceSource::Bittree);
     assert_eq!(ga.stats.instances, gb.stats.instances);
 }
+
+/// `RenderOptions::linear`: the radiance before the tone map, per term. Oracles: the Lambert
+/// terrain of `lit` (linear, no tone map), the tone map of those values giving the PNG's bytes,
+/// and direct + ambient = all on the terrain (the sky is drawn in every term).
+#[test]
+fn the_linear_image_is_the_radiance_before_the_tone_map_per_term() {
+    let pack = build_pack(true);
+    let o = Oracle::new(EYE, TARGET, FOV);
+    let render = |terms| {
+        render_pack(
+            &pack,
+            &RenderOptions {
+                terms,
+                linear: true,
+                ..options()
+            },
+        )
+        .unwrap()
+    };
+    let all = render(bake::render::Terms::All);
+    let lin = all.linear.as_ref().expect("linear image");
+    assert_eq!((lin.width, lin.height), (W, H));
+    let at = |img: &FloatImage, (x, y): (u32, u32)| img.pixels[(y * img.width + x) as usize];
+    for (x, y) in [(3.0f32, 3.0f32), (16.0, 4.0), (19.5, 19.0)] {
+        let px = o.pixel(Vec3::new(x, y, 0.0));
+        let hit = ground_hit(&o, px);
+        let want = lit(terrain_albedo(hit.x, hit.y), Vec3::Z);
+        let got = at(lin, px);
+        for k in 0..3 {
+            assert!(
+                (got[k] - want[k]).abs() <= 0.01 * want[k] + 2e-3,
+                "terrain at ({x}, {y}): linear {got:?}, Lambert {want:?}"
+            );
+        }
+        assert_close(
+            pixel(&all.image, px),
+            display(got),
+            1.0,
+            "tone map of the linear value",
+        );
+    }
+    let direct = render(bake::render::Terms::Direct);
+    let ambient = render(bake::render::Terms::Ambient);
+    let (d, a) = (direct.linear.unwrap(), ambient.linear.unwrap());
+    let px = o.pixel(Vec3::new(3.0, 3.0, 0.0));
+    for k in 0..3 {
+        let (s, t) = (at(&d, px)[k] + at(&a, px)[k], at(lin, px)[k]);
+        assert!(
+            (s - t).abs() <= 1e-3 * t + 1e-4,
+            "direct + ambient {s} ≠ all {t}"
+        );
+        assert!(at(&d, px)[k] > 0.0 && at(&a, px)[k] > 0.0);
+    }
+    // Without the option there is no readback.
+    assert!(render_pack(&pack, &options()).unwrap().linear.is_none());
+}
+
+/// `RenderOptions::regions`: the sky is (0, 0, 0), the terrain (1, 0, 0), the alpha-tested quad
+/// (a leaf card) (0, 0, 1) where its texels are opaque and the terrain behind its cut-out half.
+#[test]
+fn the_region_image_tells_sky_terrain_and_leaves_apart() {
+    let out = render_pack(
+        &build_pack(true),
+        &RenderOptions {
+            regions: true,
+            ..options()
+        },
+    )
+    .unwrap();
+    let reg = out.regions.expect("region image");
+    let o = Oracle::new(EYE, TARGET, FOV);
+    let at = |(x, y): (u32, u32)| reg.pixels[(y * reg.width + x) as usize];
+    let near = |got: [f32; 3], want: [f32; 3], what: &str| {
+        assert!(
+            (0..3).all(|k| (got[k] - want[k]).abs() < 1e-3),
+            "{what}: {got:?}, want {want:?}"
+        );
+    };
+    near(at((W / 2, 0)), [0.0; 3], "the sky (top row)");
+    near(
+        at(o.pixel(Vec3::new(3.0, 3.0, 0.0))),
+        [1.0, 0.0, 0.0],
+        "terrain",
+    );
+    for k in 0..2 {
+        let opaque = instance_point(k, Vec3::new(-0.3, 0.0, 0.5));
+        near(
+            at(o.pixel(opaque)),
+            [0.0, 0.0, 1.0],
+            "the leaf card's opaque half",
+        );
+        let cut = instance_point(k, Vec3::new(0.3, 0.0, 0.5));
+        near(at(o.pixel(cut)), [1.0, 0.0, 0.0], "behind the cut-out half");
+    }
+    // Every pixel's coverages sum to at most 1.
+    assert!(
+        reg.pixels
+            .iter()
+            .all(|p| p.iter().sum::<f32>() <= 1.0 + 1e-3)
+    );
+}
+
+/// `bake render -o X.exr` writes the linear radiance as OpenEXR (and `--regions` beside it);
+/// `bake mitsuba` writes the placed scene for the ground-truth harness.
+#[test]
+fn bake_render_writes_linear_exr_and_bake_mitsuba_the_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = dir.path().join("scene.bake");
+    PackWriter::from_pack(&build_pack(true))
+        .write(&pack_path)
+        .unwrap();
+    let bin = env!("CARGO_BIN_EXE_bake");
+    let (exr, regions) = (dir.path().join("a.exr"), dir.path().join("r.png"));
+    let out = std::process::Command::new(bin)
+        .args([
+            "render", "--width", "64", "--height", "48", "--terms", "direct",
+        ])
+        .args([
+            "--eye", "10,-10,8", "--target", "10,10,3", "--fov", "60", "-o",
+        ])
+        .arg(&exr)
+        .arg("--regions")
+        .arg(&regions)
+        .arg(&pack_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = exr::prelude::read_first_rgba_layer_from_file(
+        &exr,
+        |res, _| vec![[0.0f32; 3]; res.width() * res.height()],
+        |px: &mut Vec<[f32; 3]>, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+            px[pos.y() * 64 + pos.x()] = [r, g, b];
+        },
+    )
+    .unwrap();
+    let px = &img.layer_data.channel_data.pixels;
+    assert_eq!(px.len(), 64 * 48);
+    // Linear radiance, finite; the sky's pixels hold the sky's radiance along their rays.
+    assert!(
+        px.iter()
+            .all(|p| p.iter().all(|v| v.is_finite() && *v >= 0.0))
+    );
+    let o = Oracle::sized(EYE, TARGET, FOV, (64, 48));
+    for x in [5u32, 32, 60] {
+        let want = sky_along(o.ray(x, 0));
+        let got = px[x as usize];
+        assert!(
+            (0..3).all(|k| (got[k] - want[k]).abs() <= 0.02 * want[k] + 1e-3),
+            "sky at ({x}, 0): {got:?}, want {want:?}"
+        );
+    }
+    let r = image::open(&regions).unwrap().to_rgb8();
+    assert_eq!(r.get_pixel(32, 0).0, [0, 0, 0], "sky");
+    let (tx, ty) = o.pixel(Vec3::new(10.0, 5.0, 0.0));
+    assert_eq!(r.get_pixel(tx, ty).0, [255, 0, 0], "terrain");
+
+    let mdir = dir.path().join("mitsuba");
+    let out = std::process::Command::new(bin)
+        .args(["mitsuba", "--json", "--width", "64", "--height", "48"])
+        .args(["--eye", "10,-10,8", "--target", "10,10,3", "-o"])
+        .arg(&mdir)
+        .arg(&pack_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(doc["instances"], 2);
+    assert_eq!(doc["terrain_triangles"], 32);
+    assert_eq!(doc["masked_materials"], 1);
+    // By default every instance is placed into one world-space mesh per model and material.
+    let geo = std::fs::read_to_string(mdir.join("geometry.xml")).unwrap();
+    assert_eq!(geo.matches("type=\"instance\"").count(), 0);
+    assert!(geo.contains("type=\"mask\""), "{geo}");
+    let ply = std::fs::read(mdir.join("meshes/m0_0.ply")).unwrap();
+    assert!(String::from_utf8_lossy(&ply[..400]).contains("element vertex 8\n"));
+    let out = std::process::Command::new(bin)
+        .args([
+            "mitsuba",
+            "--shapegroups",
+            "--eye",
+            "10,-10,8",
+            "--target",
+            "10,10,3",
+            "-o",
+        ])
+        .arg(&mdir)
+        .arg(&pack_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let geo = std::fs::read_to_string(mdir.join("geometry.xml")).unwrap();
+    assert_eq!(geo.matches("type=\"instance\"").count(), 2);
+    let scene = std::fs::read_to_string(mdir.join("scene.xml")).unwrap();
+    assert!(
+        scene.contains("lookat origin=\"1e1, -1e1, 8e0\""),
+        "{scene}"
+    );
+    for f in [
+        "direct.xml",
+        "sky.exr",
+        "meshes/terrain.ply",
+        "meshes/m0_0.ply",
+    ] {
+        assert!(mdir.join(f).exists(), "{f}");
+    }
+}

@@ -15,6 +15,7 @@ pub mod lightmap;
 pub mod linespace;
 pub mod lod;
 pub mod material;
+pub mod mitsuba;
 pub mod pipeline;
 pub mod plan;
 pub mod prt;

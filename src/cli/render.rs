@@ -11,9 +11,15 @@ use std::path::PathBuf;
 pub struct RenderArgs {
     /// A .bake pack.
     pub pack: PathBuf,
-    /// Output PNG.
+    /// Output image: PNG (tone-mapped, sRGB), or by the extension .exr the linear radiance
+    /// of --terms before the tone map (RGB f32; the sun's disc may read +inf).
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Also write the region image: per pixel the covered fraction of the terrain (R), of
+    /// opaque model surfaces (G) and of leaves (B: alpha-tested materials, and the impostors
+    /// and skeletons of models that have them); the sky is the rest. PNG (×255) or EXR.
+    #[arg(long)]
+    pub regions: Option<PathBuf>,
     /// Image width in pixels.
     #[arg(long, default_value_t = 1280)]
     pub width: u32,
@@ -111,6 +117,36 @@ pub enum ViewMode {
     Svo,
 }
 
+/// True for a path whose extension is `exr` (any case).
+fn is_exr(path: &std::path::Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+}
+
+/// Writes linear RGB as OpenEXR (f32) where the extension says so, else as an 8-bit PNG of the
+/// values clamped to [0, 1] (the region image's coverages).
+fn write_float_image(path: &std::path::Path, img: &crate::model::FloatImage) -> Result<()> {
+    let bytes = if is_exr(path) {
+        crate::dump::images::exr_rgb(img)
+            .map_err(|e| crate::error::Error::runtime(format!("EXR encoding failed: {e}")))?
+    } else {
+        let pixels = img
+            .pixels
+            .iter()
+            .flat_map(|p| {
+                let b = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+                [b(p[0]), b(p[1]), b(p[2]), 255]
+            })
+            .collect();
+        encode_png(&crate::model::Rgba8Image {
+            width: img.width,
+            height: img.height,
+            pixels: bytemuck::cast_vec::<u8, [u8; 4]>(pixels),
+        })?
+    };
+    crate::pack::write_atomic(path, &bytes)
+}
+
 /// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
 pub const REFERENCE_THRESHOLD: u8 = 24;
 
@@ -154,14 +190,21 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         ),
         toksvig: !args.no_toksvig,
         parallax: args.parallax,
+        linear: is_exr(&args.output),
+        regions: args.regions.is_some(),
     };
     let pack = Pack::open(&args.pack)?;
     if args.view == ViewMode::Svo {
         return run_svo(args, &pack, &opts);
     }
     let out = render_pack(&pack, &opts)?;
-    let png = encode_png(&out.image)?;
-    crate::pack::write_atomic(&args.output, &png)?;
+    match &out.linear {
+        Some(img) => write_float_image(&args.output, img)?,
+        None => crate::pack::write_atomic(&args.output, &encode_png(&out.image)?)?,
+    }
+    if let (Some(path), Some(img)) = (&args.regions, &out.regions) {
+        write_float_image(path, img)?;
+    }
     let s = &out.stats;
     let mut text = format!(
         "{}: {}×{} on {}, {} instances of {} models, {} triangles, {:.3} s\n",
@@ -176,6 +219,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
     );
     let mut json = serde_json::json!({
         "output": args.output,
+        "regions": args.regions,
         "adapter": out.adapter,
         "stats": out.stats,
         "soft_shadows": out.soft_shadows.as_ref().map(|s| s.stats),
@@ -221,6 +265,8 @@ fn run_svo(args: &RenderArgs, pack: &Pack, opts: &RenderOptions) -> Result<Outco
             "--lod-tau/--no-lod",
         ),
         (args.gamma.is_some(), "--gamma"),
+        (args.regions.is_some(), "--regions"),
+        (is_exr(&args.output), "an .exr output (linear radiance)"),
         (args.exposure.is_some(), "--exposure"),
         (args.terms != Terms::All, "--terms"),
         (args.msaa != defaults.msaa, "--msaa"),

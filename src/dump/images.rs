@@ -131,7 +131,7 @@ fn grey16_png(width: u32, height: u32, values: &[u16]) -> Result<Vec<u8>, ParseE
 }
 
 /// Linear RGB, f32 channels, one scan line per block.
-fn exr_rgb(img: &FloatImage) -> Result<Vec<u8>, ParseError> {
+pub fn exr_rgb(img: &FloatImage) -> Result<Vec<u8>, ParseError> {
     use exr::prelude::*;
     let w = img.width as usize;
     let channels = SpecificChannels::rgb(|p: Vec2<usize>| {

@@ -239,7 +239,7 @@ pub(crate) fn globals_group(
 }
 
 /// Draws the scene and returns the tone-mapped image as tightly packed RGBA8 rows (sRGB, or
-/// `encoding`'s power law).
+/// `encoding`'s power law), and with `linear` the resolved linear radiance it was made from.
 /// `shadow`: the sun's cascades (`None`: no shadow map, everything sees the sun).
 /// `sun_visibility`: the soft-shadow visibility per pixel (used where `globals.sun_direction.w`
 /// is 1, see src/render/soft_shadow.rs). `frame`: the instances each pass draws, per level.
@@ -254,8 +254,9 @@ pub fn draw_frame(
     sun_visibility: &wgpu::TextureView,
     frame: &FrameInstances,
     encoding: super::Encoding,
-) -> Result<(Vec<u8>, DrawCounts)> {
-    let hdr = target(gpu, "hdr", size, HDR_FORMAT, false);
+    linear: bool,
+) -> Result<DrawnFrame> {
+    let hdr = target(gpu, "hdr", size, HDR_FORMAT, linear);
     let out = target(gpu, "output", size, OUTPUT_FORMAT, true);
     let hdr_view = hdr.create_view(&Default::default());
     // Under MSAA the scene pass draws into multisampled colour and depth and resolves the
@@ -307,7 +308,35 @@ pub fn draw_frame(
     gpu.queue.submit([enc.finish()]);
     gpu.check()?;
     let pixels = gpu.read_texture_rgba8(&out)?;
-    Ok((pixels, counts))
+    let linear = if linear {
+        let bytes = gpu.read_texture(&hdr, 8)?;
+        let halves: Vec<u16> = bytes
+            .chunks_exact(2)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]))
+            .collect();
+        Some(
+            halves
+                .chunks_exact(4)
+                .map(|t| [0, 1, 2, 3].map(|c| half::f16::from_bits(t[c]).to_f32()))
+                .collect(),
+        )
+    } else {
+        None
+    };
+    Ok(DrawnFrame {
+        pixels,
+        linear,
+        counts,
+    })
+}
+
+/// What [`draw_frame`] returns.
+pub struct DrawnFrame {
+    /// The tone-mapped image, tightly packed RGBA8 rows.
+    pub pixels: Vec<u8>,
+    /// The resolved linear radiance before the tone map (RGBA, row 0 at the top), when asked.
+    pub linear: Option<Vec<[f32; 4]>>,
+    pub counts: DrawCounts,
 }
 
 /// Renders the cascades' shadow maps (when `shadows` is given), one layer of an array texture

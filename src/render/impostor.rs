@@ -159,12 +159,14 @@ impl ImpostorPipeline {
     }
 }
 
-/// Uploads the atlas of a model (`label`: its mesh section): colour (sRGB), normal and depth.
+/// Uploads the atlas of a model (`label`: its mesh section): colour (sRGB), normal and depth;
+/// `leaves`: the model has alpha-tested materials (the region pass counts it as leaves).
 pub(super) fn upload(
     up: &mut Uploader,
     pipe: &ImpostorPipeline,
     label: &str,
     d: &ImpostorData,
+    leaves: bool,
 ) -> Result<ImpostorGpu> {
     let side = d.meta.side() as u32;
     let size = (side, side);
@@ -192,7 +194,7 @@ pub(super) fn upload(
     let m = &d.meta;
     let params = ImpostorParams {
         centre_radius: [m.centre[0], m.centre[1], m.centre[2], m.radius],
-        grid_tile: [m.grid, m.tile, side, 0],
+        grid_tile: [m.grid, m.tile, side, u32::from(leaves)],
     };
     let params = up.buffer(
         "impostor params",

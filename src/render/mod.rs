@@ -76,6 +76,10 @@ pub struct RenderOptions {
     pub toksvig: bool,
     /// Parallax mapping from the colour maps' height chains (seed 000 §4.7.3; off by default).
     pub parallax: bool,
+    /// Also read back the linear radiance before the tone map ([`RenderOutput::linear`]).
+    pub linear: bool,
+    /// Also draw the region image ([`RenderOutput::regions`]): a second scene pass.
+    pub regions: bool,
 }
 
 /// The multisample count of `--msaa` (the one count every WebGPU device supports beside 1).
@@ -139,6 +143,8 @@ impl Default for RenderOptions {
             encoding: Encoding::Srgb,
             toksvig: true,
             parallax: false,
+            linear: false,
+            regions: false,
         }
     }
 }
@@ -207,6 +213,13 @@ pub struct RenderStats {
 pub struct RenderOutput {
     /// sRGB-encoded, row 0 at the top, alpha 255.
     pub image: Rgba8Image,
+    /// The linear radiance the image was tone-mapped from ([`RenderOptions::linear`]): the
+    /// resolved HDR target (half floats, so the sun's disc may read +∞).
+    pub linear: Option<crate::model::FloatImage>,
+    /// With [`RenderOptions::regions`]: per pixel the covered fraction of each region, R the
+    /// terrain, G opaque model surfaces, B leaves (alpha-tested materials and impostors); the
+    /// sky is 1 − R − G − B.
+    pub regions: Option<crate::model::FloatImage>,
     pub adapter: AdapterSummary,
     pub stats: RenderStats,
     pub warnings: Vec<String>,
@@ -374,7 +387,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     let terrain_culled = chunks.first().map_or(0, |c| c.culled);
     let frame = draw::FrameInstances::upload(&gpu, buckets, &chunks);
     let seconds_select = ts.elapsed().as_secs_f64();
-    let (pixels, counts) = draw::draw_frame(
+    let drawn = draw::draw_frame(
         &gpu,
         &pipes,
         &gpu_scene,
@@ -384,8 +397,37 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
         visibility,
         &frame,
         opts.encoding,
+        opts.linear,
     )?;
+    let (pixels, counts) = (drawn.pixels, drawn.counts);
     let t3 = std::time::Instant::now();
+    let float_image = |texels: Vec<[f32; 4]>| crate::model::FloatImage {
+        width: opts.width,
+        height: opts.height,
+        pixels: texels.into_iter().map(|t| [t[0], t[1], t[2]]).collect(),
+    };
+    let linear = drawn.linear.map(float_image);
+    // The region pass: the same frame with every fragment writing its region's indicator
+    // (globals.ambient.w = 1, shaders/common.wgsl `REGION_*`), resolved like the radiance.
+    let regions = if opts.regions {
+        let mut g = globals;
+        g.ambient[3] = 1.0;
+        let r = draw::draw_frame(
+            &gpu,
+            &pipes,
+            &gpu_scene,
+            &g,
+            size,
+            shadows.as_ref(),
+            visibility,
+            &frame,
+            opts.encoding,
+            true,
+        )?;
+        r.linear.map(float_image)
+    } else {
+        None
+    };
     let total_instances: u64 = scene.models.iter().map(|m| m.instances.len() as u64).sum();
 
     let image = Rgba8Image {
@@ -440,6 +482,8 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
     warnings.extend(amb_warnings);
     Ok(RenderOutput {
         image,
+        linear,
+        regions,
         adapter: gpu.adapter.clone(),
         stats,
         warnings,

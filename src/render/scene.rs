@@ -66,6 +66,36 @@ pub struct MaterialData<'a> {
     pub height_mips: Option<HeightMips<'a>>,
 }
 
+impl MaterialData<'_> {
+    /// True where the alpha test at 0.5 cuts the surface: some texel of the colour map's level
+    /// 0 has alpha × opacity below 0.5 (a leaf card). The region pass (`bake render
+    /// --regions`) counts such surfaces as leaves, and `bake mitsuba` gives them an opacity mask.
+    pub fn alpha_tested(&self) -> bool {
+        let opacity = self.schlick.as_ref().map_or(1.0, |m| m.opacity);
+        if opacity < 0.5 {
+            return true;
+        }
+        match (&self.color_mips, &self.color_map) {
+            (Some(mips), _) => {
+                let [w, h, _, _] = mips.levels[0];
+                (0..h).any(|j| (0..w).any(|i| mips.texel(0, i, j)[3] * opacity < 0.5))
+            }
+            (None, Some(img)) => img
+                .texels
+                .iter()
+                .any(|t| t[3] as f32 / 255.0 * opacity < 0.5),
+            (None, None) => false,
+        }
+    }
+}
+
+impl ModelData<'_> {
+    /// True where one of the model's materials is [`MaterialData::alpha_tested`].
+    pub fn has_leaves(&self) -> bool {
+        self.materials.iter().any(|m| m.alpha_tested())
+    }
+}
+
 /// A processed texture's mip chain (docs/FORMAT.md, `texture` processed by `bake material`):
 /// level 0 first, each level's (width, height, first texel, texel count) and the concatenated
 /// texels.

@@ -101,16 +101,23 @@ impl SkeletonPipeline {
     }
 }
 
-/// Uploads a model's skeleton (`label`: its mesh section).
+/// Uploads a model's skeleton (`label`: its mesh section); `leaves`: the model has alpha-tested
+/// materials (the region pass counts it as leaves).
 pub(super) fn upload(
     up: &mut Uploader,
     pipe: &SkeletonPipeline,
     label: &str,
     d: &SkeletonData,
+    leaves: bool,
 ) -> SkeletonGpu {
     let lin = |c: u8| crate::color::srgb_to_linear(c as f32 / 255.0);
     let params = SkeletonParams {
-        albedo: [lin(d.albedo[0]), lin(d.albedo[1]), lin(d.albedo[2]), 1.0],
+        albedo: [
+            lin(d.albedo[0]),
+            lin(d.albedo[1]),
+            lin(d.albedo[2]),
+            if leaves { 1.0 } else { 0.0 },
+        ],
     };
     let params = up.buffer(
         &format!("{label}: skeleton colour"),

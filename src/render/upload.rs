@@ -40,13 +40,21 @@ const _: () = assert!(size_of::<MaterialParams>() == 32);
 pub struct DirectMaterialParams {
     pub record: crate::material::section::MaterialRecord,
     /// x: 1 = two-layer Schlick, 0 = Lambert; y: 1 = normal map; z: opacity; w: 1 = a height
-    /// map for parallax (binding 5)
+    /// map for parallax (binding 5). The record's `reserved` is 1 for an alpha-tested material
+    /// (the region pass's leaves, [`super::scene::MaterialData::alpha_tested`]).
     pub mode: [f32; 4],
 }
 const _: () = assert!(size_of::<DirectMaterialParams>() == 112);
 
 impl DirectMaterialParams {
     pub fn new(mat: &super::scene::MaterialData) -> Self {
+        let mut p = Self::shading(mat);
+        // The record's spare float: 1 for an alpha-tested material (the region pass's leaves).
+        p.record.reserved = if mat.alpha_tested() { 1.0 } else { 0.0 };
+        p
+    }
+
+    fn shading(mat: &super::scene::MaterialData) -> Self {
         match &mat.schlick {
             Some(m) => DirectMaterialParams {
                 record: crate::material::section::material_record(m),
@@ -598,14 +606,21 @@ fn upload_model(
             ],
         }));
     }
+    let leaves = m.has_leaves();
     let impostor = match &m.impostor {
-        Some(d) => Some(super::impostor::upload(up, &pipes.impostor, &m.section, d)?),
+        Some(d) => Some(super::impostor::upload(
+            up,
+            &pipes.impostor,
+            &m.section,
+            d,
+            leaves,
+        )?),
         None => None,
     };
     let skeleton = m
         .skeleton
         .as_ref()
-        .map(|d| super::skeleton::upload(up, &pipes.skeleton, &m.section, d));
+        .map(|d| super::skeleton::upload(up, &pipes.skeleton, &m.section, d, leaves));
     Ok(ModelGpu {
         impostor,
         skeleton,

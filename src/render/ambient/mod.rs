@@ -6,14 +6,17 @@
 //!
 //! # Models with a `prt:<model>` section: eq. 4.8 per vertex
 //! Per vertex and side s ∈ {F, B}, with the transfer sets 0 (all paths) and 1 (≥ 1 bounce):
-//! `L_s = P_s0·C_H + P_s1·C_S` (SH dot products per colour channel), then for the side the
+//! `L_s = P_s0·(C_H + C_S) + P_s1·S` (SH dot products per colour channel), then for the side the
 //! viewer sees, `L = L_seen·(1 − t) + L_other·t` (eq. 4.8 for the front, mirrored for the back).
-//! - C_H: the instance's sky map, C_S: the instance's sun map, both SH order 4 RGB in the
-//!   instance's frame. C_S here is the *sun environment* of the thesis: the SH of the direct sun
-//!   (E_sun·y_i(s), the delta towards the sun turned into the instance frame) plus the sun light the
-//!   scene reflects towards the instance (the `envmaps`/`clusters` C_S). Only the ≥ 1-bounce set
-//!   meets it, so the sun's direct hit on the vertex (the direct term's job, shadow map and all)
-//!   is never counted here, while its interreflection and transmission inside the plant are.
+//! - C_H: the instance's sky map, C_S: the instance's sun map (the sunlight the terrain and the
+//!   other instances reflect towards it, src/envmap/bake.rs), both SH order 4 RGB in the
+//!   instance's frame and both incident radiance, so both meet the all-paths set. S is the SH of
+//!   the direct sun (E_sun·y_i(s), the delta towards the sun turned into the instance frame): only
+//!   the ≥ 1-bounce set meets it, so the sun's direct hit on the vertex (the direct term's job,
+//!   shadow map and all) is never counted here, while its interreflection and transmission inside
+//!   the plant are. (Until issue 35 C_S met the ≥ 1-bounce set too, which dropped the reflected
+//!   sunlight's first hit: a house wall facing sunlit ground got 0.57 of the path-traced ambient,
+//!   docs/VALIDATION.md.)
 //!   Deviation from the thesis' text: it used set 0 for the back side because its direct shader
 //!   had no transmission; ours has (src/material/schlick.rs), so eq. 4.8 as printed (set 1 on both
 //!   sides) is the one without double counting. Known limit: the direct sun in C_S is not
@@ -253,10 +256,13 @@ pub fn load_ambient(
     })
 }
 
+/// The light the all-paths set meets (`sky`: C_H plus the scene's reflected sunlight C_S, both
+/// incident radiance at the instance) and the light only the ≥ 1-bounce set meets (`sun`: the
+/// direct sun's SH, whose first hit is the direct term's).
 fn env_of(maps: &(Sh16, Sh16), r: &InstanceRecord, light: &SkyLight) -> InstanceEnv {
     InstanceEnv {
-        sky: maps.0,
-        sun: add_sh(&maps.1, &sun_sh_local(light.sun, r.rotation_deg)),
+        sky: add_sh(&maps.0, &maps.1),
+        sun: sun_sh_local(light.sun, r.rotation_deg),
     }
 }
 

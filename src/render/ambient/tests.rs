@@ -71,7 +71,15 @@ fn quad() -> Mesh {
 }
 
 fn quad_pack(sky: &ShRadiance, rotation_deg: f32) -> Pack {
+    quad_pack_with(sky, rotation_deg, Vec::new())
+}
+
+/// [`quad_pack`] with more sections (an `envmaps` section, say) in it.
+fn quad_pack_with(sky: &ShRadiance, rotation_deg: f32, extra: Vec<crate::pack::Section>) -> Pack {
     let mut w = PackWriter::new();
+    for e in extra {
+        w.insert(e);
+    }
     w.insert(crate::mesh::section::to_section(
         "mesh:quad.obj",
         "quad.obj",
@@ -150,6 +158,45 @@ fn open_quad_under_a_constant_sky_reflects_albedo_times_sky() {
         // The texture detail modulates: twice the folded albedo, twice the radiance.
         let twice = amb.mesh_radiance(&hit([0, 1, 2], [1.0, 0.0, 0.0], true, rho.map(|a| 2.0 * a)));
         assert!((twice[1] - 2.0 * rho[1] * l[1]).abs() < 4e-4 * rho[1] * l[1]);
+    }
+}
+
+/// The sunlight the scene reflects towards an instance (the `envmaps` C_S) is incident radiance
+/// like the sky's: a lone quad under a black sky, with C_S a constant radiance L from every
+/// direction, reflects ρ·L on both sides. Until issue 35 C_S met only the ≥ 1-bounce transfer,
+/// zero on a lone quad, so it reflected nothing (a house wall facing sunlit ground got 0.57 of
+/// the path-traced ambient).
+#[test]
+fn reflected_sunlight_lights_a_vertex_like_the_sky() {
+    let l = [0.7f32, 0.9, 1.2];
+    let meta = crate::envmap::section::EnvmapsMeta {
+        instances: 1,
+        order: 4,
+        samples: 1,
+        estimator: "test".into(),
+        noise_pairs: 0,
+    };
+    let envmaps = crate::envmap::section::envmaps_to_section(
+        "envmaps",
+        &meta,
+        &[[[0.0; 3]; COEFFS]],
+        &[constant_sky(l).coeffs],
+        None,
+    );
+    let pack = quad_pack_with(&constant_sky([0.0; 3]), 30.0, vec![envmaps]);
+    let scene = load_scene(&pack).unwrap();
+    let amb = load_ambient(&pack, &scene, PrtLayout::Full, None).unwrap();
+    assert_eq!(amb.source, EnvSource::Envmaps);
+    let rho = amb.models[0].prt.as_ref().unwrap().materials[0].albedo;
+    for seen_front in [true, false] {
+        let got = amb.mesh_radiance(&hit([0, 1, 2], [0.2, 0.3, 0.5], seen_front, rho));
+        for c in 0..3 {
+            let want = rho[c] * l[c];
+            assert!(
+                (got[c] - want).abs() < 2e-3 * want,
+                "front {seen_front}: {got:?} vs ρ·L {want}"
+            );
+        }
     }
 }
 

@@ -13,7 +13,7 @@ struct Globals {
     // xyz: unit vector towards the sun
     sun_direction: vec4<f32>,
     sun_irradiance: vec4<f32>,
-    // irradiance of a horizontal surface from the sky
+    // irradiance of a horizontal surface from the sky; w: 1 in the region pass (`region_pass`)
     ambient: vec4<f32>,
     // x, y: image width and height in pixels; z, w: weights of the direct and ambient terms
     viewport: vec4<f32>,
@@ -31,6 +31,21 @@ struct Globals {
 @group(0) @binding(4) var sky_sampler: sampler;
 
 const PI: f32 = 3.14159265358979;
+
+// The region pass (`bake render --regions`, globals.ambient.w = 1): every fragment writes its
+// region's indicator instead of radiance, so the resolved image holds each region's coverage.
+const REGION_TERRAIN: vec3<f32> = vec3<f32>(1.0, 0.0, 0.0);
+const REGION_OPAQUE: vec3<f32> = vec3<f32>(0.0, 1.0, 0.0);
+const REGION_LEAVES: vec3<f32> = vec3<f32>(0.0, 0.0, 1.0);
+
+fn region_pass() -> bool {
+    return globals.ambient.w != 0.0;
+}
+
+// A model surface's region: leaves where `leaves` is set (an alpha-tested material).
+fn model_region(leaves: bool) -> vec3<f32> {
+    return select(REGION_OPAQUE, REGION_LEAVES, leaves);
+}
 
 // The soft-shadow visibility of the pixel that `world` projects to.
 fn soft_visibility_at(world: vec3<f32>) -> f32 {

@@ -9,7 +9,8 @@
 struct ImpostorParams {
     // xyz: centre of every view (model units), w: radius
     centre_radius: vec4<f32>,
-    // x: grid N, y: texels per tile side, z: atlas side N·tile
+    // x: grid N, y: texels per tile side, z: atlas side N·tile, w: 1 where the model has
+    // alpha-tested materials (the region pass's leaves)
     grid_tile: vec4<u32>,
 };
 
@@ -182,6 +183,9 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
     let texel = textureLoad(atlas_color, px, 0);
     if (texel.a < 0.5) {
         discard;
+    }
+    if (region_pass()) {
+        return vec4<f32>(model_region(impostor.grid_tile.w != 0u), 1.0);
     }
     let nm = textureLoad(atlas_normal, px, 0).xyz * 2.0 - 1.0;
     let c = in.rot.x;

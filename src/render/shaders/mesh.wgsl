@@ -16,7 +16,8 @@ struct MaterialParams {
 @group(1) @binding(2) var color_sampler: sampler;
 
 struct DirectMaterial {
-    // the material section's 96-byte MaterialRecord
+    // the material section's 96-byte MaterialRecord; record[5].w (its spare float): 1 for an
+    // alpha-tested material (the region pass's leaves)
     record: array<vec4<f32>, 6>,
     // x: 1 = two-layer Schlick, 0 = Lambert; y: 1 = has a normal map; z: opacity
     mode: vec4<f32>,
@@ -223,6 +224,9 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
         if (c < bayer4(in.position.xy)) {
             discard;
         }
+    }
+    if (region_pass()) {
+        return vec4<f32>(model_region(direct_material.record[5].w != 0.0), coverage);
     }
     // Emission (the record's last vec4, zero without a material section): emitted radiance on
     // both faces, drawn in full renders only (weight kd · ka), in neither term alone.

@@ -6,7 +6,8 @@
 // passes, the sky SH irradiance at +Z as the ambient term (the impostors' fallback).
 
 struct SkeletonParams {
-    // rgb: the model's mean albedo (linear), a: 1
+    // rgb: the model's mean albedo (linear), a: 1 where the model has alpha-tested materials
+    // (the region pass's leaves), else 0
     albedo: vec4<f32>,
 };
 
@@ -38,6 +39,9 @@ fn vs_main(v: SkeletonIn) -> SkeletonOut {
 
 @fragment
 fn fs_main(in: SkeletonOut) -> @location(0) vec4<f32> {
+    if (region_pass()) {
+        return vec4<f32>(model_region(skeleton.albedo.a != 0.0), 1.0);
+    }
     let n = vec3<f32>(0.0, 0.0, 1.0);
     let albedo = skeleton.albedo.rgb;
     let direct = direct_lambert(albedo, n, in.world);

@@ -59,5 +59,8 @@ fn fs_main(in: SkyOut) -> @location(0) vec4<f32> {
     let ndc = vec2<f32>(in.position.x / globals.viewport.x * 2.0 - 1.0,
                         1.0 - in.position.y / globals.viewport.y * 2.0);
     let d = normalize(globals.cam_forward.xyz + ndc.x * globals.cam_right.xyz + ndc.y * globals.cam_up.xyz);
+    if (region_pass()) {
+        return vec4<f32>(0.0, 0.0, 0.0, 1.0);
+    }
     return vec4<f32>(sky_radiance(d) + sun_disc(d), 1.0);
 }

@@ -144,6 +144,9 @@ fn terrain_normal(world: vec3<f32>) -> vec3<f32> {
 fn fs_main(in: TerrainOut) -> @location(0) vec4<f32> {
     let albedo = textureSample(color_map, color_sampler, in.uv).rgb;
     let n = terrain_normal(in.world);
+    if (region_pass()) {
+        return vec4<f32>(REGION_TERRAIN, 1.0);
+    }
     let l = direct_lambert(albedo, n, in.world) * globals.viewport.z
         + ambient_terrain(in.uv, albedo, n) * globals.viewport.w;
     return vec4<f32>(l, 1.0);
