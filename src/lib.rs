@@ -12,6 +12,7 @@ pub mod cube;
 pub mod dump;
 pub mod envmap;
 pub mod error;
+pub mod export;
 pub mod fixtures;
 pub mod gpu;
 pub mod graph;

@@ -37,6 +37,8 @@ enum Command {
     Dump(cli::dump::DumpArgs),
     /// One self-contained HTML page of a pack: sections, images, the bake's timeline, a render.
     Report(cli::report::ReportArgs),
+    /// Export a pack as a glTF 2.0 scene (GLB): models, materials, instances, terrain, sun.
+    Export(cli::export::ExportArgs),
     /// Write the generated fixture scene into a folder.
     Fixtures(cli::fixtures::FixturesArgs),
     /// Encode the instances of a scene pack as a BitTree.
@@ -86,6 +88,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Lod(a) => cli::lod::run(a, g),
         Command::Dump(a) => cli::dump::run(a, g),
         Command::Report(a) => cli::report::run(a, g),
+        Command::Export(a) => cli::export::run(a, g),
         Command::Sky(a) => cli::sky::run(a, g),
         Command::Bench(a) => cli::bench::run(a, g),
         Command::Material(a) => cli::material::run(a, g),

@@ -8,6 +8,7 @@ pub mod cache;
 pub mod cluster;
 pub mod dump;
 pub mod envmaps;
+pub mod export;
 pub mod fixtures;
 pub mod ingest;
 pub mod lightmap;

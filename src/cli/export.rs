@@ -1,0 +1,60 @@
+//! `bake export PACK -o scene.glb`: the pack as a glTF 2.0 scene ([`crate::export`]).
+
+use super::{Global, Outcome};
+use crate::error::{Error, Result};
+use crate::export::{Container, export};
+use crate::pack::Pack;
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct ExportArgs {
+    /// A .bake pack.
+    pub pack: PathBuf,
+    /// The scene to write: `.glb` (binary glTF) or `.gltf` (JSON, the buffer embedded as a
+    /// data URI: no side files).
+    #[arg(short, long, value_name = "GLB")]
+    pub output: PathBuf,
+}
+
+pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
+    let ext = args
+        .output
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    let container = match ext.as_deref() {
+        Some("glb") => Container::Glb,
+        Some("gltf") => Container::GltfEmbedded,
+        _ => {
+            return Err(Error::usage(format!(
+                "{}: the output must end in .glb or .gltf",
+                args.output.display()
+            )));
+        }
+    };
+    let pack = Pack::open(&args.pack)?;
+    let (bytes, report) = export(&pack, container)?;
+    // Written to a temporary file and renamed, as packs are: a failed run leaves no output.
+    crate::pack::write_atomic(&args.output, &bytes)?;
+    let text = format!(
+        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}\n",
+        args.output.display(),
+        report.bytes,
+        report.models,
+        report.instances,
+        report.meshes,
+        report.materials,
+        report.textures,
+        report.terrain_chunks,
+        report
+            .sun_lux
+            .map_or(String::new(), |l| format!(", sun {l:.0} lx"))
+    );
+    let warnings = report.warnings.clone();
+    Ok(Outcome::written(
+        &report,
+        &args.output,
+        bytes.len(),
+        text,
+        warnings,
+    ))
+}

@@ -1,0 +1,502 @@
+//! `bake export PACK -o scene.glb`: the preview-baked fixture scene as glTF, read back with the
+//! `gltf` crate and checked against the pack (counts, one instance's transform, the sun), the
+//! Khronos validator's verdict, and the refusal of a pack without meshes.
+
+mod common;
+
+use bake::ingest::instances_section::{self, InstanceRecord, InstancesMeta};
+use bake::pack::Pack;
+use glam::{Quat, Vec3};
+use serde_json::Value;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// The fixture scene baked with the preview pipeline and exported to `dir/scene.<ext>`.
+fn exported(dir: &Path, ext: &str) -> (PathBuf, PathBuf, Value) {
+    let pack = common::preview_fixture_pack(dir);
+    let out = dir.join(format!("scene.{ext}"));
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    let report = common::json(&o);
+    (pack, out, report)
+}
+
+/// The JSON chunk of a GLB as serde JSON (the extensions the `gltf` crate does not model:
+/// EXT_mesh_gpu_instancing, KHR_lights_punctual).
+fn glb_json(bytes: &[u8]) -> Value {
+    let glb = gltf::Glb::from_slice(bytes).expect("a GLB");
+    serde_json::from_slice(&glb.json).expect("its JSON chunk")
+}
+
+/// The f32 elements of accessor `index` (tightly packed float accessors, as bake writes them).
+fn floats<const N: usize>(doc: &gltf::Document, blob: &[u8], index: usize) -> Vec<[f32; N]> {
+    let a = doc.accessors().nth(index).expect("accessor");
+    assert_eq!(a.data_type(), gltf::accessor::DataType::F32);
+    assert_eq!(a.dimensions().multiplicity(), N);
+    let view = a.view().expect("a buffer view");
+    let start = view.offset() + a.offset();
+    let bytes = &blob[start..start + a.count() * N * 4];
+    bytemuck::pod_collect_to_vec(bytes)
+}
+
+/// bake's world (Z up) to glTF's (Y up): (x, y, z) → (x, z, −y).
+fn y_up(p: Vec3) -> Vec3 {
+    Vec3::new(p.x, p.z, -p.y)
+}
+
+fn instances_of(pack: &Pack) -> (InstancesMeta, Vec<InstanceRecord>) {
+    let v = pack.view_named("instances").unwrap();
+    let meta: InstancesMeta = v.meta().unwrap();
+    let list: Vec<InstanceRecord> = v.array_vec("instances").unwrap();
+    assert!(instances_section::from_section(&v).is_ok());
+    (meta, list)
+}
+
+#[test]
+fn the_fixture_scene_exports_with_the_packs_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let (pack_path, out, report) = exported(dir.path(), "glb");
+    let pack = Pack::open(&pack_path).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, buffers, images) = gltf::import_slice(&bytes).expect("gltf reads the GLB");
+    let (meta, list) = instances_of(&pack);
+
+    // Meshes: one per model, one for the terrain.
+    let models = meta.models.len();
+    assert!(models >= 2, "the fixture places several models");
+    assert!(pack.find("terrain").is_some());
+    assert_eq!(doc.meshes().count(), models + 1);
+    assert_eq!(report["meshes"], models + 1);
+    // Each model mesh: one primitive per material that has triangles, named by its section.
+    for (name, section) in meta.models.iter().zip(&meta.mesh_sections) {
+        let m = doc
+            .meshes()
+            .find(|m| m.name() == Some(name))
+            .unwrap_or_else(|| panic!("no mesh {name}"));
+        let v = pack.view_named(section).unwrap();
+        let (_, mesh) = bake::mesh::section::from_section(&v).unwrap();
+        let used: BTreeSet<u32> = mesh.triangle_materials.iter().copied().collect();
+        assert_eq!(m.primitives().count(), used.len(), "{name}");
+        let triangles: usize = m
+            .primitives()
+            .map(|p| p.indices().unwrap().count() / 3)
+            .sum();
+        assert_eq!(triangles, mesh.indices.len(), "{name}");
+        for p in m.primitives() {
+            let pos = p.get(&gltf::Semantic::Positions).unwrap();
+            assert_eq!(pos.count(), mesh.positions.len());
+        }
+    }
+    // Materials: every material section, plus the terrain's.
+    let material_sections = pack.of_kind("material").count();
+    assert_eq!(doc.materials().count(), material_sections + 1);
+    // Textures and images: every distinct colour map of a material, plus the terrain's.
+    let mut maps = BTreeSet::new();
+    for e in pack.of_kind("material") {
+        let m = bake::material::section::from_section(&pack.view(e).unwrap()).unwrap();
+        maps.extend(m.color_map);
+    }
+    let terrain: bake::terrain::source_section::TerrainMeta =
+        pack.view_named("terrain").unwrap().meta().unwrap();
+    maps.extend(terrain.color_section.clone());
+    assert_eq!(doc.textures().count(), maps.len());
+    assert_eq!(images.len(), maps.len());
+    for (img, section) in doc.images().zip(&images) {
+        let name = img.name().unwrap();
+        assert!(maps.contains(name), "image {name}");
+        let t: bake::texture::source_section::TextureMeta =
+            pack.view_named(name).unwrap().meta().unwrap();
+        assert_eq!(
+            (section.width, section.height),
+            (t.width, t.height),
+            "{name}"
+        );
+    }
+    // The leaf card's material (a colour map with alpha) is alpha-tested at 0.5.
+    let leaf = doc
+        .materials()
+        .find(|m| m.name().is_some_and(|n| n.contains("Leaf")))
+        .expect("the fixture plant's leaf material");
+    assert_eq!(leaf.alpha_mode(), gltf::material::AlphaMode::Mask);
+    assert_eq!(leaf.alpha_cutoff(), Some(0.5));
+    assert!(leaf.pbr_metallic_roughness().base_color_texture().is_some());
+    assert_eq!(leaf.pbr_metallic_roughness().metallic_factor(), 0.0);
+
+    // Nodes: one per model, the terrain, the sun, the root.
+    assert_eq!(doc.nodes().count(), models + 3);
+    let scene = doc.default_scene().unwrap();
+    assert_eq!(scene.nodes().count(), 1, "one root node");
+    assert_eq!(scene.nodes().next().unwrap().children().count(), models + 2);
+
+    // Instances: the instancing accessors of every model node hold the section's count.
+    let json = glb_json(&bytes);
+    let blob = &buffers[0].0;
+    let mut count = 0;
+    for n in json["nodes"].as_array().unwrap() {
+        if let Some(ext) = n["extensions"].get("EXT_mesh_gpu_instancing") {
+            let a = &ext["attributes"];
+            let t = a["TRANSLATION"].as_u64().unwrap() as usize;
+            let r = a["ROTATION"].as_u64().unwrap() as usize;
+            let s = a["SCALE"].as_u64().unwrap() as usize;
+            let k = floats::<3>(&doc, blob, t).len();
+            assert_eq!(floats::<4>(&doc, blob, r).len(), k);
+            assert_eq!(floats::<3>(&doc, blob, s).len(), k);
+            count += k;
+            assert!(
+                n["extras"]["section"]
+                    .as_str()
+                    .unwrap()
+                    .starts_with("mesh:")
+            );
+        }
+    }
+    assert_eq!(count, list.len());
+    assert_eq!(report["instances"], list.len());
+    let dump = common::json(&common::bake(&[
+        "dump",
+        pack_path.to_str().unwrap(),
+        "--json",
+        "--section",
+        "instances",
+    ]));
+    assert_eq!(dump["sections"][0]["summary"]["count"], count);
+}
+
+#[test]
+fn an_instance_lands_where_the_pack_places_it_after_the_axis_conversion() {
+    let dir = tempfile::tempdir().unwrap();
+    let (pack_path, out, _) = exported(dir.path(), "glb");
+    let pack = Pack::open(&pack_path).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let blob = &buffers[0].0;
+    let (meta, list) = instances_of(&pack);
+    // An instance with a rotation and a scale other than 1 where the fixture has one.
+    let (k, rec) = list
+        .iter()
+        .enumerate()
+        .max_by(|a, b| {
+            let score = |r: &InstanceRecord| r.rotation_deg.abs() + (r.scale - 1.0).abs();
+            score(a.1).total_cmp(&score(b.1))
+        })
+        .unwrap();
+    assert!(rec.rotation_deg != 0.0, "the fixture rotates its instances");
+    let model = &meta.models[rec.model as usize];
+    let within = list[..k].iter().filter(|r| r.model == rec.model).count();
+    let node = json["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["name"] == model.as_str())
+        .unwrap();
+    let a = &node["extensions"]["EXT_mesh_gpu_instancing"]["attributes"];
+    let t = floats::<3>(&doc, blob, a["TRANSLATION"].as_u64().unwrap() as usize)[within];
+    let r = floats::<4>(&doc, blob, a["ROTATION"].as_u64().unwrap() as usize)[within];
+    let s = floats::<3>(&doc, blob, a["SCALE"].as_u64().unwrap() as usize)[within];
+    assert_eq!(t, rec.position);
+    assert_eq!(s, [rec.scale; 3]);
+    // A rotation about +Z by rotation_deg.
+    let half = rec.rotation_deg.to_radians() / 2.0;
+    for (got, want) in r.iter().zip([0.0, 0.0, half.sin(), half.cos()]) {
+        assert!((got - want).abs() < 1e-6, "rotation {r:?}");
+    }
+    // The root node's rotation and the instance's TRS take a model point to glTF's Y-up world
+    // where docs/CONVENTIONS.md's transform puts it in bake's Z-up world.
+    let root = doc.default_scene().unwrap().nodes().next().unwrap();
+    let (rt, rr, rs) = root.transform().decomposed();
+    assert_eq!((rt, rs), ([0.0; 3], [1.0; 3]));
+    let root_q = Quat::from_array(rr);
+    let inst_q = Quat::from_array(r);
+    for p in [Vec3::new(0.3, -0.2, 1.5), Vec3::X, Vec3::Z] {
+        let gltf_world = root_q * (Vec3::from(t) + inst_q * (Vec3::from(s) * p));
+        let (sn, cs) = rec.rotation_deg.to_radians().sin_cos();
+        let q = p * rec.scale;
+        let bake_world =
+            Vec3::from(rec.position) + Vec3::new(cs * q.x - sn * q.y, sn * q.x + cs * q.y, q.z);
+        assert!(
+            (gltf_world - y_up(bake_world)).length() < 1e-4 * (1.0 + bake_world.length()),
+            "{p}: {gltf_world} vs {}",
+            y_up(bake_world)
+        );
+    }
+}
+
+#[test]
+fn the_sun_is_a_directional_light_in_lux() {
+    let dir = tempfile::tempdir().unwrap();
+    let (pack_path, out, report) = exported(dir.path(), "glb");
+    let pack = Pack::open(&pack_path).unwrap();
+    let sun = bake::sky::section::sun_from_section(&pack.view_named("sun").unwrap()).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, _, _) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let lights = json["extensions"]["KHR_lights_punctual"]["lights"]
+        .as_array()
+        .unwrap();
+    assert_eq!(lights.len(), 1);
+    let light = &lights[0];
+    assert_eq!(light["type"], "directional");
+    // 683 lm/W × the Rec. 709 luminance of the RGB irradiance (docs/MATERIALS.md).
+    let e = sun.irradiance;
+    let want = 683.0 * (0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]);
+    let got = light["intensity"].as_f64().unwrap() as f32;
+    assert!(want > 0.0);
+    assert!((got - want).abs() <= 1e-4 * want, "{got} lx vs {want}");
+    assert!((report["sun_lux"].as_f64().unwrap() as f32 - want).abs() <= 1e-4 * want);
+    // It shines along its node's −Z: in glTF's world, from the sun's direction.
+    let node = doc.nodes().find(|n| n.name() == Some("sun")).unwrap();
+    let root = doc.default_scene().unwrap().nodes().next().unwrap();
+    let q = Quat::from_array(root.transform().decomposed().1)
+        * Quat::from_array(node.transform().decomposed().1);
+    let shines = q * Vec3::NEG_Z;
+    let towards_sun = y_up(Vec3::from(sun.direction).normalize());
+    assert!(
+        (shines + towards_sun).length() < 1e-4,
+        "{shines} vs −{towards_sun}"
+    );
+}
+
+#[test]
+fn gltf_with_an_embedded_buffer_reads_back_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, out, report) = exported(dir.path(), "gltf");
+    let bytes = std::fs::read(&out).unwrap();
+    assert_eq!(&bytes[..1], b"{", "JSON glTF");
+    let (doc, buffers, images) = gltf::import_slice(&bytes).expect("gltf reads it");
+    assert_eq!(buffers.len(), 1);
+    assert_eq!(
+        doc.meshes().count() as u64,
+        report["meshes"].as_u64().unwrap()
+    );
+    assert_eq!(images.len() as u64, report["images"].as_u64().unwrap());
+    assert_eq!(
+        std::fs::read_dir(dir.path())
+            .unwrap()
+            .filter(|e| e
+                .as_ref()
+                .unwrap()
+                .path()
+                .extension()
+                .is_some_and(|x| x == "bin"))
+            .count(),
+        0,
+        "no side files"
+    );
+}
+
+/// The Khronos validator's package folder, or `None` (a skip; a failure under `CI`).
+fn validator() -> Option<PathBuf> {
+    let dir = std::env::var_os("GLTF_VALIDATOR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("target/gltf-validator/node_modules/gltf-validator")
+        });
+    let node = common::tool_available("node", "runs the Khronos glTF validator");
+    if !node {
+        return None;
+    }
+    if !dir.join("package.json").is_file() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "the Khronos glTF validator is not in {}; scripts/install-gltf-validator.sh installs it",
+            dir.display()
+        );
+        eprintln!(
+            "SKIPPED: the Khronos glTF validator is not in {} (scripts/install-gltf-validator.sh)",
+            dir.display()
+        );
+        return None;
+    }
+    Some(dir)
+}
+
+#[test]
+fn the_khronos_validator_finds_no_errors() {
+    let Some(validator) = validator() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (pack, glb, _) = exported(dir.path(), "glb");
+    // The same pack as JSON glTF with the buffer embedded.
+    let gltf = dir.path().join("scene.gltf");
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        gltf.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
+    for file in [glb, gltf] {
+        let o = std::process::Command::new("node")
+            .arg(&script)
+            .arg(&validator)
+            .arg(&file)
+            .output()
+            .expect("run node");
+        let issues: Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+            panic!(
+                "the validator printed no JSON ({e}): {}",
+                String::from_utf8_lossy(&o.stderr)
+            )
+        });
+        let errors: Vec<&Value> = issues["messages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|m| m["severity"] == 0)
+            .collect();
+        assert_eq!(issues["numErrors"], 0, "{}: {errors:#?}", file.display());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        eprintln!(
+            "gltf-validator on {}: {} errors, {} warnings, {} infos",
+            file.display(),
+            issues["numErrors"],
+            issues["numWarnings"],
+            issues["numInfos"]
+        );
+    }
+}
+
+#[test]
+fn a_pack_without_meshes_is_refused_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack = dir.path().join("sky.bake");
+    let o = common::bake(&["sky", "-o", pack.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = dir.path().join("out/scene.glb");
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("sky.bake") && err.contains("no mesh section"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(
+        left,
+        vec![std::ffi::OsString::from("sky.bake")],
+        "no output, no temporary"
+    );
+    // An output that is neither .glb nor .gltf is a usage error.
+    let o = common::bake(&["export", pack.to_str().unwrap(), "-o", "scene.obj"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin() {
+    // A 130 × 70 RAW terrain (129 × 69 cells: 3 × 2 chunks of at most 64² cells) merged with an
+    // OBJ model: no instances section, no material sections (the mesh's own material is used).
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (w, h) = (130u32, 70u32);
+    let raw: Vec<u8> = (0..h)
+        .flat_map(|j| (0..w).map(move |i| ((i * 7 + j * 3) % 256) as u8))
+        .collect();
+    std::fs::write(d.join("t.raw"), &raw).unwrap();
+    std::fs::write(
+        d.join("box.obj"),
+        common::box_obj([0.0, 0.0, 0.0], [1.0, 2.0, 3.0], 1),
+    )
+    .unwrap();
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    for args in [
+        vec![
+            "ingest",
+            &p("t.raw"),
+            "--size",
+            "130x70",
+            "--scale",
+            "0.05",
+            "-o",
+            &p("t.bake"),
+        ],
+        vec!["ingest", &p("box.obj"), "-o", &p("b.bake")],
+        vec!["merge", &p("t.bake"), &p("b.bake"), "-o", &p("m.bake")],
+    ] {
+        let args: Vec<&str> = args.iter().map(|s| s.as_ref()).collect();
+        let o = common::bake(&[&args[..], &["--quiet"]].concat());
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    let report = common::json(&common::bake(&[
+        "export",
+        &p("m.bake"),
+        "-o",
+        &p("m.glb"),
+        "--json",
+    ]));
+    assert_eq!(report["terrain_chunks"], 6);
+    assert_eq!(report["instances"], 0);
+    let bytes = std::fs::read(d.join("m.glb")).unwrap();
+    let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    assert!(
+        json.get("extensionsUsed").is_none(),
+        "no extension without instances"
+    );
+    let terrain = doc.meshes().find(|m| m.name() == Some("terrain")).unwrap();
+    assert_eq!(terrain.primitives().count(), 6);
+    let pack = Pack::open(&d.join("m.bake")).unwrap();
+    let (tm, t) =
+        bake::terrain::source_section::from_section(&pack.view_named("terrain").unwrap()).unwrap();
+    let blob = &buffers[0].0;
+    let mut vertices = 0;
+    let mut triangles = 0;
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for prim in terrain.primitives() {
+        let pos = prim.get(&gltf::Semantic::Positions).unwrap();
+        let uv = prim.get(&gltf::Semantic::TexCoords(0)).unwrap();
+        let ps = floats::<3>(&doc, blob, pos.index());
+        let uvs = floats::<2>(&doc, blob, uv.index());
+        for (q, u) in ps.iter().zip(&uvs) {
+            // Sample (i, j) at x0 + i·dx, y0 + j·dy, its height, UV (i/(W−1), 1 − j/(H−1)).
+            let i = ((q[0] - tm.origin[0]) / tm.extent[0] * (w - 1) as f32).round() as u32;
+            let j = ((q[1] - tm.origin[1]) / tm.extent[1] * (h - 1) as f32).round() as u32;
+            assert_eq!(q[2], t.heights[(j * w + i) as usize]);
+            assert!((u[0] - i as f32 / (w - 1) as f32).abs() < 1e-6);
+            assert!((u[1] - (1.0 - j as f32 / (h - 1) as f32)).abs() < 1e-6);
+            for k in 0..3 {
+                lo[k] = lo[k].min(q[k]);
+                hi[k] = hi[k].max(q[k]);
+            }
+        }
+        vertices += ps.len();
+        triangles += prim.indices().unwrap().count() / 3;
+    }
+    assert_eq!(triangles, 2 * 129 * 69);
+    // Chunks repeat their border samples: cells 0..64, 64..128, 128..129 across (65, 65 and 2
+    // vertex columns), 0..64, 64..69 up (65 and 6 rows).
+    assert_eq!(vertices, (65 + 65 + 2) * (65 + 6));
+    assert_eq!([lo[0], lo[1]], tm.origin);
+    assert_eq!(
+        [hi[0], hi[1]],
+        [tm.origin[0] + tm.extent[0], tm.origin[1] + tm.extent[1]]
+    );
+    // The model: one plain node, no instancing, under the root; its material from the mesh.
+    let node = doc.nodes().find(|n| n.name() == Some("box.obj")).unwrap();
+    assert!(node.mesh().is_some());
+    assert_eq!(node.transform().decomposed().0, [0.0; 3]);
+    assert_eq!(doc.materials().count(), 2);
+}
