@@ -1,10 +1,9 @@
 //! `bake mitsuba PACK -o DIR`: the placed scene as a Mitsuba 3 scene for the ground-truth
 //! harness (see src/mitsuba.rs, scripts/groundtruth/).
 
-use super::{Global, Outcome, parse_vec3};
+use super::{Global, Outcome};
 use crate::error::Result;
 use crate::pack::Pack;
-use crate::render::RenderOptions;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
@@ -14,21 +13,9 @@ pub struct MitsubaArgs {
     /// Output folder (scene.xml, direct.xml, geometry.xml, meshes/, textures/, sky.exr, ...).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Image width in pixels (as `bake render --width`).
-    #[arg(long, default_value_t = 1280)]
-    pub width: u32,
-    /// Image height in pixels.
-    #[arg(long, default_value_t = 720)]
-    pub height: u32,
-    /// Camera position x,y,z in metres (default: `bake render`'s framing).
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    pub eye: Option<[f32; 3]>,
-    /// Point looked at x,y,z.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    pub target: Option<[f32; 3]>,
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = crate::render::camera::DEFAULT_FOV_Y_DEG)]
-    pub fov: f32,
+    /// The view, as `bake render`'s.
+    #[command(flatten)]
+    pub camera: super::render::ViewArgs,
     /// Rows of the envmap (0: four times the sky cube's face size, plus one, at most 2049).
     #[arg(long, default_value_t = 0)]
     pub envmap_height: u32,
@@ -42,14 +29,7 @@ pub struct MitsubaArgs {
 }
 
 pub fn run(args: &MitsubaArgs, _g: &Global) -> Result<Outcome> {
-    let view = RenderOptions {
-        width: args.width,
-        height: args.height,
-        eye: args.eye,
-        target: args.target,
-        fov_y_deg: args.fov,
-        ..RenderOptions::default()
-    };
+    let view = args.camera.options();
     let opts = crate::mitsuba::ExportOptions {
         envmap_height: args.envmap_height,
         max_depth: args.max_depth,

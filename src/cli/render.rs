@@ -7,19 +7,9 @@ use crate::render::svo_view::{self, SvoShow, SvoViewOptions};
 use crate::render::{BackendChoice, RenderOptions, Terms, encode_png, render_pack};
 use std::path::PathBuf;
 
+/// The view of a render: image size and camera (`bake render`, `bake mitsuba`).
 #[derive(Debug, Clone, clap::Args)]
-pub struct RenderArgs {
-    /// A .bake pack.
-    pub pack: PathBuf,
-    /// Output image: PNG (tone-mapped, sRGB), or by the extension .exr the linear radiance
-    /// of --terms before the tone map (RGB f32; the sun's disc may read +inf).
-    #[arg(short, long)]
-    pub output: PathBuf,
-    /// Also write the region image: per pixel the covered fraction of the terrain (R), of
-    /// opaque model surfaces (G) and of leaves (B: alpha-tested materials, and the impostors
-    /// and skeletons of models that have them); the sky is the rest. PNG (×255) or EXR.
-    #[arg(long)]
-    pub regions: Option<PathBuf>,
+pub struct ViewArgs {
     /// Image width in pixels.
     #[arg(long, default_value_t = 1280)]
     pub width: u32,
@@ -35,6 +25,37 @@ pub struct RenderArgs {
     /// Vertical field of view in degrees.
     #[arg(long, default_value_t = crate::render::camera::DEFAULT_FOV_Y_DEG)]
     pub fov: f32,
+}
+
+impl ViewArgs {
+    /// Render options with this view, the rest default.
+    pub fn options(&self) -> RenderOptions {
+        RenderOptions {
+            width: self.width,
+            height: self.height,
+            eye: self.eye,
+            target: self.target,
+            fov_y_deg: self.fov,
+            ..RenderOptions::default()
+        }
+    }
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct RenderArgs {
+    /// A .bake pack.
+    pub pack: PathBuf,
+    /// Output image: PNG (tone-mapped, sRGB), or by the extension .exr the linear radiance
+    /// of --terms before the tone map (RGB f32; the sun's disc may read +inf).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Also write the region image: per pixel the covered fraction of the terrain (R), of
+    /// opaque model surfaces (G) and of leaves (B: alpha-tested materials, and the impostors
+    /// and skeletons of models that have them); the sky is the rest. PNG (×255) or EXR.
+    #[arg(long)]
+    pub regions: Option<PathBuf>,
+    #[command(flatten)]
+    pub camera: ViewArgs,
     /// Exposure s of the tone map 1 − exp(−L·s) (default: an 18 % grey card in full light maps to 0.5).
     #[arg(long)]
     pub exposure: Option<f32>,
@@ -163,11 +184,6 @@ pub fn quiet_mesa_layer() {
 
 pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
     let opts = RenderOptions {
-        width: args.width,
-        height: args.height,
-        eye: args.eye,
-        target: args.target,
-        fov_y_deg: args.fov,
         exposure: args.exposure,
         lighting: None,
         backend: args.backend,
@@ -192,6 +208,7 @@ pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
         parallax: args.parallax,
         linear: is_exr(&args.output),
         regions: args.regions.is_some(),
+        ..args.camera.options()
     };
     let pack = Pack::open(&args.pack)?;
     if args.view == ViewMode::Svo {
