@@ -12,10 +12,7 @@
 //! on each backend with `BAKE_BACKEND=vulkan|gl` (.ci/run), which the last test checks.
 
 use bake::cube::{CubeMap, Face};
-use bake::linespace::ntree::{NTreeOptions, build_ntree};
 use bake::linespace::query::AreaLight;
-use bake::linespace::shaft::ShaftTable;
-use bake::model::{Instance, Instances, Material, Mesh, Terrain};
 use bake::pack::{Pack, PackWriter};
 use bake::render::reference::{ImageDifference, image_difference};
 use bake::render::soft_shadow::SoftShadows;
@@ -64,83 +61,6 @@ fn difference(a: &RenderOutput, b: &RenderOutput, threshold: u8) -> ImageDiffere
     image_difference(&a.image, &b.image, threshold).unwrap()
 }
 
-/// A 4 × 4 m plate, horizontal, centred on its origin.
-fn plate() -> Mesh {
-    Mesh {
-        positions: vec![
-            [-2.0, -2.0, 0.0],
-            [2.0, -2.0, 0.0],
-            [2.0, 2.0, 0.0],
-            [-2.0, 2.0, 0.0],
-        ],
-        normals: vec![[0.0, 0.0, 1.0]; 4],
-        uvs: vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
-        indices: vec![[0, 1, 2], [0, 2, 3]],
-        triangle_materials: vec![0, 0],
-        materials: vec![Material {
-            diffuse: [0.8, 0.8, 0.8, 1.0],
-            ..Material::default()
-        }],
-        ..Mesh::default()
-    }
-}
-
-/// Flat terrain over [0, 20]² at z = 0, the plate at (10, 10, 3) casting a shadow, and (with
-/// `linespace`) the N-tree of both for the soft shadows.
-fn plate_pack(linespace: bool) -> Pack {
-    let mut w = PackWriter::new();
-    let t = Terrain {
-        width: 9,
-        height: 9,
-        heights: vec![0.0; 81],
-        origin: [0.0, 0.0],
-        extent: [20.0, 20.0],
-        color: None,
-    };
-    w.insert(bake::terrain::source_section::to_section(
-        "terrain", "test", &t, None,
-    ));
-    let name = bake::mesh::section::mesh_section_name("plate");
-    w.insert(bake::mesh::section::to_section(
-        &name,
-        "test",
-        &plate(),
-        &[],
-    ));
-    let inst = Instances {
-        models: vec!["plate".into()],
-        items: vec![Instance {
-            model: 0,
-            position: [10.0, 10.0, 3.0],
-            scale: 1.0,
-            rotation_deg: 0.0,
-            layer: 0,
-        }],
-    };
-    w.insert(bake::ingest::instances_section::to_section(
-        "instances",
-        &inst,
-        vec![name],
-    ));
-    if linespace {
-        let first = Pack::from_bytes(&w.to_bytes().unwrap(), "scene.bake").unwrap();
-        let geo = bake::voxel::geometry::pack_geometry(&first).unwrap();
-        let tris = bake::cli::linespace::world_triangles(&geo.mesh);
-        let opts = NTreeOptions {
-            n: 4,
-            depth: 3,
-            cubic_cells: true,
-        };
-        let tree = build_ntree(&tris, &opts, &std::sync::Arc::new(ShaftTable::build(4))).unwrap();
-        w.insert(bake::linespace::section::to_section(
-            "linespace",
-            "test",
-            &tree,
-        ));
-    }
-    Pack::from_bytes(&w.to_bytes().unwrap(), "scene.bake").unwrap()
-}
-
 /// Looking down at the plate and its shadow, the sun slanted so that the shadow falls beside it.
 fn plate_view(terms: Terms) -> RenderOptions {
     RenderOptions {
@@ -178,7 +98,7 @@ fn one_shadow_map_casts_the_same_shadow_on_gl_as_on_vulkan() {
     if !both_backends() {
         return;
     }
-    let pack = plate_pack(false);
+    let pack = common::plate_pack(false);
     for cascades in [1, 4] {
         let opts = RenderOptions {
             shadow_cascades: cascades,
@@ -298,7 +218,7 @@ fn soft_shadows_see_the_same_receivers_on_gl_as_on_vulkan() {
     if !both_backends() {
         return;
     }
-    let pack = plate_pack(true);
+    let pack = common::plate_pack(true);
     let opts = RenderOptions {
         soft_shadows: Some(SoftShadows {
             area_light: Some(AreaLight {

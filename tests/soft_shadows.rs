@@ -4,80 +4,23 @@
 //! line-space query (the GPU computes the same fraction), and the image itself (terrain in the
 //! umbra looks as with the ambient term alone; lit terrain is brighter). Runs on any wgpu adapter, lavapipe included.
 
-use bake::ingest::instances_section as instances;
-use bake::linespace::ntree::{NTreeOptions, build_ntree};
 use bake::linespace::query::{AreaLight, ExactShadow, QueryStats, Segment};
-use bake::linespace::shaft::ShaftTable;
-use bake::mesh::section as mesh;
-use bake::model::{Instance, Instances, Material, Mesh, Terrain};
+use bake::model::Terrain;
 use bake::pack::{Pack, PackWriter};
 use bake::render::soft_shadow::SoftShadows;
 use bake::render::{Lighting, RenderOptions, Terms, render_pack};
 use bake::terrain::source_section as terrain;
 
-/// A 4 × 4 m plate, horizontal, centred on its origin.
-fn plate() -> Mesh {
-    Mesh {
-        positions: vec![
-            [-2.0, -2.0, 0.0],
-            [2.0, -2.0, 0.0],
-            [2.0, 2.0, 0.0],
-            [-2.0, 2.0, 0.0],
-        ],
-        normals: vec![[0.0, 0.0, 1.0]; 4],
-        uvs: vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
-        indices: vec![[0, 1, 2], [0, 2, 3]],
-        triangle_materials: vec![0, 0],
-        materials: vec![Material {
-            diffuse: [0.8, 0.8, 0.8, 1.0],
-            ..Material::default()
-        }],
-        ..Mesh::default()
-    }
-}
+mod common;
 
-/// Flat terrain over [0, 20]² at z = 0, the plate at (10, 10, 3), and the N-tree of both.
+/// Flat terrain over [0, 20]² at z = 0, the plate at (10, 10, 3), and the N-tree of both
+/// (`common::plate_pack`).
 fn build_pack() -> Pack {
-    let mut w = PackWriter::new();
-    let t = Terrain {
-        width: 9,
-        height: 9,
-        heights: vec![0.0; 81],
-        origin: [0.0, 0.0],
-        extent: [20.0, 20.0],
-        color: None,
-    };
-    w.insert(terrain::to_section("terrain", "test", &t, None));
-    let name = bake::mesh::section::mesh_section_name("plate");
-    w.insert(mesh::to_section(&name, "test", &plate(), &[]));
-    let items = vec![Instance {
-        model: 0,
-        position: [10.0, 10.0, 3.0],
-        scale: 1.0,
-        rotation_deg: 0.0,
-        layer: 0,
-    }];
-    let inst = Instances {
-        models: vec!["plate".into()],
-        items,
-    };
-    w.insert(instances::to_section("instances", &inst, vec![name]));
-    let first = Pack::from_bytes(&w.to_bytes().unwrap(), "scene.bake").unwrap();
-    let geo = bake::voxel::geometry::pack_geometry(&first).unwrap();
+    let pack = common::plate_pack(true);
+    let geo = bake::voxel::geometry::pack_geometry(&pack).unwrap();
     let tris = bake::cli::linespace::world_triangles(&geo.mesh);
     assert!(tris.len() >= 4, "terrain and plate triangles");
-    let opts = NTreeOptions {
-        n: 4,
-        depth: 3,
-        cubic_cells: true,
-    };
-    let tree = build_ntree(&tris, &opts, &std::sync::Arc::new(ShaftTable::build(4))).unwrap();
-    w.insert(bake::linespace::section::to_section(
-        "linespace",
-        "test",
-        &tree,
-    ));
-    Pack::from_bytes(&w.to_bytes().unwrap(), "scene.bake").unwrap()
+    pack
 }
 
 fn light() -> AreaLight {

@@ -211,3 +211,85 @@ pub fn box_obj(lo: [f32; 3], hi: [f32; 3], first: u32) -> String {
     }
     s
 }
+
+/// A 4 × 4 m plate, horizontal, centred on its origin.
+pub fn plate() -> bake::model::Mesh {
+    bake::model::Mesh {
+        positions: vec![
+            [-2.0, -2.0, 0.0],
+            [2.0, -2.0, 0.0],
+            [2.0, 2.0, 0.0],
+            [-2.0, 2.0, 0.0],
+        ],
+        normals: vec![[0.0, 0.0, 1.0]; 4],
+        uvs: vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+        triangle_materials: vec![0, 0],
+        materials: vec![bake::model::Material {
+            diffuse: [0.8, 0.8, 0.8, 1.0],
+            ..bake::model::Material::default()
+        }],
+        ..bake::model::Mesh::default()
+    }
+}
+
+/// Flat terrain over [0, 20]² at z = 0, the plate at (10, 10, 3) casting a shadow, and (with
+/// `linespace`) the N-tree of both for the soft shadows.
+pub fn plate_pack(linespace: bool) -> bake::pack::Pack {
+    let mut w = bake::pack::PackWriter::new();
+    let t = bake::model::Terrain {
+        width: 9,
+        height: 9,
+        heights: vec![0.0; 81],
+        origin: [0.0, 0.0],
+        extent: [20.0, 20.0],
+        color: None,
+    };
+    w.insert(bake::terrain::source_section::to_section(
+        "terrain", "test", &t, None,
+    ));
+    let name = bake::mesh::section::mesh_section_name("plate");
+    w.insert(bake::mesh::section::to_section(
+        &name,
+        "test",
+        &plate(),
+        &[],
+    ));
+    let inst = bake::model::Instances {
+        models: vec!["plate".into()],
+        items: vec![bake::model::Instance {
+            model: 0,
+            position: [10.0, 10.0, 3.0],
+            scale: 1.0,
+            rotation_deg: 0.0,
+            layer: 0,
+        }],
+    };
+    w.insert(bake::ingest::instances_section::to_section(
+        "instances",
+        &inst,
+        vec![name],
+    ));
+    if linespace {
+        let first = bake::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "scene.bake").unwrap();
+        let geo = bake::voxel::geometry::pack_geometry(&first).unwrap();
+        let tris = bake::cli::linespace::world_triangles(&geo.mesh);
+        let opts = bake::linespace::ntree::NTreeOptions {
+            n: 4,
+            depth: 3,
+            cubic_cells: true,
+        };
+        let tree = bake::linespace::ntree::build_ntree(
+            &tris,
+            &opts,
+            &std::sync::Arc::new(bake::linespace::shaft::ShaftTable::build(4)),
+        )
+        .unwrap();
+        w.insert(bake::linespace::section::to_section(
+            "linespace",
+            "test",
+            &tree,
+        ));
+    }
+    bake::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "scene.bake").unwrap()
+}
