@@ -11,7 +11,7 @@ use crate::gpu::Gpu;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-/// `AmbientParams` of ambient.wgsl: repr(C), Pod, 304 bytes.
+/// `AmbientParams` of ambient.wgsl: repr(C), Pod, 4,656 bytes.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct AmbientParams {
@@ -19,8 +19,13 @@ pub struct AmbientParams {
     pub albedo_scale_t: [f32; 4],
     pub mode: [u32; 4],
     pub scale: [f32; 4],
+    /// Radiance SH of the sun-free sky (world frame).
+    pub sky_radiance: [[f32; 4]; 16],
+    /// [`super::ambient::GlossLut::packed`].
+    pub gloss_lut: [[f32; 4]; GLOSS_VEC4],
 }
-const _: () = assert!(size_of::<AmbientParams>() == 304);
+const GLOSS_VEC4: usize = super::ambient::LUT_V * super::ambient::LUT_R / 2;
+const _: () = assert!(size_of::<AmbientParams>() == 4656);
 
 /// Group 3 of the scene passes.
 pub struct AmbientGpu {
@@ -151,6 +156,14 @@ pub fn upload_ambient(
         albedo_scale_t: [0.0; 4],
         mode: [2, 0, 0, 0],
         scale: [weight, 0.0, 0.0, 0.0],
+        sky_radiance: std::array::from_fn(|i| {
+            let c = amb.light.sky.coeffs[i];
+            [c[0], c[1], c[2], 0.0]
+        }),
+        gloss_lut: {
+            let packed = super::ambient::gloss_lut().packed();
+            std::array::from_fn(|i| packed[i])
+        },
     };
     let empty = up.storage("ambient placeholder", &[])?;
     let black = LightTexture {

@@ -566,16 +566,44 @@ impl<'s, 'a> Reference<'s, 'a> {
         };
         let k = k as usize;
         let m = &self.scene.models[k];
-        let c = m.materials[hit.material as usize].base_color;
+        let mat = &m.materials[hit.material as usize];
+        let c = mat.base_color;
+        let slot = self.slot[hit.instance as usize] as usize;
+        let inst = &m.instances[slot];
+        let tri = m.indices[hit.triangle as usize];
+        let eye = view.camera.eye;
+        let (sa, ca) = inst.rotation_deg.to_radians().sin_cos();
+        let turn = |v: [f32; 3]| Vec3::new(ca * v[0] - sa * v[1], sa * v[0] + ca * v[1], v[2]);
+        // Per vertex, as mesh.wgsl's vertex shader: the view mirrored about the vertex normal
+        // turned towards the eye.
+        let mirror = tri.map(|i| {
+            let p = m.positions[i as usize].map(|x| x * inst.scale);
+            let world = turn(p) + Vec3::from_array(inst.position);
+            let wo = (eye - world).normalize_or_zero();
+            let nv = turn(m.normals[i as usize]);
+            let n = if nv.length_squared() < 1e-12 {
+                wo
+            } else {
+                facing(nv.normalize(), wo)
+            };
+            (2.0 * n.dot(wo) * n - wo).to_array()
+        });
+        let layers = match &mat.schlick {
+            Some(sm) => super::ambient::ambient_layers(sm, n.dot(wo).clamp(0.0, 1.0)),
+            None => super::ambient::AmbientLayers::LAMBERT,
+        };
         let h = super::ambient::MeshHit {
             model: k,
-            instance: self.slot[hit.instance as usize] as usize,
-            vertices: m.indices[hit.triangle as usize],
+            instance: slot,
+            vertices: tri,
             barycentrics: hit.barycentrics,
             material: hit.material as usize,
             facing_normal: n.to_array(),
             seen_front: hit.normal.dot(wo) >= 0.0,
             albedo: [c[0] * s.map[0], c[1] * s.map[1], c[2] * s.map[2]],
+            layers,
+            mirror,
+            rotation_deg: inst.rotation_deg,
         };
         amb.mesh_radiance(&h)
     }

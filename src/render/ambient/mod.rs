@@ -38,7 +38,13 @@
 //!   decoded by [`decode_packed`] (bands 1–3 take band 0's chromaticity) and its loss measured by
 //!   [`packed_layout_error`].
 //!
+//! - Material: a material section's layers turn the mixed irradiance into reflected light and add
+//!   the top layer's gloss times the instance's maps in the view's mirror direction
+//!   ([`reflect_ambient`], `gloss.rs`); a spec-0 colour is exactly the formula above.
+//!
 //! # Terrain and models without PRT: irradiance E, `L = albedo·E/π`
+//! (Models with a material section: through the layers and with the sky's SH as the mirrored
+//! environment, `gloss.rs`; a light map scales it by its share of the open sky's irradiance.)
 //! E from the surface's `lightmap` section when there is one (bilinear, clamped to the edge;
 //! texel (i, j) centred at x₀ + (i + ½)·extent/W, row 0 north), else the sky SH irradiance for
 //! the facing normal. The light-map stage stores the *total* irradiance, direct sun included;
@@ -58,12 +64,14 @@ use crate::sh::{ShIrradiance, ShRadiance};
 use std::f32::consts::PI;
 
 mod env;
+mod gloss;
 mod lightmaps;
 mod prt_eval;
 #[cfg(test)]
 mod tests;
 
 pub use env::*;
+pub use gloss::*;
 pub use lightmaps::*;
 pub use prt_eval::*;
 
@@ -330,10 +338,23 @@ pub struct MeshHit {
     pub seen_front: bool,
     /// `base_colour × texel` (linear).
     pub albedo: [f32; 3],
+    /// The material's factors for the view ([`ambient_layers`]; [`AmbientLayers::LAMBERT`]
+    /// for a model without a material section).
+    pub layers: AmbientLayers,
+    /// Per vertex of the triangle: the unit world direction mirroring the view about the vertex
+    /// normal turned towards the viewer (the GPU's vertex shader evaluates the environment there
+    /// and interpolates the radiance, so the reference does the same).
+    pub mirror: [[f32; 3]; 3],
+    /// The instance's rotation about +Z in degrees (into its maps' frame).
+    pub rotation_deg: f32,
 }
 
 impl AmbientScene {
-    /// L_ambient at a hit on a model (the CPU reference's evaluation of `ambient.wgsl`).
+    /// L_ambient at a hit on a model (the CPU reference's evaluation of `ambient.wgsl`): the
+    /// irradiance of the mode (PRT, light map, sky) through the material's layers
+    /// ([`reflect_ambient`]), plus the top layer's gloss times the environment in the mirror
+    /// direction: the instance's maps (C_H + C_S) for PRT, the sky's SH otherwise, there
+    /// scaled by the light map's share of the open sky's irradiance (its occlusion).
     pub fn mesh_radiance(&self, h: &MeshHit) -> [f32; 3] {
         let m = &self.models[h.model];
         let interp = |f: &dyn Fn(usize) -> [f32; 3]| -> [f32; 3] {
@@ -344,6 +365,15 @@ impl AmbientScene {
             }
             out
         };
+        let corner = |f: &dyn Fn([f32; 3]) -> [f32; 3]| -> [f32; 3] {
+            let mut out = [0.0f32; 3];
+            for (d, &b) in h.mirror.iter().zip(&h.barycentrics) {
+                let x = f(*d);
+                (0..3).for_each(|c| out[c] += b * x[c]);
+            }
+            out
+        };
+        let sky_mirror = || corner(&|d| self.light.sky.eval(d));
         match m.mode() {
             MeshAmbientMode::Lightmap => {
                 let lm = m.lightmap.as_ref().expect("mode says light map");
@@ -356,19 +386,46 @@ impl AmbientScene {
                     let t = lm.uvs[base + v];
                     [t[0], t[1], 0.0]
                 });
-                lambert(h.albedo, lm.texture.sample(uv[0], uv[1]))
+                let e = lm.texture.sample(uv[0], uv[1]);
+                let open = self.light.irradiance.eval(h.facing_normal);
+                let k = occlusion(e, open);
+                let e = e.map(|c| c.max(0.0) / PI);
+                let l_r = sky_mirror().map(|c| c * k);
+                reflect_ambient(&h.layers, h.albedo, e, e, l_r)
             }
             MeshAmbientMode::Prt => {
                 let prt = m.prt.as_ref().expect("mode says PRT");
                 let env = &m.envs[h.instance];
                 let front = interp(&|v| side_radiance(prt, self.layout, v, env)[0]);
                 let back = interp(&|v| side_radiance(prt, self.layout, v, env)[1]);
-                let l = mix_sides([front, back], prt.translucence(h.material), h.seen_front);
+                let (seen, other) = if h.seen_front {
+                    (front, back)
+                } else {
+                    (back, front)
+                };
+                // The transfer has the folded albedo in; `k` turns it into E/π.
                 let k = prt.albedo_scale(h.material);
-                std::array::from_fn(|c| l[c] * h.albedo[c] * k[c])
+                let layers = AmbientLayers {
+                    translucence: prt.translucence(h.material),
+                    ..h.layers
+                };
+                let turn = -(h.rotation_deg as f64).to_radians();
+                let (c, s) = (turn.cos() as f32, turn.sin() as f32);
+                let l_r = corner(&|d| {
+                    let local = [c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]];
+                    ShRadiance { coeffs: env.sky }.eval(local)
+                });
+                let seen = std::array::from_fn(|i| seen[i] * k[i]);
+                let other = std::array::from_fn(|i| other[i] * k[i]);
+                reflect_ambient(&layers, h.albedo, seen, other, l_r)
             }
             MeshAmbientMode::SkyIrradiance => {
-                lambert(h.albedo, self.light.irradiance.eval(h.facing_normal))
+                let e = self
+                    .light
+                    .irradiance
+                    .eval(h.facing_normal)
+                    .map(|c| c.max(0.0) / PI);
+                reflect_ambient(&h.layers, h.albedo, e, e, sky_mirror())
             }
         }
     }
@@ -389,6 +446,18 @@ impl AmbientScene {
             }
             None => lambert(albedo, self.light.irradiance.eval(n)),
         }
+    }
+}
+
+/// The share of the open sky's irradiance that reaches a surface, `E/E_sky` in luminance,
+/// clamped to [0, 1]: the environment seen in the mirror direction is scaled by it where only
+/// irradiance is known (a light map).
+pub fn occlusion(e: [f32; 3], open: [f32; 3]) -> f32 {
+    let (e, open) = (crate::color::luminance(e), crate::color::luminance(open));
+    if open > 0.0 {
+        (e / open).clamp(0.0, 1.0)
+    } else {
+        1.0
     }
 }
 

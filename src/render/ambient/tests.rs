@@ -127,6 +127,9 @@ fn hit(vertices: [u32; 3], bary: [f32; 3], seen_front: bool, albedo: [f32; 3]) -
         facing_normal: [0.0, 0.0, if seen_front { 1.0 } else { -1.0 }],
         seen_front,
         albedo,
+        layers: AmbientLayers::LAMBERT,
+        mirror: [[0.0, 0.0, 1.0]; 3],
+        rotation_deg: 0.0,
     }
 }
 

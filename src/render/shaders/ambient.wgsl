@@ -17,6 +17,11 @@ struct AmbientParams {
     mode: vec4<u32>,
     // x: weight of the ambient term (0 or 1, `terms`)
     scale: vec4<f32>,
+    // radiance SH of the sun-free sky (world frame), rgb per coefficient
+    sky_radiance: array<vec4<f32>, 16>,
+    // the top layer's glossy directional albedo (X, Y) over view cosine × roughness, two
+    // entries per vec4 (src/render/ambient/gloss.rs `GlossLut`)
+    gloss_lut: array<vec4<f32>, 256>,
 };
 
 @group(3) @binding(0) var<uniform> ambient: AmbientParams;
@@ -38,6 +43,52 @@ fn sky_irradiance(n: vec3<f32>) -> vec3<f32> {
         e += ambient.sky_irradiance[i].rgb * y[i];
     }
     return e;
+}
+
+// The environment's radiance towards unit direction d: the instance's maps C_H + C_S (the
+// first 48 floats of its 96, instance frame; d is turned by −rotation) for PRT, else the sky's
+// SH (world frame). src/render/ambient/mod.rs `mesh_radiance`.
+fn ambient_env_radiance(instance: u32, d: vec3<f32>, rotation_deg: f32) -> vec3<f32> {
+    var e = vec3<f32>(0.0);
+    if (ambient.mode.x == AMBIENT_PRT) {
+        let a = -radians(rotation_deg);
+        let c = cos(a);
+        let s = sin(a);
+        let y = sh_basis16(vec3<f32>(c * d.x - s * d.y, s * d.x + c * d.y, d.z));
+        let m = instance * 96u;
+        for (var i = 0u; i < 16u; i++) {
+            e += vec3<f32>(instance_maps[m + 3u * i], instance_maps[m + 3u * i + 1u], instance_maps[m + 3u * i + 2u]) * y[i];
+        }
+    } else {
+        let y = sh_basis16(d);
+        for (var i = 0u; i < 16u; i++) {
+            e += ambient.sky_radiance[i].rgb * y[i];
+        }
+    }
+    return e;
+}
+
+const GLOSS_LUT_V: u32 = 32u;
+const GLOSS_LUT_R: u32 = 16u;
+
+fn gloss_entry(i: u32) -> vec2<f32> {
+    let q = ambient.gloss_lut[i / 2u];
+    return select(q.xy, q.zw, (i & 1u) == 1u);
+}
+
+// (X, Y) at view cosine v and roughness r, bilinear in (v, r^(1/4)) (`GlossLut::lookup`).
+fn gloss_lookup(v: f32, r: f32) -> vec2<f32> {
+    let fv = clamp(v, 0.0, 1.0) * f32(GLOSS_LUT_V - 1u);
+    let fr = sqrt(sqrt(clamp(r, 0.0, 1.0))) * f32(GLOSS_LUT_R - 1u);
+    let iv = min(u32(fv), GLOSS_LUT_V - 2u);
+    let ir = min(u32(fr), GLOSS_LUT_R - 2u);
+    let av = fv - f32(iv);
+    let ar = fr - f32(ir);
+    let row0 = ir * GLOSS_LUT_V + iv;
+    let row1 = row0 + GLOSS_LUT_V;
+    let a = gloss_entry(row0) + (gloss_entry(row0 + 1u) - gloss_entry(row0)) * av;
+    let b = gloss_entry(row1) + (gloss_entry(row1 + 1u) - gloss_entry(row1)) * av;
+    return a + (b - a) * ar;
 }
 
 // Bilinear light-map lookup at (u, v), v = 0 at row 0, clamped to the edge.

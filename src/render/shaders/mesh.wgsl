@@ -53,6 +53,9 @@ struct MeshOut {
     @location(8) ambient_front: vec3<f32>,
     @location(9) ambient_back: vec3<f32>,
     @location(10) light_map_uv: vec2<f32>,
+    // The environment's radiance in the view's mirror direction about the vertex normal
+    // (the top layer's gloss, src/render/ambient/gloss.rs).
+    @location(11) ambient_mirror: vec3<f32>,
 };
 
 // The scene pass: placement plus the ambient term's per-vertex PRT (eq. 4.8's two sides).
@@ -63,6 +66,9 @@ fn vs_main(v: MeshIn) -> MeshOut {
     out.ambient_front = amb.front;
     out.ambient_back = amb.back;
     out.light_map_uv = amb.uv;
+    let n = facing_normal(out.normal, out.world);
+    let wo = normalize(globals.eye.xyz - out.world);
+    out.ambient_mirror = ambient_env_radiance(v.instance_ref, 2.0 * dot(n, wo) * n - wo, v.instance_rotation_deg);
     return out;
 }
 
@@ -124,12 +130,65 @@ fn facing_normal_or_self(n: vec3<f32>, world: vec3<f32>) -> vec3<f32> {
 }
 
 // The ambient term (shaders/ambient.wgsl) with albedo = base colour × colour map: the diffuse
-// albedo the PRT bake folds into the transfer (src/render/ambient.rs).
+// albedo the PRT bake folds into the transfer (src/render/ambient.rs); a material section's top
+// layer reflects the environment and takes its Fresnel share of the light that reaches the bottom
+// layer (src/render/ambient/gloss.rs, `ambient_layers` and `reflect_ambient`; record roughness,
+// no Toksvig).
 fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
     let albedo = texel * material.base_color.rgb;
     let n = facing_normal(in.normal, in.world);
     let seen_front = dot(in.normal, globals.eye.xyz - in.world) >= 0.0;
-    return ambient_mesh(in.ambient_front, in.ambient_back, in.light_map_uv, albedo, n, seen_front);
+    if (direct_material.mode.x == 0.0) {
+        return ambient_mesh(in.ambient_front, in.ambient_back, in.light_map_uv, albedo, n, seen_front);
+    }
+    let m = schlick_from_record(direct_material.record);
+    let top = m.top;
+    let v = clamp(dot(n, normalize(globals.eye.xyz - in.world)), 0.0, 1.0);
+    let has_top = any(top.color != vec3<f32>(0.0));
+    var xy = vec2<f32>(0.0);
+    var mean = vec3<f32>(0.0);
+    if (has_top) {
+        xy = gloss_lookup(v, top.roughness);
+        mean = top.color + (vec3<f32>(1.0) - top.color) / 21.0;
+    }
+    let s_v = schlick_fresnel(top, v);
+    let diffuse = (vec3<f32>(1.0) - s_v) * (vec3<f32>(1.0) - mean);
+    let top_diffuse = top.color * top.diffuse;
+    var gloss = vec3<f32>(0.0);
+    if (has_top) {
+        gloss = top.glossy * (top.color * xy.x + (vec3<f32>(1.0) - top.color) * xy.y) + top.specular * s_v;
+    }
+    var t = m.translucence;
+    var e_seen = vec3<f32>(0.0);
+    var e_other = vec3<f32>(0.0);
+    var l_r = max(in.ambient_mirror, vec3<f32>(0.0));
+    if (ambient.mode.x == AMBIENT_PRT) {
+        t = ambient.albedo_scale_t.w;
+        var seen = in.ambient_front;
+        var other = in.ambient_back;
+        if (!seen_front) {
+            seen = in.ambient_back;
+            other = in.ambient_front;
+        }
+        e_seen = seen * ambient.albedo_scale_t.xyz;
+        e_other = other * ambient.albedo_scale_t.xyz;
+    } else if (ambient.mode.x == AMBIENT_LIGHT_MAP) {
+        let e = light_map_bilinear(in.light_map_uv);
+        let open = sky_irradiance(n);
+        let lo = dot(open, vec3<f32>(0.2126, 0.7152, 0.0722));
+        var k = 1.0;
+        if (lo > 0.0) {
+            k = clamp(dot(e, vec3<f32>(0.2126, 0.7152, 0.0722)) / lo, 0.0, 1.0);
+        }
+        e_seen = max(e, vec3<f32>(0.0)) / PI;
+        e_other = e_seen;
+        l_r = l_r * k;
+    } else {
+        e_seen = max(sky_irradiance(n), vec3<f32>(0.0)) / PI;
+        e_other = e_seen;
+    }
+    let d = (1.0 - t) * e_seen * (diffuse * albedo + top_diffuse) + t * e_other * albedo;
+    return (max(d, vec3<f32>(0.0)) + (1.0 - t) * gloss * l_r) * ambient.scale.x;
 }
 
 // Alpha to coverage (set by the pipeline under MSAA, src/render/pipelines.rs): the alpha test
