@@ -1,12 +1,17 @@
 //! Drawing impostors: where [`crate::lod::select::choose`] gives an instance
-//! [`crate::lod::select::Choice::Impostor`], the renderer draws one camera-facing quad for it,
+//! [`crate::lod::select::Choice::Impostor`], the renderer draws one quad for it,
 //! textured with a view of the model's hemi-octahedral atlas (`lod:<model>` section,
 //! docs/CONVENTIONS.md "Impostors"), all of a model's impostor instances in one instanced draw
 //! (`shaders/impostor.wgsl`, 6 vertices per instance, two triangles).
 //!
 //! - **Quad:** centre `p + R_z(θ)·(s·c)` (the instance transform applied to the impostor centre
-//!   `c`), half size `radius·|s|`, axes `right = normalize(Z × v)`, `up = v × right` of the unit
-//!   direction `v` from that centre to the eye (octa.rs `view_axes`), so the quad faces the eye.
+//!   `c`), half size `radius·|s|`, in the image plane of the tile drawn (below): its axes are
+//!   the tile's own, `right = normalize(Z × w)`, `up = w × right` of the tile's centre direction
+//!   `w` (octa.rs `view_axes`, the axes `lod::impostor::texel_ray` cast the texels along), turned
+//!   into the world by R_z(θ), so the picture is the tile's orthographic view, neither turned nor
+//!   moved. (Until issue 35's second session the quad faced the eye with axes from the eye's
+//!   direction `v`: the picture turned by the azimuth between `v` and `w`, up to tens of degrees
+//!   near the zenith, and a far bench was drawn rotated and about a metre off.)
 //! - **Tile:** the nearest view, no blend: `v` is taken into the instance's model frame (undo the
 //!   rotation about +Z; the lower hemisphere clamps to the horizon) and the tile whose centre
 //!   direction has the largest dot product with it is drawn ([`nearest_tile`]: the cell that
@@ -16,7 +21,7 @@
 //! - **Light:** the atlas normal (model space) rotated to the world and turned towards the eye;
 //!   the sun by Lambert on the atlas albedo (the material's Schlick lobes are not in the atlas)
 //!   with the shadow-map lookup of the mesh path (`sun_visibility` of direct.wgsl) at the
-//!   surface point the depth atlas gives; the ambient term is the sky SH fallback
+//!   surface point the depth atlas gives (the quad point moved by the depth along `w`); the ambient term is the sky SH fallback
 //!   (albedo/π · E_sky(n)), since the mesh path's per-instance ambient is per-vertex PRT, which an
 //!   impostor has no vertices for.
 //! - **Shadows:** impostor instances cast impostor shadows ([`draw_shadow`], the shadow pass's

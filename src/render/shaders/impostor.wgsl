@@ -1,6 +1,6 @@
-// Impostors (src/render/impostor.rs): one camera-facing quad per instance (6 vertices, no vertex
-// arrays; the InstanceRecord in slot 0), textured with the nearest hemi-octahedral view of the
-// model's atlas (src/lod/octa.rs; `nearest_tile` in impostor.rs is the CPU twin of `tile_of`
+// Impostors (src/render/impostor.rs): one quad per instance (6 vertices, no vertex arrays; the
+// InstanceRecord in slot 0) in the image plane of the hemi-octahedral view of the model's atlas
+// nearest the eye, textured with that view (src/lod/octa.rs; `nearest_tile` in impostor.rs is the CPU twin of `tile_of`
 // below: keep the two in step). Alpha test at 0.5 like mesh.wgsl, the atlas normal rotated to the
 // world lit by the sun (Lambert on the atlas albedo) with the shadow-map lookup of direct.wgsl at
 // the surface point the depth atlas gives, and the sky SH ambient (group 3 bound with the
@@ -33,7 +33,8 @@ struct ImpostorOut {
     // the quad's (s, t) in [-1, 1]², s along `right`, t along `up`
     @location(1) st: vec2<f32>,
     @location(2) @interpolate(flat) tile: vec2<u32>,
-    // the instance's rotation (cos, sin), the world view axes and radius
+    // the instance's rotation (cos, sin), the tile's direction in the world (its depths are
+    // measured along it) and the radius
     @location(3) @interpolate(flat) rot: vec2<f32>,
     @location(4) @interpolate(flat) view_dir: vec3<f32>,
     @location(5) @interpolate(flat) radius: f32,
@@ -132,8 +133,18 @@ fn impostor_vertex(v: ImpostorIn, w_world: vec3<f32>) -> ImpostorOut {
     let radius = impostor.centre_radius.w * abs(v.instance_scale);
     // Into the model frame: undo the rotation about +Z.
     let w_model = vec3<f32>(c * w_world.x + s * w_world.y, -s * w_world.x + c * w_world.y, w_world.z);
-    let right = view_right(w_world);
-    let up = cross(w_world, right);
+    let tile = nearest_tile(w_model, impostor.grid_tile.x);
+    // The quad is the tile's own image plane: perpendicular to the tile's centre direction, with
+    // the axes its texels were cast along (lod/impostor.rs `texel_ray`), turned into the world.
+    // (Facing the eye with axes from the eye's direction turned the image by the azimuth between
+    // the two directions, up to tens of degrees near the zenith, and moved its parts: the
+    // fixture's far benches were drawn rotated and a metre off, docs/VALIDATION.md.)
+    let w_tile = octa_tile_direction(tile.x, tile.y, impostor.grid_tile.x);
+    let right_m = view_right(w_tile);
+    let up_m = cross(w_tile, right_m);
+    let w_t = vec3<f32>(c * w_tile.x - s * w_tile.y, s * w_tile.x + c * w_tile.y, w_tile.z);
+    let right = vec3<f32>(c * right_m.x - s * right_m.y, s * right_m.x + c * right_m.y, right_m.z);
+    let up = vec3<f32>(c * up_m.x - s * up_m.y, s * up_m.x + c * up_m.y, up_m.z);
     // Two triangles: corners (-1,-1) (1,-1) (1,1), (-1,-1) (1,1) (-1,1).
     var corners = array<vec2<f32>, 6>(
         vec2<f32>(-1.0, -1.0), vec2<f32>(1.0, -1.0), vec2<f32>(1.0, 1.0),
@@ -145,9 +156,9 @@ fn impostor_vertex(v: ImpostorIn, w_world: vec3<f32>) -> ImpostorOut {
     out.position = globals.view_proj * vec4<f32>(world, 1.0);
     out.world = world;
     out.st = st;
-    out.tile = nearest_tile(w_model, impostor.grid_tile.x);
+    out.tile = tile;
     out.rot = vec2<f32>(c, s);
-    out.view_dir = w_world;
+    out.view_dir = w_t;
     out.radius = radius;
     return out;
 }
