@@ -67,7 +67,8 @@ pub mod versions {
     /// 2: cards keep their triangles, a level's error counts the cards it removes (issue 14).
     /// 3: the model's skeleton (TXF line and point arrays) kept as the farthest representation.
     /// 4: impostor and skeleton colours from the linear albedo (issue 35).
-    pub const LOD: u32 = 4;
+    /// 5: the impostor normal's alpha is the surface's material index (issue 35).
+    pub const LOD: u32 = 5;
     /// 2: texels sampled on the drawn two-triangle surface; the linear albedo; a terrain
     /// without colour map has albedo 0.216 as drawn (issue 35).
     pub const LIGHTMAP: u32 = 2;

@@ -9,7 +9,8 @@
 //!
 //! Colour: the colour map's texel (nearest, sRGB-decoded) times the material's diffuse colour
 //! (display values decoded from sRGB), re-encoded to sRGB; alpha 255 where a ray hits, else 0
-//! (RGB 0). Normal: the interpolated shading normal turned towards the eye (leaves are two-sided).
+//! (RGB 0). Normal: the interpolated shading normal turned towards the eye (leaves are two-sided),
+//! with the surface's material index in alpha (255 for 255 and above).
 
 use super::octa;
 use super::section::{HEMI_OCTAHEDRAL, ImpostorAtlas, ImpostorMeta};
@@ -120,7 +121,9 @@ fn texel(
         n = -n;
     }
     let enc = |v: f32| ((v * 0.5 + 0.5) * 255.0).round().clamp(0.0, 255.0) as u8;
-    let normal = [enc(n.x), enc(n.y), enc(n.z), 255];
+    // A: the surface's material index (255 for 255 and above), so the renderer can light the
+    // texel with its material (src/render/impostor.rs).
+    let normal = [enc(n.x), enc(n.y), enc(n.z), s.material.min(255) as u8];
     let delta = (centre - s.position).dot(w);
     let depth = octa::depth_code(delta, radius);
     (albedo(mesh, textures, s.material, s.uv), normal, depth)

@@ -19,11 +19,18 @@
 //!   tiles by tests/render_lod.rs). Nearest texel within the tile (no filtering across tiles).
 //! - **Alpha:** the atlas alpha (0 or 255) tested at 0.5, the mesh shader's cutoff.
 //! - **Light:** the atlas normal (model space) rotated to the world and turned towards the eye;
-//!   the sun by Lambert on the atlas albedo (the material's Schlick lobes are not in the atlas)
+//!   the texel's material (the normal's alpha names it; the model's first [`IMPOSTOR_MATERIALS`])
+//!   by its two layers with the atlas albedo as the bottom layer's colour, under the sun as
+//!   direct.wgsl's `direct_schlick` and under the sky as the mesh path's `ambient_layered`
+//!   (the sky's irradiance of each side, its radiance in the mirror direction); a material
+//!   without layers or beyond the first 16: the sun by Lambert on the atlas albedo
 //!   with the shadow-map lookup of the mesh path (`sun_visibility` of direct.wgsl) at the
-//!   surface point the depth atlas gives (the quad point moved by the depth along `w`); the ambient term is the sky SH fallback
-//!   (albedo/π · E_sky(n)), since the mesh path's per-instance ambient is per-vertex PRT, which an
-//!   impostor has no vertices for.
+//!   surface point the depth atlas gives (the quad point moved by the depth along `w`), moved
+//!   towards the sun by the two tiles' angular error times the radius (the eye's tile and the
+//!   sun's tile see one point at depths that differ by up to that: without it an impostor
+//!   shadowed itself); the
+//!   ambient term is the sky's (albedo/π · E_sky(n) through the layers), since the mesh path's
+//!   per-instance ambient is per-vertex PRT, which an impostor has no vertices for.
 //! - **Shadows:** impostor instances cast impostor shadows ([`draw_shadow`], the shadow pass's
 //!   one hook): a quad facing the sun with the view nearest the sun's direction in the model
 //!   frame, alpha-tested, each fragment at the depth of the surface point its depth texel gives
@@ -78,6 +85,19 @@ pub fn model_view_direction(eye: Vec3, centre: Vec3, rotation_deg: f32) -> Vec3 
     Vec3::new(c * v.x + s * v.y, -s * v.x + c * v.y, v.z)
 }
 
+/// How many of a model's materials the impostor shader lights by their layers (the atlas
+/// normal's alpha names one); texels of later materials are Lambertian on the atlas albedo.
+pub const IMPOSTOR_MATERIALS: usize = 16;
+
+/// `shaders/impostor.wgsl` `ImpostorMaterials`: 16 + 16 × 112 bytes.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct ImpostorMaterials {
+    count: [u32; 4],
+    m: [super::upload::DirectMaterialParams; IMPOSTOR_MATERIALS],
+}
+const _: () = assert!(size_of::<ImpostorMaterials>() == 16 + 16 * 112);
+
 /// `shaders/impostor.wgsl` `ImpostorParams`: 32 bytes.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
@@ -116,6 +136,7 @@ impl ImpostorPipeline {
                 pipelines::texture_entry(1, S::FRAGMENT, false),
                 pipelines::texture_entry(2, S::FRAGMENT, false),
                 pipelines::texture_entry(3, S::FRAGMENT, false),
+                pipelines::uniform_entry(4, S::FRAGMENT),
             ],
         );
         let module = pipelines::shader(
@@ -172,6 +193,7 @@ pub(super) fn upload(
     label: &str,
     d: &ImpostorData,
     leaves: bool,
+    materials: &[super::upload::DirectMaterialParams],
 ) -> Result<ImpostorGpu> {
     let side = d.meta.side() as u32;
     let size = (side, side);
@@ -206,6 +228,16 @@ pub(super) fn upload(
         bytemuck::bytes_of(&params),
         wgpu::BufferUsages::UNIFORM,
     );
+    let mut mats = ImpostorMaterials::zeroed();
+    mats.count[0] = materials.len().min(IMPOSTOR_MATERIALS) as u32;
+    for (slot, m) in mats.m.iter_mut().zip(materials) {
+        *slot = *m;
+    }
+    let mats = up.buffer(
+        "impostor materials",
+        bytemuck::bytes_of(&mats),
+        wgpu::BufferUsages::UNIFORM,
+    );
     let entry = |binding, resource| wgpu::BindGroupEntry { binding, resource };
     let tex = wgpu::BindingResource::TextureView;
     let bind_group = up.gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -216,6 +248,7 @@ pub(super) fn upload(
             entry(1, tex(&color)),
             entry(2, tex(&normal)),
             entry(3, tex(&depth)),
+            entry(4, mats.as_entire_binding()),
         ],
     });
     Ok(ImpostorGpu { bind_group })

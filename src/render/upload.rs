@@ -614,6 +614,10 @@ fn upload_model(
             &m.section,
             d,
             leaves,
+            &m.materials
+                .iter()
+                .map(DirectMaterialParams::new)
+                .collect::<Vec<_>>(),
         )?),
         None => None,
     };

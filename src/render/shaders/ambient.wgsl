@@ -60,10 +60,7 @@ fn ambient_env_radiance(instance: u32, d: vec3<f32>, rotation_deg: f32) -> vec3<
             e += vec3<f32>(instance_maps[m + 3u * i], instance_maps[m + 3u * i + 1u], instance_maps[m + 3u * i + 2u]) * y[i];
         }
     } else {
-        let y = sh_basis16(d);
-        for (var i = 0u; i < 16u; i++) {
-            e += ambient.sky_radiance[i].rgb * y[i];
-        }
+        e = sky_radiance(d);
     }
     return e;
 }
@@ -89,6 +86,42 @@ fn gloss_lookup(v: f32, r: f32) -> vec2<f32> {
     let a = gloss_entry(row0) + (gloss_entry(row0 + 1u) - gloss_entry(row0)) * av;
     let b = gloss_entry(row1) + (gloss_entry(row1 + 1u) - gloss_entry(row1)) * av;
     return a + (b - a) * ar;
+}
+
+// A two-layer material's reflected ambient light on its seen side, at view cosine v
+// (src/render/ambient/gloss.rs `ambient_layers` and `reflect_ambient`): e_seen and e_other are
+// E/π of the two sides (albedo-free), l_r the environment's radiance in the view's mirror
+// direction, albedo the bottom layer's colour (× colour map). Needs direct.wgsl (Schlick).
+fn ambient_layered(m: Schlick, v_in: f32, albedo: vec3<f32>, e_seen: vec3<f32>, e_other: vec3<f32>, l_r: vec3<f32>) -> vec3<f32> {
+    let top = m.top;
+    let v = clamp(v_in, 0.0, 1.0);
+    let has_top = any(top.color != vec3<f32>(0.0));
+    var xy = vec2<f32>(0.0);
+    var mean = vec3<f32>(0.0);
+    if (has_top) {
+        xy = gloss_lookup(v, top.roughness);
+        mean = top.color + (vec3<f32>(1.0) - top.color) / 21.0;
+    }
+    let s_v = schlick_fresnel(top, v);
+    let diffuse = (vec3<f32>(1.0) - s_v) * (vec3<f32>(1.0) - mean);
+    let top_diffuse = top.color * top.diffuse;
+    var gloss = vec3<f32>(0.0);
+    if (has_top) {
+        gloss = top.glossy * (top.color * xy.x + (vec3<f32>(1.0) - top.color) * xy.y) + top.specular * s_v;
+    }
+    let t = m.translucence;
+    let d = (1.0 - t) * e_seen * (diffuse * albedo + top_diffuse) + t * e_other * albedo;
+    return max(d, vec3<f32>(0.0)) + (1.0 - t) * gloss * max(l_r, vec3<f32>(0.0));
+}
+
+// The sky's radiance towards unit world direction d (its SH, world frame).
+fn sky_radiance(d: vec3<f32>) -> vec3<f32> {
+    let y = sh_basis16(d);
+    var e = vec3<f32>(0.0);
+    for (var i = 0u; i < 16u; i++) {
+        e += ambient.sky_radiance[i].rgb * y[i];
+    }
+    return e;
 }
 
 // Bilinear light-map lookup at (u, v), v = 0 at row 0, clamped to the edge.

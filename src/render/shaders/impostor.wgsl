@@ -19,6 +19,21 @@ struct ImpostorParams {
 @group(1) @binding(2) var atlas_normal: texture_2d<f32>;
 @group(1) @binding(3) var atlas_depth: texture_2d<f32>;
 
+// The model's materials as mesh.wgsl's DirectMaterial (record, mode: x 1 = Schlick), the first
+// 16; the atlas normal's alpha names a texel's (src/lod/impostor.rs).
+struct ImpostorMaterial {
+    record: array<vec4<f32>, 6>,
+    mode: vec4<f32>,
+};
+
+struct ImpostorMaterials {
+    // x: how many of `m` are set
+    count: vec4<u32>,
+    m: array<ImpostorMaterial, 16>,
+};
+
+@group(1) @binding(4) var<uniform> impostor_materials: ImpostorMaterials;
+
 struct ImpostorIn {
     @location(3) instance_position: vec3<f32>,
     @location(4) instance_scale: f32,
@@ -98,6 +113,19 @@ fn view_right(w: vec3<f32>) -> vec3<f32> {
         return normalize(c);
     }
     return vec3<f32>(1.0, 0.0, 0.0);
+}
+
+// A world direction in the model frame (undo the rotation (cos, sin) about +Z).
+fn model_dir(w: vec3<f32>, rot: vec2<f32>) -> vec3<f32> {
+    return vec3<f32>(rot.x * w.x + rot.y * w.y, -rot.y * w.x + rot.x * w.y, w.z);
+}
+
+// sin of the angle between world direction w and the centre direction of `tile`.
+fn impostor_tile_error(tile: vec2<u32>, w: vec3<f32>, rot: vec2<f32>) -> f32 {
+    let c = octa_tile_direction(tile.x, tile.y, impostor.grid_tile.x);
+    let d = normalize(model_dir(w, rot));
+    let k = clamp(dot(c, d), -1.0, 1.0);
+    return sqrt(max(1.0 - k * k, 0.0));
 }
 
 // The instance's impostor centre in the world.
@@ -198,7 +226,8 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
     if (region_pass()) {
         return vec4<f32>(model_region(impostor.grid_tile.w != 0u), 1.0);
     }
-    let nm = textureLoad(atlas_normal, px, 0).xyz * 2.0 - 1.0;
+    let nt = textureLoad(atlas_normal, px, 0);
+    let nm = nt.xyz * 2.0 - 1.0;
     let c = in.rot.x;
     let s = in.rot.y;
     let n_world = vec3<f32>(c * nm.x - s * nm.y, s * nm.x + c * nm.y, nm.z);
@@ -207,7 +236,33 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
     let surface = in.world - in.view_dir * delta;
     let n = facing_normal(n_world, surface);
     let albedo = texel.rgb;
-    let direct = direct_lambert(albedo, n, surface);
+    // The shadow map holds the impostor itself, drawn in the tile nearest the sun; this
+    // fragment's surface comes from the tile nearest the eye. Each tile's depths are exact along
+    // its own centre direction, so the two surfaces of one point differ along the sun by up to
+    // r·(sin e_eye + sin e_sun) (e: the angle between a direction and its tile's centre) plus the
+    // depth code's step 2r/255: the lookup moves that far towards the sun, so an impostor does
+    // not shadow itself (tests/render_lod.rs: a bench 0.60 of full detail before); casters
+    // farther away than that still shadow it.
+    let sun_dir = sun_light().xyz;
+    let e_eye = impostor_tile_error(in.tile, normalize(globals.eye.xyz - surface), in.rot);
+    let sun_tile = nearest_tile(model_dir(sun_dir, in.rot), impostor.grid_tile.x);
+    let e_sun = impostor_tile_error(sun_tile, sun_dir, in.rot);
+    let lit_at = surface + sun_dir * (in.radius * (e_eye + e_sun + 2.0 / 255.0));
+    let k = u32(round(nt.a * 255.0));
+    if (k < impostor_materials.count.x && impostor_materials.m[k].mode.x != 0.0) {
+        // The texel's material: its two layers under the sun and under the sky, with the atlas
+        // albedo as the bottom layer's colour × colour map (record roughness, no normal map).
+        var m = schlick_from_record(impostor_materials.m[k].record);
+        m.bottom.color = vec3<f32>(1.0);
+        let wo = normalize(globals.eye.xyz - surface);
+        let direct = direct_schlick(m, albedo, n, any_tangent(n), n, lit_at);
+        let e_seen = max(sky_irradiance(n), vec3<f32>(0.0)) / PI;
+        let e_other = max(sky_irradiance(-n), vec3<f32>(0.0)) / PI;
+        let l_r = sky_radiance(2.0 * dot(n, wo) * n - wo);
+        let amb = ambient_layered(m, dot(n, wo), albedo, e_seen, e_other, l_r) * ambient.scale.x;
+        return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
+    }
+    let direct = direct_lambert(albedo, n, lit_at);
     let amb = albedo * max(sky_irradiance(n), vec3<f32>(0.0)) / PI * ambient.scale.x;
     return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
 }

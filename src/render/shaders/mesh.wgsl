@@ -141,29 +141,13 @@ fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
     if (direct_material.mode.x == 0.0) {
         return ambient_mesh(in.ambient_front, in.ambient_back, in.light_map_uv, albedo, n, seen_front);
     }
-    let m = schlick_from_record(direct_material.record);
-    let top = m.top;
-    let v = clamp(dot(n, normalize(globals.eye.xyz - in.world)), 0.0, 1.0);
-    let has_top = any(top.color != vec3<f32>(0.0));
-    var xy = vec2<f32>(0.0);
-    var mean = vec3<f32>(0.0);
-    if (has_top) {
-        xy = gloss_lookup(v, top.roughness);
-        mean = top.color + (vec3<f32>(1.0) - top.color) / 21.0;
-    }
-    let s_v = schlick_fresnel(top, v);
-    let diffuse = (vec3<f32>(1.0) - s_v) * (vec3<f32>(1.0) - mean);
-    let top_diffuse = top.color * top.diffuse;
-    var gloss = vec3<f32>(0.0);
-    if (has_top) {
-        gloss = top.glossy * (top.color * xy.x + (vec3<f32>(1.0) - top.color) * xy.y) + top.specular * s_v;
-    }
-    var t = m.translucence;
+    var m = schlick_from_record(direct_material.record);
+    let v = dot(n, normalize(globals.eye.xyz - in.world));
     var e_seen = vec3<f32>(0.0);
     var e_other = vec3<f32>(0.0);
-    var l_r = max(in.ambient_mirror, vec3<f32>(0.0));
+    var l_r = in.ambient_mirror;
     if (ambient.mode.x == AMBIENT_PRT) {
-        t = ambient.albedo_scale_t.w;
+        m.translucence = ambient.albedo_scale_t.w;
         var seen = in.ambient_front;
         var other = in.ambient_back;
         if (!seen_front) {
@@ -187,8 +171,7 @@ fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
         e_seen = max(sky_irradiance(n), vec3<f32>(0.0)) / PI;
         e_other = e_seen;
     }
-    let d = (1.0 - t) * e_seen * (diffuse * albedo + top_diffuse) + t * e_other * albedo;
-    return (max(d, vec3<f32>(0.0)) + (1.0 - t) * gloss * l_r) * ambient.scale.x;
+    return ambient_layered(m, v, albedo, e_seen, e_other, l_r) * ambient.scale.x;
 }
 
 // Alpha to coverage (set by the pipeline under MSAA, src/render/pipelines.rs): the alpha test
