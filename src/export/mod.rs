@@ -75,10 +75,32 @@ pub struct ExportReport {
     pub models: usize,
     pub instances: usize,
     pub terrain_chunks: usize,
+    /// The terrain's light-map section, exported as a texture on TEXCOORD_1.
+    pub lightmap: Option<String>,
+    /// Whether the light map was multiplied into the terrain's (unlit) base colour.
+    pub bake_light: bool,
     /// The sun's illuminance in lux, `None` without a `sun` section.
     pub sun_lux: Option<f32>,
     pub bytes: usize,
     pub warnings: Vec<String>,
+}
+
+/// What [`export`] writes beside the container.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ExportOptions {
+    pub container: Container,
+    /// Multiply the terrain's light map into its base colour, the material unlit
+    /// (`KHR_materials_unlit`), so that viewers without light-map support show the baked light.
+    pub bake_light: bool,
+}
+
+impl ExportOptions {
+    pub fn new(container: Container) -> ExportOptions {
+        ExportOptions {
+            container,
+            bake_light: false,
+        }
+    }
 }
 
 /// The output container.
@@ -91,6 +113,10 @@ pub enum Container {
 }
 
 const ARRAY_BUFFER: u32 = 34962;
+/// Sampler 0: trilinear, repeat (colour maps); sampler 1: bilinear, clamped to the edge (the
+/// light map, which the renderer reads clamped).
+const SAMPLER_REPEAT: usize = 0;
+const SAMPLER_CLAMP: usize = 1;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
@@ -150,6 +176,18 @@ impl Doc {
         self.accessors.len() - 1
     }
 
+    /// A PNG image in the buffer and a texture of it; returns the texture's index.
+    fn png_texture(&mut self, png: &[u8], name: &str, extras: Value, sampler: usize) -> usize {
+        let view = self.view(png, None);
+        self.images
+            .push(json!({"bufferView": view, "mimeType": "image/png",
+            "name": name, "extras": extras}));
+        let image = self.images.len() - 1;
+        self.textures
+            .push(json!({"source": image, "sampler": sampler, "name": name}));
+        self.textures.len() - 1
+    }
+
     fn indices(&mut self, tris: &[[u32; 3]]) -> usize {
         let view = self.view(bytemuck::cast_slice(tris), Some(ELEMENT_ARRAY_BUFFER));
         self.accessors
@@ -194,6 +232,11 @@ fn texture_image(pack: &Pack, name: &str) -> Result<Rgba8Image> {
 
 struct Exporter<'a> {
     pack: &'a Pack,
+    bake_light: bool,
+    /// Whether a material is `KHR_materials_unlit`.
+    unlit: bool,
+    /// The terrain's light-map section, where exported.
+    lightmap: Option<String>,
     doc: Doc,
     textures: HashMap<String, Option<Exported>>,
     warnings: Vec<String>,
@@ -215,19 +258,10 @@ impl Exporter<'_> {
             let img = texture_image(self.pack, name)?;
             let has_alpha = img.pixels.iter().any(|p| p[3] < 255);
             let png = crate::render::encode_png(&img)?;
-            let view = self.doc.view(&png, None);
-            self.doc
-                .images
-                .push(json!({"bufferView": view, "mimeType": "image/png",
-                "name": name, "extras": {"section": name}}));
-            let image = self.doc.images.len() - 1;
-            self.doc
-                .textures
-                .push(json!({"source": image, "sampler": 0, "name": name}));
-            Some(Exported {
-                texture: self.doc.textures.len() - 1,
-                has_alpha,
-            })
+            let texture =
+                self.doc
+                    .png_texture(&png, name, json!({"section": name}), SAMPLER_REPEAT);
+            Some(Exported { texture, has_alpha })
         };
         self.textures.insert(name.to_string(), out);
         Ok(out)
@@ -415,17 +449,70 @@ impl Exporter<'_> {
             Some(c) => self.texture(c)?,
             None => None,
         };
+        let light = terrain_light(self.pack)?;
         let grey = if color.is_some() { 1.0 } else { TERRAIN_GREY };
         let mut pbr = json!({"baseColorFactor": [grey, grey, grey, 1.0], "metallicFactor": 0.0,
             "roughnessFactor": 1.0});
         if let Some(c) = color {
             pbr["baseColorTexture"] = json!({"index": c.texture});
         }
-        self.doc
-            .materials
-            .push(json!({"name": "terrain", "pbrMetallicRoughness": pbr,
-            "doubleSided": false,
-            "extras": {"section": name, "color_map": meta.color_section}}));
+        let mut extras = json!({"section": name, "color_map": meta.color_section});
+        let mut unlit = false;
+        if let Some(l) = &light {
+            let lightmap = self.doc.png_texture(
+                &crate::render::encode_png(&l.encoded())?,
+                &l.section,
+                json!({"section": l.section, "array": "irradiance",
+                       "irradiance_scale": l.scale}),
+                SAMPLER_CLAMP,
+            );
+            extras["lightmap"] = json!({
+                "section": l.section, "array": "irradiance",
+                "texture": {"index": lightmap, "texCoord": 1},
+                "irradiance_scale": l.scale, "unit": "W/m^2",
+                "encoding": "sRGB 8-bit of E / irradiance_scale (linear RGB irradiance E)",
+                "radiance": "L = albedo * E / pi"});
+            if self.bake_light {
+                let albedo = match &meta.color_section {
+                    Some(c) if color.is_some() => Some(texture_image(self.pack, c)?),
+                    _ => None,
+                };
+                let img = l.lit_albedo(albedo.as_ref(), TERRAIN_GREY);
+                let name = format!(
+                    "{} x {}",
+                    meta.color_section.as_deref().unwrap_or("grey"),
+                    l.section
+                );
+                let lit = self.doc.png_texture(
+                    &crate::render::encode_png(&img)?,
+                    &name,
+                    json!({"sections": [meta.color_section, l.section],
+                           "irradiance_scale": l.scale}),
+                    SAMPLER_CLAMP,
+                );
+                pbr["baseColorFactor"] = json!([1.0, 1.0, 1.0, 1.0]);
+                pbr["baseColorTexture"] = json!({"index": lit});
+                extras["bake_light"] = json!({
+                    "sections": [meta.color_section, l.section],
+                    "color_texture": color.map(|c| c.texture),
+                    "irradiance_scale": l.scale,
+                    "base_color": "albedo * E / irradiance_scale (E: the light map's irradiance)",
+                    "radiance": "L = base colour * irradiance_scale / pi (W/m^2/sr)"});
+                unlit = true;
+            }
+        } else if self.bake_light {
+            self.warnings.push(format!(
+                "--bake-light: the pack has no light map of the terrain ({name:?} is exported lit)"
+            ));
+        }
+        let mut m = json!({"name": "terrain", "pbrMetallicRoughness": pbr,
+            "doubleSided": false, "extras": extras});
+        if unlit {
+            m["extensions"] = json!({"KHR_materials_unlit": {}});
+            self.unlit = true;
+        }
+        self.lightmap = light.as_ref().map(|l| l.section.clone());
+        self.doc.materials.push(m);
         let material = self.doc.materials.len() - 1;
         let (w, h) = (t.width, t.height);
         let dx = t.extent[0] / (w - 1) as f32;
@@ -469,8 +556,14 @@ impl Exporter<'_> {
                 let n = self.doc.floats(&nrm, "VEC3", Some(ARRAY_BUFFER), false);
                 let u = self.doc.floats(&uv, "VEC2", Some(ARRAY_BUFFER), false);
                 let idx = self.doc.indices(&tris);
+                let mut attributes = json!({"POSITION": p, "NORMAL": n, "TEXCOORD_0": u});
+                if light.is_some() {
+                    // The light map spans the terrain's extent as the colour map does (texel
+                    // centres at (k + 1/2)/size of it): the same coordinates, one accessor.
+                    attributes["TEXCOORD_1"] = json!(u);
+                }
                 primitives.push(json!({
-                    "attributes": {"POSITION": p, "NORMAL": n, "TEXCOORD_0": u},
+                    "attributes": attributes,
                     "indices": idx, "material": material, "mode": 4,
                     "extras": {"cells": [cx, cy, x1, y1]},
                 }));
@@ -488,6 +581,145 @@ impl Exporter<'_> {
     }
 }
 
+/// The terrain's light map (the first `lightmap` section whose surface is "terrain"): its total
+/// irradiance (direct sun with its visibility, sky, bounce), row 0 north, texel centres at
+/// (k + ½)/size of the extent.
+struct TerrainLight {
+    section: String,
+    width: u32,
+    height: u32,
+    texels: Vec<[f32; 3]>,
+    /// The largest component of any texel (W/m²): the 8-bit encodings divide by it.
+    scale: f32,
+}
+
+fn terrain_light(pack: &Pack) -> Result<Option<TerrainLight>> {
+    use crate::lightmap::section::{self as lightmap, LightmapMeta};
+    for e in pack.of_kind(lightmap::KIND) {
+        let v = pack.view(e)?;
+        let bad = |err: ParseError| {
+            Error::invalid_at(
+                pack.path(),
+                format!("section {:?}", e.name),
+                err.to_string(),
+            )
+        };
+        let meta: LightmapMeta = v.meta().map_err(bad)?;
+        if meta.surface != "terrain" {
+            continue;
+        }
+        let t: &[[f32; 4]] = v.array("irradiance").map_err(bad)?;
+        if t.is_empty() || t.len() as u64 != meta.width as u64 * meta.height as u64 {
+            return Err(bad(ParseError::new(
+                "irradiance",
+                format!("{} texels for {}×{}", t.len(), meta.width, meta.height),
+            )));
+        }
+        let texels: Vec<[f32; 3]> = t
+            .iter()
+            .map(|x| [0, 1, 2].map(|c| if x[c].is_finite() { x[c].max(0.0) } else { 0.0 }))
+            .collect();
+        let scale = texels.iter().flatten().fold(0.0f32, |a, &b| a.max(b));
+        if scale <= 0.0 {
+            return Ok(None);
+        }
+        return Ok(Some(TerrainLight {
+            section: e.name.clone(),
+            width: meta.width,
+            height: meta.height,
+            texels,
+            scale,
+        }));
+    }
+    Ok(None)
+}
+
+/// A linear value in [0, 1] as an 8-bit sRGB code.
+fn srgb8(l: f32) -> u8 {
+    (crate::color::linear_to_srgb(l.clamp(0.0, 1.0)) * 255.0).round() as u8
+}
+
+impl TerrainLight {
+    /// The irradiance at texture coordinates (u, v), bilinear between texel centres and clamped
+    /// to the edge: the arithmetic of the renderer's `light_map_bilinear` (shaders/ambient.wgsl).
+    fn sample(&self, u: f32, v: f32) -> [f32; 3] {
+        bilinear(&self.texels, self.width, self.height, u, v)
+    }
+
+    /// The light map as 8-bit sRGB of E / scale.
+    fn encoded(&self) -> Rgba8Image {
+        Rgba8Image {
+            width: self.width,
+            height: self.height,
+            pixels: self
+                .texels
+                .iter()
+                .map(|e| {
+                    let [r, g, b] = e.map(|c| srgb8(c / self.scale));
+                    [r, g, b, 255]
+                })
+                .collect(),
+        }
+    }
+
+    /// albedo × E / scale as 8-bit sRGB, at the finer of the colour map's and the light map's
+    /// resolutions (each sampled bilinearly at the texel centres); `grey` without a colour map.
+    fn lit_albedo(&self, color: Option<&Rgba8Image>, grey: f32) -> Rgba8Image {
+        let linear: Option<Vec<[f32; 3]>> = color.map(|c| {
+            c.pixels
+                .iter()
+                .map(|p| [0, 1, 2].map(|k| crate::color::srgb_to_linear(p[k] as f32 / 255.0)))
+                .collect()
+        });
+        let (w, h) = match color {
+            Some(c) => (c.width.max(self.width), c.height.max(self.height)),
+            None => (self.width, self.height),
+        };
+        let mut pixels = Vec::with_capacity(w as usize * h as usize);
+        for y in 0..h {
+            for x in 0..w {
+                let (u, v) = ((x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32);
+                let a = match (color, &linear) {
+                    (Some(c), Some(l)) => bilinear(l, c.width, c.height, u, v),
+                    _ => [grey; 3],
+                };
+                let e = self.sample(u, v);
+                let [r, g, b] = [0, 1, 2].map(|k| srgb8(a[k] * e[k] / self.scale));
+                pixels.push([r, g, b, 255]);
+            }
+        }
+        Rgba8Image {
+            width: w,
+            height: h,
+            pixels,
+        }
+    }
+}
+
+/// Bilinear lookup of a `w`×`h` grid of texels at (u, v), texel centres at (k + ½)/size,
+/// clamped to the edge.
+fn bilinear(texels: &[[f32; 3]], w: u32, h: u32, u: f32, v: f32) -> [f32; 3] {
+    let fx = u * w as f32 - 0.5;
+    let fy = v * h as f32 - 0.5;
+    let (x0, y0) = (fx.floor(), fy.floor());
+    let (ax, ay) = (fx - x0, fy - y0);
+    let at = |x: i64, y: i64| {
+        texels[(y.clamp(0, h as i64 - 1) * w as i64 + x.clamp(0, w as i64 - 1)) as usize]
+    };
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let (t00, t10, t01, t11) = (
+        at(x0, y0),
+        at(x0 + 1, y0),
+        at(x0, y0 + 1),
+        at(x0 + 1, y0 + 1),
+    );
+    std::array::from_fn(|c| {
+        let top = t00[c] + (t10[c] - t00[c]) * ax;
+        let bottom = t01[c] + (t11[c] - t01[c]) * ax;
+        top + (bottom - top) * ay
+    })
+}
+
 fn unit(n: [f32; 3]) -> [f32; 3] {
     let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
     if l > 1e-12 && l.is_finite() {
@@ -499,7 +731,8 @@ fn unit(n: [f32; 3]) -> [f32; 3] {
 
 /// The pack as a glTF document: the file's bytes and what they hold. Fails (invalid input)
 /// on a pack without any mesh section.
-pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportReport)> {
+pub fn export(pack: &Pack, opts: ExportOptions) -> Result<(Vec<u8>, ExportReport)> {
+    let container = opts.container;
     if pack.of_kind(mesh::KIND).next().is_none() {
         return Err(Error::invalid_at(
             pack.path(),
@@ -510,6 +743,9 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
     }
     let mut ex = Exporter {
         pack,
+        bake_light: opts.bake_light,
+        unlit: false,
+        lightmap: None,
         doc: Doc::default(),
         textures: HashMap::new(),
         warnings: Vec::new(),
@@ -642,12 +878,17 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
     if !lights.is_empty() {
         used.push("KHR_lights_punctual");
     }
+    if ex.unlit {
+        used.push("KHR_materials_unlit");
+    }
     let doc = std::mem::take(&mut ex.doc);
     report.meshes = doc.meshes.len();
     report.nodes = doc.nodes.len();
     report.materials = doc.materials.len();
     report.textures = doc.textures.len();
     report.images = doc.images.len();
+    report.lightmap = ex.lightmap.clone();
+    report.bake_light = ex.unlit;
     let mut bin = doc.bin;
     while !bin.len().is_multiple_of(4) {
         bin.push(0);
@@ -677,8 +918,10 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
         gltf["textures"] = json!(doc.textures);
         gltf["images"] = json!(doc.images);
         // Trilinear, repeat (9987 LINEAR_MIPMAP_LINEAR, 9729 LINEAR, 10497 REPEAT).
-        gltf["samplers"] =
-            json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]);
+        // Sampler 1: bilinear, clamped (33071 CLAMP_TO_EDGE), for the light map.
+        gltf["samplers"] = json!([
+            {"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497},
+            {"magFilter": 9729, "minFilter": 9729, "wrapS": 33071, "wrapT": 33071}]);
     }
     if !used.is_empty() {
         gltf["extensionsUsed"] = json!(used);
