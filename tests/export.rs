@@ -791,3 +791,75 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     assert!(m["terrain_blurred_rms"].as_f64().unwrap() <= 0.05);
     assert!(d.join("three/side-by-side.png").is_file());
 }
+
+#[test]
+fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
+    // Blender's Python module in target/bpy-venv (scripts/install-bpy.sh) or BPY_PYTHON.
+    let python = std::env::var_os("BPY_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bpy-venv/bin/python")
+        });
+    if !python.is_file() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "Blender's bpy is not at {}; scripts/install-bpy.sh installs it",
+            python.display()
+        );
+        eprintln!(
+            "SKIPPED: Blender's bpy is not at {} (scripts/install-bpy.sh)",
+            python.display()
+        );
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (pack, plain, _) = exported(dir.path(), "glb");
+    let lit = dir.path().join("lit.glb");
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        lit.to_str().unwrap(),
+        "--bake-light",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = common::bake(&["dump", pack.to_str().unwrap(), "--json", "--full"]);
+    common::json(&o);
+    let dump = dir.path().join("dump.json");
+    std::fs::write(&dump, &o.stdout).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/blender/import_check.py");
+    for (glb, flag) in [(&plain, None), (&lit, Some("--bake-light"))] {
+        let o = std::process::Command::new(&python)
+            .arg(&script)
+            .arg(glb)
+            .arg(&dump)
+            .args(flag)
+            .output()
+            .expect("run Blender's Python");
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        let summary: Value = stdout
+            .lines()
+            .rev()
+            .find_map(|l| serde_json::from_str(l).ok())
+            .unwrap_or_else(|| {
+                panic!(
+                    "no JSON summary: {stdout}{}",
+                    String::from_utf8_lossy(&o.stderr)
+                )
+            });
+        eprintln!("Blender on {}: {summary}", glb.display());
+        assert!(o.status.success(), "{summary}");
+        assert_eq!(summary["failures"], serde_json::json!([]));
+        // The counts Blender saw, against the pack itself (not only the script's reading of the dump).
+        let p = Pack::open(&pack).unwrap();
+        let (meta, list) = instances_of(&p);
+        assert_eq!(summary["got"]["instances"], list.len());
+        assert_eq!(summary["got"]["meshes"], meta.models.len() + 1);
+        assert_eq!(
+            summary["got"]["materials"],
+            p.of_kind("material").count() + 1
+        );
+        assert_eq!(summary["got"]["suns"], 1);
+    }
+}

@@ -107,7 +107,7 @@ const server = http.createServer(async (req, res) => {
   if (req.method === 'POST') {
     const b = await body(req);
     res.end('ok');
-    if (url === '/log') finish(3, `check.js: the page failed: ${b.error}`);
+    if (url === '/log') retryOr(`the page failed: ${b.error}`);
     else if (url === '/result') judge(b);
     return;
   }
@@ -151,19 +151,39 @@ function judge(b) {
 }
 
 const timer = setTimeout(() => finish(3, `check.js: no result within ${a.timeout} s`), a.timeout * 1000);
-server.listen(0, '127.0.0.1', () => {
+// One retry where Chromium or the page fails before reporting (a crash of the browser under a
+// loaded machine); a result outside the bounds is never retried.
+let attempt = 0;
+function retryOr(msg) {
+  if (finished) return;
+  if (attempt < 2) {
+    console.error(`check.js: attempt ${attempt} failed, retrying once: ${msg}`);
+    if (chrome && chrome.exitCode === null) {
+      chrome.removeAllListeners('exit');
+      chrome.kill('SIGKILL');
+    }
+    launch();
+  } else {
+    finish(3, `check.js: ${msg}`);
+  }
+}
+
+function launch() {
+  attempt += 1;
   const url = `http://127.0.0.1:${server.address().port}/`;
   const profile = fs.mkdtempSync(path.join(os.tmpdir(), 'bake-threejs-'));
-  chrome = spawn(a.chromium, [
+  const c = spawn(a.chromium, [
     '--headless=new', '--no-sandbox', '--no-first-run', '--disable-extensions', '--mute-audio',
     '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist',
     `--user-data-dir=${profile}`, `--window-size=${params.width},${params.height}`, url,
   ], { stdio: ['ignore', 'ignore', 'pipe'] });
+  chrome = c;
   let err = '';
-  chrome.stderr.on('data', (d) => { err = (err + d).slice(-4000); });
-  chrome.on('error', (e) => finish(3, `check.js: cannot start ${a.chromium}: ${e}`));
-  chrome.on('exit', (code) => {
+  c.stderr.on('data', (d) => { err = (err + d).slice(-4000); });
+  c.on('error', (e) => finish(3, `check.js: cannot start ${a.chromium}: ${e}`));
+  c.on('exit', (code) => {
     fs.rmSync(profile, { recursive: true, force: true });
-    if (!finished) finish(3, `check.js: Chromium exited (${code}) before the page reported:\n${err}`);
+    if (!finished && chrome === c) retryOr(`Chromium exited (${code}) before the page reported:\n${err}`);
   });
-});
+}
+server.listen(0, '127.0.0.1', launch);
