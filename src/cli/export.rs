@@ -41,9 +41,8 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         container,
         bake_light: args.bake_light,
     };
-    let (bytes, report) = export(&pack, opts)?;
     // Written to a temporary file and renamed, as packs are: a failed run leaves no output.
-    crate::pack::write_atomic(&args.output, &bytes)?;
+    let report = export(&pack, opts, &args.output)?;
     let text = format!(
         "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}\n",
         args.output.display(),
@@ -70,7 +69,7 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
     Ok(Outcome::written(
         &report,
         &args.output,
-        bytes.len(),
+        report.bytes,
         text,
         warnings,
     ))

@@ -27,6 +27,8 @@ use crate::terrain::source_section::{self as terrain, TerrainMeta};
 use crate::texture::source_section::TextureMeta;
 use serde_json::{Map, Value, json};
 use std::collections::HashMap;
+use std::io::{Seek, Write};
+use std::path::Path;
 
 /// Cells per side of one terrain chunk (one glTF primitive each).
 pub const TERRAIN_CHUNK: u32 = 64;
@@ -121,10 +123,60 @@ const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
 
+/// The binary buffer, streamed to an unnamed temporary file beside the output as it is made
+/// (a 4097² terrain is about a gigabyte of vertices and indices): only its length stays in
+/// memory. The first write error is kept and reported when the file is assembled.
+struct Bin {
+    out: std::io::BufWriter<std::fs::File>,
+    len: u64,
+    error: Option<std::io::Error>,
+}
+
+impl Bin {
+    fn new(dir: &Path) -> Result<Bin> {
+        let file = tempfile::tempfile_in(dir).map_err(|e| Error::io(dir, e))?;
+        Ok(Bin {
+            out: std::io::BufWriter::with_capacity(1 << 20, file),
+            len: 0,
+            error: None,
+        })
+    }
+
+    fn put(&mut self, bytes: &[u8]) {
+        if self.error.is_none()
+            && let Err(e) = self.out.write_all(bytes)
+        {
+            self.error = Some(e);
+        }
+        self.len += bytes.len() as u64;
+    }
+
+    /// Zero bytes up to a multiple of 4; returns the offset reached.
+    fn align(&mut self) -> u64 {
+        let pad = (4 - self.len % 4) % 4;
+        self.put(&[0u8; 3][..pad as usize]);
+        self.len
+    }
+
+    /// The finished buffer (length a multiple of 4), rewound for reading.
+    fn finish(mut self, dir: &Path) -> Result<(std::fs::File, u64)> {
+        self.align();
+        if let Some(e) = self.error {
+            return Err(Error::io(dir, e));
+        }
+        let mut file = self
+            .out
+            .into_inner()
+            .map_err(|e| Error::io(dir, e.into_error()))?;
+        file.seek(std::io::SeekFrom::Start(0))
+            .map_err(|e| Error::io(dir, e))?;
+        Ok((file, self.len))
+    }
+}
+
 /// The binary buffer and the JSON arrays that index it.
-#[derive(Default)]
 struct Doc {
-    bin: Vec<u8>,
+    bin: Bin,
     views: Vec<Value>,
     accessors: Vec<Value>,
     images: Vec<Value>,
@@ -135,15 +187,26 @@ struct Doc {
 }
 
 impl Doc {
+    fn new(dir: &Path) -> Result<Doc> {
+        Ok(Doc {
+            bin: Bin::new(dir)?,
+            views: Vec::new(),
+            accessors: Vec::new(),
+            images: Vec::new(),
+            textures: Vec::new(),
+            materials: Vec::new(),
+            meshes: Vec::new(),
+            nodes: Vec::new(),
+        })
+    }
+
     fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
-        while !self.bin.len().is_multiple_of(4) {
-            self.bin.push(0);
-        }
-        let mut v = json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
+        let offset = self.bin.align();
+        let mut v = json!({"buffer": 0, "byteOffset": offset, "byteLength": bytes.len()});
         if let Some(t) = target {
             v["target"] = json!(t);
         }
-        self.bin.extend_from_slice(bytes);
+        self.bin.put(bytes);
         self.views.push(v);
         self.views.len() - 1
     }
@@ -729,9 +792,11 @@ fn unit(n: [f32; 3]) -> [f32; 3] {
     }
 }
 
-/// The pack as a glTF document: the file's bytes and what they hold. Fails (invalid input)
-/// on a pack without any mesh section.
-pub fn export(pack: &Pack, opts: ExportOptions) -> Result<(Vec<u8>, ExportReport)> {
+/// The pack as a glTF document written to `output` (through a temporary file renamed at the
+/// end: a failed export leaves no output); returns what it holds. The binary buffer is streamed
+/// to disk as it is made, so memory holds one section's arrays at a time, not the file. Fails
+/// (invalid input) on a pack without any mesh section, before anything is created.
+pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportReport> {
     let container = opts.container;
     if pack.of_kind(mesh::KIND).next().is_none() {
         return Err(Error::invalid_at(
@@ -741,12 +806,17 @@ pub fn export(pack: &Pack, opts: ExportOptions) -> Result<(Vec<u8>, ExportReport
              e.g. from `bake SCENE.eco` or `bake ingest MODEL`)",
         ));
     }
+    let dir = match output.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let mut ex = Exporter {
         pack,
         bake_light: opts.bake_light,
         unlit: false,
         lightmap: None,
-        doc: Doc::default(),
+        doc: Doc::new(&dir)?,
         textures: HashMap::new(),
         warnings: Vec::new(),
     };
@@ -881,7 +951,7 @@ pub fn export(pack: &Pack, opts: ExportOptions) -> Result<(Vec<u8>, ExportReport
     if ex.unlit {
         used.push("KHR_materials_unlit");
     }
-    let doc = std::mem::take(&mut ex.doc);
+    let doc = ex.doc;
     report.meshes = doc.meshes.len();
     report.nodes = doc.nodes.len();
     report.materials = doc.materials.len();
@@ -889,19 +959,13 @@ pub fn export(pack: &Pack, opts: ExportOptions) -> Result<(Vec<u8>, ExportReport
     report.images = doc.images.len();
     report.lightmap = ex.lightmap.clone();
     report.bake_light = ex.unlit;
-    let mut bin = doc.bin;
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
+    let (mut bin, bin_len) = doc.bin.finish(&dir)?;
     let mut buffer = Map::new();
-    buffer.insert("byteLength".into(), json!(bin.len()));
+    buffer.insert("byteLength".into(), json!(bin_len));
+    // The embedded buffer's data URI is streamed into the JSON text where this marker stands.
+    const URI_MARK: &str = "\u{1}bake-buffer\u{1}";
     if container == Container::GltfEmbedded {
-        use base64::Engine;
-        let b64 = base64::engine::general_purpose::STANDARD.encode(&bin);
-        buffer.insert(
-            "uri".into(),
-            json!(format!("data:application/octet-stream;base64,{b64}")),
-        );
+        buffer.insert("uri".into(), json!(URI_MARK));
     }
     let mut gltf = json!({
         "asset": {"version": "2.0", "generator": format!("bake {} export", env!("CARGO_PKG_VERSION"))},
@@ -931,34 +995,60 @@ pub fn export(pack: &Pack, opts: ExportOptions) -> Result<(Vec<u8>, ExportReport
     }
     let text = serde_json::to_vec(&gltf)
         .map_err(|e| Error::runtime(format!("glTF JSON encoding failed: {e}")))?;
-    let bytes = match container {
-        Container::GltfEmbedded => text,
-        Container::Glb => glb(text, &bin),
-    };
-    report.bytes = bytes.len();
+    drop(gltf);
+    let io = |e: std::io::Error| Error::io(output, e);
+    report.bytes = crate::pack::write_atomic_with(output, |w| match container {
+        Container::Glb => {
+            let mut json = text;
+            while !json.len().is_multiple_of(4) {
+                json.push(b' ');
+            }
+            let total = 12 + 8 + json.len() as u64 + if bin_len == 0 { 0 } else { 8 + bin_len };
+            let total32 = u32::try_from(total).map_err(|_| {
+                Error::runtime(format!(
+                    "the GLB would be {total} bytes: more than the format's 4 GiB (write .gltf, or \
+                     export a smaller pack)"
+                ))
+            })?;
+            w.write_all(b"glTF").map_err(io)?;
+            w.write_all(&2u32.to_le_bytes()).map_err(io)?;
+            w.write_all(&total32.to_le_bytes()).map_err(io)?;
+            w.write_all(&(json.len() as u32).to_le_bytes())
+                .map_err(io)?;
+            w.write_all(b"JSON").map_err(io)?;
+            w.write_all(&json).map_err(io)?;
+            if bin_len > 0 {
+                w.write_all(&(bin_len as u32).to_le_bytes()).map_err(io)?;
+                w.write_all(b"BIN\0").map_err(io)?;
+                std::io::copy(&mut bin, w).map_err(io)?;
+            }
+            Ok(total as usize)
+        }
+        Container::GltfEmbedded => {
+            let mark = serde_json::to_string(URI_MARK).expect("a string");
+            let at = text
+                .windows(mark.len())
+                .position(|x| x == mark.as_bytes())
+                .expect("the buffer's URI marker is in the JSON");
+            let prefix = b"\"data:application/octet-stream;base64,";
+            w.write_all(&text[..at]).map_err(io)?;
+            w.write_all(prefix).map_err(io)?;
+            {
+                let mut enc = base64::write::EncoderWriter::new(
+                    &mut *w,
+                    &base64::engine::general_purpose::STANDARD,
+                );
+                std::io::copy(&mut bin, &mut enc).map_err(io)?;
+                enc.finish().map_err(io)?;
+            }
+            w.write_all(b"\"").map_err(io)?;
+            w.write_all(&text[at + mark.len()..]).map_err(io)?;
+            let b64 = bin_len.div_ceil(3) * 4;
+            Ok(text.len() - mark.len() + prefix.len() + b64 as usize + 1)
+        }
+    })?;
     report.warnings = ex.warnings;
-    Ok((bytes, report))
-}
-
-/// The GLB container: header, JSON chunk (space-padded), BIN chunk (zero-padded).
-fn glb(mut json: Vec<u8>, bin: &[u8]) -> Vec<u8> {
-    while !json.len().is_multiple_of(4) {
-        json.push(b' ');
-    }
-    let total = 12 + 8 + json.len() + if bin.is_empty() { 0 } else { 8 + bin.len() };
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&json);
-    if !bin.is_empty() {
-        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-        out.extend_from_slice(b"BIN\0");
-        out.extend_from_slice(bin);
-    }
-    out
+    Ok(report)
 }
 
 #[cfg(test)]
