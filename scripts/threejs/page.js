@@ -36,6 +36,7 @@ async function main() {
   const t0 = performance.now();
   const gltf = await new GLTFLoader().loadAsync('/scene.glb');
   const tLoad = performance.now() - t0;
+  await post('/progress', { stage: `GLB loaded and parsed in ${(tLoad / 1000).toFixed(2)} s` });
 
   const scene = gltf.scene;
   const found = { sun: 0, unlit: 0, instanced: 0, instances: 0 };
@@ -50,6 +51,8 @@ async function main() {
     if (o.isInstancedMesh) {
       found.instanced += 1;
       found.instances += o.count;
+      // --hide-instances: loaded, not drawn (SwiftShader cannot draw 10⁹ triangles in minutes).
+      if (p.hide_instances) o.visible = false;
     }
     if (o.isMesh) {
       for (const m of Array.isArray(o.material) ? o.material : [o.material]) {
@@ -87,6 +90,8 @@ async function main() {
   renderer.toneMapping = THREE.CustomToneMapping;
   renderer.toneMappingExposure = p.exposure;
   renderer.setClearColor(new THREE.Color().setRGB(1, 0, 1), 1); // magenta: "nothing drawn"
+  renderer.compile(scene, camera);
+  await post('/progress', { stage: `shaders compiled; drawing` });
   const t1 = performance.now();
   renderer.render(scene, camera);
   renderer.getContext().finish();
