@@ -63,6 +63,7 @@ fn the_fixture_scene_exports_with_the_packs_counts() {
     let (pack_path, out, report) = exported(dir.path(), "glb");
     let pack = Pack::open(&pack_path).unwrap();
     let bytes = std::fs::read(&out).unwrap();
+    assert_eq!(report["bytes"].as_u64().unwrap(), bytes.len() as u64);
     let (doc, buffers, images) = gltf::import_slice(&bytes).expect("gltf reads the GLB");
     let (meta, list) = instances_of(&pack);
 
@@ -273,6 +274,9 @@ fn gltf_with_an_embedded_buffer_reads_back_alike() {
     let (_, out, report) = exported(dir.path(), "gltf");
     let bytes = std::fs::read(&out).unwrap();
     assert_eq!(&bytes[..1], b"{", "JSON glTF");
+    // The streamed file (JSON, then the buffer base64-encoded into its data URI) is as long as
+    // the report says, and is the only file beside the pack's sources.
+    assert_eq!(report["bytes"].as_u64().unwrap(), bytes.len() as u64);
     let (doc, buffers, images) = gltf::import_slice(&bytes).expect("gltf reads it");
     assert_eq!(buffers.len(), 1);
     assert_eq!(
