@@ -63,6 +63,7 @@ fn the_fixture_scene_exports_with_the_packs_counts() {
     let (pack_path, out, report) = exported(dir.path(), "glb");
     let pack = Pack::open(&pack_path).unwrap();
     let bytes = std::fs::read(&out).unwrap();
+    assert_eq!(report["bytes"].as_u64().unwrap(), bytes.len() as u64);
     let (doc, buffers, images) = gltf::import_slice(&bytes).expect("gltf reads the GLB");
     let (meta, list) = instances_of(&pack);
 
@@ -104,10 +105,15 @@ fn the_fixture_scene_exports_with_the_packs_counts() {
     let terrain: bake::terrain::source_section::TerrainMeta =
         pack.view_named("terrain").unwrap().meta().unwrap();
     maps.extend(terrain.color_section.clone());
-    assert_eq!(doc.textures().count(), maps.len());
-    assert_eq!(images.len(), maps.len());
+    // And the terrain's light map (TEXCOORD_1), checked texel by texel further down.
+    let (lightmap, ..) = terrain_lightmap(&pack);
+    assert_eq!(doc.textures().count(), maps.len() + 1);
+    assert_eq!(images.len(), maps.len() + 1);
     for (img, section) in doc.images().zip(&images) {
         let name = img.name().unwrap();
+        if name == lightmap {
+            continue;
+        }
         assert!(maps.contains(name), "image {name}");
         let t: bake::texture::source_section::TextureMeta =
             pack.view_named(name).unwrap().meta().unwrap();
@@ -268,6 +274,9 @@ fn gltf_with_an_embedded_buffer_reads_back_alike() {
     let (_, out, report) = exported(dir.path(), "gltf");
     let bytes = std::fs::read(&out).unwrap();
     assert_eq!(&bytes[..1], b"{", "JSON glTF");
+    // The streamed file (JSON, then the buffer base64-encoded into its data URI) is as long as
+    // the report says, and is the only file beside the pack's sources.
+    assert_eq!(report["bytes"].as_u64().unwrap(), bytes.len() as u64);
     let (doc, buffers, images) = gltf::import_slice(&bytes).expect("gltf reads it");
     assert_eq!(buffers.len(), 1);
     assert_eq!(
@@ -334,8 +343,19 @@ fn the_khronos_validator_finds_no_errors() {
         "--quiet",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // And with the light map baked into an unlit base colour.
+    let lit = dir.path().join("lit.glb");
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        lit.to_str().unwrap(),
+        "--bake-light",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
-    for file in [glb, gltf] {
+    for file in [glb, gltf, lit] {
         let o = std::process::Command::new("node")
             .arg(&script)
             .arg(&validator)
@@ -499,4 +519,351 @@ fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin(
     assert!(node.mesh().is_some());
     assert_eq!(node.transform().decomposed().0, [0.0; 3]);
     assert_eq!(doc.materials().count(), 2);
+}
+
+/// sRGB decoding of an 8-bit code.
+fn srgb_linear(c: u8) -> f32 {
+    common::srgb_decode(c)
+}
+
+/// The pack's light map of the terrain: (section name, width, height, RGB irradiance).
+fn terrain_lightmap(pack: &Pack) -> (String, u32, u32, Vec<[f32; 3]>) {
+    for e in pack.of_kind("lightmap") {
+        let v = pack.view(e).unwrap();
+        let meta: bake::lightmap::section::LightmapMeta = v.meta().unwrap();
+        if meta.surface == "terrain" {
+            let t: Vec<[f32; 4]> = v.array_vec("irradiance").unwrap();
+            let rgb = t.iter().map(|x| [x[0], x[1], x[2]]).collect();
+            return (e.name.clone(), meta.width, meta.height, rgb);
+        }
+    }
+    panic!("the preview pack has a terrain light map");
+}
+
+/// The terrain's material, mesh and the decoded image of texture `index`.
+fn texture_pixels(json: &Value, images: &[gltf::image::Data], index: u64) -> (u32, u32, Vec<u8>) {
+    let source = json["textures"][index as usize]["source"].as_u64().unwrap() as usize;
+    let img = &images[source];
+    assert_eq!(img.format, gltf::image::Format::R8G8B8A8, "RGBA PNG");
+    (img.width, img.height, img.pixels.clone())
+}
+
+#[test]
+fn the_terrain_light_map_rides_on_texcoord_1_and_bakes_into_an_unlit_base_colour() {
+    let dir = tempfile::tempdir().unwrap();
+    let (pack_path, plain, report) = exported(dir.path(), "glb");
+    let pack = Pack::open(&pack_path).unwrap();
+    let (section, lw, lh, irradiance) = terrain_lightmap(&pack);
+    assert_eq!(report["lightmap"], section.as_str());
+    assert_eq!(report["bake_light"], false);
+    let peak = irradiance.iter().flatten().fold(0.0f32, |a, &b| a.max(b));
+    assert!(peak > 0.0);
+
+    // Without --bake-light: the colour map stays the base colour; the light map is a texture on
+    // TEXCOORD_1 named in the material's extras, 8-bit sRGB of E / irradiance_scale.
+    let bytes = std::fs::read(&plain).unwrap();
+    let (_, _, images) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let terrain_material = |json: &Value| {
+        json["materials"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|m| m["name"] == "terrain")
+            .cloned()
+            .unwrap()
+    };
+    let m = terrain_material(&json);
+    assert!(m.get("extensions").is_none(), "lit without --bake-light");
+    let lm = &m["extras"]["lightmap"];
+    assert_eq!(lm["section"], section.as_str());
+    assert_eq!(lm["texture"]["texCoord"], 1);
+    let scale = lm["irradiance_scale"].as_f64().unwrap() as f32;
+    assert!((scale - peak).abs() <= 1e-6 * peak, "{scale} vs {peak}");
+    let (w, h, px) = texture_pixels(&json, &images, lm["texture"]["index"].as_u64().unwrap());
+    assert_eq!((w, h), (lw, lh));
+    for (k, e) in irradiance.iter().enumerate() {
+        for c in 0..3 {
+            // Row 0 north in both; decoded back within half an 8-bit step (sRGB) of E.
+            let got = srgb_linear(px[4 * k + c]) * scale;
+            let step = (srgb_linear(px[4 * k + c].saturating_add(1))
+                - srgb_linear(px[4 * k + c].saturating_sub(1)))
+                * scale;
+            assert!(
+                (got - e[c]).abs() <= step,
+                "texel {k}.{c}: {got} vs {}",
+                e[c]
+            );
+        }
+    }
+    let terrain_mesh = json["meshes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| m["name"] == "terrain")
+        .unwrap();
+    for p in terrain_mesh["primitives"].as_array().unwrap() {
+        assert_eq!(p["attributes"]["TEXCOORD_1"], p["attributes"]["TEXCOORD_0"]);
+    }
+
+    // --bake-light: unlit, its base colour albedo × E / irradiance_scale, sampled at the finer
+    // of the two maps' resolutions; the pack's colour map and light map are the oracle.
+    let lit = dir.path().join("lit.glb");
+    let r = common::json(&common::bake(&[
+        "export",
+        pack_path.to_str().unwrap(),
+        "-o",
+        lit.to_str().unwrap(),
+        "--bake-light",
+        "--json",
+    ]));
+    assert_eq!(r["bake_light"], true);
+    let bytes = std::fs::read(&lit).unwrap();
+    let (_, _, images) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    assert!(
+        json["extensionsUsed"]
+            .as_array()
+            .unwrap()
+            .contains(&Value::from("KHR_materials_unlit"))
+    );
+    let m = terrain_material(&json);
+    assert!(m["extensions"].get("KHR_materials_unlit").is_some());
+    assert_eq!(m["extras"]["bake_light"]["irradiance_scale"], scale);
+    let pbr = &m["pbrMetallicRoughness"];
+    assert_eq!(
+        pbr["baseColorFactor"],
+        serde_json::json!([1.0, 1.0, 1.0, 1.0])
+    );
+    let (w, h, px) = texture_pixels(
+        &json,
+        &images,
+        pbr["baseColorTexture"]["index"].as_u64().unwrap(),
+    );
+    let tmeta: bake::terrain::source_section::TerrainMeta =
+        pack.view_named("terrain").unwrap().meta().unwrap();
+    let cv = pack
+        .view_named(tmeta.color_section.as_deref().unwrap())
+        .unwrap();
+    let cmeta: bake::texture::source_section::TextureMeta = cv.meta().unwrap();
+    let colour: Vec<[u8; 4]> = cv.array_vec("texels").unwrap();
+    assert_eq!(
+        (w, h),
+        (cmeta.width.max(lw), cmeta.height.max(lh)),
+        "the finer resolution"
+    );
+    // Bilinear between texel centres, clamped to the edge (the renderer's light-map lookup).
+    let sample = |t: &[[f32; 3]], tw: u32, th: u32, u: f32, v: f32| -> [f32; 3] {
+        let (fx, fy) = (u * tw as f32 - 0.5, v * th as f32 - 0.5);
+        let (ax, ay) = (fx - fx.floor(), fy - fy.floor());
+        let get = |x: f32, y: f32| {
+            let x = (x as i64).clamp(0, tw as i64 - 1);
+            let y = (y as i64).clamp(0, th as i64 - 1);
+            t[(y * tw as i64 + x) as usize]
+        };
+        let (x0, y0) = (fx.floor(), fy.floor());
+        let q = [
+            get(x0, y0),
+            get(x0 + 1.0, y0),
+            get(x0, y0 + 1.0),
+            get(x0 + 1.0, y0 + 1.0),
+        ];
+        std::array::from_fn(|c| {
+            (q[0][c] * (1.0 - ax) + q[1][c] * ax) * (1.0 - ay)
+                + (q[2][c] * (1.0 - ax) + q[3][c] * ax) * ay
+        })
+    };
+    let albedo: Vec<[f32; 3]> = colour
+        .iter()
+        .map(|p| [0, 1, 2].map(|c| srgb_linear(p[c])))
+        .collect();
+    let mut worst = 0i32;
+    for y in 0..h {
+        for x in 0..w {
+            let (u, v) = ((x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32);
+            let a = sample(&albedo, cmeta.width, cmeta.height, u, v);
+            let e = sample(&irradiance, lw, lh, u, v);
+            let k = 4 * (y * w + x) as usize;
+            for c in 0..3 {
+                let want = common::srgb_encode((a[c] * e[c] / scale).clamp(0.0, 1.0)) * 255.0;
+                worst = worst.max((px[k + c] as i32 - want.round() as i32).abs());
+            }
+        }
+    }
+    assert!(worst <= 1, "base colour off by {worst}/255");
+}
+
+/// three.js' package folder (`scripts/install-threejs.sh`), or `None` (a skip; a failure under
+/// `CI`), with node and Chromium.
+fn threejs() -> Option<(PathBuf, PathBuf)> {
+    let dir = std::env::var_os("THREEJS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("target/threejs/node_modules/three")
+        });
+    let chromium = std::env::var_os("CHROMIUM")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
+    if !common::tool_available("node", "runs scripts/threejs/check.js") {
+        return None;
+    }
+    for (path, what) in [
+        (
+            dir.join("package.json"),
+            "three.js (scripts/install-threejs.sh)",
+        ),
+        (chromium.clone(), "Chromium (apt-get install chromium)"),
+    ] {
+        if !path.exists() {
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "{what} is not at {}",
+                path.display()
+            );
+            eprintln!("SKIPPED: {what} is not at {}", path.display());
+            return None;
+        }
+    }
+    Some((dir, chromium))
+}
+
+#[test]
+fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
+    let Some((three, chromium)) = threejs() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pack = common::preview_fixture_pack(d);
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        &p("lit.glb"),
+        "--bake-light",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // bake's own picture of the default view, its regions and its camera and exposure.
+    let o = common::bake(&[
+        "render",
+        pack.to_str().unwrap(),
+        "-o",
+        &p("bake.png"),
+        "--regions",
+        &p("regions.png"),
+        "--width",
+        "480",
+        "--height",
+        "270",
+        "--json",
+    ]);
+    common::json(&o);
+    std::fs::write(d.join("render.json"), &o.stdout).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/threejs/check.js");
+    let o = std::process::Command::new("node")
+        .arg(&script)
+        .args(["--glb", &p("lit.glb"), "--bake", &p("bake.png")])
+        .args([
+            "--regions",
+            &p("regions.png"),
+            "--render-json",
+            &p("render.json"),
+        ])
+        .args(["--out", &p("three"), "--timeout", "120"])
+        .arg("--three")
+        .arg(&three)
+        .arg("--chromium")
+        .arg(&chromium)
+        .output()
+        .expect("run node");
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{log}");
+    assert!(o.status.success(), "three.js check: {log}");
+    let m: Value =
+        serde_json::from_slice(&std::fs::read(d.join("three/metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["failures"], serde_json::json!([]));
+    // The script's own bounds, restated: the judge cannot have been loosened silently.
+    assert!(m["coverage_iou"].as_f64().unwrap() >= 0.97);
+    let ratio = m["terrain"]["ratio"].as_f64().unwrap();
+    assert!((0.92..=1.08).contains(&ratio), "terrain ratio {ratio}");
+    assert!(m["terrain_blurred_rms"].as_f64().unwrap() <= 0.05);
+    assert!(d.join("three/side-by-side.png").is_file());
+}
+
+#[test]
+fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
+    // Blender's Python module in target/bpy-venv (scripts/install-bpy.sh) or BPY_PYTHON.
+    let python = std::env::var_os("BPY_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bpy-venv/bin/python")
+        });
+    if !python.is_file() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "Blender's bpy is not at {}; scripts/install-bpy.sh installs it",
+            python.display()
+        );
+        eprintln!(
+            "SKIPPED: Blender's bpy is not at {} (scripts/install-bpy.sh)",
+            python.display()
+        );
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (pack, plain, _) = exported(dir.path(), "glb");
+    let lit = dir.path().join("lit.glb");
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        lit.to_str().unwrap(),
+        "--bake-light",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = common::bake(&["dump", pack.to_str().unwrap(), "--json", "--full"]);
+    common::json(&o);
+    let dump = dir.path().join("dump.json");
+    std::fs::write(&dump, &o.stdout).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/blender/import_check.py");
+    for (glb, flag) in [(&plain, None), (&lit, Some("--bake-light"))] {
+        let o = std::process::Command::new(&python)
+            .arg(&script)
+            .arg(glb)
+            .arg(&dump)
+            .args(flag)
+            .output()
+            .expect("run Blender's Python");
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        let summary: Value = stdout
+            .lines()
+            .rev()
+            .find_map(|l| serde_json::from_str(l).ok())
+            .unwrap_or_else(|| {
+                panic!(
+                    "no JSON summary: {stdout}{}",
+                    String::from_utf8_lossy(&o.stderr)
+                )
+            });
+        eprintln!("Blender on {}: {summary}", glb.display());
+        assert!(o.status.success(), "{summary}");
+        assert_eq!(summary["failures"], serde_json::json!([]));
+        // The counts Blender saw, against the pack itself (not only the script's reading of the dump).
+        let p = Pack::open(&pack).unwrap();
+        let (meta, list) = instances_of(&p);
+        assert_eq!(summary["got"]["instances"], list.len());
+        assert_eq!(summary["got"]["meshes"], meta.models.len() + 1);
+        assert_eq!(
+            summary["got"]["materials"],
+            p.of_kind("material").count() + 1
+        );
+        assert_eq!(summary["got"]["suns"], 1);
+    }
 }

@@ -2,7 +2,7 @@
 
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
-use crate::export::{Container, export};
+use crate::export::{Container, ExportOptions, export};
 use crate::pack::Pack;
 use std::path::PathBuf;
 
@@ -14,6 +14,11 @@ pub struct ExportArgs {
     /// data URI: no side files).
     #[arg(short, long, value_name = "GLB")]
     pub output: PathBuf,
+    /// Multiply the terrain's light map (direct sun with its shadows, sky, bounce) into its base
+    /// colour and mark the material unlit (`KHR_materials_unlit`), so that viewers without
+    /// light-map support show the baked light (docs/MATERIALS.md, "Export to glTF").
+    #[arg(long)]
+    pub bake_light: bool,
 }
 
 pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
@@ -32,11 +37,14 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         }
     };
     let pack = Pack::open(&args.pack)?;
-    let (bytes, report) = export(&pack, container)?;
+    let opts = ExportOptions {
+        container,
+        bake_light: args.bake_light,
+    };
     // Written to a temporary file and renamed, as packs are: a failed run leaves no output.
-    crate::pack::write_atomic(&args.output, &bytes)?;
+    let report = export(&pack, opts, &args.output)?;
     let text = format!(
-        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}\n",
+        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}\n",
         args.output.display(),
         report.bytes,
         report.models,
@@ -45,6 +53,14 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         report.materials,
         report.textures,
         report.terrain_chunks,
+        report.lightmap.as_ref().map_or(String::new(), |l| format!(
+            ", light map {l}{}",
+            if report.bake_light {
+                " (baked into the base colour)"
+            } else {
+                ""
+            }
+        )),
         report
             .sun_lux
             .map_or(String::new(), |l| format!(", sun {l:.0} lx"))
@@ -53,7 +69,7 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
     Ok(Outcome::written(
         &report,
         &args.output,
-        bytes.len(),
+        report.bytes,
         text,
         warnings,
     ))

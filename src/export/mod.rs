@@ -27,6 +27,8 @@ use crate::terrain::source_section::{self as terrain, TerrainMeta};
 use crate::texture::source_section::TextureMeta;
 use serde_json::{Map, Value, json};
 use std::collections::HashMap;
+use std::io::{Seek, Write};
+use std::path::Path;
 
 /// Cells per side of one terrain chunk (one glTF primitive each).
 pub const TERRAIN_CHUNK: u32 = 64;
@@ -75,10 +77,32 @@ pub struct ExportReport {
     pub models: usize,
     pub instances: usize,
     pub terrain_chunks: usize,
+    /// The terrain's light-map section, exported as a texture on TEXCOORD_1.
+    pub lightmap: Option<String>,
+    /// Whether the light map was multiplied into the terrain's (unlit) base colour.
+    pub bake_light: bool,
     /// The sun's illuminance in lux, `None` without a `sun` section.
     pub sun_lux: Option<f32>,
     pub bytes: usize,
     pub warnings: Vec<String>,
+}
+
+/// What [`export`] writes beside the container.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ExportOptions {
+    pub container: Container,
+    /// Multiply the terrain's light map into its base colour, the material unlit
+    /// (`KHR_materials_unlit`), so that viewers without light-map support show the baked light.
+    pub bake_light: bool,
+}
+
+impl ExportOptions {
+    pub fn new(container: Container) -> ExportOptions {
+        ExportOptions {
+            container,
+            bake_light: false,
+        }
+    }
 }
 
 /// The output container.
@@ -91,14 +115,68 @@ pub enum Container {
 }
 
 const ARRAY_BUFFER: u32 = 34962;
+/// Sampler 0: trilinear, repeat (colour maps); sampler 1: bilinear, clamped to the edge (the
+/// light map, which the renderer reads clamped).
+const SAMPLER_REPEAT: usize = 0;
+const SAMPLER_CLAMP: usize = 1;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
 
+/// The binary buffer, streamed to an unnamed temporary file beside the output as it is made
+/// (a 4097² terrain is about a gigabyte of vertices and indices): only its length stays in
+/// memory. The first write error is kept and reported when the file is assembled.
+struct Bin {
+    out: std::io::BufWriter<std::fs::File>,
+    len: u64,
+    error: Option<std::io::Error>,
+}
+
+impl Bin {
+    fn new(dir: &Path) -> Result<Bin> {
+        let file = tempfile::tempfile_in(dir).map_err(|e| Error::io(dir, e))?;
+        Ok(Bin {
+            out: std::io::BufWriter::with_capacity(1 << 20, file),
+            len: 0,
+            error: None,
+        })
+    }
+
+    fn put(&mut self, bytes: &[u8]) {
+        if self.error.is_none()
+            && let Err(e) = self.out.write_all(bytes)
+        {
+            self.error = Some(e);
+        }
+        self.len += bytes.len() as u64;
+    }
+
+    /// Zero bytes up to a multiple of 4; returns the offset reached.
+    fn align(&mut self) -> u64 {
+        let pad = (4 - self.len % 4) % 4;
+        self.put(&[0u8; 3][..pad as usize]);
+        self.len
+    }
+
+    /// The finished buffer (length a multiple of 4), rewound for reading.
+    fn finish(mut self, dir: &Path) -> Result<(std::fs::File, u64)> {
+        self.align();
+        if let Some(e) = self.error {
+            return Err(Error::io(dir, e));
+        }
+        let mut file = self
+            .out
+            .into_inner()
+            .map_err(|e| Error::io(dir, e.into_error()))?;
+        file.seek(std::io::SeekFrom::Start(0))
+            .map_err(|e| Error::io(dir, e))?;
+        Ok((file, self.len))
+    }
+}
+
 /// The binary buffer and the JSON arrays that index it.
-#[derive(Default)]
 struct Doc {
-    bin: Vec<u8>,
+    bin: Bin,
     views: Vec<Value>,
     accessors: Vec<Value>,
     images: Vec<Value>,
@@ -109,15 +187,26 @@ struct Doc {
 }
 
 impl Doc {
+    fn new(dir: &Path) -> Result<Doc> {
+        Ok(Doc {
+            bin: Bin::new(dir)?,
+            views: Vec::new(),
+            accessors: Vec::new(),
+            images: Vec::new(),
+            textures: Vec::new(),
+            materials: Vec::new(),
+            meshes: Vec::new(),
+            nodes: Vec::new(),
+        })
+    }
+
     fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
-        while !self.bin.len().is_multiple_of(4) {
-            self.bin.push(0);
-        }
-        let mut v = json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
+        let offset = self.bin.align();
+        let mut v = json!({"buffer": 0, "byteOffset": offset, "byteLength": bytes.len()});
         if let Some(t) = target {
             v["target"] = json!(t);
         }
-        self.bin.extend_from_slice(bytes);
+        self.bin.put(bytes);
         self.views.push(v);
         self.views.len() - 1
     }
@@ -148,6 +237,18 @@ impl Doc {
         }
         self.accessors.push(a);
         self.accessors.len() - 1
+    }
+
+    /// A PNG image in the buffer and a texture of it; returns the texture's index.
+    fn png_texture(&mut self, png: &[u8], name: &str, extras: Value, sampler: usize) -> usize {
+        let view = self.view(png, None);
+        self.images
+            .push(json!({"bufferView": view, "mimeType": "image/png",
+            "name": name, "extras": extras}));
+        let image = self.images.len() - 1;
+        self.textures
+            .push(json!({"source": image, "sampler": sampler, "name": name}));
+        self.textures.len() - 1
     }
 
     fn indices(&mut self, tris: &[[u32; 3]]) -> usize {
@@ -194,6 +295,11 @@ fn texture_image(pack: &Pack, name: &str) -> Result<Rgba8Image> {
 
 struct Exporter<'a> {
     pack: &'a Pack,
+    bake_light: bool,
+    /// Whether a material is `KHR_materials_unlit`.
+    unlit: bool,
+    /// The terrain's light-map section, where exported.
+    lightmap: Option<String>,
     doc: Doc,
     textures: HashMap<String, Option<Exported>>,
     warnings: Vec<String>,
@@ -215,19 +321,10 @@ impl Exporter<'_> {
             let img = texture_image(self.pack, name)?;
             let has_alpha = img.pixels.iter().any(|p| p[3] < 255);
             let png = crate::render::encode_png(&img)?;
-            let view = self.doc.view(&png, None);
-            self.doc
-                .images
-                .push(json!({"bufferView": view, "mimeType": "image/png",
-                "name": name, "extras": {"section": name}}));
-            let image = self.doc.images.len() - 1;
-            self.doc
-                .textures
-                .push(json!({"source": image, "sampler": 0, "name": name}));
-            Some(Exported {
-                texture: self.doc.textures.len() - 1,
-                has_alpha,
-            })
+            let texture =
+                self.doc
+                    .png_texture(&png, name, json!({"section": name}), SAMPLER_REPEAT);
+            Some(Exported { texture, has_alpha })
         };
         self.textures.insert(name.to_string(), out);
         Ok(out)
@@ -415,17 +512,70 @@ impl Exporter<'_> {
             Some(c) => self.texture(c)?,
             None => None,
         };
+        let light = terrain_light(self.pack)?;
         let grey = if color.is_some() { 1.0 } else { TERRAIN_GREY };
         let mut pbr = json!({"baseColorFactor": [grey, grey, grey, 1.0], "metallicFactor": 0.0,
             "roughnessFactor": 1.0});
         if let Some(c) = color {
             pbr["baseColorTexture"] = json!({"index": c.texture});
         }
-        self.doc
-            .materials
-            .push(json!({"name": "terrain", "pbrMetallicRoughness": pbr,
-            "doubleSided": false,
-            "extras": {"section": name, "color_map": meta.color_section}}));
+        let mut extras = json!({"section": name, "color_map": meta.color_section});
+        let mut unlit = false;
+        if let Some(l) = &light {
+            let lightmap = self.doc.png_texture(
+                &crate::render::encode_png(&l.encoded())?,
+                &l.section,
+                json!({"section": l.section, "array": "irradiance",
+                       "irradiance_scale": l.scale}),
+                SAMPLER_CLAMP,
+            );
+            extras["lightmap"] = json!({
+                "section": l.section, "array": "irradiance",
+                "texture": {"index": lightmap, "texCoord": 1},
+                "irradiance_scale": l.scale, "unit": "W/m^2",
+                "encoding": "sRGB 8-bit of E / irradiance_scale (linear RGB irradiance E)",
+                "radiance": "L = albedo * E / pi"});
+            if self.bake_light {
+                let albedo = match &meta.color_section {
+                    Some(c) if color.is_some() => Some(texture_image(self.pack, c)?),
+                    _ => None,
+                };
+                let img = l.lit_albedo(albedo.as_ref(), TERRAIN_GREY);
+                let name = format!(
+                    "{} x {}",
+                    meta.color_section.as_deref().unwrap_or("grey"),
+                    l.section
+                );
+                let lit = self.doc.png_texture(
+                    &crate::render::encode_png(&img)?,
+                    &name,
+                    json!({"sections": [meta.color_section, l.section],
+                           "irradiance_scale": l.scale}),
+                    SAMPLER_CLAMP,
+                );
+                pbr["baseColorFactor"] = json!([1.0, 1.0, 1.0, 1.0]);
+                pbr["baseColorTexture"] = json!({"index": lit});
+                extras["bake_light"] = json!({
+                    "sections": [meta.color_section, l.section],
+                    "color_texture": color.map(|c| c.texture),
+                    "irradiance_scale": l.scale,
+                    "base_color": "albedo * E / irradiance_scale (E: the light map's irradiance)",
+                    "radiance": "L = base colour * irradiance_scale / pi (W/m^2/sr)"});
+                unlit = true;
+            }
+        } else if self.bake_light {
+            self.warnings.push(format!(
+                "--bake-light: the pack has no light map of the terrain ({name:?} is exported lit)"
+            ));
+        }
+        let mut m = json!({"name": "terrain", "pbrMetallicRoughness": pbr,
+            "doubleSided": false, "extras": extras});
+        if unlit {
+            m["extensions"] = json!({"KHR_materials_unlit": {}});
+            self.unlit = true;
+        }
+        self.lightmap = light.as_ref().map(|l| l.section.clone());
+        self.doc.materials.push(m);
         let material = self.doc.materials.len() - 1;
         let (w, h) = (t.width, t.height);
         let dx = t.extent[0] / (w - 1) as f32;
@@ -469,8 +619,14 @@ impl Exporter<'_> {
                 let n = self.doc.floats(&nrm, "VEC3", Some(ARRAY_BUFFER), false);
                 let u = self.doc.floats(&uv, "VEC2", Some(ARRAY_BUFFER), false);
                 let idx = self.doc.indices(&tris);
+                let mut attributes = json!({"POSITION": p, "NORMAL": n, "TEXCOORD_0": u});
+                if light.is_some() {
+                    // The light map spans the terrain's extent as the colour map does (texel
+                    // centres at (k + 1/2)/size of it): the same coordinates, one accessor.
+                    attributes["TEXCOORD_1"] = json!(u);
+                }
                 primitives.push(json!({
-                    "attributes": {"POSITION": p, "NORMAL": n, "TEXCOORD_0": u},
+                    "attributes": attributes,
                     "indices": idx, "material": material, "mode": 4,
                     "extras": {"cells": [cx, cy, x1, y1]},
                 }));
@@ -488,6 +644,145 @@ impl Exporter<'_> {
     }
 }
 
+/// The terrain's light map (the first `lightmap` section whose surface is "terrain"): its total
+/// irradiance (direct sun with its visibility, sky, bounce), row 0 north, texel centres at
+/// (k + ½)/size of the extent.
+struct TerrainLight {
+    section: String,
+    width: u32,
+    height: u32,
+    texels: Vec<[f32; 3]>,
+    /// The largest component of any texel (W/m²): the 8-bit encodings divide by it.
+    scale: f32,
+}
+
+fn terrain_light(pack: &Pack) -> Result<Option<TerrainLight>> {
+    use crate::lightmap::section::{self as lightmap, LightmapMeta};
+    for e in pack.of_kind(lightmap::KIND) {
+        let v = pack.view(e)?;
+        let bad = |err: ParseError| {
+            Error::invalid_at(
+                pack.path(),
+                format!("section {:?}", e.name),
+                err.to_string(),
+            )
+        };
+        let meta: LightmapMeta = v.meta().map_err(bad)?;
+        if meta.surface != "terrain" {
+            continue;
+        }
+        let t: &[[f32; 4]] = v.array("irradiance").map_err(bad)?;
+        if t.is_empty() || t.len() as u64 != meta.width as u64 * meta.height as u64 {
+            return Err(bad(ParseError::new(
+                "irradiance",
+                format!("{} texels for {}×{}", t.len(), meta.width, meta.height),
+            )));
+        }
+        let texels: Vec<[f32; 3]> = t
+            .iter()
+            .map(|x| [0, 1, 2].map(|c| if x[c].is_finite() { x[c].max(0.0) } else { 0.0 }))
+            .collect();
+        let scale = texels.iter().flatten().fold(0.0f32, |a, &b| a.max(b));
+        if scale <= 0.0 {
+            return Ok(None);
+        }
+        return Ok(Some(TerrainLight {
+            section: e.name.clone(),
+            width: meta.width,
+            height: meta.height,
+            texels,
+            scale,
+        }));
+    }
+    Ok(None)
+}
+
+/// A linear value in [0, 1] as an 8-bit sRGB code.
+fn srgb8(l: f32) -> u8 {
+    (crate::color::linear_to_srgb(l.clamp(0.0, 1.0)) * 255.0).round() as u8
+}
+
+impl TerrainLight {
+    /// The irradiance at texture coordinates (u, v), bilinear between texel centres and clamped
+    /// to the edge: the arithmetic of the renderer's `light_map_bilinear` (shaders/ambient.wgsl).
+    fn sample(&self, u: f32, v: f32) -> [f32; 3] {
+        bilinear(&self.texels, self.width, self.height, u, v)
+    }
+
+    /// The light map as 8-bit sRGB of E / scale.
+    fn encoded(&self) -> Rgba8Image {
+        Rgba8Image {
+            width: self.width,
+            height: self.height,
+            pixels: self
+                .texels
+                .iter()
+                .map(|e| {
+                    let [r, g, b] = e.map(|c| srgb8(c / self.scale));
+                    [r, g, b, 255]
+                })
+                .collect(),
+        }
+    }
+
+    /// albedo × E / scale as 8-bit sRGB, at the finer of the colour map's and the light map's
+    /// resolutions (each sampled bilinearly at the texel centres); `grey` without a colour map.
+    fn lit_albedo(&self, color: Option<&Rgba8Image>, grey: f32) -> Rgba8Image {
+        let linear: Option<Vec<[f32; 3]>> = color.map(|c| {
+            c.pixels
+                .iter()
+                .map(|p| [0, 1, 2].map(|k| crate::color::srgb_to_linear(p[k] as f32 / 255.0)))
+                .collect()
+        });
+        let (w, h) = match color {
+            Some(c) => (c.width.max(self.width), c.height.max(self.height)),
+            None => (self.width, self.height),
+        };
+        let mut pixels = Vec::with_capacity(w as usize * h as usize);
+        for y in 0..h {
+            for x in 0..w {
+                let (u, v) = ((x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32);
+                let a = match (color, &linear) {
+                    (Some(c), Some(l)) => bilinear(l, c.width, c.height, u, v),
+                    _ => [grey; 3],
+                };
+                let e = self.sample(u, v);
+                let [r, g, b] = [0, 1, 2].map(|k| srgb8(a[k] * e[k] / self.scale));
+                pixels.push([r, g, b, 255]);
+            }
+        }
+        Rgba8Image {
+            width: w,
+            height: h,
+            pixels,
+        }
+    }
+}
+
+/// Bilinear lookup of a `w`×`h` grid of texels at (u, v), texel centres at (k + ½)/size,
+/// clamped to the edge.
+fn bilinear(texels: &[[f32; 3]], w: u32, h: u32, u: f32, v: f32) -> [f32; 3] {
+    let fx = u * w as f32 - 0.5;
+    let fy = v * h as f32 - 0.5;
+    let (x0, y0) = (fx.floor(), fy.floor());
+    let (ax, ay) = (fx - x0, fy - y0);
+    let at = |x: i64, y: i64| {
+        texels[(y.clamp(0, h as i64 - 1) * w as i64 + x.clamp(0, w as i64 - 1)) as usize]
+    };
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let (t00, t10, t01, t11) = (
+        at(x0, y0),
+        at(x0 + 1, y0),
+        at(x0, y0 + 1),
+        at(x0 + 1, y0 + 1),
+    );
+    std::array::from_fn(|c| {
+        let top = t00[c] + (t10[c] - t00[c]) * ax;
+        let bottom = t01[c] + (t11[c] - t01[c]) * ax;
+        top + (bottom - top) * ay
+    })
+}
+
 fn unit(n: [f32; 3]) -> [f32; 3] {
     let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
     if l > 1e-12 && l.is_finite() {
@@ -497,9 +792,12 @@ fn unit(n: [f32; 3]) -> [f32; 3] {
     }
 }
 
-/// The pack as a glTF document: the file's bytes and what they hold. Fails (invalid input)
-/// on a pack without any mesh section.
-pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportReport)> {
+/// The pack as a glTF document written to `output` (through a temporary file renamed at the
+/// end: a failed export leaves no output); returns what it holds. The binary buffer is streamed
+/// to disk as it is made, so memory holds one section's arrays at a time, not the file. Fails
+/// (invalid input) on a pack without any mesh section, before anything is created.
+pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportReport> {
+    let container = opts.container;
     if pack.of_kind(mesh::KIND).next().is_none() {
         return Err(Error::invalid_at(
             pack.path(),
@@ -508,9 +806,17 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
              e.g. from `bake SCENE.eco` or `bake ingest MODEL`)",
         ));
     }
+    let dir = match output.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let mut ex = Exporter {
         pack,
-        doc: Doc::default(),
+        bake_light: opts.bake_light,
+        unlit: false,
+        lightmap: None,
+        doc: Doc::new(&dir)?,
         textures: HashMap::new(),
         warnings: Vec::new(),
     };
@@ -642,25 +948,24 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
     if !lights.is_empty() {
         used.push("KHR_lights_punctual");
     }
-    let doc = std::mem::take(&mut ex.doc);
+    if ex.unlit {
+        used.push("KHR_materials_unlit");
+    }
+    let doc = ex.doc;
     report.meshes = doc.meshes.len();
     report.nodes = doc.nodes.len();
     report.materials = doc.materials.len();
     report.textures = doc.textures.len();
     report.images = doc.images.len();
-    let mut bin = doc.bin;
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
+    report.lightmap = ex.lightmap.clone();
+    report.bake_light = ex.unlit;
+    let (mut bin, bin_len) = doc.bin.finish(&dir)?;
     let mut buffer = Map::new();
-    buffer.insert("byteLength".into(), json!(bin.len()));
+    buffer.insert("byteLength".into(), json!(bin_len));
+    // The embedded buffer's data URI is streamed into the JSON text where this marker stands.
+    const URI_MARK: &str = "\u{1}bake-buffer\u{1}";
     if container == Container::GltfEmbedded {
-        use base64::Engine;
-        let b64 = base64::engine::general_purpose::STANDARD.encode(&bin);
-        buffer.insert(
-            "uri".into(),
-            json!(format!("data:application/octet-stream;base64,{b64}")),
-        );
+        buffer.insert("uri".into(), json!(URI_MARK));
     }
     let mut gltf = json!({
         "asset": {"version": "2.0", "generator": format!("bake {} export", env!("CARGO_PKG_VERSION"))},
@@ -677,8 +982,10 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
         gltf["textures"] = json!(doc.textures);
         gltf["images"] = json!(doc.images);
         // Trilinear, repeat (9987 LINEAR_MIPMAP_LINEAR, 9729 LINEAR, 10497 REPEAT).
-        gltf["samplers"] =
-            json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]);
+        // Sampler 1: bilinear, clamped (33071 CLAMP_TO_EDGE), for the light map.
+        gltf["samplers"] = json!([
+            {"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497},
+            {"magFilter": 9729, "minFilter": 9729, "wrapS": 33071, "wrapT": 33071}]);
     }
     if !used.is_empty() {
         gltf["extensionsUsed"] = json!(used);
@@ -688,34 +995,60 @@ pub fn export(pack: &Pack, container: Container) -> Result<(Vec<u8>, ExportRepor
     }
     let text = serde_json::to_vec(&gltf)
         .map_err(|e| Error::runtime(format!("glTF JSON encoding failed: {e}")))?;
-    let bytes = match container {
-        Container::GltfEmbedded => text,
-        Container::Glb => glb(text, &bin),
-    };
-    report.bytes = bytes.len();
+    drop(gltf);
+    let io = |e: std::io::Error| Error::io(output, e);
+    report.bytes = crate::pack::write_atomic_with(output, |w| match container {
+        Container::Glb => {
+            let mut json = text;
+            while !json.len().is_multiple_of(4) {
+                json.push(b' ');
+            }
+            let total = 12 + 8 + json.len() as u64 + if bin_len == 0 { 0 } else { 8 + bin_len };
+            let total32 = u32::try_from(total).map_err(|_| {
+                Error::runtime(format!(
+                    "the GLB would be {total} bytes: more than the format's 4 GiB (write .gltf, or \
+                     export a smaller pack)"
+                ))
+            })?;
+            w.write_all(b"glTF").map_err(io)?;
+            w.write_all(&2u32.to_le_bytes()).map_err(io)?;
+            w.write_all(&total32.to_le_bytes()).map_err(io)?;
+            w.write_all(&(json.len() as u32).to_le_bytes())
+                .map_err(io)?;
+            w.write_all(b"JSON").map_err(io)?;
+            w.write_all(&json).map_err(io)?;
+            if bin_len > 0 {
+                w.write_all(&(bin_len as u32).to_le_bytes()).map_err(io)?;
+                w.write_all(b"BIN\0").map_err(io)?;
+                std::io::copy(&mut bin, w).map_err(io)?;
+            }
+            Ok(total as usize)
+        }
+        Container::GltfEmbedded => {
+            let mark = serde_json::to_string(URI_MARK).expect("a string");
+            let at = text
+                .windows(mark.len())
+                .position(|x| x == mark.as_bytes())
+                .expect("the buffer's URI marker is in the JSON");
+            let prefix = b"\"data:application/octet-stream;base64,";
+            w.write_all(&text[..at]).map_err(io)?;
+            w.write_all(prefix).map_err(io)?;
+            {
+                let mut enc = base64::write::EncoderWriter::new(
+                    &mut *w,
+                    &base64::engine::general_purpose::STANDARD,
+                );
+                std::io::copy(&mut bin, &mut enc).map_err(io)?;
+                enc.finish().map_err(io)?;
+            }
+            w.write_all(b"\"").map_err(io)?;
+            w.write_all(&text[at + mark.len()..]).map_err(io)?;
+            let b64 = bin_len.div_ceil(3) * 4;
+            Ok(text.len() - mark.len() + prefix.len() + b64 as usize + 1)
+        }
+    })?;
     report.warnings = ex.warnings;
-    Ok((bytes, report))
-}
-
-/// The GLB container: header, JSON chunk (space-padded), BIN chunk (zero-padded).
-fn glb(mut json: Vec<u8>, bin: &[u8]) -> Vec<u8> {
-    while !json.len().is_multiple_of(4) {
-        json.push(b' ');
-    }
-    let total = 12 + 8 + json.len() + if bin.is_empty() { 0 } else { 8 + bin.len() };
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&json);
-    if !bin.is_empty() {
-        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-        out.extend_from_slice(b"BIN\0");
-        out.extend_from_slice(bin);
-    }
-    out
+    Ok(report)
 }
 
 #[cfg(test)]

@@ -546,6 +546,29 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// As [`write_atomic`], the bytes written by `write` (through a buffer) instead of a slice: an
+/// output larger than memory is streamed. Returns what `write` returns; on its error the
+/// temporary file is removed and `path` is untouched.
+pub fn write_atomic_with<T>(
+    path: &Path,
+    write: impl FnOnce(&mut dyn Write) -> Result<T>,
+) -> Result<T> {
+    let dir = parent_dir(path);
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    let tmp = new_temporary(&dir)?;
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, tmp);
+    let value = write(&mut out)?;
+    let tmp = out
+        .into_inner()
+        .map_err(|e| Error::io(path, e.into_error()))?;
+    tmp.as_file()
+        .sync_all()
+        .map_err(|e| Error::io(tmp.path(), e))?;
+    set_output_permissions(tmp.as_file(), path);
+    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
+    Ok(value)
+}
+
 /// Temporary files are created 0600; give the output the permissions of the file it replaces,
 /// or the usual 0644 for a new file.
 #[cfg(unix)]
