@@ -18,6 +18,7 @@ pub mod gpu;
 pub mod graph;
 pub mod ingest;
 pub mod kdtree;
+pub mod kinds;
 pub mod lightmap;
 pub mod linespace;
 pub mod lod;

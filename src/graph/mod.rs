@@ -28,6 +28,8 @@ use crate::ingest::confine::{self, SourceNames};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
 use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder, StreamWriter, hex};
+pub use crate::report::record::{BUILD_KIND, check_build_section};
+pub(crate) use crate::report::record::{BuildMeta, build_section};
 use cache::{Cache, EntryMeta, FileDep, Key, KeyBuilder, Lookup, Warning};
 pub use preset::Pipeline;
 use progress::Observer;
@@ -1090,38 +1092,6 @@ fn build_key_with(
         );
     }
     k.finish()
-}
-
-/// Kind and name of the section recording the build.
-pub const BUILD_KIND: &str = "build";
-
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub(crate) struct BuildMeta {
-    pub(crate) key: String,
-    pub(crate) files: Vec<FileDep>,
-    pub(crate) models: u64,
-    pub(crate) instances: u64,
-    pub(crate) triangles: u64,
-}
-
-/// Decodes a `build` section (for `bake verify`).
-pub fn check_build_section(
-    v: &crate::pack::section::SectionView,
-) -> std::result::Result<(), crate::error::ParseError> {
-    let m: BuildMeta = v.meta()?;
-    if m.key.len() != 64 || !m.key.bytes().all(|c| c.is_ascii_hexdigit()) {
-        return Err(crate::error::ParseError::new(
-            "build section",
-            "the build key is not 64 hex digits",
-        ));
-    }
-    Ok(())
-}
-
-pub(crate) fn build_section(meta: &BuildMeta) -> Section {
-    let mut b = SectionBuilder::new(BUILD_KIND, BUILD_KIND);
-    b.meta(meta);
-    b.finish()
 }
 
 /// The report of a build whose output is up to date: its recorded key equals the key of the

@@ -1,0 +1,75 @@
+//! The registry of section kinds (`bake::kinds::KINDS`) against a real bake: the fixture scene
+//! through the graph with every stage on (svo and line space too, small) and its build report
+//! embedded. Every section's kind is registered, `bake dump` shows it through the registry's
+//! views, `bake verify` passes it, and the bake writes every registered kind.
+
+mod common;
+
+use bake::kinds::{KINDS, find};
+use std::collections::BTreeSet;
+
+/// The fixture scene, preview pipeline plus small svo and line-space stages, the build report
+/// embedded as `--embed-report` does.
+fn every_kind_pack(dir: &std::path::Path) -> std::path::PathBuf {
+    bake::fixtures::write_all(dir).unwrap();
+    let out = dir.join("scene.bake");
+    let mut opts = bake::graph::BuildOptions {
+        scenes: vec![dir.join("scene.eco")],
+        output: Some(out.clone()),
+        sky: Some(dir.join("sky.hdr")),
+        cache: bake::graph::CacheMode::Off,
+        ..Default::default()
+    }
+    .preview();
+    opts.pipeline.stages.svo = true;
+    opts.pipeline.stages.linespace = true;
+    opts.pipeline.svo.resolution = 32;
+    opts.pipeline.linespace.n = 4;
+    opts.pipeline.linespace.depth = 2;
+    let report = bake::graph::build(&opts, &bake::graph::progress::Silent).unwrap();
+    let json = serde_json::to_value(&report).unwrap();
+    bake::report::embed(&json, &out).unwrap();
+    out
+}
+
+#[test]
+fn every_kind_of_a_real_bake_is_registered_dumped_and_verified() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = every_kind_pack(dir.path());
+    let pack = bake::pack::Pack::open(&path).unwrap();
+
+    let doc = bake::dump::dump_json(&pack, &bake::dump::DumpOptions::default()).unwrap();
+    let dumped = doc["sections"].as_array().unwrap();
+    assert_eq!(dumped.len(), pack.sections().len());
+    let mut seen = BTreeSet::new();
+    for (e, d) in pack.sections().iter().zip(dumped) {
+        let kind = find(&e.kind).unwrap_or_else(|| panic!("{:?}: kind not registered", e.name));
+        seen.insert(kind.kind);
+        assert!(
+            kind.naming.accepts(kind.kind, &e.name),
+            "{:?} of kind {}",
+            e.name,
+            e.kind
+        );
+        let view = pack.view(e).unwrap();
+        (kind.decode)(&view).unwrap_or_else(|err| panic!("{:?}: {err}", e.name));
+        // dump's summary is the registry's view of the section.
+        match kind.views {
+            Some((summary, _)) => {
+                assert_eq!(d["summary"], summary(&view).unwrap(), "{}", e.name);
+                assert_ne!(d["summary"], serde_json::json!({}), "{}", e.name);
+            }
+            None => assert_eq!(d["summary"], serde_json::json!({}), "{}", e.name),
+        }
+    }
+    let missing: Vec<_> = KINDS
+        .iter()
+        .map(|k| k.kind)
+        .filter(|k| !seen.contains(k))
+        .collect();
+    assert!(missing.is_empty(), "the bake wrote no {missing:?} section");
+
+    let v = bake::verify::verify_file(&path).unwrap();
+    assert!(v.ok(), "{:#?}", v.violations);
+    assert_eq!(v.decoded, pack.sections().len());
+}
