@@ -9,6 +9,7 @@ pub mod bittree;
 pub mod cli;
 pub mod color;
 pub mod cube;
+pub mod diag;
 pub mod dump;
 pub mod envmap;
 pub mod error;

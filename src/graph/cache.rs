@@ -71,14 +71,8 @@ impl KeyBuilder {
     }
 }
 
-/// A warning of a stage, as a record: a stable id (the stage that raised it and what kind of
-/// problem), the place (the unit: a model, the terrain, the scene) and the message.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Warning {
-    pub id: String,
-    pub place: String,
-    pub message: String,
-}
+/// A warning of a stage, as a record (id, severity, place, message; `crate::diag`).
+pub use crate::diag::Warning;
 
 pub use crate::report::record::FileDep;
 

@@ -23,6 +23,7 @@ pub mod cache;
 pub mod preset;
 pub mod progress;
 
+use crate::diag;
 use crate::error::{Error, Result};
 use crate::ingest::confine::{self, SourceNames};
 use crate::ingest::{self, IngestOptions};
@@ -42,7 +43,7 @@ use std::time::Instant;
 /// The bake version that enters every cache key (the crate version).
 pub const BAKE_VERSION: &str = env!("CARGO_PKG_VERSION");
 /// Version of the `--json` build report (docs/REPORT.md).
-pub const REPORT_SCHEMA: &str = "bake.build/1";
+pub const REPORT_SCHEMA: &str = "bake.build/2";
 
 /// Version constants of the stages: bump one when its output changes for the same inputs.
 pub mod versions {
@@ -208,7 +209,7 @@ pub fn process_usage() -> (f64, u64) {
 pub(crate) struct Output {
     pub(crate) sections: Vec<Section>,
     pub(crate) report: Value,
-    pub(crate) warnings: Vec<String>,
+    pub(crate) warnings: Vec<Warning>,
     pub(crate) files: Vec<FileDep>,
 }
 
@@ -264,11 +265,11 @@ impl Graph<'_> {
                     }
                 }
                 Lookup::Miss => {}
-                Lookup::Corrupt(why) => self.warnings.push(Warning {
-                    id: "cache.corrupt-entry".into(),
-                    place: format!("{stage} {unit}"),
-                    message: why,
-                }),
+                Lookup::Corrupt(why) => self.warnings.push(Warning::new(
+                    &diag::CACHE_CORRUPT_ENTRY,
+                    format!("{stage} {unit}"),
+                    why,
+                )),
             }
         }
         let (sections, report, warnings, files) = match hit {
@@ -283,10 +284,13 @@ impl Graph<'_> {
                 let warnings: Vec<Warning> = o
                     .warnings
                     .into_iter()
-                    .map(|m| Warning {
-                        id: format!("{stage}.warning"),
-                        place: unit.to_string(),
-                        message: m,
+                    .map(|w| Warning {
+                        place: if w.place.is_empty() {
+                            unit.to_string()
+                        } else {
+                            w.place
+                        },
+                        ..w
                     })
                     .collect();
                 if let Some(cache) = &self.cache {
@@ -299,11 +303,11 @@ impl Graph<'_> {
                         sections: o.sections.iter().map(|s| s.name.clone()).collect(),
                     };
                     if let Err(e) = cache.put(&key, &o.sections, &meta) {
-                        self.warnings.push(Warning {
-                            id: "cache.write-failed".into(),
-                            place: format!("{stage} {unit}"),
-                            message: e.to_string(),
-                        });
+                        self.warnings.push(Warning::new(
+                            &diag::CACHE_WRITE_FAILED,
+                            format!("{stage} {unit}"),
+                            e.to_string(),
+                        ));
                     }
                 }
                 (o.sections, o.report, warnings, o.files)
@@ -511,12 +515,13 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         .extend(plan.files.iter().map(|f| confine::resolve(f)));
     g.files
         .extend(opts.pipeline_file.iter().map(|f| confine::resolve(f)));
-    g.warnings
-        .extend(plan.scene.warnings.iter().map(|m| Warning {
-            id: "ingest.eco".into(),
-            place: first.display().to_string(),
-            message: m.clone(),
-        }));
+    g.warnings.extend(plan.scene.warnings.iter().map(|m| {
+        Warning::new(
+            &diag::INGEST_ECO_OUTSIDE_AREA,
+            first.display().to_string(),
+            m.clone(),
+        )
+    }));
     let p = &opts.pipeline;
 
     // The terrain: its sections from the plan, then the prepared terrain.
@@ -593,7 +598,10 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             let view = Pack::from_sections(&sections, &g.name);
             let out = g.unit("material", name, k.finish(), None, |_| {
                 let (s, mut r) = crate::material::bake_materials(&view, &p.material)?;
-                let warnings = std::mem::take(&mut r.warnings);
+                let warnings = diag::tagged(
+                    &diag::MATERIAL_TEXTURE_MISSING,
+                    std::mem::take(&mut r.warnings),
+                );
                 Ok(Output {
                     sections: s,
                     report: report_of(&r),
@@ -856,7 +864,7 @@ fn scene_units(
                     "local_components": c.local.as_ref().map_or(0, |l| l.components),
                     "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
                 sections: s,
-                warnings: w.into_iter().collect(),
+                warnings: diag::tagged(&diag::CLUSTER_COMPRESSION_LOW, w),
                 ..Default::default()
             })
         })?;
@@ -885,7 +893,11 @@ fn scene_units(
                     },
                     Err(e) => Output {
                         report: json!({"instances": scene.instances.items.len()}),
-                        warnings: vec![format!("no BitTree: {e}")],
+                        warnings: vec![Warning::new(
+                            &diag::BITTREE_NOT_ENCODED,
+                            "",
+                            format!("no BitTree: {e}"),
+                        )],
                         ..Default::default()
                     },
                 },
@@ -1040,7 +1052,7 @@ pub(crate) fn ingest_model(
             "textures": mesh.textures.len(),
         }),
         sections: w.sections().to_vec(),
-        warnings,
+        warnings: diag::tagged(&diag::INGEST_READER, warnings),
         files,
     })
 }
