@@ -1,10 +1,12 @@
 //! The registry of section kinds (`bake::kinds::KINDS`) against a real bake: the fixture scene
 //! through the graph with every stage on (svo and line space too, small) and its build report
 //! embedded. Every section's kind is registered, `bake dump` shows it through the registry's
-//! views, `bake verify` passes it, and the bake writes every registered kind.
+//! views, `bake verify` passes it, and the bake writes every registered kind. The graph's units
+//! are those of `graph::stages::STAGES`, and so are `bake unit`'s subcommands.
 
 mod common;
 
+use bake::graph::stages::{GRAPH_ACTIONS, STAGES};
 use bake::kinds::{KINDS, find};
 use std::collections::BTreeSet;
 
@@ -23,13 +25,35 @@ fn every_kind_pack(dir: &std::path::Path) -> std::path::PathBuf {
     .preview();
     opts.pipeline.stages.svo = true;
     opts.pipeline.stages.linespace = true;
+    opts.pipeline.stages.atlas = true;
     opts.pipeline.svo.resolution = 32;
     opts.pipeline.linespace.n = 4;
     opts.pipeline.linespace.depth = 2;
     let report = bake::graph::build(&opts, &bake::graph::progress::Silent).unwrap();
     let json = serde_json::to_value(&report).unwrap();
     bake::report::embed(&json, &out).unwrap();
+    // Every unit the graph ran is of a listed stage, and every listed stage ran.
+    let ran: BTreeSet<&str> = report.stages.iter().map(|s| s.stage.as_str()).collect();
+    let listed: BTreeSet<&str> = STAGES.iter().map(|s| s.name).collect();
+    assert_eq!(ran, listed);
     out
+}
+
+/// `bake unit`'s subcommands are the actions of the listed stages and the graph's own.
+#[test]
+fn bake_unit_runs_the_actions_of_the_listed_stages() {
+    use clap::Subcommand;
+    let cmd = bake::cli::unit::Unit::augment_subcommands(clap::Command::new("unit"));
+    let subcommands: BTreeSet<String> = cmd
+        .get_subcommands()
+        .map(|c| c.get_name().to_string())
+        .collect();
+    let mut listed: BTreeSet<String> = STAGES
+        .iter()
+        .flat_map(|s| s.actions.iter().map(|a| a.to_string()))
+        .collect();
+    listed.extend(GRAPH_ACTIONS.iter().map(|a| a.to_string()));
+    assert_eq!(subcommands, listed);
 }
 
 #[test]

@@ -22,6 +22,7 @@
 pub mod cache;
 pub mod preset;
 pub mod progress;
+pub mod stages;
 
 use crate::diag;
 use crate::error::{Error, Result};
@@ -95,23 +96,10 @@ pub mod versions {
     /// 2: the compact section layout (issue 15).
     pub const LINESPACE: u32 = 2;
 
-    /// Every stage's version. The whole build's key includes them, so an output written by a
-    /// build whose stages had other versions is not taken as up to date.
-    pub const ALL: [(&str, u32); 13] = [
-        ("ingest", INGEST),
-        ("material", MATERIAL),
-        ("terrain", TERRAIN),
-        ("sky", SKY),
-        ("prt", PRT),
-        ("lod", LOD),
-        ("lightmap", LIGHTMAP),
-        ("atlas", ATLAS),
-        ("envmaps", ENVMAPS),
-        ("cluster", CLUSTER),
-        ("bittree", BITTREE),
-        ("svo", SVO),
-        ("linespace", LINESPACE),
-    ];
+    /// Every stage's name and version, from [`super::stages::STAGES`]. The whole build's key
+    /// includes them, so an output written by a build whose stages had other versions is not
+    /// taken as up to date.
+    pub const ALL: [(&str, u32); super::stages::STAGES.len()] = super::stages::names_and_versions();
 }
 
 /// Where stage units are cached.
