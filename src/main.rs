@@ -150,7 +150,11 @@ fn main() {
     match run(&cli) {
         Ok(out) => {
             for w in &out.warnings {
-                eprintln!("warning: {w}");
+                if w.place.is_empty() {
+                    eprintln!("warning: {}", w.line());
+                } else {
+                    eprintln!("warning: {}: {}", w.place, w.line());
+                }
             }
             if cli.global.json {
                 println!(
@@ -160,11 +164,9 @@ fn main() {
             } else if !cli.global.quiet {
                 print!("{}", out.text);
             }
-            if cli.global.warnings_as_errors && !out.warnings.is_empty() {
-                eprintln!(
-                    "error: {} warning(s) and --warnings-as-errors",
-                    out.warnings.len()
-                );
+            let fatal = cli.global.fatal_warnings(&out.warnings);
+            if !fatal.is_empty() {
+                eprintln!("error: {} warning(s) and --warnings-as-errors", fatal.len());
                 std::process::exit(exit::INVALID_INPUT);
             }
         }

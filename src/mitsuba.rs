@@ -72,7 +72,7 @@ pub struct ExportSummary {
     pub schlick_materials: usize,
     pub diffuse_materials: usize,
     pub masked_materials: usize,
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::diag::Warning>,
 }
 
 /// Options of [`export`] beyond the view.
@@ -672,7 +672,7 @@ fn write_envmap(
     dir: &Path,
     scene: &SceneData,
     height: u32,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<[u32; 2]> {
     let h = match (height, &scene.sky.cube) {
         (0, Some(c)) => (4 * c.size + 1).min(2049),
@@ -681,11 +681,12 @@ fn write_envmap(
     };
     let w = 2 * (h - 1);
     if !scene.sky.sun_removed && !scene.sky.analytic {
-        warnings.push(
+        warnings.push(crate::diag::Warning::new(
+            &crate::diag::MITSUBA_SUN_IN_SKY,
+            "",
             "the sky is a lat-long image that still holds its sun: the envmap keeps it, and the \
-             directional sun (the renderer's own split) counts it twice; run the sky stage"
-                .into(),
-        );
+             directional sun (the renderer's own split) counts it twice; run the sky stage",
+        ));
     }
     let pixels = (0..h)
         .flat_map(|j| (0..w).map(move |i| (i, j)))

@@ -529,3 +529,67 @@ fn embree_tracer_without_the_feature_is_a_clear_error() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("cpu"), "{}", stderr(&o));
 }
+
+/// Warnings carry their id on stderr and in the build report (schema `bake.build/2`), and
+/// `--warnings-as-errors` makes all of them fatal alone, or only those of the ids it is given.
+#[test]
+fn warnings_carry_stable_ids_and_warnings_as_errors_takes_them() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "t.raw", &[10u8; 16]);
+    write(
+        dir.path(),
+        "box.obj",
+        common::box_obj([-1.0; 3], [1.0; 3], 1).as_bytes(),
+    );
+    let text =
+        "t.raw 4 4 1 0.1\n<GEOREF> 0 0 10 10 0 0 10 10\n<ECO>\n<LAYER> 1\nbox.obj 1.5 0.5 1 0\n";
+    let eco = write(dir.path(), "s.eco", text.as_bytes());
+    let o = bake(&[&eco, "--preview", "--no-cache", "--json"]);
+    let report = json(&o);
+    assert_eq!(report["schema"], "bake.build/2");
+    // The placement outside the area, and one instance is too few to cluster.
+    let w = &report["warnings"];
+    let ids: Vec<&str> = w
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| w["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        ids,
+        ["ingest.eco-outside-area", "cluster.compression-low"],
+        "{w}"
+    );
+    assert_eq!(w[0]["severity"], "warning");
+    assert!(w[0]["message"].as_str().unwrap().contains("line 5"), "{w}");
+    assert_eq!(w[1]["place"], "scene");
+    assert!(
+        stderr(&o).contains("lies outside the area of interest [0,1]² [ingest.eco-outside-area]"),
+        "{}",
+        stderr(&o)
+    );
+
+    // Each run its own output: a second run into one output is up to date and runs nothing.
+    let code = |flag: &str| {
+        let out = dir.path().join(format!("{}.bake", flag.len()));
+        let out = out.to_str().unwrap();
+        let o = bake(&[&eco, "--preview", "--no-cache", "--quiet", "-o", out, flag]);
+        (o.status.code(), stderr(&o))
+    };
+    let (all, err) = code("--warnings-as-errors");
+    assert_eq!(all, Some(4), "{err}");
+    assert!(
+        err.contains("2 warning(s) and --warnings-as-errors"),
+        "{err}"
+    );
+    let (some, err) = code("--warnings-as-errors=ingest.eco-outside-area,cache.write-failed");
+    assert_eq!(some, Some(4), "{err}");
+    assert!(
+        err.contains("1 warning(s) and --warnings-as-errors"),
+        "{err}"
+    );
+    assert_eq!(code("--warnings-as-errors=prt.texture-missing").0, Some(0));
+    let (unknown, err) = code("--warnings-as-errors=no.such-id");
+    assert_eq!(unknown, Some(2), "{err}");
+    assert!(err.contains("docs/DIAGNOSTICS.md"), "{err}");
+}

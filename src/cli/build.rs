@@ -112,11 +112,7 @@ pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
             crate::report::write_sidecar(&json, &report.output)?;
         }
     }
-    let mut warnings: Vec<String> = report
-        .warnings
-        .iter()
-        .map(|w| format!("{}: {}", w.place, w.message))
-        .collect();
+    let mut warnings = report.warnings.clone();
     if let Some(png) = &args.render {
         let pack = crate::pack::Pack::open(&report.output)?;
         let out = crate::render::render_pack(&pack, &crate::render::RenderOptions::default())?;

@@ -95,7 +95,7 @@ pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
     Ok(Outcome {
         text: format!("{}: {}\n", output.display(), doc),
         json: doc,
-        warnings: warning.into_iter().collect(),
+        warnings: crate::diag::tagged(&crate::diag::CLUSTER_COMPRESSION_LOW, warning),
     })
 }
 

@@ -51,6 +51,6 @@ pub fn run(args: &IngestArgs, g: &Global) -> Result<Outcome> {
             sections.len(),
             bytes.len()
         ),
-        warnings,
+        warnings: crate::diag::tagged(&crate::diag::INGEST_READER, warnings),
     })
 }

@@ -82,7 +82,7 @@ pub fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
     Ok(Outcome {
         json,
         text,
-        warnings,
+        warnings: crate::diag::tagged(&crate::diag::INGEST_READER, warnings),
     })
 }
 
@@ -156,7 +156,11 @@ pub fn bench(a: &LinespaceBenchArgs, g: &Global) -> Result<Outcome> {
         area_light: a.area_light,
     };
     let (r, more) = crate::bench::linespace::bench_linespace(&b)?;
-    warnings.extend(more);
+    let mut warnings = crate::diag::tagged(&crate::diag::INGEST_READER, warnings);
+    warnings.extend(crate::diag::tagged(
+        &crate::diag::BENCH_LINESPACE_DISAGREES,
+        more,
+    ));
     Ok(Outcome {
         json: r.json,
         text: r.text,

@@ -49,6 +49,9 @@ pub fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
         &output,
         bytes.len(),
         text,
-        report.warnings.clone(),
+        crate::diag::tagged(
+            &crate::diag::MATERIAL_TEXTURE_MISSING,
+            report.warnings.clone(),
+        ),
     ))
 }

@@ -41,9 +41,11 @@ pub struct Global {
     /// Print machine-readable results as JSON on stdout.
     #[arg(long, global = true)]
     pub json: bool,
-    /// Treat warnings (dropped or repaired data) as errors.
-    #[arg(long, global = true)]
-    pub warnings_as_errors: bool,
+    /// Treat warnings (dropped or repaired data) as errors: all of them, or those of the given
+    /// ids (`--warnings-as-errors=prt.texture-missing,ingest.reader`; docs/DIAGNOSTICS.md).
+    #[arg(long, global = true, value_name = "ID", num_args = 0..=1, require_equals = true,
+          value_delimiter = ',', value_parser = parse_warning_id)]
+    pub warnings_as_errors: Option<Vec<String>>,
     /// A further folder scenes may read files from (repeatable; by default only the scene's
     /// folder and the --models folders).
     #[arg(long = "allow-path", value_name = "DIR", global = true)]
@@ -58,7 +60,34 @@ pub struct Global {
 pub struct Outcome {
     pub json: Value,
     pub text: String,
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::diag::Warning>,
+}
+
+/// A warning id of `diag::DIAGNOSTICS` (`--warnings-as-errors=ID`).
+fn parse_warning_id(s: &str) -> std::result::Result<String, String> {
+    match crate::diag::find(s) {
+        Some(d) => Ok(d.id.to_string()),
+        None => Err(format!(
+            "no warning has the id {s:?} (docs/DIAGNOSTICS.md lists them)"
+        )),
+    }
+}
+
+impl Global {
+    /// The warnings `--warnings-as-errors` makes fatal: none without the flag, all with it
+    /// alone, those of the given ids otherwise.
+    pub fn fatal_warnings<'a>(
+        &self,
+        warnings: &'a [crate::diag::Warning],
+    ) -> Vec<&'a crate::diag::Warning> {
+        match &self.warnings_as_errors {
+            None => Vec::new(),
+            Some(ids) => warnings
+                .iter()
+                .filter(|w| ids.is_empty() || ids.contains(&w.id))
+                .collect(),
+        }
+    }
 }
 
 impl Outcome {
@@ -68,7 +97,7 @@ impl Outcome {
         output: &std::path::Path,
         bytes: usize,
         text: String,
-        warnings: Vec<String>,
+        warnings: Vec<crate::diag::Warning>,
     ) -> Outcome {
         let mut json = serde_json::to_value(report).unwrap_or_default();
         json["output"] = serde_json::json!(output);

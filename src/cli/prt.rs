@@ -86,7 +86,8 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
     opts.check()
         .map_err(|m| Error::usage(format!("--tracer {}: {m}", args.tracer.name())))?;
     let is_pack = InputKind::of(&args.input).is_none();
-    let (pack, mut warnings) = open_or_ingest(&args.input)?;
+    let (pack, read) = open_or_ingest(&args.input)?;
+    let mut warnings = crate::diag::tagged(&crate::diag::INGEST_READER, read);
     let total = mesh_vertex_count(&pack);
     if total == 0 && pack.of_kind(crate::mesh::section::KIND).next().is_none() {
         return Err(Error::invalid_at(
@@ -266,7 +267,7 @@ type BenchModel = (
     crate::model::Mesh,
     Vec<Option<crate::model::Rgba8Image>>,
     String,
-    Vec<String>,
+    Vec<crate::diag::Warning>,
 );
 
 fn load_model(model: Option<&Path>, triangles: usize) -> Result<BenchModel> {
@@ -275,7 +276,8 @@ fn load_model(model: Option<&Path>, triangles: usize) -> Result<BenchModel> {
         let name = "procedural plant, seed 1".to_string();
         return Ok((mesh, vec![Some(tex)], name, Vec::new()));
     };
-    let (pack, mut warnings) = open_or_ingest(path)?;
+    let (pack, read) = open_or_ingest(path)?;
+    let mut warnings = crate::diag::tagged(&crate::diag::INGEST_READER, read);
     let e = pack
         .of_kind(crate::mesh::section::KIND)
         .next()

@@ -85,7 +85,11 @@ pub fn run(args: &ReportArgs, _g: &Global) -> Result<Outcome> {
             }
             Err(e) => {
                 let m = format!("no render: {e}");
-                warnings.push(m.clone());
+                warnings.push(crate::diag::Warning::new(
+                    &crate::diag::REPORT_NO_RENDER,
+                    "",
+                    m.clone(),
+                ));
                 notes.push(m);
                 None
             }

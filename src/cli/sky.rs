@@ -177,17 +177,25 @@ fn report_text(b: &SkyBake, output: &std::path::Path) -> String {
     )
 }
 
-fn warnings(b: &SkyBake) -> Vec<String> {
+fn warnings(b: &SkyBake) -> Vec<crate::diag::Warning> {
     let mut w = Vec::new();
     if b.sun.clipped {
-        w.push(format!(
-            "the sun looks clipped ({} texels at the maximum): its irradiance is a lower bound",
-            b.sun.plateau_texels
+        w.push(crate::diag::Warning::new(
+            &crate::diag::SKY_SUN_CLIPPED,
+            "",
+            format!(
+                "the sun looks clipped ({} texels at the maximum): its irradiance is a lower bound",
+                b.sun.plateau_texels
+            ),
         ));
     }
     let big = b.cube.texels.iter().flatten().any(|v| v.abs() > 65504.0);
     if big {
-        w.push("sky radiance above 65504 was clamped to the half-float range".into());
+        w.push(crate::diag::Warning::new(
+            &crate::diag::SKY_RADIANCE_CLAMPED,
+            "",
+            "sky radiance above 65504 was clamped to the half-float range",
+        ));
     }
     w
 }

@@ -106,17 +106,22 @@ pub fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
     let voxels = mesh_to_voxels(&geo.mesh, &geo.textures, &opts)?;
     let svo = voxels_to_svo(&voxels);
     let seconds = start.elapsed().as_secs_f64();
+    let mut own = Vec::new();
     if voxels.skipped_triangles > 0 {
-        warnings.push(format!(
-            "{} triangles left no voxel (outside the grid or alpha-tested away)",
-            voxels.skipped_triangles
+        own.push(crate::diag::Warning::new(
+            &crate::diag::SVO_TRIANGLES_WITHOUT_VOXEL,
+            "",
+            format!(
+                "{} triangles left no voxel (outside the grid or alpha-tested away)",
+                voxels.skipped_triangles
+            ),
         ));
     }
     if voxels.open_columns > 0 {
-        warnings.push(format!(
+        own.push(crate::diag::Warning::new(&crate::diag::SVO_MESH_NOT_CLOSED, "", format!(
             "solid fill: {} columns crossed the surface an odd number of times (mesh not closed)",
             voxels.open_columns
-        ));
+        )));
     }
     let output = args.output.clone().unwrap_or_else(|| match &pack {
         Some(_) => args.input.clone(),
@@ -140,6 +145,8 @@ pub fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
         json["bytes_per_voxel"].as_f64().unwrap_or(0.0),
         seconds
     );
+    let mut warnings = crate::diag::tagged(&crate::diag::INGEST_READER, warnings);
+    warnings.extend(own);
     Ok(Outcome {
         json,
         text,
@@ -180,7 +187,7 @@ pub fn bench(a: &SvoBenchArgs, g: &Global) -> Result<Outcome> {
     Ok(Outcome {
         json: r.json,
         text: r.text,
-        warnings,
+        warnings: crate::diag::tagged(&crate::diag::INGEST_READER, warnings),
     })
 }
 

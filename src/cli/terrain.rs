@@ -51,10 +51,13 @@ pub fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
     let (sections, report) = crate::terrain::bake_terrain(&pack)?;
     bar.finish_and_clear();
     let warnings = if report.terrains == 0 {
-        vec![format!(
-            "{}: no terrain section to prepare",
-            args.input.display()
-        )]
+        crate::diag::tagged(
+            &crate::diag::TERRAIN_NONE,
+            [format!(
+                "{}: no terrain section to prepare",
+                args.input.display()
+            )],
+        )
     } else {
         Vec::new()
     };

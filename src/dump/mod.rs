@@ -1,110 +1,14 @@
 //! `bake dump`: what a pack holds, as text for people or JSON for scripts.
 //!
-//! Every section kind registers a summary and a full-data view in [`KINDS`]; unknown kinds are
-//! listed with their size and checksum only.
+//! Each section is shown through its kind in the registry of section kinds
+//! ([`crate::kinds::KINDS`]): its summary and, with `--full`, its data; kinds without views and
+//! unknown kinds are listed with their size, checksum and arrays only.
 
 pub mod images;
 
 use crate::error::{ParseError, Result};
 use crate::pack::Pack;
-use crate::pack::section::SectionView;
 use serde_json::{Value, json};
-
-type ViewFn = fn(&SectionView) -> Result<Value, ParseError>;
-
-/// Kind name, summary view, full-data view.
-pub const KINDS: &[(&str, ViewFn, ViewFn)] = &[
-    (
-        crate::mesh::section::KIND,
-        crate::mesh::section::summary,
-        crate::mesh::section::data,
-    ),
-    (
-        crate::terrain::source_section::KIND,
-        crate::terrain::source_section::summary,
-        crate::terrain::source_section::data,
-    ),
-    (
-        crate::ingest::instances_section::KIND,
-        crate::ingest::instances_section::summary,
-        crate::ingest::instances_section::data,
-    ),
-    (
-        crate::texture::source_section::KIND,
-        crate::texture::source_section::summary,
-        crate::texture::source_section::data,
-    ),
-    (
-        crate::sky::source_section::KIND,
-        crate::sky::source_section::summary,
-        crate::sky::source_section::data,
-    ),
-    (
-        crate::lightmap::section::KIND,
-        crate::lightmap::section::summary,
-        crate::lightmap::section::data,
-    ),
-    (
-        crate::envmap::section::ENVMAPS_KIND,
-        crate::envmap::section::envmaps_summary,
-        crate::envmap::section::envmaps_data,
-    ),
-    (
-        crate::envmap::section::CLUSTERS_KIND,
-        crate::envmap::section::clusters_summary,
-        crate::envmap::section::clusters_data,
-    ),
-    (
-        crate::bittree::section::KIND,
-        crate::bittree::section::summary,
-        crate::bittree::section::data,
-    ),
-    (
-        crate::prt::pack::KIND,
-        crate::prt::pack::summary,
-        crate::prt::pack::data,
-    ),
-    (
-        crate::lod::section::KIND,
-        crate::lod::section::summary,
-        crate::lod::section::data,
-    ),
-    (
-        crate::sky::section::SUN_KIND,
-        crate::sky::section::sun_summary,
-        crate::sky::section::sun_data,
-    ),
-    (
-        crate::sky::section::SH_KIND,
-        crate::sky::section::sh_summary,
-        crate::sky::section::sh_data,
-    ),
-    (
-        crate::voxel::section::KIND,
-        crate::voxel::section::summary,
-        crate::voxel::section::data,
-    ),
-    (
-        crate::linespace::section::KIND,
-        crate::linespace::section::summary,
-        crate::linespace::section::data,
-    ),
-    (
-        crate::report::KIND,
-        crate::report::summary,
-        crate::report::data,
-    ),
-    (
-        crate::material::section::KIND,
-        crate::material::section::summary,
-        crate::material::section::data,
-    ),
-    (
-        crate::mesh::tangents::KIND,
-        crate::mesh::tangents::summary,
-        crate::mesh::tangents::data,
-    ),
-];
 
 /// Options of `bake dump`.
 #[derive(Debug, Clone, Default)]
@@ -135,7 +39,7 @@ pub fn dump_json(pack: &Pack, opts: &DumpOptions) -> Result<Value> {
                 .iter()
                 .map(|a| json!({"name": a.name, "format": a.format.name(), "components": a.components, "count": a.count}))
                 .collect();
-            if let Some((_, summary, data)) = KINDS.iter().find(|(k, _, _)| *k == e.kind) {
+            if let Some((summary, data)) = crate::kinds::find(&e.kind).and_then(|k| k.views) {
                 let place = |err: ParseError| {
                     crate::error::Error::invalid(
                         pack.path(),

@@ -84,7 +84,7 @@ pub struct ExportReport {
     /// The sun's illuminance in lux, `None` without a `sun` section.
     pub sun_lux: Option<f32>,
     pub bytes: usize,
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::diag::Warning>,
 }
 
 /// What [`export`] writes beside the container.
@@ -302,7 +302,7 @@ struct Exporter<'a> {
     lightmap: Option<String>,
     doc: Doc,
     textures: HashMap<String, Option<Exported>>,
-    warnings: Vec<String>,
+    warnings: Vec<crate::diag::Warning>,
 }
 
 impl Exporter<'_> {
@@ -313,8 +313,10 @@ impl Exporter<'_> {
             return Ok(*t);
         }
         let out = if self.pack.find(name).is_none() {
-            self.warnings.push(format!(
-                "texture section {name:?} is missing: exported untextured"
+            self.warnings.push(crate::diag::Warning::new(
+                &crate::diag::EXPORT_TEXTURE_MISSING,
+                "",
+                format!("texture section {name:?} is missing: exported untextured"),
             ));
             None
         } else {
@@ -355,9 +357,9 @@ impl Exporter<'_> {
                 )
             }
             None => {
-                self.warnings.push(format!(
+                self.warnings.push(crate::diag::Warning::new(&crate::diag::EXPORT_MATERIAL_MISSING, "", format!(
                     "{mesh_section}: material {index} has no material section: exported with its diffuse colour"
-                ));
+                )));
                 let d = input.diffuse;
                 (
                     input.name.clone(),
@@ -498,9 +500,13 @@ impl Exporter<'_> {
         let meta: TerrainMeta = v.meta().map_err(bad)?;
         let (_, t): (_, Terrain) = terrain::from_section(&v).map_err(bad)?;
         if t.width < 2 || t.height < 2 {
-            self.warnings.push(format!(
-                "terrain {name:?} is {}×{}: fewer than 2×2 samples, not exported",
-                t.width, t.height
+            self.warnings.push(crate::diag::Warning::new(
+                &crate::diag::EXPORT_TERRAIN_TOO_SMALL,
+                "",
+                format!(
+                    "terrain {name:?} is {}×{}: fewer than 2×2 samples, not exported",
+                    t.width, t.height
+                ),
             ));
             return Ok(None);
         }
@@ -871,16 +877,20 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
     }
     for (name, section, list) in &models {
         if pack.find(section).is_none() {
-            ex.warnings.push(format!(
-                "model {name:?}: mesh section {section:?} is missing, not exported"
+            ex.warnings.push(crate::diag::Warning::new(
+                &crate::diag::EXPORT_MESH_MISSING,
+                "",
+                format!("model {name:?}: mesh section {section:?} is missing, not exported"),
             ));
             continue;
         }
         let mesh = ex.model_mesh(name, section, &materials)?;
         report.models += 1;
         match list {
-            Some(list) if list.is_empty() => ex.warnings.push(format!(
-                "model {name:?} has no instances: its mesh is exported without a node"
+            Some(list) if list.is_empty() => ex.warnings.push(crate::diag::Warning::new(
+                &crate::diag::EXPORT_MODEL_WITHOUT_INSTANCES,
+                "",
+                format!("model {name:?} has no instances: its mesh is exported without a node"),
             )),
             Some(list) => {
                 children.push(ex.instanced_node(name, section, mesh, list));

@@ -71,24 +71,10 @@ impl KeyBuilder {
     }
 }
 
-/// A warning of a stage, as a record: a stable id (the stage that raised it and what kind of
-/// problem), the place (the unit: a model, the terrain, the scene) and the message.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Warning {
-    pub id: String,
-    pub place: String,
-    pub message: String,
-}
+/// A warning of a stage, as a record (id, severity, place, message; `crate::diag`).
+pub use crate::diag::Warning;
 
-/// A file a unit read, with its content hash (`None`: it was looked for and did not exist,
-/// so that its appearing later invalidates the entry). In memory `path` is the real path; in a
-/// cache entry and the `build` record it is the file's source name
-/// ([`crate::ingest::confine::SourceNames`]), placed again in the roots of the bake that reads it.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct FileDep {
-    pub path: PathBuf,
-    pub blake3: Option<String>,
-}
+pub use crate::report::record::FileDep;
 
 /// What an entry stores besides its sections.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

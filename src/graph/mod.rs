@@ -22,12 +22,16 @@
 pub mod cache;
 pub mod preset;
 pub mod progress;
+pub mod stages;
 
+use crate::diag;
 use crate::error::{Error, Result};
 use crate::ingest::confine::{self, SourceNames};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
 use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder, StreamWriter, hex};
+pub use crate::report::record::{BUILD_KIND, check_build_section};
+pub(crate) use crate::report::record::{BuildMeta, build_section};
 use cache::{Cache, EntryMeta, FileDep, Key, KeyBuilder, Lookup, Warning};
 pub use preset::Pipeline;
 use progress::Observer;
@@ -40,7 +44,7 @@ use std::time::Instant;
 /// The bake version that enters every cache key (the crate version).
 pub const BAKE_VERSION: &str = env!("CARGO_PKG_VERSION");
 /// Version of the `--json` build report (docs/REPORT.md).
-pub const REPORT_SCHEMA: &str = "bake.build/1";
+pub const REPORT_SCHEMA: &str = "bake.build/2";
 
 /// Version constants of the stages: bump one when its output changes for the same inputs.
 pub mod versions {
@@ -93,23 +97,10 @@ pub mod versions {
     /// 2: the compact section layout (issue 15).
     pub const LINESPACE: u32 = 2;
 
-    /// Every stage's version. The whole build's key includes them, so an output written by a
-    /// build whose stages had other versions is not taken as up to date.
-    pub const ALL: [(&str, u32); 13] = [
-        ("ingest", INGEST),
-        ("material", MATERIAL),
-        ("terrain", TERRAIN),
-        ("sky", SKY),
-        ("prt", PRT),
-        ("lod", LOD),
-        ("lightmap", LIGHTMAP),
-        ("atlas", ATLAS),
-        ("envmaps", ENVMAPS),
-        ("cluster", CLUSTER),
-        ("bittree", BITTREE),
-        ("svo", SVO),
-        ("linespace", LINESPACE),
-    ];
+    /// Every stage's name and version, from [`super::stages::STAGES`]. The whole build's key
+    /// includes them, so an output written by a build whose stages had other versions is not
+    /// taken as up to date.
+    pub const ALL: [(&str, u32); super::stages::STAGES.len()] = super::stages::names_and_versions();
 }
 
 /// Where stage units are cached.
@@ -207,7 +198,7 @@ pub fn process_usage() -> (f64, u64) {
 pub(crate) struct Output {
     pub(crate) sections: Vec<Section>,
     pub(crate) report: Value,
-    pub(crate) warnings: Vec<String>,
+    pub(crate) warnings: Vec<Warning>,
     pub(crate) files: Vec<FileDep>,
 }
 
@@ -263,11 +254,11 @@ impl Graph<'_> {
                     }
                 }
                 Lookup::Miss => {}
-                Lookup::Corrupt(why) => self.warnings.push(Warning {
-                    id: "cache.corrupt-entry".into(),
-                    place: format!("{stage} {unit}"),
-                    message: why,
-                }),
+                Lookup::Corrupt(why) => self.warnings.push(Warning::new(
+                    &diag::CACHE_CORRUPT_ENTRY,
+                    format!("{stage} {unit}"),
+                    why,
+                )),
             }
         }
         let (sections, report, warnings, files) = match hit {
@@ -282,10 +273,13 @@ impl Graph<'_> {
                 let warnings: Vec<Warning> = o
                     .warnings
                     .into_iter()
-                    .map(|m| Warning {
-                        id: format!("{stage}.warning"),
-                        place: unit.to_string(),
-                        message: m,
+                    .map(|w| Warning {
+                        place: if w.place.is_empty() {
+                            unit.to_string()
+                        } else {
+                            w.place
+                        },
+                        ..w
                     })
                     .collect();
                 if let Some(cache) = &self.cache {
@@ -298,11 +292,11 @@ impl Graph<'_> {
                         sections: o.sections.iter().map(|s| s.name.clone()).collect(),
                     };
                     if let Err(e) = cache.put(&key, &o.sections, &meta) {
-                        self.warnings.push(Warning {
-                            id: "cache.write-failed".into(),
-                            place: format!("{stage} {unit}"),
-                            message: e.to_string(),
-                        });
+                        self.warnings.push(Warning::new(
+                            &diag::CACHE_WRITE_FAILED,
+                            format!("{stage} {unit}"),
+                            e.to_string(),
+                        ));
                     }
                 }
                 (o.sections, o.report, warnings, o.files)
@@ -510,12 +504,13 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         .extend(plan.files.iter().map(|f| confine::resolve(f)));
     g.files
         .extend(opts.pipeline_file.iter().map(|f| confine::resolve(f)));
-    g.warnings
-        .extend(plan.scene.warnings.iter().map(|m| Warning {
-            id: "ingest.eco".into(),
-            place: first.display().to_string(),
-            message: m.clone(),
-        }));
+    g.warnings.extend(plan.scene.warnings.iter().map(|m| {
+        Warning::new(
+            &diag::INGEST_ECO_OUTSIDE_AREA,
+            first.display().to_string(),
+            m.clone(),
+        )
+    }));
     let p = &opts.pipeline;
 
     // The terrain: its sections from the plan, then the prepared terrain.
@@ -592,7 +587,10 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             let view = Pack::from_sections(&sections, &g.name);
             let out = g.unit("material", name, k.finish(), None, |_| {
                 let (s, mut r) = crate::material::bake_materials(&view, &p.material)?;
-                let warnings = std::mem::take(&mut r.warnings);
+                let warnings = diag::tagged(
+                    &diag::MATERIAL_TEXTURE_MISSING,
+                    std::mem::take(&mut r.warnings),
+                );
                 Ok(Output {
                     sections: s,
                     report: report_of(&r),
@@ -855,7 +853,7 @@ fn scene_units(
                     "local_components": c.local.as_ref().map_or(0, |l| l.components),
                     "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
                 sections: s,
-                warnings: w.into_iter().collect(),
+                warnings: diag::tagged(&diag::CLUSTER_COMPRESSION_LOW, w),
                 ..Default::default()
             })
         })?;
@@ -884,7 +882,11 @@ fn scene_units(
                     },
                     Err(e) => Output {
                         report: json!({"instances": scene.instances.items.len()}),
-                        warnings: vec![format!("no BitTree: {e}")],
+                        warnings: vec![Warning::new(
+                            &diag::BITTREE_NOT_ENCODED,
+                            "",
+                            format!("no BitTree: {e}"),
+                        )],
                         ..Default::default()
                     },
                 },
@@ -1039,7 +1041,7 @@ pub(crate) fn ingest_model(
             "textures": mesh.textures.len(),
         }),
         sections: w.sections().to_vec(),
-        warnings,
+        warnings: diag::tagged(&diag::INGEST_READER, warnings),
         files,
     })
 }
@@ -1091,38 +1093,6 @@ fn build_key_with(
         );
     }
     k.finish()
-}
-
-/// Kind and name of the section recording the build.
-pub const BUILD_KIND: &str = "build";
-
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub(crate) struct BuildMeta {
-    pub(crate) key: String,
-    pub(crate) files: Vec<FileDep>,
-    pub(crate) models: u64,
-    pub(crate) instances: u64,
-    pub(crate) triangles: u64,
-}
-
-/// Decodes a `build` section (for `bake verify`).
-pub fn check_build_section(
-    v: &crate::pack::section::SectionView,
-) -> std::result::Result<(), crate::error::ParseError> {
-    let m: BuildMeta = v.meta()?;
-    if m.key.len() != 64 || !m.key.bytes().all(|c| c.is_ascii_hexdigit()) {
-        return Err(crate::error::ParseError::new(
-            "build section",
-            "the build key is not 64 hex digits",
-        ));
-    }
-    Ok(())
-}
-
-pub(crate) fn build_section(meta: &BuildMeta) -> Section {
-    let mut b = SectionBuilder::new(BUILD_KIND, BUILD_KIND);
-    b.meta(meta);
-    b.finish()
 }
 
 /// The report of a build whose output is up to date: its recorded key equals the key of the

@@ -4,6 +4,7 @@
 //! [`crate::graph::build`], in the same order, so that `bake merge` of their packs in the plan's
 //! order is byte-identical to `bake SCENE.eco` run with the same arguments from the same folder.
 
+use crate::diag::{self, Warning};
 use crate::error::{Error, Result};
 use crate::graph::cache::{self, FileDep};
 use crate::graph::{BAKE_VERSION, BuildOptions, Pipeline};
@@ -66,7 +67,7 @@ pub struct UnitReport {
     pub unit: String,
     pub output: PathBuf,
     pub sections: Vec<String>,
-    pub warnings: Vec<String>,
+    pub warnings: Vec<Warning>,
 }
 
 /// Writes `sections` in order as a pack at `out` (atomically; nothing is left on failure).
@@ -78,7 +79,7 @@ pub fn write_sections(out: &Path, sections: &[Section]) -> Result<()> {
     w.finish()
 }
 
-fn report(unit: &str, out: &Path, sections: &[Section], warnings: Vec<String>) -> UnitReport {
+fn report(unit: &str, out: &Path, sections: &[Section], warnings: Vec<Warning>) -> UnitReport {
     UnitReport {
         unit: unit.into(),
         output: out.to_path_buf(),
@@ -87,7 +88,7 @@ fn report(unit: &str, out: &Path, sections: &[Section], warnings: Vec<String>) -
     }
 }
 
-fn finish(unit: &str, out: &Path, sections: Vec<Section>, w: Vec<String>) -> Result<UnitReport> {
+fn finish(unit: &str, out: &Path, sections: Vec<Section>, w: Vec<Warning>) -> Result<UnitReport> {
     write_sections(out, &sections)?;
     Ok(report(unit, out, &sections, w))
 }
@@ -113,7 +114,8 @@ pub fn terrain(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
             crate::graph::merge(&mut sections, prepared);
         }
     }
-    finish("terrain", out, sections, plan.scene.warnings.clone())
+    let w = diag::tagged(&diag::INGEST_ECO_OUTSIDE_AREA, plan.scene.warnings.clone());
+    finish("terrain", out, sections, w)
 }
 
 /// What a model unit read, beside its pack: the files (with hashes; the model file first) and
@@ -144,7 +146,10 @@ pub fn model(
     if s.pipeline.stages.material {
         let view = Pack::from_sections(&sections, &s.view_name()?);
         let (m, mut r) = crate::material::bake_materials(&view, &s.pipeline.material)?;
-        warnings.append(&mut r.warnings);
+        warnings.extend(diag::tagged(
+            &diag::MATERIAL_TEXTURE_MISSING,
+            std::mem::take(&mut r.warnings),
+        ));
         crate::graph::merge(&mut sections, m);
     }
     let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
@@ -430,7 +435,14 @@ pub fn bittree(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
         &s.pipeline.bittree,
     ) {
         Ok(sec) => (vec![sec], Vec::new()),
-        Err(e) => (Vec::new(), vec![format!("no BitTree: {e}")]),
+        Err(e) => (
+            Vec::new(),
+            vec![Warning::new(
+                &diag::BITTREE_NOT_ENCODED,
+                "",
+                format!("no BitTree: {e}"),
+            )],
+        ),
     };
     finish("bittree", out, outs, warnings)
 }

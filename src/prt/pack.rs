@@ -15,6 +15,7 @@ use super::transfer::{
     self as prt, COEFFS, GPU_VEC4_PER_SIDE, PER_VERTEX, PrtMaterial, PrtOptions, SETS, SIDES,
     Transfer,
 };
+use crate::diag::{self, Warning};
 use crate::error::{Error, ParseError, Result};
 use crate::model::Rgba8Image;
 use crate::pack::fit_name;
@@ -184,7 +185,7 @@ pub fn prt_pack(
     pack: &Pack,
     opts: &PrtOptions,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<(PackWriter, Vec<MeshPrtReport>, Vec<String>)> {
+) -> Result<(PackWriter, Vec<MeshPrtReport>, Vec<Warning>)> {
     let mut w = PackWriter::from_pack(pack);
     let mut reports = Vec::new();
     let mut warnings = Vec::new();
@@ -203,7 +204,7 @@ pub fn prt_mesh(
     mesh_section: &str,
     opts: &PrtOptions,
     progress: &(dyn Fn(u64) + Sync),
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Result<(Section, MeshPrtReport)> {
     let start = std::time::Instant::now();
     let view = pack.view_named(mesh_section)?;
@@ -223,10 +224,14 @@ pub fn prt_mesh(
     let masks = prt::alpha_masks(&mesh, &textures);
     let scene = prt::PrtScene::build(&mesh, &masks, &o)?;
     if scene.skipped_triangles() > 0 {
-        warnings.push(format!(
-            "{}: {} triangles with non-finite positions left out of the BVH",
-            mesh_section,
-            scene.skipped_triangles()
+        warnings.push(Warning::new(
+            &diag::PRT_TRIANGLES_NON_FINITE,
+            "",
+            format!(
+                "{}: {} triangles with non-finite positions left out of the BVH",
+                mesh_section,
+                scene.skipped_triangles()
+            ),
         ));
     }
     let t = match (&scene, o.tracer) {
@@ -258,7 +263,7 @@ pub fn mesh_textures(
     pack: &Pack,
     mesh_section: &str,
     meta: &crate::mesh::section::MeshMeta,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<Warning>,
 ) -> Vec<Option<Rgba8Image>> {
     meta.textures
         .iter()
@@ -272,14 +277,22 @@ pub fn mesh_textures(
             match decoded {
                 Some(Ok((_, img))) => Some(img),
                 Some(Err(err)) => {
-                    warnings.push(format!("{mesh_section}: texture {:?}: {err}", t.name));
+                    warnings.push(Warning::new(
+                        &diag::PRT_TEXTURE_UNREADABLE,
+                        "",
+                        format!("{mesh_section}: texture {:?}: {err}", t.name),
+                    ));
                     None
                 }
                 None => {
-                    warnings.push(format!(
-                        "{mesh_section}: texture {:?} was not decoded into the pack; \
+                    warnings.push(Warning::new(
+                        &diag::PRT_TEXTURE_MISSING,
+                        "",
+                        format!(
+                            "{mesh_section}: texture {:?} was not decoded into the pack; \
                          treated as opaque and white",
-                        t.name
+                            t.name
+                        ),
                     ));
                     None
                 }
@@ -416,6 +429,7 @@ mod tests {
         };
         let (_, _, warnings) = prt_pack(&pack, &opts, &|_| {}).unwrap();
         assert_eq!(warnings.len(), 1);
-        assert!(warnings[0].contains("leaf.png"));
+        assert!(warnings[0].message.contains("leaf.png"));
+        assert_eq!(warnings[0].id, crate::diag::PRT_TEXTURE_MISSING.id);
     }
 }

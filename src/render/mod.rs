@@ -222,7 +222,7 @@ pub struct RenderOutput {
     pub regions: Option<crate::model::FloatImage>,
     pub adapter: AdapterSummary,
     pub stats: RenderStats,
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::diag::Warning>,
     /// The soft-shadow pass's receivers and visibility, with `--soft-shadows`.
     pub soft_shadows: Option<soft_shadow::SoftShadowImage>,
 }

@@ -272,7 +272,7 @@ pub struct SceneData<'a> {
     /// Where the instances' positions came from.
     pub instance_source: InstanceSource,
     /// What was skipped (missing textures, unusable sections).
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::diag::Warning>,
 }
 
 /// Reads and checks everything the renderer draws from `pack`.
@@ -300,7 +300,7 @@ fn invalid(pack: &Pack, section: &str, message: impl Into<String>) -> Error {
 fn load_terrain<'a>(
     pack: &'a Pack,
     name: &str,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<Option<TerrainData<'a>>> {
     let v = pack.view_named(name)?;
     let meta: TerrainMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
@@ -320,9 +320,13 @@ fn load_terrain<'a>(
         ));
     }
     if meta.width < 2 || meta.height < 2 {
-        warnings.push(format!(
-            "terrain {name:?} is {}×{}: fewer than 2×2 samples, not drawn",
-            meta.width, meta.height
+        warnings.push(crate::diag::Warning::new(
+            &crate::diag::RENDER_TERRAIN_TOO_SMALL,
+            "",
+            format!(
+                "terrain {name:?} is {}×{}: fewer than 2×2 samples, not drawn",
+                meta.width, meta.height
+            ),
         ));
         return Ok(None);
     }
@@ -402,11 +406,13 @@ fn terrain_normals<'a>(
 fn load_image<'a>(
     pack: &'a Pack,
     name: &str,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<Option<ImageData<'a>>> {
     if pack.find(name).is_none() {
-        warnings.push(format!(
-            "texture section {name:?} is missing: drawn untextured"
+        warnings.push(crate::diag::Warning::new(
+            &crate::diag::RENDER_TEXTURE_MISSING,
+            "",
+            format!("texture section {name:?} is missing: drawn untextured"),
         ));
         return Ok(None);
     }
@@ -466,7 +472,7 @@ fn load_color_mips<'a>(
 fn load_models<'a>(
     pack: &'a Pack,
     terrain: Option<&TerrainData>,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<(Vec<ModelData<'a>>, InstanceSource)> {
     let mut out: Vec<ModelData<'a>> = Vec::new();
     let mut source = InstanceSource::Instances;
@@ -515,9 +521,13 @@ fn load_models<'a>(
                 continue;
             }
             if pack.find(section).is_none() {
-                warnings.push(format!(
-                    "model {name:?}: mesh section {section:?} missing, {} instances not drawn",
-                    inst.len()
+                warnings.push(crate::diag::Warning::new(
+                    &crate::diag::RENDER_MESH_MISSING,
+                    "",
+                    format!(
+                        "model {name:?}: mesh section {section:?} missing, {} instances not drawn",
+                        inst.len()
+                    ),
                 ));
                 continue;
             }
@@ -621,7 +631,7 @@ fn load_model<'a>(
     name: &str,
     section: &str,
     instances: Vec<InstanceRecord>,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<ModelData<'a>> {
     let v = pack.view_named(section)?;
     let bad = |e| Error::invalid(pack.path(), e);
@@ -844,7 +854,7 @@ fn load_materials<'a>(
     pack: &'a Pack,
     section: &str,
     meta: &MeshMeta,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<Vec<MaterialData<'a>>> {
     if meta.materials.is_empty() {
         let d = crate::material::convert::diffuse_albedo(&crate::model::Material::default());
@@ -865,9 +875,13 @@ fn load_materials<'a>(
             Some(t) => match &t.section {
                 Some(s) => load_image(pack, s, warnings)?,
                 None => {
-                    warnings.push(format!(
-                        "{section}: texture {:?} was not decoded: drawn untextured",
-                        t.name
+                    warnings.push(crate::diag::Warning::new(
+                        &crate::diag::RENDER_TEXTURE_UNDECODED,
+                        "",
+                        format!(
+                            "{section}: texture {:?} was not decoded: drawn untextured",
+                            t.name
+                        ),
                     ));
                     None
                 }
@@ -907,7 +921,7 @@ fn load_schlick<'a>(
     pack: &'a Pack,
     mesh_section: &str,
     index: usize,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<(
     Option<crate::material::schlick::SchlickMaterial>,
     Option<NormalMips<'a>>,
@@ -920,9 +934,13 @@ fn load_schlick<'a>(
     let v = pack.view_named(&name)?;
     let meta = ms::from_section(&v).map_err(|e| Error::invalid(pack.path(), e))?;
     if meta.mesh_section != mesh_section || meta.index as usize != index {
-        warnings.push(format!(
-            "{name:?} belongs to {:?} material {}: shaded with Lambert",
-            meta.mesh_section, meta.index
+        warnings.push(crate::diag::Warning::new(
+            &crate::diag::RENDER_MATERIAL_MISMATCH,
+            "",
+            format!(
+                "{name:?} belongs to {:?} material {}: shaded with Lambert",
+                meta.mesh_section, meta.index
+            ),
         ));
         return Ok((None, None));
     }
@@ -938,18 +956,26 @@ fn load_schlick<'a>(
 fn load_normal_map<'a>(
     pack: &'a Pack,
     name: &str,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<Option<NormalMips<'a>>> {
     let v = match pack.find(name) {
         Some(_) => pack.view_named(name)?,
         None => {
-            warnings.push(format!("normal map {name:?} is missing: drawn flat"));
+            warnings.push(crate::diag::Warning::new(
+                &crate::diag::RENDER_NORMAL_MAP_MISSING,
+                "",
+                format!("normal map {name:?} is missing: drawn flat"),
+            ));
             return Ok(None);
         }
     };
     let meta: TextureMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
     let Ok(texels) = v.array::<[u8; 4]>("normal") else {
-        warnings.push(format!("texture {name:?} has no normal array: drawn flat"));
+        warnings.push(crate::diag::Warning::new(
+            &crate::diag::RENDER_NORMAL_MAP_MISSING,
+            "",
+            format!("texture {name:?} has no normal array: drawn flat"),
+        ));
         return Ok(None);
     };
     let bad = |e: crate::error::ParseError| invalid(pack, name, e.to_string());
@@ -963,14 +989,18 @@ fn load_tangents<'a>(
     pack: &'a Pack,
     mesh_section: &str,
     normals: &[[f32; 3]],
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Cow<'a, [[f32; 4]]> {
     let name = crate::mesh::tangents::tangents_section_name(model_of(mesh_section));
     if let Some(v) = pack.find(&name).and_then(|_| pack.view_named(&name).ok()) {
         match v.array::<[f32; 4]>("tangents") {
             Ok(t) if t.len() == normals.len() => return Cow::Borrowed(t),
-            _ => warnings.push(format!(
-                "{name:?} does not match the vertices of {mesh_section:?}: tangents made up"
+            _ => warnings.push(crate::diag::Warning::new(
+                &crate::diag::RENDER_TANGENTS_MISMATCH,
+                "",
+                format!(
+                    "{name:?} does not match the vertices of {mesh_section:?}: tangents made up"
+                ),
             )),
         }
     }
@@ -1031,7 +1061,7 @@ fn material_runs(tri_mats: &[u32]) -> Vec<DrawRange> {
     runs
 }
 
-fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a>> {
+fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<crate::diag::Warning>) -> Result<SkyData<'a>> {
     if let Some(e) = pack.of_kind(sky::KIND).next() {
         let v = pack.view(e)?;
         let meta: SkyMeta = v.meta().map_err(|e| Error::invalid(pack.path(), e))?;
@@ -1083,10 +1113,10 @@ fn load_sky<'a>(pack: &'a Pack, warnings: &mut Vec<String>) -> Result<SkyData<'a
                 sun_removed: false,
             });
         }
-        warnings.push(format!(
+        warnings.push(crate::diag::Warning::new(&crate::diag::RENDER_SKY_LAYOUT, "", format!(
             "sky {:?} has layout {:?}; the preview reads lat-long only and uses the analytic sky",
             e.name, meta.layout
-        ));
+        )));
     }
     let (w, h) = ANALYTIC_SKY_SIZE;
     Ok(SkyData {

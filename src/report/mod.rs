@@ -8,6 +8,7 @@
 //! who want one file and can give up that determinism. [`html`] makes the page.
 
 pub mod html;
+pub mod record;
 
 use crate::error::{Error, ParseError, Result};
 use crate::pack::section::SectionView;

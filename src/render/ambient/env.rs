@@ -11,7 +11,11 @@ pub(super) fn bad(pack: &Pack) -> impl Fn(crate::error::ParseError) -> Error + '
 /// The sun-free sky and the sun: the `sh` and `sun` sections, else the SH projection of the
 /// drawn sky (the built-in one has no sun; a pack sky without an `sh` section keeps its sun in
 /// the projection, which a warning says).
-pub fn sky_light(pack: &Pack, sky: &SkyData, warnings: &mut Vec<String>) -> Result<SkyLight> {
+pub fn sky_light(
+    pack: &Pack,
+    sky: &SkyData,
+    warnings: &mut Vec<crate::diag::Warning>,
+) -> Result<SkyLight> {
     if pack.find(crate::sky::SH_SECTION).is_some() {
         let l = crate::lightmap::scene_lighting(pack)?;
         return Ok(SkyLight {
@@ -21,7 +25,11 @@ pub fn sky_light(pack: &Pack, sky: &SkyData, warnings: &mut Vec<String>) -> Resu
         });
     }
     if !sky.analytic {
-        warnings.push("no `sh` section: the ambient light is the SH of the whole sky".into());
+        warnings.push(crate::diag::Warning::new(
+            &crate::diag::RENDER_SH_MISSING,
+            "",
+            "no `sh` section: the ambient light is the SH of the whole sky",
+        ));
     }
     let img = crate::model::FloatImage {
         width: sky.width,

@@ -7,7 +7,7 @@ use super::*;
 pub(super) fn load_terrain_lightmap(
     pack: &Pack,
     light: &SkyLight,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<Option<LightTexture>> {
     let Some((name, meta, v)) = find_lightmap(pack, "terrain")? else {
         return Ok(None);
@@ -22,10 +22,10 @@ pub(super) fn load_terrain_lightmap(
     // ([`strip_terrain_direct_sun`]) would build the scene's BVH and trace shadow rays at render
     // time, bake work the renderer does not do (issue 14): the sky SH lights the terrain.
     if light.sun.is_some() {
-        warnings.push(format!(
+        warnings.push(crate::diag::Warning::new(&crate::diag::RENDER_LIGHTMAP_WITHOUT_INDIRECT, "", format!(
             "{name}: no `indirect` array (an older pack): its irradiance includes the direct sun; \
              the sky SH lights the terrain instead (re-run `bake lightmap` to use the map)"
-        ));
+        )));
         return Ok(None);
     }
     Ok(Some(
@@ -124,7 +124,7 @@ pub fn strip_terrain_direct_sun(
 pub(super) fn load_mesh_lightmap(
     pack: &Pack,
     m: &ModelData,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<Option<MeshLightmap>> {
     let Some((name, meta, v)) = find_lightmap(pack, &m.section)? else {
         return Ok(None);
@@ -135,8 +135,10 @@ pub(super) fn load_mesh_lightmap(
         // The model is drawn with the atlas' split vertices: each tile's UVs of them.
         (None, Some(_)) => split_vertex_uvs(&v, n).map_err(bad(pack))?,
         (None, None) => {
-            warnings.push(format!(
-                "{name}: no `lightmap_uv` array: light map not used"
+            warnings.push(crate::diag::Warning::new(
+                &crate::diag::RENDER_ATLAS_WITHOUT_UVS,
+                "",
+                format!("{name}: no `lightmap_uv` array: light map not used"),
             ));
             return Ok(None);
         }
@@ -155,9 +157,9 @@ pub(super) fn load_mesh_lightmap(
     let array = match v.info("indirect") {
         Some(_) => "indirect",
         None => {
-            warnings.push(format!(
+            warnings.push(crate::diag::Warning::new(&crate::diag::RENDER_LIGHTMAP_WITHOUT_INDIRECT, "", format!(
                 "{name}: no `indirect` array: the object's light map counts the direct sun twice"
-            ));
+            )));
             "irradiance"
         }
     };

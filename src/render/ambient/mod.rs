@@ -188,7 +188,7 @@ pub struct AmbientScene {
     /// The terrain's light map, in its colour map's coordinates.
     pub terrain: Option<LightTexture>,
     pub models: Vec<ModelAmbient>,
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::diag::Warning>,
 }
 
 /// Resolves the ambient light of `scene` from `pack`. An `explicit` lighting replaces every

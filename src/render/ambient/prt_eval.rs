@@ -7,7 +7,7 @@ use super::*;
 pub(super) fn load_prt(
     pack: &Pack,
     m: &ModelData,
-    warnings: &mut Vec<String>,
+    warnings: &mut Vec<crate::diag::Warning>,
 ) -> Result<Option<PrtData>> {
     let name = crate::prt::pack::section_name(&m.section);
     if pack.find(&name).is_none() {
@@ -24,9 +24,13 @@ pub(super) fn load_prt(
             .unwrap_or(0)
     });
     if t.vertices as usize != mesh_vertices || meta.mesh != m.section {
-        warnings.push(format!(
-            "{name}: {} vertices of {:?} for a mesh {:?} of {}: not used",
-            t.vertices, meta.mesh, m.section, mesh_vertices
+        warnings.push(crate::diag::Warning::new(
+            &crate::diag::RENDER_PRT_MISMATCH,
+            "",
+            format!(
+                "{name}: {} vertices of {:?} for a mesh {:?} of {}: not used",
+                t.vertices, meta.mesh, m.section, mesh_vertices
+            ),
         ));
         return Ok(None);
     }

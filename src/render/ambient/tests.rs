@@ -621,7 +621,8 @@ fn the_terrain_light_map_loses_exactly_its_direct_sun() {
         if std::ptr::eq(p, &old) {
             assert!(amb.terrain.is_none());
             assert!(
-                amb.warnings.iter().any(|w| w.contains("indirect")),
+                amb.warnings.iter().any(|w| w.message.contains("indirect")
+                    && w.id == crate::diag::RENDER_LIGHTMAP_WITHOUT_INDIRECT.id),
                 "{:?}",
                 amb.warnings
             );
