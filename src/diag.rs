@@ -164,6 +164,10 @@ pub const EXPORT_MODEL_WITHOUT_INSTANCES: Diagnostic = warning(
     "export.model-without-instances",
     "a model without instances; its mesh is exported without a node",
 );
+pub const EXPORT_NO_LIGHT_MAP: Diagnostic = warning(
+    "export.no-light-map",
+    "`--bake-light` without a terrain light map in the pack; the terrain is exported lit",
+);
 pub const MITSUBA_SUN_IN_SKY: Diagnostic = warning(
     "mitsuba.sun-in-sky",
     "a lat-long sky that still holds its sun: the sun counts twice (run the sky stage)",
@@ -217,6 +221,7 @@ pub const DIAGNOSTICS: &[Diagnostic] = &[
     EXPORT_TERRAIN_TOO_SMALL,
     EXPORT_MESH_MISSING,
     EXPORT_MODEL_WITHOUT_INSTANCES,
+    EXPORT_NO_LIGHT_MAP,
     MITSUBA_SUN_IN_SKY,
     SVO_TRIANGLES_WITHOUT_VOXEL,
     SVO_MESH_NOT_CLOSED,
@@ -316,6 +321,7 @@ mod tests {
         "export.terrain-too-small",
         "export.mesh-missing",
         "export.model-without-instances",
+        "export.no-light-map",
         "mitsuba.sun-in-sky",
         "svo.triangles-without-voxel",
         "svo.mesh-not-closed",

@@ -570,8 +570,10 @@ impl Exporter<'_> {
                 unlit = true;
             }
         } else if self.bake_light {
-            self.warnings.push(format!(
-                "--bake-light: the pack has no light map of the terrain ({name:?} is exported lit)"
+            self.warnings.push(crate::diag::Warning::new(
+                &crate::diag::EXPORT_NO_LIGHT_MAP,
+                name,
+                "--bake-light: the pack has no light map of the terrain; exported lit",
             ));
         }
         let mut m = json!({"name": "terrain", "pbrMetallicRoughness": pbr,
