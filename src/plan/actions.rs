@@ -420,8 +420,14 @@ pub fn envmaps_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<Uni
 pub fn cluster(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
     let sections = read_packs(inputs)?;
     let view = Pack::from_sections(&sections, &s.view_name()?);
-    let (outs, _) = crate::envmap::cluster_sections(&view, &s.pipeline.cluster, false)?;
-    finish("cluster", out, outs, Vec::new())
+    let (outs, _, w) = crate::envmap::cluster_sections_warned(&view, &s.pipeline.cluster, false)?;
+    // The same warning as the graph's cluster unit (it used to be dropped here).
+    finish(
+        "cluster",
+        out,
+        outs,
+        diag::tagged(&diag::CLUSTER_COMPRESSION_LOW, w),
+    )
 }
 
 /// The BitTree of the scene's instances over the graph's area.
