@@ -570,8 +570,8 @@ impl OnePlant {
 fn coverage(img: &bake::model::Rgba8Image, bg: &bake::model::Rgba8Image) -> (usize, [f64; 3]) {
     let mut n = 0;
     let mut sum = [0.0f64; 3];
-    for (p, q) in img.pixels.iter().zip(&bg.pixels) {
-        if (0..3).any(|c| p[c].abs_diff(q[c]) > 2) {
+    for (p, on) in img.pixels.iter().zip(mask(img, bg)) {
+        if on {
             n += 1;
             for c in 0..3 {
                 sum[c] += p[c] as f64;
@@ -630,6 +630,20 @@ fn a_far_plant_drawn_as_impostor_casts_a_shadow_like_full_detail() {
     assert!(area < 0.15, "plant and shadow {n_far} vs {n_full} px");
 }
 
+/// A w × w view from `eye` towards `target`, 45° field of view, every term, LOD threshold τ.
+fn square_view(eye: glam::Vec3, target: glam::Vec3, w: u32, tau: f32) -> RenderOptions {
+    RenderOptions {
+        width: w,
+        height: w,
+        eye: Some(eye.to_array()),
+        target: Some(target.to_array()),
+        fov_y_deg: 45.0,
+        terms: Terms::All,
+        lod_tau: tau,
+        ..RenderOptions::default()
+    }
+}
+
 /// Renders of one fixture plant far enough for its impostor (τ just above its projected error)
 /// and at full detail (τ = 0), and the background (the plant behind the eye), from the centre
 /// direction of tile (1, 2), without or with the terrain.
@@ -670,16 +684,7 @@ fn far_plant_views(terrain: bool) -> [bake::render::RenderOutput; 3] {
     let wc = Vec3::new(cs * wc.x - sn * wc.y, sn * wc.x + cs * wc.y, wc.z) + Vec3::from(r.position);
     let wv = bake::render::impostor::model_view_direction(eye, wc, r.rotation_deg);
     assert_eq!(bake::render::impostor::nearest_tile(wv, imp.grid), (1, 2));
-    let opts = |tau: f32| RenderOptions {
-        width: w,
-        height: h,
-        eye: Some(eye.to_array()),
-        target: Some(c.to_array()),
-        fov_y_deg: 45.0,
-        terms: Terms::All,
-        lod_tau: tau,
-        ..RenderOptions::default()
-    };
+    let opts = |tau: f32| square_view(eye, c, w, tau);
     let far = render_pack(&pack, &opts(tau)).unwrap();
     let full = render_pack(&pack, &opts(0.0)).unwrap();
     assert_eq!(far.stats.impostor_instances, 1, "{:?}", far.stats);
@@ -775,16 +780,7 @@ fn an_impostor_seen_between_tiles_covers_the_models_pixels() {
     let d = radius * k / 60.0;
     let tau = imp.error * r.scale.abs() * k / d * 1.01;
     let eye = c + ww * d;
-    let opts = |tau: f32| RenderOptions {
-        width: w,
-        height: h,
-        eye: Some(eye.to_array()),
-        target: Some(c.to_array()),
-        fov_y_deg: 45.0,
-        terms: Terms::All,
-        lod_tau: tau,
-        ..RenderOptions::default()
-    };
+    let opts = |tau: f32| square_view(eye, c, w, tau);
     let far = render_pack(&pack, &opts(tau)).unwrap();
     let full = render_pack(&pack, &opts(0.0)).unwrap();
     assert_eq!(far.stats.impostor_instances, 1, "{:?}", far.stats);
