@@ -18,6 +18,14 @@ pub struct LightmapMeta {
     pub mode: LightmapMode,
     pub samples: u32,
     pub sun_samples: u32,
+    /// How the terrain's own occlusion was found (`physical` mode): absent in packs written
+    /// before issue 37, whose maps were traced by rays.
+    #[serde(default = "rays")]
+    pub visibility: super::LightmapVisibility,
+}
+
+fn rays() -> super::LightmapVisibility {
+    super::LightmapVisibility::Rays
 }
 
 pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
@@ -92,7 +100,7 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     });
     Ok(
         json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
-              "sun_samples": m.sun_samples, "mean_irradiance": mean}),
+              "sun_samples": m.sun_samples, "visibility": m.visibility, "mean_irradiance": mean}),
     )
 }
 
