@@ -213,7 +213,6 @@ fn light_mapped_quad() -> Pack {
         mode: bake::lightmap::LightmapMode::Physical,
         samples: 1,
         sun_samples: 1,
-        visibility: bake::lightmap::LightmapVisibility::Rays,
     };
     let ramp: Vec<[f32; 4]> = (0..64)
         .map(|k| {

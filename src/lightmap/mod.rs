@@ -634,7 +634,7 @@ pub fn terrain_sections_of(
     direct: &[[f32; 3]],
     opts: &LightmapOptions,
 ) -> Vec<crate::pack::Section> {
-    let meta = section::LightmapMeta {
+    let meta = section::TerrainLightmapMeta {
         surface: "terrain".into(),
         width: map.width,
         height: map.height,
@@ -662,13 +662,14 @@ pub fn terrain_direct_sun(
     scene: &TraceScene,
     light: &BakeLight,
     meta: &section::LightmapMeta,
+    visibility: LightmapVisibility,
 ) -> Vec<[f32; 3]> {
     let (w, h) = (meta.width, meta.height);
     let (Some(t), Some((s, irr))) = (scene.terrain.as_ref(), light.sun) else {
         return vec![[0.0; 3]; (w * h) as usize];
     };
     let horizons =
-        meta.mode == LightmapMode::Physical && meta.visibility == LightmapVisibility::Horizons;
+        meta.mode == LightmapMode::Physical && visibility == LightmapVisibility::Horizons;
     let grid = horizon::TexelGrid::new(t, w, h);
     let sun_slope = if horizons {
         horizon::Horizons::compute(t, &grid, &[], Some(s), 0..h).sun_slope

@@ -676,7 +676,6 @@ pub(super) fn quad_lightmap_pack() -> Pack {
         mode: crate::lightmap::LightmapMode::Physical,
         samples: 1,
         sun_samples: 1,
-        visibility: crate::lightmap::LightmapVisibility::Rays,
     };
     let (total, indirect) = texels_2x2();
     let uvs: Vec<[f32; 2]> = vec![[0.25, 0.25], [0.75, 0.25], [0.75, 0.75], [0.25, 0.75]];
