@@ -11,6 +11,14 @@
 //! - one diffuse bounce: a direction that hits a surface brings ρ/π·(E_sun,direct + E_sky,unoccluded)
 //!   of that surface (ρ its mean albedo).
 //!
+//! Terrain texels (`visibility = "horizons"`, the default since issue 37): the same terms, with
+//! the terrain's own occlusion from horizon sweeps ([`horizon`], [`texel_horizon_parts`]): the
+//! sky above the horizons integrated exactly (no noise where only the terrain occludes), the
+//! sun's disc against the texel's horizon towards the sun, and rays only for the instances (the
+//! terrain skipped) and for directions below the horizons (the bounce), as a control variate.
+//! `visibility = "rays"` keeps the estimator above for every ray (the reference and baseline);
+//! object atlases always use it.
+//!
 //! `thesis` mode reproduces seed 001's estimator for comparison: one fixed Hammersley set for every
 //! texel, no visibility (neither for the sky nor the sun), no bounce.
 //!
