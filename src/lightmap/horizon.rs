@@ -285,22 +285,29 @@ impl Horizons {
         let rows = rows.start.min(g.height)..rows.end.min(g.height);
         let n = (rows.len() as u32 * g.width) as usize;
         let mut sin_q = vec![0i16; n * directions.len()];
-        if n > 0 {
-            sin_q
-                .par_chunks_mut(n)
-                .zip(directions.par_iter())
-                .for_each(|(out, &dir)| {
-                    sweep(t, g, dir, rows.clone(), |k, s| {
-                        out[k] = quantize(sin_of_slope(s))
-                    })
-                });
-        }
         let sun_lattice = sun.map(|s| sun_lattice(g, s));
         let mut sun_slope = Vec::new();
-        if let Some(dir) = sun_lattice {
-            sun_slope = vec![f32::NEG_INFINITY; n];
-            sweep(t, g, dir, rows.clone(), |k, s| sun_slope[k] = s);
-        }
+        // The sun's sweep beside the others (one long line set: it would otherwise run alone).
+        rayon::join(
+            || {
+                if n > 0 {
+                    sin_q
+                        .par_chunks_mut(n)
+                        .zip(directions.par_iter())
+                        .for_each(|(out, &dir)| {
+                            sweep(t, g, dir, rows.clone(), |k, s| {
+                                out[k] = quantize(sin_of_slope(s))
+                            })
+                        });
+                }
+            },
+            || {
+                if let Some(dir) = sun_lattice {
+                    sun_slope = vec![f32::NEG_INFINITY; n];
+                    sweep(t, g, dir, rows.clone(), |k, s| sun_slope[k] = s);
+                }
+            },
+        );
         Horizons {
             rows,
             width: g.width,
