@@ -462,3 +462,62 @@ fn the_envmaps_section_with_its_noise_estimate_is_the_same_for_any_thread_count_
     );
     assert!(v.info("noise_covariance").is_none());
 }
+
+#[test]
+fn the_sky_control_variate_is_unbiased_and_lowers_the_variance() {
+    // The cluttered scene (boxes around the probe, a ground plane, a sun): C_H by the control
+    // variate (exact sky SH + traced difference where blocked) and by summing every ray's
+    // radiance, each over 400 independent seeds of 64 rays. Unbiased: every coefficient's
+    // mean agrees within 4 standard errors of the difference. Variance: the summed per-
+    // coefficient variance of C_H is lower (measured 1.06×: the spherical Fibonacci set already
+    // integrates the unblocked sky almost exactly; the noise is at the visibility edges, which
+    // the correction keeps).
+    let (bvh, n) = cluttered();
+    let sc = EnvmapScene {
+        bvh: &bvh,
+        count: 1,
+        probe_height: vec![0.5],
+        albedo: vec![[0.6; 3]; n],
+        sky: linear_sky(1.0, 0.5),
+        sun: sun(),
+    };
+    let seeds = 400;
+    let draws = |cv: bool| -> Vec<Vec<f64>> {
+        (0..seeds)
+            .map(|s| {
+                let o = EnvmapOptions {
+                    samples: 64,
+                    seed: 1000 + s,
+                    sky_control_variate: cv,
+                    ..EnvmapOptions::DEFAULT
+                };
+                let (ch, _) = bake_envmaps(&sc, &o)[0];
+                ch.iter().flatten().map(|&v| v as f64).collect()
+            })
+            .collect()
+    };
+    let stats = |d: &[Vec<f64>]| {
+        let k = d[0].len();
+        let m: Vec<f64> = (0..k)
+            .map(|i| d.iter().map(|x| x[i]).sum::<f64>() / d.len() as f64)
+            .collect();
+        let v: Vec<f64> = (0..k)
+            .map(|i| d.iter().map(|x| (x[i] - m[i]).powi(2)).sum::<f64>() / (d.len() - 1) as f64)
+            .collect();
+        (m, v)
+    };
+    let (m_cv, v_cv) = stats(&draws(true));
+    let (m_pl, v_pl) = stats(&draws(false));
+    for i in 0..m_cv.len() {
+        let se = ((v_cv[i] + v_pl[i]) / seeds as f64).sqrt();
+        assert!(
+            (m_cv[i] - m_pl[i]).abs() <= 4.0 * se + 1e-6,
+            "coefficient {i}: control variate {} vs plain {} (standard error {se})",
+            m_cv[i],
+            m_pl[i]
+        );
+    }
+    let ratio = v_pl.iter().sum::<f64>() / v_cv.iter().sum::<f64>();
+    eprintln!("variance plain / control variate: {ratio:.2}");
+    assert!(ratio > 1.0, "variance ratio {ratio}");
+}

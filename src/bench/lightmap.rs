@@ -86,3 +86,117 @@ pub fn bench_lightmap(
         json,
     })
 }
+
+/// `bake bench lightmap --rows A..B` (issue 37): rows `rows` of the terrain light map by every
+/// estimator of `configs` (visibility, samples, sun samples, horizon lattice), timed (wall and
+/// CPU seconds of this process), against the ray estimator at `reference` hemisphere and
+/// `reference / 4` sun rays. Errors per texel, relative to the mean irradiance of the rows:
+/// RMS, 90th percentile and largest of |E − E_ref| over the texels (RGB mean), for the total
+/// and for the part without the direct sun.
+pub fn bench_lightmap_error(
+    input: Option<&Path>,
+    rows: std::ops::Range<u32>,
+    configs: &[(crate::lightmap::LightmapVisibility, u32, u32, u32)],
+    reference: u32,
+) -> Result<Report> {
+    let dir = tempfile::tempdir().map_err(|e| crate::error::Error::io("temporary folder", e))?;
+    let pack = match input {
+        Some(p) => Pack::open(p)?,
+        None => fixture_pack(dir.path())?,
+    };
+    let light = crate::lightmap::scene_lighting(&pack)?;
+    let scene = crate::trace::pack_scene::trace_scene(&pack)?;
+    let run = |opts: &LightmapOptions| -> Result<(f64, f64, crate::lightmap::TexelRows)> {
+        let (t0, c0) = (
+            std::time::Instant::now(),
+            super::cpu_seconds().unwrap_or(0.0),
+        );
+        let (e, d) =
+            crate::lightmap::bake_terrain_lightmap_rows(&scene, &light, opts, rows.clone())?
+                .ok_or_else(|| crate::error::Error::usage("the pack has no terrain".to_string()))?;
+        let cpu = super::cpu_seconds().unwrap_or(0.0) - c0;
+        Ok((t0.elapsed().as_secs_f64(), cpu, (e, d)))
+    };
+    let ref_opts = LightmapOptions {
+        samples: reference,
+        sun_samples: (reference / 4).max(1),
+        visibility: crate::lightmap::LightmapVisibility::Rays,
+        ..Default::default()
+    };
+    let (rw, rc, (re, rd)) = run(&ref_opts)?;
+    let mean = |v: &[[f32; 3]]| {
+        v.iter()
+            .map(|t| (t[0] + t[1] + t[2]) as f64 / 3.0)
+            .sum::<f64>()
+            / v.len().max(1) as f64
+    };
+    let r_ind: Vec<[f32; 3]> = re
+        .iter()
+        .zip(&rd)
+        .map(|(e, d)| std::array::from_fn(|c| e[c] - d[c]))
+        .collect();
+    let (m_tot, m_ind) = (mean(&re), mean(&r_ind));
+    let stats = |a: &[[f32; 3]], b: &[[f32; 3]], m: f64| {
+        let mut err: Vec<f64> = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| ((0..3).map(|c| (x[c] - y[c]) as f64).sum::<f64>() / 3.0).abs() / m)
+            .collect();
+        let rms = (err.iter().map(|e| e * e).sum::<f64>() / err.len().max(1) as f64).sqrt();
+        let bias = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (0..3).map(|c| (x[c] - y[c]) as f64).sum::<f64>() / 3.0)
+            .sum::<f64>()
+            / a.len().max(1) as f64
+            / m;
+        err.sort_by(f64::total_cmp);
+        let p90 = err.get(err.len() * 9 / 10).copied().unwrap_or(0.0);
+        let max = err.last().copied().unwrap_or(0.0);
+        serde_json::json!({"rms": rms, "p90": p90, "max": max, "bias": bias})
+    };
+    let mut rowsj = Vec::new();
+    let mut text = format!(
+        "rows {}..{} ({} texels), reference rays:{reference}:{}: {rw:.2} s wall, {rc:.2} CPU s\n",
+        rows.start,
+        rows.end,
+        re.len(),
+        ref_opts.sun_samples
+    );
+    for &(visibility, samples, sun_samples, lattice) in configs {
+        let opts = LightmapOptions {
+            samples,
+            sun_samples,
+            visibility,
+            horizon_lattice: lattice,
+            ..Default::default()
+        };
+        opts.check().map_err(crate::error::Error::usage)?;
+        let (w, c, (e, d)) = run(&opts)?;
+        let ind: Vec<[f32; 3]> = e
+            .iter()
+            .zip(&d)
+            .map(|(e, d)| std::array::from_fn(|c| e[c] - d[c]))
+            .collect();
+        let (tot, sky) = (stats(&e, &re, m_tot), stats(&ind, &r_ind, m_ind));
+        text += &format!(
+            "{visibility:?}:{samples}:{sun_samples}:{lattice}: {w:.2} s wall, {c:.2} CPU s; total rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %; without direct sun rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %\n",
+            tot["rms"].as_f64().unwrap_or(0.0) * 100.0,
+            tot["p90"].as_f64().unwrap_or(0.0) * 100.0,
+            tot["max"].as_f64().unwrap_or(0.0) * 100.0,
+            tot["bias"].as_f64().unwrap_or(0.0) * 100.0,
+            sky["rms"].as_f64().unwrap_or(0.0) * 100.0,
+            sky["p90"].as_f64().unwrap_or(0.0) * 100.0,
+            sky["max"].as_f64().unwrap_or(0.0) * 100.0,
+            sky["bias"].as_f64().unwrap_or(0.0) * 100.0,
+        );
+        rowsj.push(serde_json::json!({"visibility": visibility, "samples": samples, "sun_samples": sun_samples,
+            "horizon_lattice": lattice, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky}));
+    }
+    Ok(Report {
+        json: serde_json::json!({"rows": [rows.start, rows.end], "texels": re.len(),
+            "reference": {"samples": reference, "sun_samples": ref_opts.sun_samples, "wall_seconds": rw, "cpu_seconds": rc},
+            "threads": rayon::current_num_threads(), "estimators": rowsj}),
+        text,
+    })
+}

@@ -100,6 +100,21 @@ pub struct LightmapBenchArgs {
     /// cargo feature `embree`).
     #[arg(long, default_value = "cpu", value_parser = crate::trace::Tracer::parse)]
     pub tracer: crate::trace::Tracer,
+    /// Error mode (issue 37): the terrain light map's rows START..END by each estimator of
+    /// `--compare` against the ray estimator at `--reference-samples`, per-texel errors and
+    /// CPU seconds, in this process.
+    #[arg(long, value_name = "START..END")]
+    pub rows: Option<String>,
+    /// Estimators to compare: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE], comma-separated
+    /// (VISIBILITY horizons or rays).
+    #[arg(
+        long,
+        default_value = "rays:64:16,horizons:64:16,horizons:32:8,horizons:16:4,horizons:16:4:2"
+    )]
+    pub compare: String,
+    /// Hemisphere rays of the reference (its sun rays: a quarter of them).
+    #[arg(long, default_value_t = 1024)]
+    pub reference_samples: u32,
 }
 
 /// The fixture scene (`bake fixtures`) ingested with its HDR sky's `sky`/`sun`/`sh` sections.
@@ -111,6 +126,39 @@ pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
     a.tracer
         .available_as("lightmap.tracer")
         .map_err(|m| crate::error::Error::usage(format!("--tracer {}: {m}", a.tracer.name())))?;
+    if let Some(rows) = &a.rows {
+        let bad = |m: String| crate::error::Error::usage(m);
+        let (s, e) = rows
+            .split_once("..")
+            .ok_or_else(|| bad(format!("--rows {rows}: expected START..END")))?;
+        let parse = |v: &str| {
+            v.trim()
+                .parse::<u32>()
+                .map_err(|e| bad(format!("--rows {rows}: {e}")))
+        };
+        let mut configs = Vec::new();
+        for c in a.compare.split(',') {
+            let f: Vec<&str> = c.trim().split(':').collect();
+            let vis = match f.first().copied() {
+                Some("horizons") => crate::lightmap::LightmapVisibility::Horizons,
+                Some("rays") => crate::lightmap::LightmapVisibility::Rays,
+                _ => return Err(bad(format!("--compare {c}: horizons or rays first"))),
+            };
+            let num = |k: usize, d: u32| -> Result<u32> {
+                f.get(k).map_or(Ok(d), |v| {
+                    v.parse().map_err(|e| bad(format!("--compare {c}: {e}")))
+                })
+            };
+            configs.push((vis, num(1, 64)?, num(2, 16)?, num(3, 3)?));
+        }
+        let r = crate::bench::lightmap::bench_lightmap_error(
+            a.input.as_deref(),
+            parse(s)?..parse(e)?,
+            &configs,
+            a.reference_samples,
+        )?;
+        return Ok(r.into());
+    }
     let r =
         crate::bench::lightmap::bench_lightmap(a.input.as_deref(), a.samples, a.repeat, a.tracer)?;
     Ok(r.into())

@@ -75,7 +75,9 @@ pub mod versions {
     pub const LOD: u32 = 5;
     /// 2: texels sampled on the drawn two-triangle surface; the linear albedo; a terrain
     /// without colour map has albedo 0.216 as drawn (issue 35).
-    pub const LIGHTMAP: u32 = 2;
+    /// 3: the terrain's self-occlusion by horizon sweeps, the sky above the horizons exact and
+    /// rays only for the instances and the bounce (`visibility`, issue 37).
+    pub const LIGHTMAP: u32 = 3;
     /// 2: the linear albedo (issue 35).
     pub const ATLAS: u32 = 2;
     /// 2: the rays traced as two independently rotated halves, whose difference is the
@@ -779,7 +781,8 @@ fn scene_units(
     };
     let lm = &p.lightmap;
     if s.lightmap {
-        let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode});
+        let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode,
+            "visibility": lm.visibility, "horizon_lattice": lm.horizon_lattice});
         keyed_tracer(&mut o, lm.tracer);
         let key = keyed(g, "lightmap", versions::LIGHTMAP, "terrain", &o);
         let out = g.unit("lightmap", "terrain", key, None, |_| {

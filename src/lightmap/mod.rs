@@ -11,6 +11,14 @@
 //! - one diffuse bounce: a direction that hits a surface brings ρ/π·(E_sun,direct + E_sky,unoccluded)
 //!   of that surface (ρ its mean albedo).
 //!
+//! Terrain texels (`visibility = "horizons"`, the default since issue 37): the same terms, with
+//! the terrain's own occlusion from horizon sweeps ([`horizon`], [`texel_horizon_parts`]): the
+//! sky above the horizons integrated exactly (no noise where only the terrain occludes), the
+//! sun's disc against the texel's horizon towards the sun, and rays only for the instances (the
+//! terrain skipped) and for directions below the horizons (the bounce), as a control variate.
+//! `visibility = "rays"` keeps the estimator above for every ray (the reference and baseline);
+//! object atlases always use it.
+//!
 //! `thesis` mode reproduces seed 001's estimator for comparison: one fixed Hammersley set for every
 //! texel, no visibility (neither for the sky nor the sun), no bounce.
 //!
@@ -20,6 +28,7 @@
 
 pub mod atlas;
 pub mod atlas_section;
+pub mod horizon;
 pub mod objects;
 pub mod section;
 
@@ -38,6 +47,19 @@ pub enum LightmapMode {
     Thesis,
 }
 
+/// How the terrain light map finds the terrain's own occlusion (`physical` mode).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LightmapVisibility {
+    /// Horizon sweeps ([`horizon`]): the sky above the horizons integrated exactly, the sun's
+    /// disc against its horizon; rays only for the instances and the bounce.
+    #[default]
+    Horizons,
+    /// Every hemisphere and sun ray traced through the whole scene (the estimator before
+    /// issue 37; kept as the reference and the baseline).
+    Rays,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LightmapOptions {
@@ -53,6 +75,11 @@ pub struct LightmapOptions {
     pub atlas: atlas::AtlasOptions,
     /// Ray-tracing backend of the terrain and object light maps ([`Tracer`]: `cpu` | `embree`).
     pub tracer: Tracer,
+    /// The terrain's self-occlusion by horizons (default) or by rays.
+    pub visibility: LightmapVisibility,
+    /// Horizon directions: every primitive lattice vector with max(|a|, |b|) ≤ this (1, 2, 3,
+    /// 4: 8, 16, 32, 48 directions).
+    pub horizon_lattice: u32,
 }
 
 impl LightmapOptions {
@@ -66,10 +93,18 @@ impl LightmapOptions {
         max_instances: 16,
         atlas: atlas::AtlasOptions::DEFAULT,
         tracer: Tracer::Cpu,
+        visibility: LightmapVisibility::Horizons,
+        horizon_lattice: 3,
     };
 
     /// Options this binary cannot run (a tracer it was built without).
     pub fn check(&self) -> std::result::Result<(), String> {
+        if !(1..=4).contains(&self.horizon_lattice) {
+            return Err(format!(
+                "lightmap.horizon_lattice = {} (1 to 4: 8, 16, 32 or 48 horizon directions)",
+                self.horizon_lattice
+            ));
+        }
         self.tracer.available_as("lightmap.tracer")
     }
 }
@@ -159,6 +194,9 @@ pub fn bake_terrain_lightmap_rows(
     let bvh = scene.tracer(opts.tracer)?;
     let rows = rows.start.min(h)..rows.end.min(h);
     let sky_irr = light.sky.to_irradiance();
+    if opts.mode == LightmapMode::Physical && opts.visibility == LightmapVisibility::Horizons {
+        return Ok(Some(horizon_rows(scene, bvh, light, opts, rows)));
+    }
     let (texels, direct): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (rows.start * w..rows.end * w)
         .into_par_iter()
         .map(|k| {
@@ -172,6 +210,239 @@ pub fn bake_terrain_lightmap_rows(
         })
         .unzip();
     Ok(Some((texels, direct)))
+}
+
+/// Texels of one band of [`horizon_rows`]: the horizons of K directions (2 bytes each) stay
+/// below about 128 MB.
+fn band_rows(width: u32, directions: usize) -> u32 {
+    ((128u64 << 20) / (2 * width.max(1) as u64 * directions.max(1) as u64)).clamp(16, 1 << 20)
+        as u32
+}
+
+/// What the instance-only rays of the horizon estimator need: the terrain's instance number
+/// (skipped) and the top of the highest instance (rays stop when they rise above it).
+#[derive(Debug, Clone, Copy)]
+pub struct Reach {
+    terrain: u32,
+    top: Option<f32>,
+}
+
+impl Reach {
+    pub fn of(scene: &TraceScene) -> Reach {
+        let models = scene.bvh.models();
+        let top = scene
+            .bvh
+            .instances()
+            .iter()
+            .map(|i| i.translation[2] + i.scale * models[i.model as usize].bounds().1.z)
+            .reduce(f32::max);
+        Reach {
+            terrain: scene.bvh.instances().len() as u32,
+            top,
+        }
+    }
+
+    /// The closest instance hit (the terrain skipped) of the ray from `o` along `d` up to the
+    /// top of the instances; `None` without instances.
+    fn instance_hit(
+        &self,
+        bvh: &dyn SceneTracer,
+        o: Vec3A,
+        d: Vec3A,
+    ) -> Option<crate::trace::SceneHit> {
+        let top = self.top?;
+        let tmax = if d.z > 0.0 {
+            ((top - o.z) / d.z).max(0.0) + 1e-3
+        } else {
+            f32::INFINITY
+        };
+        let ray = Ray {
+            tmax,
+            ..Ray::new(o, d, 1e-4)
+        };
+        bvh.closest_hit_excluding(&ray, Some(self.terrain))
+    }
+}
+
+/// The horizon estimator on rows `rows` (see [`texel_horizon_parts`]), in bands of rows.
+fn horizon_rows(
+    scene: &TraceScene,
+    bvh: &dyn SceneTracer,
+    light: &BakeLight,
+    opts: &LightmapOptions,
+    rows: std::ops::Range<u32>,
+) -> TexelRows {
+    let t = scene.terrain.as_ref().expect("a terrain");
+    let (w, h) = terrain_lightmap_size(scene, opts).expect("a terrain");
+    let grid = horizon::TexelGrid::new(t, w, h);
+    let dirs = horizon::lattice_vectors(opts.horizon_lattice);
+    let tables = horizon::SkyTables::new(&grid, &dirs, &light.sky);
+    let sky_irr = light.sky.to_irradiance();
+    let reach = Reach::of(scene);
+    let band = band_rows(w, dirs.len());
+    let (mut texels, mut direct) = (Vec::new(), Vec::new());
+    let mut start = rows.start;
+    while start < rows.end {
+        let end = (start + band).min(rows.end);
+        let hz = horizon::Horizons::compute(t, &grid, &dirs, light.sun.map(|s| s.0), start..end);
+        let (e, d): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..hz.len())
+            .into_par_iter()
+            .map(|k| {
+                let (i, j) = (k as u32 % w, start + k as u32 / w);
+                let (x, y) = grid.xy(i, j);
+                let p = Vec3A::new(x, y, t.mesh_height_at(x, y));
+                let n = Vec3A::from(height_normal(t, x, y));
+                let texel = (j * w + i) as u64;
+                let env = HorizonTexel {
+                    tables: &tables,
+                    horizons: &hz,
+                    index: k,
+                    reach,
+                };
+                texel_horizon_parts(bvh, &scene.albedo, light, &sky_irr, &env, p, n, texel, opts)
+            })
+            .unzip();
+        texels.extend(e);
+        direct.extend(d);
+        start = end;
+    }
+    (texels, direct)
+}
+
+/// A texel's horizons and what [`texel_horizon_parts`] reads beside them.
+pub struct HorizonTexel<'a> {
+    pub tables: &'a horizon::SkyTables,
+    pub horizons: &'a horizon::Horizons,
+    /// The texel's index within the horizons' rows.
+    pub index: usize,
+    pub reach: Reach,
+}
+
+/// The light map's estimator with the terrain's self-occlusion from horizons (`physical` mode,
+/// visibility `horizons`), returning (irradiance, direct-sun part) like
+/// [`texel_irradiance_parts`], with the same terms:
+/// - direct sun: E_sun · max(0, n·s) · V, V = (visible fraction of the sun's disc above the
+///   texel's horizon towards the sun, [`horizon::sun_fraction`]) × (fraction of `sun_samples`
+///   disc rays that no instance blocks; the terrain is skipped, the rays stop above the highest
+///   instance);
+/// - sky and one bounce, as a control variate: g(d) = L(d) on the directions above the sector
+///   horizons (raised to the tangent plane), zero below; its integral `∫ g (n·d) dω` is exact
+///   ([`horizon::SkyTables`]), and `samples` cosine-distributed rays (the same Hammersley set
+///   and per-texel rotation as the ray estimator) estimate `∫ (f − g) (n·d) dω`, f the radiance
+///   the ray estimator takes (sky if the ray escapes, the hit's bounce radiance otherwise). A ray
+///   above the horizon is traced against the instances only (the terrain does not block it, up
+///   to the horizons' discretization in azimuth); where none blocks it f − g is
+///   max(L, 0) − L (zero unless the SH sky is negative there). A ray below the horizon is traced
+///   through the whole scene. Where nothing but the terrain occludes, the sky term has no noise.
+#[allow(clippy::too_many_arguments)]
+pub fn texel_horizon_parts(
+    bvh: &dyn SceneTracer,
+    albedo: &[[f32; 3]],
+    light: &BakeLight,
+    sky_irr: &ShIrradiance,
+    env: &HorizonTexel,
+    p: Vec3A,
+    n: Vec3A,
+    texel: u64,
+    opts: &LightmapOptions,
+) -> ([f32; 3], [f32; 3]) {
+    let origin = p + n * 1e-3;
+    let hz = env.horizons;
+    let mut e = [0.0f64; 3];
+    let mut direct = [0.0f32; 3];
+    if let Some((s, irr)) = light.sun {
+        let sv = Vec3A::from(s);
+        let cos = n.dot(sv);
+        if cos > 0.0 {
+            let slope = hz
+                .sun_slope
+                .get(env.index)
+                .copied()
+                .unwrap_or(f32::NEG_INFINITY);
+            let mut vis = horizon::sun_fraction(slope, s);
+            if vis > 0.0 && env.reach.top.is_some() {
+                vis *=
+                    instance_sun_visibility(bvh, &env.reach, origin, sv, opts.sun_samples, texel);
+            }
+            direct = irr.map(|e| e * cos * vis);
+            for k in 0..3 {
+                e[k] += direct[k] as f64;
+            }
+        }
+    }
+    // The exact part: the sky above the effective horizons.
+    let na = n.to_array();
+    let sectors = env.tables.sectors();
+    let mut s_eff = [0.0f32; horizon::MAX_DIRECTIONS];
+    for (k, se) in s_eff.iter_mut().enumerate().take(sectors) {
+        *se = env.tables.effective(k, hz.sin(k, env.index), na);
+        let v = env.tables.integral(k, *se, na);
+        for c in 0..3 {
+            e[c] += v[c] as f64;
+        }
+    }
+    // The traced correction ∫ (f − g) (n·d) dω.
+    let nsamp = opts.samples.max(1);
+    let (tx, bx) = crate::trace::frame(n);
+    let shift = cp_rotation(texel);
+    for k in 0..nsamp {
+        let (u1, u2) = hammersley(k, nsamp);
+        let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
+        let r = u1.sqrt();
+        let phi = std::f32::consts::TAU * u2;
+        let local = Vec3A::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
+        let d = (tx * local.x + bx * local.y + n * local.z).normalize();
+        let sector = env
+            .tables
+            .sector_of(d.x, d.y)
+            .min(horizon::MAX_DIRECTIONS - 1);
+        let c = if d.z > s_eff[sector] {
+            let l = light.sky.eval(d.to_array());
+            match env.reach.instance_hit(bvh, origin, d) {
+                None => l.map(|v| v.max(0.0) - v),
+                Some(hit) => {
+                    let b = bounce_radiance(bvh, albedo, light, sky_irr, &hit, d);
+                    [0, 1, 2].map(|c| b[c] - l[c])
+                }
+            }
+        } else {
+            match bvh.closest_hit(&Ray::new(origin, d, 1e-4)) {
+                None => light.sky.eval(d.to_array()).map(|v| v.max(0.0)),
+                Some(hit) => bounce_radiance(bvh, albedo, light, sky_irr, &hit, d),
+            }
+        };
+        for ch in 0..3 {
+            e[ch] += (c[ch] * std::f32::consts::PI / nsamp as f32) as f64;
+        }
+    }
+    (e.map(|v| v as f32), direct)
+}
+
+/// Fraction of the sun's disc that no instance blocks (the terrain skipped): the disc points
+/// of [`sun_visibility`], traced up to the top of the instances.
+fn instance_sun_visibility(
+    bvh: &dyn SceneTracer,
+    reach: &Reach,
+    p: Vec3A,
+    s: Vec3A,
+    samples: u32,
+    texel: u64,
+) -> f32 {
+    let n = samples.max(1);
+    let (tx, bx) = crate::trace::frame(s);
+    let shift = cp_rotation(texel ^ 0x5u64 << 60);
+    let mut visible = 0;
+    for k in 0..n {
+        let (u1, u2) = hammersley(k, n);
+        let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
+        let r = SUN_RADIUS * u1.sqrt();
+        let phi = std::f32::consts::TAU * u2;
+        let d = (s + tx * (r * phi.cos()) + bx * (r * phi.sin())).normalize();
+        if reach.instance_hit(bvh, p, d).is_none() {
+            visible += 1;
+        }
+    }
+    visible as f32 / n as f32
 }
 
 /// Normal of the bilinear height field at (x, y) by central differences over one grid step.
@@ -371,13 +642,14 @@ pub fn terrain_sections_of(
     direct: &[[f32; 3]],
     opts: &LightmapOptions,
 ) -> Vec<crate::pack::Section> {
-    let meta = section::LightmapMeta {
+    let meta = section::TerrainLightmapMeta {
         surface: "terrain".into(),
         width: map.width,
         height: map.height,
         mode: opts.mode,
         samples: opts.samples,
         sun_samples: opts.sun_samples,
+        visibility: opts.visibility,
     };
     vec![section::to_section_with_indirect(
         "lightmap:terrain",
@@ -398,28 +670,51 @@ pub fn terrain_direct_sun(
     scene: &TraceScene,
     light: &BakeLight,
     meta: &section::LightmapMeta,
+    visibility: LightmapVisibility,
 ) -> Vec<[f32; 3]> {
     let (w, h) = (meta.width, meta.height);
     let (Some(t), Some((s, irr))) = (scene.terrain.as_ref(), light.sun) else {
         return vec![[0.0; 3]; (w * h) as usize];
     };
-    let s = Vec3A::from(s);
+    let horizons =
+        meta.mode == LightmapMode::Physical && visibility == LightmapVisibility::Horizons;
+    let grid = horizon::TexelGrid::new(t, w, h);
+    let sun_slope = if horizons {
+        horizon::Horizons::compute(t, &grid, &[], Some(s), 0..h).sun_slope
+    } else {
+        Vec::new()
+    };
+    let reach = Reach::of(scene);
+    let sv = Vec3A::from(s);
     (0..w * h)
         .into_par_iter()
         .map(|k| {
             let (i, j) = (k % w, k / w);
-            let x = t.origin[0] + (i as f32 + 0.5) / w as f32 * t.extent[0];
-            let y = t.origin[1] + (1.0 - (j as f32 + 0.5) / h as f32) * t.extent[1];
+            let (x, y) = grid.xy(i, j);
             let n = Vec3A::from(height_normal(t, x, y));
-            let cos = n.dot(s);
+            let cos = n.dot(sv);
             if cos <= 0.0 {
                 return [0.0; 3];
             }
+            let o = Vec3A::new(x, y, t.mesh_height_at(x, y)) + n * 1e-3;
             let vis = match meta.mode {
                 LightmapMode::Thesis => 1.0,
+                LightmapMode::Physical if horizons => {
+                    let mut v = horizon::sun_fraction(sun_slope[k as usize], s);
+                    if v > 0.0 && reach.top.is_some() {
+                        v *= instance_sun_visibility(
+                            &scene.bvh,
+                            &reach,
+                            o,
+                            sv,
+                            meta.sun_samples,
+                            k as u64,
+                        );
+                    }
+                    v
+                }
                 LightmapMode::Physical => {
-                    let o = Vec3A::new(x, y, t.mesh_height_at(x, y)) + n * 1e-3;
-                    sun_visibility(&scene.bvh, o, s, meta.sun_samples, k as u64)
+                    sun_visibility(&scene.bvh, o, sv, meta.sun_samples, k as u64)
                 }
             };
             irr.map(|e| e * cos * vis)

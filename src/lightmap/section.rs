@@ -20,6 +20,21 @@ pub struct LightmapMeta {
     pub sun_samples: u32,
 }
 
+/// The terrain light map's metadata as written since issue 37: [`LightmapMeta`]'s fields, then
+/// how the terrain's own occlusion was found. Postcard metadata is read as a prefix, so every
+/// reader of [`LightmapMeta`] reads these sections unchanged; an older section has no
+/// `visibility` (its map was traced by rays).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TerrainLightmapMeta {
+    pub surface: String,
+    pub width: u32,
+    pub height: u32,
+    pub mode: LightmapMode,
+    pub samples: u32,
+    pub sun_samples: u32,
+    pub visibility: super::LightmapVisibility,
+}
+
 pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
@@ -35,7 +50,7 @@ pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
 /// into the section (a 4097² map would otherwise be held three times over).
 pub fn to_section_with_indirect(
     name: &str,
-    meta: &LightmapMeta,
+    meta: &impl Serialize,
     map: &Lightmap,
     direct: &[[f32; 3]],
 ) -> Section {
@@ -86,13 +101,16 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
         return super::atlas_section::summary(v);
     }
     let (m, map) = from_section(v)?;
+    let visibility = v
+        .meta::<TerrainLightmapMeta>()
+        .map_or(super::LightmapVisibility::Rays, |t| t.visibility);
     let n = map.texels.len().max(1) as f32;
     let mean = map.texels.iter().fold([0.0f32; 3], |a, t| {
         [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
     });
     Ok(
         json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
-              "sun_samples": m.sun_samples, "mean_irradiance": mean}),
+              "sun_samples": m.sun_samples, "visibility": visibility, "mean_irradiance": mean}),
     )
 }
 

@@ -109,7 +109,13 @@ pub fn strip_terrain_direct_sun(
         sky: light.sky,
         sun: light.sun,
     };
-    let direct = crate::lightmap::terrain_direct_sun(scene, &l, meta);
+    // A map without `indirect` predates the horizon estimator: its sun was traced by rays.
+    let direct = crate::lightmap::terrain_direct_sun(
+        scene,
+        &l,
+        meta,
+        crate::lightmap::LightmapVisibility::Rays,
+    );
     for (texel, d) in tex.texels.iter_mut().zip(direct) {
         for c in 0..3 {
             texel[c] = (texel[c] - d[c]).max(0.0);

@@ -1,0 +1,503 @@
+//! Terrain visibility by horizons (issue 37; Stewart 1998, "Fast horizon computation at all points
+//! of a terrain with visibility and shading applications"; Timonen and Westerholm 2010,
+//! "Scalable Height Field Self-Shadowing").
+//!
+//! **Horizons.** For a direction (a, b) of the texel lattice (a primitive integer vector, in texel
+//! columns and rows with rows counted northwards), every texel lies on exactly one lattice line
+//! through texel centres in that direction. Each line is swept from its far end backwards; the
+//! profile along it is the drawn two-triangle surface ([`Terrain::mesh_height_at`]) at the texel
+//! centres and at `m − 1` points between neighbours (`m` such that the step is at most one
+//! terrain cell), beyond the line's last texel at the same step up to the terrain's edge, and
+//! one a tenth of a step ahead of every texel (the slope of the triangle under it). The upper convex hull of the points already swept is kept on a stack; a new
+//! point pops the hull vertices that are not above its tangent, the top is then the point of
+//! the steepest slope ahead (the horizon), and the point is pushed (Timonen and Westerholm's
+//! linear-time sweep: every point is pushed and popped once). Exact for the profile: the
+//! horizon of a texel centre in a lattice direction is the largest elevation of any profile
+//! point ahead of it, up to the terrain's edge (nothing beyond it).
+//!
+//! `K` lattice directions ([`lattice_vectors`], all primitive vectors with max(|a|, |b|) ≤ D:
+//! 8, 16, 32, 48 directions for D = 1, 2, 3, 4) split the azimuth into sectors (boundaries
+//! halfway between neighbouring directions); in a sector the horizon is taken as constant, its
+//! direction's. Stored as sin(elevation), rounded up to 1/32767.
+//!
+//! **Sky above the horizons.** The sky's radiance is SH order 4, so `∫ L(d) (n·d) dω` over
+//! `{d in sector k, sin(elevation) > s}` is `n · V_k(s)` with `V_k(s) = ∫ L(d) d dω` a function
+//! of s alone: [`SkyTables`] holds it per sector on 2,049 values of s (dω = ds dφ; 16
+//! Gauss–Legendre nodes in φ, two Gauss points per interval of s), interpolated linearly.
+//! The horizon of a sector is raised to the texel's tangent plane where that is higher
+//! ([`SkyTables::effective`]), so the region lies in the hemisphere n·d ≥ 0.
+//!
+//! **Sun.** One more sweep in the lattice direction closest to the sun's azimuth (|a|, |b| ≤ 16:
+//! within ≈ 0.2° for most azimuths) gives each texel's horizon towards the sun; the visible
+//! fraction of the sun's disc (angular radius [`super::SUN_RADIUS`]) is the area of the disc
+//! above that horizon ([`disc_fraction`]).
+
+use crate::model::Terrain;
+use crate::sh::ShRadiance;
+use rayon::prelude::*;
+use std::ops::Range;
+
+/// Scale of the stored sin(elevation).
+const Q: f32 = 32767.0;
+
+/// Intervals of sin(elevation) in a [`SkyTables`] table.
+const TABLE: usize = 2048;
+
+/// Where the profile's point just ahead of each texel lies, in profile steps.
+pub const NEAR: f32 = 0.1;
+
+/// Largest |a|, |b| of the lattice vector chosen for the sun.
+const SUN_LATTICE: i32 = 16;
+
+fn gcd(a: i32, b: i32) -> i32 {
+    if b == 0 { a } else { gcd(b, a % b) }
+}
+
+/// Most horizon directions ([`lattice_vectors`] of 4).
+pub const MAX_DIRECTIONS: usize = 48;
+
+/// The primitive lattice vectors (a, b) with max(|a|, |b|) ≤ `d` (clamped to 1..=4), sorted by
+/// their angle in the lattice (column, row-northwards) plane.
+pub fn lattice_vectors(d: u32) -> Vec<(i32, i32)> {
+    let d = d.clamp(1, 4) as i32;
+    let mut v = Vec::new();
+    for a in -d..=d {
+        for b in -d..=d {
+            if (a, b) != (0, 0) && gcd(a.abs(), b.abs()) == 1 {
+                v.push((a, b));
+            }
+        }
+    }
+    v.sort_by(|p, q| {
+        (p.1 as f64)
+            .atan2(p.0 as f64)
+            .total_cmp(&(q.1 as f64).atan2(q.0 as f64))
+    });
+    v
+}
+
+/// The texels of a terrain light map: texel (i, j) at x = x₀ + (i + ½)/W · extent_x,
+/// y = y₀ + (1 − (j + ½)/H) · extent_y (row 0 north), as the light map places them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TexelGrid {
+    pub width: u32,
+    pub height: u32,
+    pub origin: [f32; 2],
+    pub extent: [f32; 2],
+    /// The terrain's cell size (x, y).
+    pub cell: [f32; 2],
+}
+
+impl TexelGrid {
+    pub fn new(t: &Terrain, width: u32, height: u32) -> Self {
+        TexelGrid {
+            width,
+            height,
+            origin: t.origin,
+            extent: t.extent,
+            cell: [
+                t.extent[0] / (t.width - 1).max(1) as f32,
+                t.extent[1] / (t.height - 1).max(1) as f32,
+            ],
+        }
+    }
+
+    /// World (x, y) of texel (i, j).
+    #[inline]
+    pub fn xy(&self, i: u32, j: u32) -> (f32, f32) {
+        let x = self.origin[0] + (i as f32 + 0.5) / self.width as f32 * self.extent[0];
+        let y = self.origin[1] + (1.0 - (j as f32 + 0.5) / self.height as f32) * self.extent[1];
+        (x, y)
+    }
+
+    /// Texel size (x, y).
+    fn step(&self) -> [f32; 2] {
+        [
+            self.extent[0] / self.width as f32,
+            self.extent[1] / self.height as f32,
+        ]
+    }
+
+    /// World azimuth (radians, from +x towards +y) of lattice vector (a, b).
+    pub fn azimuth(&self, a: i32, b: i32) -> f64 {
+        let s = self.step();
+        (b as f64 * s[1] as f64).atan2(a as f64 * s[0] as f64)
+    }
+}
+
+/// The horizon slope (tan of elevation; −∞ where nothing lies ahead) of every texel of rows
+/// `rows` in lattice direction (a, b), passed to `store(index in the rows, slope)`.
+pub fn sweep(
+    t: &Terrain,
+    g: &TexelGrid,
+    (a, b): (i32, i32),
+    rows: Range<u32>,
+    mut store: impl FnMut(usize, f32),
+) {
+    let (w, h) = (g.width as i64, g.height as i64);
+    let rows = rows.start.min(g.height)..rows.end.min(g.height);
+    if rows.is_empty() || (a, b) == (0, 0) {
+        return;
+    }
+    // Lattice rows counted northwards: jj = h − 1 − j.
+    let (jj_lo, jj_hi) = (h - rows.end as i64, h - 1 - rows.start as i64);
+    let (a, b) = (a as i64, b as i64);
+    let step = g.step();
+    let dx = a as f32 * step[0];
+    let dy = b as f32 * step[1];
+    let len = (dx as f64).hypot(dy as f64);
+    let m = ((dx.abs() / g.cell[0]).max(dy.abs() / g.cell[1]) * (1.0 - 1e-4))
+        .ceil()
+        .max(1.0) as i64;
+    let inside = |i: i64, jj: i64| (0..w).contains(&i) && (0..h).contains(&jj);
+    let mut hull: Vec<(f64, f64)> = Vec::new();
+    // Adds a profile point (u along the line in lattice steps, height z); returns its horizon.
+    let add = |hull: &mut Vec<(f64, f64)>, u: f64, z: f64| -> f32 {
+        while hull.len() >= 2 {
+            let (u1, z1) = hull[hull.len() - 1];
+            let (u2, z2) = hull[hull.len() - 2];
+            if (z2 - z) * (u1 - u) >= (z1 - z) * (u2 - u) {
+                hull.pop();
+            } else {
+                break;
+            }
+        }
+        let slope = hull.last().map_or(f32::NEG_INFINITY, |&(u1, z1)| {
+            ((z1 - z) / ((u1 - u) * len)) as f32
+        });
+        hull.push((u, z));
+        slope
+    };
+    let mut line = |ei: i64, ejj: i64| {
+        // Lines that never reach the rows (walking backwards) are skipped.
+        if b == 0 && !(jj_lo..=jj_hi).contains(&ejj) {
+            return;
+        }
+        hull.clear();
+        let (mut i, mut jj, mut k) = (ei, ejj, 0i64);
+        while inside(i, jj) {
+            if (b > 0 && jj < jj_lo) || (b < 0 && jj > jj_hi) {
+                break;
+            }
+            let j = (h - 1 - jj) as u32;
+            let (x, y) = g.xy(i as u32, j);
+            if k == 0 {
+                // The terrain beyond the line's last texel, up to the terrain's edge.
+                let on = |f: f32| {
+                    let (px, py) = (x + f * dx, y + f * dy);
+                    px >= g.origin[0]
+                        && px <= g.origin[0] + g.extent[0]
+                        && py >= g.origin[1]
+                        && py <= g.origin[1] + g.extent[1]
+                };
+                let mut last = 0;
+                while on((last + 1) as f32 / m as f32) {
+                    last += 1;
+                }
+                for f in (1..=last).rev() {
+                    let f = f as f32 / m as f32;
+                    let z = t.mesh_height_at(x + f * dx, y + f * dy);
+                    add(&mut hull, f as f64, z as f64);
+                }
+            } else {
+                for f in (1..m).rev() {
+                    let f = f as f32 / m as f32;
+                    let z = t.mesh_height_at(x + f * dx, y + f * dy);
+                    add(&mut hull, (f - k as f32) as f64, z as f64);
+                }
+            }
+            // A point a tenth of a step ahead: the slope of the triangle under the texel.
+            let f = NEAR / m as f32;
+            let z = t.mesh_height_at(x + f * dx, y + f * dy);
+            add(&mut hull, (f - k as f32) as f64, z as f64);
+            let slope = add(&mut hull, -k as f64, t.mesh_height_at(x, y) as f64);
+            if (jj_lo..=jj_hi).contains(&jj) {
+                store(((j - rows.start) as i64 * w + i) as usize, slope);
+            }
+            i -= a;
+            jj -= b;
+            k += 1;
+        }
+    };
+    // Line ends: texels whose next texel ahead lies outside the grid.
+    for jj in 0..h {
+        if !inside(0, jj + b) {
+            for i in 0..w {
+                line(i, jj);
+            }
+        } else {
+            let cols = if a > 0 {
+                (w - a).max(0)..w
+            } else {
+                0..(-a).min(w)
+            };
+            for i in cols {
+                line(i, jj);
+            }
+        }
+    }
+}
+
+/// sin of the elevation whose tangent is `slope`.
+#[inline]
+pub fn sin_of_slope(slope: f32) -> f32 {
+    if slope == f32::NEG_INFINITY {
+        -1.0
+    } else if slope == f32::INFINITY {
+        1.0
+    } else {
+        slope / (1.0 + slope * slope).sqrt()
+    }
+}
+
+/// sin(elevation) stored in an i16, rounded up (the stored horizon is never below the true one).
+#[inline]
+fn quantize(s: f32) -> i16 {
+    (s * Q).ceil().clamp(-Q, Q) as i16
+}
+
+/// Horizons of the texels of some rows in every direction of a lattice, and towards the sun.
+#[derive(Debug, Clone)]
+pub struct Horizons {
+    pub rows: Range<u32>,
+    pub width: u32,
+    /// The lattice directions, in [`SkyTables`]' sector order.
+    pub directions: Vec<(i32, i32)>,
+    /// sin(horizon elevation) × 32767 rounded up, `[direction][texel of the rows]`.
+    sin_q: Vec<i16>,
+    /// Horizon slope towards the sun per texel (empty without a sun).
+    pub sun_slope: Vec<f32>,
+    /// The lattice direction of the sun sweep.
+    pub sun_lattice: Option<(i32, i32)>,
+}
+
+impl Horizons {
+    /// Sweeps the rows `rows` in every direction of `directions` and, given a sun direction,
+    /// towards the sun (in parallel over directions; the result does not depend on the
+    /// thread count).
+    pub fn compute(
+        t: &Terrain,
+        g: &TexelGrid,
+        directions: &[(i32, i32)],
+        sun: Option<[f32; 3]>,
+        rows: Range<u32>,
+    ) -> Self {
+        let rows = rows.start.min(g.height)..rows.end.min(g.height);
+        let n = (rows.len() as u32 * g.width) as usize;
+        let mut sin_q = vec![0i16; n * directions.len()];
+        let sun_lattice = sun.map(|s| sun_lattice(g, s));
+        let mut sun_slope = Vec::new();
+        // The sun's sweep beside the others (one long line set: it would otherwise run alone).
+        rayon::join(
+            || {
+                if n > 0 {
+                    sin_q
+                        .par_chunks_mut(n)
+                        .zip(directions.par_iter())
+                        .for_each(|(out, &dir)| {
+                            sweep(t, g, dir, rows.clone(), |k, s| {
+                                out[k] = quantize(sin_of_slope(s))
+                            })
+                        });
+                }
+            },
+            || {
+                if let Some(dir) = sun_lattice {
+                    sun_slope = vec![f32::NEG_INFINITY; n];
+                    sweep(t, g, dir, rows.clone(), |k, s| sun_slope[k] = s);
+                }
+            },
+        );
+        Horizons {
+            rows,
+            width: g.width,
+            directions: directions.to_vec(),
+            sin_q,
+            sun_slope,
+            sun_lattice,
+        }
+    }
+
+    /// Texels covered.
+    pub fn len(&self) -> usize {
+        self.rows.len() * self.width as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The stored sin(elevation) of texel `k` (index within the rows) in direction `d`.
+    #[inline]
+    pub fn sin(&self, d: usize, k: usize) -> f32 {
+        self.sin_q[d * self.len() + k] as f32 / Q
+    }
+}
+
+/// The lattice vector (|a|, |b| ≤ 16, primitive) whose world azimuth is closest to the sun's
+/// (a sun in the zenith gets (1, 0): its azimuth does not matter).
+pub fn sun_lattice(g: &TexelGrid, s: [f32; 3]) -> (i32, i32) {
+    let target = (s[1] as f64).atan2(s[0] as f64);
+    let mut best = ((1, 0), f64::INFINITY);
+    for a in -SUN_LATTICE..=SUN_LATTICE {
+        for b in -SUN_LATTICE..=SUN_LATTICE {
+            if (a, b) == (0, 0) || gcd(a.abs(), b.abs()) != 1 {
+                continue;
+            }
+            let d = angle_diff(g.azimuth(a, b), target).abs();
+            // Ties go to the shorter vector (cheaper sweep); the order is fixed.
+            if d < best.1 - 1e-12 {
+                best = ((a, b), d);
+            }
+        }
+    }
+    best.0
+}
+
+/// a − b wrapped into (−π, π].
+fn angle_diff(a: f64, b: f64) -> f64 {
+    let tau = std::f64::consts::TAU;
+    let d = (a - b).rem_euclid(tau);
+    if d > std::f64::consts::PI { d - tau } else { d }
+}
+
+/// The angle `p` moved by whole turns into [lo, lo + 2π).
+#[inline]
+fn wrap_from(p: f64, lo: f64) -> f64 {
+    lo + (p - lo).rem_euclid(std::f64::consts::TAU)
+}
+
+/// Fraction of a disc of angular radius `r` centred at elevation `e` that lies above a horizon
+/// at elevation `horizon` (the chord of a flat disc: the sun is small).
+pub fn disc_fraction(horizon: f32, e: f32, r: f32) -> f32 {
+    let u = ((horizon - e) / r).clamp(-1.0, 1.0);
+    ((u.acos() - u * (1.0 - u * u).sqrt()) / std::f32::consts::PI).clamp(0.0, 1.0)
+}
+
+/// The visible fraction of the sun's disc seen from a point whose horizon towards the sun has
+/// slope `slope`, for a sun in direction `s` (unit).
+pub fn sun_fraction(slope: f32, s: [f32; 3]) -> f32 {
+    let horizon = slope.atan();
+    let e = s[2].clamp(-1.0, 1.0).asin();
+    disc_fraction(horizon, e, super::SUN_RADIUS)
+}
+
+/// Per sector of azimuth, the sky's `V(s) = ∫ L(d) d dω` over the directions of the sector with
+/// sin(elevation) above s (see the file comment).
+#[derive(Debug, Clone)]
+pub struct SkyTables {
+    /// Sector bounds (radians, increasing; `hi` of the last is `lo` of the first + 2π).
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    /// cos, sin of the bounds.
+    lo_cs: Vec<(f32, f32)>,
+    hi_cs: Vec<(f32, f32)>,
+    /// `[sector][node]` with node i at s = −1 + 2i/TABLE: `[x, y, z]` of RGB.
+    table: Vec<[[f32; 3]; 3]>,
+}
+
+impl SkyTables {
+    /// The sectors of `directions` (lattice vectors on grid `g`) and the tables of `sky`.
+    pub fn new(g: &TexelGrid, directions: &[(i32, i32)], sky: &ShRadiance) -> Self {
+        let phi: Vec<f64> = directions.iter().map(|&(a, b)| g.azimuth(a, b)).collect();
+        let k = phi.len();
+        let tau = std::f64::consts::TAU;
+        let mut lo = Vec::with_capacity(k);
+        let mut hi = Vec::with_capacity(k);
+        for i in 0..k {
+            let prev = if i == 0 { phi[k - 1] - tau } else { phi[i - 1] };
+            let next = if i + 1 == k { phi[0] + tau } else { phi[i + 1] };
+            lo.push(0.5 * (prev + phi[i]));
+            hi.push(0.5 * (phi[i] + next));
+        }
+        let gl = crate::sh::gauss_legendre(16);
+        let g2 = [0.5 - 0.5 / 3f64.sqrt(), 0.5 + 0.5 / 3f64.sqrt()];
+        let table: Vec<[[f32; 3]; 3]> = (0..k)
+            .into_par_iter()
+            .flat_map_iter(|sector| {
+                let (a, b) = (lo[sector], hi[sector]);
+                let phis: Vec<(f64, f64, f64)> = gl
+                    .iter()
+                    .map(|&(x, wt)| {
+                        let p = a + (b - a) * 0.5 * (x + 1.0);
+                        (p.cos(), p.sin(), wt * 0.5 * (b - a))
+                    })
+                    .collect();
+                let ds = 2.0 / TABLE as f64;
+                let mut acc = [[0.0f64; 3]; 3];
+                let mut col = vec![[[0.0f32; 3]; 3]; TABLE + 1];
+                for i in (0..TABLE).rev() {
+                    let s0 = -1.0 + i as f64 * ds;
+                    for gs in g2 {
+                        let s = s0 + gs * ds;
+                        let r = (1.0 - s * s).max(0.0).sqrt();
+                        for &(c, sn, wp) in &phis {
+                            let d = [r * c, r * sn, s];
+                            let l = sky.eval(d.map(|v| v as f32));
+                            let wt = wp * 0.5 * ds;
+                            for (x, dx) in d.iter().enumerate() {
+                                for ch in 0..3 {
+                                    acc[x][ch] += l[ch] as f64 * dx * wt;
+                                }
+                            }
+                        }
+                    }
+                    col[i] = acc.map(|r| r.map(|v| v as f32));
+                }
+                col
+            })
+            .collect();
+        let cs = |v: &Vec<f64>| v.iter().map(|p| (p.cos() as f32, p.sin() as f32)).collect();
+        SkyTables {
+            lo_cs: cs(&lo),
+            hi_cs: cs(&hi),
+            lo,
+            hi,
+            table,
+        }
+    }
+
+    pub fn sectors(&self) -> usize {
+        self.lo.len()
+    }
+
+    /// The sector of a direction's azimuth (an exact partition of the circle).
+    #[inline]
+    pub fn sector_of(&self, x: f32, y: f32) -> usize {
+        let p = wrap_from((y as f64).atan2(x as f64), self.lo[0]);
+        self.hi.partition_point(|&h| h <= p).min(self.hi.len() - 1)
+    }
+
+    /// `∫ L(d) (n·d) dω` over sector k above sin(elevation) s.
+    #[inline]
+    pub fn integral(&self, k: usize, s: f32, n: [f32; 3]) -> [f32; 3] {
+        let pos = ((s.clamp(-1.0, 1.0) + 1.0) * 0.5 * TABLE as f32).min(TABLE as f32);
+        let i = (pos as usize).min(TABLE - 1);
+        let f = pos - i as f32;
+        let row = &self.table[k * (TABLE + 1)..];
+        let (v0, v1) = (&row[i], &row[i + 1]);
+        std::array::from_fn(|ch| {
+            (0..3)
+                .map(|x| n[x] * (v0[x][ch] + f * (v1[x][ch] - v0[x][ch])))
+                .sum()
+        })
+    }
+
+    /// The horizon of sector k used for a texel with unit normal `n` (n_z > 0): the stored
+    /// sin(elevation) `s`, raised to the highest point of the tangent plane over the sector.
+    #[inline]
+    pub fn effective(&self, k: usize, s: f32, n: [f32; 3]) -> f32 {
+        let nz = n[2].max(1e-6);
+        let tan_at = |(c, sn): (f32, f32)| -(n[0] * c + n[1] * sn) / nz;
+        let mut t = tan_at(self.lo_cs[k]).max(tan_at(self.hi_cs[k]));
+        // The tangent plane is highest in the azimuth of −(n_x, n_y).
+        let r = n[0].hypot(n[1]);
+        if r > 0.0 {
+            let p = wrap_from((-n[1] as f64).atan2(-n[0] as f64), self.lo[k]);
+            if p < self.hi[k] {
+                t = t.max(r / nz);
+            }
+        }
+        s.max(sin_of_slope(t))
+    }
+}
