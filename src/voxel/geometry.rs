@@ -26,9 +26,24 @@ impl Geometry {
 /// The terrain as two triangles per grid cell, with its colour map as material 0's colour map.
 pub fn terrain_mesh(t: &Terrain) -> Geometry {
     let (w, h) = (t.width.max(1), t.height.max(1));
+    let mesh = terrain_tile_mesh(t, [0, w.saturating_sub(1)], [0, h.saturating_sub(1)]);
+    let textures = if t.color.is_some() {
+        vec![t.color.clone()]
+    } else {
+        Vec::new()
+    };
+    Geometry { mesh, textures }
+}
+
+/// The cells `i0..i1` × `j0..j1` of the terrain (columns, rows; samples i0..=i1 × j0..=j1) as
+/// [`terrain_mesh`] makes them: the same positions, texture coordinates, triangles and material,
+/// the cells in the same order (row by row), so a voxel that only these triangles touch gets the
+/// same bits. Its colour map is texture 0 (pass the terrain's image beside it).
+pub fn terrain_tile_mesh(t: &Terrain, [i0, i1]: [u32; 2], [j0, j1]: [u32; 2]) -> Mesh {
+    let (w, h) = (t.width.max(1), t.height.max(1));
     let mut mesh = Mesh::default();
-    for j in 0..h {
-        for i in 0..w {
+    for j in j0..=j1.min(h - 1) {
+        for i in i0..=i1.min(w - 1) {
             mesh.positions.push(t.position(i, j));
             mesh.normals.push([0.0, 0.0, 1.0]);
             let u = if w > 1 {
@@ -45,11 +60,12 @@ pub fn terrain_mesh(t: &Terrain) -> Geometry {
             mesh.uvs.push([u, v]);
         }
     }
-    for j in 0..h.saturating_sub(1) {
-        for i in 0..w.saturating_sub(1) {
-            let a = j * w + i;
-            mesh.indices.push([a, a + 1, a + w + 1]);
-            mesh.indices.push([a, a + w + 1, a + w]);
+    let tw = i1.min(w - 1) - i0 + 1;
+    for j in 0..j1.min(h - 1) - j0 {
+        for i in 0..tw - 1 {
+            let a = j * tw + i;
+            mesh.indices.push([a, a + 1, a + tw + 1]);
+            mesh.indices.push([a, a + tw + 1, a + tw]);
         }
     }
     mesh.triangle_materials = vec![0; mesh.indices.len()];
@@ -61,16 +77,13 @@ pub fn terrain_mesh(t: &Terrain) -> Geometry {
         ..Material::default()
     });
     mesh.objects.push("terrain".into());
-    let textures = if textured {
+    if textured {
         mesh.textures.push(crate::model::TextureRef {
             name: "terrain color".into(),
             path: "terrain".into(),
         });
-        vec![t.color.clone()]
-    } else {
-        Vec::new()
-    };
-    Geometry { mesh, textures }
+    }
+    mesh
 }
 
 /// A model's mesh placed by an instance: scaled, rotated about +Z, translated.
@@ -119,7 +132,7 @@ pub fn mesh_from_pack(pack: &Pack, name: &str) -> Result<Geometry> {
 pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
     let mut g = Geometry::default();
     if let Some(t) = pack_terrain(pack)? {
-        g.append(t);
+        g.append(terrain_mesh(&t));
     }
     if let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() {
         let view = pack.view(e)?;
@@ -294,8 +307,8 @@ impl PlacedSize {
     }
 }
 
-/// The terrain of a pack, with its colour map, as triangles (None: no terrain section).
-pub fn pack_terrain(pack: &Pack) -> Result<Option<Geometry>> {
+/// The terrain of a pack, with its colour map (None: no terrain section).
+pub fn pack_terrain(pack: &Pack) -> Result<Option<Terrain>> {
     let Some(e) = pack.of_kind(crate::terrain::source_section::KIND).next() else {
         return Ok(None);
     };
@@ -314,7 +327,7 @@ pub fn pack_terrain(pack: &Pack) -> Result<Option<Geometry>> {
                 .1,
         );
     }
-    Ok(Some(terrain_mesh(&t)))
+    Ok(Some(t))
 }
 
 /// The two-level SVO of a pack's scene (terrain, models, instances), each model read once.

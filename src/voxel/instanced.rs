@@ -22,9 +22,9 @@ use super::Grid;
 use super::geometry::Geometry;
 use super::svo::{Svo, voxels_to_svo};
 use super::traverse::{Dda, VoxelRay, box_interval, trace_svo};
-use super::voxelize::{VoxelizeOptions, mesh_to_voxels_in};
+use super::voxelize::{VoxelizeOptions, Voxels, mesh_to_voxels_in};
 use crate::error::{Error, Result};
-use crate::model::Instance;
+use crate::model::{Instance, Terrain};
 use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
 
@@ -197,8 +197,9 @@ fn model_resolution(lo: [f32; 3], hi: [f32; 3], size: f32) -> u32 {
     (n as u32).clamp(1, super::MAX_DIM)
 }
 
-/// Bytes the build holds at least besides its output: every placed model's mesh and the
-/// terrain's (32 B per vertex, 16 B per triangle, as `PlacedSize::mesh_bytes`), the largest
+/// Bytes the build holds at least besides its output: every placed model's mesh, the
+/// terrain's heights and one tile of its mesh (32 B per vertex, 16 B per triangle, as
+/// `PlacedSize::mesh_bytes`; tiles of [`TERRAIN_TILE_CELLS`] and their margins), the largest
 /// per-triangle set-up of one voxelization (they run one at a time), and per instance its
 /// reference, bounds and about eight grid references (88 B).
 pub fn build_bytes(terrain: (u64, u64), models: &[(u64, u64)], instances: u64) -> u64 {
@@ -206,15 +207,20 @@ pub fn build_bytes(terrain: (u64, u64), models: &[(u64, u64)], instances: u64) -
     let setup = |(_, t): (u64, u64)| {
         t.saturating_mul(super::geometry::SceneStage::Svo.bytes_per_triangle())
     };
-    let meshes = models
-        .iter()
-        .fold(mesh(terrain), |a, &m| a.saturating_add(mesh(m)));
+    let tile = (
+        terrain.0.min(TERRAIN_TILE_CELLS * 3 / 2),
+        terrain.1.min(TERRAIN_TILE_CELLS * 3),
+    );
+    let meshes = models.iter().fold(
+        mesh(tile).saturating_add(terrain.0.saturating_mul(4)),
+        |a, &m| a.saturating_add(mesh(m)),
+    );
     let peak = models
         .iter()
         .map(|&m| setup(m))
         .max()
         .unwrap_or(0)
-        .max(setup(terrain));
+        .max(setup(tile));
     meshes
         .saturating_add(peak)
         .saturating_add(instances.saturating_mul(88))
@@ -224,7 +230,7 @@ impl InstancedSvo {
     /// Builds the two-level SVO: `models[i]` is the geometry of model i of the instances (None:
     /// no mesh, its instances are not placed, as the flattened scene skips them).
     pub fn build(
-        terrain: Option<&Geometry>,
+        terrain: Option<&Terrain>,
         models: &[Option<(String, Geometry)>],
         instances: &[Instance],
         opts: &VoxelizeOptions,
@@ -239,7 +245,7 @@ impl InstancedSvo {
             .par_iter()
             .map(|(m, r)| placed_bounds(&models[*m].as_ref().expect("filtered").1, r))
             .collect();
-        let mut bounds = terrain.and_then(|t| t.mesh.bounds());
+        let mut bounds = terrain.and_then(terrain_bounds);
         for b in per_instance.into_iter().flatten() {
             bounds = Some(bounds.map_or(b, |a| union(a, b)));
         }
@@ -286,7 +292,7 @@ impl InstancedSvo {
         let grid_instances = refs.len();
         let mut has_terrain = false;
         if let Some(t) = terrain {
-            let vox = mesh_to_voxels_in(&t.mesh, &t.textures, &scene_grid, opts)?;
+            let vox = terrain_voxels(t, &scene_grid, opts, TERRAIN_TILE_CELLS)?;
             if !vox.bricks.is_empty() {
                 refs.push(InstanceRef::identity(out_models.len() as u32));
                 out_models.push(ModelSvo {
@@ -429,6 +435,103 @@ impl InstancedSvo {
             + 4 * (self.cell_start.len() + self.cell_instances.len()) as u64;
         (voxels, bytes)
     }
+}
+
+/// Bounds of the terrain's samples (those of `terrain_mesh`'s vertices, without building it).
+pub fn terrain_bounds(t: &Terrain) -> Option<([f32; 3], [f32; 3])> {
+    let (w, h) = (t.width.max(1), t.height.max(1));
+    (0..h)
+        .into_par_iter()
+        .map(|j| {
+            let first = t.position(0, j);
+            (1..w).fold((first, first), |b, i| {
+                let p = t.position(i, j);
+                union(b, (p, p))
+            })
+        })
+        .reduce_with(union)
+}
+
+/// A brick a terrain tile owns, with its voxels' colours and normals.
+type TileBrick = (super::voxelize::Brick, Vec<[f32; 4]>, Vec<[f32; 3]>);
+
+/// Terrain cells voxelized at once (about 2·10⁶ triangles, ≈ 0.5 GB of mesh and set-up).
+pub const TERRAIN_TILE_CELLS: u64 = 1 << 20;
+
+/// The terrain voxelized in `grid`, in tiles of about `tile_cells` cells: the same voxels and
+/// attributes, bit for bit, as `mesh_to_voxels_in(terrain_mesh(t))` (a voxel's bits depend only
+/// on the triangles that touch it, in index order; each tile owns whole columns of bricks and
+/// takes every cell near them, in the mesh's order), with memory bounded by the tile.
+pub fn terrain_voxels(
+    t: &Terrain,
+    grid: &Grid,
+    opts: &VoxelizeOptions,
+    tile_cells: u64,
+) -> Result<Voxels> {
+    let (w, h) = (t.width.max(1), t.height.max(1));
+    let textures = if t.color.is_some() {
+        vec![t.color.clone()]
+    } else {
+        Vec::new()
+    };
+    let cells = (w as u64 - 1) * (h as u64 - 1);
+    if opts.solid || cells <= tile_cells || w < 2 || h < 2 {
+        let g = super::geometry::terrain_mesh(t);
+        return mesh_to_voxels_in(&g.mesh, &textures, grid, opts);
+    }
+    let dx = [t.extent[0] / (w - 1) as f32, t.extent[1] / (h - 1) as f32];
+    let side_m = (tile_cells as f32).sqrt() * dx[0].min(dx[1]);
+    let tile = (((side_m / grid.voxel_size[0]) as u32) / 4 * 4).max(4);
+    let mut parts: Vec<TileBrick> = Vec::new();
+    let mut skipped = 0;
+    for vy0 in (0..grid.dims[1]).step_by(tile as usize) {
+        for vx0 in (0..grid.dims[0]).step_by(tile as usize) {
+            let own = [[vx0, vx0 + tile], [vy0, vy0 + tile]];
+            let range = |k: usize, n: u32| {
+                let lo = grid.origin[k] + own[k][0] as f32 * grid.voxel_size[k];
+                let hi = grid.origin[k] + own[k][1] as f32 * grid.voxel_size[k];
+                let c0 = ((lo - t.origin[k]) / dx[k]).floor() as i64 - 2;
+                let c1 = ((hi - t.origin[k]) / dx[k]).ceil() as i64 + 2;
+                (
+                    c0.clamp(0, n as i64 - 2) as u32,
+                    c1.clamp(0, n as i64 - 2) as u32,
+                )
+            };
+            let (i0, i1) = range(0, w);
+            let (j0, j1) = range(1, h);
+            let mesh = super::geometry::terrain_tile_mesh(t, [i0, i1 + 1], [j0, j1 + 1]);
+            let v = mesh_to_voxels_in(&mesh, &textures, grid, opts)?;
+            skipped += v.skipped_triangles;
+            let mut at = 0usize;
+            for b in &v.bricks {
+                let n = b.mask.count_ones() as usize;
+                let c = super::morton_decode(b.key).map(|x| x * 4);
+                if (0..2).all(|k| c[k] >= own[k][0] && c[k] < own[k][1]) {
+                    parts.push((
+                        *b,
+                        v.colors[at..at + n].to_vec(),
+                        v.normals[at..at + n].to_vec(),
+                    ));
+                }
+                at += n;
+            }
+        }
+    }
+    parts.sort_by_key(|p| p.0.key);
+    let mut out = Voxels {
+        grid: *grid,
+        bricks: Vec::with_capacity(parts.len()),
+        colors: Vec::new(),
+        normals: Vec::new(),
+        skipped_triangles: skipped,
+        open_columns: 0,
+    };
+    for (b, c, n) in parts {
+        out.bricks.push(b);
+        out.colors.extend(c);
+        out.normals.extend(n);
+    }
+    Ok(out)
 }
 
 /// World bounds of an instance's voxel grid box (its 8 corners placed).

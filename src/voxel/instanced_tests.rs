@@ -139,9 +139,10 @@ fn one_instance_at_the_identity_is_the_flattened_svo_bit_for_bit() {
 
 #[test]
 fn the_terrain_is_the_flattened_terrain_bit_for_bit() {
-    let t = terrain_mesh(&wavy_terrain());
+    let terrain = wavy_terrain();
+    let t = terrain_mesh(&terrain);
     let opts = VoxelizeOptions::surface(64);
-    let two = InstancedSvo::build(Some(&t), &[], &[], &opts).unwrap();
+    let two = InstancedSvo::build(Some(&terrain), &[], &[], &opts).unwrap();
     let fsvo = voxels_to_svo(&mesh_to_voxels(&t.mesh, &t.textures, &opts).unwrap());
     assert!(two.terrain);
     assert_eq!(two.models[0].svo, fsvo);
@@ -156,8 +157,8 @@ fn the_terrain_is_the_flattened_terrain_bit_for_bit() {
 }
 
 /// A few instances of two models, rotated and scaled, on a terrain.
-fn scene() -> (Geometry, Vec<Geometry>, Vec<Instance>) {
-    let t = terrain_mesh(&wavy_terrain());
+fn scene() -> (Terrain, Vec<Geometry>, Vec<Instance>) {
+    let t = wavy_terrain();
     let models = vec![
         geo(procedural_blob(20, 10)),
         geo(box_mesh([-0.4, -0.2, 0.0], [0.4, 0.2, 1.5])),
@@ -188,7 +189,7 @@ fn the_top_grid_finds_the_nearest_of_all_instances() {
     )
     .unwrap();
     assert!(two.top.cells() > 1, "a grid, not one cell: {:?}", two.top);
-    let (lo, hi) = flattened(Some(&t), &models, &instances)
+    let (lo, hi) = flattened(Some(&terrain_mesh(&t)), &models, &instances)
         .mesh
         .bounds()
         .unwrap();
@@ -283,7 +284,7 @@ fn rotated_scaled_instances_keep_the_bound_against_the_triangles_and_the_flatten
     let (t, models, instances) = scene();
     let opts = VoxelizeOptions::surface(96);
     let two = InstancedSvo::build(Some(&t), &named(&models), &instances, &opts).unwrap();
-    let flat = flattened(Some(&t), &models, &instances);
+    let flat = flattened(Some(&terrain_mesh(&t)), &models, &instances);
     let fsvo = voxels_to_svo(&mesh_to_voxels(&flat.mesh, &flat.textures, &opts).unwrap());
     assert_eq!(
         two.scene_grid, fsvo.grid,
@@ -409,4 +410,41 @@ fn the_section_round_trips() {
     let mut bad = two.clone();
     bad.cell_instances[0] = 999;
     assert!(super::super::instanced_section::validate(&bad).is_err());
+}
+
+#[test]
+fn the_terrain_in_tiles_is_the_whole_terrain_bit_for_bit() {
+    let mut t = wavy_terrain();
+    // A colour map, so that colours differ between voxels.
+    t.color = Some(crate::model::Rgba8Image {
+        width: 8,
+        height: 8,
+        pixels: (0..64u32)
+            .map(|i| {
+                [
+                    (i * 37 % 256) as u8,
+                    (i * 11 % 256) as u8,
+                    (i * 5) as u8,
+                    255,
+                ]
+            })
+            .collect(),
+    });
+    let g = terrain_mesh(&t);
+    for res in [16, 64, 200] {
+        let opts = VoxelizeOptions::surface(res);
+        let (lo, hi) = g.mesh.bounds().unwrap();
+        assert_eq!(terrain_bounds(&t), Some((lo, hi)));
+        let grid = Grid::fit(lo, hi, res);
+        let whole = mesh_to_voxels_in(&g.mesh, &g.textures, &grid, &opts).unwrap();
+        for tile_cells in [1, 4, 30] {
+            let tiled = terrain_voxels(&t, &grid, &opts, tile_cells).unwrap();
+            assert_eq!(
+                tiled.bricks, whole.bricks,
+                "resolution {res}, tiles of {tile_cells}"
+            );
+            assert_eq!(tiled.colors, whole.colors);
+            assert_eq!(tiled.normals, whole.normals);
+        }
+    }
 }
