@@ -97,10 +97,19 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
     let svo_entry = pack.of_kind(crate::voxel::section::KIND).next();
     let ls_entry = pack.of_kind(crate::linespace::section::KIND).next();
     if svo_entry.is_none() && ls_entry.is_none() {
+        let two_level = pack
+            .of_kind(crate::voxel::instanced_section::KIND)
+            .next()
+            .is_some();
         return Err(Error::invalid_at(
             &args.pack,
             "section table",
-            "no svo or linespace section to validate (run `bake svo` or `bake linespace`)",
+            if two_level {
+                "no svo or linespace section to validate: the two-level svo-scene section has \
+                 no GPU traversal yet (its CPU traversal is tested against the flattened svo)"
+            } else {
+                "no svo or linespace section to validate (run `bake svo` or `bake linespace`)"
+            },
         ));
     }
     let gpu = crate::gpu::init_gpu(args.backend)?;

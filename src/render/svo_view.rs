@@ -128,10 +128,20 @@ pub fn prepare_svo_view(
         .of_kind(crate::voxel::section::KIND)
         .next()
         .ok_or_else(|| {
+            let two_level = pack
+                .of_kind(crate::voxel::instanced_section::KIND)
+                .next()
+                .is_some();
             Error::invalid_at(
                 pack.path(),
                 "section table",
-                "no svo section to render (run `bake svo` first)",
+                if two_level {
+                    "no svo section to render: the pack holds the two-level svo-scene section \
+                     (written where the flattened scene exceeds --max-memory), which --view svo \
+                     does not draw yet; `bake svo` with a larger --max-memory writes svo"
+                } else {
+                    "no svo section to render (run `bake svo` first)"
+                },
             )
         })?;
     let (_, svo) = crate::voxel::section::from_section(&pack.view(entry)?)
