@@ -188,6 +188,20 @@ fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
     // The pack verifies (the kind is registered, its decoder accepts it).
     let o = common::bake(&["verify", two_out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // `bake validate`: the GPU traversal of both levels gives the CPU's answers.
+    let v = common::json(&common::bake(&[
+        "validate",
+        two_out.to_str().unwrap(),
+        "--rays",
+        "3000",
+        "--json",
+    ]));
+    assert_eq!(v["agree"], true, "{v}");
+    assert_eq!(v["svo_scene"]["voxel_mismatches"], 0, "{v}");
+    assert!(
+        v["svo_scene"]["instance_hits"].as_u64().unwrap() > 30,
+        "{v}"
+    );
 
     // The graph makes the same choice.
     let out = dir.path().join("graph.bake");

@@ -138,7 +138,8 @@ pub fn prepare_svo_view(
                 if two_level {
                     "no svo section to render: the pack holds the two-level svo-scene section \
                      (written where the flattened scene exceeds --max-memory), which --view svo \
-                     does not draw yet; `bake svo` with a larger --max-memory writes svo"
+                     does not draw yet (`bake validate` checks its GPU traversal); `bake svo` \
+                     with a larger --max-memory writes svo"
                 } else {
                     "no svo section to render (run `bake svo` first)"
                 },

@@ -608,4 +608,4 @@ pub fn top_grid(boxes: &[([f32; 3], [f32; 3])]) -> (TopGrid, Vec<u32>, Vec<u32>)
 
 #[cfg(test)]
 #[path = "instanced_tests.rs"]
-mod tests;
+pub(crate) mod tests;

@@ -448,3 +448,15 @@ fn the_terrain_in_tiles_is_the_whole_terrain_bit_for_bit() {
         }
     }
 }
+
+/// The test scene's two-level SVO at `resolution` (for the GPU test).
+pub(crate) fn test_scene(resolution: u32) -> InstancedSvo {
+    let (t, models, instances) = scene();
+    InstancedSvo::build(
+        Some(&t),
+        &named(&models),
+        &instances,
+        &VoxelizeOptions::surface(resolution),
+    )
+    .unwrap()
+}
