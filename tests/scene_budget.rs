@@ -202,6 +202,30 @@ fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
         v["svo_scene"]["instance_hits"].as_u64().unwrap() > 30,
         "{v}"
     );
+    // `bake render --view svo` draws it (GPU) beside the CPU's traversal of the same rays.
+    let img = dir.path().join("svo.png");
+    let reference = dir.path().join("svo-cpu.png");
+    let r = common::json(&common::bake(&[
+        "render",
+        two_out.to_str().unwrap(),
+        "--view",
+        "svo",
+        "-o",
+        img.to_str().unwrap(),
+        "--reference",
+        reference.to_str().unwrap(),
+        "--width",
+        "96",
+        "--height",
+        "64",
+        "--json",
+    ]));
+    assert!(
+        r["svo_scene"]["hits"].as_u64().unwrap() > 96 * 64 / 4,
+        "{r}"
+    );
+    assert_eq!(r["reference"]["rays_disagree"], 0, "{r}");
+    assert_eq!(r["reference"]["mad"], 0.0, "{r}");
 
     // The graph makes the same choice.
     let out = dir.path().join("graph.bake");
