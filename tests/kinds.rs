@@ -56,16 +56,51 @@ fn bake_unit_runs_the_actions_of_the_listed_stages() {
     assert_eq!(subcommands, listed);
 }
 
+/// The same scene with a memory budget under the flattened scene's, so that the svo stage
+/// writes its two-level `svo-scene` section (issue 39).
+fn two_level_pack(dir: &std::path::Path, flat: &std::path::Path) -> std::path::PathBuf {
+    bake::fixtures::write_all(dir).unwrap();
+    let size = bake::voxel::geometry::placed_size(&bake::pack::Pack::open(flat).unwrap()).unwrap();
+    let out = dir.join("two.bake");
+    let mut opts = bake::graph::BuildOptions {
+        scenes: vec![dir.join("scene.eco")],
+        output: Some(out.clone()),
+        sky: Some(dir.join("sky.hdr")),
+        cache: bake::graph::CacheMode::Off,
+        ..Default::default()
+    }
+    .preview();
+    opts.pipeline.stages.svo = true;
+    opts.pipeline.svo.resolution = 32;
+    opts.ingest.limits.max_memory = size.two_level_bytes;
+    bake::graph::build(&opts, &bake::graph::progress::Silent).unwrap();
+    out
+}
+
 #[test]
 fn every_kind_of_a_real_bake_is_registered_dumped_and_verified() {
     let dir = tempfile::tempdir().unwrap();
     let path = every_kind_pack(dir.path());
-    let pack = bake::pack::Pack::open(&path).unwrap();
+    let two_dir = tempfile::tempdir().unwrap();
+    let two = two_level_pack(two_dir.path(), &path);
+    let mut seen = BTreeSet::new();
+    for path in [path, two] {
+        check_pack(&path, &mut seen);
+    }
+    let missing: Vec<_> = KINDS
+        .iter()
+        .map(|k| k.kind)
+        .filter(|k| !seen.contains(k))
+        .collect();
+    assert!(missing.is_empty(), "the bakes wrote no {missing:?} section");
+}
+
+fn check_pack(path: &std::path::Path, seen: &mut BTreeSet<&'static str>) {
+    let pack = bake::pack::Pack::open(path).unwrap();
 
     let doc = bake::dump::dump_json(&pack, &bake::dump::DumpOptions::default()).unwrap();
     let dumped = doc["sections"].as_array().unwrap();
     assert_eq!(dumped.len(), pack.sections().len());
-    let mut seen = BTreeSet::new();
     for (e, d) in pack.sections().iter().zip(dumped) {
         let kind = find(&e.kind).unwrap_or_else(|| panic!("{:?}: kind not registered", e.name));
         seen.insert(kind.kind);
@@ -86,14 +121,7 @@ fn every_kind_of_a_real_bake_is_registered_dumped_and_verified() {
             None => assert_eq!(d["summary"], serde_json::json!({}), "{}", e.name),
         }
     }
-    let missing: Vec<_> = KINDS
-        .iter()
-        .map(|k| k.kind)
-        .filter(|k| !seen.contains(k))
-        .collect();
-    assert!(missing.is_empty(), "the bake wrote no {missing:?} section");
-
-    let v = bake::verify::verify_file(&path).unwrap();
+    let v = bake::verify::verify_file(path).unwrap();
     assert!(v.ok(), "{:#?}", v.violations);
     assert_eq!(v.decoded, pack.sections().len());
 }

@@ -40,7 +40,11 @@ fn a_placed_scene_over_the_budget_is_refused_before_it_is_built() {
         ("svo", SceneStage::Svo),
         ("linespace", SceneStage::Linespace),
     ] {
-        let need = size.stage_bytes(stage);
+        // The svo stage falls back to its two-level form, which needs less (issue 39).
+        let need = match stage {
+            SceneStage::Svo => size.two_level_bytes,
+            SceneStage::Linespace => size.stage_bytes(stage),
+        };
         let out = dir.path().join(format!("{cmd}.bake"));
         // One byte short: refused, nothing written.
         let o = common::bake(&[
@@ -57,7 +61,8 @@ fn a_placed_scene_over_the_budget_is_refused_before_it_is_built() {
         assert!(
             err.contains(&format!(
                 "the {cmd} stage reads the placed scene as one mesh"
-            )) && err.contains("100 instances")
+            )) && (cmd != "svo" || err.contains("its two-level form (one octree per model)"))
+                && err.contains("100 instances")
                 && err.contains(&format!("{} triangles", size.triangles))
                 && err.contains("--max-memory"),
             "{cmd}: {err}"
@@ -92,7 +97,8 @@ fn the_graph_refuses_the_placed_scene_before_the_lighting() {
     let dir = tempfile::tempdir().unwrap();
     let pack_path = common::preview_fixture_pack(dir.path());
     let size = placed_size(&Pack::open(&pack_path).unwrap()).unwrap();
-    let budget = (size.stage_bytes(SceneStage::Svo) - 1).to_string();
+    assert!(size.two_level_bytes < size.stage_bytes(SceneStage::Svo));
+    let budget = (size.two_level_bytes - 1).to_string();
     let out = dir.path().join("svo-scene.bake");
     let scene = dir.path().join("scene.eco");
     let o = common::bake(&[
@@ -124,4 +130,126 @@ fn the_graph_refuses_the_placed_scene_before_the_lighting() {
     for later in ["sky", "lightmap", "envmaps", "cluster", "svo"] {
         assert!(!ran(later), "{later} ran before the refusal: {err}");
     }
+}
+
+/// Between the two sizes the svo stage writes the two-level `svo-scene` section instead of
+/// `svo`: from `bake svo` and from the graph, at the flattened scene's resolution, one octree
+/// per model and every instance referenced (issue 39).
+#[test]
+fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
+    use bake::voxel::instanced_section;
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let pack = Pack::open(&pack_path).unwrap();
+    let size = placed_size(&pack).unwrap();
+    let budget = (size.stage_bytes(SceneStage::Svo) - 1).to_string();
+    assert!(size.two_level_bytes < size.stage_bytes(SceneStage::Svo));
+    let flat_out = dir.path().join("flat.bake");
+    let two_out = dir.path().join("two.bake");
+    let p = pack_path.to_str().unwrap();
+    let o = common::bake(&[
+        "svo",
+        p,
+        "-o",
+        flat_out.to_str().unwrap(),
+        "--resolution",
+        "64",
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = common::bake(&[
+        "svo",
+        p,
+        "-o",
+        two_out.to_str().unwrap(),
+        "--resolution",
+        "64",
+        "--max-memory",
+        &budget,
+        "--json",
+    ]);
+    let j = common::json(&o);
+    assert_eq!(j["instances"], 100);
+    let flat = Pack::open(&flat_out).unwrap();
+    let two = Pack::open(&two_out).unwrap();
+    assert!(flat.find("svo").is_some() && flat.find("svo-scene").is_none());
+    assert!(two.find("svo-scene").is_some() && two.find("svo").is_none());
+    let (_, fsvo) = bake::voxel::section::from_section(&flat.view_named("svo").unwrap()).unwrap();
+    let (_, s) = instanced_section::from_section(&two.view_named("svo-scene").unwrap()).unwrap();
+    assert_eq!(s.scene_grid, fsvo.grid, "the flattened SVO's resolution");
+    let meshes = pack.of_kind("mesh").count();
+    assert!(s.terrain, "the fixture has a terrain");
+    assert!(
+        s.models.len() <= meshes + 1,
+        "one octree per model: {}",
+        s.models.len()
+    );
+    assert_eq!(s.grid_instances(), 100);
+    // The pack verifies (the kind is registered, its decoder accepts it).
+    let o = common::bake(&["verify", two_out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // `bake validate`: the GPU traversal of both levels gives the CPU's answers.
+    let v = common::json(&common::bake(&[
+        "validate",
+        two_out.to_str().unwrap(),
+        "--rays",
+        "3000",
+        "--json",
+    ]));
+    assert_eq!(v["agree"], true, "{v}");
+    assert_eq!(v["svo_scene"]["voxel_mismatches"], 0, "{v}");
+    assert!(
+        v["svo_scene"]["instance_hits"].as_u64().unwrap() > 30,
+        "{v}"
+    );
+    // `bake render --view svo` draws it (GPU) beside the CPU's traversal of the same rays.
+    let img = dir.path().join("svo.png");
+    let reference = dir.path().join("svo-cpu.png");
+    let r = common::json(&common::bake(&[
+        "render",
+        two_out.to_str().unwrap(),
+        "--view",
+        "svo",
+        "-o",
+        img.to_str().unwrap(),
+        "--reference",
+        reference.to_str().unwrap(),
+        "--width",
+        "96",
+        "--height",
+        "64",
+        "--json",
+    ]));
+    assert!(
+        r["svo_scene"]["hits"].as_u64().unwrap() > 96 * 64 / 4,
+        "{r}"
+    );
+    assert_eq!(r["reference"]["rays_disagree"], 0, "{r}");
+    assert_eq!(r["reference"]["mad"], 0.0, "{r}");
+
+    // The graph makes the same choice.
+    let out = dir.path().join("graph.bake");
+    let scene = dir.path().join("scene.eco");
+    let o = common::bake(&[
+        scene.to_str().unwrap(),
+        "--sky",
+        dir.path().join("sky.hdr").to_str().unwrap(),
+        "--preview",
+        "--set",
+        "stages.svo=true",
+        "--set",
+        "svo.resolution=64",
+        "--no-cache",
+        "-q",
+        "--max-memory",
+        &budget,
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let g = Pack::open(&out).unwrap();
+    assert!(g.find("svo-scene").is_some() && g.find("svo").is_none());
+    let (_, gs) = instanced_section::from_section(&g.view_named("svo-scene").unwrap()).unwrap();
+    assert_eq!(gs.grid_instances(), 100);
+    assert_eq!(gs.scene_grid, fsvo.grid);
 }

@@ -302,6 +302,11 @@ fn run_svo(args: &RenderArgs, pack: &Pack, opts: &RenderOptions) -> Result<Outco
         show: args.svo_show,
         lod_scale: args.svo_lod_scale,
     };
+    if pack.of_kind(crate::voxel::section::KIND).next().is_none()
+        && let Some(v) = svo_view::prepare_scene_view(pack, opts, args.svo_show)?
+    {
+        return run_svo_scene(args, &v);
+    }
     let scene = svo_view::prepare_svo_view(pack, opts, view)?;
     let out = svo_view::render_svo(&scene, args.backend)?;
     crate::pack::write_atomic(&args.output, &encode_png(&out.image)?)?;
@@ -347,6 +352,63 @@ fn run_svo(args: &RenderArgs, pack: &Pack, opts: &RenderOptions) -> Result<Outco
             "output": path, "seconds": seconds, "mad": d.mad,
             "pixels_over": d.fraction_over, "threshold": d.threshold, "max": d.max,
             "agreement": a,
+        });
+    }
+    Ok(Outcome {
+        json,
+        text,
+        warnings: Vec::new(),
+    })
+}
+
+/// `--view svo` of a pack whose voxels are the two-level `svo-scene` section: its voxels
+/// (no LOD yet, `--svo-lod-scale` is not read), the GPU's traversal, with `--reference` the
+/// CPU's on the same rays and how many answers differ.
+fn run_svo_scene(args: &RenderArgs, v: &svo_view::SceneView) -> Result<Outcome> {
+    let gpu = crate::gpu::init_gpu(args.backend)?;
+    let t0 = std::time::Instant::now();
+    let hits = crate::voxel::instanced_gpu::trace_gpu(&gpu, &v.scene, &v.rays)?;
+    let seconds = t0.elapsed().as_secs_f64();
+    let image = svo_view::shade_scene(v, &hits);
+    crate::pack::write_atomic(&args.output, &encode_png(&image)?)?;
+    let hit_count = hits.iter().filter(|h| h.is_some()).count();
+    let mut text = format!(
+        "{}: svo-scene view (two-level, voxels) {}×{} on {}, {} of {} pixels hit, {:.3} s\n",
+        args.output.display(),
+        v.size.0,
+        v.size.1,
+        gpu.adapter,
+        hit_count,
+        v.rays.len(),
+        seconds
+    );
+    let mut json = serde_json::json!({
+        "output": args.output,
+        "adapter": gpu.adapter,
+        "seconds": seconds,
+        "svo_scene": { "width": v.size.0, "height": v.size.1, "hits": hit_count, "show": v.show },
+    });
+    if let Some(path) = &args.reference {
+        let t0 = std::time::Instant::now();
+        let cpu = svo_view::trace_scene_cpu(v);
+        let seconds = t0.elapsed().as_secs_f64();
+        let reference = svo_view::shade_scene(v, &cpu);
+        crate::pack::write_atomic(path, &encode_png(&reference)?)?;
+        let d = crate::render::reference::image_difference(&image, &reference, REFERENCE_THRESHOLD)
+            .ok_or_else(|| crate::error::Error::runtime("reference image has another size"))?;
+        let disagree = hits.iter().zip(&cpu).filter(|(g, c)| g != c).count();
+        text += &format!(
+            "{}: CPU traversal, {:.3} s; mean absolute difference {:.2}/255; {} of {} rays disagree\n",
+            path.display(),
+            seconds,
+            d.mad,
+            disagree,
+            cpu.len()
+        );
+        json["reference"] = serde_json::json!({
+            "output": path, "seconds": seconds, "mad": d.mad,
+            "pixels_over": d.fraction_over, "threshold": d.threshold, "max": d.max,
+            "rays_disagree": disagree,
         });
     }
     Ok(Outcome {

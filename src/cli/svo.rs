@@ -90,6 +90,14 @@ pub fn start_pack(
 pub fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
+    if is_pack(&args.input) {
+        let pack = Pack::open(&args.input)?;
+        let size = placed_size(&pack)?;
+        size.check(SceneStage::Svo, &limits, &args.input)?;
+        if size.svo_two_level(&limits) {
+            return run_two_level(args, &pack);
+        }
+    }
     let (geo, pack) = load_geometry(&args.input, SceneStage::Svo, &limits, &mut warnings)?;
     if geo.mesh.indices.is_empty() {
         return Err(Error::invalid_at(
@@ -151,6 +159,44 @@ pub fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
         json,
         text,
         warnings,
+    })
+}
+
+/// A placed scene over the budget as one mesh: the two-level `svo-scene` section.
+fn run_two_level(args: &SvoArgs, pack: &Pack) -> Result<Outcome> {
+    let opts = VoxelizeOptions {
+        solid: args.solid,
+        ..VoxelizeOptions::surface(args.resolution)
+    };
+    let start = std::time::Instant::now();
+    let two = crate::voxel::geometry::pack_instanced_svo(pack, &opts)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let output = args.output.clone().unwrap_or_else(|| args.input.clone());
+    let mut w = PackWriter::from_pack(pack);
+    let source = crate::ingest::confine::SourceNames::first_name(&args.input);
+    let kind = crate::voxel::instanced_section::KIND;
+    w.insert(crate::voxel::instanced_section::to_section(
+        kind, &source, &two, args.solid,
+    ));
+    w.write(&output)?;
+    let mut json = crate::voxel::instanced_section::summary_of(&two);
+    json["output"] = serde_json::json!(output);
+    json["seconds"] = serde_json::json!(seconds);
+    let text = format!(
+        "{}: svo-scene (two-level: the placed scene exceeds --max-memory as one mesh) of {} \
+         models, {} instances, scene grid {:?}, {} model voxels, {} bytes ({:.3} s)\n",
+        output.display(),
+        json["models"],
+        json["instances"],
+        two.scene_grid.dims,
+        json["model_voxels"],
+        json["bytes"],
+        seconds
+    );
+    Ok(Outcome {
+        json,
+        text,
+        warnings: Vec::new(),
     })
 }
 

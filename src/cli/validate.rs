@@ -96,11 +96,12 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
     let pack = Pack::open(&args.pack)?;
     let svo_entry = pack.of_kind(crate::voxel::section::KIND).next();
     let ls_entry = pack.of_kind(crate::linespace::section::KIND).next();
-    if svo_entry.is_none() && ls_entry.is_none() {
+    let scene_entry = pack.of_kind(crate::voxel::instanced_section::KIND).next();
+    if svo_entry.is_none() && ls_entry.is_none() && scene_entry.is_none() {
         return Err(Error::invalid_at(
             &args.pack,
             "section table",
-            "no svo or linespace section to validate (run `bake svo` or `bake linespace`)",
+            "no svo, svo-scene or linespace section to validate (run `bake svo` or `bake linespace`)",
         ));
     }
     let gpu = crate::gpu::init_gpu(args.backend)?;
@@ -130,6 +131,19 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
             rows.push(json!({ "cone": cone, "agreement": a, "agree": a.agrees() }));
         }
         json["svo_lod"] = json!(rows);
+    }
+    if let Some(e) = scene_entry {
+        let (_, scene) = crate::voxel::instanced_section::from_section(&pack.view(e)?)
+            .map_err(|err| Error::invalid(&args.pack, err))?;
+        let a =
+            crate::voxel::instanced_gpu::validate_instanced(&gpu, &scene, args.rays, args.seed)?;
+        ok &= a.agrees();
+        text += &format!(
+            "svo-scene: {} rays, {} hits ({} on instances), {} voxel mismatches, {} t mismatches (max |Δt| {:.2e})\n",
+            a.rays, a.hits, a.instance_hits, a.voxel_mismatches, a.t_mismatches, a.max_t_error
+        );
+        json["svo_scene"] = json!(a);
+        json["svo_scene"]["agree"] = json!(a.agrees());
     }
     if let Some(e) = ls_entry {
         let (_, mut tree) = crate::linespace::section::from_section(&pack.view(e)?)

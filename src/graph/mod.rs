@@ -702,7 +702,14 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         g.finish_sections(out)?;
     }
 
-    scene_units(&mut g, p, &plan.scene, &scene_source)?;
+    scene_units(
+        &mut g,
+        p,
+        &plan.scene,
+        &scene_source,
+        &opts.ingest.limits,
+        first,
+    )?;
 
     // The record of this build: its key and every file read (by name).
     let files: Vec<PathBuf> = g.files.iter().cloned().collect();
@@ -745,6 +752,8 @@ fn scene_units(
     p: &Pipeline,
     scene: &crate::model::Scene,
     scene_source: &str,
+    limits: &crate::ingest::limits::Limits,
+    first: &std::path::Path,
 ) -> Result<()> {
     let s = &p.stages;
     // What the lighting units read: the placed models with their textures, the terrain, the
@@ -919,13 +928,18 @@ fn scene_units(
             for (n, h) in &geo_inputs {
                 k.input(n, h);
             }
+            // The flattened `svo` where the placed scene fits the memory budget, else the
+            // two-level `svo-scene` (one octree per model; issue 39). The choice enters the
+            // key (only when two-level, so the flattened units' keys are as before).
+            if crate::voxel::geometry::placed_size(&view)?.svo_two_level(limits) {
+                k.options(&"two-level");
+            }
             let out = g.unit("svo", "scene", k.finish(), None, |_| {
-                let geo = geo()?;
-                let v = crate::voxel::voxelize::mesh_to_voxels(&geo.mesh, &geo.textures, &p.svo)?;
-                let svo = crate::voxel::svo::voxels_to_svo(&v);
-                let sec = crate::voxel::section::to_section("svo", &source, &svo, p.svo.solid);
+                let (sec, report) = crate::voxel::geometry::pack_svo_section(
+                    &view, &p.svo, limits, first, &source,
+                )?;
                 Ok(Output {
-                    report: crate::voxel::section::summary_of(&svo),
+                    report,
                     sections: vec![sec],
                     ..Default::default()
                 })

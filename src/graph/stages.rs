@@ -106,7 +106,13 @@ pub const STAGES: [StageDef; 13] = [
         &["bittree"],
         &["bittree"],
     ),
-    stage("svo", versions::SVO, Per::Scene, &["svo"], &["svo"]),
+    stage(
+        "svo",
+        versions::SVO,
+        Per::Scene,
+        &["svo", "svo-scene"],
+        &["svo"],
+    ),
     stage(
         "linespace",
         versions::LINESPACE,

@@ -301,6 +301,27 @@ pub const KINDS: &[SectionKind] = &[
         check: None,
     },
     SectionKind {
+        kind: crate::voxel::instanced_section::KIND,
+        naming: Naming::Kind,
+        arrays: &[
+            ("nodes", &[U32], 4),
+            ("leaves", &[U8], 1),
+            ("voxel_colors", &[U32], 1),
+            ("voxel_normals", &[U32], 1),
+            ("node_colors", &[U32], 1),
+            ("node_normals", &[U32], 1),
+            ("instances", &[U32], 8),
+            ("cell_start", &[U32], 1),
+            ("cell_instances", &[U32], 1),
+        ],
+        decode: |v| crate::voxel::instanced_section::from_section(v).map(drop),
+        views: Some((
+            crate::voxel::instanced_section::summary,
+            crate::voxel::instanced_section::data,
+        )),
+        check: None,
+    },
+    SectionKind {
         kind: crate::linespace::section::KIND,
         naming: Naming::Kind,
         arrays: &[

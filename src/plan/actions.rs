@@ -458,11 +458,13 @@ pub fn svo(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> 
     let sections = read_packs(inputs)?;
     let name = s.view_name()?;
     let view = Pack::from_sections(&sections, &name);
-    geometry::placed_size(&view)?.check(SceneStage::Svo, &s.ingest.limits, s.first()?)?;
-    let geo = geometry::pack_geometry(&view)?;
-    let v = crate::voxel::voxelize::mesh_to_voxels(&geo.mesh, &geo.textures, &s.pipeline.svo)?;
-    let tree = crate::voxel::svo::voxels_to_svo(&v);
-    let sec = crate::voxel::section::to_section("svo", &s.source()?, &tree, s.pipeline.svo.solid);
+    let (sec, _) = geometry::pack_svo_section(
+        &view,
+        &s.pipeline.svo,
+        &s.ingest.limits,
+        s.first()?,
+        &s.source()?,
+    )?;
     finish("svo", out, vec![sec], Vec::new())
 }
 

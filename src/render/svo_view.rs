@@ -128,10 +128,20 @@ pub fn prepare_svo_view(
         .of_kind(crate::voxel::section::KIND)
         .next()
         .ok_or_else(|| {
+            let two_level = pack
+                .of_kind(crate::voxel::instanced_section::KIND)
+                .next()
+                .is_some();
             Error::invalid_at(
                 pack.path(),
                 "section table",
-                "no svo section to render (run `bake svo` first)",
+                if two_level {
+                    "no svo section for the LOD view: the pack holds the two-level svo-scene \
+                     section (written where the flattened scene exceeds --max-memory), which \
+                     `bake render --view svo` draws at its voxels (prepare_scene_view)"
+                } else {
+                    "no svo section to render (run `bake svo` first)"
+                },
             )
         })?;
     let (_, svo) = crate::voxel::section::from_section(&pack.view(entry)?)
@@ -298,6 +308,104 @@ pub fn render_svo(scene: &SvoScene, backend: super::BackendChoice) -> Result<Svo
         adapter: gpu.adapter.clone(),
         seconds,
     })
+}
+
+/// The two-level `svo-scene` section of a pack drawn at its voxels (no filtered top level yet,
+/// so no LOD): one world ray per pixel centre from the camera framing the scene grid, traced on
+/// the GPU (`voxel::instanced_gpu`) or the CPU (`InstancedSvo::trace`), shaded as [`shade`]
+/// shades a voxel (colour and normal of the hit voxel, the normal turned by the instance's
+/// rotation; `level` shows the voxel level of its model).
+pub struct SceneView {
+    pub scene: crate::voxel::instanced::InstancedSvo,
+    pub camera: Camera,
+    pub rays: Vec<crate::voxel::instanced_gpu::WorldRay>,
+    pub light: [f32; 3],
+    pub size: (u32, u32),
+    pub show: SvoShow,
+}
+
+/// The `svo-scene` section of `pack` and the view of `opts` over it, or None without one.
+pub fn prepare_scene_view(
+    pack: &Pack,
+    opts: &super::RenderOptions,
+    show: SvoShow,
+) -> Result<Option<SceneView>> {
+    let Some(e) = pack.of_kind(crate::voxel::instanced_section::KIND).next() else {
+        return Ok(None);
+    };
+    let (_, scene) = crate::voxel::instanced_section::from_section(&pack.view(e)?)
+        .map_err(|err| Error::invalid(pack.path(), err))?;
+    let g = scene.scene_grid;
+    let hi = g.to_world(g.dims.map(|d| d as f32));
+    let aspect = opts.width as f32 / opts.height as f32;
+    let camera = super::camera_for_bounds(g.origin, hi, opts, aspect);
+    let (w, h) = (opts.width, opts.height);
+    let eye = camera.eye.to_array();
+    let rays = (0..w * h)
+        .map(|i| {
+            let d = camera.pixel_ray(pixel_centre(i, w), (w, h)).to_array();
+            (eye, d, [0.0, f32::INFINITY])
+        })
+        .collect();
+    let light = pack
+        .view_named(crate::sky::SUN_SECTION)
+        .ok()
+        .and_then(|v| crate::sky::section::sun_from_section(&v).ok())
+        .map_or(Vec3::from(DEFAULT_LIGHT).normalize(), |s| {
+            Vec3::from(s.direction).normalize_or(Vec3::Z)
+        })
+        .to_array();
+    Ok(Some(SceneView {
+        scene,
+        camera,
+        rays,
+        light,
+        size: (w, h),
+        show,
+    }))
+}
+
+/// The CPU's answers of a [`SceneView`].
+pub fn trace_scene_cpu(v: &SceneView) -> Vec<Option<crate::voxel::instanced::InstanceHit>> {
+    v.rays
+        .par_iter()
+        .map(|(o, d, t)| v.scene.trace(*o, *d, *t))
+        .collect()
+}
+
+/// The image of a [`SceneView`]'s answers.
+pub fn shade_scene(
+    v: &SceneView,
+    hits: &[Option<crate::voxel::instanced::InstanceHit>],
+) -> Rgba8Image {
+    let (w, h) = v.size;
+    let pixels = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let Some(hit) = hits[i as usize] else {
+                return BACKGROUND;
+            };
+            let Some((c, n)) = v.scene.hit_attributes(&hit) else {
+                return BACKGROUND;
+            };
+            let model = v.scene.instances[hit.instance as usize].model as usize;
+            let level = v.scene.models[model].svo.levels;
+            let as_hit = LodHit {
+                level,
+                cell: hit.voxel,
+                t: hit.t,
+                color: crate::voxel::svo::pack_rgba8([c[0] * c[3], c[1] * c[3], c[2] * c[3], c[3]]),
+                normal: crate::voxel::svo::pack_normal(n),
+            };
+            let dir = v.camera.pixel_ray(pixel_centre(i, w), (w, h));
+            shade(Some(&as_hit), v.show, v.light, dir)
+        })
+        .collect();
+    Rgba8Image {
+        width: w,
+        height: h,
+        pixels,
+    }
 }
 
 #[cfg(test)]

@@ -26,9 +26,24 @@ impl Geometry {
 /// The terrain as two triangles per grid cell, with its colour map as material 0's colour map.
 pub fn terrain_mesh(t: &Terrain) -> Geometry {
     let (w, h) = (t.width.max(1), t.height.max(1));
+    let mesh = terrain_tile_mesh(t, [0, w.saturating_sub(1)], [0, h.saturating_sub(1)]);
+    let textures = if t.color.is_some() {
+        vec![t.color.clone()]
+    } else {
+        Vec::new()
+    };
+    Geometry { mesh, textures }
+}
+
+/// The cells `i0..i1` × `j0..j1` of the terrain (columns, rows; samples i0..=i1 × j0..=j1) as
+/// [`terrain_mesh`] makes them: the same positions, texture coordinates, triangles and material,
+/// the cells in the same order (row by row), so a voxel that only these triangles touch gets the
+/// same bits. Its colour map is texture 0 (pass the terrain's image beside it).
+pub fn terrain_tile_mesh(t: &Terrain, [i0, i1]: [u32; 2], [j0, j1]: [u32; 2]) -> Mesh {
+    let (w, h) = (t.width.max(1), t.height.max(1));
     let mut mesh = Mesh::default();
-    for j in 0..h {
-        for i in 0..w {
+    for j in j0..=j1.min(h - 1) {
+        for i in i0..=i1.min(w - 1) {
             mesh.positions.push(t.position(i, j));
             mesh.normals.push([0.0, 0.0, 1.0]);
             let u = if w > 1 {
@@ -45,11 +60,12 @@ pub fn terrain_mesh(t: &Terrain) -> Geometry {
             mesh.uvs.push([u, v]);
         }
     }
-    for j in 0..h.saturating_sub(1) {
-        for i in 0..w.saturating_sub(1) {
-            let a = j * w + i;
-            mesh.indices.push([a, a + 1, a + w + 1]);
-            mesh.indices.push([a, a + w + 1, a + w]);
+    let tw = i1.min(w - 1) - i0 + 1;
+    for j in 0..j1.min(h - 1) - j0 {
+        for i in 0..tw - 1 {
+            let a = j * tw + i;
+            mesh.indices.push([a, a + 1, a + tw + 1]);
+            mesh.indices.push([a, a + tw + 1, a + tw]);
         }
     }
     mesh.triangle_materials = vec![0; mesh.indices.len()];
@@ -61,16 +77,13 @@ pub fn terrain_mesh(t: &Terrain) -> Geometry {
         ..Material::default()
     });
     mesh.objects.push("terrain".into());
-    let textures = if textured {
+    if textured {
         mesh.textures.push(crate::model::TextureRef {
             name: "terrain color".into(),
             path: "terrain".into(),
         });
-        vec![t.color.clone()]
-    } else {
-        Vec::new()
-    };
-    Geometry { mesh, textures }
+    }
+    mesh
 }
 
 /// A model's mesh placed by an instance: scaled, rotated about +Z, translated.
@@ -118,22 +131,7 @@ pub fn mesh_from_pack(pack: &Pack, name: &str) -> Result<Geometry> {
 /// instances); otherwise every mesh section (and the terrain, if any) as it is.
 pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
     let mut g = Geometry::default();
-    if let Some(e) = pack.of_kind(crate::terrain::source_section::KIND).next() {
-        let view = pack.view(e)?;
-        let (meta, mut t) =
-            crate::terrain::source_section::from_section(&view).map_err(|e| invalid(pack, e))?;
-        if let Some(cs) = meta
-            .color_section
-            .as_deref()
-            .filter(|s| pack.find(s).is_some())
-        {
-            let v = pack.view_named(cs)?;
-            t.color = Some(
-                crate::texture::source_section::from_section(&v)
-                    .map_err(|e| invalid(pack, e))?
-                    .1,
-            );
-        }
+    if let Some(t) = pack_terrain(pack)? {
         g.append(terrain_mesh(&t));
     }
     if let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() {
@@ -197,6 +195,9 @@ pub struct PlacedSize {
     pub scene_instances: u64,
     pub vertices: u64,
     pub triangles: u64,
+    /// What the two-level SVO needs at least ([`super::instanced::build_bytes`]); `u64::MAX`
+    /// without instances (a pack of bare meshes has no instanced form).
+    pub two_level_bytes: u64,
 }
 
 impl PlacedSize {
@@ -211,18 +212,29 @@ impl PlacedSize {
             scene_instances: instances.len() as u64,
             ..PlacedSize::default()
         };
+        let mut terrain_size = (0, 0);
         if let Some((w, h)) = terrain {
             let (w, h) = (w.max(1) as u64, h.max(1) as u64);
             size.vertices = w * h;
             size.triangles = 2 * (w - 1) * (h - 1);
+            terrain_size = (size.vertices, size.triangles);
         }
+        let mut placed_models = vec![false; models.len()];
         for i in instances {
             if let Some(Some((v, t))) = models.get(i.model as usize) {
                 size.instances += 1;
                 size.vertices = size.vertices.saturating_add(*v);
                 size.triangles = size.triangles.saturating_add(*t);
+                placed_models[i.model as usize] = true;
             }
         }
+        let model_sizes: Vec<(u64, u64)> = models
+            .iter()
+            .zip(&placed_models)
+            .filter_map(|(m, &p)| m.filter(|_| p))
+            .collect();
+        size.two_level_bytes =
+            super::instanced::build_bytes(terrain_size, &model_sizes, size.instances);
         size
     }
 
@@ -242,9 +254,13 @@ impl PlacedSize {
 
     /// Refuses (exit 4, naming `file`) a placed scene that `stage` could not hold within the
     /// memory budget, before anything is allocated.
+    /// For the svo stage a scene that does not fit as one mesh passes when its two-level form
+    /// fits ([`Self::svo_two_level`]).
     pub fn check(&self, stage: SceneStage, limits: &Limits, file: &Path) -> Result<()> {
         let bytes = self.stage_bytes(stage);
-        if bytes <= limits.max_memory {
+        if bytes <= limits.max_memory
+            || (stage == SceneStage::Svo && self.two_level_bytes <= limits.max_memory)
+        {
             return Ok(());
         }
         let placed = if self.instances == self.scene_instances {
@@ -262,17 +278,111 @@ impl PlacedSize {
                 format!(
                     "the {stage} stage reads the placed scene as one mesh: {placed}, {} \
                      vertices and {} triangles with the terrain, at least {}, more than the {} \
-                     budget (--max-memory); turn the stage off (--set stages.{stage}=false), \
-                     place fewer instances, or raise --max-memory",
+                     budget (--max-memory){two}; turn the stage off (--set \
+                     stages.{stage}=false), place fewer instances, or raise --max-memory",
                     self.vertices,
                     self.triangles,
                     human(bytes),
                     human(limits.max_memory),
                     stage = stage.name(),
+                    two = match (stage, self.two_level_bytes) {
+                        (SceneStage::Svo, b) if b != u64::MAX => format!(
+                            ", and its two-level form (one octree per model) needs at least {}",
+                            human(b)
+                        ),
+                        _ => String::new(),
+                    },
                 ),
             ),
         ))
     }
+}
+
+impl PlacedSize {
+    /// Whether the svo stage builds the two-level SVO: the flattened scene exceeds the budget
+    /// (and [`Self::check`] passed, so the two-level form fits it).
+    pub fn svo_two_level(&self, limits: &Limits) -> bool {
+        self.stage_bytes(SceneStage::Svo) > limits.max_memory
+            && self.two_level_bytes <= limits.max_memory
+    }
+}
+
+/// The terrain of a pack, with its colour map (None: no terrain section).
+pub fn pack_terrain(pack: &Pack) -> Result<Option<Terrain>> {
+    let Some(e) = pack.of_kind(crate::terrain::source_section::KIND).next() else {
+        return Ok(None);
+    };
+    let view = pack.view(e)?;
+    let (meta, mut t) =
+        crate::terrain::source_section::from_section(&view).map_err(|e| invalid(pack, e))?;
+    if let Some(cs) = meta
+        .color_section
+        .as_deref()
+        .filter(|s| pack.find(s).is_some())
+    {
+        let v = pack.view_named(cs)?;
+        t.color = Some(
+            crate::texture::source_section::from_section(&v)
+                .map_err(|e| invalid(pack, e))?
+                .1,
+        );
+    }
+    Ok(Some(t))
+}
+
+/// The two-level SVO of a pack's scene (terrain, models, instances), each model read once.
+pub fn pack_instanced_svo(
+    pack: &Pack,
+    opts: &super::voxelize::VoxelizeOptions,
+) -> Result<super::instanced::InstancedSvo> {
+    let terrain = pack_terrain(pack)?;
+    let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
+        return Err(crate::error::Error::Runtime(
+            "the two-level SVO needs an instances section".into(),
+        ));
+    };
+    let view = pack.view(e)?;
+    let (meta, inst) =
+        crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
+    let models: Vec<Option<(String, Geometry)>> = meta
+        .mesh_sections
+        .iter()
+        .map(|s| {
+            pack.find(s)
+                .map(|_| mesh_from_pack(pack, s).map(|g| (s.clone(), g)))
+                .transpose()
+        })
+        .collect::<Result<_>>()?;
+    super::instanced::InstancedSvo::build(terrain.as_ref(), &models, &inst.items, opts)
+}
+
+/// The svo stage on a pack: the flattened `svo` section where the placed scene fits the
+/// budget, else the two-level `svo-scene` section (refused when neither fits), with the
+/// section's summary.
+pub fn pack_svo_section(
+    pack: &Pack,
+    opts: &super::voxelize::VoxelizeOptions,
+    limits: &Limits,
+    file: &Path,
+    source: &str,
+) -> Result<(crate::pack::Section, serde_json::Value)> {
+    let size = placed_size(pack)?;
+    size.check(SceneStage::Svo, limits, file)?;
+    if size.svo_two_level(limits) {
+        let two = pack_instanced_svo(pack, opts)?;
+        let sec = super::instanced_section::to_section(
+            super::instanced_section::KIND,
+            source,
+            &two,
+            opts.solid,
+        );
+        return Ok((sec, super::instanced_section::summary_of(&two)));
+    }
+    let geo = pack_geometry(pack)?;
+    let v = super::voxelize::mesh_to_voxels(&geo.mesh, &geo.textures, opts)?;
+    let svo = super::svo::voxels_to_svo(&v);
+    let sec = super::section::to_section(super::section::KIND, source, &svo, opts.solid);
+    Ok((sec, super::section::summary_of(&svo)))
 }
 
 /// [`PlacedSize`] of what [`pack_geometry`] would build from `pack`, from the sections'
@@ -289,6 +399,7 @@ pub fn placed_size(pack: &Pack) -> Result<PlacedSize> {
     let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
         // Without instances every mesh is taken once.
         let mut size = PlacedSize::of_scene(terrain, &[], &[]);
+        size.two_level_bytes = u64::MAX;
         let names: Vec<String> = pack
             .of_kind(crate::mesh::section::KIND)
             .map(|e| e.name.clone())

@@ -10,6 +10,9 @@
 pub mod compute;
 pub mod geometry;
 pub mod gpu;
+pub mod instanced;
+pub mod instanced_gpu;
+pub mod instanced_section;
 pub mod lod_gpu;
 pub mod lod_trace;
 pub mod packed;

@@ -1,0 +1,462 @@
+//! The two-level SVO against independent oracles: the flattened single-level SVO of the same
+//! scene (bit-equal where the two voxelize the same triangles in the same grid), the brute-force
+//! minimum over every instance (the top grid loses nothing), and brute-force ray/triangle and
+//! point/triangle tests on the placed triangles (the stated bound where a rotated, scaled model's
+//! voxels differ from the flattened scene's).
+
+use super::*;
+use crate::model::{Mesh, Terrain};
+use crate::rng::Rng;
+use crate::voxel::geometry::{place_instance, procedural_blob, terrain_mesh};
+use crate::voxel::svo::voxels_to_svo;
+use crate::voxel::tests::box_mesh;
+use crate::voxel::traverse::trace_svo;
+use crate::voxel::voxelize::mesh_to_voxels;
+
+fn geo(mesh: Mesh) -> Geometry {
+    Geometry {
+        mesh,
+        textures: Vec::new(),
+    }
+}
+
+fn inst(model: u32, position: [f32; 3], scale: f32, rotation_deg: f32) -> Instance {
+    Instance {
+        model,
+        position,
+        scale,
+        rotation_deg,
+        layer: 0,
+    }
+}
+
+fn wavy_terrain() -> Terrain {
+    let (w, h) = (17u32, 13u32);
+    let heights = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f32, (i / w) as f32);
+            0.4 * (0.7 * x).sin() + 0.3 * (0.5 * y).cos()
+        })
+        .collect();
+    Terrain {
+        width: w,
+        height: h,
+        heights,
+        origin: [-8.0, -6.0],
+        extent: [16.0, 12.0],
+        color: None,
+    }
+}
+
+/// The flattened scene, as `geometry::pack_geometry` builds it.
+fn flattened(terrain: Option<&Geometry>, models: &[Geometry], instances: &[Instance]) -> Geometry {
+    let mut g = Geometry::default();
+    if let Some(t) = terrain {
+        g.append(t.clone());
+    }
+    for i in instances {
+        g.append(place_instance(&models[i.model as usize], i));
+    }
+    g
+}
+
+fn named(models: &[Geometry]) -> Vec<Option<(String, Geometry)>> {
+    models
+        .iter()
+        .enumerate()
+        .map(|(i, m)| Some((format!("mesh:{i}"), m.clone())))
+        .collect()
+}
+
+/// World ray → the flattened SVO's voxel ray (the same `t`).
+fn flat_trace(svo: &Svo, o: [f32; 3], d: [f32; 3]) -> Option<([u32; 3], f32)> {
+    let g = &svo.grid;
+    let r = VoxelRay {
+        origin: g.to_grid(o),
+        dir: [0, 1, 2].map(|k| d[k] / g.voxel_size[k]),
+        t_min: 0.0,
+        t_max: f32::INFINITY,
+    };
+    trace_svo(svo, &r).map(|h| (h.voxel, h.t))
+}
+
+fn normalize(v: [f32; 3]) -> [f32; 3] {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    v.map(|x| x / l)
+}
+
+/// Rays from around the scene's box towards random points inside it.
+fn rays(rng: &mut Rng, lo: [f32; 3], hi: [f32; 3], n: usize) -> Vec<([f32; 3], [f32; 3])> {
+    (0..n)
+        .map(|_| {
+            let target = [0, 1, 2].map(|k| rng.range(lo[k], hi[k]));
+            let c = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+            let r = (0..3).map(|k| hi[k] - lo[k]).fold(0.0f32, f32::max);
+            let dir = normalize([
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 0.6),
+            ]);
+            let o = [0, 1, 2].map(|k| c[k] - dir[k] * 1.5 * r + (target[k] - c[k]) * 0.5);
+            (o, dir)
+        })
+        .collect()
+}
+
+#[test]
+fn one_instance_at_the_identity_is_the_flattened_svo_bit_for_bit() {
+    let model = geo(procedural_blob(24, 12));
+    let instances = [inst(0, [0.0; 3], 1.0, 0.0)];
+    let opts = VoxelizeOptions::surface(48);
+    let two = InstancedSvo::build(
+        None,
+        &named(std::slice::from_ref(&model)),
+        &instances,
+        &opts,
+    )
+    .unwrap();
+    let flat = flattened(None, std::slice::from_ref(&model), &instances);
+    let fv = mesh_to_voxels(&flat.mesh, &flat.textures, &opts).unwrap();
+    let fsvo = voxels_to_svo(&fv);
+    assert_eq!(two.scene_grid, fsvo.grid);
+    assert_eq!(
+        two.models[0].svo, fsvo,
+        "same grid, same triangles: same octree"
+    );
+    let mut rng = Rng::new(7);
+    let (lo, hi) = flat.mesh.bounds().unwrap();
+    let mut hits = 0;
+    for (o, d) in rays(&mut rng, lo, hi, 2000) {
+        let a = two
+            .trace(o, d, [0.0, f32::INFINITY])
+            .map(|h| (h.voxel, h.t));
+        let b = flat_trace(&fsvo, o, d);
+        assert_eq!(a, b, "ray {o:?} {d:?}");
+        hits += a.is_some() as usize;
+    }
+    assert!(hits > 500, "the rays hit the model ({hits})");
+}
+
+#[test]
+fn the_terrain_is_the_flattened_terrain_bit_for_bit() {
+    let terrain = wavy_terrain();
+    let t = terrain_mesh(&terrain);
+    let opts = VoxelizeOptions::surface(64);
+    let two = InstancedSvo::build(Some(&terrain), &[], &[], &opts).unwrap();
+    let fsvo = voxels_to_svo(&mesh_to_voxels(&t.mesh, &t.textures, &opts).unwrap());
+    assert!(two.terrain);
+    assert_eq!(two.models[0].svo, fsvo);
+    let (lo, hi) = t.mesh.bounds().unwrap();
+    let mut rng = Rng::new(3);
+    for (o, d) in rays(&mut rng, lo, hi, 2000) {
+        let a = two
+            .trace(o, d, [0.0, f32::INFINITY])
+            .map(|h| (h.voxel, h.t));
+        assert_eq!(a, flat_trace(&fsvo, o, d));
+    }
+}
+
+/// A few instances of two models, rotated and scaled, on a terrain.
+fn scene() -> (Terrain, Vec<Geometry>, Vec<Instance>) {
+    let t = wavy_terrain();
+    let models = vec![
+        geo(procedural_blob(20, 10)),
+        geo(box_mesh([-0.4, -0.2, 0.0], [0.4, 0.2, 1.5])),
+    ];
+    let mut rng = Rng::new(11);
+    let instances = (0..14)
+        .map(|i| {
+            let (x, y) = (rng.range(-7.0, 7.0), rng.range(-5.0, 5.0));
+            inst(
+                i % 2,
+                [x, y, rng.range(0.0, 1.0)],
+                rng.range(0.5, 1.8),
+                rng.range(-180.0, 180.0),
+            )
+        })
+        .collect();
+    (t, models, instances)
+}
+
+#[test]
+fn the_top_grid_finds_the_nearest_of_all_instances() {
+    let (t, models, instances) = scene();
+    let two = InstancedSvo::build(
+        Some(&t),
+        &named(&models),
+        &instances,
+        &VoxelizeOptions::surface(96),
+    )
+    .unwrap();
+    assert!(two.top.cells() > 1, "a grid, not one cell: {:?}", two.top);
+    let (lo, hi) = flattened(Some(&terrain_mesh(&t)), &models, &instances)
+        .mesh
+        .bounds()
+        .unwrap();
+    let mut rng = Rng::new(5);
+    let mut instance_hits = 0;
+    for (o, d) in rays(&mut rng, lo, hi, 3000) {
+        let got = two.trace(o, d, [0.0, f32::INFINITY]);
+        // Oracle: every instance traced on its own, nearest first, ties to the lower number.
+        let want = (0..two.instances.len())
+            .filter_map(|i| two.trace_instance(i, o, d, [0.0, f32::INFINITY]))
+            .min_by(|a, b| a.t.total_cmp(&b.t).then(a.instance.cmp(&b.instance)));
+        assert_eq!(got, want, "ray {o:?} {d:?}");
+        instance_hits += got.is_some_and(|h| (h.instance as usize) < two.grid_instances()) as usize;
+    }
+    assert!(
+        instance_hits > 300,
+        "rays reach the instances ({instance_hits})"
+    );
+}
+
+fn ray_triangle(o: [f32; 3], d: [f32; 3], tri: [[f32; 3]; 3]) -> Option<f32> {
+    let o = o.map(|x| x as f64);
+    let d = d.map(|x| x as f64);
+    let v = tri.map(|p| p.map(|x| x as f64));
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let (e1, e2) = (sub(v[1], v[0]), sub(v[2], v[0]));
+    let p = cross(d, e2);
+    let det = dot(e1, p);
+    if det.abs() < 1e-12 {
+        return None;
+    }
+    let s = sub(o, v[0]);
+    let u = dot(s, p) / det;
+    let q = cross(s, e1);
+    let w = dot(d, q) / det;
+    let t = dot(e2, q) / det;
+    (u >= 0.0 && w >= 0.0 && u + w <= 1.0 && t >= 0.0).then_some(t as f32)
+}
+
+/// Distance from `p` to the triangle (closest point by Ericson's region test, in f64).
+fn point_triangle(p: [f32; 3], tri: [[f32; 3]; 3]) -> f32 {
+    let p = p.map(|x| x as f64);
+    let [a, b, c] = tri.map(|q| q.map(|x| x as f64));
+    let sub = |x: [f64; 3], y: [f64; 3]| [x[0] - y[0], x[1] - y[1], x[2] - y[2]];
+    let dot = |x: [f64; 3], y: [f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+    let at = |o: [f64; 3], e: [f64; 3], s: f64| [o[0] + e[0] * s, o[1] + e[1] * s, o[2] + e[2] * s];
+    let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
+    let (d1, d2) = (dot(ab, ap), dot(ac, ap));
+    let q = if d1 <= 0.0 && d2 <= 0.0 {
+        a
+    } else {
+        let bp = sub(p, b);
+        let (d3, d4) = (dot(ab, bp), dot(ac, bp));
+        let cp = sub(p, c);
+        let (d5, d6) = (dot(ab, cp), dot(ac, cp));
+        let (vc, vb, va) = (d1 * d4 - d3 * d2, d5 * d2 - d1 * d6, d3 * d6 - d5 * d4);
+        if d3 >= 0.0 && d4 <= d3 {
+            b
+        } else if d6 >= 0.0 && d5 <= d6 {
+            c
+        } else if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+            at(a, ab, d1 / (d1 - d3))
+        } else if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+            at(a, ac, d2 / (d2 - d6))
+        } else if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+            at(b, sub(c, b), (d4 - d3) / ((d4 - d3) + (d5 - d6)))
+        } else {
+            let den = 1.0 / (va + vb + vc);
+            let (v, w) = (vb * den, vc * den);
+            [0, 1, 2].map(|k| a[k] + ab[k] * v + ac[k] * w)
+        }
+    };
+    let e = sub(p, q);
+    dot(e, e).sqrt() as f32
+}
+
+/// The stated bound (docs/CONVENTIONS.md, "Instanced SVO"): a rotated, scaled model voxelized in
+/// its own frame covers other cells than the flattened scene's voxels, so hits are not equal;
+/// both structures report a hit on every ray that meets a triangle, no later than the triangle
+/// (the voxel holding the hit point is occupied), and each hit point lies within one diagonal of
+/// its voxel from a placed triangle (a voxel is occupied only where a triangle touches it).
+#[test]
+fn rotated_scaled_instances_keep_the_bound_against_the_triangles_and_the_flattened_svo() {
+    let (t, models, instances) = scene();
+    let opts = VoxelizeOptions::surface(96);
+    let two = InstancedSvo::build(Some(&t), &named(&models), &instances, &opts).unwrap();
+    let flat = flattened(Some(&terrain_mesh(&t)), &models, &instances);
+    let fsvo = voxels_to_svo(&mesh_to_voxels(&flat.mesh, &flat.textures, &opts).unwrap());
+    assert_eq!(
+        two.scene_grid, fsvo.grid,
+        "the scene gets the flattened resolution"
+    );
+    let v = fsvo.grid.voxel_size[0];
+    for m in &two.models {
+        assert!(m.svo.grid.voxel_size[0] > 0.0);
+    }
+    for r in &two.instances {
+        let vm = two.models[r.model as usize].svo.grid.voxel_size[0] * r.scale;
+        assert!(
+            vm <= v * (1.0 + 1e-5),
+            "an instance's voxel {vm} is no wider than {v}"
+        );
+    }
+    let tris: Vec<[[f32; 3]; 3]> = flat
+        .mesh
+        .indices
+        .iter()
+        .map(|t| t.map(|i| flat.mesh.positions[i as usize]))
+        .collect();
+    let diag = 3f32.sqrt() * v;
+    let (lo, hi) = flat.mesh.bounds().unwrap();
+    let mut rng = Rng::new(9);
+    let (mut both, mut same_voxel_t, mut surface_hits) = (0, 0, 0);
+    let mut worst = 0.0f32;
+    for (o, d) in rays(&mut rng, lo, hi, 1500) {
+        let exact = tris
+            .iter()
+            .filter_map(|&tri| ray_triangle(o, d, tri))
+            .fold(f32::INFINITY, f32::min);
+        let a = two.trace(o, d, [0.0, f32::INFINITY]);
+        let b = flat_trace(&fsvo, o, d);
+        let slack = 1e-4 * (1.0 + exact.abs());
+        if exact.is_finite() {
+            surface_hits += 1;
+            let a = a.unwrap_or_else(|| panic!("two-level misses a surface hit: {o:?} {d:?}"));
+            let b = b.unwrap_or_else(|| panic!("flattened misses a surface hit: {o:?} {d:?}"));
+            assert!(
+                a.t <= exact + slack,
+                "two-level {} after the surface {exact}",
+                a.t
+            );
+            assert!(
+                b.1 <= exact + slack,
+                "flattened {} after the surface {exact}",
+                b.1
+            );
+        }
+        for t_hit in a.map(|h| h.t).into_iter().chain(b.map(|h| h.1)) {
+            let p = [0, 1, 2].map(|k| o[k] + d[k] * t_hit);
+            let dist = tris
+                .iter()
+                .map(|&tri| point_triangle(p, tri))
+                .fold(f32::INFINITY, f32::min);
+            worst = worst.max(dist / diag);
+            assert!(
+                dist <= diag * 1.001 + 1e-4,
+                "hit {dist} m from the surface > {diag}"
+            );
+        }
+        if let (Some(a), Some(b)) = (a, b) {
+            both += 1;
+            same_voxel_t += ((a.t - b.1).abs() <= v) as usize;
+        }
+    }
+    assert!(surface_hits > 300, "rays meet the surface ({surface_hits})");
+    // Not an assertion of equality: the share of rays whose hits lie within a voxel of each
+    // other, to see that the two structures are the same scene (most rays).
+    assert!(
+        same_voxel_t * 10 >= both * 8,
+        "{same_voxel_t} of {both} hits within a voxel side (worst distance {worst} diagonals)"
+    );
+}
+
+#[test]
+fn memory_is_the_models_not_the_instances() {
+    let model = geo(procedural_blob(20, 10));
+    let opts = VoxelizeOptions::surface(64);
+    let few: Vec<Instance> = (0..4)
+        .map(|i| inst(0, [i as f32 * 3.0, 0.0, 0.0], 1.0, 30.0 * i as f32))
+        .collect();
+    let many: Vec<Instance> = (0..400)
+        .map(|i| {
+            inst(
+                0,
+                [(i % 20) as f32 * 3.0, (i / 20) as f32 * 3.0, 0.0],
+                1.0,
+                i as f32,
+            )
+        })
+        .collect();
+    let a = InstancedSvo::build(None, &named(std::slice::from_ref(&model)), &few, &opts).unwrap();
+    let b = InstancedSvo::build(None, &named(std::slice::from_ref(&model)), &many, &opts).unwrap();
+    // One octree either way; instances cost their 32-byte records and grid references.
+    assert_eq!(a.models.len(), 1);
+    assert_eq!(b.models.len(), 1);
+    assert_eq!(b.instances.len(), 400);
+    let refs = b.cell_instances.len();
+    assert!(refs < 400 * 9, "{refs} grid references for 400 instances");
+}
+
+#[test]
+fn the_section_round_trips() {
+    let (t, models, instances) = scene();
+    let two = InstancedSvo::build(
+        Some(&t),
+        &named(&models),
+        &instances,
+        &VoxelizeOptions::surface(48),
+    )
+    .unwrap();
+    let sec = super::super::instanced_section::to_section("svo-scene", "scene:x.eco", &two, false);
+    let view = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
+    let (meta, back) = super::super::instanced_section::from_section(&view).unwrap();
+    assert_eq!(meta.source, "scene:x.eco");
+    assert_eq!(back, two);
+    // A broken record is refused.
+    let mut bad = two.clone();
+    bad.instances[0].model = 99;
+    assert!(super::super::instanced_section::validate(&bad).is_err());
+    let mut bad = two.clone();
+    bad.cell_instances[0] = 999;
+    assert!(super::super::instanced_section::validate(&bad).is_err());
+}
+
+#[test]
+fn the_terrain_in_tiles_is_the_whole_terrain_bit_for_bit() {
+    let mut t = wavy_terrain();
+    // A colour map, so that colours differ between voxels.
+    t.color = Some(crate::model::Rgba8Image {
+        width: 8,
+        height: 8,
+        pixels: (0..64u32)
+            .map(|i| {
+                [
+                    (i * 37 % 256) as u8,
+                    (i * 11 % 256) as u8,
+                    (i * 5) as u8,
+                    255,
+                ]
+            })
+            .collect(),
+    });
+    let g = terrain_mesh(&t);
+    for res in [16, 64, 200] {
+        let opts = VoxelizeOptions::surface(res);
+        let (lo, hi) = g.mesh.bounds().unwrap();
+        assert_eq!(terrain_bounds(&t), Some((lo, hi)));
+        let grid = Grid::fit(lo, hi, res);
+        let whole = mesh_to_voxels_in(&g.mesh, &g.textures, &grid, &opts).unwrap();
+        for tile_cells in [1, 4, 30] {
+            let tiled = terrain_voxels(&t, &grid, &opts, tile_cells).unwrap();
+            assert_eq!(
+                tiled.bricks, whole.bricks,
+                "resolution {res}, tiles of {tile_cells}"
+            );
+            assert_eq!(tiled.colors, whole.colors);
+            assert_eq!(tiled.normals, whole.normals);
+        }
+    }
+}
+
+/// The test scene's two-level SVO at `resolution` (for the GPU test).
+pub(crate) fn test_scene(resolution: u32) -> InstancedSvo {
+    let (t, models, instances) = scene();
+    InstancedSvo::build(
+        Some(&t),
+        &named(&models),
+        &instances,
+        &VoxelizeOptions::surface(resolution),
+    )
+    .unwrap()
+}

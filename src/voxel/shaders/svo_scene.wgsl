@@ -1,0 +1,223 @@
+// First hit of a batch of world rays in the two-level SVO (the `svo-scene` section's arrays bound
+// as they are; src/voxel/instanced.rs): the terrain's octree, then a DDA over the top grid whose
+// cells list instances; each instance's octree is traced on the ray moved into its voxel units,
+// operation for operation as InstancedSvo::trace (an instance listed in several cells is traced
+// again, with the same answer, where the CPU remembers it). Output per ray: two vec4<u32>:
+// (instance, i, j, k) and (bits of t, 0, 0, 0); instance all ones on a miss.
+// Prepended: dda.wgsl and svo_common.wgsl.
+
+struct Params {
+    top_origin: vec3<f32>,
+    top_cell: f32,
+    top_dims: vec3<u32>,
+    count: u32,
+    stride: u32,
+    instances: u32,
+    terrain: u32,
+    // Index of cell_instances' first element in `cells` (cell count + 1).
+    list_base: u32,
+}
+
+struct Model {
+    origin: vec3<f32>,
+    inner_levels: u32,
+    voxel_size: vec3<f32>,
+    side: f32,
+    dims: vec3<u32>,
+    first_node: u32,
+    first_leaf: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+
+struct Inst {
+    position: vec3<f32>,
+    scale: f32,
+    cs: vec2<f32>,
+    model: u32,
+    reserved: u32,
+}
+
+struct GpuRay {
+    origin: vec3<f32>,
+    t_min: f32,
+    dir: vec3<f32>,
+    t_max: f32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> nodes: array<vec4<u32>>;
+@group(0) @binding(2) var<storage, read> leaves: array<u32>;
+@group(0) @binding(3) var<storage, read> models: array<Model>;
+@group(0) @binding(4) var<storage, read> insts: array<Inst>;
+// cell_start (cells + 1), then cell_instances.
+@group(0) @binding(5) var<storage, read> cells: array<u32>;
+@group(0) @binding(6) var<storage, read> rays: array<GpuRay>;
+@group(0) @binding(7) var<storage, read_write> hits: array<vec4<u32>>;
+
+const MAX_INNER: u32 = 10u;
+const MISS: vec4<u32> = vec4<u32>(0xffffffffu);
+
+fn trace_brick(r: GpuRay, mask: vec2<u32>, base: vec3<f32>, t0: f32, t1: f32, dims: vec3<u32>) -> vec4<u32> {
+    var dda = dda_new(r.origin, r.dir, base, 1.0, vec3<i32>(4), t0);
+    loop {
+        if (mask_bit(mask, slot_of(dda.c))) {
+            let vi = vec3<i32>(base) + dda.c;
+            let v = vec3<u32>(vi);
+            if (all(v < dims)) {
+                return vec4<u32>(v, bitcast<u32>(voxel_entry_t(r.origin, r.dir, r.t_min, v)));
+            }
+        }
+        if (dda_exit(dda) > t1 || !dda_advance(&dda, 4)) {
+            return MISS;
+        }
+    }
+    return MISS;
+}
+
+// svo_trace.wgsl's trace on model m (its nodes from m.first_node, its bytes from m.first_leaf).
+fn trace_model(m: Model, r: GpuRay) -> vec4<u32> {
+    let iv = box_interval(r.origin, r.dir, vec3<f32>(0.0), vec3<f32>(m.dims));
+    let t0 = max(iv.x, r.t_min);
+    let t1 = min(iv.y, r.t_max);
+    if (t0 > t1) {
+        return MISS;
+    }
+    var node: array<u32, MAX_INNER>;
+    var base: array<vec3<f32>, MAX_INNER>;
+    var cell: array<f32, MAX_INNER>;
+    var t: array<f32, MAX_INNER>;
+    var t_end: array<f32, MAX_INNER>;
+    var dda: array<Dda, MAX_INNER>;
+    var lv = 0u;
+    node[0] = 0u;
+    base[0] = vec3<f32>(0.0);
+    cell[0] = m.side / 4.0;
+    t[0] = t0;
+    t_end[0] = t1;
+    dda[0] = dda_new(r.origin, r.dir, base[0], cell[0], vec3<i32>(4), t0);
+    loop {
+        let nd = nodes[m.first_node + node[lv]];
+        let s = slot_of(dda[lv].c);
+        let exit = min(dda_exit(dda[lv]), t_end[lv]);
+        if (mask_bit(nd.xy, s)) {
+            let below = count_below(nd.xy, s);
+            let child = nd.z + below;
+            let cbase = base[lv] + vec3<f32>(dda[lv].c) * cell[lv];
+            if (lv + 1u == m.inner_levels) {
+                let h = trace_brick(r, brick_mask(m.first_leaf + nd.z, below), cbase, t[lv], exit, m.dims);
+                if (h.x != 0xffffffffu) {
+                    return h;
+                }
+            } else {
+                let c = cell[lv] / 4.0;
+                node[lv + 1u] = child;
+                base[lv + 1u] = cbase;
+                cell[lv + 1u] = c;
+                t[lv + 1u] = t[lv];
+                t_end[lv + 1u] = exit;
+                dda[lv + 1u] = dda_new(r.origin, r.dir, cbase, c, vec3<i32>(4), t[lv]);
+                lv += 1u;
+                continue;
+            }
+        }
+        loop {
+            var d = dda[lv];
+            let e = dda_exit(d);
+            let ex = min(e, t_end[lv]);
+            if (e > t_end[lv] || !dda_advance(&d, 4)) {
+                if (lv == 0u) {
+                    return MISS;
+                }
+                lv -= 1u;
+                continue;
+            }
+            dda[lv] = d;
+            t[lv] = ex;
+            break;
+        }
+    }
+    return MISS;
+}
+
+// InstancedSvo::ray_in + trace_instance: (voxel, t bits) or MISS.
+fn trace_instance(i: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> vec4<u32> {
+    let inst = insts[i];
+    let m = models[inst.model];
+    let c = inst.cs.x;
+    let s = inst.cs.y;
+    let q = o - inst.position;
+    let pm = vec3<f32>(c * q.x + s * q.y, -s * q.x + c * q.y, q.z) / inst.scale;
+    let dm = vec3<f32>(c * d.x + s * d.y, -s * d.x + c * d.y, d.z);
+    var r: GpuRay;
+    r.origin = (pm - m.origin) / m.voxel_size;
+    r.dir = dm / (inst.scale * m.voxel_size);
+    r.t_min = t0;
+    r.t_max = t1;
+    return trace_model(m, r);
+}
+
+fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
+    var best_i = 0xffffffffu;
+    var best = MISS;
+    if (params.terrain == 1u) {
+        let h = trace_instance(params.instances - 1u, w.origin, w.dir, w.t_min, w.t_max);
+        if (h.x != 0xffffffffu) {
+            best = h;
+            best_i = params.instances - 1u;
+        }
+    }
+    let cell = params.top_cell;
+    let o = (w.origin - params.top_origin) / cell;
+    let d = w.dir / cell;
+    let n = vec3<i32>(params.top_dims);
+    let iv = box_interval(o, d, vec3<f32>(0.0), vec3<f32>(params.top_dims));
+    let t0 = max(iv.x, w.t_min);
+    let t1 = min(iv.y, w.t_max);
+    if (t0 <= t1 && cells[params.list_base - 1u] > 0u) {
+        var dda = dda_new(o, d, vec3<f32>(0.0), 1.0, n, t0);
+        let k = max(max(n.x, n.y), n.z);
+        loop {
+            let ci = u32(dda.c.x) + params.top_dims.x * (u32(dda.c.y) + params.top_dims.y * u32(dda.c.z));
+            for (var e = cells[ci]; e < cells[ci + 1u]; e++) {
+                let i = cells[params.list_base + e];
+                var cap = w.t_max;
+                if (best_i != 0xffffffffu) {
+                    cap = bitcast<f32>(best.w);
+                }
+                let h = trace_instance(i, w.origin, w.dir, w.t_min, cap);
+                if (h.x != 0xffffffffu) {
+                    let ht = bitcast<f32>(h.w);
+                    let bt = bitcast<f32>(best.w);
+                    if (best_i == 0xffffffffu || ht < bt || (ht == bt && i < best_i)) {
+                        best = h;
+                        best_i = i;
+                    }
+                }
+            }
+            let exit = dda_exit(dda);
+            if ((best_i != 0xffffffffu && bitcast<f32>(best.w) < exit) || exit > t1) {
+                break;
+            }
+            if (!dda_advance(&dda, k) || dda.c.x >= n.x || dda.c.y >= n.y || dda.c.z >= n.z) {
+                break;
+            }
+        }
+    }
+    var out: array<vec4<u32>, 2>;
+    out[0] = vec4<u32>(best_i, best.x, best.y, best.z);
+    out[1] = vec4<u32>(best.w, 0u, 0u, 0u);
+    return out;
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = flat_index(gid, params.stride);
+    if (i >= params.count) {
+        return;
+    }
+    let h = trace_scene(rays[i]);
+    hits[2u * i] = h[0];
+    hits[2u * i + 1u] = h[1];
+}
