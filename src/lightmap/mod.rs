@@ -428,21 +428,9 @@ fn instance_sun_visibility(
     samples: u32,
     texel: u64,
 ) -> f32 {
-    let n = samples.max(1);
-    let (tx, bx) = crate::trace::frame(s);
-    let shift = cp_rotation(texel ^ 0x5u64 << 60);
-    let mut visible = 0;
-    for k in 0..n {
-        let (u1, u2) = hammersley(k, n);
-        let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
-        let r = SUN_RADIUS * u1.sqrt();
-        let phi = std::f32::consts::TAU * u2;
-        let d = (s + tx * (r * phi.cos()) + bx * (r * phi.sin())).normalize();
-        if reach.instance_hit(bvh, p, d).is_none() {
-            visible += 1;
-        }
-    }
-    visible as f32 / n as f32
+    disc_visibility(s, samples, texel, |d| {
+        reach.instance_hit(bvh, p, d).is_none()
+    })
 }
 
 /// Normal of the bilinear height field at (x, y) by central differences over one grid step.
@@ -563,6 +551,12 @@ fn bounce_radiance(
 
 /// Fraction of the sun's disc visible from p: stratified points on the disc, one shadow ray each.
 pub fn sun_visibility(bvh: &dyn SceneTracer, p: Vec3A, s: Vec3A, samples: u32, texel: u64) -> f32 {
+    disc_visibility(s, samples, texel, |d| !bvh.any_hit(&Ray::new(p, d, 1e-4)))
+}
+
+/// The share of `samples` stratified points on the sun's disc around `s` (rotated per texel)
+/// whose direction `open` says is unblocked.
+fn disc_visibility(s: Vec3A, samples: u32, texel: u64, open: impl Fn(Vec3A) -> bool) -> f32 {
     let n = samples.max(1);
     let (tx, bx) = crate::trace::frame(s);
     let shift = cp_rotation(texel ^ 0x5u64 << 60);
@@ -574,7 +568,7 @@ pub fn sun_visibility(bvh: &dyn SceneTracer, p: Vec3A, s: Vec3A, samples: u32, t
         let r = SUN_RADIUS * u1.sqrt();
         let phi = std::f32::consts::TAU * u2;
         let d = (s + tx * (r * phi.cos()) + bx * (r * phi.sin())).normalize();
-        if !bvh.any_hit(&Ray::new(p, d, 1e-4)) {
+        if open(d) {
             visible += 1;
         }
     }
