@@ -299,6 +299,15 @@ fn gltf_with_an_embedded_buffer_reads_back_alike() {
     );
 }
 
+/// `bake export PACK -o OUT EXTRA... --quiet`, which must succeed.
+fn export_ok(pack: &str, out: &str, extra: &[&str]) {
+    let mut args = vec!["export", pack, "-o", out];
+    args.extend_from_slice(extra);
+    args.push("--quiet");
+    let o = common::bake(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// The Khronos validator's package folder, or `None` (a skip; a failure under `CI`).
 fn validator() -> Option<PathBuf> {
     let dir = std::env::var_os("GLTF_VALIDATOR")
@@ -311,19 +320,11 @@ fn validator() -> Option<PathBuf> {
     if !node {
         return None;
     }
-    if !dir.join("package.json").is_file() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "the Khronos glTF validator is not in {}; scripts/install-gltf-validator.sh installs it",
-            dir.display()
-        );
-        eprintln!(
-            "SKIPPED: the Khronos glTF validator is not in {} (scripts/install-gltf-validator.sh)",
-            dir.display()
-        );
-        return None;
-    }
-    Some(dir)
+    common::installed(
+        &dir.join("package.json"),
+        "the Khronos glTF validator (scripts/install-gltf-validator.sh)",
+    )
+    .then_some(dir)
 }
 
 #[test]
@@ -335,25 +336,14 @@ fn the_khronos_validator_finds_no_errors() {
     let (pack, glb, _) = exported(dir.path(), "glb");
     // The same pack as JSON glTF with the buffer embedded.
     let gltf = dir.path().join("scene.gltf");
-    let o = common::bake(&[
-        "export",
-        pack.to_str().unwrap(),
-        "-o",
-        gltf.to_str().unwrap(),
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    export_ok(pack.to_str().unwrap(), gltf.to_str().unwrap(), &[]);
     // And with the light map baked into an unlit base colour.
     let lit = dir.path().join("lit.glb");
-    let o = common::bake(&[
-        "export",
+    export_ok(
         pack.to_str().unwrap(),
-        "-o",
         lit.to_str().unwrap(),
-        "--bake-light",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        &["--bake-light"],
+    );
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
     for file in [glb, gltf, lit] {
         let o = std::process::Command::new("node")
@@ -707,24 +697,11 @@ fn threejs() -> Option<(PathBuf, PathBuf)> {
     if !common::tool_available("node", "runs scripts/threejs/check.js") {
         return None;
     }
-    for (path, what) in [
-        (
-            dir.join("package.json"),
-            "three.js (scripts/install-threejs.sh)",
-        ),
-        (chromium.clone(), "Chromium (apt-get install chromium)"),
-    ] {
-        if !path.exists() {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "{what} is not at {}",
-                path.display()
-            );
-            eprintln!("SKIPPED: {what} is not at {}", path.display());
-            return None;
-        }
-    }
-    Some((dir, chromium))
+    let found = common::installed(
+        &dir.join("package.json"),
+        "three.js (scripts/install-threejs.sh)",
+    ) && common::installed(&chromium, "Chromium (apt-get install chromium)");
+    found.then_some((dir, chromium))
 }
 
 #[test]
@@ -736,15 +713,7 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     let d = dir.path();
     let pack = common::preview_fixture_pack(d);
     let p = |f: &str| d.join(f).to_str().unwrap().to_string();
-    let o = common::bake(&[
-        "export",
-        pack.to_str().unwrap(),
-        "-o",
-        &p("lit.glb"),
-        "--bake-light",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    export_ok(pack.to_str().unwrap(), &p("lit.glb"), &["--bake-light"]);
     // bake's own picture of the default view, its regions and its camera and exposure.
     let o = common::bake(&[
         "render",
@@ -804,30 +773,17 @@ fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
         .unwrap_or_else(|| {
             Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bpy-venv/bin/python")
         });
-    if !python.is_file() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "Blender's bpy is not at {}; scripts/install-bpy.sh installs it",
-            python.display()
-        );
-        eprintln!(
-            "SKIPPED: Blender's bpy is not at {} (scripts/install-bpy.sh)",
-            python.display()
-        );
+    if !common::installed(&python, "Blender's bpy (scripts/install-bpy.sh)") {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
     let (pack, plain, _) = exported(dir.path(), "glb");
     let lit = dir.path().join("lit.glb");
-    let o = common::bake(&[
-        "export",
+    export_ok(
         pack.to_str().unwrap(),
-        "-o",
         lit.to_str().unwrap(),
-        "--bake-light",
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        &["--bake-light"],
+    );
     let o = common::bake(&["dump", pack.to_str().unwrap(), "--json", "--full"]);
     common::json(&o);
     let dump = dir.path().join("dump.json");

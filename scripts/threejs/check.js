@@ -188,7 +188,14 @@ function launch() {
   c.stderr.on('data', (d) => { err = (err + d).slice(-4000); });
   c.on('error', (e) => finish(3, `check.js: cannot start ${a.chromium}: ${e}`));
   c.on('exit', (code) => {
-    fs.rmSync(profile, { recursive: true, force: true });
+    // Chromium's helper processes may still write into the profile after the browser exits
+    // (ENOTEMPTY seen once): retry, and leave a stray temporary folder rather than fail a
+    // check whose result is already in.
+    try {
+      fs.rmSync(profile, { recursive: true, force: true, maxRetries: 5, retryDelay: 200 });
+    } catch (e) {
+      process.stderr.write(`check.js: could not remove ${profile}: ${e.message}\n`);
+    }
     if (!finished && chrome === c) retryOr(`Chromium exited (${code}) before the page reported:\n${err}`);
   });
 }

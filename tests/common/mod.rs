@@ -158,6 +158,21 @@ pub fn tool_available(tool: &str, why: &str) -> bool {
     found
 }
 
+/// Whether `path` exists; if not, a skip with `what` (how to install it), or a failure under
+/// `CI` (`.ci/run` installs everything), as [`tool_available`] does for commands.
+pub fn installed(path: &std::path::Path, what: &str) -> bool {
+    let found = path.exists();
+    if !found {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "{what} is not at {}",
+            path.display()
+        );
+        eprintln!("SKIPPED: {what} is not at {}", path.display());
+    }
+    found
+}
+
 /// The fixture scene (`bake::fixtures::write_all` into `dir`) baked with the preview pipeline
 /// and no stage cache; returns the pack's path (`dir/scene.bake`).
 pub fn preview_fixture_pack(dir: &std::path::Path) -> std::path::PathBuf {
