@@ -5,9 +5,7 @@
 
 use bake::ingest::instances_section as instances;
 use bake::mesh::section as mesh;
-use bake::model::{
-    FloatImage, Instance, Instances, Material, Mesh, Rgba8Image, Terrain, TextureRef,
-};
+use bake::model::{FloatImage, Instance, Instances, Mesh, Rgba8Image, Terrain};
 use bake::pack::{Pack, PackWriter};
 use bake::render::{Lighting, RenderOptions, render_pack};
 use bake::sky::source_section as sky;
@@ -112,33 +110,6 @@ fn leaf_texture() -> Rgba8Image {
     }
 }
 
-/// A 1×1 m quad standing in the XZ plane (x ∈ [−½, ½], z ∈ [0, 1]), facing −Y; u runs with x,
-/// v = 0 at the top (z = 1).
-fn quad_mesh() -> Mesh {
-    Mesh {
-        positions: vec![
-            [-0.5, 0.0, 0.0],
-            [0.5, 0.0, 0.0],
-            [0.5, 0.0, 1.0],
-            [-0.5, 0.0, 1.0],
-        ],
-        normals: vec![[0.0, -1.0, 0.0]; 4],
-        uvs: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
-        indices: vec![[0, 1, 2], [0, 2, 3]],
-        triangle_materials: vec![0, 0],
-        materials: vec![Material {
-            diffuse: [1.0, 1.0, 1.0, 1.0],
-            color_map: Some(0),
-            ..Material::default()
-        }],
-        textures: vec![TextureRef {
-            name: "leaf.png".into(),
-            path: "leaf.png".into(),
-        }],
-        ..Mesh::default()
-    }
-}
-
 /// Instance 0 at (6, 10, 0), instance 1 at (14, 10, 0) turned 150° about +Z (still seen from
 /// its back, by the camera in the south); both scaled 4×.
 fn quad_instances() -> Instances {
@@ -163,7 +134,7 @@ fn insert_quad(w: &mut PackWriter) -> String {
     w.insert(mesh::to_section(
         &mesh_name,
         "test",
-        &quad_mesh(),
+        &common::leaf_card(),
         &[Some(leaf)],
     ));
     mesh_name
@@ -523,7 +494,7 @@ fn a_pack_with_only_a_mesh_renders_it_at_the_origin() {
     w.insert(mesh::to_section(
         &bake::mesh::section::mesh_section_name("quad"),
         "test",
-        &quad_mesh(),
+        &common::leaf_card(),
         &[Some(leaf)],
     ));
     let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "mesh.bake").unwrap();
@@ -557,7 +528,7 @@ fn a_corrupt_instance_record_is_an_invalid_input_error() {
     w.insert(mesh::to_section(
         &bake::mesh::section::mesh_section_name("quad"),
         "test",
-        &quad_mesh(),
+        &common::leaf_card(),
         &[None],
     ));
     let pack = Pack::from_bytes(&w.to_bytes().unwrap(), "bad.bake").unwrap();

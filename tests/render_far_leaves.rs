@@ -11,7 +11,7 @@
 
 use bake::ingest::instances_section as instances;
 use bake::mesh::section as mesh;
-use bake::model::{FloatImage, Instance, Instances, Material, Mesh, Rgba8Image, TextureRef};
+use bake::model::{FloatImage, Instance, Instances, Rgba8Image};
 use bake::pack::{Pack, PackWriter};
 use bake::render::{Lighting, RenderOptions, render_pack};
 use bake::sky::source_section as sky;
@@ -60,33 +60,6 @@ fn coverage0() -> f32 {
     t.pixels.iter().filter(|p| p[3] >= 128).count() as f32 / t.pixels.len() as f32
 }
 
-/// A 1×1 m card in the XZ plane (x ∈ [−½, ½], z ∈ [0, 1]) facing −Y, an authored white material
-/// of specular 0 (Lambertian) under the leaf texture.
-fn card() -> Mesh {
-    Mesh {
-        positions: vec![
-            [-0.5, 0.0, 0.0],
-            [0.5, 0.0, 0.0],
-            [0.5, 0.0, 1.0],
-            [-0.5, 0.0, 1.0],
-        ],
-        normals: vec![[0.0, -1.0, 0.0]; 4],
-        uvs: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
-        indices: vec![[0, 1, 2], [0, 2, 3]],
-        triangle_materials: vec![0, 0],
-        materials: vec![Material {
-            diffuse: [1.0, 1.0, 1.0, 1.0],
-            color_map: Some(0),
-            ..Material::default()
-        }],
-        textures: vec![TextureRef {
-            name: "leaf.png".into(),
-            path: "leaf.png".into(),
-        }],
-        ..Mesh::default()
-    }
-}
-
 fn jitter(k: u64) -> f32 {
     ((bake::rng::mix64(k) >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * JITTER
 }
@@ -115,7 +88,12 @@ fn base_sections(w: &mut PackWriter) {
     let leaf = bake::texture::source_section::texture_section_name("card", "leaf.png");
     w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
     let name = mesh::mesh_section_name("card");
-    w.insert(mesh::to_section(&name, "test", &card(), &[Some(leaf)]));
+    w.insert(mesh::to_section(
+        &name,
+        "test",
+        &common::leaf_card(),
+        &[Some(leaf)],
+    ));
     w.insert(instances::to_section("instances", &grid(), vec![name]));
     let black = FloatImage {
         width: 16,

@@ -173,6 +173,35 @@ pub fn installed(path: &std::path::Path, what: &str) -> bool {
     found
 }
 
+/// A 1×1 m card standing in the XZ plane (x ∈ [−½, ½], z ∈ [0, 1]) facing −Y; u runs with x,
+/// v = 0 at the top (z = 1); an authored white material of specular 0 (Lambertian) under the
+/// texture `leaf.png` (colour map 0).
+pub fn leaf_card() -> bake::model::Mesh {
+    use bake::model::{Material, Mesh, TextureRef};
+    Mesh {
+        positions: vec![
+            [-0.5, 0.0, 0.0],
+            [0.5, 0.0, 0.0],
+            [0.5, 0.0, 1.0],
+            [-0.5, 0.0, 1.0],
+        ],
+        normals: vec![[0.0, -1.0, 0.0]; 4],
+        uvs: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+        triangle_materials: vec![0, 0],
+        materials: vec![Material {
+            diffuse: [1.0, 1.0, 1.0, 1.0],
+            color_map: Some(0),
+            ..Material::default()
+        }],
+        textures: vec![TextureRef {
+            name: "leaf.png".into(),
+            path: "leaf.png".into(),
+        }],
+        ..Mesh::default()
+    }
+}
+
 /// The fixture scene (`bake::fixtures::write_all` into `dir`) baked with the preview pipeline
 /// and no stage cache; returns the pack's path (`dir/scene.bake`).
 pub fn preview_fixture_pack(dir: &std::path::Path) -> std::path::PathBuf {
