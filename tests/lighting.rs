@@ -202,14 +202,7 @@ fn envmap_of_an_instance_on_a_flat_ground_matches_the_analytic_projection() {
 fn envmaps_converge_to_a_brute_force_reference() {
     // A cluttered scene: boxes around the instance, a sun. Error against 32k samples shrinks with N.
     let (bvh, n) = cluttered();
-    let sc = EnvmapScene {
-        bvh: &bvh,
-        count: 1,
-        probe_height: vec![0.5],
-        albedo: vec![[0.6; 3]; n],
-        sky: linear_sky(1.0, 0.5),
-        sun: sun(),
-    };
+    let sc = cluttered_probe(&bvh, n);
     let reference = bake_envmaps(
         &sc,
         &EnvmapOptions {
@@ -296,6 +289,18 @@ fn envmaps_are_rotated_into_the_instance_frame_and_deterministic() {
 
 /// The cluttered scene of `envmaps_converge_to_a_brute_force_reference`: 12 discs around the
 /// instance at the origin, a flat ground, sky gradient and sun.
+/// One probe 0.5 m above the instance of [`cluttered`], albedo 0.6, a linear sky and the sun.
+fn cluttered_probe(bvh: &SceneBvh, n: usize) -> EnvmapScene<'_> {
+    EnvmapScene {
+        bvh,
+        count: 1,
+        probe_height: vec![0.5],
+        albedo: vec![[0.6; 3]; n],
+        sky: linear_sky(1.0, 0.5),
+        sun: sun(),
+    }
+}
+
 fn cluttered() -> (SceneBvh, usize) {
     let boxes = disc(1.0, 32);
     let mut inst = vec![at(0, [0.0, 0.0, 0.0])];
@@ -322,14 +327,7 @@ fn the_tracers_noise_covariance_matches_the_variance_across_independent_seeds() 
     // bands and the whole matrix agree within the sampling error of 2,000 draws (≤ 5 % for a
     // trace; tolerance 15 %, Frobenius 20 %).
     let (bvh, n) = cluttered();
-    let sc = EnvmapScene {
-        bvh: &bvh,
-        count: 1,
-        probe_height: vec![0.5],
-        albedo: vec![[0.6; 3]; n],
-        sky: linear_sky(1.0, 0.5),
-        sun: sun(),
-    };
+    let sc = cluttered_probe(&bvh, n);
     let seeds = 2000u64;
     let (mut maps, mut diffs) = (Vec::new(), Vec::new());
     for s in 0..seeds {
@@ -473,14 +471,7 @@ fn the_sky_control_variate_is_unbiased_and_lowers_the_variance() {
     // integrates the unblocked sky almost exactly; the noise is at the visibility edges, which
     // the correction keeps).
     let (bvh, n) = cluttered();
-    let sc = EnvmapScene {
-        bvh: &bvh,
-        count: 1,
-        probe_height: vec![0.5],
-        albedo: vec![[0.6; 3]; n],
-        sky: linear_sky(1.0, 0.5),
-        sun: sun(),
-    };
+    let sc = cluttered_probe(&bvh, n);
     let seeds = 400;
     let draws = |cv: bool| -> Vec<Vec<f64>> {
         (0..seeds)
