@@ -31,14 +31,21 @@ struct Params {
     node_count: u32,
 }
 
-/// The shader's `GpuRay` (32 bytes).
+/// The shaders' `GpuRay` (32 bytes; svo_trace, svo_lod and svo_scene read the same layout).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct GpuRay {
-    origin: [f32; 3],
-    t_min: f32,
-    dir: [f32; 3],
-    t_max: f32,
+pub(super) struct GpuRay {
+    pub(super) origin: [f32; 3],
+    pub(super) t_min: f32,
+    pub(super) dir: [f32; 3],
+    pub(super) t_max: f32,
+}
+const _: () = assert!(size_of::<GpuRay>() == 32);
+
+/// Whether a GPU hit's t is off the CPU's by more than [`T_TOLERANCE`]·max(1, |t|) (NaN is off).
+pub(super) fn t_off(gpu_t: f32, cpu_t: f32) -> bool {
+    let err = (gpu_t - cpu_t).abs();
+    err > T_TOLERANCE * cpu_t.abs().max(1.0) || err.is_nan()
 }
 
 /// An octree resident on the GPU, with its traversal kernel.
@@ -226,9 +233,8 @@ pub fn compare_hits(gpu: &[Option<Hit>], cpu: &[Option<Hit>]) -> SvoAgreement {
             (None, None) => false,
             (Some(g), Some(c)) if g.voxel == c.voxel => {
                 a.hits += 1;
-                let err = (g.t - c.t).abs();
-                a.max_t_error = a.max_t_error.max(err);
-                let off = err > T_TOLERANCE * c.t.abs().max(1.0) || err.is_nan();
+                a.max_t_error = a.max_t_error.max((g.t - c.t).abs());
+                let off = t_off(g.t, c.t);
                 a.t_mismatches += off as usize;
                 off
             }

@@ -5,7 +5,7 @@
 //! compares it with the CPU on random world rays.
 
 use super::compute::{self, Kernel};
-use super::gpu::{DDA_WGSL, SVO_COMMON_WGSL, T_TOLERANCE};
+use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, t_off};
 use super::instanced::{InstanceHit, InstancedSvo};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
@@ -40,15 +40,6 @@ struct GpuModel {
     pad: [u32; 3],
 }
 const _: () = assert!(size_of::<GpuModel>() == 64);
-
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct GpuRay {
-    origin: [f32; 3],
-    t_min: f32,
-    dir: [f32; 3],
-    t_max: f32,
-}
 
 /// A world ray: origin, direction, [t_min, t_max].
 pub type WorldRay = ([f32; 3], [f32; 3], [f32; 2]);
@@ -232,9 +223,8 @@ pub fn validate_instanced(
             (Some(g), Some(c)) if g.instance == c.instance && g.voxel == c.voxel => {
                 a.hits += 1;
                 a.instance_hits += ((c.instance as usize) < s.grid_instances()) as usize;
-                let err = (g.t - c.t).abs();
-                a.max_t_error = a.max_t_error.max(err);
-                let off = err > T_TOLERANCE * c.t.abs().max(1.0) || err.is_nan();
+                a.max_t_error = a.max_t_error.max((g.t - c.t).abs());
+                let off = t_off(g.t, c.t);
                 a.t_mismatches += off as usize;
                 off
             }

@@ -5,7 +5,7 @@
 //! brick). [`compare_lod_hits`] measures its agreement with the CPU on the same rays.
 
 use super::compute::{self, Kernel};
-use super::gpu::{DDA_WGSL, SVO_COMMON_WGSL, T_TOLERANCE};
+use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, t_off};
 use super::lod_trace::LodHit;
 use super::svo::Svo;
 use super::traverse::VoxelRay;
@@ -30,17 +30,6 @@ struct Params {
     pad: [u32; 2],
 }
 const _: () = assert!(size_of::<Params>() == 48);
-
-/// The shader's `GpuRay` (32 bytes).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct GpuRay {
-    origin: [f32; 3],
-    t_min: f32,
-    dir: [f32; 3],
-    t_max: f32,
-}
-const _: () = assert!(size_of::<GpuRay>() == 32);
 
 /// An octree with its attributes resident on the GPU, with the LOD kernel.
 pub struct SvoLodGpu<'g> {
@@ -175,7 +164,7 @@ pub fn validation_cones(d: u32) -> [f32; 4] {
 
 /// The largest fraction of rays whose LOD answers may disagree before `bake validate` fails:
 /// a level choice `s ≤ cone · t` flips where t lands on the boundary and the GPU rounds a
-/// division differently (t within [`T_TOLERANCE`]); lavapipe measures 0.
+/// division differently (t within [`super::gpu::T_TOLERANCE`]); lavapipe measures 0.
 pub const LOD_MISMATCH_FRACTION: f64 = 1e-3;
 
 /// Agreement of GPU and CPU LOD traversal on the same rays.
@@ -222,13 +211,12 @@ pub fn compare_lod_hits(gpu: &[Option<LodHit>], cpu: &[Option<LodHit>]) -> LodAg
             (None, None) => false,
             (Some(g), Some(c)) if (g.level, g.cell) == (c.level, c.cell) => {
                 a.hits += 1;
-                let err = (g.t - c.t).abs();
-                a.max_t_error = a.max_t_error.max(err);
-                let t_off = err > T_TOLERANCE * c.t.abs().max(1.0) || err.is_nan();
+                a.max_t_error = a.max_t_error.max((g.t - c.t).abs());
+                let t_bad = t_off(g.t, c.t);
                 let attr_off = (g.color, g.normal) != (c.color, c.normal);
-                a.t_mismatches += usize::from(t_off);
+                a.t_mismatches += usize::from(t_bad);
                 a.attribute_mismatches += usize::from(attr_off);
-                t_off || attr_off
+                t_bad || attr_off
             }
             (Some(_), Some(_)) => {
                 a.cell_mismatches += 1;
