@@ -209,35 +209,6 @@ fn ambient_vertex(vertex: u32, instance: u32) -> AmbientVarying {
     return out;
 }
 
-// L_ambient of a mesh fragment: albedo = base colour × texel (linear), n the facing normal,
-// seen_front whether the viewer is on the vertex normals' side.
-fn ambient_mesh(
-    front: vec3<f32>,
-    back: vec3<f32>,
-    uv: vec2<f32>,
-    albedo: vec3<f32>,
-    n: vec3<f32>,
-    seen_front: bool,
-) -> vec3<f32> {
-    var l = vec3<f32>(0.0);
-    if (ambient.mode.x == AMBIENT_PRT) {
-        let t = ambient.albedo_scale_t.w;
-        var seen = front;
-        var other = back;
-        if (!seen_front) {
-            seen = back;
-            other = front;
-        }
-        let mixed = max(seen * (1.0 - t) + other * t, vec3<f32>(0.0));
-        l = mixed * albedo * ambient.albedo_scale_t.xyz;
-    } else if (ambient.mode.x == AMBIENT_LIGHT_MAP) {
-        l = albedo * max(light_map_bilinear(uv), vec3<f32>(0.0)) / PI;
-    } else {
-        l = albedo * max(sky_irradiance(n), vec3<f32>(0.0)) / PI;
-    }
-    return l * ambient.scale.x;
-}
-
 // L_ambient of the terrain at colour-map coordinates uv (row 0 north) with facing normal n.
 fn ambient_terrain(uv: vec2<f32>, albedo: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     var e = vec3<f32>(0.0);

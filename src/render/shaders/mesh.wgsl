@@ -138,10 +138,13 @@ fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
     let albedo = texel * material.base_color.rgb;
     let n = facing_normal(in.normal, in.world);
     let seen_front = dot(in.normal, globals.eye.xyz - in.world) >= 0.0;
-    if (direct_material.mode.x == 0.0) {
-        return ambient_mesh(in.ambient_front, in.ambient_back, in.light_map_uv, albedo, n, seen_front);
-    }
+    // A model without a material section is Lambertian: no top layer (colour 0 is no
+    // interface), opaque (PRT takes its translucence below), as `AmbientLayers::LAMBERT`.
     var m = schlick_from_record(direct_material.record);
+    if (direct_material.mode.x == 0.0) {
+        let none = SchlickLayer(1.0, 1.0, 0.0, 0.0, 0.0, vec3<f32>(0.0));
+        m = Schlick(none, none, 0.0);
+    }
     let v = dot(n, normalize(globals.eye.xyz - in.world));
     var e_seen = vec3<f32>(0.0);
     var e_other = vec3<f32>(0.0);
