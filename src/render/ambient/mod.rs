@@ -398,11 +398,7 @@ impl AmbientScene {
                 let env = &m.envs[h.instance];
                 let front = interp(&|v| side_radiance(prt, self.layout, v, env)[0]);
                 let back = interp(&|v| side_radiance(prt, self.layout, v, env)[1]);
-                let (seen, other) = if h.seen_front {
-                    (front, back)
-                } else {
-                    (back, front)
-                };
+                let (seen, other) = seen_other([front, back], h.seen_front);
                 // The transfer has the folded albedo in; `k` turns it into E/π.
                 let k = prt.albedo_scale(h.material);
                 let layers = AmbientLayers {

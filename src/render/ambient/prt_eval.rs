@@ -115,14 +115,24 @@ pub fn decode_packed(p: &[[f32; 4]]) -> ([[f32; 3]; COEFFS], f32) {
     (out, p[0][3])
 }
 
-/// Eq. 4.8 for the side the viewer sees: `L_seen·(1 − t) + L_other·t`, clamped at 0.
-pub fn mix_sides(sides: [[f32; 3]; 2], t: f32, seen_front: bool) -> [f32; 3] {
-    let (seen, other) = if seen_front {
+/// The (seen, other) sides of `[front, back]` for a viewer on the front side or not.
+pub fn seen_other(sides: [[f32; 3]; 2], seen_front: bool) -> ([f32; 3], [f32; 3]) {
+    if seen_front {
         (sides[0], sides[1])
     } else {
         (sides[1], sides[0])
+    }
+}
+
+/// Eq. 4.8 for the side the viewer sees: `L_seen·(1 − t) + L_other·t`, clamped at 0: the
+/// runtime's [`super::reflect_ambient`] for a Lambertian surface of albedo 1 and translucence t.
+pub fn mix_sides(sides: [[f32; 3]; 2], t: f32, seen_front: bool) -> [f32; 3] {
+    let (seen, other) = seen_other(sides, seen_front);
+    let layers = super::AmbientLayers {
+        translucence: t,
+        ..super::AmbientLayers::LAMBERT
     };
-    std::array::from_fn(|c| (seen[c] * (1.0 - t) + other[c] * t).max(0.0))
+    super::reflect_ambient(&layers, [1.0; 3], seen, other, [0.0; 3])
 }
 
 /// Diffuse radiance of a surface of albedo ρ receiving irradiance E: ρ·E/π (E clamped at 0).
