@@ -8,6 +8,13 @@
 //! 8-bit output, L_leaf from a close view of one card), against a black sky, with MSAA (alpha to
 //! coverage) and without (the ordered-dither test). Before the fix both drew nothing; after it
 //! 0.97 (MSAA) and 0.95 of the analytic area on lavapipe.
+//!
+//! Far cards behind each other (the second test): six layers of touching cards, drawn far away
+//! (the dither path) and at 8× the resolution (cards 12 pixels wide, the plain alpha test of
+//! level-0 shapes: the leaves' union as the geometry has it), leaf coverage from the region
+//! image. With one dither threshold per pixel the far layers covered the pixels of one layer:
+//! 0.50 of the close-up's union (found by the ground-truth harness as see-through far crowns);
+//! 1.05 with the layers' dither offsets (lavapipe).
 
 use bake::ingest::instances_section as instances;
 use bake::mesh::section as mesh;
@@ -65,13 +72,20 @@ fn jitter(k: u64) -> f32 {
 }
 
 fn grid() -> Instances {
-    let items = (0..ROWS * COLS)
+    layered_grid(1, SPACING, 0.0)
+}
+
+/// `layers` copies of the jittered grid (`spacing` apart, jitter scaled with it), each
+/// `depth` metres behind the last.
+fn layered_grid(layers: u32, spacing: f32, depth: f32) -> Instances {
+    let jitter_scale = spacing / SPACING;
+    let items = (0..layers * ROWS * COLS)
         .map(|k| Instance {
             model: 0,
             position: [
-                (k % COLS) as f32 * SPACING + jitter(2 * k as u64),
-                0.0,
-                (k / COLS) as f32 * SPACING + jitter(2 * k as u64 + 1),
+                (k % COLS) as f32 * spacing + jitter(2 * k as u64) * jitter_scale,
+                (k / (ROWS * COLS)) as f32 * depth,
+                (k / COLS % ROWS) as f32 * spacing + jitter(2 * k as u64 + 1) * jitter_scale,
             ],
             scale: 1.0,
             rotation_deg: 0.0,
@@ -84,7 +98,7 @@ fn grid() -> Instances {
     }
 }
 
-fn base_sections(w: &mut PackWriter) {
+fn base_sections(w: &mut PackWriter, grid: &Instances) {
     let leaf = bake::texture::source_section::texture_section_name("card", "leaf.png");
     w.insert(texture::to_section(&leaf, "test", &leaf_texture()));
     let name = mesh::mesh_section_name("card");
@@ -94,7 +108,7 @@ fn base_sections(w: &mut PackWriter) {
         &common::leaf_card(),
         &[Some(leaf)],
     ));
-    w.insert(instances::to_section("instances", &grid(), vec![name]));
+    w.insert(instances::to_section("instances", grid, vec![name]));
     let black = FloatImage {
         width: 16,
         height: 8,
@@ -105,13 +119,17 @@ fn base_sections(w: &mut PackWriter) {
 
 /// The pack with the material stage's sections (processed mips, Schlick materials).
 fn build_pack() -> Pack {
+    build_pack_of(&grid())
+}
+
+fn build_pack_of(grid: &Instances) -> Pack {
     let mut w = PackWriter::new();
-    base_sections(&mut w);
+    base_sections(&mut w, grid);
     let raw = Pack::from_bytes(&w.to_bytes().unwrap(), "raw.bake").unwrap();
     let (sections, _) =
         bake::material::bake_materials(&raw, &bake::material::MaterialOptions::default()).unwrap();
     let mut w = PackWriter::new();
-    base_sections(&mut w);
+    base_sections(&mut w, grid);
     for s in sections {
         w.insert(s);
     }
@@ -176,4 +194,44 @@ fn far_leaf_cards_are_drawn_with_their_level_0_coverage() {
             "msaa {msaa}: drawn {drawn:.1} px of leaves, {want:.1} expected (ratio {ratio:.3})"
         );
     }
+}
+
+/// Leaf coverage (pixels) of the region image of a view along +Y from `dist` metres at `scale`
+/// times the test's resolution, 4× MSAA.
+fn leaf_pixels(pack: &Pack, centre: [f32; 3], dist: f32, scale: u32) -> f32 {
+    let mut o = options([centre[0], centre[1] - dist, centre[2]], centre, 4);
+    o.width = W * scale;
+    o.height = H * scale;
+    o.regions = true;
+    let out = render_pack(pack, &o).unwrap();
+    let reg = out.regions.expect("region image");
+    reg.pixels.iter().map(|p| p[2]).sum::<f32>() / (scale * scale) as f32
+}
+
+#[test]
+fn far_cards_behind_each_other_cover_as_their_union() {
+    const LAYERS: u32 = 6;
+    const SPACING_1: f32 = 1.0;
+    let pack = build_pack_of(&layered_grid(LAYERS, SPACING_1, 0.3));
+    let centre = [
+        (COLS - 1) as f32 * SPACING_1 / 2.0,
+        0.0,
+        (ROWS - 1) as f32 * SPACING_1 / 2.0 + 0.5,
+    ];
+    // Far: a card 1.5 pixels wide, between the 2×2 and 1×1 levels (the dither path); near the
+    // same view at 8× the resolution, a card 12 pixels wide (level 2, the plain alpha test).
+    let far = leaf_pixels(&pack, centre, DIST, 1);
+    let union = leaf_pixels(&pack, centre, DIST, 8);
+    let ratio = far / union;
+    // The analytic bound of independent layers: each card's share c₀ of the area it covers.
+    let c0 = coverage0();
+    eprintln!(
+        "{LAYERS} layers: far {far:.1} px, union at 8x {union:.1} px ({ratio:.3}); one layer's \
+         share {c0:.3}, independent layers {:.3}",
+        1.0 - (1.0 - c0).powi(LAYERS as i32)
+    );
+    assert!(
+        (0.9..=1.1).contains(&ratio),
+        "far layers cover {far:.1} px, their union {union:.1} px (ratio {ratio:.3})"
+    );
 }

@@ -15,6 +15,14 @@
 //! coverage of 0.45). The CPU reference's four rays test `mix(α ≥ ½, 1, t)` against `(s + ½)/4`
 //! for sample s, with the same pixel dither ([`AlphaTest`]). `mesh.wgsl` computes the same
 //! (`far_weight`, `bayer4`).
+//!
+//! The dither threshold is the pixel's shifted by a layer's offset ([`layer_dither`]): a
+//! multiple of 1/16 hashed from the fragment's distance to the eye in slabs of
+//! 1/[`LAYERS_PER_METRE`] metres. With one threshold per pixel, N far cards behind each other covered
+//! the same pixels as one (a coverage of c₀ where the leaves' union covers 1 − (1 − c₀)^N: a far
+//! crown drawn as a checkerboard the ground shows through, found by the ground-truth harness on
+//! the generated forest); shifted per slab, each layer still passes exactly its share of a 4×4
+//! block's thresholds, and layers at other depths pass independent shares.
 
 /// λ of a colour map of level-0 size `(w, h)` for the texture-coordinate derivatives
 /// `d = (∂u/∂x, ∂v/∂x, ∂u/∂y, ∂v/∂y)`: log₂ of the larger footprint side in level-0 texels (the
@@ -54,9 +62,16 @@ impl AlphaTest {
     /// Whether a hit of filtered alpha `alpha` (times the opacity) passes, for a colour map of
     /// level-0 coverage `far` at far weight `t` (see the module note).
     pub fn passes(&self, alpha: f32, far: f32, t: f32) -> bool {
+        self.passes_at(alpha, far, t, None)
+    }
+
+    /// [`AlphaTest::passes`] for a hit at `distance` metres from the eye: the dither threshold
+    /// shifted by the layer's offset ([`layer_dither`]), as `mesh.wgsl` tests a fragment.
+    pub fn passes_at(&self, alpha: f32, far: f32, t: f32, distance: Option<f32>) -> bool {
+        let dither = distance.map_or(self.dither, |d| layer_dither(self.dither, d));
         match self.sample {
-            None => hard_coverage(alpha, far, t) >= self.dither,
-            Some(s) => 1.0 + (far - 1.0) * t >= self.dither && hard_coverage(alpha, 1.0, t) >= s,
+            None => hard_coverage(alpha, far, t) >= dither,
+            Some(s) => 1.0 + (far - 1.0) * t >= dither && hard_coverage(alpha, 1.0, t) >= s,
         }
     }
 }
@@ -65,6 +80,30 @@ impl AlphaTest {
 pub fn bayer4(x: u32, y: u32) -> f32 {
     const M: [[u32; 4]; 4] = [[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]];
     (M[(y & 3) as usize][(x & 3) as usize] as f32 + 0.5) / 16.0
+}
+
+/// Dither layers per metre of distance from the eye (slabs of 2 cm): fragments further apart
+/// get independent dither offsets (a leaf card's layer in a crown is a few centimetres).
+pub const LAYERS_PER_METRE: f32 = 50.0;
+
+/// The dither threshold of a pixel's threshold `pixel` for a fragment `distance` metres from
+/// the eye: `pixel` plus `k/16` modulo 1, `k` the top four bits of a 32-bit integer hash
+/// (Wellons' lowbias32) of the slab `⌊distance · LAYERS_PER_METRE⌋`. The sum stays a multiple of 1/32,
+/// exact in `f32`, so `mesh.wgsl` computes the same bits.
+pub fn layer_dither(pixel: f32, distance: f32) -> f32 {
+    let slab = (distance.max(0.0) * LAYERS_PER_METRE).floor() as u32;
+    let k = lowbias32(slab) >> 28;
+    let x = pixel + k as f32 / 16.0;
+    if x >= 1.0 { x - 1.0 } else { x }
+}
+
+/// Chris Wellons' `lowbias32` integer hash (as in `mesh.wgsl`).
+pub fn lowbias32(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^ (x >> 16)
 }
 
 /// The fraction of level-0 texels of a colour chain whose alpha times `opacity` passes ½: the

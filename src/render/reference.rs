@@ -310,7 +310,8 @@ impl<'s, 'a> Reference<'s, 'a> {
                 mips.levels.len(),
                 super::coverage::mip_lambda((w, h), hit.uv_derivatives),
             );
-            if test.passes(alpha, mat.far_coverage, t) {
+            let distance = (Vec3A::from(hit.position) - ray.origin).length();
+            if test.passes_at(alpha, mat.far_coverage, t, Some(distance)) {
                 return Some(hit);
             }
             r = Ray::new(r.origin, r.dir, hit.t * (1.0 + 1e-6) + 1e-6);

@@ -200,6 +200,26 @@ fn bayer4(p: vec2<f32>) -> f32 {
     return (f32(m[y * 4u + x]) + 0.5) / 16.0;
 }
 
+// Wellons' lowbias32 integer hash (src/render/coverage.rs `lowbias32`).
+fn lowbias32(v: u32) -> u32 {
+    var x = v;
+    x = x ^ (x >> 16u);
+    x = x * 0x7feb352du;
+    x = x ^ (x >> 15u);
+    x = x * 0x846ca68bu;
+    return x ^ (x >> 16u);
+}
+
+// The dither threshold of the fragment at `world`: the pixel's, shifted by k/16 (modulo 1) with
+// k hashed from its 2 cm slab of distance to the eye, so far cards behind each other pass
+// independent shares of the pixels (src/render/coverage.rs `layer_dither`).
+fn layer_dither(p: vec2<f32>, world: vec3<f32>) -> f32 {
+    let slab = u32(floor(max(distance(globals.eye.xyz, world), 0.0) * 50.0));
+    let k = lowbias32(slab) >> 28u;
+    let x = bayer4(p) + f32(k) / 16.0;
+    return select(x, x - 1.0, x >= 1.0);
+}
+
 // Parallax mapping with offset limiting (Welch 2004; seed 000 §4.7.3), where
 // globals.cam_right.w is 1 (`bake render --parallax`) and the material has a height map: the
 // surface stands d = (2h − 1) · bump metres off the triangle, and the texture is read at the
@@ -261,12 +281,12 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
         // round a fraction down), the near ramp by alpha to coverage.
         let near = clamp((a - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
         coverage = mix(near, 1.0, t);
-        if (coverage <= 0.0 || mix(1.0, material.alpha.y, t) < bayer4(in.position.xy)) {
+        if (coverage <= 0.0 || mix(1.0, material.alpha.y, t) < layer_dither(in.position.xy, in.world)) {
             discard;
         }
     } else {
         let c = mix(select(0.0, 1.0, a >= 0.5), material.alpha.y, t);
-        if (c < bayer4(in.position.xy)) {
+        if (c < layer_dither(in.position.xy, in.world)) {
             discard;
         }
     }
