@@ -50,8 +50,9 @@ pub struct RenderArgs {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Also write the region image: per pixel the covered fraction of the terrain (R), of
-    /// opaque model surfaces (G) and of leaves (B: alpha-tested materials, and the impostors
-    /// and skeletons of models that have them); the sky is the rest. PNG (×255) or EXR.
+    /// opaque model surfaces (G) and of leaves (B: alpha-tested materials, impostor texels of
+    /// such a material, and the skeletons of models that have them); the sky is the rest. PNG
+    /// (×255) or EXR.
     #[arg(long)]
     pub regions: Option<PathBuf>,
     #[command(flatten)]

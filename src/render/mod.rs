@@ -217,7 +217,8 @@ pub struct RenderOutput {
     /// resolved HDR target (half floats, so the sun's disc may read +∞).
     pub linear: Option<crate::model::FloatImage>,
     /// With [`RenderOptions::regions`]: per pixel the covered fraction of each region, R the
-    /// terrain, G opaque model surfaces, B leaves (alpha-tested materials and impostors); the
+    /// terrain, G opaque model surfaces, B leaves (alpha-tested materials, impostor texels of
+    /// such a material, skeletons of models with leaves); the
     /// sky is 1 − R − G − B.
     pub regions: Option<crate::model::FloatImage>,
     pub adapter: AdapterSummary,

@@ -10,7 +10,7 @@ struct ImpostorParams {
     // xyz: centre of every view (model units), w: radius
     centre_radius: vec4<f32>,
     // x: grid N, y: texels per tile side, z: atlas side N·tile, w: 1 where the model has
-    // alpha-tested materials (the region pass's leaves)
+    // alpha-tested materials (the region pass's leaves where a texel names no material)
     grid_tile: vec4<u32>,
 };
 
@@ -223,10 +223,17 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
     if (texel.a < 0.5) {
         discard;
     }
-    if (region_pass()) {
-        return vec4<f32>(model_region(impostor.grid_tile.w != 0u), 1.0);
-    }
     let nt = textureLoad(atlas_normal, px, 0);
+    let k = u32(round(nt.a * 255.0));
+    if (region_pass()) {
+        // The texel's material names its region (a trunk is opaque, its crown leaves), as the
+        // meshes' pass counts them; the model's flag where the atlas names no material.
+        var leaves = impostor.grid_tile.w != 0u;
+        if (k < impostor_materials.count.x) {
+            leaves = impostor_materials.m[k].record[5].w != 0.0;
+        }
+        return vec4<f32>(model_region(leaves), 1.0);
+    }
     let nm = nt.xyz * 2.0 - 1.0;
     let c = in.rot.x;
     let s = in.rot.y;
@@ -248,7 +255,6 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
     let sun_tile = nearest_tile(model_dir(sun_dir, in.rot), impostor.grid_tile.x);
     let e_sun = impostor_tile_error(sun_tile, sun_dir, in.rot);
     let lit_at = surface + sun_dir * (in.radius * (e_eye + e_sun + 2.0 / 255.0));
-    let k = u32(round(nt.a * 255.0));
     if (k < impostor_materials.count.x && impostor_materials.m[k].mode.x != 0.0) {
         // The texel's material: its two layers under the sun and under the sky, with the atlas
         // albedo as the bottom layer's colour × colour map (record roughness, no normal map).
