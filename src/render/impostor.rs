@@ -28,9 +28,11 @@
 //!   surface point the depth atlas gives (the quad point moved by the depth along `w`), moved
 //!   towards the sun by the two tiles' angular error times the radius (the eye's tile and the
 //!   sun's tile see one point at depths that differ by up to that: without it an impostor
-//!   shadowed itself); the
-//!   ambient term is the sky's (albedo/π · E_sky(n) through the layers), since the mesh path's
-//!   per-instance ambient is per-vertex PRT, which an impostor has no vertices for.
+//!   shadowed itself); the ambient term is the instance's environment (albedo/π · E(n) through
+//!   the layers, E the cosine-convolved maps C_H + C_S of the instance to band 2, their radiance
+//!   in the mirror direction): the mesh path's PRT without the transfer, which an impostor has
+//!   no vertices to carry (no self-occlusion, but the terrain's and the neighbours' light and
+//!   shadow); the sky's for a model without PRT.
 //! - **Shadows:** impostor instances cast impostor shadows ([`draw_shadow`], the shadow pass's
 //!   one hook): a quad facing the sun with the view nearest the sun's direction in the model
 //!   frame, alpha-tested, each fragment at the depth of the surface point its depth texel gives
@@ -306,10 +308,13 @@ pub(super) fn draw(
         }
         if !bound {
             pass.set_pipeline(&pipe.pipeline);
-            if let Some(a) = &scene.ambient {
-                pass.set_bind_group(3, &a.terrain, &[]);
-            }
             bound = true;
+        }
+        // The model's ambient group (its instance maps, read by `vs_main`); the terrain's (the
+        // sky) where the model has none.
+        if let Some(a) = &scene.ambient {
+            let group = a.models.get(k).and_then(|l| l.first()?.first());
+            pass.set_bind_group(3, group.unwrap_or(&a.terrain), &[]);
         }
         pass.set_bind_group(1, &imp.bind_group, &[]);
         pass.set_vertex_buffer(0, frame.buffers[k].slice(..));

@@ -3,8 +3,8 @@
 // nearest the eye, textured with that view (src/lod/octa.rs; `nearest_tile` in impostor.rs is the CPU twin of `tile_of`
 // below: keep the two in step). Alpha test at 0.5 like mesh.wgsl, the atlas normal rotated to the
 // world lit by the sun (Lambert on the atlas albedo) with the shadow-map lookup of direct.wgsl at
-// the surface point the depth atlas gives, and the sky SH ambient (group 3 bound with the
-// terrain's ambient group: mode 2, the sun-free sky's irradiance).
+// the surface point the depth atlas gives, and the ambient of the instance's environment maps
+// (group 3: the model's first ambient group; the sky's where the model has no PRT).
 
 struct ImpostorParams {
     // xyz: centre of every view (model units), w: radius
@@ -53,6 +53,19 @@ struct ImpostorOut {
     @location(3) @interpolate(flat) rot: vec2<f32>,
     @location(4) @interpolate(flat) view_dir: vec3<f32>,
     @location(5) @interpolate(flat) radius: f32,
+    // the instance's index among its model's (its ambient maps) and rotation in degrees
+    // The environment's radiance SH, bands 0–2 (RGB of coefficient i at component i·3 + c of
+    // env0..env6): the instance's maps C_H + C_S (model frame, env_frame 1) where the model has
+    // PRT, else the sky's (world frame, env_frame 0). The vertex stage reads them, as the mesh
+    // path reads the maps per vertex (storage buffers are vertex-only on downlevel devices).
+    @location(6) @interpolate(flat) env0: vec4<f32>,
+    @location(7) @interpolate(flat) env1: vec4<f32>,
+    @location(8) @interpolate(flat) env2: vec4<f32>,
+    @location(9) @interpolate(flat) env3: vec4<f32>,
+    @location(10) @interpolate(flat) env4: vec4<f32>,
+    @location(11) @interpolate(flat) env5: vec4<f32>,
+    @location(12) @interpolate(flat) env6: vec4<f32>,
+    @location(13) @interpolate(flat) env_frame: u32,
 };
 
 // The tile of unit direction w (z < 0 clamped to the horizon), as octa.rs `tile_of`.
@@ -142,7 +155,60 @@ fn vs_main(v: ImpostorIn) -> ImpostorOut {
     if (dot(to_eye, to_eye) < 1e-20) {
         to_eye = vec3<f32>(0.0, 0.0, 1.0);
     }
-    return impostor_vertex(v, normalize(to_eye));
+    var out = impostor_vertex(v, normalize(to_eye));
+    var c: array<f32, 28>;
+    if (ambient.mode.x == AMBIENT_PRT) {
+        let m = v.instance_ref * 96u;
+        for (var i = 0u; i < 27u; i++) {
+            c[i] = instance_maps[m + i];
+        }
+        out.env_frame = 1u;
+    } else {
+        for (var i = 0u; i < 9u; i++) {
+            c[3u * i] = ambient.sky_radiance[i].r;
+            c[3u * i + 1u] = ambient.sky_radiance[i].g;
+            c[3u * i + 2u] = ambient.sky_radiance[i].b;
+        }
+        out.env_frame = 0u;
+    }
+    out.env0 = vec4<f32>(c[0], c[1], c[2], c[3]);
+    out.env1 = vec4<f32>(c[4], c[5], c[6], c[7]);
+    out.env2 = vec4<f32>(c[8], c[9], c[10], c[11]);
+    out.env3 = vec4<f32>(c[12], c[13], c[14], c[15]);
+    out.env4 = vec4<f32>(c[16], c[17], c[18], c[19]);
+    out.env5 = vec4<f32>(c[20], c[21], c[22], c[23]);
+    out.env6 = vec4<f32>(c[24], c[25], c[26], 0.0);
+    return out;
+}
+
+// The environment's radiance (weights 1) or irradiance (the cosine lobe's A_l = π, 2π/3, π/4)
+// towards unit world direction d, from the fragment's band-0–2 SH.
+fn impostor_env(in: ImpostorOut, d_world: vec3<f32>, irradiance: bool) -> vec3<f32> {
+    var d = d_world;
+    if (in.env_frame == 1u) {
+        d = model_dir(d_world, in.rot);
+    }
+    let y = sh_basis16(d);
+    let f = array<vec4<f32>, 7>(in.env0, in.env1, in.env2, in.env3, in.env4, in.env5, in.env6);
+    var e = vec3<f32>(0.0);
+    for (var i = 0u; i < 9u; i++) {
+        var k = 1.0;
+        if (irradiance) {
+            k = PI / 4.0;
+            if (i == 0u) {
+                k = PI;
+            } else if (i < 4u) {
+                k = 2.0 * PI / 3.0;
+            }
+        }
+        var rgb: vec3<f32>;
+        for (var ch = 0u; ch < 3u; ch++) {
+            let j = 3u * i + ch;
+            rgb[ch] = f[j / 4u][j % 4u];
+        }
+        e += rgb * (k * y[i]);
+    }
+    return e;
 }
 
 // The shadow pass (globals.view_proj is the sun's view): the quad faces the sun and shows the
@@ -262,13 +328,13 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
         m.bottom.color = vec3<f32>(1.0);
         let wo = normalize(globals.eye.xyz - surface);
         let direct = direct_schlick(m, albedo, n, any_tangent(n), n, lit_at);
-        let e_seen = max(sky_irradiance(n), vec3<f32>(0.0)) / PI;
-        let e_other = max(sky_irradiance(-n), vec3<f32>(0.0)) / PI;
-        let l_r = sky_radiance(2.0 * dot(n, wo) * n - wo);
+        let e_seen = max(impostor_env(in, n, true), vec3<f32>(0.0)) / PI;
+        let e_other = max(impostor_env(in, -n, true), vec3<f32>(0.0)) / PI;
+        let l_r = impostor_env(in, 2.0 * dot(n, wo) * n - wo, false);
         let amb = ambient_layered(m, dot(n, wo), albedo, e_seen, e_other, l_r) * ambient.scale.x;
         return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
     }
     let direct = direct_lambert(albedo, n, lit_at);
-    let amb = albedo * max(sky_irradiance(n), vec3<f32>(0.0)) / PI * ambient.scale.x;
+    let amb = albedo * max(impostor_env(in, n, true), vec3<f32>(0.0)) / PI * ambient.scale.x;
     return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
 }
