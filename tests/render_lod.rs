@@ -595,7 +595,7 @@ fn coverage(img: &bake::model::Rgba8Image, bg: &bake::model::Rgba8Image) -> (usi
 /// error, not the drawing's. `BAKE_IMPOSTOR_PNG=DIR` writes the three images.
 #[test]
 fn a_far_plant_drawn_as_impostor_covers_and_colours_like_full_detail() {
-    let [far, full, bg] = far_plant_views(false);
+    let [far, full, bg] = far_plant_views(false, Terms::All);
     let (n_far, c_far) = coverage(&far.image, &bg.image);
     let (n_full, c_full) = coverage(&full.image, &bg.image);
     let area = (n_far as f64 - n_full as f64).abs() / n_full as f64;
@@ -621,7 +621,7 @@ fn a_far_plant_drawn_as_impostor_covers_and_colours_like_full_detail() {
 /// about 66 % short). Bound: 15 %.
 #[test]
 fn a_far_plant_drawn_as_impostor_casts_a_shadow_like_full_detail() {
-    let [far, full, bg] = far_plant_views(true);
+    let [far, full, bg] = far_plant_views(true, Terms::All);
     assert!(far.stats.terrain_triangles > 0);
     let (n_far, _) = coverage(&far.image, &bg.image);
     let (n_full, _) = coverage(&full.image, &bg.image);
@@ -647,7 +647,7 @@ fn square_view(eye: glam::Vec3, target: glam::Vec3, w: u32, tau: f32) -> RenderO
 /// Renders of one fixture plant far enough for its impostor (τ just above its projected error)
 /// and at full detail (τ = 0), and the background (the plant behind the eye), from the centre
 /// direction of tile (1, 2), without or with the terrain.
-fn far_plant_views(terrain: bool) -> [bake::render::RenderOutput; 3] {
+fn far_plant_views(terrain: bool, terms: Terms) -> [bake::render::RenderOutput; 3] {
     use glam::Vec3;
     let dir = tempfile::tempdir().unwrap();
     let (base, name, meta, inst) = impostor_sections(dir.path());
@@ -684,7 +684,11 @@ fn far_plant_views(terrain: bool) -> [bake::render::RenderOutput; 3] {
     let wc = Vec3::new(cs * wc.x - sn * wc.y, sn * wc.x + cs * wc.y, wc.z) + Vec3::from(r.position);
     let wv = bake::render::impostor::model_view_direction(eye, wc, r.rotation_deg);
     assert_eq!(bake::render::impostor::nearest_tile(wv, imp.grid), (1, 2));
-    let opts = |tau: f32| square_view(eye, c, w, tau);
+    let opts = |tau: f32| RenderOptions {
+        terms,
+        linear: true,
+        ..square_view(eye, c, w, tau)
+    };
     let far = render_pack(&pack, &opts(tau)).unwrap();
     let full = render_pack(&pack, &opts(0.0)).unwrap();
     assert_eq!(far.stats.impostor_instances, 1, "{:?}", far.stats);
@@ -1034,5 +1038,42 @@ fn a_plant_below_its_skeleton_threshold_draws_its_lines_where_they_project() {
     assert!(
         hit as f64 >= 0.9 * steps as f64,
         "{hit} of {steps} steps along the segments drawn"
+    );
+}
+
+/// The plant's own shadow on itself in the direct term: the impostor's shadow-map lookup moves
+/// towards the sun past the impostor's own shadow (the two tiles' angular error × radius), which
+/// lost the crown's shadow on the trunk and the inner leaves; the atlas' view nearest the sun
+/// now gives it back (`impostor_self_visibility`). Mean linear radiance of the plant's pixels in
+/// the direct term, impostor against full detail.
+#[test]
+fn a_far_plant_drawn_as_impostor_shadows_itself_like_full_detail() {
+    let [far, full, bg] = far_plant_views(false, Terms::Direct);
+    let lum = |out: &bake::render::RenderOutput| {
+        let lin = out.linear.as_ref().expect("linear radiance");
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for ((p, b), l) in out
+            .image
+            .pixels
+            .iter()
+            .zip(&bg.image.pixels)
+            .zip(&lin.pixels)
+        {
+            if p != b {
+                sum += (0.2126 * l[0] + 0.7152 * l[1] + 0.0722 * l[2]) as f64;
+                n += 1;
+            }
+        }
+        (sum / n.max(1) as f64, n)
+    };
+    let ((l_far, n_far), (l_full, n_full)) = (lum(&far), lum(&full));
+    let ratio = l_far / l_full;
+    eprintln!(
+        "direct term: impostor {l_far:.4} over {n_far} px, full detail {l_full:.4} over {n_full} px ({ratio:.3})"
+    );
+    assert!(n_full > 500, "the plant covers {n_full} px");
+    assert!(
+        (0.9..=1.1).contains(&ratio),
+        "impostor / full detail direct {ratio:.3}"
     );
 }

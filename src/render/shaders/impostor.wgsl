@@ -55,8 +55,8 @@ struct ImpostorOut {
     @location(5) @interpolate(flat) radius: f32,
     // the instance's index among its model's (its ambient maps) and rotation in degrees
     // The environment's radiance SH, bands 0–2 (RGB of coefficient i at component i·3 + c of
-    // env0..env6): the instance's maps C_H + C_S (model frame, env_frame 1) where the model has
-    // PRT, else the sky's (world frame, env_frame 0). The vertex stage reads them, as the mesh
+    // env0..env6): the instance's maps C_H + C_S (model frame, env6.w = 1) where the model has
+    // PRT, else the sky's (world frame, env6.w = 0). The vertex stage reads them, as the mesh
     // path reads the maps per vertex (storage buffers are vertex-only on downlevel devices).
     @location(6) @interpolate(flat) env0: vec4<f32>,
     @location(7) @interpolate(flat) env1: vec4<f32>,
@@ -65,7 +65,8 @@ struct ImpostorOut {
     @location(10) @interpolate(flat) env4: vec4<f32>,
     @location(11) @interpolate(flat) env5: vec4<f32>,
     @location(12) @interpolate(flat) env6: vec4<f32>,
-    @location(13) @interpolate(flat) env_frame: u32,
+    // the impostor's centre in the world (its depths are measured from it)
+    @location(13) @interpolate(flat) centre: vec3<f32>,
 };
 
 // The tile of unit direction w (z < 0 clamped to the horizon), as octa.rs `tile_of`.
@@ -157,19 +158,19 @@ fn vs_main(v: ImpostorIn) -> ImpostorOut {
     }
     var out = impostor_vertex(v, normalize(to_eye));
     var c: array<f32, 28>;
+    c[27] = 0.0;
     if (ambient.mode.x == AMBIENT_PRT) {
         let m = v.instance_ref * 96u;
         for (var i = 0u; i < 27u; i++) {
             c[i] = instance_maps[m + i];
         }
-        out.env_frame = 1u;
+        c[27] = 1.0;
     } else {
         for (var i = 0u; i < 9u; i++) {
             c[3u * i] = ambient.sky_radiance[i].r;
             c[3u * i + 1u] = ambient.sky_radiance[i].g;
             c[3u * i + 2u] = ambient.sky_radiance[i].b;
         }
-        out.env_frame = 0u;
     }
     out.env0 = vec4<f32>(c[0], c[1], c[2], c[3]);
     out.env1 = vec4<f32>(c[4], c[5], c[6], c[7]);
@@ -177,7 +178,7 @@ fn vs_main(v: ImpostorIn) -> ImpostorOut {
     out.env3 = vec4<f32>(c[12], c[13], c[14], c[15]);
     out.env4 = vec4<f32>(c[16], c[17], c[18], c[19]);
     out.env5 = vec4<f32>(c[20], c[21], c[22], c[23]);
-    out.env6 = vec4<f32>(c[24], c[25], c[26], 0.0);
+    out.env6 = vec4<f32>(c[24], c[25], c[26], c[27]);
     return out;
 }
 
@@ -185,7 +186,7 @@ fn vs_main(v: ImpostorIn) -> ImpostorOut {
 // towards unit world direction d, from the fragment's band-0–2 SH.
 fn impostor_env(in: ImpostorOut, d_world: vec3<f32>, irradiance: bool) -> vec3<f32> {
     var d = d_world;
-    if (in.env_frame == 1u) {
+    if (in.env6.w != 0.0) {
         d = model_dir(d_world, in.rot);
     }
     let y = sh_basis16(d);
@@ -207,6 +208,13 @@ fn impostor_env(in: ImpostorOut, d_world: vec3<f32>, irradiance: bool) -> vec3<f
             rgb[ch] = f[j / 4u][j % 4u];
         }
         e += rgb * (k * y[i]);
+    }
+    // The sky's band 3 (its radiance only: the cosine lobe has none) from the uniform; the
+    // instance maps' band 3 is not passed (docs/MATERIALS.md).
+    if (!irradiance && in.env6.w == 0.0) {
+        for (var i = 9u; i < 16u; i++) {
+            e += ambient.sky_radiance[i].rgb * y[i];
+        }
     }
     return e;
 }
@@ -254,6 +262,7 @@ fn impostor_vertex(v: ImpostorIn, w_world: vec3<f32>) -> ImpostorOut {
     out.rot = vec2<f32>(c, s);
     out.view_dir = w_t;
     out.radius = radius;
+    out.centre = centre;
     return out;
 }
 
@@ -280,6 +289,38 @@ fn fs_shadow(in: ImpostorOut) -> @builtin(frag_depth) f32 {
     }
     let p = globals.view_proj * vec4<f32>(in.world - in.view_dir * atlas_delta(in, px), 1.0);
     return clamp(p.z / p.w, 0.0, 1.0);
+}
+
+// Whether the model itself lets the sun reach `surface` (world), from the atlas' view nearest
+// the sun: the surface point projected into that tile's image, and its depth along the tile's
+// direction against the first surface the tile saw there, with the tolerance `tol` (metres) of
+// the two tiles' angular error. The shadow map's lookup moves past the impostor's own shadow
+// (by the same tolerance), which loses the crown's shadow on its trunk and inner leaves; this
+// puts it back.
+fn impostor_self_visibility(in: ImpostorOut, surface: vec3<f32>, sun_tile: vec2<u32>, tol: f32) -> f32 {
+    let w_m = octa_tile_direction(sun_tile.x, sun_tile.y, impostor.grid_tile.x);
+    let right_m = view_right(w_m);
+    let up_m = cross(w_m, right_m);
+    let c = in.rot.x;
+    let s = in.rot.y;
+    let w = vec3<f32>(c * w_m.x - s * w_m.y, s * w_m.x + c * w_m.y, w_m.z);
+    let right = vec3<f32>(c * right_m.x - s * right_m.y, s * right_m.x + c * right_m.y, right_m.z);
+    let up = vec3<f32>(c * up_m.x - s * up_m.y, s * up_m.x + c * up_m.y, up_m.z);
+    let q = surface - in.centre;
+    let st = vec2<f32>(dot(q, right), dot(q, up)) / in.radius;
+    if (abs(st.x) >= 1.0 || abs(st.y) >= 1.0) {
+        return 1.0;
+    }
+    let tile = impostor.grid_tile.y;
+    let fc = clamp(floor((st.x * 0.5 + 0.5) * f32(tile)), 0.0, f32(tile - 1u));
+    let fr = clamp(floor((0.5 - st.y * 0.5) * f32(tile)), 0.0, f32(tile - 1u));
+    let px = vec2<i32>(sun_tile * tile + vec2<u32>(u32(fc), u32(fr)));
+    if (textureLoad(atlas_color, px, 0).a < 0.5) {
+        return 1.0;
+    }
+    let first = (textureLoad(atlas_depth, px, 0).r * 2.0 - 1.0) * in.radius;
+    let mine = dot(-q, w);
+    return select(1.0, 0.0, mine > first + tol);
 }
 
 @fragment
@@ -320,21 +361,27 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
     let e_eye = impostor_tile_error(in.tile, normalize(globals.eye.xyz - surface), in.rot);
     let sun_tile = nearest_tile(model_dir(sun_dir, in.rot), impostor.grid_tile.x);
     let e_sun = impostor_tile_error(sun_tile, sun_dir, in.rot);
-    let lit_at = surface + sun_dir * (in.radius * (e_eye + e_sun + 2.0 / 255.0));
+    let tol = in.radius * (e_eye + e_sun + 2.0 / 255.0);
+    let lit_at = surface + sun_dir * tol;
+    // The surface point is a point of the model (the eye tile's ray met it) up to the depth
+    // code's step; tested along the sun tile's own direction, the tolerance is that step and
+    // a texel's width (a sloped surface's depth across the texel it projects to).
+    let step = in.radius * (4.0 / 255.0 + 2.0 / f32(impostor.grid_tile.y));
+    let self_vis = impostor_self_visibility(in, surface, sun_tile, step);
     if (k < impostor_materials.count.x && impostor_materials.m[k].mode.x != 0.0) {
         // The texel's material: its two layers under the sun and under the sky, with the atlas
         // albedo as the bottom layer's colour × colour map (record roughness, no normal map).
         var m = schlick_from_record(impostor_materials.m[k].record);
         m.bottom.color = vec3<f32>(1.0);
         let wo = normalize(globals.eye.xyz - surface);
-        let direct = direct_schlick(m, albedo, n, any_tangent(n), n, lit_at);
+        let direct = direct_schlick(m, albedo, n, any_tangent(n), n, lit_at) * self_vis;
         let e_seen = max(impostor_env(in, n, true), vec3<f32>(0.0)) / PI;
         let e_other = max(impostor_env(in, -n, true), vec3<f32>(0.0)) / PI;
         let l_r = impostor_env(in, 2.0 * dot(n, wo) * n - wo, false);
         let amb = ambient_layered(m, dot(n, wo), albedo, e_seen, e_other, l_r) * ambient.scale.x;
         return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
     }
-    let direct = direct_lambert(albedo, n, lit_at);
+    let direct = direct_lambert(albedo, n, lit_at) * self_vis;
     let amb = albedo * max(impostor_env(in, n, true), vec3<f32>(0.0)) / PI * ambient.scale.x;
     return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
 }
