@@ -26,9 +26,11 @@
 //!   without layers or beyond the first 16: the sun by Lambert on the atlas albedo
 //!   with the shadow-map lookup of the mesh path (`sun_visibility` of direct.wgsl) at the
 //!   surface point the depth atlas gives (the quad point moved by the depth along `w`), moved
-//!   towards the sun by the two tiles' angular error times the radius (the eye's tile and the
-//!   sun's tile see one point at depths that differ by up to that: without it an impostor
-//!   shadowed itself); the ambient term is the instance's environment (albedo/π · E(n) through
+//!   towards the sun by the sun tile's angular error times the radius plus a depth step and a
+//!   texel (the shadow map's impostor, drawn from that tile, sees the point up to that far off:
+//!   without it an impostor shadowed itself), times the model's own shadow from the atlas'
+//!   view nearest the sun (the point projected into it, its depth along that view against the
+//!   first surface there, within a depth step and a texel); the ambient term is the instance's environment (albedo/π · E(n) through
 //!   the layers, E the cosine-convolved maps C_H + C_S of the instance to band 2, their radiance
 //!   in the mirror direction): the mesh path's PRT without the transfer, which an impostor has
 //!   no vertices to carry (no self-occlusion, but the terrain's and the neighbours' light and
