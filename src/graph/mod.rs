@@ -6,9 +6,10 @@
 //! `bittree`, `svo` and `linespace`. Units that do not read each other's sections run side by
 //! side on the rayon pool (the models' `prt` and `lod` beside the scene's units, the terrain
 //! `lightmap` beside `atlas` and `envmaps`), their sections, records and warnings put in the
-//! serial order's places, so the pack and the report do not depend on the thread count. Each unit is a pure function of the sections (or files) it
-//! reads and its options; its key ([`cache::KeyBuilder`]) hashes exactly those, so a hit in the
-//! stage cache ([`cache::Cache`]) maps the stored sections instead of computing them. Stages
+//! serial order's places, so the pack and the report do not depend on the thread count. Each
+//! unit is a pure function of the sections (or files) it reads and its options; its key
+//! ([`cache::KeyBuilder`]) hashes exactly those, so a hit in the stage cache
+//! ([`cache::Cache`]) maps the stored sections instead of computing them. Stages
 //! share one in-memory view of the sections produced so far ([`crate::pack::Pack::from_sections`],
 //! no encoding), the scene's trace structures are built once per bake and only if a lighting
 //! unit misses, and finished sections stream to the output's temporary file
