@@ -259,6 +259,15 @@ struct Deferred {
     slot: std::sync::Arc<std::sync::Mutex<Option<ModelResults>>>,
 }
 
+impl Deferred {
+    /// Whether one of the per-model units has failed.
+    fn failed(&self) -> bool {
+        self.slot
+            .lock()
+            .is_ok_and(|s| s.as_ref().is_some_and(|r| r.iter().any(|x| x.is_err())))
+    }
+}
+
 /// Indices into `done`, `rec.records` and `rec.warnings`.
 #[derive(Debug, Clone, Copy)]
 struct Place {
@@ -421,6 +430,10 @@ impl Graph<'_> {
     /// whose sections go before them still run.
     fn finish_sections(&mut self, sections: Vec<Section>) -> Result<()> {
         self.done.extend(sections);
+        if self.deferred.as_ref().is_some_and(Deferred::failed) {
+            // A model's unit failed: stop here; `build` returns that unit's error.
+            return Err(Error::runtime("a model's PRT or LOD unit failed"));
+        }
         self.take_deferred();
         if self.deferred.is_none() {
             self.flush()?;
@@ -800,7 +813,16 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     let ctxr = g.ctx;
     let ((), scene_done) = rayon::join(
         || {
-            let r: ModelResults = jobs.iter().map(|j| model_units(ctxr, p, j)).collect();
+            // Up to the first failure (the scene's units then stop at their next section).
+            let mut r: ModelResults = Vec::with_capacity(jobs.len());
+            for j in &jobs {
+                let one = model_units(ctxr, p, j);
+                let failed = one.is_err();
+                r.push(one);
+                if failed {
+                    break;
+                }
+            }
             if let Ok(mut s) = slot.lock() {
                 *s = Some(r);
             }
