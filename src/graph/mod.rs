@@ -280,6 +280,14 @@ struct Place {
 type ModelResults = Vec<Result<(Vec<Section>, Recorder)>>;
 
 impl Ctx<'_> {
+    /// Whether `key`'s unit has a cache entry (a hit unless the entry is damaged or its files
+    /// changed; nothing is read or removed).
+    fn has_entry(&self, key: &Key) -> bool {
+        self.cache
+            .as_ref()
+            .is_some_and(|c| c.entry_path(key).is_file())
+    }
+
     fn key(&self, stage: &str, version: u32, unit: &str) -> KeyBuilder {
         KeyBuilder::new(&self.version, stage, version, unit)
     }
@@ -1025,20 +1033,57 @@ fn scene_units(
     // The scene's trace structures, built once by the first lighting unit that misses (the
     // lock keeps units that run at the same time from building them twice).
     let trace = std::sync::OnceLock::new();
-    let building = std::sync::Mutex::new(());
     let traced = || -> Result<&(crate::trace::pack_scene::TraceScene, crate::lightmap::BakeLight)> {
         if let Some(t) = trace.get() {
             return Ok(t);
         }
-        let _guard = building.lock();
-        if trace.get().is_none() {
-            let light = crate::lightmap::scene_lighting(&view)?;
-            let ts = crate::trace::pack_scene::trace_scene(&view)?;
-            let _ = trace.set((ts, light));
-        }
+        let light = crate::lightmap::scene_lighting(&view)?;
+        let ts = crate::trace::pack_scene::trace_scene(&view)?;
+        let _ = trace.set((ts, light));
         Ok(trace.get().expect("set above"))
     };
     let lm = &p.lightmap;
+    let lm_key = {
+        let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode,
+            "visibility": lm.visibility, "horizon_lattice": lm.horizon_lattice});
+        keyed_tracer(&mut o, lm.tracer);
+        keyed("lightmap", versions::LIGHTMAP, "terrain", &o)
+    };
+    let atlas_key = {
+        let mut o = json!({"samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode, "max_instances": lm.max_instances, "atlas": lm.atlas});
+        keyed_tracer(&mut o, lm.tracer);
+        keyed("atlas", versions::ATLAS, "objects", &o)
+    };
+    // The env-map shards: instance range, unit name, key.
+    let mut shards = Vec::new();
+    if s.envmaps {
+        let n = scene.instances.items.len();
+        let shard = p.units.envmap_shard_instances.max(1) as usize;
+        let mut o = report_of(&p.envmaps);
+        if let Some(m) = o.as_object_mut() {
+            m.remove("tracer");
+        }
+        keyed_tracer(&mut o, p.envmaps.tracer);
+        for start in (0..n.max(1)).step_by(shard) {
+            let range = start..(start + shard).min(n);
+            let unit = format!("instances {}..{}", range.start, range.end);
+            let key = keyed("envmaps", versions::ENVMAPS, &unit, &o);
+            shards.push((range, unit, key));
+        }
+    }
+    // The trace structures are built here, before the units run side by side, when one of them
+    // has no cache entry. Built inside a unit (an entry found damaged or stale), a thread
+    // waiting on the build's own parallel jobs may take up the other units' queued job (rayon
+    // runs queued jobs while it waits) and ask for them again from within the build: so no
+    // lock, such a nested request builds its own (same) structures and the first kept wins.
+    let mut keys = [(s.lightmap, &lm_key), (s.atlas, &atlas_key)]
+        .into_iter()
+        .filter(|(on, _)| *on)
+        .map(|(_, k)| k)
+        .chain(shards.iter().map(|(_, _, k)| k));
+    if keys.any(|k| !ctx.has_entry(k)) {
+        traced()?;
+    }
     // The terrain light map runs beside the object light maps and the environment maps (all
     // read the same trace structures, none reads another's output); their records and
     // sections go in this order whichever finishes first.
@@ -1046,11 +1091,7 @@ fn scene_units(
         if !s.lightmap {
             return Ok(Vec::new());
         }
-        let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode,
-            "visibility": lm.visibility, "horizon_lattice": lm.horizon_lattice});
-        keyed_tracer(&mut o, lm.tracer);
-        let key = keyed("lightmap", versions::LIGHTMAP, "terrain", &o);
-        ctx.unit(rec, "lightmap", "terrain", key, None, |_| {
+        ctx.unit(rec, "lightmap", "terrain", lm_key, None, |_| {
             let (ts, light) = traced()?;
             let s = crate::lightmap::terrain_sections(ts, light, lm)?;
             Ok(Output {
@@ -1063,10 +1104,7 @@ fn scene_units(
     let objects_and_envmaps = |rec: &mut Recorder| -> Result<Vec<Section>> {
         let mut out = Vec::new();
         if s.atlas {
-            let mut o = json!({"samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode, "max_instances": lm.max_instances, "atlas": lm.atlas});
-            keyed_tracer(&mut o, lm.tracer);
-            let key = keyed("atlas", versions::ATLAS, "objects", &o);
-            out.extend(ctx.unit(rec, "atlas", "objects", key, None, |_| {
+            out.extend(ctx.unit(rec, "atlas", "objects", atlas_key, None, |_| {
                 let (ts, light) = traced()?;
                 let s = crate::lightmap::object_sections(&view, ts, light, lm)?;
                 Ok(Output {
@@ -1077,21 +1115,11 @@ fn scene_units(
             })?);
         }
         if s.envmaps {
-            let n = scene.instances.items.len();
-            let shard = p.units.envmap_shard_instances.max(1) as usize;
             let mut maps = crate::envmap::bake::Traced::default();
-            let mut o = report_of(&p.envmaps);
-            if let Some(m) = o.as_object_mut() {
-                m.remove("tracer");
-            }
-            keyed_tracer(&mut o, p.envmaps.tracer);
-            for start in (0..n.max(1)).step_by(shard) {
-                let range = start..(start + shard).min(n);
-                let unit = format!("instances {}..{}", range.start, range.end);
-                let key = keyed("envmaps", versions::ENVMAPS, &unit, &o);
+            for (range, unit, key) in &shards {
                 let r = range.clone();
                 let shard_out =
-                    ctx.unit(rec, "envmaps", &unit, key, Some(range.len() as u64), |_| {
+                    ctx.unit(rec, "envmaps", unit, *key, Some(range.len() as u64), |_| {
                         let (ts, light) = traced()?;
                         let m = crate::envmap::instance_traced(ts, light, &p.envmaps, r.clone())?;
                         Ok(Output {
