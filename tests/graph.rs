@@ -494,3 +494,145 @@ fn pipeline_files_and_overrides_on_the_command_line() {
         "the pipeline file is a dependency"
     );
 }
+
+/// Bakes the fixture scene without a cache on a pool of `threads` threads.
+fn bake_on_threads(
+    dir: &Path,
+    threads: usize,
+    out: &str,
+    observer: &dyn bake::graph::progress::Observer,
+) -> BuildReport {
+    let mut o = opts(dir, out, &dir.join("unused-cache"));
+    o.cache = CacheMode::Off;
+    o.pipeline = Pipeline::default_pipeline();
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(|| build(&o, observer).unwrap())
+}
+
+/// Units run side by side on two threads (the models' PRT and LOD units beside the sky and the
+/// lighting; issue 37, item 3): the pack is the same bytes as on one thread, where they run in
+/// turn, and the report lists the same units in the same order (each model's ingest,
+/// material, prt, lod together, then the scene's units) with the same warnings.
+#[test]
+fn one_and_two_threads_bake_the_same_pack_and_report() {
+    let dir = scene();
+    let one = bake_on_threads(dir.path(), 1, "one.bake", &Silent);
+    let two = bake_on_threads(dir.path(), 2, "two.bake", &Silent);
+    let a = std::fs::read(dir.path().join("one.bake")).unwrap();
+    assert_eq!(a, std::fs::read(dir.path().join("two.bake")).unwrap());
+    assert_eq!(one.pack_blake3, two.pack_blake3);
+    assert_eq!(one.sections, two.sections);
+    let units = |r: &BuildReport| -> Vec<String> {
+        r.stages
+            .iter()
+            .map(|s| format!("{} {}", s.stage, s.unit))
+            .collect()
+    };
+    assert_eq!(units(&one), units(&two));
+    assert_eq!(
+        serde_json::to_value(&one.warnings).unwrap(),
+        serde_json::to_value(&two.warnings).unwrap()
+    );
+    // The serial order: per model its four units in a row; the sky after every model.
+    let u = units(&one);
+    let sky = u.iter().position(|x| x == "sky sky").unwrap();
+    for (i, x) in u.iter().enumerate() {
+        if let Some(model) = x.strip_prefix("ingest ") {
+            let want: Vec<String> = ["ingest", "material", "prt", "lod"]
+                .iter()
+                .map(|s| format!("{s} {model}"))
+                .collect();
+            assert_eq!(&u[i..i + 4], &want[..], "{u:?}");
+            assert!(i + 4 <= sky, "{u:?}");
+        }
+    }
+    assert!(u[sky..].iter().any(|x| x == "lightmap terrain"), "{u:?}");
+    // The sections in the pack keep that order: each model's PRT and LOD right after its mesh.
+    let pack = bake::pack::Pack::open(&dir.path().join("two.bake")).unwrap();
+    let names: Vec<&str> = pack.sections().iter().map(|e| e.name.as_str()).collect();
+    for (i, n) in names.iter().enumerate() {
+        if let Some(model) = n.strip_prefix("prt:") {
+            assert_eq!(names[i + 1], format!("lod:{model}"), "{names:?}");
+            let mesh = names
+                .iter()
+                .position(|m| *m == format!("mesh:{model}"))
+                .unwrap();
+            assert!(
+                names[mesh + 1..i]
+                    .iter()
+                    .all(|m| !m.starts_with("mesh:") && !m.starts_with("prt:")),
+                "{names:?}"
+            );
+        }
+    }
+    // Every unit's busy cores is its CPU over its wall time.
+    for s in &two.stages {
+        if s.wall_seconds > 0.01 {
+            let want = s.cpu_seconds / s.wall_seconds;
+            assert!((s.busy_cores - want).abs() <= 0.006, "{s:?}");
+        }
+    }
+}
+
+/// Progress events of units that run at the same time stay well formed: every unit starts
+/// once, reports progress only between its start and its end, and ends once (the terminal
+/// view keeps one line per running unit, keyed the same way).
+#[test]
+fn progress_events_of_concurrent_units_stay_well_formed() {
+    use std::sync::Mutex;
+    #[derive(Default)]
+    struct Events(Mutex<Vec<(char, String)>>);
+    impl bake::graph::progress::Observer for Events {
+        fn start(&self, stage: &str, unit: &str, _total: Option<u64>) {
+            self.0
+                .lock()
+                .unwrap()
+                .push(('s', format!("{stage} {unit}")));
+        }
+        fn progress(&self, stage: &str, unit: &str, _n: u64) {
+            self.0
+                .lock()
+                .unwrap()
+                .push(('p', format!("{stage} {unit}")));
+        }
+        fn end(&self, r: &bake::graph::StageRecord) {
+            self.0
+                .lock()
+                .unwrap()
+                .push(('e', format!("{} {}", r.stage, r.unit)));
+        }
+    }
+    let dir = scene();
+    let events = Events::default();
+    let report = bake_on_threads(dir.path(), 2, "p.bake", &events);
+    let events = events.0.into_inner().unwrap();
+    let mut running: BTreeSet<String> = BTreeSet::new();
+    let mut ended: BTreeSet<String> = BTreeSet::new();
+    let mut progressed = 0;
+    for (what, unit) in &events {
+        match what {
+            's' => assert!(
+                running.insert(unit.clone()) && !ended.contains(unit),
+                "{unit}"
+            ),
+            'p' => {
+                assert!(running.contains(unit), "progress outside its unit: {unit}");
+                progressed += 1;
+            }
+            _ => {
+                assert!(running.remove(unit), "{unit}");
+                ended.insert(unit.clone());
+            }
+        }
+    }
+    assert!(running.is_empty() && progressed > 0);
+    let recorded: BTreeSet<String> = report
+        .stages
+        .iter()
+        .map(|s| format!("{} {}", s.stage, s.unit))
+        .collect();
+    assert_eq!(ended, recorded);
+}

@@ -3,9 +3,13 @@
 //! Units run in data-flow order: the scene plan (ECO files, terrain, model names; always read),
 //! then per model `ingest` → `material` → `prt`, the `terrain` preparation, the `sky`, and the
 //! per-scene units `lightmap`, `atlas`, `envmaps` (in shards of instances), `cluster`,
-//! `bittree`, `svo` and `linespace`. Each unit is a pure function of the sections (or files) it
-//! reads and its options; its key ([`cache::KeyBuilder`]) hashes exactly those, so a hit in the
-//! stage cache ([`cache::Cache`]) maps the stored sections instead of computing them. Stages
+//! `bittree`, `svo` and `linespace`. Units that do not read each other's sections run side by
+//! side on the rayon pool (the models' `prt` and `lod` beside the scene's units, the terrain
+//! `lightmap` beside `atlas` and `envmaps`), their sections, records and warnings put in the
+//! serial order's places, so the pack and the report do not depend on the thread count. Each
+//! unit is a pure function of the sections (or files) it reads and its options; its key
+//! ([`cache::KeyBuilder`]) hashes exactly those, so a hit in the stage cache
+//! ([`cache::Cache`]) maps the stored sections instead of computing them. Stages
 //! share one in-memory view of the sections produced so far ([`crate::pack::Pack::from_sections`],
 //! no encoding), the scene's trace structures are built once per bake and only if a lighting
 //! unit misses, and finished sections stream to the output's temporary file
@@ -152,7 +156,11 @@ pub struct StageRecord {
     /// `bake report`).
     pub start_seconds: f64,
     pub wall_seconds: f64,
+    /// The process's CPU time (all threads) while the unit ran: units that run at the same
+    /// time each count their overlap.
     pub cpu_seconds: f64,
+    /// `cpu_seconds / wall_seconds`: how many cores were busy while the unit ran.
+    pub busy_cores: f64,
     pub outputs: Vec<String>,
     /// The stage's own report (counts).
     pub report: Value,
@@ -204,34 +212,93 @@ pub(crate) struct Output {
     pub(crate) files: Vec<FileDep>,
 }
 
-/// The running bake.
-struct Graph<'a> {
+/// What every unit reads and nothing changes while units run: units of different threads run
+/// against it at once.
+struct Ctx<'a> {
     cache: Option<Cache>,
     version: String,
     observer: &'a dyn Observer,
-    records: Vec<StageRecord>,
-    warnings: Vec<Warning>,
-    /// Every file read, by its real (canonical) path.
-    files: BTreeSet<PathBuf>,
     /// The location-independent names of the scene's files.
     names: SourceNames,
-    /// Every finished section, mapped from the output being written.
-    done: Vec<Section>,
-    out: StreamWriter,
     name: String,
     /// When the bake started.
     t0: Instant,
 }
 
-impl Graph<'_> {
+/// What units leave beside their sections: their records, warnings and the files they read.
+/// Units that run at the same time each fill their own, merged at fixed places afterwards, so
+/// the report's order never depends on which unit finished first.
+#[derive(Default)]
+struct Recorder {
+    records: Vec<StageRecord>,
+    warnings: Vec<Warning>,
+    /// Every file read, by its real (canonical) path.
+    files: BTreeSet<PathBuf>,
+}
+
+/// The running bake.
+struct Graph<'a> {
+    ctx: &'a Ctx<'a>,
+    rec: Recorder,
+    /// Every finished section in pack order (mapped from the output once written).
+    done: Vec<Section>,
+    /// Sections `done[..written]` are in the output.
+    written: usize,
+    /// Units that run beside the scene's units and whose sections go before sections that
+    /// are finished already: while set, finished sections wait in `done`.
+    deferred: Option<Deferred>,
+    out: StreamWriter,
+}
+
+/// The per-model units (PRT, LOD) run beside the scene's units ([`build`]): where their
+/// sections, records and warnings go, and where they arrive.
+struct Deferred {
+    /// Per model: its sections', records' and warnings' places (before the model's PRT).
+    places: Vec<Place>,
+    /// The per-model units' results, in model order, once all have run.
+    slot: std::sync::Arc<std::sync::Mutex<Option<ModelResults>>>,
+}
+
+impl Deferred {
+    /// Whether one of the per-model units has failed.
+    fn failed(&self) -> bool {
+        self.slot
+            .lock()
+            .is_ok_and(|s| s.as_ref().is_some_and(|r| r.iter().any(|x| x.is_err())))
+    }
+}
+
+/// Indices into `done`, `rec.records` and `rec.warnings`.
+#[derive(Debug, Clone, Copy)]
+struct Place {
+    section: usize,
+    record: usize,
+    warning: usize,
+}
+
+/// Every model's PRT and LOD units: their sections and what they recorded, in model order.
+type ModelResults = Vec<Result<(Vec<Section>, Recorder)>>;
+
+impl Ctx<'_> {
+    /// Whether `key`'s unit has a cache entry (a hit unless the entry is damaged or its files
+    /// changed; nothing is read or removed).
+    fn has_entry(&self, key: &Key) -> bool {
+        self.cache
+            .as_ref()
+            .is_some_and(|c| c.entry_path(key).is_file())
+    }
+
     fn key(&self, stage: &str, version: u32, unit: &str) -> KeyBuilder {
         KeyBuilder::new(&self.version, stage, version, unit)
     }
 
     /// Runs one unit: a cache hit (its files still hashing as recorded) maps the stored
-    /// sections; a miss computes them and stores them.
+    /// sections; a miss computes them and stores them. Its record, warnings and files go to
+    /// `rec`. `cpu_seconds` is the process's CPU time while the unit ran: where units run at
+    /// the same time each counts their overlap (`busy_cores` reads as the cores busy then).
     fn unit(
-        &mut self,
+        &self,
+        rec: &mut Recorder,
         stage: &str,
         unit: &str,
         key: Key,
@@ -256,7 +323,7 @@ impl Graph<'_> {
                     }
                 }
                 Lookup::Miss => {}
-                Lookup::Corrupt(why) => self.warnings.push(Warning::new(
+                Lookup::Corrupt(why) => rec.warnings.push(Warning::new(
                     &diag::CACHE_CORRUPT_ENTRY,
                     format!("{stage} {unit}"),
                     why,
@@ -294,7 +361,7 @@ impl Graph<'_> {
                         sections: o.sections.iter().map(|s| s.name.clone()).collect(),
                     };
                     if let Err(e) = cache.put(&key, &o.sections, &meta) {
-                        self.warnings.push(Warning::new(
+                        rec.warnings.push(Warning::new(
                             &diag::CACHE_WRITE_FAILED,
                             format!("{stage} {unit}"),
                             e.to_string(),
@@ -304,40 +371,131 @@ impl Graph<'_> {
                 (o.sections, o.report, warnings, o.files)
             }
         };
-        self.files.extend(
+        rec.files.extend(
             files
                 .iter()
                 .filter(|f| f.blake3.is_some())
                 .map(|f| confine::resolve(&f.path)),
         );
-        self.warnings.extend(warnings);
+        rec.warnings.extend(warnings);
         let (c1, _) = process_usage();
+        let wall_seconds = t0.elapsed().as_secs_f64();
+        let cpu_seconds = c1 - c0;
         let record = StageRecord {
             stage: stage.into(),
             unit: unit.into(),
             cache: status,
             start_seconds,
-            wall_seconds: t0.elapsed().as_secs_f64(),
-            cpu_seconds: c1 - c0,
+            wall_seconds,
+            cpu_seconds,
+            busy_cores: busy_cores(cpu_seconds, wall_seconds),
             outputs: sections.iter().map(|s| s.name.clone()).collect(),
             report,
         };
         self.observer.end(&record);
-        self.records.push(record);
+        rec.records.push(record);
         Ok(sections)
     }
+}
 
-    /// Writes finished sections to the output and keeps them (mapped) in the view.
+/// CPU seconds per wall second, rounded to 0.01 (0 for a unit too short to tell).
+fn busy_cores(cpu: f64, wall: f64) -> f64 {
+    if wall < 1e-3 {
+        0.0
+    } else {
+        (cpu / wall * 100.0).round() / 100.0
+    }
+}
+
+impl Recorder {
+    /// Appends another recorder's records and warnings after this one's.
+    fn append(&mut self, other: Recorder) {
+        self.records.extend(other.records);
+        self.warnings.extend(other.warnings);
+        self.files.extend(other.files);
+    }
+}
+
+impl Graph<'_> {
+    fn key(&self, stage: &str, version: u32, unit: &str) -> KeyBuilder {
+        self.ctx.key(stage, version, unit)
+    }
+
+    /// [`Ctx::unit`], recorded in this graph's order.
+    fn unit(
+        &mut self,
+        stage: &str,
+        unit: &str,
+        key: Key,
+        total: Option<u64>,
+        compute: impl FnOnce(&(dyn Fn(u64) + Sync)) -> Result<Output>,
+    ) -> Result<Vec<Section>> {
+        self.ctx
+            .unit(&mut self.rec, stage, unit, key, total, compute)
+    }
+
+    /// Keeps finished sections (in the view) and writes them to the output, unless units
+    /// whose sections go before them still run.
     fn finish_sections(&mut self, sections: Vec<Section>) -> Result<()> {
-        for s in sections {
-            let m = self.out.push_mapped(s)?;
-            self.done.push(m);
+        self.done.extend(sections);
+        if self.deferred.as_ref().is_some_and(Deferred::failed) {
+            // A model's unit failed: stop here; `build` returns that unit's error.
+            return Err(Error::runtime("a model's PRT or LOD unit failed"));
+        }
+        self.take_deferred();
+        if self.deferred.is_none() {
+            self.flush()?;
         }
         Ok(())
     }
 
+    /// Puts the deferred units' sections, records and warnings in their places once they have
+    /// all run without error (an error stays for [`build`] to return).
+    fn take_deferred(&mut self) {
+        let Some(d) = &self.deferred else {
+            return;
+        };
+        let results = {
+            let Ok(mut slot) = d.slot.lock() else {
+                return;
+            };
+            match slot.as_ref() {
+                Some(r) if r.iter().all(|x| x.is_ok()) => slot.take(),
+                _ => None,
+            }
+        };
+        let Some(results) = results else {
+            return;
+        };
+        let places = self.deferred.take().map(|d| d.places).unwrap_or_default();
+        // From the last model back, so that earlier places stay valid.
+        for (place, r) in places.iter().zip(results).rev() {
+            let Ok((sections, rec)) = r else {
+                continue;
+            };
+            self.done.splice(place.section..place.section, sections);
+            self.rec
+                .records
+                .splice(place.record..place.record, rec.records);
+            self.rec
+                .warnings
+                .splice(place.warning..place.warning, rec.warnings);
+            self.rec.files.extend(rec.files);
+        }
+    }
+
+    /// Writes the sections not written yet, in order, keeping their mapped copies in the view.
+    fn flush(&mut self) -> Result<()> {
+        for i in self.written..self.done.len() {
+            let s = self.done[i].clone();
+            self.done[i] = self.out.push_mapped(s)?;
+        }
+        self.written = self.done.len();
+        Ok(())
+    }
+
     fn view(&self) -> Pack {
-        Pack::from_sections(&self.done, &self.name)
+        Pack::from_sections(&self.done, &self.ctx.name)
     }
 
     fn hash_of(&self, name: &str) -> Option<[u8; 32]> {
@@ -489,24 +647,29 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     let names = ingest::eco::scene_names(first, &opts.ingest);
     // What the sections record as the scene's source: the first ECO file by name.
     let scene_source = SourceNames::first_name(first);
-    let mut g = Graph {
+    let ctx = Ctx {
         cache: cache_dir.clone().map(Cache::new),
         version,
         observer,
-        records: Vec::new(),
-        warnings: Vec::new(),
-        files: BTreeSet::new(),
         names,
-        done: Vec::new(),
-        out: StreamWriter::create(&output)?,
         name: first.display().to_string(),
         t0,
     };
-    g.files
+    let mut g = Graph {
+        ctx: &ctx,
+        rec: Recorder::default(),
+        done: Vec::new(),
+        written: 0,
+        deferred: None,
+        out: StreamWriter::create(&output)?,
+    };
+    g.rec
+        .files
         .extend(plan.files.iter().map(|f| confine::resolve(f)));
-    g.files
+    g.rec
+        .files
         .extend(opts.pipeline_file.iter().map(|f| confine::resolve(f)));
-    g.warnings.extend(plan.scene.warnings.iter().map(|m| {
+    g.rec.warnings.extend(plan.scene.warnings.iter().map(|m| {
         Warning::new(
             &diag::INGEST_ECO_OUTSIDE_AREA,
             first.display().to_string(),
@@ -523,7 +686,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             for s in &sections {
                 k.input(&s.name, s.payload.hash());
             }
-            let view = Pack::from_sections(&sections, &g.name);
+            let view = Pack::from_sections(&sections, &ctx.name);
             let out = g.unit("terrain", "terrain", k.finish(), None, |_| {
                 let (s, r) = crate::terrain::bake_terrain(&view)?;
                 Ok(Output {
@@ -537,12 +700,13 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         g.finish_sections(sections)?;
     }
 
-    // Per model: ingest, material, PRT. Models read under the scene's policy (roots and
-    // limits), which enters the ingest keys so that a hit never skips a refusal: the roots by
-    // their places relative to each other (what decides whether a reference from one reaches
-    // another), not where they lie, so that the same tree elsewhere hits the same entries.
+    // Per model: ingest, material, then (below) PRT and LOD. Models read under the scene's
+    // policy (roots and limits), which enters the ingest keys so that a hit never skips a
+    // refusal: the roots by their places relative to each other (what decides whether a
+    // reference from one reaches another), not where they lie, so that the same tree
+    // elsewhere hits the same entries.
     let policy = ingest::eco::scene_policy(first, &opts.ingest);
-    let policy_key = format!("{:?} {:?}", g.names.layout(), policy.limits);
+    let policy_key = format!("{:?} {:?}", ctx.names.layout(), policy.limits);
     let mut mesh_sections = Vec::new();
     let mut triangles = 0u64;
     // Each model's (vertices, triangles), for the placed scene's size.
@@ -567,16 +731,20 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         }
         Ok(())
     };
+    // What each model's PRT and LOD units read, and where their sections, records and
+    // warnings go (right after the model's own, as when every unit ran in turn).
+    let mut jobs = Vec::with_capacity(plan.models.len());
+    let mut places = Vec::with_capacity(plan.models.len());
     for (name, path) in &plan.models {
         let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
         mesh_sections.push(mesh_name.clone());
-        let source = g.names.name(path);
+        let source = ctx.names.name(path);
         let model_hash = cache::hash_file(path)?;
-        g.files.insert(confine::resolve(path));
+        g.rec.files.insert(confine::resolve(path));
         let mut k = g.key("ingest", versions::INGEST, name);
         k.options(&policy_key);
         k.input(&source, &model_hash);
-        let names = g.names.clone();
+        let names = ctx.names.clone();
         let mut sections = g.unit("ingest", name, k.finish(), None, |_| {
             ingest_model(name, path, &policy, &names)
         })?;
@@ -586,7 +754,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             for s in &sections {
                 k.input(&s.name, s.payload.hash());
             }
-            let view = Pack::from_sections(&sections, &g.name);
+            let view = Pack::from_sections(&sections, &ctx.name);
             let out = g.unit("material", name, k.finish(), None, |_| {
                 let (s, mut r) = crate::material::bake_materials(&view, &p.material)?;
                 let warnings = diag::tagged(
@@ -611,7 +779,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             })
             .map(|s| (s.name.clone(), *s.payload.hash()))
             .collect();
-        let view = Pack::from_sections(&sections, &g.name);
+        let view = Pack::from_sections(&sections, &ctx.name);
         let mesh_view = view.find(&mesh_name).and_then(|e| view.view(e).ok());
         let count = |array: &str| {
             mesh_view
@@ -623,52 +791,120 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         triangles += count("indices").unwrap_or(0);
         model_sizes.push(vertices.zip(count("indices")));
         check_placed(&model_sizes)?;
-        g.finish_sections(sections)?;
-        if p.stages.prt {
-            let mut k = g.key("prt", versions::PRT, name);
-            k.options(&p.prt);
-            for (n, h) in &prt_inputs {
-                k.input(n, h);
-            }
-            let out = g.unit("prt", name, k.finish(), vertices, |progress| {
-                let mut warnings = Vec::new();
-                let (s, r) =
-                    crate::prt::pack::prt_mesh(&view, &mesh_name, &p.prt, progress, &mut warnings)?;
-                Ok(Output {
-                    sections: vec![s],
-                    report: report_of(&r),
-                    warnings,
-                    ..Default::default()
-                })
-            })?;
-            g.finish_sections(out)?;
-        }
-        if p.stages.lod {
-            let mut k = g.key("lod", versions::LOD, name);
-            k.options(&p.lod);
-            for (n, h) in &prt_inputs {
-                k.input(n, h);
-            }
-            let out = g.unit("lod", name, k.finish(), None, |_| {
-                let (s, r) = crate::lod::bake_lod(&view, &mesh_name, &p.lod)?;
-                Ok(Output {
-                    sections: vec![s],
-                    report: report_of(&r),
-                    ..Default::default()
-                })
-            })?;
-            g.finish_sections(out)?;
-        }
+        // Written once the PRT and LOD sections of the models before it are.
+        g.done.extend(sections);
+        places.push(Place {
+            section: g.done.len(),
+            record: g.rec.records.len(),
+            warning: g.rec.warnings.len(),
+        });
+        jobs.push(ModelJob {
+            name,
+            mesh_name,
+            view,
+            prt_inputs,
+            vertices,
+        });
     }
     let instances = plan.scene.instances.items.len();
     check_placed(&model_sizes)?;
-    g.finish_sections(vec![crate::ingest::instances_section::to_section(
-        "instances",
-        &plan.scene.instances,
-        mesh_sections,
-    )])?;
 
-    // The sky (the built-in clear sky without --sky).
+    // The per-model PRT and LOD units run beside the scene's units (the instances, the sky,
+    // the lighting: none reads them), on the same thread pool, so both cores stay busy through
+    // the serial parts of either. Their sections, records and warnings go to their places, so
+    // the pack and the report are the same whichever finishes first (and on one thread).
+    let slot = std::sync::Arc::new(std::sync::Mutex::new(None));
+    g.deferred = Some(Deferred {
+        places,
+        slot: slot.clone(),
+    });
+    let ctxr = g.ctx;
+    let ((), scene_done) = rayon::join(
+        || {
+            // Up to the first failure (the scene's units then stop at their next section).
+            let mut r: ModelResults = Vec::with_capacity(jobs.len());
+            for j in &jobs {
+                let one = model_units(ctxr, p, j);
+                let failed = one.is_err();
+                r.push(one);
+                if failed {
+                    break;
+                }
+            }
+            if let Ok(mut s) = slot.lock() {
+                *s = Some(r);
+            }
+        },
+        || -> Result<()> {
+            g.finish_sections(vec![crate::ingest::instances_section::to_section(
+                "instances",
+                &plan.scene.instances,
+                mesh_sections,
+            )])?;
+            sky_unit(&mut g, opts)?;
+            scene_units(
+                &mut g,
+                p,
+                &plan.scene,
+                &scene_source,
+                &opts.ingest.limits,
+                first,
+            )
+        },
+    );
+    if g.deferred.is_some() {
+        // The scene's units ended first, or a model's unit failed (its error first).
+        let results = slot.lock().ok().and_then(|mut s| s.take());
+        let mut ok: ModelResults = Vec::new();
+        for r in results.unwrap_or_default() {
+            ok.push(Ok(r?));
+        }
+        if let Ok(mut s) = slot.lock() {
+            *s = Some(ok);
+        }
+        g.take_deferred();
+    }
+    scene_done?;
+    g.flush()?;
+
+    // The record of this build: its key and every file read (by name).
+    let files: Vec<PathBuf> = g.rec.files.iter().cloned().collect();
+    let deps: Vec<FileDep> = files.iter().map(|f| file_dep(f)).collect();
+    let deps = record_files(&ctx.names, &deps);
+    let build_key = build_key(opts, &ctx.version, &deps);
+    g.finish_sections(vec![build_section(&BuildMeta {
+        key: build_key.hex(),
+        files: deps,
+        models: plan.models.len() as u64,
+        instances: instances as u64,
+        triangles,
+    })])?;
+    let sections = g.done.len();
+    let bytes = g.out.file_size();
+    drop(g.done);
+    g.out.finish()?;
+    if let Some(d) = &opts.depfile {
+        write_depfile(d, &output, &files)?;
+    }
+    let pack_blake3 = Some(hex(&cache::hash_file(&output)?));
+    Ok(finish(BuildReport {
+        output,
+        sections,
+        bytes,
+        pack_blake3,
+        models: plan.models.len(),
+        instances,
+        triangles,
+        warnings: g.rec.warnings,
+        stages: g.rec.records,
+        files,
+        ..Default::default()
+    }))
+}
+
+/// The sky (the built-in clear sky without --sky).
+fn sky_unit(g: &mut Graph, opts: &BuildOptions) -> Result<()> {
+    let p = &opts.pipeline;
     if p.stages.sky {
         let mut k = g.key("sky", versions::SKY, "sky");
         k.options(&p.sky);
@@ -676,7 +912,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             Some(path) => {
                 // The sky's contents only: its output does not depend on where it lies.
                 k.input("--sky", &cache::hash_file(path)?);
-                g.files.insert(confine::resolve(path));
+                g.rec.files.insert(confine::resolve(path));
             }
             None => {
                 k.options(&format!("{:?}", crate::sky::builtin::BuiltinSky::default()));
@@ -702,48 +938,62 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         g.finish_sections(out)?;
     }
 
-    scene_units(
-        &mut g,
-        p,
-        &plan.scene,
-        &scene_source,
-        &opts.ingest.limits,
-        first,
-    )?;
+    Ok(())
+}
 
-    // The record of this build: its key and every file read (by name).
-    let files: Vec<PathBuf> = g.files.iter().cloned().collect();
-    let deps: Vec<FileDep> = files.iter().map(|f| file_dep(f)).collect();
-    let deps = record_files(&g.names, &deps);
-    let build_key = build_key(opts, &g.version, &deps);
-    g.finish_sections(vec![build_section(&BuildMeta {
-        key: build_key.hex(),
-        files: deps,
-        models: plan.models.len() as u64,
-        instances: instances as u64,
-        triangles,
-    })])?;
-    let sections = g.done.len();
-    let bytes = g.out.file_size();
-    drop(g.done);
-    g.out.finish()?;
-    if let Some(d) = &opts.depfile {
-        write_depfile(d, &output, &files)?;
+/// What a model's PRT and LOD units read.
+struct ModelJob<'a> {
+    name: &'a str,
+    mesh_name: String,
+    /// The model's own sections (mesh, textures, materials).
+    view: Pack,
+    /// The mesh and texture sections, by name and hash (the units' keys).
+    prt_inputs: Vec<(String, [u8; 32])>,
+    vertices: Option<u64>,
+}
+
+/// A model's PRT and LOD units (as the pipeline turns them on): their sections in pack order
+/// and what they recorded.
+fn model_units(ctx: &Ctx, p: &Pipeline, j: &ModelJob) -> Result<(Vec<Section>, Recorder)> {
+    let mut rec = Recorder::default();
+    let mut sections = Vec::new();
+    let (name, view, mesh_name) = (j.name, &j.view, &j.mesh_name);
+    if p.stages.prt {
+        let mut k = ctx.key("prt", versions::PRT, name);
+        k.options(&p.prt);
+        for (n, h) in &j.prt_inputs {
+            k.input(n, h);
+        }
+        let out = ctx.unit(&mut rec, "prt", name, k.finish(), j.vertices, |progress| {
+            let mut warnings = Vec::new();
+            let (s, r) =
+                crate::prt::pack::prt_mesh(view, mesh_name, &p.prt, progress, &mut warnings)?;
+            Ok(Output {
+                sections: vec![s],
+                report: report_of(&r),
+                warnings,
+                ..Default::default()
+            })
+        })?;
+        sections.extend(out);
     }
-    let pack_blake3 = Some(hex(&cache::hash_file(&output)?));
-    Ok(finish(BuildReport {
-        output,
-        sections,
-        bytes,
-        pack_blake3,
-        models: plan.models.len(),
-        instances,
-        triangles,
-        warnings: g.warnings,
-        stages: g.records,
-        files,
-        ..Default::default()
-    }))
+    if p.stages.lod {
+        let mut k = ctx.key("lod", versions::LOD, name);
+        k.options(&p.lod);
+        for (n, h) in &j.prt_inputs {
+            k.input(n, h);
+        }
+        let out = ctx.unit(&mut rec, "lod", name, k.finish(), None, |_| {
+            let (s, r) = crate::lod::bake_lod(view, mesh_name, &p.lod)?;
+            Ok(Output {
+                sections: vec![s],
+                report: report_of(&r),
+                ..Default::default()
+            })
+        })?;
+        sections.extend(out);
+    }
+    Ok((sections, rec))
 }
 
 /// The per-scene units: light maps, environment maps, clustering, BitTree, SVO, line space.
@@ -770,8 +1020,9 @@ fn scene_units(
         })
         .map(|x| (x.name.clone(), *x.payload.hash()))
         .collect();
-    let keyed = |g: &Graph, stage: &str, v: u32, unit: &str, opts: &Value| {
-        let mut k = g.key(stage, v, unit);
+    let ctx = g.ctx;
+    let keyed = |stage: &str, v: u32, unit: &str, opts: &Value| {
+        let mut k = ctx.key(stage, v, unit);
         k.options(opts);
         for (n, h) in &trace_inputs {
             k.input(n, h);
@@ -779,51 +1030,35 @@ fn scene_units(
         k.finish()
     };
     let view = g.view();
-    let trace = std::cell::OnceCell::new();
+    // The scene's trace structures, built once by the first lighting unit that misses (the
+    // lock keeps units that run at the same time from building them twice).
+    let trace = std::sync::OnceLock::new();
     let traced = || -> Result<&(crate::trace::pack_scene::TraceScene, crate::lightmap::BakeLight)> {
-        if trace.get().is_none() {
-            let light = crate::lightmap::scene_lighting(&view)?;
-            let ts = crate::trace::pack_scene::trace_scene(&view)?;
-            let _ = trace.set((ts, light));
+        if let Some(t) = trace.get() {
+            return Ok(t);
         }
+        let light = crate::lightmap::scene_lighting(&view)?;
+        let ts = crate::trace::pack_scene::trace_scene(&view)?;
+        let _ = trace.set((ts, light));
         Ok(trace.get().expect("set above"))
     };
     let lm = &p.lightmap;
-    if s.lightmap {
+    let lm_key = {
         let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode,
             "visibility": lm.visibility, "horizon_lattice": lm.horizon_lattice});
         keyed_tracer(&mut o, lm.tracer);
-        let key = keyed(g, "lightmap", versions::LIGHTMAP, "terrain", &o);
-        let out = g.unit("lightmap", "terrain", key, None, |_| {
-            let (ts, light) = traced()?;
-            let s = crate::lightmap::terrain_sections(ts, light, lm)?;
-            Ok(Output {
-                report: json!({"texels": texels(&s)}),
-                sections: s,
-                ..Default::default()
-            })
-        })?;
-        g.finish_sections(out)?;
-    }
-    if s.atlas {
+        keyed("lightmap", versions::LIGHTMAP, "terrain", &o)
+    };
+    let atlas_key = {
         let mut o = json!({"samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode, "max_instances": lm.max_instances, "atlas": lm.atlas});
         keyed_tracer(&mut o, lm.tracer);
-        let key = keyed(g, "atlas", versions::ATLAS, "objects", &o);
-        let out = g.unit("atlas", "objects", key, None, |_| {
-            let (ts, light) = traced()?;
-            let s = crate::lightmap::object_sections(&view, ts, light, lm)?;
-            Ok(Output {
-                report: json!({"atlases": s.len()}),
-                sections: s,
-                ..Default::default()
-            })
-        })?;
-        g.finish_sections(out)?;
-    }
+        keyed("atlas", versions::ATLAS, "objects", &o)
+    };
+    // The env-map shards: instance range, unit name, key.
+    let mut shards = Vec::new();
     if s.envmaps {
         let n = scene.instances.items.len();
         let shard = p.units.envmap_shard_instances.max(1) as usize;
-        let mut maps = crate::envmap::bake::Traced::default();
         let mut o = report_of(&p.envmaps);
         if let Some(m) = o.as_object_mut() {
             m.remove("tracer");
@@ -832,21 +1067,84 @@ fn scene_units(
         for start in (0..n.max(1)).step_by(shard) {
             let range = start..(start + shard).min(n);
             let unit = format!("instances {}..{}", range.start, range.end);
-            let key = keyed(g, "envmaps", versions::ENVMAPS, &unit, &o);
-            let r = range.clone();
-            let out = g.unit("envmaps", &unit, key, Some(range.len() as u64), |_| {
+            let key = keyed("envmaps", versions::ENVMAPS, &unit, &o);
+            shards.push((range, unit, key));
+        }
+    }
+    // The trace structures are built here, before the units run side by side, when one of them
+    // has no cache entry. Built inside a unit (an entry found damaged or stale), a thread
+    // waiting on the build's own parallel jobs may take up the other units' queued job (rayon
+    // runs queued jobs while it waits) and ask for them again from within the build: so no
+    // lock, such a nested request builds its own (same) structures and the first kept wins.
+    let mut keys = [(s.lightmap, &lm_key), (s.atlas, &atlas_key)]
+        .into_iter()
+        .filter(|(on, _)| *on)
+        .map(|(_, k)| k)
+        .chain(shards.iter().map(|(_, _, k)| k));
+    if keys.any(|k| !ctx.has_entry(k)) {
+        traced()?;
+    }
+    // The terrain light map runs beside the object light maps and the environment maps (all
+    // read the same trace structures, none reads another's output); their records and
+    // sections go in this order whichever finishes first.
+    let terrain_map = |rec: &mut Recorder| -> Result<Vec<Section>> {
+        if !s.lightmap {
+            return Ok(Vec::new());
+        }
+        ctx.unit(rec, "lightmap", "terrain", lm_key, None, |_| {
+            let (ts, light) = traced()?;
+            let s = crate::lightmap::terrain_sections(ts, light, lm)?;
+            Ok(Output {
+                report: json!({"texels": texels(&s)}),
+                sections: s,
+                ..Default::default()
+            })
+        })
+    };
+    let objects_and_envmaps = |rec: &mut Recorder| -> Result<Vec<Section>> {
+        let mut out = Vec::new();
+        if s.atlas {
+            out.extend(ctx.unit(rec, "atlas", "objects", atlas_key, None, |_| {
                 let (ts, light) = traced()?;
-                let m = crate::envmap::instance_traced(ts, light, &p.envmaps, r.clone())?;
+                let s = crate::lightmap::object_sections(&view, ts, light, lm)?;
                 Ok(Output {
-                    report: json!({"instances": m.maps.len(), "rays": m.maps.len() as u64 * p.envmaps.samples as u64}),
-                    sections: vec![shard_section(&m)],
+                    report: json!({"atlases": s.len()}),
+                    sections: s,
                     ..Default::default()
                 })
-            })?;
-            maps.extend(shard_maps(&out, range.len())?);
+            })?);
         }
-        g.finish_sections(vec![crate::envmap::envmaps_section(&maps, &p.envmaps)])?;
-    }
+        if s.envmaps {
+            let mut maps = crate::envmap::bake::Traced::default();
+            for (range, unit, key) in &shards {
+                let r = range.clone();
+                let shard_out =
+                    ctx.unit(rec, "envmaps", unit, *key, Some(range.len() as u64), |_| {
+                        let (ts, light) = traced()?;
+                        let m = crate::envmap::instance_traced(ts, light, &p.envmaps, r.clone())?;
+                        Ok(Output {
+                            report: json!({"instances": m.maps.len(), "rays": m.maps.len() as u64 * p.envmaps.samples as u64}),
+                            sections: vec![shard_section(&m)],
+                            ..Default::default()
+                        })
+                    })?;
+                maps.extend(shard_maps(&shard_out, range.len())?);
+            }
+            out.push(crate::envmap::envmaps_section(&maps, &p.envmaps));
+        }
+        Ok(out)
+    };
+    let (mut rec_l, mut rec_r) = (Recorder::default(), Recorder::default());
+    let (lightmap_out, rest_out) = rayon::join(
+        || terrain_map(&mut rec_l),
+        || objects_and_envmaps(&mut rec_r),
+    );
+    g.rec.append(rec_l);
+    let lightmap_out = lightmap_out?;
+    g.rec.append(rec_r);
+    let rest_out = rest_out?;
+    g.finish_sections(lightmap_out)?;
+    g.finish_sections(rest_out)?;
     drop(trace);
     let view = g.view();
     if s.cluster {

@@ -262,6 +262,24 @@ impl Reach {
         };
         bvh.closest_hit_excluding(&ray, Some(self.terrain))
     }
+
+    /// Whether [`Self::instance_hit`] finds a hit, stopping at the first one found (the same
+    /// ray and bounds: the sun's disc rays need no closest hit).
+    fn instance_blocked(&self, bvh: &dyn SceneTracer, o: Vec3A, d: Vec3A) -> bool {
+        let Some(top) = self.top else {
+            return false;
+        };
+        let tmax = if d.z > 0.0 {
+            ((top - o.z) / d.z).max(0.0) + 1e-3
+        } else {
+            f32::INFINITY
+        };
+        let ray = Ray {
+            tmax,
+            ..Ray::new(o, d, 1e-4)
+        };
+        bvh.any_hit_excluding(&ray, Some(self.terrain))
+    }
 }
 
 /// The horizon estimator on rows `rows` (see [`texel_horizon_parts`]), in bands of rows.
@@ -428,9 +446,7 @@ fn instance_sun_visibility(
     samples: u32,
     texel: u64,
 ) -> f32 {
-    disc_visibility(s, samples, texel, |d| {
-        reach.instance_hit(bvh, p, d).is_none()
-    })
+    disc_visibility(s, samples, texel, |d| !reach.instance_blocked(bvh, p, d))
 }
 
 /// Normal of the bilinear height field at (x, y) by central differences over one grid step.

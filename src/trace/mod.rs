@@ -195,6 +195,11 @@ pub trait SceneTracer: Sync + Send {
     }
     /// Whether any instance blocks the ray segment.
     fn any_hit(&self, ray: &Ray) -> bool;
+    /// Whether any instance but `skip` blocks the ray segment: `closest_hit_excluding(ray,
+    /// skip).is_some()`, where a backend may stop at the first hit it finds.
+    fn any_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> bool {
+        self.closest_hit_excluding(ray, skip).is_some()
+    }
     /// The hit's surface in world space.
     fn surface(&self, hit: &SceneHit) -> SurfacePoint;
 }
@@ -214,6 +219,10 @@ impl SceneTracer for SceneBvh {
     #[inline]
     fn any_hit(&self, ray: &Ray) -> bool {
         SceneBvh::any_hit(self, ray)
+    }
+    #[inline]
+    fn any_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> bool {
+        SceneBvh::any_hit_excluding(self, ray, skip)
     }
     #[inline]
     fn surface(&self, hit: &SceneHit) -> SurfacePoint {

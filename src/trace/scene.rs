@@ -206,6 +206,31 @@ impl SceneBvh {
         })
     }
 
+    /// Whether any instance but `skip` blocks the ray segment (the terrain is the instance
+    /// after the models'): the answer of [`Self::closest_hit_excluding`], stopping at the first
+    /// hit found (the light map's sun rays among the instances; issue 37).
+    pub fn any_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> bool {
+        let terrain = self.terrain_instance();
+        if terrain.is_some()
+            && terrain != skip
+            && self.terrain.as_ref().is_some_and(|t| t.any_hit(ray))
+        {
+            return true;
+        }
+        let Some(tlas) = self.tlas.as_ref() else {
+            return false;
+        };
+        !tlas.ray_traverse_miss(ray.to_obvhs(), |_, slot| {
+            let k = tlas.primitive_indices[slot];
+            if Some(k) == skip {
+                return f32::INFINITY;
+            }
+            let inst = &self.instances[k as usize];
+            let blocked = self.models[inst.model as usize].any_hit(&inst.ray_to_local(ray));
+            if blocked { ray.tmin } else { f32::INFINITY }
+        })
+    }
+
     /// Reference: every instance in turn, without the top level.
     pub fn brute_force_closest_hit(&self, ray: &Ray) -> Option<SceneHit> {
         let mut best: Option<SceneHit> = self.terrain_hit(ray, None);
@@ -456,6 +481,66 @@ mod tests {
             assert_eq!(skipped.map(|h| h.hit.t), s.closest_hit(&r).map(|h| h.hit.t));
         }
         assert!(terrain_hits > 500, "{terrain_hits}");
+    }
+
+    /// The any-hit query with one instance skipped (the light map's sun rays among the
+    /// instances) against the brute-force loop over every instance but the skipped one, on
+    /// bounded and unbounded rays, skipping the terrain, an instance, or nothing.
+    #[test]
+    fn any_hit_excluding_equals_brute_force_without_the_skipped_instance() {
+        let (s, _) = scene();
+        let hf = Arc::new(crate::trace::Heightfield::new(&ground()).unwrap());
+        let with_hf = s.clone().with_terrain(hf);
+        let mut rng = Rng::hashed(21);
+        let (mut blocked, mut open) = (0, 0);
+        for i in 0..3000 {
+            let o = Vec3A::new(
+                rng.f32() * 12.0 - 1.0,
+                rng.f32() * 12.0 - 1.0,
+                rng.f32() * 4.0 - 0.5,
+            );
+            let d = Vec3A::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5);
+            let mut r = Ray::new(o, d.normalize_or(Vec3A::X), 1e-4);
+            if i % 2 == 0 {
+                r.tmax = rng.f32() * 6.0;
+            }
+            let skip = match i % 3 {
+                0 => Some(30),
+                1 => Some(i as u32 % 30),
+                _ => None,
+            };
+            // Oracle: every instance but `skip` in turn, and the terrain unless skipped.
+            let mut want = skip != Some(30)
+                && with_hf
+                    .terrain
+                    .as_ref()
+                    .unwrap()
+                    .brute_force_closest_hit(&r)
+                    .is_some();
+            for (k, inst) in with_hf.instances().iter().enumerate() {
+                if Some(k as u32) != skip {
+                    let local = Ray {
+                        tmax: r.tmax,
+                        ..inst.ray_to_local(&r)
+                    };
+                    want |= with_hf.models[inst.model as usize]
+                        .brute_force_closest_hit(&local)
+                        .is_some();
+                }
+            }
+            assert_eq!(with_hf.any_hit_excluding(&r, skip), want, "{r:?} {skip:?}");
+            assert_eq!(
+                with_hf.closest_hit_excluding(&r, skip).is_some(),
+                want,
+                "{r:?} {skip:?}"
+            );
+            if want {
+                blocked += 1;
+            } else {
+                open += 1;
+            }
+        }
+        assert!(blocked > 300 && open > 300, "{blocked} {open}");
     }
 
     #[test]
