@@ -953,7 +953,28 @@ fn scene_units(
             for (n, h) in &geo_inputs {
                 k.input(n, h);
             }
+            // The flattened `linespace` where the placed scene fits the memory budget, else
+            // the two-level `linespace-scene` (one N-tree per model; issue 39), the choice in
+            // the key only when two-level (the flattened units' keys are as before).
+            let two_level = crate::voxel::geometry::placed_size(&view)?.linespace_two_level(limits);
+            if two_level {
+                k.options(&"two-level");
+            }
             let out = g.unit("linespace", "scene", k.finish(), None, |_| {
+                if two_level {
+                    let (sec, report) = crate::voxel::geometry::pack_linespace_section(
+                        &view,
+                        &p.linespace,
+                        limits,
+                        first,
+                        &source,
+                    )?;
+                    return Ok(Output {
+                        report,
+                        sections: vec![sec],
+                        ..Default::default()
+                    });
+                }
                 let tris = crate::linespace::world_triangles(&geo()?.mesh);
                 let shafts =
                     std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(p.linespace.n));

@@ -112,9 +112,22 @@ impl NTree {
     }
 
     fn segment_occluded_with(&self, s: &Segment, linespaces: bool, stats: &mut QueryStats) -> bool {
+        let mut own = OwnTriangles { ray: s.bvh_ray() };
+        self.occluded_by(s, linespaces, &mut own, stats)
+    }
+
+    /// The traversal with `leaves` deciding the leaves it refines into (the tree's own
+    /// triangles, a model's triangles placed by an instance, or a top-level tree's instances).
+    pub(crate) fn occluded_by<L: LeafTest>(
+        &self,
+        s: &Segment,
+        linespaces: bool,
+        leaves: &mut L,
+        stats: &mut QueryStats,
+    ) -> bool {
         let r = self.grid_ray(s);
         match self.root_span(&r) {
-            Some(span) => self.occluded_in(s, &r, self.root_at(linespaces), span, stats),
+            Some(span) => self.occluded_in(&r, self.root_at(linespaces), span, leaves, stats),
             None => false,
         }
     }
@@ -149,7 +162,8 @@ impl NTree {
                 linespaces: false,
             };
         }
-        self.exact_occluded(s, &r, at.group, at.base, at.side, span, stats)
+        let mut own = OwnTriangles { ray: s.bvh_ray() };
+        self.exact_occluded(&r, at.group, at.base, at.side, span, &mut own, stats)
     }
 
     /// The root node as a traversal position.
@@ -196,13 +210,12 @@ impl NTree {
         lit as f32 / k as f32
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn occluded_in(
+    fn occluded_in<L: LeafTest>(
         &self,
-        s: &Segment,
         r: &VoxelRay,
         at: At,
         span: Span,
+        leaves: &mut L,
         stats: &mut QueryStats,
     ) -> bool {
         let At {
@@ -221,18 +234,20 @@ impl NTree {
                 Some(true) if deepest => {
                     return match self.refine {
                         Refine::Near if near_start(r, span.t0, side) => {
-                            self.exact_occluded(s, r, group, base, side, span, stats)
+                            self.exact_occluded(r, group, base, side, span, leaves, stats)
                         }
                         Refine::Shaft | Refine::Near => true,
                         Refine::Cells => self.cells_crossed(r, group, base, side, span, stats),
-                        Refine::Exact => self.exact_occluded(s, r, group, base, side, span, stats),
+                        Refine::Exact => {
+                            self.exact_occluded(r, group, base, side, span, leaves, stats)
+                        }
                     };
                 }
                 _ => {}
             }
         }
         if deepest {
-            return self.exact_occluded(s, r, group, base, side, span, stats);
+            return self.exact_occluded(r, group, base, side, span, leaves, stats);
         }
         let n = self.n as i64;
         let cell = side / self.n as f32;
@@ -260,7 +275,7 @@ impl NTree {
                     side: cell,
                     linespaces,
                 };
-                if self.occluded_in(s, r, at, child, stats) {
+                if self.occluded_in(r, at, child, leaves, stats) {
                     return true;
                 }
             }
@@ -302,34 +317,26 @@ impl NTree {
     }
 
     /// Exact test inside a deepest-level node: a DDA over its leaves, testing the triangles of
-    /// each filled leaf the segment crosses.
+    /// each filled leaf the segment crosses (by `leaves`).
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn exact_occluded(
+    pub(super) fn exact_occluded<L: LeafTest>(
         &self,
-        s: &Segment,
         r: &VoxelRay,
         group: u32,
         base: [f32; 3],
         side: f32,
         span: Span,
+        leaves: &mut L,
         stats: &mut QueryStats,
     ) -> bool {
-        let ray = s.bvh_ray();
         let n = self.n as i64;
         let cell = side / self.n as f32;
         let mut dda = Dda::new(r, base, cell, [n; 3], span.t0);
         loop {
             let c = dda.c;
             let slot = (c[0] + n * c[1] + n * n * c[2]) as usize;
-            if self.filled(group, slot) {
-                let tris = self.leaf_triangles(self.child(group, slot));
-                stats.exact_triangle_tests += tris.len() as u64;
-                let hit = tris.iter().any(|&t| {
-                    to_bvh_triangle(&self.triangles[t as usize]).intersect(&ray) <= ray.tmax
-                });
-                if hit {
-                    return true;
-                }
+            if self.filled(group, slot) && leaves.leaf_hit(self, self.child(group, slot), stats) {
+                return true;
             }
             if dda.exit() >= span.t1 || !dda.advance(n) {
                 return false;
@@ -362,6 +369,28 @@ impl NTree {
                 return false;
             }
         }
+    }
+}
+
+/// What a traversal tests in a leaf it refines into.
+pub(crate) trait LeafTest {
+    /// Whether the items of leaf `leaf` of `tree` block the segment.
+    fn leaf_hit(&mut self, tree: &NTree, leaf: u32, stats: &mut QueryStats) -> bool;
+}
+
+/// The tree's own triangles against the segment, as obvhs tests them.
+pub(crate) struct OwnTriangles {
+    pub(crate) ray: BvhRay,
+}
+
+impl LeafTest for OwnTriangles {
+    #[inline]
+    fn leaf_hit(&mut self, tree: &NTree, leaf: u32, stats: &mut QueryStats) -> bool {
+        let tris = tree.leaf_triangles(leaf);
+        stats.exact_triangle_tests += tris.len() as u64;
+        tris.iter().any(|&t| {
+            to_bvh_triangle(&tree.triangles[t as usize]).intersect(&self.ray) <= self.ray.tmax
+        })
     }
 }
 

@@ -198,6 +198,9 @@ pub struct PlacedSize {
     /// What the two-level SVO needs at least ([`super::instanced::build_bytes`]); `u64::MAX`
     /// without instances (a pack of bare meshes has no instanced form).
     pub two_level_bytes: u64,
+    /// What the two-level line spaces need at least
+    /// ([`crate::linespace::instanced::build_bytes`]); `u64::MAX` without instances.
+    pub linespace_two_level_bytes: u64,
 }
 
 impl PlacedSize {
@@ -235,6 +238,8 @@ impl PlacedSize {
             .collect();
         size.two_level_bytes =
             super::instanced::build_bytes(terrain_size, &model_sizes, size.instances);
+        size.linespace_two_level_bytes =
+            crate::linespace::instanced::build_bytes(terrain_size.0, &model_sizes, size.instances);
         size
     }
 
@@ -258,9 +263,7 @@ impl PlacedSize {
     /// fits ([`Self::svo_two_level`]).
     pub fn check(&self, stage: SceneStage, limits: &Limits, file: &Path) -> Result<()> {
         let bytes = self.stage_bytes(stage);
-        if bytes <= limits.max_memory
-            || (stage == SceneStage::Svo && self.two_level_bytes <= limits.max_memory)
-        {
+        if bytes <= limits.max_memory || self.two_level_of(stage) <= limits.max_memory {
             return Ok(());
         }
         let placed = if self.instances == self.scene_instances {
@@ -285,12 +288,16 @@ impl PlacedSize {
                     human(bytes),
                     human(limits.max_memory),
                     stage = stage.name(),
-                    two = match (stage, self.two_level_bytes) {
-                        (SceneStage::Svo, b) if b != u64::MAX => format!(
+                    two = match (stage, self.two_level_of(stage)) {
+                        (_, u64::MAX) => String::new(),
+                        (SceneStage::Svo, b) => format!(
                             ", and its two-level form (one octree per model) needs at least {}",
                             human(b)
                         ),
-                        _ => String::new(),
+                        (SceneStage::Linespace, b) => format!(
+                            ", and its two-level form (one N-tree per model) needs at least {}",
+                            human(b)
+                        ),
                     },
                 ),
             ),
@@ -304,6 +311,21 @@ impl PlacedSize {
     pub fn svo_two_level(&self, limits: &Limits) -> bool {
         self.stage_bytes(SceneStage::Svo) > limits.max_memory
             && self.two_level_bytes <= limits.max_memory
+    }
+
+    /// Whether the linespace stage builds the two-level line spaces (`linespace-scene`): the
+    /// flattened scene exceeds the budget and the two-level form fits it.
+    pub fn linespace_two_level(&self, limits: &Limits) -> bool {
+        self.stage_bytes(SceneStage::Linespace) > limits.max_memory
+            && self.linespace_two_level_bytes <= limits.max_memory
+    }
+
+    /// What `stage`'s two-level form needs at least (`u64::MAX`: it has none).
+    pub fn two_level_of(&self, stage: SceneStage) -> u64 {
+        match stage {
+            SceneStage::Svo => self.two_level_bytes,
+            SceneStage::Linespace => self.linespace_two_level_bytes,
+        }
     }
 }
 
@@ -385,6 +407,71 @@ pub fn pack_svo_section(
     Ok((sec, super::section::summary_of(&svo)))
 }
 
+/// The two-level line spaces of a pack's scene (terrain, models, instances), each model read
+/// once.
+pub fn pack_scene_linespace(
+    pack: &Pack,
+    opts: &crate::linespace::ntree::NTreeOptions,
+) -> Result<crate::linespace::instanced::SceneLinespace> {
+    let terrain = pack_terrain(pack)?;
+    let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
+        return Err(crate::error::Error::Runtime(
+            "the two-level line spaces need an instances section".into(),
+        ));
+    };
+    let view = pack.view(e)?;
+    let (meta, inst) =
+        crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
+    let models: Vec<Option<(String, Vec<[[f32; 3]; 3]>)>> = meta
+        .mesh_sections
+        .iter()
+        .map(|s| {
+            pack.find(s)
+                .map(|_| {
+                    mesh_from_pack(pack, s)
+                        .map(|g| (s.clone(), crate::linespace::world_triangles(&g.mesh)))
+                })
+                .transpose()
+        })
+        .collect::<Result<_>>()?;
+    let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(opts.n));
+    crate::linespace::instanced::SceneLinespace::build(
+        terrain.as_ref(),
+        &models,
+        &inst.items,
+        opts,
+        &shafts,
+    )
+}
+
+/// The linespace stage on a pack: the flattened `linespace` section where the placed scene
+/// fits the budget, else the two-level `linespace-scene` section (refused when neither fits),
+/// with the section's summary.
+pub fn pack_linespace_section(
+    pack: &Pack,
+    opts: &crate::linespace::ntree::NTreeOptions,
+    limits: &Limits,
+    file: &Path,
+    source: &str,
+) -> Result<(crate::pack::Section, serde_json::Value)> {
+    use crate::linespace::{instanced_section, section};
+    let size = placed_size(pack)?;
+    size.check(SceneStage::Linespace, limits, file)?;
+    if size.linespace_two_level(limits) {
+        let two = pack_scene_linespace(pack, opts)?;
+        let sec = instanced_section::to_section(instanced_section::KIND, source, &two);
+        return Ok((sec, instanced_section::summary_of(&two)));
+    }
+    let geo = pack_geometry(pack)?;
+    let tris = crate::linespace::world_triangles(&geo.mesh);
+    let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(opts.n));
+    let tree = crate::linespace::ntree::build_ntree(&tris, opts, &shafts)?;
+    Ok((
+        section::to_section(section::KIND, source, &tree),
+        section::summary_of(&tree),
+    ))
+}
+
 /// [`PlacedSize`] of what [`pack_geometry`] would build from `pack`, from the sections'
 /// headers and the instance records (no mesh is decoded).
 pub fn placed_size(pack: &Pack) -> Result<PlacedSize> {
@@ -400,6 +487,7 @@ pub fn placed_size(pack: &Pack) -> Result<PlacedSize> {
         // Without instances every mesh is taken once.
         let mut size = PlacedSize::of_scene(terrain, &[], &[]);
         size.two_level_bytes = u64::MAX;
+        size.linespace_two_level_bytes = u64::MAX;
         let names: Vec<String> = pack
             .of_kind(crate::mesh::section::KIND)
             .map(|e| e.name.clone())
