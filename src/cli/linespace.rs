@@ -137,7 +137,10 @@ fn run_two_level(args: &LinespaceArgs, pack: &crate::pack::Pack) -> Result<Outco
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct LinespaceBenchArgs {
-    /// Model or pack (default: a procedural 70,000-triangle blob on a ground quad).
+    /// Model or pack (default: a procedural 70,000-triangle blob on a ground quad). A pack
+    /// with a `linespace-scene` section (the two-level line spaces): soft shadows over its
+    /// instances against exact visibility, every refinement (`--receivers`,
+    /// `--accuracy-samples`; crate::bench::linespace::bench_scene_accuracy).
     pub model: Option<PathBuf>,
     #[arg(long, default_value_t = 10)]
     pub n: u32,

@@ -12,7 +12,9 @@
 //! empty space): in a deepest top-level node the leaves the segment crosses are refined into
 //! their instances, each tested once per segment by walking its model's tree on the segment
 //! moved into the model's frame (`R_z(−θ)·(p − position)/scale`, the same `t`), where the
-//! refinement mode (`shaft`, `cells`, `exact`, `near`) applies as in the flattened tree. Exact
+//! refinement mode (`shaft`, `cells`, `exact`, `near`) applies as in the flattened tree (`near`:
+//! `exact` for the instances the segment enters within one top-level deepest-node side of its
+//! start, [`SceneLinespace::near_distance`], the model tree's own `near` rule beyond). Exact
 //! tests place the model's triangles into the world as the flattened scene does
 //! ([`InstanceRef::to_world`], the same operations as `geometry::place_instance`) and test them
 //! against the world segment: in `exact` mode an answer is the flattened scene's exact answer.
@@ -84,9 +86,51 @@ pub struct SceneLinespace {
 }
 
 /// Relative bound of the rounding when a world segment is moved into a model's frame and a
-/// model triangle placed into the world, against the scene's largest coordinate (2⁻¹⁸: a few
-/// hundred times f32's unit roundoff; 16 mm at 4 km, 0.4 µm at 100 m).
-const FRAME_ROUNDING: f32 = 1.0 / 262_144.0;
+/// model triangle placed into the world, against the scene's largest coordinate L (2⁻¹⁹: the
+/// placed vertices round by up to 2⁻²² L, the segment's origin and direction moved into the
+/// frame by up to 2⁻²¹ L each for a receiver within 2L of the instance, the tree's grid mapping
+/// below that; 7.8 mm at 4 km, 0.2 mm at 100 m).
+const FRAME_ROUNDING: f32 = 1.0 / 524_288.0;
+
+/// Most (leaf, triangle) pairs per triangle, on average, a model tree's depth allows (counted
+/// by the triangles' grown bounding boxes, an upper bound of the cells they touch).
+pub const MODEL_PAIRS_PER_TRIANGLE: u64 = 64;
+
+/// The deepest depth ≤ `opts.depth` at which the triangles' bounding boxes, grown by `margin`,
+/// cover at most [`MODEL_PAIRS_PER_TRIANGLE`] leaf cells per triangle on average (at least 1):
+/// a model's cells are not finer than its triangles warrant (a 16,000-triangle tree of 10 m at
+/// n = 10, depth 3 would list each leaf card in hundreds of 1 cm cells).
+pub fn model_depth(tris: &[[[f32; 3]; 3]], opts: &NTreeOptions, margin: f32) -> u32 {
+    let Some((lo, hi)) = bounds(tris.iter().flatten().copied()) else {
+        return 1;
+    };
+    let (origin, size) = super::ntree::root_box_of(
+        lo.map(|x| x - margin),
+        hi.map(|x| x + margin),
+        opts.cubic_cells,
+    );
+    let budget = MODEL_PAIRS_PER_TRIANGLE.saturating_mul(tris.len() as u64);
+    (1..=opts.depth)
+        .rev()
+        .find(|&d| {
+            let res = opts.n.pow(d);
+            let leaf = size.map(|s| s / res as f32);
+            let cells: u64 = tris
+                .par_iter()
+                .map(|t| {
+                    let (a, b) = bounds(t.iter().copied()).expect("3 corners");
+                    (0..3)
+                        .map(|k| {
+                            let c = |x: f32| ((x - origin[k]) / leaf[k]).floor() as i64;
+                            (c(b[k] + margin) - c(a[k] - margin) + 1).max(1) as u64
+                        })
+                        .product::<u64>()
+                })
+                .sum();
+            d == 1 || cells <= budget
+        })
+        .unwrap_or(1)
+}
 
 /// Bounds of points.
 fn bounds(pts: impl Iterator<Item = [f32; 3]>) -> Option<([f32; 3], [f32; 3])> {
@@ -210,7 +254,9 @@ impl SceneLinespace {
             if !s_min.is_finite() || tris.is_empty() {
                 continue;
             }
-            let tree = build_ntree_padded(tris, opts, shafts, frame_margin / s_min)?;
+            let margin = frame_margin / s_min;
+            let depth = model_depth(tris, opts, margin);
+            let tree = build_ntree_padded(tris, &NTreeOptions { depth, ..*opts }, shafts, margin)?;
             model_map[m] = out_models.len() as u32;
             out_models.push(ModelTree {
                 mesh_section: name.clone(),
@@ -274,7 +320,9 @@ impl SceneLinespace {
         }
     }
 
-    /// Whether instance `i` may block the segment (its model's tree, its refinement mode).
+    /// Whether instance `i` may block the segment (its model's tree, its refinement mode; in
+    /// `near` mode `exact` for an instance whose model box the segment enters within
+    /// [`Self::near_distance`] of its start).
     pub fn instance_occluded(&self, i: usize, s: &Segment, stats: &mut QueryStats) -> bool {
         let r = &self.instances[i];
         let tree = &self.models[r.model as usize].tree;
@@ -282,7 +330,31 @@ impl SceneLinespace {
             ray: s.bvh_ray(),
             place: *r,
         };
-        tree.occluded_by(&self.segment_in(i, s), true, &mut placed, stats)
+        let ms = self.segment_in(i, s);
+        let refine = match tree.refine {
+            Refine::Near => {
+                let entry = tree
+                    .root_span(&tree.grid_ray(&ms))
+                    .map_or(s.t_max, |sp| sp.t0);
+                let len = s.dir.iter().map(|d| d * d).sum::<f32>().sqrt();
+                if (entry - s.t_min) * len <= self.near_distance() {
+                    Refine::Exact
+                } else {
+                    Refine::Near
+                }
+            }
+            other => other,
+        };
+        tree.occluded_by_refine(&ms, true, refine, &mut placed, stats)
+    }
+
+    /// The `near` mode's exact zone at the instance level (world units): one deepest-node side
+    /// of the top tree (what `near` means in a flattened tree of the scene's extent at the top
+    /// tree's depth; 41 m at 4 km, depth 3, n = 10). 0 without a top tree.
+    pub fn near_distance(&self) -> f32 {
+        self.top.as_ref().map_or(0.0, |t| {
+            t.leaf_size.iter().cloned().fold(0.0f32, f32::max) * t.n as f32
+        })
     }
 
     /// Whether the terrain blocks the segment (exact).

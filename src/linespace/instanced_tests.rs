@@ -374,3 +374,56 @@ fn a_corrupt_section_is_an_error_not_a_panic() {
     let e = super::super::instanced_section::from_section(&v).unwrap_err();
     assert!(e.to_string().contains("top tree"), "{e}");
 }
+
+/// The model depth against a brute-force count of the grown boxes' cells: the deepest depth
+/// whose count is within the budget.
+#[test]
+fn model_depth_is_the_deepest_within_the_pair_budget() {
+    let opts = NTreeOptions {
+        n: 4,
+        depth: 4,
+        cubic_cells: true,
+    };
+    // One large triangle over a 1 m model: coarse; 4,096 tiny ones: as deep as allowed.
+    let big = vec![[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 1.0]]];
+    let tiny: Vec<[[f32; 3]; 3]> = (0..4096)
+        .map(|i| {
+            let o = [
+                (i % 16) as f32 / 16.0,
+                (i / 16 % 16) as f32 / 16.0,
+                (i / 256) as f32 / 16.0,
+            ];
+            [o, [o[0] + 1e-3, o[1], o[2]], [o[0], o[1] + 1e-3, o[2]]]
+        })
+        .collect();
+    for (tris, margin) in [(&big, 0.0), (&tiny, 0.0), (&tiny, 0.05)] {
+        let d = model_depth(tris, &opts, margin);
+        let (lo, hi) = bounds(tris.iter().flatten().copied()).unwrap();
+        let (origin, size) = crate::linespace::ntree::root_box_of(
+            lo.map(|x| x - margin),
+            hi.map(|x| x + margin),
+            true,
+        );
+        let count = |d: u32| -> u64 {
+            let leaf = size.map(|s| s / 4u32.pow(d) as f32);
+            tris.iter()
+                .map(|t| {
+                    (0..3)
+                        .map(|k| {
+                            let c = |x: f32| ((x - origin[k]) / leaf[k]).floor() as i64;
+                            let (a, b) = t
+                                .iter()
+                                .fold((f32::MAX, f32::MIN), |(a, b), p| (a.min(p[k]), b.max(p[k])));
+                            (c(b + margin) - c(a - margin) + 1) as u64
+                        })
+                        .product::<u64>()
+                })
+                .sum()
+        };
+        let budget = MODEL_PAIRS_PER_TRIANGLE * tris.len() as u64;
+        assert!(d == 1 || count(d) <= budget, "{d}");
+        assert!(d == opts.depth || count(d + 1) > budget, "{d}");
+    }
+    assert!(model_depth(&big, &opts, 0.0) < 4);
+    assert_eq!(model_depth(&tiny, &opts, 0.0), 4);
+}

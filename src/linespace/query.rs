@@ -125,9 +125,23 @@ impl NTree {
         leaves: &mut L,
         stats: &mut QueryStats,
     ) -> bool {
+        self.occluded_by_refine(s, linespaces, self.refine, leaves, stats)
+    }
+
+    /// [`Self::occluded_by`] under the refinement mode `refine` instead of the tree's.
+    pub(crate) fn occluded_by_refine<L: LeafTest>(
+        &self,
+        s: &Segment,
+        linespaces: bool,
+        refine: Refine,
+        leaves: &mut L,
+        stats: &mut QueryStats,
+    ) -> bool {
         let r = self.grid_ray(s);
         match self.root_span(&r) {
-            Some(span) => self.occluded_in(&r, self.root_at(linespaces), span, leaves, stats),
+            Some(span) => {
+                self.occluded_in(&r, self.root_at(linespaces), span, refine, leaves, stats)
+            }
             None => false,
         }
     }
@@ -215,6 +229,7 @@ impl NTree {
         r: &VoxelRay,
         at: At,
         span: Span,
+        refine: Refine,
         leaves: &mut L,
         stats: &mut QueryStats,
     ) -> bool {
@@ -232,7 +247,7 @@ impl NTree {
             match self.shaft_full(r, group, base, side, span) {
                 Some(false) => return false,
                 Some(true) if deepest => {
-                    return match self.refine {
+                    return match refine {
                         Refine::Near if near_start(r, span.t0, side) => {
                             self.exact_occluded(r, group, base, side, span, leaves, stats)
                         }
@@ -275,7 +290,7 @@ impl NTree {
                     side: cell,
                     linespaces,
                 };
-                if self.occluded_in(r, at, child, leaves, stats) {
+                if self.occluded_in(r, at, child, refine, leaves, stats) {
                     return true;
                 }
             }
