@@ -393,7 +393,8 @@ fn bench_accuracy(a: &LinespaceBench, setup: BenchSetup) -> Result<(Report, Vec<
 /// ([`crate::linespace::instanced::ExactInstances`]: the terrain's exact any-hit and every
 /// instance whose placed bounds a segment meets, brute force over its placed triangles). The
 /// light is a `light_side`-metre square `light_height` metres above each receiver (a distant
-/// area light, the same points relative to every receiver); receivers are on the terrain
+/// area light, the same points relative to every receiver; `light` instead: its corner and
+/// edges relative to each receiver); receivers are on the terrain
 /// within 4 m of `receivers` instances (picked with a fixed seed) and, every third, inside
 /// their model's bounds. Both sides on all threads.
 pub fn bench_scene_accuracy(
@@ -402,6 +403,7 @@ pub fn bench_scene_accuracy(
     receivers: u32,
     per_side: u32,
     main: Refine,
+    light: Option<AreaLight>,
 ) -> Result<Report> {
     use crate::linespace::instanced::ExactInstances;
     use rayon::prelude::*;
@@ -435,12 +437,12 @@ pub fn bench_scene_accuracy(
         })
         .collect();
     let (side, height) = (20.0f32, 60.0f32);
-    let light = AreaLight {
+    let light = light.unwrap_or(AreaLight {
         corner: [-side / 2.0, -side / 2.0 + 25.0, height],
         edge_u: [side, 0.0, 0.0],
         edge_v: [0.0, side, 0.0],
         samples: 1,
-    };
+    });
     let rel = stratified_points(&light, per_side, 0x5eed);
     let offset = 1e-3f32;
     let fractions = |occluded: &(dyn Fn(&Segment, &mut QueryStats) -> bool + Sync)| {
@@ -504,16 +506,21 @@ pub fn bench_scene_accuracy(
     json["instances"] = serde_json::json!(scene.instances.len());
     json["models"] = serde_json::json!(scene.models.len());
     json["threads"] = serde_json::json!(rayon::current_num_threads());
-    json["light"] = serde_json::json!({"side": side, "height": height, "offset_y": 25.0});
+    json["light_relative"] =
+        serde_json::json!({"corner": light.corner, "edge_u": light.edge_u, "edge_v": light.edge_v});
+    json["near_distance"] = serde_json::json!(scene.near_distance());
     json["modes"] = serde_json::json!(modes);
     let mut text = format!(
         "{name}: two-level line spaces, {} instances of {} models; {} receivers × {} light \
-         points ({side} m square {height} m above each receiver), exact visibility over the \
-         instances as reference ({exact_seconds:.2} s)\n",
+         points (a quad at {:?} + s·{:?} + t·{:?} from each receiver), exact visibility over \
+         the instances as reference ({exact_seconds:.2} s)\n",
         scene.instances.len(),
         scene.models.len(),
         pts.len(),
         rel.len(),
+        light.corner,
+        light.edge_u,
+        light.edge_v,
     );
     for m in &modes {
         text += &format!(

@@ -197,6 +197,7 @@ pub fn bench(a: &LinespaceBenchArgs, g: &Global) -> Result<Outcome> {
                 a.receivers,
                 a.accuracy_samples,
                 a.refine,
+                a.area_light,
             )?;
             return Ok(Outcome {
                 json: r.json,

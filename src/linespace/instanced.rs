@@ -37,6 +37,9 @@ use obvhs::ray::Ray as BvhRay;
 use rayon::prelude::*;
 use std::sync::Arc;
 
+/// A model's mesh section name and its triangles in its own frame (None: no mesh).
+pub type ModelTriangles = Option<(String, Vec<[[f32; 3]; 3]>)>;
+
 /// One model's N-tree, in its own frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelTree {
@@ -185,7 +188,7 @@ impl SceneLinespace {
     /// skips them); `opts` is every model tree's configuration.
     pub fn build(
         terrain: Option<&Terrain>,
-        models: &[Option<(String, Vec<[[f32; 3]; 3]>)>],
+        models: &[ModelTriangles],
         instances: &[Instance],
         opts: &NTreeOptions,
         shafts: &Arc<ShaftTable>,

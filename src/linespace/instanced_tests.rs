@@ -127,7 +127,7 @@ impl Case {
         }
     }
 
-    fn named(&self) -> Vec<Option<(String, Vec<[[f32; 3]; 3]>)>> {
+    fn named(&self) -> Vec<ModelTriangles> {
         self.models
             .iter()
             .enumerate()

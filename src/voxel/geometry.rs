@@ -422,7 +422,7 @@ pub fn pack_scene_linespace(
     let view = pack.view(e)?;
     let (meta, inst) =
         crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
-    let models: Vec<Option<(String, Vec<[[f32; 3]; 3]>)>> = meta
+    let models: Vec<crate::linespace::instanced::ModelTriangles> = meta
         .mesh_sections
         .iter()
         .map(|s| {
