@@ -223,7 +223,11 @@ impl SceneLinespace {
             .filter(|i| matches!(model_bounds.get(i.model as usize), Some(Some(_))))
             .map(|i| (i.model as usize, InstanceRef::of(i, i.model)))
             .collect();
-        let terrain = terrain.map(SceneTerrain::new).transpose()?;
+        // A terrain of one row or column of samples has no cell, so no triangle to block.
+        let terrain = terrain
+            .filter(|t| t.width >= 2 && t.height >= 2)
+            .map(SceneTerrain::new)
+            .transpose()?;
         // The scene's largest coordinate: every placed model box and the terrain.
         let raw_boxes: Vec<([f32; 3], [f32; 3])> = placed
             .par_iter()

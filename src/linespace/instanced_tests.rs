@@ -346,6 +346,20 @@ fn the_build_is_the_same_on_one_and_two_threads() {
 }
 
 #[test]
+fn a_terrain_without_cells_blocks_nothing() {
+    let mut c = Case::new(6, 4);
+    c.terrain = Terrain {
+        width: 1,
+        height: 5,
+        heights: vec![0.0; 5],
+        ..c.terrain.clone()
+    };
+    let two = c.two_level(&OPTS);
+    assert!(two.terrain.is_none());
+    assert_eq!(two.instances.len(), 5);
+}
+
+#[test]
 fn a_non_finite_transform_is_refused_naming_the_instance() {
     let mut c = Case::new(10, 1);
     c.instances[7].rotation_deg = f32::NAN;
