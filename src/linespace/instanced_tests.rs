@@ -441,3 +441,53 @@ fn model_depth_is_the_deepest_within_the_pair_budget() {
     assert!(model_depth(&big, &opts, 0.0) < 4);
     assert_eq!(model_depth(&tiny, &opts, 0.0), 4);
 }
+
+/// Segments that enter instances beyond the `near` zone (a low light far to the east, receivers
+/// at the western edge: the forest crossed sideways): there the model trees' own rules decide,
+/// still never brighter than exact, and `exact` still without error.
+#[test]
+fn beyond_the_near_zone_the_model_rules_stay_one_sided() {
+    let c = Case::new(60, 21);
+    let mut two = c.two_level(&OPTS);
+    let near = two.near_distance();
+    assert!(near > 0.0 && near < 12.0, "{near}");
+    let exact = ExactShadow::new(&c.flattened_hittable());
+    let mut rng = Rng::new(5);
+    let receivers: Vec<[f32; 3]> = (0..80)
+        .map(|_| {
+            let (x, y) = (-15.5 + 2.0 * rng.f32(), -9.0 + 18.0 * rng.f32());
+            [x, y, c.terrain.mesh_height_at(x, y) + 0.3]
+        })
+        .collect();
+    let light = AreaLight {
+        corner: [40.0, -6.0, 1.5],
+        edge_u: [0.0, 12.0, 0.0],
+        edge_v: [0.0, 0.0, 3.0],
+        samples: 1,
+    };
+    let points = stratified_points(&light, 6, 7);
+    let segs = segments(&receivers, &points);
+    let truth: Vec<bool> = segs.iter().map(|s| exact.occluded(s)).collect();
+    let blocked = truth.iter().filter(|b| **b).count();
+    assert!(
+        blocked > segs.len() / 10 && blocked < segs.len(),
+        "{blocked}"
+    );
+    let mut wrong = Vec::new();
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Near, Refine::Exact] {
+        two.set_refine(refine);
+        let (mut brighter, mut darker) = (0, 0);
+        for (s, &t) in segs.iter().zip(&truth) {
+            let a = two.segment_occluded(s, &mut QueryStats::default());
+            brighter += (t && !a) as usize;
+            darker += (a && !t) as usize;
+        }
+        assert_eq!(brighter, 0, "{refine:?}");
+        wrong.push(darker);
+    }
+    assert_eq!(wrong[3], 0, "exact: {wrong:?}");
+    assert!(
+        wrong[0] >= wrong[2] && wrong[2] > 0,
+        "the near path beyond its zone: {wrong:?}"
+    );
+}
