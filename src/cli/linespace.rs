@@ -43,8 +43,16 @@ pub fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
             return run_two_level(args, &pack);
         }
     }
-    let (geo, pack) = load_geometry(&args.input, SceneStage::Linespace, &limits, &mut warnings)?;
-    let tris = world_triangles(&geo.mesh);
+    // A pack: its placed scene's triangles only (no mesh, no textures); a model: its mesh.
+    let (tris, geo, pack) = if super::svo::is_pack(&args.input) {
+        let pack = crate::pack::Pack::open(&args.input)?;
+        let tris = crate::voxel::geometry::pack_world_triangles(&pack)?;
+        (tris, Default::default(), Some(pack))
+    } else {
+        let (geo, pack) =
+            load_geometry(&args.input, SceneStage::Linespace, &limits, &mut warnings)?;
+        (world_triangles(&geo.mesh), geo, pack)
+    };
     if tris.is_empty() {
         return Err(Error::invalid_at(
             &args.input,

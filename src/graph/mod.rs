@@ -912,13 +912,6 @@ fn scene_units(
             .filter(|(n, _)| n != crate::sky::SUN_SECTION && n != crate::sky::SH_SECTION)
             .cloned()
             .collect();
-        let geometry = std::cell::OnceCell::new();
-        let geo = || -> Result<&crate::voxel::geometry::Geometry> {
-            if geometry.get().is_none() {
-                let _ = geometry.set(crate::voxel::geometry::pack_geometry(&view)?);
-            }
-            Ok(geometry.get().expect("set above"))
-        };
         // The sections record the scene's source, so it is part of their keys.
         let source = scene_source.to_string();
         if s.svo {
@@ -975,7 +968,7 @@ fn scene_units(
                         ..Default::default()
                     });
                 }
-                let tris = crate::linespace::world_triangles(&geo()?.mesh);
+                let tris = crate::voxel::geometry::pack_world_triangles(&view)?;
                 let shafts =
                     std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(p.linespace.n));
                 let tree = crate::linespace::ntree::build_ntree(&tris, &p.linespace, &shafts)?;
