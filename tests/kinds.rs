@@ -72,7 +72,13 @@ fn two_level_pack(dir: &std::path::Path, flat: &std::path::Path) -> std::path::P
     .preview();
     opts.pipeline.stages.svo = true;
     opts.pipeline.svo.resolution = 32;
-    opts.ingest.limits.max_memory = size.two_level_bytes;
+    // The line spaces too (`linespace-scene`): a budget both two-level forms fit and neither
+    // flattened scene does.
+    opts.pipeline.stages.linespace = true;
+    opts.pipeline.linespace.n = 4;
+    let budget = size.two_level_bytes.max(size.linespace_two_level_bytes);
+    assert!(budget < size.stage_bytes(bake::voxel::geometry::SceneStage::Linespace));
+    opts.ingest.limits.max_memory = budget;
     bake::graph::build(&opts, &bake::graph::progress::Silent).unwrap();
     out
 }

@@ -27,7 +27,8 @@ fn the_placed_size_is_the_mesh_that_pack_geometry_builds() {
         + 12 * m.indices.len()
         + 4 * m.triangle_materials.len();
     assert_eq!(size.mesh_bytes(), arrays as u64);
-    assert!(size.stage_bytes(SceneStage::Svo) > size.stage_bytes(SceneStage::Linespace));
+    // The N-tree holds the voxelizer's set-up per triangle too, and the triangle itself.
+    assert!(size.stage_bytes(SceneStage::Linespace) > size.stage_bytes(SceneStage::Svo));
     assert!(size.stage_bytes(SceneStage::Linespace) > size.mesh_bytes());
 }
 
@@ -40,11 +41,8 @@ fn a_placed_scene_over_the_budget_is_refused_before_it_is_built() {
         ("svo", SceneStage::Svo),
         ("linespace", SceneStage::Linespace),
     ] {
-        // The svo stage falls back to its two-level form, which needs less (issue 39).
-        let need = match stage {
-            SceneStage::Svo => size.two_level_bytes,
-            SceneStage::Linespace => size.stage_bytes(stage),
-        };
+        // Both stages fall back to their two-level forms where those need less (issue 39).
+        let need = size.two_level_of(stage).min(size.stage_bytes(stage));
         let out = dir.path().join(format!("{cmd}.bake"));
         // One byte short: refused, nothing written.
         let o = common::bake(&[
@@ -62,6 +60,8 @@ fn a_placed_scene_over_the_budget_is_refused_before_it_is_built() {
             err.contains(&format!(
                 "the {cmd} stage reads the placed scene as one mesh"
             )) && (cmd != "svo" || err.contains("its two-level form (one octree per model)"))
+                && (cmd != "linespace"
+                    || err.contains("its two-level form (one N-tree per model)"))
                 && err.contains("100 instances")
                 && err.contains(&format!("{} triangles", size.triangles))
                 && err.contains("--max-memory"),
@@ -253,4 +253,89 @@ fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
     let (_, gs) = instanced_section::from_section(&g.view_named("svo-scene").unwrap()).unwrap();
     assert_eq!(gs.grid_instances(), 100);
     assert_eq!(gs.scene_grid, fsvo.grid);
+}
+
+/// Between the two sizes the linespace stage writes the two-level `linespace-scene` section
+/// instead of `linespace`, from `bake linespace` and from the graph; its exact answers are the
+/// flattened tree's (issue 39, item 2).
+#[test]
+fn over_the_flattened_budget_the_linespace_stage_writes_the_two_level_line_spaces() {
+    use bake::linespace::instanced_section;
+    use bake::linespace::query::{QueryStats, Segment};
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let size = placed_size(&Pack::open(&pack_path).unwrap()).unwrap();
+    assert!(size.linespace_two_level_bytes < size.stage_bytes(SceneStage::Linespace));
+    let budget = (size.stage_bytes(SceneStage::Linespace) - 1).to_string();
+    let (flat_out, two_out) = (dir.path().join("flat.bake"), dir.path().join("two.bake"));
+    let p = pack_path.to_str().unwrap();
+    for (out, budget) in [(&flat_out, None), (&two_out, Some(&budget))] {
+        let mut args = vec!["linespace", p, "-o", out.to_str().unwrap(), "--n", "4"];
+        if let Some(b) = budget {
+            args.extend(["--max-memory", b.as_str()]);
+        }
+        args.push("-q");
+        let o = common::bake(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let flat = Pack::open(&flat_out).unwrap();
+    let two = Pack::open(&two_out).unwrap();
+    assert!(flat.find("linespace").is_some() && flat.find("linespace-scene").is_none());
+    assert!(two.find("linespace-scene").is_some() && two.find("linespace").is_none());
+    let (_, ft) =
+        bake::linespace::section::from_section(&flat.view_named("linespace").unwrap()).unwrap();
+    let (_, s) =
+        instanced_section::from_section(&two.view_named("linespace-scene").unwrap()).unwrap();
+    assert_eq!(s.instances.len(), 100);
+    assert!(s.terrain.is_some(), "the fixture has a terrain");
+    // Exact answers: the same as the flattened tree's on segments from the terrain up.
+    let (lo, ext) = bake::linespace::gpu::root_box(&ft);
+    let hi = [0, 1, 2].map(|k| lo[k] + ext[k]);
+    let mut rng = bake::rng::Rng::new(3);
+    let t = s.terrain.as_ref().unwrap();
+    let (mut differ, mut blocked, total) = (0, 0, 4000);
+    for _ in 0..total {
+        let x = lo[0] + (hi[0] - lo[0]) * rng.f32();
+        let y = lo[1] + (hi[1] - lo[1]) * rng.f32();
+        let from = [x, y, t.terrain.mesh_height_at(x, y)];
+        let to = [
+            x + 20.0 * (rng.f32() - 0.5),
+            y + 20.0 * (rng.f32() - 0.5),
+            hi[2] + 5.0,
+        ];
+        let seg = Segment::between(from, to, 1e-3);
+        let a = s.segment_occluded(&seg, &mut QueryStats::default());
+        blocked += a as usize;
+        differ += (a != ft.segment_occluded(&seg, &mut QueryStats::default())) as usize;
+    }
+    assert!(blocked > 0, "no segment blocked");
+    assert_eq!(differ, 0, "{blocked} of {total} blocked");
+    let o = common::bake(&["verify", two_out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    // The graph makes the same choice.
+    let out = dir.path().join("graph.bake");
+    let scene = dir.path().join("scene.eco");
+    let o = common::bake(&[
+        scene.to_str().unwrap(),
+        "--sky",
+        dir.path().join("sky.hdr").to_str().unwrap(),
+        "--preview",
+        "--set",
+        "stages.linespace=true",
+        "--set",
+        "linespace.n=4",
+        "--no-cache",
+        "-q",
+        "--max-memory",
+        &budget,
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let g = Pack::open(&out).unwrap();
+    assert!(g.find("linespace-scene").is_some() && g.find("linespace").is_none());
+    let (_, gs) =
+        instanced_section::from_section(&g.view_named("linespace-scene").unwrap()).unwrap();
+    assert_eq!(gs, s);
 }

@@ -387,3 +387,150 @@ fn bench_accuracy(a: &LinespaceBench, setup: BenchSetup) -> Result<(Report, Vec<
     }
     Ok((Report { json, text }, warnings))
 }
+
+/// `bake bench linespace PACK` on a pack with a `linespace-scene` section (issue 39): soft
+/// shadows of the two-level line spaces against exact visibility over the instances
+/// ([`crate::linespace::instanced::ExactInstances`]: the terrain's exact any-hit and every
+/// instance whose placed bounds a segment meets, brute force over its placed triangles). The
+/// light is a `light_side`-metre square `light_height` metres above each receiver (a distant
+/// area light, the same points relative to every receiver; `light` instead: its corner and
+/// edges relative to each receiver); receivers are on the terrain
+/// within 4 m of `receivers` instances (picked with a fixed seed) and, every third, inside
+/// their model's bounds. Both sides on all threads.
+pub fn bench_scene_accuracy(
+    scene: &crate::linespace::instanced::SceneLinespace,
+    name: &str,
+    receivers: u32,
+    per_side: u32,
+    main: Refine,
+    light: Option<AreaLight>,
+) -> Result<Report> {
+    use crate::linespace::instanced::ExactInstances;
+    use rayon::prelude::*;
+    let Some(terrain) = scene.terrain.as_ref() else {
+        return Err(Error::runtime(
+            "bench linespace: the scene has no terrain to place receivers on",
+        ));
+    };
+    if scene.instances.is_empty() {
+        return Err(Error::runtime(
+            "bench linespace: the scene has no instances",
+        ));
+    }
+    let mut rng = crate::rng::Rng::new(0x11_5ce9e);
+    let pts: Vec<[f32; 3]> = (0..receivers)
+        .map(|k| {
+            let i = &scene.instances
+                [(rng.f32() * scene.instances.len() as f32) as usize % scene.instances.len()];
+            let (a, d) = (rng.f32() * std::f32::consts::TAU, 4.0 * rng.f32());
+            let (x, y) = (i.position[0] + d * a.cos(), i.position[1] + d * a.sin());
+            let z = terrain.terrain.mesh_height_at(x, y);
+            if k % 3 == 2 {
+                // Inside the instance's model bounds, above the ground (in its crown).
+                let t = &scene.models[i.model as usize].tree;
+                let (lo, ext) = crate::linespace::gpu::root_box(t);
+                let h = (0.5 + 0.4 * rng.f32()) * ext[2] + lo[2];
+                [x, y, i.position[2] + h * i.scale.abs()]
+            } else {
+                [x, y, z]
+            }
+        })
+        .collect();
+    let (side, height) = (20.0f32, 60.0f32);
+    let light = light.unwrap_or(AreaLight {
+        corner: [-side / 2.0, -side / 2.0 + 25.0, height],
+        edge_u: [side, 0.0, 0.0],
+        edge_v: [0.0, side, 0.0],
+        samples: 1,
+    });
+    let rel = stratified_points(&light, per_side, 0x5eed);
+    let offset = 1e-3f32;
+    let fractions = |occluded: &(dyn Fn(&Segment, &mut QueryStats) -> bool + Sync)| {
+        let t0 = std::time::Instant::now();
+        let per: Vec<(f32, QueryStats)> = pts
+            .par_iter()
+            .map(|&p| {
+                let mut st = QueryStats::default();
+                let lit = rel
+                    .iter()
+                    .filter(|q| {
+                        let to = [p[0] + q[0], p[1] + q[1], p[2] + q[2]];
+                        !occluded(&Segment::between(p, to, offset), &mut st)
+                    })
+                    .count();
+                (lit as f32 / rel.len() as f32, st)
+            })
+            .collect();
+        let mut stats = QueryStats::default();
+        for (_, s) in &per {
+            stats.linespace_lookups += s.linespace_lookups;
+            stats.exact_triangle_tests += s.exact_triangle_tests;
+            stats.dda_steps += s.dda_steps;
+            stats.nodes_visited += s.nodes_visited;
+        }
+        let f: Vec<f32> = per.into_iter().map(|(f, _)| f).collect();
+        (f, t0.elapsed().as_secs_f64(), stats)
+    };
+    let brute = ExactInstances::new(scene);
+    let (exact, exact_seconds, _) = fractions(&|s, _| brute.occluded(s));
+    let mut modes = Vec::new();
+    let mut headline = serde_json::Value::Null;
+    let mut scene = scene.clone();
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Near, Refine::Exact] {
+        scene.set_refine(refine);
+        let (ls, seconds, stats) = fractions(&|s, st| scene.segment_occluded(s, st));
+        let v = Visibilities {
+            linespace: ls,
+            exact: exact.clone(),
+            linespace_seconds: seconds,
+            exact_seconds,
+            stats,
+        };
+        let mut m = serde_json::json!(compare(&v, rel.len()));
+        m["refine"] = serde_json::json!(refine);
+        m["linespace_seconds"] = serde_json::json!(seconds);
+        m["exact_seconds"] = serde_json::json!(exact_seconds);
+        m["segments"] = serde_json::json!(pts.len() * rel.len());
+        m["stats"] = serde_json::json!({
+            "linespace_lookups": stats.linespace_lookups,
+            "exact_triangle_tests": stats.exact_triangle_tests,
+            "nodes_visited": stats.nodes_visited,
+        });
+        if refine == main {
+            headline = m.clone();
+        }
+        modes.push(m);
+    }
+    let mut json = headline;
+    json["scene"] = serde_json::json!(name);
+    json["instances"] = serde_json::json!(scene.instances.len());
+    json["models"] = serde_json::json!(scene.models.len());
+    json["threads"] = serde_json::json!(rayon::current_num_threads());
+    json["light_relative"] =
+        serde_json::json!({"corner": light.corner, "edge_u": light.edge_u, "edge_v": light.edge_v});
+    json["near_distance"] = serde_json::json!(scene.near_distance());
+    json["modes"] = serde_json::json!(modes);
+    let mut text = format!(
+        "{name}: two-level line spaces, {} instances of {} models; {} receivers × {} light \
+         points (a quad at {:?} + s·{:?} + t·{:?} from each receiver), exact visibility over \
+         the instances as reference ({exact_seconds:.2} s)\n",
+        scene.instances.len(),
+        scene.models.len(),
+        pts.len(),
+        rel.len(),
+        light.corner,
+        light.edge_u,
+        light.edge_v,
+    );
+    for m in &modes {
+        text += &format!(
+            "  refine {}: mean |error| {:.4}, max {:.4}, brighter than exact: {}; {:.2} s\n",
+            m["refine"].as_str().unwrap_or("?"),
+            m["mean_abs_error"].as_f64().unwrap_or(0.0),
+            m["max_abs_error"].as_f64().unwrap_or(0.0),
+            m["brighter_than_exact"],
+            m["linespace_seconds"].as_f64().unwrap_or(0.0),
+        );
+    }
+    Ok(Report { json, text })
+}

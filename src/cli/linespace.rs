@@ -35,8 +35,24 @@ pub use crate::linespace::world_triangles;
 pub fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
-    let (geo, pack) = load_geometry(&args.input, SceneStage::Linespace, &limits, &mut warnings)?;
-    let tris = world_triangles(&geo.mesh);
+    if super::svo::is_pack(&args.input) {
+        let pack = crate::pack::Pack::open(&args.input)?;
+        let size = crate::voxel::geometry::placed_size(&pack)?;
+        size.check(SceneStage::Linespace, &limits, &args.input)?;
+        if size.linespace_two_level(&limits) {
+            return run_two_level(args, &pack);
+        }
+    }
+    // A pack: its placed scene's triangles only (no mesh, no textures); a model: its mesh.
+    let (tris, geo, pack) = if super::svo::is_pack(&args.input) {
+        let pack = crate::pack::Pack::open(&args.input)?;
+        let tris = crate::voxel::geometry::pack_world_triangles(&pack)?;
+        (tris, Default::default(), Some(pack))
+    } else {
+        let (geo, pack) =
+            load_geometry(&args.input, SceneStage::Linespace, &limits, &mut warnings)?;
+        (world_triangles(&geo.mesh), geo, pack)
+    };
     if tris.is_empty() {
         return Err(Error::invalid_at(
             &args.input,
@@ -86,9 +102,53 @@ pub fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
     })
 }
 
+/// A placed scene over the budget as one mesh: the two-level `linespace-scene` section.
+fn run_two_level(args: &LinespaceArgs, pack: &crate::pack::Pack) -> Result<Outcome> {
+    use crate::linespace::instanced_section;
+    let opts = NTreeOptions {
+        n: args.n,
+        depth: args.depth,
+        cubic_cells: !args.flat_cells,
+    };
+    let start = std::time::Instant::now();
+    let two = crate::voxel::geometry::pack_scene_linespace(pack, &opts)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let output = args.output.clone().unwrap_or_else(|| args.input.clone());
+    let mut w = crate::pack::PackWriter::from_pack(pack);
+    let source = crate::ingest::confine::SourceNames::first_name(&args.input);
+    w.insert(instanced_section::to_section(
+        instanced_section::KIND,
+        &source,
+        &two,
+    ));
+    w.write(&output)?;
+    let mut json = instanced_section::summary_of(&two);
+    json["output"] = serde_json::json!(output);
+    json["seconds"] = serde_json::json!(seconds);
+    let text = format!(
+        "{}: linespace-scene (two-level: the placed scene exceeds --max-memory as one mesh) of \
+         {} models, {} instances ({} placed triangles), top tree depth {}, {} bytes ({:.3} s)\n",
+        output.display(),
+        json["models"],
+        json["instances"],
+        json["placed_triangles"],
+        json["top_depth"],
+        json["bytes"],
+        seconds
+    );
+    Ok(Outcome {
+        json,
+        text,
+        warnings: Vec::new(),
+    })
+}
+
 #[derive(Debug, Clone, clap::Args)]
 pub struct LinespaceBenchArgs {
-    /// Model or pack (default: a procedural 70,000-triangle blob on a ground quad).
+    /// Model or pack (default: a procedural 70,000-triangle blob on a ground quad). A pack
+    /// with a `linespace-scene` section (the two-level line spaces): soft shadows over its
+    /// instances against exact visibility, every refinement (`--receivers`,
+    /// `--accuracy-samples`; crate::bench::linespace::bench_scene_accuracy).
     pub model: Option<PathBuf>,
     #[arg(long, default_value_t = 10)]
     pub n: u32,
@@ -130,6 +190,30 @@ pub struct LinespaceBenchArgs {
 pub fn bench(a: &LinespaceBenchArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
+    // A pack with the two-level line spaces: their accuracy over the instances.
+    if let Some(p) = a.model.as_ref().filter(|p| super::svo::is_pack(p)) {
+        let pack = crate::pack::Pack::open(p)?;
+        if let Some(e) = pack
+            .of_kind(crate::linespace::instanced_section::KIND)
+            .next()
+        {
+            let (_, scene) = crate::linespace::instanced_section::from_section(&pack.view(e)?)
+                .map_err(|e| Error::invalid(p, e))?;
+            let r = crate::bench::linespace::bench_scene_accuracy(
+                &scene,
+                &p.display().to_string(),
+                a.receivers,
+                a.accuracy_samples,
+                a.refine,
+                a.area_light,
+            )?;
+            return Ok(Outcome {
+                json: r.json,
+                text: r.text,
+                warnings: Vec::new(),
+            });
+        }
+    }
     let scene = match &a.model {
         Some(p) => Some((
             world_triangles(

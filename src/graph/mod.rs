@@ -1210,13 +1210,6 @@ fn scene_units(
             .filter(|(n, _)| n != crate::sky::SUN_SECTION && n != crate::sky::SH_SECTION)
             .cloned()
             .collect();
-        let geometry = std::cell::OnceCell::new();
-        let geo = || -> Result<&crate::voxel::geometry::Geometry> {
-            if geometry.get().is_none() {
-                let _ = geometry.set(crate::voxel::geometry::pack_geometry(&view)?);
-            }
-            Ok(geometry.get().expect("set above"))
-        };
         // The sections record the scene's source, so it is part of their keys.
         let source = scene_source.to_string();
         if s.svo {
@@ -1251,8 +1244,29 @@ fn scene_units(
             for (n, h) in &geo_inputs {
                 k.input(n, h);
             }
+            // The flattened `linespace` where the placed scene fits the memory budget, else
+            // the two-level `linespace-scene` (one N-tree per model; issue 39), the choice in
+            // the key only when two-level (the flattened units' keys are as before).
+            let two_level = crate::voxel::geometry::placed_size(&view)?.linespace_two_level(limits);
+            if two_level {
+                k.options(&"two-level");
+            }
             let out = g.unit("linespace", "scene", k.finish(), None, |_| {
-                let tris = crate::linespace::world_triangles(&geo()?.mesh);
+                if two_level {
+                    let (sec, report) = crate::voxel::geometry::pack_linespace_section(
+                        &view,
+                        &p.linespace,
+                        limits,
+                        first,
+                        &source,
+                    )?;
+                    return Ok(Output {
+                        report,
+                        sections: vec![sec],
+                        ..Default::default()
+                    });
+                }
+                let tris = crate::voxel::geometry::pack_world_triangles(&view)?;
                 let shafts =
                     std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(p.linespace.n));
                 let tree = crate::linespace::ntree::build_ntree(&tris, &p.linespace, &shafts)?;

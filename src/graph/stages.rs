@@ -117,7 +117,7 @@ pub const STAGES: [StageDef; 13] = [
         "linespace",
         versions::LINESPACE,
         Per::Scene,
-        &["linespace"],
+        &["linespace", "linespace-scene"],
         &["linespace"],
     ),
 ];

@@ -340,6 +340,26 @@ pub const KINDS: &[SectionKind] = &[
         check: None,
     },
     SectionKind {
+        kind: crate::linespace::instanced_section::KIND,
+        naming: Naming::Kind,
+        arrays: &[
+            ("occupancy", &[U64], 1),
+            ("first_child", &[U32], 1),
+            ("leaf_items", &[U32], 1),
+            ("item_indices", &[U32], 1),
+            ("triangles", &[F32], 9),
+            ("instances", &[U32], 8),
+            ("heights", &[F32], 1),
+            ("shaft_cells", &[U64], 1),
+        ],
+        decode: |v| crate::linespace::instanced_section::from_section(v).map(drop),
+        views: Some((
+            crate::linespace::instanced_section::summary,
+            crate::linespace::instanced_section::data,
+        )),
+        check: None,
+    },
+    SectionKind {
         kind: crate::lod::section::KIND,
         naming: Naming::Qualified,
         arrays: &[

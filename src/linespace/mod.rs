@@ -2,10 +2,13 @@
 //! GPU pools, [`shaft`] the exact shaft/box test and the per-child shaft masks, [`layout`]
 //! the line-space bit layout, [`query`] soft-shadow queries, [`section`] the `linespace` pack section,
 //! [`accuracy`] line-space against exact area-light visibility, [`dense`] the thesis' dense
-//! pools as a reference.
+//! pools as a reference; [`instanced`] the two-level form over a placed scene's instances
+//! (section [`instanced_section`], `linespace-scene`).
 pub mod accuracy;
 pub mod dense;
 pub mod gpu;
+pub mod instanced;
+pub mod instanced_section;
 pub mod layout;
 pub mod ntree;
 pub mod query;

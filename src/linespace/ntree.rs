@@ -140,7 +140,7 @@ pub fn path_key(c: [u32; 3], levels: u32, n: u32) -> u64 {
     key
 }
 
-fn check_options(o: &NTreeOptions) -> Result<()> {
+pub(super) fn check_options(o: &NTreeOptions) -> Result<()> {
     if !(2..=12).contains(&o.n) {
         return Err(Error::usage(format!("--n {} must be in 2..=12", o.n)));
     }
@@ -157,18 +157,27 @@ fn check_options(o: &NTreeOptions) -> Result<()> {
 
 /// The root box: the triangles' bounds (or the cube of their longest extent from the same
 /// minimum corner), padded by a thousandth on each side.
-fn root_box(tris: &[[[f32; 3]; 3]], cubic: bool) -> Result<([f32; 3], [f32; 3])> {
+fn root_box(tris: &[[[f32; 3]; 3]], cubic: bool, extra: f32) -> Result<([f32; 3], [f32; 3])> {
     let pts: Vec<[f32; 3]> = tris.iter().flatten().copied().collect();
     let (lo, hi) = crate::model::bounds_of(&pts)
         .ok_or_else(|| Error::Runtime("no triangles for the N-tree".into()))?;
+    Ok(root_box_of(
+        lo.map(|x| x - extra),
+        hi.map(|x| x + extra),
+        cubic,
+    ))
+}
+
+/// [`root_box`] of the bounds `lo`..`hi`.
+pub(super) fn root_box_of(lo: [f32; 3], hi: [f32; 3], cubic: bool) -> ([f32; 3], [f32; 3]) {
     let ext = [0, 1, 2].map(|k| (hi[k] - lo[k]).max(1e-6 * (1.0 + lo[k].abs())));
     let longest = ext.iter().cloned().fold(0.0, f32::max);
     let ext = if cubic { [longest; 3] } else { ext };
     let pad = ext.map(|e| e * 1e-3 + longest * 1e-6);
-    Ok((
+    (
         [0, 1, 2].map(|k| lo[k] - pad[k]),
         [0, 1, 2].map(|k| ext[k] + 2.0 * pad[k]),
-    ))
+    )
 }
 
 /// The cells of a build: sorted (leaf path key, triangle) pairs and the sorted unique path
@@ -182,8 +191,19 @@ pub(super) struct Cells {
 
 /// Marks the leaf cells every triangle touches.
 pub(super) fn mark_cells(tris: &[[[f32; 3]; 3]], opts: &NTreeOptions) -> Result<Cells> {
+    mark_cells_padded(tris, opts, 0.0)
+}
+
+/// [`mark_cells`] with every triangle grown by `margin` (world units) on each side: the root
+/// box by as much, and the cell test's margin at least `margin` (never below
+/// [`CELL_MARGIN`] cells).
+pub(super) fn mark_cells_padded(
+    tris: &[[[f32; 3]; 3]],
+    opts: &NTreeOptions,
+    margin: f32,
+) -> Result<Cells> {
     check_options(opts)?;
-    let (origin, size) = root_box(tris, opts.cubic_cells)?;
+    let (origin, size) = root_box(tris, opts.cubic_cells, margin)?;
     let (n, depth) = (opts.n, opts.depth);
     let res = n.pow(depth);
     let leaf_size = size.map(|s| s / res as f32);
@@ -192,9 +212,11 @@ pub(super) fn mark_cells(tris: &[[[f32; 3]; 3]], opts: &NTreeOptions) -> Result<
         voxel_size: leaf_size,
         dims: [res; 3],
     };
+    let smallest = leaf_size.iter().cloned().fold(f32::INFINITY, f32::min);
+    let cell_margin = CELL_MARGIN.max(margin / smallest);
     let setups: Vec<TriSetup> = tris
         .par_iter()
-        .map(|t| TriSetup::padded(t.map(|p| grid.to_grid(p)), CELL_MARGIN))
+        .map(|t| TriSetup::padded(t.map(|p| grid.to_grid(p)), cell_margin))
         .collect();
     let pairs = leaf_pairs(&setups, res, depth, n);
     let mut keys: Vec<u64> = pairs.iter().map(|p| p.0).collect();
@@ -214,31 +236,69 @@ pub fn build_ntree(
     opts: &NTreeOptions,
     shafts: &Arc<ShaftTable>,
 ) -> Result<NTree> {
+    build_ntree_padded(tris, opts, shafts, 0.0)
+}
+
+/// [`build_ntree`] with the triangles' cells grown by `margin` world units (see
+/// [`mark_cells_padded`]): a traversal on a segment within `margin` of the one a triangle
+/// blocks still reaches its leaves (the instanced tree's models, whose segments are moved into
+/// the model's frame with rounding).
+pub fn build_ntree_padded(
+    tris: &[[[f32; 3]; 3]],
+    opts: &NTreeOptions,
+    shafts: &Arc<ShaftTable>,
+    margin: f32,
+) -> Result<NTree> {
     if shafts.layout.n != opts.n {
         return Err(Error::Runtime("shaft table built for another n".into()));
     }
-    let cells = mark_cells(tris, opts)?;
-    let (n, depth) = (opts.n, opts.depth);
-    let mut tree = NTree {
-        n,
-        depth,
-        origin: cells.origin,
-        leaf_size: cells.leaf_size,
-        level_groups: Vec::new(),
-        occupancy: Vec::new(),
-        occupancy_rev: Vec::new(),
-        first_child: Vec::new(),
-        leaf_tris: Vec::new(),
-        tri_indices: cells.pairs.iter().map(|p| p.1).collect(),
-        triangles: tris.to_vec(),
-        shafts: shafts.clone(),
-        dense_linespaces: None,
-        refine: Refine::default(),
-    };
-    tree.link_groups(&cells.prefixes);
-    tree.fill_reversed();
-    tree.leaf_tris = leaf_runs(&cells.prefixes[depth as usize], &cells.pairs);
-    Ok(tree)
+    let cells = mark_cells_padded(tris, opts, margin)?;
+    Ok(NTree::from_cells(
+        opts,
+        cells.origin,
+        cells.leaf_size,
+        &cells.pairs,
+        tris.to_vec(),
+        shafts,
+    ))
+}
+
+impl NTree {
+    /// The tree of sorted (leaf path key, item) pairs: the leaves list the items (triangles,
+    /// or for a top-level tree instance numbers; `triangles` may then be empty).
+    pub(super) fn from_cells(
+        opts: &NTreeOptions,
+        origin: [f32; 3],
+        leaf_size: [f32; 3],
+        pairs: &[(u64, u32)],
+        triangles: Vec<[[f32; 3]; 3]>,
+        shafts: &Arc<ShaftTable>,
+    ) -> NTree {
+        let (n, depth) = (opts.n, opts.depth);
+        let mut keys: Vec<u64> = pairs.iter().map(|p| p.0).collect();
+        keys.dedup();
+        let prefixes = level_prefixes(&keys, depth, n);
+        let mut tree = NTree {
+            n,
+            depth,
+            origin,
+            leaf_size,
+            level_groups: Vec::new(),
+            occupancy: Vec::new(),
+            occupancy_rev: Vec::new(),
+            first_child: Vec::new(),
+            leaf_tris: Vec::new(),
+            tri_indices: pairs.iter().map(|p| p.1).collect(),
+            triangles,
+            shafts: shafts.clone(),
+            dense_linespaces: None,
+            refine: Refine::default(),
+        };
+        tree.link_groups(&prefixes);
+        tree.fill_reversed();
+        tree.leaf_tris = leaf_runs(&prefixes[depth as usize], pairs);
+        tree
+    }
 }
 
 /// Sorted unique path keys per level 0..=depth (level 0: the root, key 0).

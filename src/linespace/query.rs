@@ -112,9 +112,36 @@ impl NTree {
     }
 
     fn segment_occluded_with(&self, s: &Segment, linespaces: bool, stats: &mut QueryStats) -> bool {
+        let mut own = OwnTriangles { ray: s.bvh_ray() };
+        self.occluded_by(s, linespaces, &mut own, stats)
+    }
+
+    /// The traversal with `leaves` deciding the leaves it refines into (the tree's own
+    /// triangles, a model's triangles placed by an instance, or a top-level tree's instances).
+    pub(crate) fn occluded_by<L: LeafTest>(
+        &self,
+        s: &Segment,
+        linespaces: bool,
+        leaves: &mut L,
+        stats: &mut QueryStats,
+    ) -> bool {
+        self.occluded_by_refine(s, linespaces, self.refine, leaves, stats)
+    }
+
+    /// [`Self::occluded_by`] under the refinement mode `refine` instead of the tree's.
+    pub(crate) fn occluded_by_refine<L: LeafTest>(
+        &self,
+        s: &Segment,
+        linespaces: bool,
+        refine: Refine,
+        leaves: &mut L,
+        stats: &mut QueryStats,
+    ) -> bool {
         let r = self.grid_ray(s);
         match self.root_span(&r) {
-            Some(span) => self.occluded_in(s, &r, self.root_at(linespaces), span, stats),
+            Some(span) => {
+                self.occluded_in(&r, self.root_at(linespaces), span, refine, leaves, stats)
+            }
             None => false,
         }
     }
@@ -149,7 +176,8 @@ impl NTree {
                 linespaces: false,
             };
         }
-        self.exact_occluded(s, &r, at.group, at.base, at.side, span, stats)
+        let mut own = OwnTriangles { ray: s.bvh_ray() };
+        self.exact_occluded(&r, at.group, at.base, at.side, span, &mut own, stats)
     }
 
     /// The root node as a traversal position.
@@ -196,13 +224,13 @@ impl NTree {
         lit as f32 / k as f32
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn occluded_in(
+    fn occluded_in<L: LeafTest>(
         &self,
-        s: &Segment,
         r: &VoxelRay,
         at: At,
         span: Span,
+        refine: Refine,
+        leaves: &mut L,
         stats: &mut QueryStats,
     ) -> bool {
         let At {
@@ -219,20 +247,22 @@ impl NTree {
             match self.shaft_full(r, group, base, side, span) {
                 Some(false) => return false,
                 Some(true) if deepest => {
-                    return match self.refine {
+                    return match refine {
                         Refine::Near if near_start(r, span.t0, side) => {
-                            self.exact_occluded(s, r, group, base, side, span, stats)
+                            self.exact_occluded(r, group, base, side, span, leaves, stats)
                         }
                         Refine::Shaft | Refine::Near => true,
                         Refine::Cells => self.cells_crossed(r, group, base, side, span, stats),
-                        Refine::Exact => self.exact_occluded(s, r, group, base, side, span, stats),
+                        Refine::Exact => {
+                            self.exact_occluded(r, group, base, side, span, leaves, stats)
+                        }
                     };
                 }
                 _ => {}
             }
         }
         if deepest {
-            return self.exact_occluded(s, r, group, base, side, span, stats);
+            return self.exact_occluded(r, group, base, side, span, leaves, stats);
         }
         let n = self.n as i64;
         let cell = side / self.n as f32;
@@ -260,7 +290,7 @@ impl NTree {
                     side: cell,
                     linespaces,
                 };
-                if self.occluded_in(s, r, at, child, stats) {
+                if self.occluded_in(r, at, child, refine, leaves, stats) {
                     return true;
                 }
             }
@@ -302,34 +332,26 @@ impl NTree {
     }
 
     /// Exact test inside a deepest-level node: a DDA over its leaves, testing the triangles of
-    /// each filled leaf the segment crosses.
+    /// each filled leaf the segment crosses (by `leaves`).
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn exact_occluded(
+    pub(super) fn exact_occluded<L: LeafTest>(
         &self,
-        s: &Segment,
         r: &VoxelRay,
         group: u32,
         base: [f32; 3],
         side: f32,
         span: Span,
+        leaves: &mut L,
         stats: &mut QueryStats,
     ) -> bool {
-        let ray = s.bvh_ray();
         let n = self.n as i64;
         let cell = side / self.n as f32;
         let mut dda = Dda::new(r, base, cell, [n; 3], span.t0);
         loop {
             let c = dda.c;
             let slot = (c[0] + n * c[1] + n * n * c[2]) as usize;
-            if self.filled(group, slot) {
-                let tris = self.leaf_triangles(self.child(group, slot));
-                stats.exact_triangle_tests += tris.len() as u64;
-                let hit = tris.iter().any(|&t| {
-                    to_bvh_triangle(&self.triangles[t as usize]).intersect(&ray) <= ray.tmax
-                });
-                if hit {
-                    return true;
-                }
+            if self.filled(group, slot) && leaves.leaf_hit(self, self.child(group, slot), stats) {
+                return true;
             }
             if dda.exit() >= span.t1 || !dda.advance(n) {
                 return false;
@@ -362,6 +384,28 @@ impl NTree {
                 return false;
             }
         }
+    }
+}
+
+/// What a traversal tests in a leaf it refines into.
+pub(crate) trait LeafTest {
+    /// Whether the items of leaf `leaf` of `tree` block the segment.
+    fn leaf_hit(&mut self, tree: &NTree, leaf: u32, stats: &mut QueryStats) -> bool;
+}
+
+/// The tree's own triangles against the segment, as obvhs tests them.
+pub(crate) struct OwnTriangles {
+    pub(crate) ray: BvhRay,
+}
+
+impl LeafTest for OwnTriangles {
+    #[inline]
+    fn leaf_hit(&mut self, tree: &NTree, leaf: u32, stats: &mut QueryStats) -> bool {
+        let tris = tree.leaf_triangles(leaf);
+        stats.exact_triangle_tests += tris.len() as u64;
+        tris.iter().any(|&t| {
+            to_bvh_triangle(&tree.triangles[t as usize]).intersect(&self.ray) <= self.ray.tmax
+        })
     }
 }
 

@@ -103,6 +103,12 @@ pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseErro
 /// Structural invariants: array sizes agree with the groups, every child number and triangle
 /// range in range (a query then never reads out of bounds).
 pub fn validate(t: &NTree) -> Result<(), String> {
+    validate_items(t, t.triangles.len())
+}
+
+/// [`validate`] with the leaves' entries numbering `items` things (a top-level tree's
+/// instances, where `triangles` is empty).
+pub fn validate_items(t: &NTree, items: usize) -> Result<(), String> {
     if !(2..=12).contains(&t.n) || t.depth == 0 || t.level_groups.len() != t.depth as usize + 1 {
         return Err(format!("bad n {} / depth {}", t.n, t.depth));
     }
@@ -145,10 +151,7 @@ pub fn validate(t: &NTree) -> Result<(), String> {
     {
         return Err("leaf_tris not ascending to the end of tri_indices".into());
     }
-    if t.tri_indices
-        .iter()
-        .any(|&i| i as usize >= t.triangles.len())
-    {
+    if t.tri_indices.iter().any(|&i| i as usize >= items) {
         return Err("a triangle index out of range".into());
     }
     Ok(())

@@ -11,7 +11,7 @@ use crate::graph::{BAKE_VERSION, BuildOptions, Pipeline};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
 use crate::pack::{Pack, Section, StreamWriter, hex};
-use crate::voxel::geometry::{self, SceneStage};
+use crate::voxel::geometry;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -473,14 +473,14 @@ pub fn linespace(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitRe
     let sections = read_packs(inputs)?;
     let name = s.view_name()?;
     let view = Pack::from_sections(&sections, &name);
-    geometry::placed_size(&view)?.check(SceneStage::Linespace, &s.ingest.limits, s.first()?)?;
-    let geo = geometry::pack_geometry(&view)?;
-    let tris = crate::linespace::world_triangles(&geo.mesh);
-    let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(
-        s.pipeline.linespace.n,
-    ));
-    let tree = crate::linespace::ntree::build_ntree(&tris, &s.pipeline.linespace, &shafts)?;
-    let sec = crate::linespace::section::to_section("linespace", &s.source()?, &tree);
+    // The flattened `linespace`, or over the budget the two-level `linespace-scene`.
+    let (sec, _) = geometry::pack_linespace_section(
+        &view,
+        &s.pipeline.linespace,
+        &s.ingest.limits,
+        s.first()?,
+        &s.source()?,
+    )?;
     finish("linespace", out, vec![sec], Vec::new())
 }
 

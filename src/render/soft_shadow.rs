@@ -132,10 +132,20 @@ pub fn load_tree(pack: &Pack) -> Result<NTree> {
         .of_kind(crate::linespace::section::KIND)
         .next()
         .ok_or_else(|| {
+            let two_level = pack
+                .of_kind(crate::linespace::instanced_section::KIND)
+                .next()
+                .is_some();
             Error::invalid_at(
                 pack.path(),
                 "section table",
-                "--soft-shadows needs a linespace section (run `bake linespace PACK` first)",
+                if two_level {
+                    "--soft-shadows needs a linespace section; this pack's line spaces are the \
+                     two-level linespace-scene (the placed scene exceeded --max-memory), which \
+                     only the CPU queries so far (`bake bench linespace PACK`)"
+                } else {
+                    "--soft-shadows needs a linespace section (run `bake linespace PACK` first)"
+                },
             )
         })?;
     let (_, tree) = crate::linespace::section::from_section(&pack.view(e)?)
