@@ -122,6 +122,14 @@ impl Skeleton {
 }
 
 impl Mesh {
+    /// The corner positions of every triangle, in index order.
+    pub fn triangle_positions(&self) -> Vec<[[f32; 3]; 3]> {
+        self.indices
+            .iter()
+            .map(|t| t.map(|i| self.positions[i as usize]))
+            .collect()
+    }
+
     /// Axis-aligned bounds of the positions, or `None` for an empty mesh.
     pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
         bounds_of(&self.positions)

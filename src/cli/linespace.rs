@@ -111,7 +111,7 @@ fn run_two_level(args: &LinespaceArgs, pack: &crate::pack::Pack) -> Result<Outco
         cubic_cells: !args.flat_cells,
     };
     let start = std::time::Instant::now();
-    let two = crate::voxel::geometry::pack_scene_linespace(pack, &opts)?;
+    let two = crate::linespace::scene::pack_scene_linespace(pack, &opts)?;
     let seconds = start.elapsed().as_secs_f64();
     let output = args.output.clone().unwrap_or_else(|| args.input.clone());
     let mut w = crate::pack::PackWriter::from_pack(pack);

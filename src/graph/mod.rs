@@ -1253,7 +1253,7 @@ fn scene_units(
             }
             let out = g.unit("linespace", "scene", k.finish(), None, |_| {
                 if two_level {
-                    let (sec, report) = crate::voxel::geometry::pack_linespace_section(
+                    let (sec, report) = crate::linespace::scene::pack_linespace_section(
                         &view,
                         &p.linespace,
                         limits,

@@ -169,18 +169,7 @@ fn placed_box(r: &InstanceRef, (lo, hi): ([f32; 3], [f32; 3]), pad: f32) -> ([f3
 /// min/max quadtree), per instance its reference, bounds and about 27 top-level pairs
 /// (32 + 24 + 27·20 B). Like the flattened estimate, without the shaft table (19.2 MB at
 /// n = 10, shared).
-pub fn build_bytes(terrain_samples: u64, models: &[(u64, u64)], instances: u64) -> u64 {
-    let model = |(v, t): (u64, u64)| {
-        v.saturating_mul(32)
-            .saturating_add(t.saturating_mul(16 + 36 + 4 * 20))
-    };
-    models
-        .iter()
-        .fold(terrain_samples.saturating_mul(12), |a, &m| {
-            a.saturating_add(model(m))
-        })
-        .saturating_add(instances.saturating_mul(32 + 24 + 27 * 20))
-}
+pub use crate::voxel::geometry::linespace_scene_bytes as build_bytes;
 
 impl SceneLinespace {
     /// Builds the structure: `models[i]` is model i's triangles in its own frame with its mesh

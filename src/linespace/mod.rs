@@ -3,7 +3,8 @@
 //! the line-space bit layout, [`query`] soft-shadow queries, [`section`] the `linespace` pack section,
 //! [`accuracy`] line-space against exact area-light visibility, [`dense`] the thesis' dense
 //! pools as a reference; [`instanced`] the two-level form over a placed scene's instances
-//! (section [`instanced_section`], `linespace-scene`).
+//! (section [`instanced_section`], `linespace-scene`); [`scene`] the stage on a pack (either
+//! form, by the memory budget).
 pub mod accuracy;
 pub mod dense;
 pub mod gpu;
@@ -12,15 +13,13 @@ pub mod instanced_section;
 pub mod layout;
 pub mod ntree;
 pub mod query;
+pub mod scene;
 pub mod section;
 pub mod shaft;
 
-/// World-space triangles of a mesh.
+/// World-space triangles of a mesh ([`crate::model::Mesh::triangle_positions`]).
 pub fn world_triangles(m: &crate::model::Mesh) -> Vec<[[f32; 3]; 3]> {
-    m.indices
-        .iter()
-        .map(|t| t.map(|i| m.positions[i as usize]))
-        .collect()
+    m.triangle_positions()
 }
 
 #[cfg(test)]

@@ -474,7 +474,7 @@ pub fn linespace(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitRe
     let name = s.view_name()?;
     let view = Pack::from_sections(&sections, &name);
     // The flattened `linespace`, or over the budget the two-level `linespace-scene`.
-    let (sec, _) = geometry::pack_linespace_section(
+    let (sec, _) = crate::linespace::scene::pack_linespace_section(
         &view,
         &s.pipeline.linespace,
         &s.ingest.limits,

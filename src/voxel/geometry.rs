@@ -112,7 +112,7 @@ pub fn place_instance(model: &Geometry, inst: &Instance) -> Geometry {
     g
 }
 
-fn invalid(pack: &Pack, e: ParseError) -> crate::error::Error {
+pub(crate) fn invalid(pack: &Pack, e: ParseError) -> crate::error::Error {
     crate::error::Error::invalid(pack.path(), e)
 }
 
@@ -171,7 +171,7 @@ pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
     Ok(g)
 }
 
-/// The world triangles of [`pack_geometry`]'s mesh (`linespace::world_triangles` of it: the
+/// The world triangles of [`pack_geometry`]'s mesh (`Mesh::triangle_positions` of it: the
 /// same values in the same order) without building the mesh: no normals, texture coordinates,
 /// materials or per-instance copies of the textures (at 20,000 instances the whole mesh took
 /// 13 GB where its triangles take 1.5 GB).
@@ -180,7 +180,7 @@ pub fn pack_world_triangles(pack: &Pack) -> Result<Vec<[[f32; 3]; 3]>> {
     if let Some(t) = pack_terrain(pack)? {
         let (w, h) = (t.width.max(1), t.height.max(1));
         let m = terrain_tile_mesh(&t, [0, w.saturating_sub(1)], [0, h.saturating_sub(1)]);
-        out.extend(crate::linespace::world_triangles(&m));
+        out.extend(m.triangle_positions());
     }
     if let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() {
         let view = pack.view(e)?;
@@ -208,9 +208,7 @@ pub fn pack_world_triangles(pack: &Pack) -> Result<Vec<[[f32; 3]; 3]>> {
             .map(|e| e.name.clone())
             .collect();
         for n in names {
-            out.extend(crate::linespace::world_triangles(
-                &mesh_from_pack(pack, &n)?.mesh,
-            ));
+            out.extend(mesh_from_pack(pack, &n)?.mesh.triangle_positions());
         }
     }
     Ok(out)
@@ -257,8 +255,8 @@ pub struct PlacedSize {
     /// What the two-level SVO needs at least ([`super::instanced::build_bytes`]); `u64::MAX`
     /// without instances (a pack of bare meshes has no instanced form).
     pub two_level_bytes: u64,
-    /// What the two-level line spaces need at least
-    /// ([`crate::linespace::instanced::build_bytes`]); `u64::MAX` without instances.
+    /// What the two-level line spaces need at least ([`linespace_scene_bytes`]); `u64::MAX`
+    /// without instances.
     pub linespace_two_level_bytes: u64,
 }
 
@@ -298,7 +296,7 @@ impl PlacedSize {
         size.two_level_bytes =
             super::instanced::build_bytes(terrain_size, &model_sizes, size.instances);
         size.linespace_two_level_bytes =
-            crate::linespace::instanced::build_bytes(terrain_size.0, &model_sizes, size.instances);
+            linespace_scene_bytes(terrain_size.0, &model_sizes, size.instances);
         size
     }
 
@@ -388,6 +386,22 @@ impl PlacedSize {
     }
 }
 
+/// What the two-level line spaces (`linespace-scene`) need at least, as
+/// `crate::linespace::instanced::build_bytes` documents it (it re-exports this): here, beside
+/// [`PlacedSize`], so that the size check needs no line-space code (the layer order).
+pub fn linespace_scene_bytes(terrain_samples: u64, models: &[(u64, u64)], instances: u64) -> u64 {
+    let model = |(v, t): (u64, u64)| {
+        v.saturating_mul(32)
+            .saturating_add(t.saturating_mul(16 + 36 + 4 * 20))
+    };
+    models
+        .iter()
+        .fold(terrain_samples.saturating_mul(12), |a, &m| {
+            a.saturating_add(model(m))
+        })
+        .saturating_add(instances.saturating_mul(32 + 24 + 27 * 20))
+}
+
 /// The terrain of a pack, with its colour map (None: no terrain section).
 pub fn pack_terrain(pack: &Pack) -> Result<Option<Terrain>> {
     let Some(e) = pack.of_kind(crate::terrain::source_section::KIND).next() else {
@@ -464,70 +478,6 @@ pub fn pack_svo_section(
     let svo = super::svo::voxels_to_svo(&v);
     let sec = super::section::to_section(super::section::KIND, source, &svo, opts.solid);
     Ok((sec, super::section::summary_of(&svo)))
-}
-
-/// The two-level line spaces of a pack's scene (terrain, models, instances), each model read
-/// once.
-pub fn pack_scene_linespace(
-    pack: &Pack,
-    opts: &crate::linespace::ntree::NTreeOptions,
-) -> Result<crate::linespace::instanced::SceneLinespace> {
-    let terrain = pack_terrain(pack)?;
-    let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
-        return Err(crate::error::Error::Runtime(
-            "the two-level line spaces need an instances section".into(),
-        ));
-    };
-    let view = pack.view(e)?;
-    let (meta, inst) =
-        crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
-    let models: Vec<crate::linespace::instanced::ModelTriangles> = meta
-        .mesh_sections
-        .iter()
-        .map(|s| {
-            pack.find(s)
-                .map(|_| {
-                    mesh_from_pack(pack, s)
-                        .map(|g| (s.clone(), crate::linespace::world_triangles(&g.mesh)))
-                })
-                .transpose()
-        })
-        .collect::<Result<_>>()?;
-    let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(opts.n));
-    crate::linespace::instanced::SceneLinespace::build(
-        terrain.as_ref(),
-        &models,
-        &inst.items,
-        opts,
-        &shafts,
-    )
-}
-
-/// The linespace stage on a pack: the flattened `linespace` section where the placed scene
-/// fits the budget, else the two-level `linespace-scene` section (refused when neither fits),
-/// with the section's summary.
-pub fn pack_linespace_section(
-    pack: &Pack,
-    opts: &crate::linespace::ntree::NTreeOptions,
-    limits: &Limits,
-    file: &Path,
-    source: &str,
-) -> Result<(crate::pack::Section, serde_json::Value)> {
-    use crate::linespace::{instanced_section, section};
-    let size = placed_size(pack)?;
-    size.check(SceneStage::Linespace, limits, file)?;
-    if size.linespace_two_level(limits) {
-        let two = pack_scene_linespace(pack, opts)?;
-        let sec = instanced_section::to_section(instanced_section::KIND, source, &two);
-        return Ok((sec, instanced_section::summary_of(&two)));
-    }
-    let tris = pack_world_triangles(pack)?;
-    let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(opts.n));
-    let tree = crate::linespace::ntree::build_ntree(&tris, opts, &shafts)?;
-    Ok((
-        section::to_section(section::KIND, source, &tree),
-        section::summary_of(&tree),
-    ))
 }
 
 /// [`PlacedSize`] of what [`pack_geometry`] would build from `pack`, from the sections'
