@@ -232,31 +232,7 @@ impl Arrays<'_> {
 pub fn from_section(v: &SectionView) -> Result<(LinespaceSceneMeta, SceneLinespace), ParseError> {
     let meta: LinespaceSceneMeta = v.meta()?;
     let bad = |m: String| ParseError::new("linespace-scene section", m);
-    if meta.layout != LAYOUT {
-        return Err(bad(format!(
-            "layout {:?}, this bake reads {LAYOUT:?} (rebuild it with `bake linespace`)",
-            meta.layout
-        )));
-    }
-    if !(2..=12).contains(&meta.n) {
-        return Err(bad(format!("bad n {}", meta.n)));
-    }
-    let layout = super::layout::Layout::new(meta.n);
-    let words = ((meta.n * meta.n * meta.n) as usize).div_ceil(64);
-    let cells: Vec<u64> = v.array_vec("shaft_cells")?;
-    let need = ShaftTable::rows(layout) * words as u64;
-    if cells.len() as u64 != need {
-        return Err(bad(format!(
-            "shaft_cells holds {} words, n = {} needs {need}",
-            cells.len(),
-            meta.n,
-        )));
-    }
-    let shafts = Arc::new(ShaftTable {
-        layout,
-        words,
-        cells,
-    });
+    let shafts = super::section::read_shafts(v, &meta.layout, meta.n, &bad)?;
     let occupancy: Vec<u64> = v.array_vec("occupancy")?;
     let first_child: Vec<u32> = v.array_vec("first_child")?;
     let leaf_items: Vec<u32> = v.array_vec("leaf_items")?;

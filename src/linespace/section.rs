@@ -52,29 +52,43 @@ pub fn to_section(name: &str, source: &str, t: &NTree) -> Section {
     b.finish()
 }
 
-pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseError> {
-    let meta: LinespaceMeta = v.meta()?;
-    let bad = |m: String| ParseError::new("linespace section", m);
-    if meta.layout != LAYOUT {
+/// The shaft table of a line-space section (`linespace` or `linespace-scene`): its layout
+/// name checked against [`LAYOUT`], `n` in 2..=12, and `shaft_cells` of the size `n` gives.
+pub(super) fn read_shafts(
+    v: &SectionView,
+    layout_name: &str,
+    n: u32,
+    bad: &dyn Fn(String) -> ParseError,
+) -> Result<Arc<ShaftTable>, ParseError> {
+    if layout_name != LAYOUT {
         return Err(bad(format!(
-            "layout {:?}, this bake reads {LAYOUT:?} (rebuild it with `bake linespace`)",
-            meta.layout
+            "layout {layout_name:?}, this bake reads {LAYOUT:?} (rebuild it with `bake linespace`)"
         )));
     }
-    if !(2..=12).contains(&meta.n) {
-        return Err(bad(format!("bad n {}", meta.n)));
+    if !(2..=12).contains(&n) {
+        return Err(bad(format!("bad n {n}")));
     }
-    let layout = super::layout::Layout::new(meta.n);
-    let words = ((meta.n * meta.n * meta.n) as usize).div_ceil(64);
+    let layout = super::layout::Layout::new(n);
+    let words = ((n * n * n) as usize).div_ceil(64);
     let cells: Vec<u64> = v.array_vec("shaft_cells")?;
     let need = ShaftTable::rows(layout) * words as u64;
     if cells.len() as u64 != need {
         return Err(bad(format!(
-            "shaft_cells holds {} words, n = {} needs {need}",
-            cells.len(),
-            meta.n,
+            "shaft_cells holds {} words, n = {n} needs {need}",
+            cells.len()
         )));
     }
+    Ok(Arc::new(ShaftTable {
+        layout,
+        words,
+        cells,
+    }))
+}
+
+pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseError> {
+    let meta: LinespaceMeta = v.meta()?;
+    let bad = |m: String| ParseError::new("linespace section", m);
+    let shafts = read_shafts(v, &meta.layout, meta.n, &bad)?;
     let mut t = NTree {
         n: meta.n,
         depth: meta.depth,
@@ -87,11 +101,7 @@ pub fn from_section(v: &SectionView) -> Result<(LinespaceMeta, NTree), ParseErro
         tri_indices: v.array_vec("tri_indices")?,
         triangles: v.array_vec("triangles")?,
         occupancy_rev: Vec::new(),
-        shafts: Arc::new(ShaftTable {
-            layout,
-            words,
-            cells,
-        }),
+        shafts,
         dense_linespaces: None,
         refine: Refine::default(),
     };
