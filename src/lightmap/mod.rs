@@ -242,43 +242,36 @@ impl Reach {
         }
     }
 
-    /// The closest instance hit (the terrain skipped) of the ray from `o` along `d` up to the
-    /// top of the instances; `None` without instances.
-    fn instance_hit(
-        &self,
-        bvh: &dyn SceneTracer,
-        o: Vec3A,
-        d: Vec3A,
-    ) -> Option<crate::trace::SceneHit> {
+    /// The ray from `o` along `d` up to the top of the instances; `None` without instances.
+    fn instance_ray(&self, o: Vec3A, d: Vec3A) -> Option<Ray> {
         let top = self.top?;
         let tmax = if d.z > 0.0 {
             ((top - o.z) / d.z).max(0.0) + 1e-3
         } else {
             f32::INFINITY
         };
-        let ray = Ray {
+        Some(Ray {
             tmax,
             ..Ray::new(o, d, 1e-4)
-        };
-        bvh.closest_hit_excluding(&ray, Some(self.terrain))
+        })
+    }
+
+    /// The closest instance hit (the terrain skipped) of [`Self::instance_ray`]; `None`
+    /// without instances.
+    fn instance_hit(
+        &self,
+        bvh: &dyn SceneTracer,
+        o: Vec3A,
+        d: Vec3A,
+    ) -> Option<crate::trace::SceneHit> {
+        bvh.closest_hit_excluding(&self.instance_ray(o, d)?, Some(self.terrain))
     }
 
     /// Whether [`Self::instance_hit`] finds a hit, stopping at the first one found (the same
     /// ray and bounds: the sun's disc rays need no closest hit).
     fn instance_blocked(&self, bvh: &dyn SceneTracer, o: Vec3A, d: Vec3A) -> bool {
-        let Some(top) = self.top else {
-            return false;
-        };
-        let tmax = if d.z > 0.0 {
-            ((top - o.z) / d.z).max(0.0) + 1e-3
-        } else {
-            f32::INFINITY
-        };
-        let ray = Ray {
-            tmax,
-            ..Ray::new(o, d, 1e-4)
-        };
-        bvh.any_hit_excluding(&ray, Some(self.terrain))
+        self.instance_ray(o, d)
+            .is_some_and(|ray| bvh.any_hit_excluding(&ray, Some(self.terrain)))
     }
 }
 
