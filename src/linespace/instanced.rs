@@ -390,13 +390,7 @@ impl SceneLinespace {
         offset: f32,
         stats: &mut QueryStats,
     ) -> f32 {
-        let k = light.samples.max(1).pow(2);
-        let lit = (0..k)
-            .filter(|&i| {
-                !self.segment_occluded(&Segment::between(p, light.sample(i), offset), stats)
-            })
-            .count();
-        lit as f32 / k as f32
+        light.lit_fraction(p, offset, |s| self.segment_occluded(s, stats))
     }
 
     /// Placed triangles (Σ over instances of their model's triangles).

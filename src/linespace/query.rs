@@ -31,6 +31,21 @@ pub struct AreaLight {
 }
 
 impl AreaLight {
+    /// Fraction of the light's k² samples whose segment from `p` (moved `offset` off it)
+    /// `occluded` lets through (1 = fully lit).
+    pub fn lit_fraction(
+        &self,
+        p: [f32; 3],
+        offset: f32,
+        mut occluded: impl FnMut(&Segment) -> bool,
+    ) -> f32 {
+        let k = self.samples.max(1).pow(2);
+        let lit = (0..k)
+            .filter(|&i| !occluded(&Segment::between(p, self.sample(i), offset)))
+            .count();
+        lit as f32 / k as f32
+    }
+
     /// Sample point i (row-major over the sample grid).
     pub fn sample(&self, i: u32) -> [f32; 3] {
         let k = self.samples.max(1);
@@ -215,13 +230,7 @@ impl NTree {
         offset: f32,
         stats: &mut QueryStats,
     ) -> f32 {
-        let k = light.samples.max(1).pow(2);
-        let lit = (0..k)
-            .filter(|&i| {
-                !self.segment_occluded(&Segment::between(p, light.sample(i), offset), stats)
-            })
-            .count();
-        lit as f32 / k as f32
+        light.lit_fraction(p, offset, |s| self.segment_occluded(s, stats))
     }
 
     fn occluded_in<L: LeafTest>(
