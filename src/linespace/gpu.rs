@@ -1,7 +1,8 @@
 //! GPU soft-shadow queries through the N-tree with line spaces: the `linespace` section's
 //! arrays (`occupancy`, `first_child`, `leaf_tris`, `tri_indices`, `triangles`, `shaft_cells`)
-//! bound as storage buffers exactly as packed, traversed by `shaders/ls_query.wgsl`, which
-//! follows [`super::query`] operation for operation (DDA, rank-compacted children, line-space
+//! bound as storage buffers exactly as packed, traversed by `shaders/ls_walk.wgsl` (over the
+//! pools of `ls_pools.wgsl`, the tree's own triangles as leaves: `ls_flat.wgsl`), which follows
+//! [`super::query`] operation for operation (DDA, rank-compacted children, line-space
 //! bits as occupancy & shaft cells, the deepest level's refinement, exact Möller–Trumbore tests
 //! as obvhs writes them). [`validate_linespace`] compares it with the CPU on random segments and
 //! shadow queries.
@@ -15,46 +16,77 @@ use crate::voxel::compute::{self, Kernel};
 use bytemuck::{Pod, Zeroable};
 
 const DDA_WGSL: &str = include_str!("../voxel/shaders/dda.wgsl");
-const QUERY_WGSL: &str = include_str!("shaders/ls_query.wgsl");
+const POOLS_WGSL: &str = include_str!("shaders/ls_pools.wgsl");
+const WALK_WGSL: &str = include_str!("shaders/ls_walk.wgsl");
+const FLAT_WGSL: &str = include_str!("shaders/ls_flat.wgsl");
+const ENTRIES_WGSL: &str = include_str!("shaders/ls_entries.wgsl");
 
-/// The shader's `Params` (80 bytes).
+/// The walk of `ls_walk.wgsl` for leaves decided by `leaf_hit{suffix}`.
+pub(super) fn walk_wgsl(suffix: &str) -> String {
+    WALK_WGSL.replace("__X", suffix)
+}
+
+/// The shader sources of a query kernel: the pools, the walk per kind of leaf, the variant
+/// (which defines `occluded`), the entry points.
+pub(super) fn kernel_parts(walks: &[&str], variant: &'static str) -> Vec<String> {
+    let mut parts = vec![DDA_WGSL.to_string(), POOLS_WGSL.to_string()];
+    parts.extend(walks.iter().map(|w| walk_wgsl(w)));
+    parts.push(variant.to_string());
+    parts.push(ENTRIES_WGSL.to_string());
+    parts
+}
+
+/// The shader's `Params` (128 bytes; the fields from `trees` on are the two-level query's).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct Params {
-    origin: [f32; 3],
-    n: u32,
-    leaf_size: [f32; 3],
-    depth: u32,
-    count: u32,
-    stride: u32,
+pub(super) struct Params {
+    pub(super) origin: [f32; 3],
+    pub(super) n: u32,
+    pub(super) leaf_size: [f32; 3],
+    pub(super) depth: u32,
+    pub(super) count: u32,
+    pub(super) stride: u32,
     /// u32 words of a group's occupancy and of a shaft's cells.
-    occ_words: u32,
-    use_linespaces: u32,
-    offset: f32,
-    seg_t_max: f32,
-    samples: u32,
-    flags: u32,
+    pub(super) occ_words: u32,
+    pub(super) use_linespaces: u32,
+    pub(super) offset: f32,
+    pub(super) seg_t_max: f32,
+    pub(super) samples: u32,
+    pub(super) flags: u32,
     /// [`super::ntree::Refine::code`].
-    refine: u32,
-    pad: [u32; 3],
+    pub(super) refine: u32,
+    pub(super) trees: u32,
+    pub(super) instances: u32,
+    pub(super) has_terrain: u32,
+    pub(super) hf_origin: [f32; 2],
+    pub(super) hf_step: [f32; 2],
+    pub(super) hf_cells: [u32; 2],
+    pub(super) hf_levels: u32,
+    pub(super) hf_pad_z: f32,
+    pub(super) near_distance: f32,
+    pub(super) instances_at: u32,
+    pub(super) levels_at: u32,
+    pub(super) pad: u32,
 }
-const _: () = assert!(size_of::<Params>() == 80);
+const _: () = assert!(size_of::<Params>() == 128);
 
 /// Output of the `shadow` kernel: counts of lit samples, or f32 fractions.
-const FLAG_FRACTION: u32 = 1;
+pub(super) const FLAG_FRACTION: u32 = 1;
 
 /// Receivers of a shadow query: a world position, or none (answered fully lit).
 pub type Receiver = Option<[f32; 3]>;
 
-/// An N-tree resident on the GPU, with its two kernels.
+/// An N-tree resident on the GPU (or the two-level trees of a scene:
+/// [`super::instanced_gpu`]), with its two kernels.
 pub struct NTreeGpu<'g> {
-    gpu: &'g Gpu,
-    segments: Kernel,
-    shadow: Kernel,
+    pub(super) gpu: &'g Gpu,
+    pub(super) segments: Kernel,
+    pub(super) shadow: Kernel,
     /// occupancy, first_child, leaf_tris, tri_indices, triangles, shaft_cells (the section's
-    /// arrays), then the reversed occupancy derived from it (binding order).
-    pools: Vec<wgpu::Buffer>,
-    base: Params,
+    /// arrays), then the reversed occupancy derived from it (binding order); the two-level
+    /// query's scene table and heights after them.
+    pub(super) pools: Vec<wgpu::Buffer>,
+    pub(super) base: Params,
 }
 
 impl<'g> NTreeGpu<'g> {
@@ -65,7 +97,8 @@ impl<'g> NTreeGpu<'g> {
         if t.depth as usize > 12 {
             return Err(Error::runtime("linespace: depth > 12"));
         }
-        let parts = [DDA_WGSL, QUERY_WGSL];
+        let parts = kernel_parts(&["_flat"], FLAT_WGSL);
+        let parts: Vec<&str> = parts.iter().map(String::as_str).collect();
         let arrays: [(&str, &[u8]); 7] = [
             ("linespace occupancy", bytemuck::cast_slice(&t.occupancy)),
             (
@@ -111,7 +144,7 @@ impl<'g> NTreeGpu<'g> {
                 samples: 0,
                 flags: 0,
                 refine: t.refine.code(),
-                pad: [0; 3],
+                ..Params::zeroed()
             },
         })
     }
@@ -402,32 +435,74 @@ pub fn validate_linespace(
     let recv: Vec<Receiver> = points.iter().map(|&p| Some(p)).collect();
     let counts_gpu = dev.shadow_counts(&recv, &light, offset)?;
     let counts_cpu = shadow_counts_cpu(t, &recv, &light, offset);
-    let mut a = LinespaceAgreement {
-        segments: segs.len(),
-        occluded: cpu.iter().filter(|&&o| o).count(),
-        receivers: points.len(),
-        samples: k,
-        gpu_pool_bytes: dev.pool_bytes(),
-        refine: t.refine,
-        cpu_seconds: (t1 - t0).as_secs_f64(),
-        gpu_seconds: (t3 - t2).as_secs_f64(),
+    Ok(agreement(
+        &Answers {
+            cpu: &cpu,
+            cpu_exact: &cpu_exact,
+            gpu: &on_gpu,
+            gpu_exact: &on_gpu_exact,
+            counts_cpu: &counts_cpu,
+            counts_gpu: &counts_gpu,
+        },
+        k,
+        dev.pool_bytes(),
+        t.refine,
+        (t1 - t0).as_secs_f64(),
+        (t3 - t2).as_secs_f64(),
+    ))
+}
+
+/// Both sides' answers on the same segments and receivers.
+pub(super) struct Answers<'a> {
+    pub cpu: &'a [bool],
+    pub cpu_exact: &'a [bool],
+    pub gpu: &'a [bool],
+    pub gpu_exact: &'a [bool],
+    pub counts_cpu: &'a [u32],
+    pub counts_gpu: &'a [u32],
+}
+
+/// The agreement of the answers (`samples` light samples per receiver).
+pub(super) fn agreement(
+    a: &Answers,
+    samples: u32,
+    gpu_pool_bytes: u64,
+    refine: super::ntree::Refine,
+    cpu_seconds: f64,
+    gpu_seconds: f64,
+) -> LinespaceAgreement {
+    let mut r = LinespaceAgreement {
+        segments: a.cpu.len(),
+        occluded: a.cpu.iter().filter(|&&o| o).count(),
+        receivers: a.counts_cpu.len(),
+        samples,
+        gpu_pool_bytes,
+        refine,
+        cpu_seconds,
+        gpu_seconds,
         ..Default::default()
     };
-    for i in 0..segs.len() {
-        let bad = cpu[i] != on_gpu[i];
-        a.segment_mismatches += bad as usize;
-        a.exact_mismatches += (cpu_exact[i] != on_gpu_exact[i]) as usize;
-        if (bad || cpu_exact[i] != on_gpu_exact[i]) && a.examples.len() < 5 {
-            a.examples.push(i);
+    for i in 0..a.cpu.len() {
+        let bad = a.cpu[i] != a.gpu[i];
+        let bad_exact = a.cpu_exact[i] != a.gpu_exact[i];
+        r.segment_mismatches += bad as usize;
+        r.exact_mismatches += bad_exact as usize;
+        if (bad || bad_exact) && r.examples.len() < 5 {
+            r.examples.push(i);
         }
     }
-    a.fraction_mismatches = counts_gpu
+    r.fraction_mismatches = a
+        .counts_gpu
         .iter()
-        .zip(&counts_cpu)
+        .zip(a.counts_cpu)
         .filter(|(g, c)| g != c)
         .count();
-    a.penumbra = counts_cpu.iter().filter(|&&c| c > 0 && c < k).count();
-    Ok(a)
+    r.penumbra = a
+        .counts_cpu
+        .iter()
+        .filter(|&&c| c > 0 && c < samples)
+        .count();
+    r
 }
 
 #[cfg(test)]

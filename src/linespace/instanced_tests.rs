@@ -491,3 +491,66 @@ fn beyond_the_near_zone_the_model_rules_stay_one_sided() {
         "the near path beyond its zone: {wrong:?}"
     );
 }
+
+/// GPU = CPU on the two-level structure (ls_scene.wgsl): every segment of random receivers
+/// (on placed triangles, on the terrain, anywhere) in every refinement mode equals
+/// [`SceneLinespace::segment_occluded`], and without line spaces the brute-force exact
+/// visibility over instances; the shadow kernel's counts equal the CPU's. Mirrored and
+/// zero-scale instances included; a scene without terrain too.
+#[test]
+fn gpu_two_level_queries_equal_the_cpu_in_every_refine_mode() {
+    use crate::gpu::{BackendChoice, init_gpu};
+    use crate::linespace::instanced_gpu::validate_scene_linespace;
+    let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
+    let c = Case::new(40, 5);
+    let mut s = c.two_level(&OPTS);
+    let mut blocked = Vec::new();
+    for refine in [Refine::Shaft, Refine::Cells, Refine::Exact, Refine::Near] {
+        s.set_refine(refine);
+        let a = validate_scene_linespace(&gpu, &s, 240, 4, 3).unwrap();
+        assert!(a.agrees(), "{refine:?}: {a:?}");
+        assert_eq!(a.segments, 240 * 16);
+        assert!(a.penumbra > 5, "{refine:?}: {a:?}");
+        blocked.push(a.occluded);
+    }
+    // Coarser modes block no fewer segments; the exact mode blocks some, not all.
+    assert!(
+        blocked[0] >= blocked[1] && blocked[1] >= blocked[2],
+        "{blocked:?}"
+    );
+    assert!(
+        blocked[2] > 200 && blocked[2] < 240 * 16 - 200,
+        "{blocked:?}"
+    );
+
+    // A low sun over the hills: segments the terrain blocks (the quadtree walk).
+    let dev = crate::linespace::gpu::NTreeGpu::for_scene(&gpu, &s).unwrap();
+    let (receivers, _) = setup(&c, 300);
+    let low: Vec<Segment> = receivers
+        .iter()
+        .enumerate()
+        .map(|(k, &p)| {
+            let phi = k as f32 * 0.7;
+            let sun = [40.0 * phi.cos(), 40.0 * phi.sin(), 3.0];
+            Segment::between(p, [0, 1, 2].map(|a| p[a] + sun[a]), 1e-3)
+        })
+        .collect();
+    let mut stats = QueryStats::default();
+    let terrain_blocked = low.iter().filter(|q| s.terrain_occluded(q)).count();
+    assert!(terrain_blocked > 30, "{terrain_blocked}");
+    let cpu: Vec<bool> = low
+        .iter()
+        .map(|q| s.segment_occluded(q, &mut stats))
+        .collect();
+    assert_eq!(dev.segments_occluded(&low, true).unwrap(), cpu);
+    let exact = ExactInstances::new(&s);
+    let cpu_exact: Vec<bool> = low.iter().map(|q| exact.occluded(q)).collect();
+    assert_eq!(dev.segments_occluded(&low, false).unwrap(), cpu_exact);
+
+    let shafts = Arc::new(ShaftTable::build(OPTS.n));
+    let mut bare = SceneLinespace::build(None, &c.named(), &c.instances, &OPTS, &shafts).unwrap();
+    bare.set_refine(Refine::Near);
+    let a = validate_scene_linespace(&gpu, &bare, 150, 3, 4).unwrap();
+    assert!(a.agrees(), "no terrain: {a:?}");
+    assert!(a.occluded > 20, "no terrain: {a:?}");
+}

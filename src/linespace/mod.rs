@@ -3,12 +3,13 @@
 //! the line-space bit layout, [`query`] soft-shadow queries, [`section`] the `linespace` pack section,
 //! [`accuracy`] line-space against exact area-light visibility, [`dense`] the thesis' dense
 //! pools as a reference; [`instanced`] the two-level form over a placed scene's instances
-//! (section [`instanced_section`], `linespace-scene`); [`scene`] the stage on a pack (either
+//! (section [`instanced_section`], `linespace-scene`; on the GPU [`instanced_gpu`]); [`scene`] the stage on a pack (either
 //! form, by the memory budget).
 pub mod accuracy;
 pub mod dense;
 pub mod gpu;
 pub mod instanced;
+pub mod instanced_gpu;
 pub mod instanced_section;
 pub mod layout;
 pub mod ntree;

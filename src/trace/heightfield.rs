@@ -144,6 +144,26 @@ impl Heightfield {
         (self.width, self.height)
     }
 
+    /// The quadtree the traversal descends.
+    pub fn quadtree(&self) -> &MinMaxQuadtree {
+        &self.tree
+    }
+
+    /// The heights, row-major (`width × height`).
+    pub fn heights(&self) -> &[f32] {
+        &self.heights
+    }
+
+    /// Sample (0, 0)'s x, y and the sample spacing (x, y), as the traversal maps the grid.
+    pub fn grid(&self) -> ([f32; 2], [f32; 2]) {
+        (self.origin, self.step)
+    }
+
+    /// The node boxes' height margin.
+    pub fn pad_z(&self) -> f32 {
+        self.pad_z
+    }
+
     /// World bounds of the surface.
     pub fn bounds(&self) -> (Vec3A, Vec3A) {
         let [lo, hi] = self.tree.node(self.tree.levels() - 1, 0, 0);
