@@ -312,6 +312,8 @@ fn over_the_flattened_budget_the_linespace_stage_writes_the_two_level_line_space
     assert_eq!(differ, 0, "{blocked} of {total} blocked");
     let o = common::bake(&["verify", two_out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    two_level_on_the_gpu(&flat, &two, &two_out, &ft, &s);
+    two_level_on_the_gpu(&flat, &two, &two_out, &ft, &s);
 
     // The graph makes the same choice.
     let out = dir.path().join("graph.bake");
@@ -338,4 +340,102 @@ fn over_the_flattened_budget_the_linespace_stage_writes_the_two_level_line_space
     let (_, gs) =
         instanced_section::from_section(&g.view_named("linespace-scene").unwrap()).unwrap();
     assert_eq!(gs, s);
+}
+
+/// The two-level line spaces on the GPU: `bake validate` finds GPU = CPU in the `near` and
+/// `exact` modes, and `--soft-shadows` over the `linespace-scene` pack answers every pixel as
+/// the CPU's two-level query does and, in `exact` mode, as the flattened tree's pack does under
+/// the same light (both are the placed scene's exact visibility of the same receivers).
+fn two_level_on_the_gpu(
+    flat: &Pack,
+    two: &Pack,
+    two_out: &std::path::Path,
+    ft: &bake::linespace::ntree::NTree,
+    s: &bake::linespace::instanced::SceneLinespace,
+) {
+    use bake::linespace::ntree::Refine;
+    use bake::linespace::query::{AreaLight, QueryStats};
+    use bake::render::soft_shadow::SoftShadows;
+    use bake::render::{Lighting, RenderOptions, render_pack};
+    for refine in ["near", "exact"] {
+        let o = common::bake(&[
+            "validate",
+            two_out.to_str().unwrap(),
+            "--receivers",
+            "300",
+            "--samples",
+            "3",
+            "--refine",
+            refine,
+            "--json",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let j = common::json(&o);
+        assert_eq!(j["linespace_scene"]["agree"], true, "{j}");
+        assert_eq!(j["linespace_scene"]["segments"], 2700, "{j}");
+        assert!(
+            j["linespace_scene"]["occluded"].as_u64().unwrap() > 0,
+            "{j}"
+        );
+    }
+    // A view over the scene, a quad light above it at 45°.
+    let (lo, ext) = bake::linespace::gpu::root_box(ft);
+    let c = [0, 1, 2].map(|k| lo[k] + 0.5 * ext[k]);
+    let light = AreaLight {
+        corner: [c[0] + 20.0, c[1] - 4.0, lo[2] + ext[2] + 20.0],
+        edge_u: [6.0, 0.0, 0.0],
+        edge_v: [0.0, 6.0, 0.0],
+        samples: 4,
+    };
+    let options = |refine| RenderOptions {
+        width: 96,
+        height: 72,
+        eye: Some([c[0], c[1] - 0.3 * ext[1], c[2] + 0.25 * ext[0]]),
+        target: Some([c[0], c[1], lo[2]]),
+        fov_y_deg: 50.0,
+        exposure: Some(1.0),
+        lighting: Some(Lighting {
+            sun_direction: [0.6, 0.0, 0.8],
+            sun_irradiance: [3.0, 3.0, 3.0],
+            ambient: [0.3, 0.3, 0.3],
+            sun_solid_angle: 0.0,
+        }),
+        soft_shadows: Some(SoftShadows {
+            area_light: Some(light),
+            samples: 4,
+            refine,
+            compare_exact: true,
+        }),
+        ..RenderOptions::default()
+    };
+    let on_two = render_pack(two, &options(Refine::Exact)).unwrap();
+    let on_flat = render_pack(flat, &options(Refine::Exact)).unwrap();
+    let (a, b) = (
+        on_two.soft_shadows.as_ref().unwrap(),
+        on_flat.soft_shadows.as_ref().unwrap(),
+    );
+    assert_eq!(a.world, b.world, "the same receivers");
+    let mut stats = QueryStats::default();
+    let (mut shaded, mut differ) = (0, 0);
+    for (p, (&v, &w)) in a.world.iter().zip(a.visibility.iter().zip(&b.visibility)) {
+        if p[3] < 0.5 {
+            continue;
+        }
+        let cpu = s.shadow([p[0], p[1], p[2]], &a.light, a.offset, &mut stats);
+        assert!((v - cpu).abs() <= 1e-6, "at {p:?}: GPU {v}, CPU {cpu}");
+        differ += (v != w) as usize;
+        shaded += (v < 1.0) as usize;
+    }
+    assert_eq!(differ, 0, "two-level and flattened exact visibility differ");
+    assert!(shaded > 20, "only {shaded} pixels in shadow");
+    let cmp = a.comparison.as_ref().unwrap();
+    assert_eq!(
+        (cmp.brighter_pixels, cmp.mean_abs_error),
+        (0, 0.0),
+        "{cmp:?}"
+    );
+    // The thesis' refinement in the model trees: never brighter than exact visibility.
+    let shaft = render_pack(two, &options(Refine::Shaft)).unwrap();
+    let cmp = shaft.soft_shadows.unwrap().comparison.unwrap();
+    assert_eq!(cmp.brighter_pixels, 0, "{cmp:?}");
 }

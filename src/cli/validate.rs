@@ -1,5 +1,6 @@
 //! `bake validate PACK`: the runtime check of issue 6 — the compute shaders traverse the pack's
-//! `svo` and `linespace` sections for a batch of random rays and the answers are compared with
+//! `svo`, `svo-scene`, `linespace` and `linespace-scene` sections for a batch of random rays and
+//! the answers are compared with
 //! the CPU traversal (for `svo` also the level-of-detail traversal of `bake render --view svo`);
 //! exits non-zero (runtime error) when they disagree.
 
@@ -97,11 +98,19 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
     let svo_entry = pack.of_kind(crate::voxel::section::KIND).next();
     let ls_entry = pack.of_kind(crate::linespace::section::KIND).next();
     let scene_entry = pack.of_kind(crate::voxel::instanced_section::KIND).next();
-    if svo_entry.is_none() && ls_entry.is_none() && scene_entry.is_none() {
+    let ls_scene_entry = pack
+        .of_kind(crate::linespace::instanced_section::KIND)
+        .next();
+    if svo_entry.is_none()
+        && ls_entry.is_none()
+        && scene_entry.is_none()
+        && ls_scene_entry.is_none()
+    {
         return Err(Error::invalid_at(
             &args.pack,
             "section table",
-            "no svo, svo-scene or linespace section to validate (run `bake svo` or `bake linespace`)",
+            "no svo, svo-scene, linespace or linespace-scene section to validate (run `bake svo` \
+             or `bake linespace`)",
         ));
     }
     let gpu = crate::gpu::init_gpu(args.backend)?;
@@ -151,22 +160,25 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
         tree.refine = args.refine;
         let a = validate_linespace(&gpu, &tree, args.receivers, args.samples, args.seed)?;
         ok &= a.agrees();
-        text += &format!(
-            "linespace (refine {:?}, {} bytes on the GPU): {} segments ({} occluded), {} mismatches ({} without line spaces); \
-             {} receivers × {} samples, {} shadow-fraction mismatches, {} in penumbra\n",
-            a.refine,
-            a.gpu_pool_bytes,
-            a.segments,
-            a.occluded,
-            a.segment_mismatches,
-            a.exact_mismatches,
-            a.receivers,
-            a.samples,
-            a.fraction_mismatches,
-            a.penumbra
-        );
+        text += &linespace_line("linespace", &a);
         json["linespace"] = json!(a);
         json["linespace"]["agree"] = json!(a.agrees());
+    }
+    if let Some(e) = ls_scene_entry {
+        let (_, mut scene) = crate::linespace::instanced_section::from_section(&pack.view(e)?)
+            .map_err(|err| Error::invalid(&args.pack, err))?;
+        scene.set_refine(args.refine);
+        let a = crate::linespace::instanced_gpu::validate_scene_linespace(
+            &gpu,
+            &scene,
+            args.receivers,
+            args.samples,
+            args.seed,
+        )?;
+        ok &= a.agrees();
+        text += &linespace_line("linespace-scene", &a);
+        json["linespace_scene"] = json!(a);
+        json["linespace_scene"]["agree"] = json!(a.agrees());
     }
     json["agree"] = json!(ok);
     if !ok {
@@ -179,4 +191,22 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
         text,
         warnings: Vec::new(),
     })
+}
+
+/// The text line of a line-space agreement.
+fn linespace_line(kind: &str, a: &crate::linespace::gpu::LinespaceAgreement) -> String {
+    format!(
+        "{kind} (refine {:?}, {} bytes on the GPU): {} segments ({} occluded), {} mismatches ({} without line spaces); \
+         {} receivers × {} samples, {} shadow-fraction mismatches, {} in penumbra\n",
+        a.refine,
+        a.gpu_pool_bytes,
+        a.segments,
+        a.occluded,
+        a.segment_mismatches,
+        a.exact_mismatches,
+        a.receivers,
+        a.samples,
+        a.fraction_mismatches,
+        a.penumbra
+    )
 }

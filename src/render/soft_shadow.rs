@@ -1,13 +1,14 @@
 //! `bake render --soft-shadows`: the sun's visibility per pixel from the line-space soft-shadow
 //! query (issue 6). A world-position pass (the terrain and mesh vertex shaders with fragment
 //! shaders of our own, `shaders/world_*.wgsl`) writes each pixel's receiver point; the N-tree
-//! `shadow` kernel ([`crate::linespace::gpu`]) answers the fraction of a quad light's samples
+//! `shadow` kernel ([`crate::linespace::gpu`], or over a `linespace-scene` section the two-level
+//! one of [`crate::linespace::instanced_gpu`]) answers the fraction of a quad light's samples
 //! that reach it; the fractions become an `R32Float` texture that the scene pass reads as
 //! `soft_visibility` (common.wgsl) in place of the shadow map (direct.wgsl `sun_visibility`).
 //!
 //! The light is either explicit (`--area-light`) or the sun's disc: a square of the disc's
-//! angular diameter, perpendicular to the sun direction at 100 scene diagonals from the N-tree's
-//! centre. Receivers are moved off their surface along the (viewer-facing) normal by 10⁻³ of
+//! angular diameter, perpendicular to the sun direction at 100 scene diagonals from the line
+//! spaces' centre. Receivers are moved off their surface along the (viewer-facing) normal by 10⁻³ of
 //! their distance to the eye, against self-shadowing from the rasterizer's depth precision.
 
 use super::draw::Globals;
@@ -17,6 +18,7 @@ use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::ingest::instances_section::InstanceRecord;
 use crate::linespace::gpu::NTreeGpu;
+use crate::linespace::instanced::SceneLinespace;
 use crate::linespace::ntree::{NTree, Refine};
 use crate::linespace::query::AreaLight;
 use crate::pack::Pack;
@@ -126,36 +128,72 @@ pub struct Visibility {
     pub image: SoftShadowImage,
 }
 
-/// The pack's N-tree (its first `linespace` section).
-pub fn load_tree(pack: &Pack) -> Result<NTree> {
-    let e = pack
-        .of_kind(crate::linespace::section::KIND)
-        .next()
-        .ok_or_else(|| {
-            let two_level = pack
-                .of_kind(crate::linespace::instanced_section::KIND)
-                .next()
-                .is_some();
-            Error::invalid_at(
-                pack.path(),
-                "section table",
-                if two_level {
-                    "--soft-shadows needs a linespace section; this pack's line spaces are the \
-                     two-level linespace-scene (the placed scene exceeded --max-memory), which \
-                     only the CPU queries so far (`bake bench linespace PACK`)"
-                } else {
-                    "--soft-shadows needs a linespace section (run `bake linespace PACK` first)"
-                },
-            )
-        })?;
-    let (_, tree) = crate::linespace::section::from_section(&pack.view(e)?)
-        .map_err(|err| Error::invalid(pack.path(), err))?;
-    Ok(tree)
+/// The pack's line spaces: one N-tree (`linespace`) or the two-level structure over the
+/// instances (`linespace-scene`, where the placed scene exceeded the memory budget).
+pub enum Linespaces {
+    Flat(NTree),
+    Scene(SceneLinespace),
 }
 
-/// The sun's disc as a square quad light, seen from the N-tree's box.
-pub fn sun_light(tree: &NTree, sun_direction: [f32; 3], samples: u32) -> AreaLight {
-    let (lo, size) = crate::linespace::gpu::root_box(tree);
+impl Linespaces {
+    /// Sets the deepest-level refinement (of the model trees for the two-level structure).
+    pub fn set_refine(&mut self, refine: Refine) {
+        match self {
+            Linespaces::Flat(t) => t.refine = refine,
+            Linespaces::Scene(s) => s.set_refine(refine),
+        }
+    }
+
+    pub fn refine(&self) -> Refine {
+        match self {
+            Linespaces::Flat(t) => t.refine,
+            Linespaces::Scene(s) => s.refine(),
+        }
+    }
+
+    /// The box the structure covers: minimum corner and size.
+    pub fn root_box(&self) -> ([f32; 3], [f32; 3]) {
+        match self {
+            Linespaces::Flat(t) => crate::linespace::gpu::root_box(t),
+            Linespaces::Scene(s) => crate::linespace::instanced_gpu::scene_box(s),
+        }
+    }
+
+    /// Uploads it with its query kernels.
+    pub fn to_gpu<'g>(&self, gpu: &'g Gpu) -> Result<NTreeGpu<'g>> {
+        match self {
+            Linespaces::Flat(t) => NTreeGpu::new(gpu, t),
+            Linespaces::Scene(s) => NTreeGpu::for_scene(gpu, s),
+        }
+    }
+}
+
+/// The pack's line spaces: its first `linespace` section, else its first `linespace-scene`.
+pub fn load_linespaces(pack: &Pack) -> Result<Linespaces> {
+    let bad = |err| Error::invalid(pack.path(), err);
+    if let Some(e) = pack.of_kind(crate::linespace::section::KIND).next() {
+        let (_, tree) = crate::linespace::section::from_section(&pack.view(e)?).map_err(bad)?;
+        return Ok(Linespaces::Flat(tree));
+    }
+    if let Some(e) = pack
+        .of_kind(crate::linespace::instanced_section::KIND)
+        .next()
+    {
+        let (_, s) =
+            crate::linespace::instanced_section::from_section(&pack.view(e)?).map_err(bad)?;
+        return Ok(Linespaces::Scene(s));
+    }
+    Err(Error::invalid_at(
+        pack.path(),
+        "section table",
+        "--soft-shadows needs a linespace or linespace-scene section (run `bake linespace PACK` \
+         first)",
+    ))
+}
+
+/// The sun's disc as a square quad light, seen from the line spaces' box.
+pub fn sun_light(ls: &Linespaces, sun_direction: [f32; 3], samples: u32) -> AreaLight {
+    let (lo, size) = ls.root_box();
     let diag = (size[0] * size[0] + size[1] * size[1] + size[2] * size[2]).sqrt();
     let d = glam::Vec3::from(sun_direction).normalize_or(glam::Vec3::Z);
     let centre = glam::Vec3::from(lo) + 0.5 * glam::Vec3::from(size) + d * (100.0 * diag);
@@ -376,7 +414,7 @@ pub fn compute_visibility(
     scene: &GpuScene,
     globals: &Globals,
     size: (u32, u32),
-    tree: &NTree,
+    ls: &Linespaces,
     light: &AreaLight,
 ) -> Result<Visibility> {
     let start = std::time::Instant::now();
@@ -384,9 +422,9 @@ pub fn compute_visibility(
     let padded = w.next_multiple_of(ROW_ALIGN);
     let count = padded * h;
     let k = light.samples.max(1).pow(2);
-    let (_, box_size) = crate::linespace::gpu::root_box(tree);
+    let (_, box_size) = ls.root_box();
     let offset = 1e-4 * box_size.iter().cloned().fold(0.0, f32::max);
-    let dev = NTreeGpu::new(gpu, tree)?;
+    let dev = ls.to_gpu(gpu)?;
     let world_tex = super::draw::texture_2d(
         gpu,
         "world positions",
@@ -494,16 +532,16 @@ pub fn for_render(
     lighting: &super::Lighting,
     opts: &SoftShadows,
 ) -> Result<Visibility> {
-    let mut tree = load_tree(pack)?;
-    tree.refine = opts.refine;
+    let mut ls = load_linespaces(pack)?;
+    ls.set_refine(opts.refine);
     let samples = opts.samples.clamp(1, 64);
     let light = match opts.area_light {
         Some(l) => AreaLight { samples, ..l },
-        None => sun_light(&tree, lighting.sun_direction, samples),
+        None => sun_light(&ls, lighting.sun_direction, samples),
     };
-    let mut v = compute_visibility(gpu, pipes, scene, globals, size, &tree, &light)?;
+    let mut v = compute_visibility(gpu, pipes, scene, globals, size, &ls, &light)?;
     if opts.compare_exact {
-        v.image.comparison = Some(compare_with_exact(gpu, &tree, &v.image)?);
+        v.image.comparison = Some(compare_with_exact(gpu, &ls, &v.image)?);
     }
     Ok(v)
 }
@@ -512,7 +550,7 @@ pub fn for_render(
 /// timing each, and compares the fractions.
 pub fn compare_with_exact(
     gpu: &Gpu,
-    tree: &NTree,
+    ls: &Linespaces,
     image: &SoftShadowImage,
 ) -> Result<SoftShadowComparison> {
     let receivers: Vec<crate::linespace::gpu::Receiver> = image
@@ -520,22 +558,22 @@ pub fn compare_with_exact(
         .iter()
         .map(|p| (p[3] > 0.5).then_some([p[0], p[1], p[2]]))
         .collect();
-    let dev = NTreeGpu::new(gpu, tree)?;
+    let dev = ls.to_gpu(gpu)?;
     let (light, offset) = (&image.light, image.offset);
     let t0 = std::time::Instant::now();
-    let ls = dev.shadow_fractions_with(&receivers, light, offset, true)?;
+    let lit = dev.shadow_fractions_with(&receivers, light, offset, true)?;
     let t1 = std::time::Instant::now();
     let exact = dev.shadow_fractions_with(&receivers, light, offset, false)?;
     let t2 = std::time::Instant::now();
     let drawn: Vec<(f64, f64)> = receivers
         .iter()
-        .zip(ls.iter().zip(&exact))
+        .zip(lit.iter().zip(&exact))
         .filter(|(r, _)| r.is_some())
         .map(|(_, (&l, &e))| (l as f64, e as f64))
         .collect();
     let n = drawn.len().max(1) as f64;
     Ok(SoftShadowComparison {
-        refine: tree.refine,
+        refine: ls.refine(),
         receivers: drawn.len() as u64,
         samples: light.samples.max(1).pow(2),
         linespace_seconds: (t1 - t0).as_secs_f64(),
