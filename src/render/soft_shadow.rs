@@ -132,7 +132,7 @@ pub struct Visibility {
 /// instances (`linespace-scene`, where the placed scene exceeded the memory budget).
 pub enum Linespaces {
     Flat(NTree),
-    Scene(SceneLinespace),
+    Scene(Box<SceneLinespace>),
 }
 
 impl Linespaces {
@@ -181,7 +181,7 @@ pub fn load_linespaces(pack: &Pack) -> Result<Linespaces> {
     {
         let (_, s) =
             crate::linespace::instanced_section::from_section(&pack.view(e)?).map_err(bad)?;
-        return Ok(Linespaces::Scene(s));
+        return Ok(Linespaces::Scene(Box::new(s)));
     }
     Err(Error::invalid_at(
         pack.path(),
