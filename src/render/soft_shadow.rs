@@ -131,7 +131,7 @@ pub struct Visibility {
 /// The pack's line spaces: one N-tree (`linespace`) or the two-level structure over the
 /// instances (`linespace-scene`, where the placed scene exceeded the memory budget).
 pub enum Linespaces {
-    Flat(NTree),
+    Flat(Box<NTree>),
     Scene(Box<SceneLinespace>),
 }
 
@@ -173,7 +173,7 @@ pub fn load_linespaces(pack: &Pack) -> Result<Linespaces> {
     let bad = |err| Error::invalid(pack.path(), err);
     if let Some(e) = pack.of_kind(crate::linespace::section::KIND).next() {
         let (_, tree) = crate::linespace::section::from_section(&pack.view(e)?).map_err(bad)?;
-        return Ok(Linespaces::Flat(tree));
+        return Ok(Linespaces::Flat(Box::new(tree)));
     }
     if let Some(e) = pack
         .of_kind(crate::linespace::instanced_section::KIND)
