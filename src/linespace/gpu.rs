@@ -52,7 +52,8 @@ pub(super) struct Params {
     pub(super) offset: f32,
     pub(super) seg_t_max: f32,
     pub(super) samples: u32,
-    pub(super) flags: u32,
+    /// 0 (unused).
+    pub(super) reserved: u32,
     /// [`super::ntree::Refine::code`].
     pub(super) refine: u32,
     pub(super) trees: u32,
@@ -70,9 +71,6 @@ pub(super) struct Params {
 }
 const _: () = assert!(size_of::<Params>() == 128);
 
-/// Output of the `shadow` kernel: counts of lit samples, or f32 fractions.
-pub(super) const FLAG_FRACTION: u32 = 1;
-
 /// Receivers of a shadow query: a world position, or none (answered fully lit).
 pub type Receiver = Option<[f32; 3]>;
 
@@ -82,6 +80,7 @@ pub struct NTreeGpu<'g> {
     pub(super) gpu: &'g Gpu,
     pub(super) segments: Kernel,
     pub(super) shadow: Kernel,
+    pub(super) fractions: Kernel,
     /// occupancy, first_child, leaf_tris, tri_indices, triangles, shaft_cells (the section's
     /// arrays), then the reversed occupancy derived from it (binding order); the two-level
     /// query's scene table and heights after them.
@@ -129,6 +128,7 @@ impl<'g> NTreeGpu<'g> {
             gpu,
             segments: Kernel::new(gpu, "ntree segments", &parts, "segments", inputs)?,
             shadow: Kernel::new(gpu, "ntree shadow", &parts, "shadow", inputs)?,
+            fractions: Kernel::new(gpu, "ntree fractions", &parts, "fractions", inputs)?,
             pools,
             base: Params {
                 origin: t.origin,
@@ -142,7 +142,6 @@ impl<'g> NTreeGpu<'g> {
                 offset: 0.0,
                 seg_t_max: 1.0,
                 samples: 0,
-                flags: 0,
                 refine: t.refine.code(),
                 ..Params::zeroed()
             },
@@ -168,6 +167,62 @@ impl<'g> NTreeGpu<'g> {
         let bytes = 4 * params.count as u64;
         let out = compute::output(g, "ntree results", bytes);
         let raw = kernel.run(g, &uniform, &self.inputs(&input), &out, grid, bytes)?;
+        Ok(bytemuck::cast_slice(&raw).to_vec())
+    }
+
+    /// Records the `shadow` dispatch (one invocation per receiver and light sample, counting
+    /// the lit ones into `out`, cleared first) and with `fractions` the `fractions` dispatch
+    /// after it (counts → f32 fractions).
+    fn record_shadow(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        params: Params,
+        queries: &wgpu::Buffer,
+        out: &wgpu::Buffer,
+        fractions: bool,
+    ) -> Result<()> {
+        let g = self.gpu;
+        let total = params
+            .count
+            .checked_mul(params.samples)
+            .ok_or_else(|| Error::runtime("linespace: more than 2³² shadow segments"))?;
+        enc.clear_buffer(out, 0, None);
+        let (grid, stride) = compute::grid_for(total);
+        let uniform = compute::uniform(
+            g,
+            "ntree params",
+            bytemuck::bytes_of(&Params { stride, ..params }),
+        );
+        self.shadow
+            .record(g, enc, &uniform, &self.inputs(queries), out, grid)?;
+        if fractions {
+            let (grid, stride) = compute::grid_for(params.count);
+            let uniform = compute::uniform(
+                g,
+                "ntree params",
+                bytemuck::bytes_of(&Params { stride, ..params }),
+            );
+            self.fractions
+                .record(g, enc, &uniform, &self.inputs(queries), out, grid)?;
+        }
+        Ok(())
+    }
+
+    /// The shadow dispatches over `queries` (receivers, then light samples), read back.
+    fn run_shadow(
+        &self,
+        params: Params,
+        queries: &[[f32; 4]],
+        fractions: bool,
+    ) -> Result<Vec<u32>> {
+        let g = self.gpu;
+        let input = compute::storage(g, "ntree queries", bytemuck::cast_slice(queries))?;
+        let bytes = 4 * params.count as u64;
+        let out = compute::output(g, "ntree results", bytes);
+        let mut enc = g.device.create_command_encoder(&Default::default());
+        self.record_shadow(&mut enc, params, &input, &out, fractions)?;
+        g.queue.submit([enc.finish()]);
+        let raw = compute::read_back(g, &out, bytes)?;
         Ok(bytemuck::cast_slice(&raw).to_vec())
     }
 
@@ -206,7 +261,7 @@ impl<'g> NTreeGpu<'g> {
         offset: f32,
     ) -> Result<Vec<u32>> {
         let (queries, params) = self.shadow_setup(receivers, light, offset)?;
-        self.run(&self.shadow, params, &queries)
+        self.run_shadow(params, &queries, false)
     }
 
     /// Lit fraction per receiver, computed on the GPU (lit / samples²).
@@ -230,15 +285,14 @@ impl<'g> NTreeGpu<'g> {
     ) -> Result<Vec<f32>> {
         let (queries, params) = self.shadow_setup(receivers, light, offset)?;
         let params = Params {
-            flags: FLAG_FRACTION,
             use_linespaces: linespaces as u32,
             ..params
         };
-        let raw = self.run(&self.shadow, params, &queries)?;
+        let raw = self.run_shadow(params, &queries, true)?;
         Ok(raw.iter().map(|&b| f32::from_bits(b)).collect())
     }
 
-    /// Records the `shadow` kernel (f32 fractions into `out`) over `count` receivers that
+    /// Records the shadow kernels (f32 fractions into `out`) over `count` receivers that
     /// `queries` already holds as vec4 (w = 1: a receiver, w = 0: none), e.g. a world-position
     /// texture copied in; the light samples are written behind them.
     pub fn record_shadow_fractions(
@@ -251,23 +305,15 @@ impl<'g> NTreeGpu<'g> {
         out: &wgpu::Buffer,
     ) -> Result<()> {
         let (q, params) = self.shadow_setup(&[], light, offset)?;
-        let (grid, stride) = compute::grid_for(count);
-        let params = Params {
-            count,
-            stride,
-            flags: FLAG_FRACTION,
-            ..params
-        };
+        let params = Params { count, ..params };
         let need = 16 * (count as u64 + q.len() as u64);
         if queries.size() < need || out.size() < 4 * count as u64 {
             return Err(Error::runtime("shadow kernel: buffers too small"));
         }
-        let g = self.gpu;
-        g.queue
+        self.gpu
+            .queue
             .write_buffer(queries, 16 * count as u64, bytemuck::cast_slice(&q));
-        let uniform = compute::uniform(g, "ntree params", bytemuck::bytes_of(&params));
-        self.shadow
-            .record(g, enc, &uniform, &self.inputs(queries), out, grid)
+        self.record_shadow(enc, params, queries, out, true)
     }
 
     /// Receivers then light samples (computed on the CPU, so both sides use the same points).

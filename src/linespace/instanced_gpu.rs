@@ -187,6 +187,7 @@ impl<'g> NTreeGpu<'g> {
             gpu,
             segments: Kernel::new(gpu, "scene segments", &parts, "segments", inputs)?,
             shadow: Kernel::new(gpu, "scene shadow", &parts, "shadow", inputs)?,
+            fractions: Kernel::new(gpu, "scene fractions", &parts, "fractions", inputs)?,
             pools,
             base,
         })

@@ -1,7 +1,10 @@
 // Entry points over `occluded(s)` (ls_flat.wgsl or ls_scene.wgsl): `segments` (one segment per
-// invocation, output 1 = occluded, 0 = clear) and `shadow` (one receiver per invocation against
-// every light sample; output the number of lit samples, or with FLAG_FRACTION the f32 bits of
-// lit / samples). Bindings `queries` and `results` are declared by the variant (after its pools).
+// invocation, output 1 = occluded, 0 = clear), `shadow` (one invocation per receiver and light
+// sample, adding 1 to the receiver's count of lit samples; the output starts at 0) and
+// `fractions` (per receiver, the count replaced by the f32 bits of lit / samples). Bindings
+// `queries` and `results` (atomic u32) are declared by the variant, after its pools.
+// One invocation per receiver looping over the samples gave wrong counts on lavapipe (Mesa
+// 22.3) for the two-level query at scale, though every segment alone was right.
 
 @compute @workgroup_size(64)
 fn segments(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -11,7 +14,7 @@ fn segments(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let a = queries[2u * i];
     let b = queries[2u * i + 1u];
-    results[i] = select(0u, 1u, occluded(Seg(a.xyz, a.w, b.xyz, b.w)));
+    atomicStore(&results[i], select(0u, 1u, occluded(Seg(a.xyz, a.w, b.xyz, b.w))));
 }
 
 // Segment::between(p, sample, offset).
@@ -21,27 +24,27 @@ fn segment_between(p: vec3<f32>, q: vec3<f32>) -> Seg {
     return Seg(p, min(params.offset / len, 1.0), dir, params.seg_t_max);
 }
 
+// `queries`: vec4 per receiver (w < 0.5: none, every sample counts as lit), then vec4 per light
+// sample; invocation j is receiver j / samples, sample j % samples.
 @compute @workgroup_size(64)
 fn shadow(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let j = flat_index(gid, params.stride);
+    if (params.samples == 0u || j / params.samples >= params.count) {
+        return;
+    }
+    let i = j / params.samples;
+    let p = queries[i];
+    if (p.w < 0.5 || !occluded(segment_between(p.xyz, queries[params.count + j % params.samples].xyz))) {
+        atomicAdd(&results[i], 1u);
+    }
+}
+
+@compute @workgroup_size(64)
+fn fractions(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = flat_index(gid, params.stride);
     if (i >= params.count) {
         return;
     }
-    let p = queries[i];
-    var lit = 0u;
-    if (p.w < 0.5) {
-        lit = params.samples;
-    } else {
-        for (var k = 0u; k < params.samples; k++) {
-            let q = queries[params.count + k].xyz;
-            if (!occluded(segment_between(p.xyz, q))) {
-                lit += 1u;
-            }
-        }
-    }
-    if ((params.flags & FLAG_FRACTION) != 0u) {
-        results[i] = bitcast<u32>(f32(lit) / f32(max(params.samples, 1u)));
-    } else {
-        results[i] = lit;
-    }
+    let lit = atomicLoad(&results[i]);
+    atomicStore(&results[i], bitcast<u32>(f32(lit) / f32(max(params.samples, 1u))));
 }

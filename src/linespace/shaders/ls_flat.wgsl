@@ -3,9 +3,9 @@
 // `segments`: Seg per invocation; `shadow`: vec4 per receiver (w < 0.5: none, fully lit)
 // followed by vec4 per light sample.
 @group(0) @binding(8) var<storage, read> queries: array<vec4<f32>>;
-@group(0) @binding(9) var<storage, read_write> results: array<u32>;
+@group(0) @binding(9) var<storage, read_write> results: array<atomic<u32>>;
 
-fn leaf_hit_flat(s: Seg, tr: Tree, leaf: u32) -> bool {
+fn leaf_hit_flat(s: Seg, tr: Tree, leaf: u32, at: Placement) -> bool {
     let end = tr.indices + leaf_tris[tr.leaves + leaf + 1u];
     for (var i = tr.indices + leaf_tris[tr.leaves + leaf]; i < end; i++) {
         let t = tr.tris + tri_indices[i];
@@ -25,5 +25,6 @@ fn occluded(s: Seg) -> bool {
     tr.leaves = 0u;
     tr.indices = 0u;
     tr.tris = 0u;
-    return occluded_flat(s, tr, params.use_linespaces == 1u, params.refine);
+    var at: Placement;
+    return occluded_flat(s, tr, at, params.use_linespaces == 1u, params.refine);
 }

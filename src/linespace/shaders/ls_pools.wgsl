@@ -22,7 +22,7 @@ struct Params {
     offset: f32,
     seg_t_max: f32,
     samples: u32,
-    flags: u32,
+    reserved: u32,
     // query::Refine at the deepest level: 0 shaft, 1 cells, 2 exact, 3 near.
     refine: u32,
     // ls_scene.wgsl: trees in `scene` (the top tree first), instances, whether a terrain is bound.
@@ -80,7 +80,6 @@ struct Tree {
 // pairs stored as point reflections.
 @group(0) @binding(7) var<storage, read> occupancy_rev: array<u32>;
 const MAX_DEPTH: u32 = 12u;
-const FLAG_FRACTION: u32 = 1u;
 const PATCH_MARGIN: f32 = 1e-3;
 
 fn dot3(a: vec3<f32>, b: vec3<f32>) -> f32 {
@@ -290,6 +289,18 @@ fn cells_crossed(tr: Tree, o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f3
         }
     }
     return false;
+}
+
+// What a model tree's leaves need besides their triangles: the instance placing them
+// (InstanceRef's position, scale, cos θ, sin θ) and the segment in the world (ls_scene.wgsl;
+// unused by the other leaves). Passed by value: per-invocation `var<private>` state written in
+// divergent code gave wrong answers on lavapipe.
+struct Placement {
+    position: vec3<f32>,
+    scale: f32,
+    cos: f32,
+    sin: f32,
+    world: Seg,
 }
 
 // A node on the walk's stack (ls_walk.wgsl).

@@ -18,24 +18,7 @@
 // The terrain's heights, row-major (one f32 when there is no terrain).
 @group(0) @binding(9) var<storage, read> heights: array<f32>;
 @group(0) @binding(10) var<storage, read> queries: array<vec4<f32>>;
-@group(0) @binding(11) var<storage, read_write> results: array<u32>;
-
-struct Inst {
-    position: vec3<f32>,
-    scale: f32,
-    cos: f32,
-    sin: f32,
-    model: u32,
-}
-
-// The world segment and the instance a model walk is testing (its leaves read them).
-var<private> world_seg: Seg;
-var<private> cur_inst: Inst;
-// Instances tested on this segment (the CPU tests each once; here the last TESTED of them are
-// skipped, which changes the work, not the answer).
-const TESTED: u32 = 8u;
-var<private> tested: array<u32, TESTED>;
-var<private> n_tested: u32;
+@group(0) @binding(11) var<storage, read_write> results: array<atomic<u32>>;
 
 fn f32_at(w: u32) -> f32 {
     return bitcast<f32>(scene[w]);
@@ -54,44 +37,49 @@ fn tree_at(k: u32) -> Tree {
     return t;
 }
 
-fn inst_at(i: u32) -> Inst {
+// Instance i's placement (its model: inst_model) with the world segment.
+fn inst_at(i: u32, s: Seg) -> Placement {
     let w = params.instances_at + 8u * i;
-    return Inst(
+    return Placement(
         vec3<f32>(f32_at(w), f32_at(w + 1u), f32_at(w + 2u)),
         f32_at(w + 3u),
         f32_at(w + 4u),
         f32_at(w + 5u),
-        scene[w + 6u],
+        s,
     );
 }
 
+fn inst_model(i: u32) -> u32 {
+    return scene[params.instances_at + 8u * i + 6u];
+}
+
 // InstanceRef::dir_to_model.
-fn dir_to_model(r: Inst, d: vec3<f32>) -> vec3<f32> {
+fn dir_to_model(r: Placement, d: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(r.cos * d.x + r.sin * d.y, -r.sin * d.x + r.cos * d.y, d.z);
 }
 
 // InstanceRef::to_world.
-fn to_world(r: Inst, p: vec3<f32>) -> vec3<f32> {
+fn to_world(r: Placement, p: vec3<f32>) -> vec3<f32> {
     let q = p * r.scale;
     let w = vec3<f32>(r.cos * q.x - r.sin * q.y, r.sin * q.x + r.cos * q.y, q.z);
     return w + r.position;
 }
 
 // SceneLinespace::segment_in: the same t, the origin and direction in the model's frame.
-fn segment_in(r: Inst, s: Seg) -> Seg {
+fn segment_in(r: Placement, s: Seg) -> Seg {
     let org = dir_to_model(r, s.org - r.position) / r.scale;
     return Seg(org, s.t_min, dir_to_model(r, s.dir) / r.scale, s.t_max);
 }
 
 // A model tree's leaf: its triangles placed by the current instance, against the world segment.
-fn leaf_hit_model(s: Seg, tr: Tree, leaf: u32) -> bool {
+fn leaf_hit_model(s: Seg, tr: Tree, leaf: u32, at: Placement) -> bool {
     let end = tr.indices + leaf_tris[tr.leaves + leaf + 1u];
     for (var i = tr.indices + leaf_tris[tr.leaves + leaf]; i < end; i++) {
         let t = tr.tris + tri_indices[i];
-        let a = to_world(cur_inst, tri_vertex(t, 0u));
-        let b = to_world(cur_inst, tri_vertex(t, 1u));
-        let c = to_world(cur_inst, tri_vertex(t, 2u));
-        if (hits_triangle(world_seg, a, b, c)) {
+        let a = to_world(at, tri_vertex(t, 0u));
+        let b = to_world(at, tri_vertex(t, 1u));
+        let c = to_world(at, tri_vertex(t, 2u));
+        if (hits_triangle(at.world, a, b, c)) {
             return true;
         }
     }
@@ -118,8 +106,8 @@ fn root_entry(s: Seg, tr: Tree) -> f32 {
 // SceneLinespace::instance_occluded: in `near` mode exact for an instance whose model box the
 // segment enters within near_distance of its start.
 fn instance_occluded(i: u32, s: Seg) -> bool {
-    let r = inst_at(i);
-    let tr = tree_at(r.model + 1u);
+    let r = inst_at(i, s);
+    let tr = tree_at(inst_model(i) + 1u);
     let ms = segment_in(r, s);
     var refine = params.refine;
     if (refine == 3u) {
@@ -128,27 +116,15 @@ fn instance_occluded(i: u32, s: Seg) -> bool {
             refine = 2u;
         }
     }
-    cur_inst = r;
-    return occluded_model(ms, tr, params.use_linespaces == 1u, refine);
+    return occluded_model(ms, tr, r, params.use_linespaces == 1u, refine);
 }
 
-// A top tree's leaf: every listed instance not tested yet on this segment.
-fn leaf_hit_top(s: Seg, tr: Tree, leaf: u32) -> bool {
+// A top tree's leaf: every instance it lists (an instance listed by several leaves on the
+// segment's way is tested again: the CPU skips it, the answer is the same).
+fn leaf_hit_top(s: Seg, tr: Tree, leaf: u32, at: Placement) -> bool {
     let end = tr.indices + leaf_tris[tr.leaves + leaf + 1u];
     for (var e = tr.indices + leaf_tris[tr.leaves + leaf]; e < end; e++) {
-        let i = tri_indices[e];
-        var seen = false;
-        for (var k = 0u; k < min(n_tested, TESTED); k++) {
-            if (tested[k] == i) {
-                seen = true;
-            }
-        }
-        if (seen) {
-            continue;
-        }
-        tested[n_tested % TESTED] = i;
-        n_tested += 1u;
-        if (instance_occluded(i, s)) {
+        if (instance_occluded(tri_indices[e], s)) {
             return true;
         }
     }
@@ -326,7 +302,6 @@ fn occluded(s: Seg) -> bool {
     if (params.trees == 0u || params.instances == 0u) {
         return false;
     }
-    world_seg = s;
-    n_tested = 0u;
-    return occluded_top(s, tree_at(0u), params.use_linespaces == 1u, 2u);
+    var none: Placement;
+    return occluded_top(s, tree_at(0u), none, params.use_linespaces == 1u, 2u);
 }

@@ -1,11 +1,11 @@
 // The N-tree walk (query::NTree::occluded_by_refine) over one tree of the pools, written once
 // and instantiated per kind of leaf: `__X` is replaced by the instance's suffix (gpu.rs), and
-// `leaf_hit__X(s, tr, leaf)` decides whether a filled leaf blocks the segment (its own
-// triangles, a model's triangles placed by an instance, or a top tree's instances). WGSL has
+// `leaf_hit__X(s, tr, leaf, at)` decides whether a filled leaf blocks the segment (its own
+// triangles, a model's triangles placed by the instance `at`, or a top tree's instances). WGSL has
 // no recursion or function parameters, so the two-level query needs two copies of the walk.
 
 // query::exact_occluded: a DDA over the node's leaves, asking leaf_hit__X about filled ones.
-fn exact_occluded__X(s: Seg, tr: Tree, o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f32>, side: f32, t0: f32, t1: f32) -> bool {
+fn exact_occluded__X(s: Seg, tr: Tree, at: Placement, o: vec3<f32>, d: vec3<f32>, group: u32, base: vec3<f32>, side: f32, t0: f32, t1: f32) -> bool {
     let n = i32(params.n);
     let cell = side / f32(params.n);
     var dda = dda_new(o, d, base, cell, vec3<i32>(n), t0);
@@ -13,7 +13,7 @@ fn exact_occluded__X(s: Seg, tr: Tree, o: vec3<f32>, d: vec3<f32>, group: u32, b
         let c = dda.c;
         let slot = u32(c.x + n * c.y + n * n * c.z);
         if (filled(tr, group, slot)) {
-            if (leaf_hit__X(s, tr, child(tr, group, slot))) {
+            if (leaf_hit__X(s, tr, child(tr, group, slot), at)) {
                 return true;
             }
         }
@@ -25,7 +25,7 @@ fn exact_occluded__X(s: Seg, tr: Tree, o: vec3<f32>, d: vec3<f32>, group: u32, b
 }
 
 // query::NTree::occluded_by_refine.
-fn occluded__X(s: Seg, tr: Tree, linespaces: bool, refine: u32) -> bool {
+fn occluded__X(s: Seg, tr: Tree, at: Placement, linespaces: bool, refine: u32) -> bool {
     let o = (s.org - tr.origin) / tr.leaf_size;
     let d = s.dir / tr.leaf_size;
     let n = i32(params.n);
@@ -70,7 +70,7 @@ fn occluded__X(s: Seg, tr: Tree, linespaces: bool, refine: u32) -> bool {
                     if (refine == 1u) {
                         hit = cells_crossed(tr, o, d, f.group, f.base, f.side, f.t0, f.t1);
                     } else {
-                        hit = exact_occluded__X(s, tr, o, d, f.group, f.base, f.side, f.t0, f.t1);
+                        hit = exact_occluded__X(s, tr, at, o, d, f.group, f.base, f.side, f.t0, f.t1);
                     }
                     if (hit) {
                         return true;
@@ -79,7 +79,7 @@ fn occluded__X(s: Seg, tr: Tree, linespaces: bool, refine: u32) -> bool {
                 }
             }
             if (mode == 1u && deepest) {
-                if (exact_occluded__X(s, tr, o, d, f.group, f.base, f.side, f.t0, f.t1)) {
+                if (exact_occluded__X(s, tr, at, o, d, f.group, f.base, f.side, f.t0, f.t1)) {
                     return true;
                 }
                 mode = 3u;
