@@ -206,7 +206,10 @@ fn validate_and_soft_shadows_need_their_sections() {
     json(&bake(&["ingest", &obj, "-o", &pack, "--json"]));
     let o = bake(&["validate", &pack]);
     assert_eq!(o.status.code(), Some(4));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no svo, svo-scene, linespace or linespace-scene section"));
+    assert!(
+        String::from_utf8_lossy(&o.stderr)
+            .contains("no svo, svo-scene, linespace or linespace-scene section")
+    );
     let png = path(dir.path(), "x.png");
     let o = bake(&["render", &pack, "-o", &png, "--soft-shadows"]);
     assert_eq!(o.status.code(), Some(4));

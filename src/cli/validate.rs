@@ -197,7 +197,7 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
 fn linespace_line(kind: &str, a: &crate::linespace::gpu::LinespaceAgreement) -> String {
     format!(
         "{kind} (refine {:?}, {} bytes on the GPU): {} segments ({} occluded), {} mismatches ({} without line spaces); \
-         {} receivers × {} samples, {} shadow-fraction mismatches, {} in penumbra\n",
+         {} receivers × {} samples, {} shadow-fraction mismatches, {} in penumbra{}\n",
         a.refine,
         a.gpu_pool_bytes,
         a.segments,
@@ -207,6 +207,15 @@ fn linespace_line(kind: &str, a: &crate::linespace::gpu::LinespaceAgreement) -> 
         a.receivers,
         a.samples,
         a.fraction_mismatches,
-        a.penumbra
+        a.penumbra,
+        if a.edge_segment_mismatches + a.edge_exact_mismatches > 0 {
+            format!(
+                " ({} and {} of the mismatching segments, {} of the receivers, at a placed \
+                 triangle's edge within rounding)",
+                a.edge_segment_mismatches, a.edge_exact_mismatches, a.edge_fraction_mismatches
+            )
+        } else {
+            String::new()
+        }
     )
 }

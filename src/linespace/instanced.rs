@@ -589,6 +589,95 @@ impl<'a> ExactInstances<'a> {
     }
 }
 
+impl ExactInstances<'_> {
+    /// Whether the segment passes within `delta` (world units) of an edge of a placed triangle,
+    /// or meets one within `delta` of its ends: where rounding of the placement or of the
+    /// triangle test can decide a hit (the line meets the triangle's plane, in f64, at a point
+    /// that close to the triangle's boundary).
+    pub fn near_edge(&self, s: &Segment, delta: f32) -> bool {
+        let (o, d) = (s.from.map(f64::from), s.dir.map(f64::from));
+        let delta = delta as f64;
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let grown = |(lo, hi): &([f32; 3], [f32; 3])| {
+            (lo.map(|x| x - delta as f32), hi.map(|x| x + delta as f32))
+        };
+        self.boxes.iter().enumerate().any(|(i, b)| {
+            let (t0, t1) = slab(s, &grown(b));
+            if t0 > t1 {
+                return false;
+            }
+            let r = &self.scene.instances[i];
+            self.scene.models[r.model as usize]
+                .tree
+                .triangles
+                .iter()
+                .any(|t| {
+                    let w = t.map(|p| r.to_world(p).map(f64::from));
+                    let Some(tt) = plane_t(o, d, &w) else {
+                        return false;
+                    };
+                    let near_end = ((tt - s.t_min as f64) * len).abs() <= delta
+                        || ((tt - s.t_max as f64) * len).abs() <= delta;
+                    if tt * len < s.t_min as f64 * len - delta
+                        || tt * len > s.t_max as f64 * len + delta
+                    {
+                        return false;
+                    }
+                    let p = [0, 1, 2].map(|k| o[k] + d[k] * tt);
+                    let inside = point_in_triangle(p, &w);
+                    let edge =
+                        (0..3).any(|k| point_segment_distance(p, w[k], w[(k + 1) % 3]) <= delta);
+                    edge || (near_end && inside)
+                })
+        })
+    }
+}
+
+/// Where the line o + t·d meets the triangle's plane (f64; None when parallel or degenerate).
+fn plane_t(o: [f64; 3], d: [f64; 3], w: &[[f64; 3]; 3]) -> Option<f64> {
+    let n = cross(sub(w[1], w[0]), sub(w[2], w[0]));
+    let den = dot(n, d);
+    if den.abs() < 1e-300 {
+        return None;
+    }
+    Some(dot(n, sub(w[0], o)) / den)
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Whether p (in the triangle's plane) lies inside it.
+fn point_in_triangle(p: [f64; 3], w: &[[f64; 3]; 3]) -> bool {
+    let n = cross(sub(w[1], w[0]), sub(w[2], w[0]));
+    (0..3).all(|k| dot(cross(sub(w[(k + 1) % 3], w[k]), sub(p, w[k])), n) >= 0.0)
+}
+
+/// Distance from p to the segment a–b.
+fn point_segment_distance(p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> f64 {
+    let ab = sub(b, a);
+    let l2 = dot(ab, ab);
+    let t = if l2 > 0.0 {
+        (dot(sub(p, a), ab) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let q = [0, 1, 2].map(|k| a[k] + t * ab[k] - p[k]);
+    dot(q, q).sqrt()
+}
+
 /// The segment's parameter interval inside a box (empty: t0 > t1).
 fn slab(s: &Segment, (lo, hi): &([f32; 3], [f32; 3])) -> (f32, f32) {
     let (mut t0, mut t1) = (s.t_min, s.t_max);

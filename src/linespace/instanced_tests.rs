@@ -554,3 +554,37 @@ fn gpu_two_level_queries_equal_the_cpu_in_every_refine_mode() {
     assert!(a.agrees(), "no terrain: {a:?}");
     assert!(a.occluded > 20, "no terrain: {a:?}");
 }
+
+/// `near_edge` (what `bake validate` forgives the GPU): a segment through a placed triangle's
+/// edge is near it, one through its middle or far from every triangle is not.
+#[test]
+fn near_edge_finds_segments_that_graze_a_placed_triangle() {
+    let c = Case::new(6, 2);
+    let s = c.two_level(&OPTS);
+    let exact = ExactInstances::new(&s);
+    let r = s.instances[0];
+    let t = s.models[r.model as usize].tree.triangles[0].map(|p| r.to_world(p));
+    let mid = |a: [f32; 3], b: [f32; 3], wa: f32| [0, 1, 2].map(|k| wa * a[k] + (1.0 - wa) * b[k]);
+    // Along the triangle's normal, from 1 cm below its plane to 1 cm above.
+    let e1 = [0, 1, 2].map(|k| t[1][k] - t[0][k]);
+    let e2 = [0, 1, 2].map(|k| t[2][k] - t[0][k]);
+    let n = [
+        e1[1] * e2[2] - e1[2] * e2[1],
+        e1[2] * e2[0] - e1[0] * e2[2],
+        e1[0] * e2[1] - e1[1] * e2[0],
+    ];
+    let nl = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    let n = n.map(|x| x / nl);
+    let through = |p: [f32; 3]| Segment {
+        from: [0, 1, 2].map(|k| p[k] - 0.01 * n[k]),
+        dir: n.map(|x| 0.02 * x),
+        t_min: 0.0,
+        t_max: 1.0,
+    };
+    let edge_point = mid(t[0], t[1], 0.5);
+    let centre = [0, 1, 2].map(|k| (t[0][k] + t[1][k] + t[2][k]) / 3.0);
+    assert!(exact.near_edge(&through(edge_point), 1e-4));
+    assert!(!exact.near_edge(&through(centre), 1e-4));
+    let far = [1e3, 1e3, 1e3];
+    assert!(!exact.near_edge(&through(far), 1e-4));
+}
