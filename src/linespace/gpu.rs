@@ -469,110 +469,89 @@ pub fn validate_linespace(
     let (_, size) = root_box(t);
     let offset = 1e-4 * size.iter().cloned().fold(0.0, f32::max);
     let points = random_receivers(t, receivers, seed);
-    let k = light.samples.pow(2);
+    let dev = NTreeGpu::new(gpu, t)?;
+    let cpu = CpuSide {
+        occluded: &|s| t.segment_occluded(s, &mut QueryStats::default()),
+        exact: &|s| t.segment_occluded_exact(s, &mut QueryStats::default()),
+        at_edge: &|_| false,
+    };
+    compare_on(&dev, &points, &light, offset, &cpu, t.refine)
+}
+
+/// The CPU's answers that [`compare_on`] holds the GPU to.
+pub(super) struct CpuSide<'a> {
+    /// With line spaces (the structure's own query).
+    pub occluded: &'a dyn Fn(&Segment) -> bool,
+    /// Exact visibility (what the GPU answers without line spaces).
+    pub exact: &'a dyn Fn(&Segment) -> bool,
+    /// Whether rounding may decide the segment (a mismatch there is reported apart).
+    pub at_edge: &'a dyn Fn(&Segment) -> bool,
+}
+
+/// The GPU against the CPU: every segment from `points` to the light's samples with and
+/// without line spaces, and the shadow kernel's counts against the CPU's answers on the same
+/// segments (receiver i's at i·samples..(i + 1)·samples).
+pub(super) fn compare_on(
+    dev: &NTreeGpu,
+    points: &[[f32; 3]],
+    light: &AreaLight,
+    offset: f32,
+    cpu_side: &CpuSide,
+    refine: super::ntree::Refine,
+) -> Result<LinespaceAgreement> {
+    let k = light.samples.max(1).pow(2);
     let segs: Vec<Segment> = points
         .iter()
         .flat_map(|&p| (0..k).map(move |i| Segment::between(p, light.sample(i), offset)))
         .collect();
-    let dev = NTreeGpu::new(gpu, t)?;
-    let mut stats = QueryStats::default();
     let t0 = std::time::Instant::now();
-    let cpu: Vec<bool> = segs
-        .iter()
-        .map(|s| t.segment_occluded(s, &mut stats))
-        .collect();
+    let cpu: Vec<bool> = segs.iter().map(cpu_side.occluded).collect();
     let t1 = std::time::Instant::now();
-    let cpu_exact: Vec<bool> = segs
-        .iter()
-        .map(|s| t.segment_occluded_exact(s, &mut stats))
-        .collect();
+    let cpu_exact: Vec<bool> = segs.iter().map(cpu_side.exact).collect();
     let t2 = std::time::Instant::now();
-    let on_gpu = dev.segments_occluded(&segs, true)?;
+    let gpu = dev.segments_occluded(&segs, true)?;
     let t3 = std::time::Instant::now();
-    let on_gpu_exact = dev.segments_occluded(&segs, false)?;
+    let gpu_exact = dev.segments_occluded(&segs, false)?;
     let recv: Vec<Receiver> = points.iter().map(|&p| Some(p)).collect();
-    let counts_gpu = dev.shadow_counts(&recv, &light, offset)?;
-    let counts_cpu = shadow_counts_cpu(t, &recv, &light, offset);
-    Ok(agreement(
-        &Answers {
-            cpu: &cpu,
-            cpu_exact: &cpu_exact,
-            gpu: &on_gpu,
-            gpu_exact: &on_gpu_exact,
-            counts_cpu: &counts_cpu,
-            counts_gpu: &counts_gpu,
-            at_edge: &|_| false,
-        },
-        k,
-        dev.pool_bytes(),
-        t.refine,
-        (t1 - t0).as_secs_f64(),
-        (t3 - t2).as_secs_f64(),
-    ))
-}
-
-/// Both sides' answers on the same segments and receivers (receiver i's segments at
-/// i·samples..(i + 1)·samples).
-pub(super) struct Answers<'a> {
-    pub cpu: &'a [bool],
-    pub cpu_exact: &'a [bool],
-    pub gpu: &'a [bool],
-    pub gpu_exact: &'a [bool],
-    pub counts_cpu: &'a [u32],
-    pub counts_gpu: &'a [u32],
-    /// Whether a segment passes a placed triangle's edge within rounding (empty: none may).
-    pub at_edge: &'a dyn Fn(usize) -> bool,
-}
-
-/// The agreement of the answers (`samples` light samples per receiver).
-pub(super) fn agreement(
-    a: &Answers,
-    samples: u32,
-    gpu_pool_bytes: u64,
-    refine: super::ntree::Refine,
-    cpu_seconds: f64,
-    gpu_seconds: f64,
-) -> LinespaceAgreement {
+    let counts_gpu = dev.shadow_counts(&recv, light, offset)?;
+    let counts_cpu: Vec<u32> = cpu
+        .chunks(k as usize)
+        .map(|c| c.iter().filter(|&&o| !o).count() as u32)
+        .collect();
     let mut r = LinespaceAgreement {
-        segments: a.cpu.len(),
-        occluded: a.cpu.iter().filter(|&&o| o).count(),
-        receivers: a.counts_cpu.len(),
-        samples,
-        gpu_pool_bytes,
+        segments: segs.len(),
+        occluded: cpu.iter().filter(|&&o| o).count(),
+        receivers: points.len(),
+        samples: k,
+        gpu_pool_bytes: dev.pool_bytes(),
         refine,
-        cpu_seconds,
-        gpu_seconds,
+        cpu_seconds: (t1 - t0).as_secs_f64(),
+        gpu_seconds: (t3 - t2).as_secs_f64(),
         ..Default::default()
     };
-    let mut edge_receiver = vec![false; a.counts_cpu.len()];
-    for i in 0..a.cpu.len() {
-        let bad = a.cpu[i] != a.gpu[i];
-        let bad_exact = a.cpu_exact[i] != a.gpu_exact[i];
+    let mut edge_receiver = vec![false; points.len()];
+    for (i, s) in segs.iter().enumerate() {
+        let bad = cpu[i] != gpu[i];
+        let bad_exact = cpu_exact[i] != gpu_exact[i];
         r.segment_mismatches += bad as usize;
         r.exact_mismatches += bad_exact as usize;
-        if (bad || bad_exact) && (a.at_edge)(i) {
+        if (bad || bad_exact) && (cpu_side.at_edge)(s) {
             r.edge_segment_mismatches += bad as usize;
             r.edge_exact_mismatches += bad_exact as usize;
-            if let Some(e) = edge_receiver.get_mut(i / samples.max(1) as usize) {
-                *e = true;
-            }
+            edge_receiver[i / k as usize] = true;
         }
         if (bad || bad_exact) && r.examples.len() < 5 {
             r.examples.push(i);
         }
     }
-    for (i, (g, c)) in a.counts_gpu.iter().zip(a.counts_cpu).enumerate() {
+    for (i, (g, c)) in counts_gpu.iter().zip(&counts_cpu).enumerate() {
         if g != c {
             r.fraction_mismatches += 1;
             r.edge_fraction_mismatches += edge_receiver[i] as usize;
         }
     }
-    r.penumbra = a
-        .counts_cpu
-        .iter()
-        .filter(|&&c| c > 0 && c < samples)
-        .count();
-    r
+    r.penumbra = counts_cpu.iter().filter(|&&c| c > 0 && c < k).count();
+    Ok(r)
 }
 
 #[cfg(test)]

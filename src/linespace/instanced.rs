@@ -574,18 +574,28 @@ impl<'a> ExactInstances<'a> {
             return true;
         }
         let ray = s.bvh_ray();
-        self.boxes.iter().enumerate().any(|(i, b)| {
-            let (t0, t1) = slab(s, b);
-            if t0 > t1 {
-                return false;
-            }
-            let r = &self.scene.instances[i];
-            self.scene.models[r.model as usize]
-                .tree
-                .triangles
-                .iter()
+        self.crossed(s, 0.0).any(|(r, tris)| {
+            tris.iter()
                 .any(|t| to_bvh_triangle(&t.map(|p| r.to_world(p))).intersect(&ray) <= ray.tmax)
         })
+    }
+
+    /// The instances whose placed box, grown by `grow`, the segment meets, with their model's
+    /// triangles (in the model's frame).
+    fn crossed<'s>(
+        &'s self,
+        s: &'s Segment,
+        grow: f32,
+    ) -> impl Iterator<Item = (&'s InstanceRef, &'s [[[f32; 3]; 3]])> + 's {
+        self.boxes
+            .iter()
+            .enumerate()
+            .filter_map(move |(i, (lo, hi))| {
+                let b = (lo.map(|x| x - grow), hi.map(|x| x + grow));
+                let (t0, t1) = slab(s, &b);
+                let r = &self.scene.instances[i];
+                (t0 <= t1).then(|| (r, &self.scene.models[r.model as usize].tree.triangles[..]))
+            })
     }
 }
 
@@ -598,37 +608,24 @@ impl ExactInstances<'_> {
         let (o, d) = (s.from.map(f64::from), s.dir.map(f64::from));
         let delta = delta as f64;
         let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        let grown = |(lo, hi): &([f32; 3], [f32; 3])| {
-            (lo.map(|x| x - delta as f32), hi.map(|x| x + delta as f32))
-        };
-        self.boxes.iter().enumerate().any(|(i, b)| {
-            let (t0, t1) = slab(s, &grown(b));
-            if t0 > t1 {
-                return false;
-            }
-            let r = &self.scene.instances[i];
-            self.scene.models[r.model as usize]
-                .tree
-                .triangles
-                .iter()
-                .any(|t| {
-                    let w = t.map(|p| r.to_world(p).map(f64::from));
-                    let Some(tt) = plane_t(o, d, &w) else {
-                        return false;
-                    };
-                    let near_end = ((tt - s.t_min as f64) * len).abs() <= delta
-                        || ((tt - s.t_max as f64) * len).abs() <= delta;
-                    if tt * len < s.t_min as f64 * len - delta
-                        || tt * len > s.t_max as f64 * len + delta
-                    {
-                        return false;
-                    }
-                    let p = [0, 1, 2].map(|k| o[k] + d[k] * tt);
-                    let inside = point_in_triangle(p, &w);
-                    let edge =
-                        (0..3).any(|k| point_segment_distance(p, w[k], w[(k + 1) % 3]) <= delta);
-                    edge || (near_end && inside)
-                })
+        self.crossed(s, delta as f32).any(|(r, tris)| {
+            tris.iter().any(|t| {
+                let w = t.map(|p| r.to_world(p).map(f64::from));
+                let Some(tt) = plane_t(o, d, &w) else {
+                    return false;
+                };
+                let near_end = ((tt - s.t_min as f64) * len).abs() <= delta
+                    || ((tt - s.t_max as f64) * len).abs() <= delta;
+                if tt * len < s.t_min as f64 * len - delta
+                    || tt * len > s.t_max as f64 * len + delta
+                {
+                    return false;
+                }
+                let p = [0, 1, 2].map(|k| o[k] + d[k] * tt);
+                let inside = point_in_triangle(p, &w);
+                let edge = (0..3).any(|k| point_segment_distance(p, w[k], w[(k + 1) % 3]) <= delta);
+                edge || (near_end && inside)
+            })
         })
     }
 }

@@ -9,10 +9,10 @@
 //! compares the two on random segments and shadow queries, and the GPU's traversal without line
 //! spaces with the brute-force exact visibility ([`ExactInstances`]).
 
-use super::gpu::{NTreeGpu, Params, kernel_parts};
+use super::gpu::{CpuSide, LinespaceAgreement, NTreeGpu, Params, compare_on, kernel_parts};
 use super::instanced::{ExactInstances, SceneLinespace};
 use super::ntree::NTree;
-use super::query::{AreaLight, QueryStats, Segment};
+use super::query::{AreaLight, QueryStats};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::rng::Rng;
@@ -285,57 +285,17 @@ pub fn validate_scene_linespace(
     receivers: usize,
     samples: u32,
     seed: u64,
-) -> Result<super::gpu::LinespaceAgreement> {
+) -> Result<LinespaceAgreement> {
     let light = light_above_scene(s, samples.max(1));
     let (_, size) = scene_box(s);
     let offset = 1e-4 * size.iter().cloned().fold(0.0, f32::max);
     let points = scene_receivers(s, receivers, seed);
-    let k = light.samples.pow(2);
-    let segs: Vec<Segment> = points
-        .iter()
-        .flat_map(|&p| (0..k).map(move |i| Segment::between(p, light.sample(i), offset)))
-        .collect();
     let dev = NTreeGpu::for_scene(gpu, s)?;
     let exact = ExactInstances::new(s);
-    let mut stats = QueryStats::default();
-    let t0 = std::time::Instant::now();
-    let cpu: Vec<bool> = segs
-        .iter()
-        .map(|q| s.segment_occluded(q, &mut stats))
-        .collect();
-    let t1 = std::time::Instant::now();
-    let cpu_exact: Vec<bool> = segs.iter().map(|q| exact.occluded(q)).collect();
-    let t2 = std::time::Instant::now();
-    let on_gpu = dev.segments_occluded(&segs, true)?;
-    let t3 = std::time::Instant::now();
-    let on_gpu_exact = dev.segments_occluded(&segs, false)?;
-    let recv: Vec<super::gpu::Receiver> = points.iter().map(|&p| Some(p)).collect();
-    let counts_gpu = dev.shadow_counts(&recv, &light, offset)?;
-    let counts_cpu: Vec<u32> = points
-        .iter()
-        .map(|&p| {
-            (0..k)
-                .filter(|&i| {
-                    let q = Segment::between(p, light.sample(i), offset);
-                    !s.segment_occluded(&q, &mut stats)
-                })
-                .count() as u32
-        })
-        .collect();
-    Ok(super::gpu::agreement(
-        &super::gpu::Answers {
-            cpu: &cpu,
-            cpu_exact: &cpu_exact,
-            gpu: &on_gpu,
-            gpu_exact: &on_gpu_exact,
-            counts_cpu: &counts_cpu,
-            counts_gpu: &counts_gpu,
-            at_edge: &|i| exact.near_edge(&segs[i], s.frame_margin),
-        },
-        k,
-        dev.pool_bytes(),
-        s.refine(),
-        (t1 - t0).as_secs_f64(),
-        (t3 - t2).as_secs_f64(),
-    ))
+    let cpu = CpuSide {
+        occluded: &|q| s.segment_occluded(q, &mut QueryStats::default()),
+        exact: &|q| exact.occluded(q),
+        at_edge: &|q| exact.near_edge(q, s.frame_margin),
+    };
+    compare_on(&dev, &points, &light, offset, &cpu, s.refine())
 }

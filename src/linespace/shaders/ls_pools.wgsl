@@ -315,3 +315,24 @@ struct Frame {
     t: f32,
     dda: Dda,
 }
+
+// The segment in a tree's leaf-cell units and where it lies in the root box (NTree::grid_ray,
+// root_span): `iv` the box's entry and exit t, `side` the root's side in leaf cells.
+struct Root {
+    o: vec3<f32>,
+    side: f32,
+    d: vec3<f32>,
+    iv: vec2<f32>,
+}
+
+fn root_of(s: Seg, tr: Tree) -> Root {
+    var r: Root;
+    r.o = (s.org - tr.origin) / tr.leaf_size;
+    r.d = s.dir / tr.leaf_size;
+    r.side = 1.0;
+    for (var l = 0u; l < tr.depth; l++) {
+        r.side *= f32(params.n);
+    }
+    r.iv = box_interval(r.o, r.d, vec3<f32>(0.0), vec3<f32>(r.side));
+    return r;
+}

@@ -88,13 +88,7 @@ fn leaf_hit_model(s: Seg, tr: Tree, leaf: u32, at: Placement) -> bool {
 
 // Where the segment enters a tree's root box (NTree::root_span's t0), or t_max when it misses.
 fn root_entry(s: Seg, tr: Tree) -> f32 {
-    let o = (s.org - tr.origin) / tr.leaf_size;
-    let d = s.dir / tr.leaf_size;
-    var side = 1.0;
-    for (var l = 0u; l < tr.depth; l++) {
-        side *= f32(params.n);
-    }
-    let iv = box_interval(o, d, vec3<f32>(0.0), vec3<f32>(side));
+    let iv = root_of(s, tr).iv;
     let t0 = max(iv.x, s.t_min);
     let t1 = min(iv.y, s.t_max);
     if (t0 > t1 || iv.x != iv.x || iv.y != iv.y) {

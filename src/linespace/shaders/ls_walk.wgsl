@@ -26,14 +26,12 @@ fn exact_occluded__X(s: Seg, tr: Tree, at: Placement, o: vec3<f32>, d: vec3<f32>
 
 // query::NTree::occluded_by_refine.
 fn occluded__X(s: Seg, tr: Tree, at: Placement, linespaces: bool, refine: u32) -> bool {
-    let o = (s.org - tr.origin) / tr.leaf_size;
-    let d = s.dir / tr.leaf_size;
+    let root = root_of(s, tr);
+    let o = root.o;
+    let d = root.d;
     let n = i32(params.n);
-    var side = 1.0;
-    for (var l = 0u; l < tr.depth; l++) {
-        side *= f32(params.n);
-    }
-    let iv = box_interval(o, d, vec3<f32>(0.0), vec3<f32>(side));
+    let side = root.side;
+    let iv = root.iv;
     let t0 = max(iv.x, s.t_min);
     let t1 = min(iv.y, s.t_max);
     if (t0 > t1) {
