@@ -128,6 +128,20 @@ pub struct WithPacks {
     pub inputs: Vec<PathBuf>,
 }
 
+/// A registered stage's unit ([`actions::stage_unit`]): the stage whose first action is
+/// `action`.
+fn stage(
+    action: &str,
+    f: &UnitFlags,
+    g: &Global,
+    model: Option<&str>,
+    inputs: &[PathBuf],
+    shard: Option<(usize, usize)>,
+) -> Result<UnitReport> {
+    let st = actions::stage_of_action(action)?;
+    actions::stage_unit(st, &f.scene(g)?, model, inputs, shard, &f.output)
+}
+
 pub fn run(args: &UnitArgs, g: &Global) -> Result<Outcome> {
     let r: UnitReport = match &args.unit {
         Unit::Terrain(f) => actions::terrain(&f.scene(g)?, &f.output)?,
@@ -137,38 +151,52 @@ pub fn run(args: &UnitArgs, g: &Global) -> Result<Outcome> {
             path,
             deps,
         } => actions::model(&scene.scene(g)?, name, path, &scene.output, deps)?,
-        Unit::Prt { scene, name, input } => {
-            actions::prt(&scene.scene(g)?, name, input, &scene.output)?
-        }
-        Unit::Lod { scene, name, input } => {
-            actions::lod(&scene.scene(g)?, name, input, &scene.output)?
-        }
+        Unit::Prt { scene, name, input } => stage(
+            "prt",
+            scene,
+            g,
+            Some(name),
+            std::slice::from_ref(input),
+            None,
+        )?,
+        Unit::Lod { scene, name, input } => stage(
+            "lod",
+            scene,
+            g,
+            Some(name),
+            std::slice::from_ref(input),
+            None,
+        )?,
         Unit::Instances(f) => actions::instances(&f.scene(g)?, &f.output)?,
-        Unit::Sky(f) => actions::sky(&f.scene(g)?, &f.output)?,
-        Unit::Lightmap { packs, rows } => {
-            let scene = packs.scene.scene(g)?;
-            match rows {
-                Some(r) => actions::lightmap_rows(&scene, &packs.inputs, *r, &packs.scene.output)?,
-                None => actions::lightmap(&scene, &packs.inputs, &packs.scene.output)?,
-            }
-        }
+        Unit::Sky(f) => stage("sky", f, g, None, &[], None)?,
+        Unit::Lightmap { packs, rows } => match rows {
+            Some(r) => actions::lightmap_rows(
+                &packs.scene.scene(g)?,
+                &packs.inputs,
+                *r,
+                &packs.scene.output,
+            )?,
+            None => stage("lightmap", &packs.scene, g, None, &packs.inputs, None)?,
+        },
         Unit::LightmapJoin(w) => {
             actions::lightmap_join(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?
         }
-        Unit::Atlas(w) => actions::atlas(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
-        Unit::Envmaps { packs, shard } => actions::envmaps_shard(
-            &packs.scene.scene(g)?,
+        Unit::Atlas(w) => stage("atlas", &w.scene, g, None, &w.inputs, None)?,
+        Unit::Envmaps { packs, shard } => stage(
+            "envmaps",
+            &packs.scene,
+            g,
+            None,
             &packs.inputs,
-            *shard,
-            &packs.scene.output,
+            Some(*shard),
         )?,
         Unit::EnvmapsJoin(w) => {
             actions::envmaps_join(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?
         }
-        Unit::Cluster(w) => actions::cluster(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
-        Unit::Bittree(f) => actions::bittree(&f.scene(g)?, &f.output)?,
-        Unit::Svo(w) => actions::svo(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
-        Unit::Linespace(w) => actions::linespace(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?,
+        Unit::Cluster(w) => stage("cluster", &w.scene, g, None, &w.inputs, None)?,
+        Unit::Bittree(f) => stage("bittree", f, g, None, &[], None)?,
+        Unit::Svo(w) => stage("svo", &w.scene, g, None, &w.inputs, None)?,
+        Unit::Linespace(w) => stage("linespace", &w.scene, g, None, &w.inputs, None)?,
         Unit::Record { scene, deps } => actions::record(&scene.scene(g)?, deps, &scene.output)?,
     };
     Ok(outcome(r))

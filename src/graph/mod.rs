@@ -7,8 +7,9 @@
 //! side on the rayon pool (the models' `prt` and `lod` beside the scene's units, the terrain
 //! `lightmap` beside `atlas` and `envmaps`), their sections, records and warnings put in the
 //! serial order's places, so the pack and the report do not depend on the thread count. Each
-//! unit is a pure function of the sections (or files) it reads and its options; its key
-//! ([`cache::KeyBuilder`]) hashes exactly those, so a hit in the stage cache
+//! unit is a pure function of the sections (or files) it reads and its options, computed by its
+//! stage's `run` of the stage registry ([`stage::REGISTRY`], which also declares what it reads);
+//! its key ([`cache::KeyBuilder`], made by [`stage::StageKey`]) hashes exactly those, so a hit in the stage cache
 //! ([`cache::Cache`]) maps the stored sections instead of computing them. Stages
 //! share one in-memory view of the sections produced so far ([`crate::pack::Pack::from_sections`],
 //! no encoding), the scene's trace structures are built once per bake and only if a lighting
@@ -217,6 +218,8 @@ pub struct Output {
 /// What every unit reads and nothing changes while units run: units of different threads run
 /// against it at once.
 struct Ctx<'a> {
+    /// The registered stages ([`stage::REGISTRY`]; a test adds one).
+    stages: &'a [&'a dyn AnyStage],
     cache: Option<Cache>,
     version: String,
     observer: &'a dyn Observer,
@@ -631,6 +634,15 @@ fn report_of(r: &impl Serialize) -> Value {
 
 /// `bake SCENE.eco`: every unit of the pipeline, cached, streamed into one pack.
 pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport> {
+    build_with(opts, observer, &stage::REGISTRY)
+}
+
+/// [`build`] with the stages of `registry` (a test adds a stage).
+pub(crate) fn build_with(
+    opts: &BuildOptions,
+    observer: &dyn Observer,
+    registry: &[&dyn AnyStage],
+) -> Result<BuildReport> {
     let t0 = Instant::now();
     let (c0, _) = process_usage();
     let first = opts
@@ -678,6 +690,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     // What the sections record as the scene's source: the first ECO file by name.
     let scene_source = SourceNames::first_name(first);
     let ctx = Ctx {
+        stages: registry,
         cache: cache_dir.clone().map(Cache::new),
         version,
         observer,
@@ -903,7 +916,7 @@ fn model_units(
 ) -> Result<(Vec<Section>, Recorder)> {
     let mut rec = Recorder::default();
     let mut sections = Vec::new();
-    for st in stage::REGISTRY.iter().copied() {
+    for st in ctx.stages.iter().copied() {
         if st.phase() == Phase::Model && st.on(p) {
             let u = UnitInputs::new(st, scope, &j.sections, Some((j.name, j.path)), None);
             sections.extend(ctx.run_stage(&mut rec, st, p, &u, None)?);
@@ -916,7 +929,9 @@ fn model_units(
 /// clustering, BitTree, SVO, line space. Consecutive units that read the trace structures run
 /// as a group ([`lighting_units`]); the others one after the other.
 fn scene_units(g: &mut Graph, p: &Pipeline, scope: &Scope) -> Result<()> {
-    let on: Vec<&dyn AnyStage> = stage::REGISTRY
+    let on: Vec<&dyn AnyStage> = g
+        .ctx
+        .stages
         .iter()
         .copied()
         .filter(|s| s.phase() == Phase::Scene && s.on(p))

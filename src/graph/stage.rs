@@ -1075,3 +1075,153 @@ impl Stage for Linespace {
         })
     }
 }
+
+/// A toy stage for tests: registered beside [`REGISTRY`], it must appear in the graph, the
+/// plan and `bake unit`-style execution without any of them naming it.
+#[cfg(test)]
+pub(crate) mod toy {
+    use super::*;
+    use crate::pack::{SectionBuilder, hex};
+
+    /// Writes one `toy` section recording the hash of the `instances` section it read, its
+    /// option, and how many sections its view held.
+    pub(crate) struct Toy {
+        /// Also asks for the `sun` section, which it does not declare.
+        pub(crate) greedy: bool,
+        /// Makes its key without hashing its declared sections.
+        pub(crate) lazy_key: bool,
+    }
+
+    pub(crate) static DEF: StageDef = StageDef {
+        name: "toy",
+        version: 1,
+        per: Per::Scene,
+        writes: &["toy"],
+        actions: &["toy"],
+    };
+    pub(crate) static TOY: Toy = Toy {
+        greedy: false,
+        lazy_key: false,
+    };
+    pub(crate) static GREEDY: Toy = Toy {
+        greedy: true,
+        lazy_key: false,
+    };
+    pub(crate) static LAZY: Toy = Toy {
+        greedy: false,
+        lazy_key: true,
+    };
+    const OPTION: u32 = 7;
+
+    /// The `toy` section's metadata.
+    #[derive(Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+    pub(crate) struct ToyMeta {
+        /// The hash of the `instances` section read (hex).
+        pub(crate) instances: String,
+        pub(crate) option: u32,
+        /// How many sections the unit's view held.
+        pub(crate) sections: u64,
+    }
+
+    impl Stage for Toy {
+        type Options = u32;
+        fn def(&self) -> &'static StageDef {
+            &DEF
+        }
+        fn reads(&self) -> Reads {
+            Reads {
+                kinds: &["instances"],
+                ..Reads::default()
+            }
+        }
+        fn on(&self, _: &Pipeline) -> bool {
+            true
+        }
+        fn options<'p>(&'p self, _: &'p Pipeline) -> &'p u32 {
+            &OPTION
+        }
+        fn key(&self, _: &UnitInputs, o: &u32, k: &mut StageKey) -> Result<()> {
+            k.options(o);
+            if !self.lazy_key {
+                k.inputs();
+            }
+            Ok(())
+        }
+        fn run(&self, cx: &UnitCtx, o: &u32) -> Result<Output> {
+            if self.greedy {
+                cx.section(crate::sky::SUN_SECTION)?;
+            }
+            let inst = cx.section("instances")?;
+            let mut b = SectionBuilder::new("toy", "toy");
+            b.meta(&ToyMeta {
+                instances: hex(inst.payload.hash()),
+                option: *o,
+                sections: cx.view().sections().len() as u64,
+            });
+            Ok(Output {
+                sections: vec![b.finish()],
+                report: json!({"sections": cx.sections().len()}),
+                ..Default::default()
+            })
+        }
+    }
+
+    /// The registry with `toy` added at the end.
+    pub(crate) fn with(toy: &'static Toy) -> Vec<&'static dyn AnyStage> {
+        let mut r: Vec<&'static dyn AnyStage> = REGISTRY.to_vec();
+        r.push(toy);
+        r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_registry_holds_every_listed_stage_in_order() {
+        assert_eq!(REGISTRY.len(), stages::STAGES.len());
+        for (r, s) in REGISTRY.iter().zip(&stages::STAGES) {
+            assert_eq!(format!("{:?}", r.def()), format!("{s:?}"));
+        }
+        let source: Vec<&str> = REGISTRY
+            .iter()
+            .filter(|s| s.phase() == Phase::Source)
+            .map(|s| s.def().name)
+            .collect();
+        assert_eq!(source, ["ingest", "material", "terrain"]);
+        // A stage that traces reads what the trace structures are built from.
+        for s in REGISTRY.iter().filter(|s| s.reads().trace) {
+            for k in TRACED {
+                assert!(s.reads().kinds.contains(k), "{}: {k}", s.def().name);
+            }
+        }
+        // Every kind a stage reads is written by a stage before it or by the graph itself
+        // (the source stages read the scene's own sections).
+        for (i, s) in REGISTRY.iter().enumerate() {
+            if s.phase() == Phase::Source {
+                continue;
+            }
+            for k in s.reads().kinds {
+                let written = REGISTRY[..i].iter().any(|w| w.def().writes.contains(k))
+                    || stages::GRAPH_WRITES.contains(k);
+                assert!(
+                    written,
+                    "{} reads {k}, which no stage before it writes",
+                    s.def().name
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn shards_cover_the_instances_once() {
+        for n in [0usize, 1, 5, 40, 41] {
+            let s = envmap_shards(n, 20);
+            assert_eq!(s.first().map(|r| r.start), Some(0));
+            assert_eq!(s.last().map(|r| r.end), Some(n));
+            assert!(s.windows(2).all(|w| w[0].end == w[1].start));
+            assert_eq!(s.len(), n.max(1).div_ceil(20));
+        }
+    }
+}

@@ -1,11 +1,16 @@
-//! The stages of the graph in one list, [`STAGES`] (issue 36, item 1, a first slice): for each
-//! stage its name, version, what one of its units covers, the section kinds it writes and the
-//! `bake unit` actions that run it in a build-engine plan. The build key takes the stages'
-//! versions from here ([`super::versions::ALL`]); tests hold the graph's unit records, the
-//! registry of section kinds ([`crate::kinds::KINDS`]) and `bake unit`'s subcommands to it.
+//! The stages of the graph in one list, [`STAGES`] (issue 36, item 1): for each stage its
+//! name, version, what one of its units covers, the section kinds it writes and the `bake unit`
+//! actions that run it in a build-engine plan. The build key takes the stages' versions from
+//! here ([`super::versions::ALL`]); tests hold the graph's unit records, the registry of
+//! section kinds ([`crate::kinds::KINDS`]) and `bake unit`'s subcommands to it. What each stage
+//! reads and computes is its `impl Stage` in [`super::stage`], whose [`super::stage::REGISTRY`]
+//! holds the stages in this order; `graph::build`, `plan::plan_in` and `bake unit`'s stage
+//! actions loop over that registry.
 //!
-//! Not yet driven by it (the rest of item 1): `graph::build` and `scene_units` still call each
-//! stage by hand, as do `plan::plan_in`, `plan/actions.rs` and `cli/unit.rs`.
+//! Not driven by it: the scene's own units (the terrain's and models' sections from the scene
+//! plan, the instances, the build record), the sharding of `envmaps` and of the light map's
+//! rows and their join actions, `bake unit`'s clap subcommands (one variant per action, which
+//! `tests/kinds.rs` holds to [`STAGES`]), and the per-stage subcommands (`bake prt`, ...).
 
 use super::versions;
 
