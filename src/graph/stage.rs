@@ -19,9 +19,9 @@
 //! `ingest`, `material`, `terrain`, which the graph and the `terrain` and `model` actions call
 //! through the registry at fixed places), the instances and the build record; the sharding of
 //! `envmaps` (by instances) and of the terrain light map (by rows, plans only); the per-stage
-//! subcommands (`bake prt`, `bake lod`, ...), which call their stage's functions directly; and
-//! the clap subcommands of `bake unit` (a static enum whose stage variants dispatch to
-//! [`crate::plan::actions::stage_unit`]).
+//! subcommands (`bake prt`, `bake lod`, ...), which call their stage's functions directly.
+//! `bake unit`'s subcommands of the registered stages are made from the registry
+//! (`cli::unit::StageUnit`) and run through [`crate::plan::actions::stage_unit`].
 
 use super::cache::{self, Key, KeyBuilder};
 use super::stages::{self, Per, StageDef};

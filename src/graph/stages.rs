@@ -9,8 +9,9 @@
 //!
 //! Not driven by it: the scene's own units (the terrain's and models' sections from the scene
 //! plan, the instances, the build record), the sharding of `envmaps` and of the light map's
-//! rows and their join actions, `bake unit`'s clap subcommands (one variant per action, which
-//! `tests/kinds.rs` holds to [`STAGES`]), and the per-stage subcommands (`bake prt`, ...).
+//! rows and their join actions, and the per-stage subcommands (`bake prt`, `bake lod`, ...),
+//! which call their stage's functions directly. `bake unit`'s subcommands of the registered
+//! stages are made from the registry (`tests/kinds.rs` holds them to [`STAGES`]).
 
 use super::versions;
 
