@@ -24,8 +24,8 @@
 //! (`cli::unit::StageUnit`) and run through [`crate::plan::actions::stage_unit`].
 
 use super::cache::{self, Key, KeyBuilder};
-use super::stages::{self, Per, StageDef};
-use super::{Output, Pipeline, keyed_tracer, report_of, texels};
+use super::stages::{Per, StageDef};
+use super::{Output, Pipeline, keyed_tracer, report_of, texels, versions};
 use crate::diag::{self, Warning};
 use crate::error::{Error, Result};
 use crate::ingest::confine::SourceNames;
@@ -368,8 +368,8 @@ impl<'u> StageKey<'u> {
 pub trait Stage: Sync {
     /// The part of the pipeline the stage reads.
     type Options: Serialize + Sync;
-    /// Its entry in [`stages::STAGES`] (name, version, what a unit covers, kinds written,
-    /// `bake unit` actions).
+    /// Its name, version, what a unit covers, the kinds it writes and its `bake unit` actions
+    /// (a `static` in the impl).
     fn def(&self) -> &'static StageDef;
     fn reads(&self) -> Reads;
     /// Whether the pipeline turns it on.
@@ -461,8 +461,9 @@ impl<S: Stage> AnyStage for S {
     }
 }
 
-/// Every stage, in the order of [`stages::STAGES`] (a test holds the two together).
-pub static REGISTRY: [&dyn AnyStage; 13] = [
+/// Every stage, in the order of the build key (do not reorder: the key hashes this order; a
+/// new stage goes where its inputs are written before it).
+pub static REGISTRY: &[&dyn AnyStage] = &[
     &Ingest, &Material, &Terrain, &Sky, &Prt, &Lod, &Lightmap, &Atlas, &Envmaps, &Cluster,
     &Bittree, &Svo, &Linespace,
 ];
@@ -487,16 +488,19 @@ pub(crate) fn terrain() -> &'static dyn AnyStage {
     registered("terrain")
 }
 
-fn def(name: &str) -> &'static StageDef {
-    stages::find(name).unwrap_or_else(|| panic!("stage {name} is not listed in STAGES"))
-}
-
 /// Reads one model and its textures (`ingest`).
 pub struct Ingest;
 impl Stage for Ingest {
     type Options = ();
     fn def(&self) -> &'static StageDef {
-        def("ingest")
+        static DEF: StageDef = StageDef {
+            name: "ingest",
+            version: versions::INGEST,
+            per: Per::Model,
+            writes: &["mesh", "texture"],
+            actions: &["model"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -543,7 +547,14 @@ pub struct Material;
 impl Stage for Material {
     type Options = crate::material::MaterialOptions;
     fn def(&self) -> &'static StageDef {
-        def("material")
+        static DEF: StageDef = StageDef {
+            name: "material",
+            version: versions::MATERIAL,
+            per: Per::Model,
+            writes: &["material", "texture", "tangents"],
+            actions: &["model"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -580,7 +591,14 @@ pub struct Terrain;
 impl Stage for Terrain {
     type Options = ();
     fn def(&self) -> &'static StageDef {
-        def("terrain")
+        static DEF: StageDef = StageDef {
+            name: "terrain",
+            version: versions::TERRAIN,
+            per: Per::Terrain,
+            writes: &["terrain", "texture"],
+            actions: &["terrain"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -617,7 +635,14 @@ pub struct Sky;
 impl Stage for Sky {
     type Options = crate::sky::SkyOptions;
     fn def(&self) -> &'static StageDef {
-        def("sky")
+        static DEF: StageDef = StageDef {
+            name: "sky",
+            version: versions::SKY,
+            per: Per::Sky,
+            writes: &["sky", "sun", "sh"],
+            actions: &["sky"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -668,7 +693,14 @@ pub struct Prt;
 impl Stage for Prt {
     type Options = crate::prt::transfer::PrtOptions;
     fn def(&self) -> &'static StageDef {
-        def("prt")
+        static DEF: StageDef = StageDef {
+            name: "prt",
+            version: versions::PRT,
+            per: Per::Model,
+            writes: &["prt"],
+            actions: &["prt"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -708,7 +740,14 @@ pub struct Lod;
 impl Stage for Lod {
     type Options = crate::lod::LodOptions;
     fn def(&self) -> &'static StageDef {
-        def("lod")
+        static DEF: StageDef = StageDef {
+            name: "lod",
+            version: versions::LOD,
+            per: Per::Model,
+            writes: &["lod"],
+            actions: &["lod"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -745,7 +784,14 @@ pub struct Lightmap;
 impl Stage for Lightmap {
     type Options = crate::lightmap::LightmapOptions;
     fn def(&self) -> &'static StageDef {
-        def("lightmap")
+        static DEF: StageDef = StageDef {
+            name: "lightmap",
+            version: versions::LIGHTMAP,
+            per: Per::Terrain,
+            writes: &["lightmap"],
+            actions: &["lightmap", "lightmap-join"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         LIGHTING
@@ -780,7 +826,14 @@ pub struct Atlas;
 impl Stage for Atlas {
     type Options = crate::lightmap::LightmapOptions;
     fn def(&self) -> &'static StageDef {
-        def("atlas")
+        static DEF: StageDef = StageDef {
+            name: "atlas",
+            version: versions::ATLAS,
+            per: Per::Scene,
+            writes: &["lightmap"],
+            actions: &["atlas"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         LIGHTING
@@ -817,7 +870,14 @@ pub struct Envmaps;
 impl Stage for Envmaps {
     type Options = crate::envmap::bake::EnvmapOptions;
     fn def(&self) -> &'static StageDef {
-        def("envmaps")
+        static DEF: StageDef = StageDef {
+            name: "envmaps",
+            version: versions::ENVMAPS,
+            per: Per::Shards,
+            writes: &["envmaps"],
+            actions: &["envmaps", "envmaps-join"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         LIGHTING
@@ -890,7 +950,14 @@ pub struct Cluster;
 impl Stage for Cluster {
     type Options = crate::envmap::cluster::ClusterOptions;
     fn def(&self) -> &'static StageDef {
-        def("cluster")
+        static DEF: StageDef = StageDef {
+            name: "cluster",
+            version: versions::CLUSTER,
+            per: Per::Scene,
+            writes: &["clusters"],
+            actions: &["cluster"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -933,7 +1000,14 @@ pub struct Bittree;
 impl Stage for Bittree {
     type Options = crate::bittree::BitTreeOptions;
     fn def(&self) -> &'static StageDef {
-        def("bittree")
+        static DEF: StageDef = StageDef {
+            name: "bittree",
+            version: versions::BITTREE,
+            per: Per::Scene,
+            writes: &["bittree"],
+            actions: &["bittree"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -986,7 +1060,14 @@ pub struct Svo;
 impl Stage for Svo {
     type Options = crate::voxel::voxelize::VoxelizeOptions;
     fn def(&self) -> &'static StageDef {
-        def("svo")
+        static DEF: StageDef = StageDef {
+            name: "svo",
+            version: versions::SVO,
+            per: Per::Scene,
+            writes: &["svo", "svo-scene"],
+            actions: &["svo"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -1027,7 +1108,14 @@ pub struct Linespace;
 impl Stage for Linespace {
     type Options = crate::linespace::ntree::NTreeOptions;
     fn def(&self) -> &'static StageDef {
-        def("linespace")
+        static DEF: StageDef = StageDef {
+            name: "linespace",
+            version: versions::LINESPACE,
+            per: Per::Scene,
+            writes: &["linespace", "linespace-scene"],
+            actions: &["linespace"],
+        };
+        &DEF
     }
     fn reads(&self) -> Reads {
         Reads {
@@ -1179,11 +1267,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_registry_holds_every_listed_stage_in_order() {
-        assert_eq!(REGISTRY.len(), stages::STAGES.len());
-        for (r, s) in REGISTRY.iter().zip(&stages::STAGES) {
-            assert_eq!(format!("{:?}", r.def()), format!("{s:?}"));
-        }
+    fn the_registry_declares_its_phases_and_reads_what_earlier_stages_write() {
         let source: Vec<&str> = REGISTRY
             .iter()
             .filter(|s| s.phase() == Phase::Source)
@@ -1204,7 +1288,7 @@ mod tests {
             }
             for k in s.reads().kinds {
                 let written = REGISTRY[..i].iter().any(|w| w.def().writes.contains(k))
-                    || stages::GRAPH_WRITES.contains(k);
+                    || crate::graph::stages::GRAPH_WRITES.contains(k);
                 assert!(
                     written,
                     "{} reads {k}, which no stage before it writes",

@@ -129,7 +129,7 @@ pub fn make_plan(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
 }
 
 fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
-    plan_with(opts, dir, &crate::graph::stage::REGISTRY)
+    plan_with(opts, dir, crate::graph::stage::REGISTRY)
 }
 
 /// [`plan_in`] over the stages of `registry` (a test adds a stage).
