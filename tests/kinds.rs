@@ -2,11 +2,11 @@
 //! through the graph with every stage on (svo and line space too, small) and its build report
 //! embedded. Every section's kind is registered, `bake dump` shows it through the registry's
 //! views, `bake verify` passes it, and the bake writes every registered kind. The graph's units
-//! are those of `graph::stages::STAGES`, and so are `bake unit`'s subcommands.
+//! are those of the stage registry (`graph::stages::all`), and so are `bake unit`'s subcommands.
 
 mod common;
 
-use bake::graph::stages::{GRAPH_ACTIONS, STAGES};
+use bake::graph::stages::{GRAPH_ACTIONS, all};
 use bake::kinds::{KINDS, find};
 use std::collections::BTreeSet;
 
@@ -34,7 +34,7 @@ fn every_kind_pack(dir: &std::path::Path) -> std::path::PathBuf {
     bake::report::embed(&json, &out).unwrap();
     // Every unit the graph ran is of a listed stage, and every listed stage ran.
     let ran: BTreeSet<&str> = report.stages.iter().map(|s| s.stage.as_str()).collect();
-    let listed: BTreeSet<&str> = STAGES.iter().map(|s| s.name).collect();
+    let listed: BTreeSet<&str> = all().map(|s| s.name).collect();
     assert_eq!(ran, listed);
     out
 }
@@ -48,8 +48,7 @@ fn bake_unit_runs_the_actions_of_the_listed_stages() {
         .get_subcommands()
         .map(|c| c.get_name().to_string())
         .collect();
-    let mut listed: BTreeSet<String> = STAGES
-        .iter()
+    let mut listed: BTreeSet<String> = all()
         .flat_map(|s| s.actions.iter().map(|a| a.to_string()))
         .collect();
     listed.extend(GRAPH_ACTIONS.iter().map(|a| a.to_string()));

@@ -407,7 +407,7 @@ pub fn instance_maps(
 }
 
 /// [`instance_maps`] with the half differences (the noise estimate, [`bake::Traced`]).
-pub fn instance_traced(
+pub(crate) fn instance_traced(
     scene: &crate::trace::pack_scene::TraceScene,
     light: &crate::lightmap::BakeLight,
     opts: &bake::EnvmapOptions,
@@ -553,7 +553,7 @@ pub fn cluster_sections(
 
 /// [`cluster_sections`] and the stage's warning, if it does not compress
 /// ([`compression_warning`]).
-pub fn cluster_sections_warned(
+pub(crate) fn cluster_sections_warned(
     pack: &crate::pack::Pack,
     opts: &ClusterOptions,
     store_weights: bool,

@@ -7,8 +7,9 @@
 //! side on the rayon pool (the models' `prt` and `lod` beside the scene's units, the terrain
 //! `lightmap` beside `atlas` and `envmaps`), their sections, records and warnings put in the
 //! serial order's places, so the pack and the report do not depend on the thread count. Each
-//! unit is a pure function of the sections (or files) it reads and its options; its key
-//! ([`cache::KeyBuilder`]) hashes exactly those, so a hit in the stage cache
+//! unit is a pure function of the sections (or files) it reads and its options, computed by its
+//! stage's `run` of the stage registry ([`stage::REGISTRY`], which also declares what it reads);
+//! its key ([`cache::KeyBuilder`], made by [`stage::StageKey`]) hashes exactly those, so a hit in the stage cache
 //! ([`cache::Cache`]) maps the stored sections instead of computing them. Stages
 //! share one in-memory view of the sections produced so far ([`crate::pack::Pack::from_sections`],
 //! no encoding), the scene's trace structures are built once per bake and only if a lighting
@@ -26,6 +27,7 @@
 pub mod cache;
 pub mod preset;
 pub mod progress;
+pub mod stage;
 pub mod stages;
 
 use crate::diag;
@@ -41,6 +43,7 @@ pub use preset::Pipeline;
 use progress::Observer;
 use serde::Serialize;
 use serde_json::{Value, json};
+use stage::{AnyStage, Phase, Scope, Shard, TraceCell, UnitCtx, UnitInputs};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -103,10 +106,12 @@ pub mod versions {
     /// 2: the compact section layout (issue 15).
     pub const LINESPACE: u32 = 2;
 
-    /// Every stage's name and version, from [`super::stages::STAGES`]. The whole build's key
-    /// includes them, so an output written by a build whose stages had other versions is not
-    /// taken as up to date.
-    pub const ALL: [(&str, u32); super::stages::STAGES.len()] = super::stages::names_and_versions();
+    /// Every stage's name and version, in registry order ([`super::stages::all`]). The whole
+    /// build's key includes them, so an output written by a build whose stages had other
+    /// versions is not taken as up to date.
+    pub fn all() -> Vec<(&'static str, u32)> {
+        super::stages::all().map(|s| (s.name, s.version)).collect()
+    }
 }
 
 /// Where stage units are cached.
@@ -205,16 +210,18 @@ pub fn process_usage() -> (f64, u64) {
 
 /// What a unit computed: sections, the stage's report, warnings, files read beyond its key.
 #[derive(Default)]
-pub(crate) struct Output {
-    pub(crate) sections: Vec<Section>,
-    pub(crate) report: Value,
-    pub(crate) warnings: Vec<Warning>,
-    pub(crate) files: Vec<FileDep>,
+pub struct Output {
+    pub sections: Vec<Section>,
+    pub report: Value,
+    pub warnings: Vec<Warning>,
+    pub files: Vec<FileDep>,
 }
 
 /// What every unit reads and nothing changes while units run: units of different threads run
 /// against it at once.
 struct Ctx<'a> {
+    /// The registered stages ([`stage::REGISTRY`]; a test adds one).
+    stages: &'a [&'a dyn AnyStage],
     cache: Option<Cache>,
     version: String,
     observer: &'a dyn Observer,
@@ -290,6 +297,52 @@ impl Ctx<'_> {
 
     fn key(&self, stage: &str, version: u32, unit: &str) -> KeyBuilder {
         KeyBuilder::new(&self.version, stage, version, unit)
+    }
+
+    /// The key of a registered stage's unit over its declared inputs.
+    fn stage_key(&self, st: &dyn AnyStage, p: &Pipeline, u: &UnitInputs) -> Result<Key> {
+        let d = st.def();
+        st.key(u, p, self.key(d.name, d.version, &u.unit))
+    }
+
+    /// Runs a registered stage's unit over its declared inputs ([`Ctx::unit`]).
+    fn run_stage(
+        &self,
+        rec: &mut Recorder,
+        st: &dyn AnyStage,
+        p: &Pipeline,
+        u: &UnitInputs,
+        trace: Option<&TraceCell>,
+    ) -> Result<Vec<Section>> {
+        let key = self.stage_key(st, p, u)?;
+        self.run_keyed(rec, st, p, u, trace, key)
+    }
+
+    /// [`Ctx::run_stage`] with its key made already. The files a unit declares (the sky, the
+    /// model) are among the bake's files.
+    fn run_keyed(
+        &self,
+        rec: &mut Recorder,
+        st: &dyn AnyStage,
+        p: &Pipeline,
+        u: &UnitInputs,
+        trace: Option<&TraceCell>,
+        key: Key,
+    ) -> Result<Vec<Section>> {
+        let reads = st.reads();
+        if reads.sky
+            && let Some(s) = u.scope.sky
+        {
+            rec.files.insert(confine::resolve(s));
+        }
+        if reads.model_file
+            && let Some((_, path)) = u.model
+        {
+            rec.files.insert(confine::resolve(path));
+        }
+        self.unit(rec, st.def().name, &u.unit, key, st.total(u), |progress| {
+            st.run(&UnitCtx::new(u, progress, trace), p)
+        })
     }
 
     /// Runs one unit: a cache hit (its files still hashing as recorded) maps the stored
@@ -417,21 +470,14 @@ impl Recorder {
 }
 
 impl Graph<'_> {
-    fn key(&self, stage: &str, version: u32, unit: &str) -> KeyBuilder {
-        self.ctx.key(stage, version, unit)
-    }
-
-    /// [`Ctx::unit`], recorded in this graph's order.
-    fn unit(
+    /// [`Ctx::run_stage`], recorded in this graph's order.
+    fn run_stage(
         &mut self,
-        stage: &str,
-        unit: &str,
-        key: Key,
-        total: Option<u64>,
-        compute: impl FnOnce(&(dyn Fn(u64) + Sync)) -> Result<Output>,
+        st: &dyn AnyStage,
+        p: &Pipeline,
+        u: &UnitInputs,
     ) -> Result<Vec<Section>> {
-        self.ctx
-            .unit(&mut self.rec, stage, unit, key, total, compute)
+        self.ctx.run_stage(&mut self.rec, st, p, u, None)
     }
 
     /// Keeps finished sections (in the view) and writes them to the output, unless units
@@ -492,17 +538,6 @@ impl Graph<'_> {
         }
         self.written = self.done.len();
         Ok(())
-    }
-
-    fn view(&self) -> Pack {
-        Pack::from_sections(&self.done, &self.ctx.name)
-    }
-
-    fn hash_of(&self, name: &str) -> Option<[u8; 32]> {
-        self.done
-            .iter()
-            .find(|s| s.name == name)
-            .map(|s| *s.payload.hash())
     }
 }
 
@@ -601,6 +636,15 @@ fn report_of(r: &impl Serialize) -> Value {
 
 /// `bake SCENE.eco`: every unit of the pipeline, cached, streamed into one pack.
 pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport> {
+    build_with(opts, observer, stage::REGISTRY)
+}
+
+/// [`build`] with the stages of `registry` (a test adds a stage).
+pub(crate) fn build_with(
+    opts: &BuildOptions,
+    observer: &dyn Observer,
+    registry: &[&dyn AnyStage],
+) -> Result<BuildReport> {
     let t0 = Instant::now();
     let (c0, _) = process_usage();
     let first = opts
@@ -648,6 +692,7 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     // What the sections record as the scene's source: the first ECO file by name.
     let scene_source = SourceNames::first_name(first);
     let ctx = Ctx {
+        stages: registry,
         cache: cache_dir.clone().map(Cache::new),
         version,
         observer,
@@ -677,37 +722,36 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         )
     }));
     let p = &opts.pipeline;
+    // Models read under the scene's policy (roots and limits), which enters the ingest keys
+    // so that a hit never skips a refusal: the roots by their places relative to each other
+    // (what decides whether a reference from one reaches another), not where they lie, so
+    // that the same tree elsewhere hits the same entries.
+    let policy = ingest::eco::scene_policy(first, &opts.ingest);
+    // What the units are given: the registered stages' declared inputs come from here.
+    let scope = Scope {
+        view_name: &ctx.name,
+        source: &scene_source,
+        limits: &opts.ingest.limits,
+        first,
+        sky: opts.sky.as_deref(),
+        plan: Some(&plan),
+        names: Some(&ctx.names),
+        policy: Some(&policy),
+    };
 
     // The terrain: its sections from the plan, then the prepared terrain.
     if let Some(t) = &plan.scene.terrain {
         let mut sections = crate::pipeline::terrain_sections(&scene_source, t);
-        if p.stages.terrain {
-            let mut k = g.key("terrain", versions::TERRAIN, "terrain");
-            for s in &sections {
-                k.input(&s.name, s.payload.hash());
-            }
-            let view = Pack::from_sections(&sections, &ctx.name);
-            let out = g.unit("terrain", "terrain", k.finish(), None, |_| {
-                let (s, r) = crate::terrain::bake_terrain(&view)?;
-                Ok(Output {
-                    sections: s,
-                    report: report_of(&r),
-                    ..Default::default()
-                })
-            })?;
+        let st = stage::terrain();
+        if st.on(p) {
+            let u = UnitInputs::new(st, &scope, &sections, None, None);
+            let out = g.run_stage(st, p, &u)?;
             merge(&mut sections, out);
         }
         g.finish_sections(sections)?;
     }
 
-    // Per model: ingest, material, then (below) PRT and LOD. Models read under the scene's
-    // policy (roots and limits), which enters the ingest keys so that a hit never skips a
-    // refusal: the roots by their places relative to each other (what decides whether a
-    // reference from one reaches another), not where they lie, so that the same tree
-    // elsewhere hits the same entries.
-    let policy = ingest::eco::scene_policy(first, &opts.ingest);
-    let policy_key = format!("{:?} {:?}", ctx.names.layout(), policy.limits);
-    let mut mesh_sections = Vec::new();
+    // Per model: ingest, material, then (below) the per-model stages (PRT, LOD).
     let mut triangles = 0u64;
     // Each model's (vertices, triangles), for the placed scene's size.
     let mut model_sizes = Vec::with_capacity(plan.models.len());
@@ -731,54 +775,23 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
         }
         Ok(())
     };
-    // What each model's PRT and LOD units read, and where their sections, records and
+    // What each model's per-model units read, and where their sections, records and
     // warnings go (right after the model's own, as when every unit ran in turn).
     let mut jobs = Vec::with_capacity(plan.models.len());
     let mut places = Vec::with_capacity(plan.models.len());
     for (name, path) in &plan.models {
-        let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
-        mesh_sections.push(mesh_name.clone());
-        let source = ctx.names.name(path);
-        let model_hash = cache::hash_file(path)?;
-        g.rec.files.insert(confine::resolve(path));
-        let mut k = g.key("ingest", versions::INGEST, name);
-        k.options(&policy_key);
-        k.input(&source, &model_hash);
-        let names = ctx.names.clone();
-        let mut sections = g.unit("ingest", name, k.finish(), None, |_| {
-            ingest_model(name, path, &policy, &names)
-        })?;
-        if p.stages.material {
-            let mut k = g.key("material", versions::MATERIAL, name);
-            k.options(&p.material);
-            for s in &sections {
-                k.input(&s.name, s.payload.hash());
-            }
-            let view = Pack::from_sections(&sections, &ctx.name);
-            let out = g.unit("material", name, k.finish(), None, |_| {
-                let (s, mut r) = crate::material::bake_materials(&view, &p.material)?;
-                let warnings = diag::tagged(
-                    &diag::MATERIAL_TEXTURE_MISSING,
-                    std::mem::take(&mut r.warnings),
-                );
-                Ok(Output {
-                    sections: s,
-                    report: report_of(&r),
-                    warnings,
-                    ..Default::default()
-                })
-            })?;
+        let model = Some((name.as_str(), path.as_path()));
+        let st = stage::ingest();
+        let u = UnitInputs::new(st, &scope, &[], model, None);
+        let mut sections = g.run_stage(st, p, &u)?;
+        let st = stage::material();
+        if st.on(p) {
+            let u = UnitInputs::new(st, &scope, &sections, model, None);
+            let out = g.run_stage(st, p, &u)?;
             merge(&mut sections, out);
         }
         // The mesh and its textures are final now (only the material stage replaces them).
-        let prt_inputs: Vec<(String, [u8; 32])> = sections
-            .iter()
-            .filter(|s| {
-                s.kind == crate::mesh::section::KIND
-                    || s.kind == crate::texture::source_section::KIND
-            })
-            .map(|s| (s.name.clone(), *s.payload.hash()))
-            .collect();
+        let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
         let view = Pack::from_sections(&sections, &ctx.name);
         let mesh_view = view.find(&mesh_name).and_then(|e| view.view(e).ok());
         let count = |array: &str| {
@@ -787,44 +800,42 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
                 .and_then(|v| v.info(array))
                 .map(|a| a.count)
         };
-        let vertices = count("positions");
         triangles += count("indices").unwrap_or(0);
-        model_sizes.push(vertices.zip(count("indices")));
+        model_sizes.push(count("positions").zip(count("indices")));
         check_placed(&model_sizes)?;
-        // Written once the PRT and LOD sections of the models before it are.
+        // Written once the per-model sections of the models before it are.
+        jobs.push(ModelJob {
+            name,
+            path,
+            sections: sections.clone(),
+        });
         g.done.extend(sections);
         places.push(Place {
             section: g.done.len(),
             record: g.rec.records.len(),
             warning: g.rec.warnings.len(),
         });
-        jobs.push(ModelJob {
-            name,
-            mesh_name,
-            view,
-            prt_inputs,
-            vertices,
-        });
     }
     let instances = plan.scene.instances.items.len();
     check_placed(&model_sizes)?;
 
-    // The per-model PRT and LOD units run beside the scene's units (the instances, the sky,
-    // the lighting: none reads them), on the same thread pool, so both cores stay busy through
-    // the serial parts of either. Their sections, records and warnings go to their places, so
-    // the pack and the report are the same whichever finishes first (and on one thread).
+    // The per-model units run beside the scene's units (the instances, the sky, the lighting:
+    // none reads them), on the same thread pool, so both cores stay busy through the serial
+    // parts of either. Their sections, records and warnings go to their places, so the pack
+    // and the report are the same whichever finishes first (and on one thread).
     let slot = std::sync::Arc::new(std::sync::Mutex::new(None));
     g.deferred = Some(Deferred {
         places,
         slot: slot.clone(),
     });
     let ctxr = g.ctx;
+    let scope_r = &scope;
     let ((), scene_done) = rayon::join(
         || {
             // Up to the first failure (the scene's units then stop at their next section).
             let mut r: ModelResults = Vec::with_capacity(jobs.len());
             for j in &jobs {
-                let one = model_units(ctxr, p, j);
+                let one = model_units(ctxr, scope_r, p, j);
                 let failed = one.is_err();
                 r.push(one);
                 if failed {
@@ -836,20 +847,8 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
             }
         },
         || -> Result<()> {
-            g.finish_sections(vec![crate::ingest::instances_section::to_section(
-                "instances",
-                &plan.scene.instances,
-                mesh_sections,
-            )])?;
-            sky_unit(&mut g, opts)?;
-            scene_units(
-                &mut g,
-                p,
-                &plan.scene,
-                &scene_source,
-                &opts.ingest.limits,
-                first,
-            )
+            g.finish_sections(vec![stage::instances_section(&plan)])?;
+            scene_units(&mut g, p, scope_r)
         },
     );
     if g.deferred.is_some() {
@@ -866,7 +865,6 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     }
     scene_done?;
     g.flush()?;
-
     // The record of this build: its key and every file read (by name).
     let files: Vec<PathBuf> = g.rec.files.iter().cloned().collect();
     let deps: Vec<FileDep> = files.iter().map(|f| file_dep(f)).collect();
@@ -902,387 +900,128 @@ pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport
     }))
 }
 
-/// The sky (the built-in clear sky without --sky).
-fn sky_unit(g: &mut Graph, opts: &BuildOptions) -> Result<()> {
-    let p = &opts.pipeline;
-    if p.stages.sky {
-        let mut k = g.key("sky", versions::SKY, "sky");
-        k.options(&p.sky);
-        match &opts.sky {
-            Some(path) => {
-                // The sky's contents only: its output does not depend on where it lies.
-                k.input("--sky", &cache::hash_file(path)?);
-                g.rec.files.insert(confine::resolve(path));
-            }
-            None => {
-                k.options(&format!("{:?}", crate::sky::builtin::BuiltinSky::default()));
-            }
-        }
-        let out = g.unit("sky", "sky", k.finish(), None, |_| {
-            let img = opts
-                .sky
-                .as_deref()
-                .map(ingest::skyimage::load)
-                .transpose()?;
-            let s = crate::sky::scene_sky_sections(
-                img.as_ref(),
-                &crate::sky::builtin::BuiltinSky::default(),
-                &p.sky,
-            )?;
-            Ok(Output {
-                report: json!({"sections": s.len()}),
-                sections: s,
-                ..Default::default()
-            })
-        })?;
-        g.finish_sections(out)?;
-    }
-
-    Ok(())
-}
-
-/// What a model's PRT and LOD units read.
+/// What a model's per-model units read.
 struct ModelJob<'a> {
     name: &'a str,
-    mesh_name: String,
+    path: &'a Path,
     /// The model's own sections (mesh, textures, materials).
-    view: Pack,
-    /// The mesh and texture sections, by name and hash (the units' keys).
-    prt_inputs: Vec<(String, [u8; 32])>,
-    vertices: Option<u64>,
+    sections: Vec<Section>,
 }
 
-/// A model's PRT and LOD units (as the pipeline turns them on): their sections in pack order
-/// and what they recorded.
-fn model_units(ctx: &Ctx, p: &Pipeline, j: &ModelJob) -> Result<(Vec<Section>, Recorder)> {
+/// A model's per-model units ([`Phase::Model`], as the pipeline turns them on, in registry
+/// order): their sections in pack order and what they recorded.
+fn model_units(
+    ctx: &Ctx,
+    scope: &Scope,
+    p: &Pipeline,
+    j: &ModelJob,
+) -> Result<(Vec<Section>, Recorder)> {
     let mut rec = Recorder::default();
     let mut sections = Vec::new();
-    let (name, view, mesh_name) = (j.name, &j.view, &j.mesh_name);
-    if p.stages.prt {
-        let mut k = ctx.key("prt", versions::PRT, name);
-        k.options(&p.prt);
-        for (n, h) in &j.prt_inputs {
-            k.input(n, h);
+    for st in ctx.stages.iter().copied() {
+        if st.phase() == Phase::Model && st.on(p) {
+            let u = UnitInputs::new(st, scope, &j.sections, Some((j.name, j.path)), None);
+            sections.extend(ctx.run_stage(&mut rec, st, p, &u, None)?);
         }
-        let out = ctx.unit(&mut rec, "prt", name, k.finish(), j.vertices, |progress| {
-            let mut warnings = Vec::new();
-            let (s, r) =
-                crate::prt::pack::prt_mesh(view, mesh_name, &p.prt, progress, &mut warnings)?;
-            Ok(Output {
-                sections: vec![s],
-                report: report_of(&r),
-                warnings,
-                ..Default::default()
-            })
-        })?;
-        sections.extend(out);
-    }
-    if p.stages.lod {
-        let mut k = ctx.key("lod", versions::LOD, name);
-        k.options(&p.lod);
-        for (n, h) in &j.prt_inputs {
-            k.input(n, h);
-        }
-        let out = ctx.unit(&mut rec, "lod", name, k.finish(), None, |_| {
-            let (s, r) = crate::lod::bake_lod(view, mesh_name, &p.lod)?;
-            Ok(Output {
-                sections: vec![s],
-                report: report_of(&r),
-                ..Default::default()
-            })
-        })?;
-        sections.extend(out);
     }
     Ok((sections, rec))
 }
 
-/// The per-scene units: light maps, environment maps, clustering, BitTree, SVO, line space.
-fn scene_units(
+/// The per-scene units ([`Phase::Scene`], in registry order): the sky, the lighting units,
+/// clustering, BitTree, SVO, line space. Consecutive units that read the trace structures run
+/// as a group ([`lighting_units`]); the others one after the other.
+fn scene_units(g: &mut Graph, p: &Pipeline, scope: &Scope) -> Result<()> {
+    let on: Vec<&dyn AnyStage> = g
+        .ctx
+        .stages
+        .iter()
+        .copied()
+        .filter(|s| s.phase() == Phase::Scene && s.on(p))
+        .collect();
+    let mut i = 0;
+    while i < on.len() {
+        if on[i].reads().trace {
+            let end = (i..on.len())
+                .find(|&j| !on[j].reads().trace)
+                .unwrap_or(on.len());
+            lighting_units(g, p, scope, &on[i..end])?;
+            i = end;
+        } else {
+            let u = UnitInputs::new(on[i], scope, &g.done, None, None);
+            let out = g.run_stage(on[i], p, &u)?;
+            g.finish_sections(out)?;
+            i += 1;
+        }
+    }
+    Ok(())
+}
+
+/// Units that trace the scene (light maps, environment maps): the trace structures are built
+/// once, here, before the units run side by side, when one of them has no cache entry. (Built
+/// inside a unit, an entry found damaged or stale, see [`TraceCell::get`].) The first stage's
+/// units (the terrain light map) run beside the others' (object light maps, environment-map
+/// shards; none reads another's output); their records and sections go in registry order
+/// whichever finishes first.
+fn lighting_units(
     g: &mut Graph,
     p: &Pipeline,
-    scene: &crate::model::Scene,
-    scene_source: &str,
-    limits: &crate::ingest::limits::Limits,
-    first: &std::path::Path,
+    scope: &Scope,
+    stages: &[&dyn AnyStage],
 ) -> Result<()> {
-    let s = &p.stages;
-    // What the lighting units read: the placed models with their textures, the terrain, the
-    // sky's sun and SH (not the PRT, materials or tangents).
-    let trace_inputs: Vec<(String, [u8; 32])> = g
-        .done
-        .iter()
-        .filter(|x| {
-            matches!(
-                x.kind.as_str(),
-                "instances" | "mesh" | "texture" | "terrain"
-            ) || x.name == crate::sky::SUN_SECTION
-                || x.name == crate::sky::SH_SECTION
-        })
-        .map(|x| (x.name.clone(), *x.payload.hash()))
-        .collect();
     let ctx = g.ctx;
-    let keyed = |stage: &str, v: u32, unit: &str, opts: &Value| {
-        let mut k = ctx.key(stage, v, unit);
-        k.options(opts);
-        for (n, h) in &trace_inputs {
-            k.input(n, h);
+    let n = scope.plan.map_or(0, |pl| pl.scene.instances.items.len());
+    let mut units: Vec<Vec<(UnitInputs, Key)>> = Vec::with_capacity(stages.len());
+    for st in stages {
+        let shards: Vec<Option<Shard>> = if st.def().per == stages::Per::Shards {
+            stage::envmap_shards(n, p.units.envmap_shard_instances as usize)
+                .into_iter()
+                .map(|r| Some(Shard::Range(r)))
+                .collect()
+        } else {
+            vec![None]
+        };
+        let mut us = Vec::with_capacity(shards.len());
+        for shard in shards {
+            let u = UnitInputs::new(*st, scope, &g.done, None, shard);
+            let key = ctx.stage_key(*st, p, &u)?;
+            us.push((u, key));
         }
-        k.finish()
-    };
-    let view = g.view();
-    // The scene's trace structures, built once by the first lighting unit that misses (the
-    // lock keeps units that run at the same time from building them twice).
-    let trace = std::sync::OnceLock::new();
-    let traced = || -> Result<&(crate::trace::pack_scene::TraceScene, crate::lightmap::BakeLight)> {
-        if let Some(t) = trace.get() {
-            return Ok(t);
-        }
-        let light = crate::lightmap::scene_lighting(&view)?;
-        let ts = crate::trace::pack_scene::trace_scene(&view)?;
-        let _ = trace.set((ts, light));
-        Ok(trace.get().expect("set above"))
-    };
-    let lm = &p.lightmap;
-    let lm_key = {
-        let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode,
-            "visibility": lm.visibility, "horizon_lattice": lm.horizon_lattice});
-        keyed_tracer(&mut o, lm.tracer);
-        keyed("lightmap", versions::LIGHTMAP, "terrain", &o)
-    };
-    let atlas_key = {
-        let mut o = json!({"samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode, "max_instances": lm.max_instances, "atlas": lm.atlas});
-        keyed_tracer(&mut o, lm.tracer);
-        keyed("atlas", versions::ATLAS, "objects", &o)
-    };
-    // The env-map shards: instance range, unit name, key.
-    let mut shards = Vec::new();
-    if s.envmaps {
-        let n = scene.instances.items.len();
-        let shard = p.units.envmap_shard_instances.max(1) as usize;
-        let mut o = report_of(&p.envmaps);
-        if let Some(m) = o.as_object_mut() {
-            m.remove("tracer");
-        }
-        keyed_tracer(&mut o, p.envmaps.tracer);
-        for start in (0..n.max(1)).step_by(shard) {
-            let range = start..(start + shard).min(n);
-            let unit = format!("instances {}..{}", range.start, range.end);
-            let key = keyed("envmaps", versions::ENVMAPS, &unit, &o);
-            shards.push((range, unit, key));
-        }
+        units.push(us);
     }
-    // The trace structures are built here, before the units run side by side, when one of them
-    // has no cache entry. Built inside a unit (an entry found damaged or stale), a thread
-    // waiting on the build's own parallel jobs may take up the other units' queued job (rayon
-    // runs queued jobs while it waits) and ask for them again from within the build: so no
-    // lock, such a nested request builds its own (same) structures and the first kept wins.
-    let mut keys = [(s.lightmap, &lm_key), (s.atlas, &atlas_key)]
-        .into_iter()
-        .filter(|(on, _)| *on)
-        .map(|(_, k)| k)
-        .chain(shards.iter().map(|(_, _, k)| k));
-    if keys.any(|k| !ctx.has_entry(k)) {
-        traced()?;
-    }
-    // The terrain light map runs beside the object light maps and the environment maps (all
-    // read the same trace structures, none reads another's output); their records and
-    // sections go in this order whichever finishes first.
-    let terrain_map = |rec: &mut Recorder| -> Result<Vec<Section>> {
-        if !s.lightmap {
-            return Ok(Vec::new());
-        }
-        ctx.unit(rec, "lightmap", "terrain", lm_key, None, |_| {
-            let (ts, light) = traced()?;
-            let s = crate::lightmap::terrain_sections(ts, light, lm)?;
-            Ok(Output {
-                report: json!({"texels": texels(&s)}),
-                sections: s,
-                ..Default::default()
-            })
-        })
+    let Some((first, _)) = units.first().and_then(|u| u.first()) else {
+        return Ok(());
     };
-    let objects_and_envmaps = |rec: &mut Recorder| -> Result<Vec<Section>> {
-        let mut out = Vec::new();
-        if s.atlas {
-            out.extend(ctx.unit(rec, "atlas", "objects", atlas_key, None, |_| {
-                let (ts, light) = traced()?;
-                let s = crate::lightmap::object_sections(&view, ts, light, lm)?;
-                Ok(Output {
-                    report: json!({"atlases": s.len()}),
-                    sections: s,
-                    ..Default::default()
-                })
-            })?);
+    let trace = TraceCell::new(first);
+    if units.iter().flatten().any(|(_, k)| !ctx.has_entry(k)) {
+        trace.get()?;
+    }
+    let run = |rec: &mut Recorder, k: usize| -> Result<Vec<Section>> {
+        let st = stages[k];
+        let mut parts = Vec::with_capacity(units[k].len());
+        for (u, key) in &units[k] {
+            let out = ctx.run_keyed(rec, st, p, u, Some(&trace), *key)?;
+            let len = u.shard.as_ref().map_or(0, |s| s.range(n).len());
+            parts.push((len, out));
         }
-        if s.envmaps {
-            let mut maps = crate::envmap::bake::Traced::default();
-            for (range, unit, key) in &shards {
-                let r = range.clone();
-                let shard_out =
-                    ctx.unit(rec, "envmaps", unit, *key, Some(range.len() as u64), |_| {
-                        let (ts, light) = traced()?;
-                        let m = crate::envmap::instance_traced(ts, light, &p.envmaps, r.clone())?;
-                        Ok(Output {
-                            report: json!({"instances": m.maps.len(), "rays": m.maps.len() as u64 * p.envmaps.samples as u64}),
-                            sections: vec![shard_section(&m)],
-                            ..Default::default()
-                        })
-                    })?;
-                maps.extend(shard_maps(&shard_out, range.len())?);
-            }
-            out.push(crate::envmap::envmaps_section(&maps, &p.envmaps));
-        }
-        Ok(out)
+        st.join(parts, p)
     };
     let (mut rec_l, mut rec_r) = (Recorder::default(), Recorder::default());
-    let (lightmap_out, rest_out) = rayon::join(
-        || terrain_map(&mut rec_l),
-        || objects_and_envmaps(&mut rec_r),
+    let (first_out, rest_out) = rayon::join(
+        || run(&mut rec_l, 0),
+        || -> Result<Vec<Section>> {
+            let mut out = Vec::new();
+            for k in 1..stages.len() {
+                out.extend(run(&mut rec_r, k)?);
+            }
+            Ok(out)
+        },
     );
     g.rec.append(rec_l);
-    let lightmap_out = lightmap_out?;
+    let first_out = first_out?;
     g.rec.append(rec_r);
     let rest_out = rest_out?;
-    g.finish_sections(lightmap_out)?;
+    g.finish_sections(first_out)?;
     g.finish_sections(rest_out)?;
-    drop(trace);
-    let view = g.view();
-    if s.cluster {
-        let mut k = g.key("cluster", versions::CLUSTER, "scene");
-        k.options(&p.cluster);
-        for n in ["instances", "envmaps"] {
-            if let Some(h) = g.hash_of(n) {
-                k.input(n, &h);
-            }
-        }
-        let out = g.unit("cluster", "scene", k.finish(), None, |_| {
-            let (s, c, w) = crate::envmap::cluster_sections_warned(&view, &p.cluster, false)?;
-            Ok(Output {
-                report: json!({"clusters": c.clustering.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error(),
-                    "shared_rms_error": c.clustering.rms_error(),
-                    "local_components": c.local.as_ref().map_or(0, |l| l.components),
-                    "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
-                sections: s,
-                warnings: diag::tagged(&diag::CLUSTER_COMPRESSION_LOW, w),
-                ..Default::default()
-            })
-        })?;
-        g.finish_sections(out)?;
-    }
-    if s.bittree {
-        let area = crate::pipeline::instance_area(scene);
-        let mut k = g.key("bittree", versions::BITTREE, "scene");
-        k.options(&p.bittree);
-        k.options(&(area.origin, area.extent));
-        if let Some(h) = g.hash_of("instances") {
-            k.input("instances", &h);
-        }
-        let out = g.unit("bittree", "scene", k.finish(), None, |_| {
-            Ok(
-                match crate::bittree::section::to_section(
-                    "bittree",
-                    &scene.instances,
-                    area,
-                    &p.bittree,
-                ) {
-                    Ok(s) => Output {
-                        report: json!({"instances": scene.instances.items.len()}),
-                        sections: vec![s],
-                        ..Default::default()
-                    },
-                    Err(e) => Output {
-                        report: json!({"instances": scene.instances.items.len()}),
-                        warnings: vec![Warning::new(
-                            &diag::BITTREE_NOT_ENCODED,
-                            "",
-                            format!("no BitTree: {e}"),
-                        )],
-                        ..Default::default()
-                    },
-                },
-            )
-        })?;
-        g.finish_sections(out)?;
-    }
-    if s.svo || s.linespace {
-        let geo_inputs: Vec<(String, [u8; 32])> = trace_inputs
-            .iter()
-            .filter(|(n, _)| n != crate::sky::SUN_SECTION && n != crate::sky::SH_SECTION)
-            .cloned()
-            .collect();
-        // The sections record the scene's source, so it is part of their keys.
-        let source = scene_source.to_string();
-        if s.svo {
-            let mut k = g.key("svo", versions::SVO, "scene");
-            k.options(&p.svo);
-            k.options(&source);
-            for (n, h) in &geo_inputs {
-                k.input(n, h);
-            }
-            // The flattened `svo` where the placed scene fits the memory budget, else the
-            // two-level `svo-scene` (one octree per model; issue 39). The choice enters the
-            // key (only when two-level, so the flattened units' keys are as before).
-            if crate::voxel::geometry::placed_size(&view)?.svo_two_level(limits) {
-                k.options(&"two-level");
-            }
-            let out = g.unit("svo", "scene", k.finish(), None, |_| {
-                let (sec, report) = crate::voxel::geometry::pack_svo_section(
-                    &view, &p.svo, limits, first, &source,
-                )?;
-                Ok(Output {
-                    report,
-                    sections: vec![sec],
-                    ..Default::default()
-                })
-            })?;
-            g.finish_sections(out)?;
-        }
-        if s.linespace {
-            let mut k = g.key("linespace", versions::LINESPACE, "scene");
-            k.options(&p.linespace);
-            k.options(&source);
-            for (n, h) in &geo_inputs {
-                k.input(n, h);
-            }
-            // The flattened `linespace` where the placed scene fits the memory budget, else
-            // the two-level `linespace-scene` (one N-tree per model; issue 39), the choice in
-            // the key only when two-level (the flattened units' keys are as before).
-            let two_level = crate::voxel::geometry::placed_size(&view)?.linespace_two_level(limits);
-            if two_level {
-                k.options(&"two-level");
-            }
-            let out = g.unit("linespace", "scene", k.finish(), None, |_| {
-                if two_level {
-                    let (sec, report) = crate::linespace::scene::pack_linespace_section(
-                        &view,
-                        &p.linespace,
-                        limits,
-                        first,
-                        &source,
-                    )?;
-                    return Ok(Output {
-                        report,
-                        sections: vec![sec],
-                        ..Default::default()
-                    });
-                }
-                let tris = crate::voxel::geometry::pack_world_triangles(&view)?;
-                let shafts =
-                    std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(p.linespace.n));
-                let tree = crate::linespace::ntree::build_ntree(&tris, &p.linespace, &shafts)?;
-                Ok(Output {
-                    report: crate::linespace::section::summary_of(&tree),
-                    sections: vec![crate::linespace::section::to_section(
-                        "linespace",
-                        &source,
-                        &tree,
-                    )],
-                    ..Default::default()
-                })
-            })?;
-            g.finish_sections(out)?;
-        }
-    }
     Ok(())
 }
 
@@ -1380,7 +1119,7 @@ pub(crate) fn ingest_model(
 /// names and counts, so the key does not depend on where the scene lies or how its path was
 /// written (the files say which sky, colour map and models were read).
 pub(crate) fn build_key(opts: &BuildOptions, version: &str, files: &[FileDep]) -> Key {
-    build_key_with(opts, version, &versions::ALL, files)
+    build_key_with(opts, version, &versions::all(), files)
 }
 
 /// [`build_key`] with the stages' versions given.
@@ -1509,14 +1248,15 @@ mod tests {
         let now = build_key(&opts, "0.1.0", &[]).hex();
         assert_eq!(
             now,
-            build_key_with(&opts, "0.1.0", &versions::ALL, &[]).hex()
+            build_key_with(&opts, "0.1.0", &versions::all(), &[]).hex()
         );
-        let mut names: Vec<&str> = versions::ALL.iter().map(|s| s.0).collect();
+        let all = versions::all();
+        let mut names: Vec<&str> = all.iter().map(|s| s.0).collect();
         names.sort_unstable();
         names.dedup();
-        assert_eq!(names.len(), versions::ALL.len());
-        for i in 0..versions::ALL.len() {
-            let mut bumped = versions::ALL;
+        assert_eq!(names.len(), all.len());
+        for i in 0..all.len() {
+            let mut bumped = all.clone();
             bumped[i].1 += 1;
             let key = build_key_with(&opts, "0.1.0", &bumped, &[]).hex();
             assert_ne!(key, now, "{}", bumped[i].0);

@@ -640,7 +640,7 @@ pub fn terrain_sections(
 }
 
 /// The terrain light map's section from its texels and their direct-sun part.
-pub fn terrain_sections_of(
+pub(crate) fn terrain_sections_of(
     map: &Lightmap,
     direct: &[[f32; 3]],
     opts: &LightmapOptions,

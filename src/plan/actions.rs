@@ -1,17 +1,19 @@
 //! The stage graph's units as separate actions (`bake unit ...`): each reads only the files
 //! and packs it is given and writes one small pack (plus, for a model, a JSON list of the
-//! files it read). The units call the same stage functions with the same options as
-//! [`crate::graph::build`], in the same order, so that `bake merge` of their packs in the plan's
-//! order is byte-identical to `bake SCENE.eco` run with the same arguments from the same folder.
+//! files it read). A registered stage's unit runs through [`stage_unit`]: the same
+//! [`crate::graph::stage::Stage::run`] as [`crate::graph::build`] over the same declared inputs
+//! (the sections of the declared kinds in the packs given), so that `bake merge` of their packs
+//! in the plan's order is byte-identical to `bake SCENE.eco` run with the same arguments from
+//! the same folder.
 
 use crate::diag::{self, Warning};
 use crate::error::{Error, Result};
 use crate::graph::cache::{self, FileDep};
+use crate::graph::stage::{self, AnyStage, Scope, Shard, TraceCell, UnitCtx, UnitInputs};
 use crate::graph::{BAKE_VERSION, BuildOptions, Pipeline};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
 use crate::pack::{Pack, Section, StreamWriter, hex};
-use crate::voxel::geometry;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -59,6 +61,77 @@ impl SceneArgs {
             .map_err(|m| Error::usage(format!("pipeline: {m}")))?;
         ingest::eco::scene_plan(&self.scenes, &self.ingest)
     }
+
+    /// One unit of the registered stage `st` over `candidates` (its scope: the sections of the
+    /// packs it is given), as the graph runs it: its declared inputs only, the scene's plan
+    /// resolved only where declared.
+    fn run_over(
+        &self,
+        st: &dyn AnyStage,
+        candidates: &[Section],
+        model: Option<(&str, &Path)>,
+        shard: Option<Shard>,
+    ) -> Result<crate::graph::Output> {
+        let reads = st.reads();
+        let plan = if reads.scene {
+            Some(self.plan()?)
+        } else {
+            None
+        };
+        let (names, policy) = if reads.model_file {
+            (Some(self.names()?), Some(self.policy()?))
+        } else {
+            (None, None)
+        };
+        let (view_name, source) = (self.view_name()?, self.source()?);
+        let scope = Scope {
+            view_name: &view_name,
+            source: &source,
+            limits: &self.ingest.limits,
+            first: self.first()?,
+            sky: self.sky.as_deref(),
+            plan: plan.as_ref(),
+            names: names.as_ref(),
+            policy: policy.as_ref(),
+        };
+        let u = UnitInputs::new(st, &scope, candidates, model, shard);
+        let trace = reads.trace.then(|| TraceCell::new(&u));
+        st.run(&UnitCtx::new(&u, &|_| {}, trace.as_ref()), &self.pipeline)
+    }
+}
+
+/// One unit of a registered stage (`bake unit ACTION`), over the sections of the packs
+/// `inputs` (for a per-model stage, the model `model`'s), writing `out`: an empty pack where
+/// the pipeline turns the stage off. `shard` is I of N (0-based) for a sharded stage.
+pub fn stage_unit(
+    st: &dyn AnyStage,
+    s: &SceneArgs,
+    model: Option<&str>,
+    inputs: &[PathBuf],
+    shard: Option<(usize, usize)>,
+    out: &Path,
+) -> Result<UnitReport> {
+    let d = st.def();
+    let label = match shard {
+        Some(_) => format!("{}-shard", d.name),
+        None => d.name.to_string(),
+    };
+    if !st.on(&s.pipeline) {
+        return finish(&label, out, Vec::new(), Vec::new());
+    }
+    let sections = read_packs(inputs)?;
+    let model = model.map(|m| (m, Path::new(m)));
+    let o = s.run_over(st, &sections, model, shard.map(|(i, n)| Shard::Of(i, n)))?;
+    finish(&label, out, o.sections, o.warnings)
+}
+
+/// The registered stage whose `bake unit` action is `action` (its first).
+pub fn stage_of_action(action: &str) -> Result<&'static dyn AnyStage> {
+    stage::REGISTRY
+        .iter()
+        .copied()
+        .find(|s| s.def().actions.first() == Some(&action))
+        .ok_or_else(|| Error::usage(format!("no stage runs the unit {action:?}")))
 }
 
 /// What a unit did: sections written and warnings raised.
@@ -108,10 +181,10 @@ pub fn terrain(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
     let mut sections = Vec::new();
     if let Some(t) = &plan.scene.terrain {
         sections = crate::pipeline::terrain_sections(&s.source()?, t);
-        if s.pipeline.stages.terrain {
-            let view = Pack::from_sections(&sections, &s.view_name()?);
-            let (prepared, _) = crate::terrain::bake_terrain(&view)?;
-            crate::graph::merge(&mut sections, prepared);
+        let st = stage::terrain();
+        if st.on(&s.pipeline) {
+            let o = s.run_over(st, &sections, None, None)?;
+            crate::graph::merge(&mut sections, o.sections);
         }
     }
     let w = diag::tagged(&diag::INGEST_ECO_OUTSIDE_AREA, plan.scene.warnings.clone());
@@ -138,19 +211,16 @@ pub fn model(
     s.pipeline
         .check()
         .map_err(|m| Error::usage(format!("pipeline: {m}")))?;
-    let policy = s.policy()?;
     let model_hash = cache::hash_file(path)?;
-    let o = crate::graph::ingest_model(name, path, &policy, &s.names()?)?;
+    let model = Some((name, path));
+    let o = s.run_over(stage::ingest(), &[], model, None)?;
     let mut sections = o.sections;
     let mut warnings = o.warnings;
-    if s.pipeline.stages.material {
-        let view = Pack::from_sections(&sections, &s.view_name()?);
-        let (m, mut r) = crate::material::bake_materials(&view, &s.pipeline.material)?;
-        warnings.extend(diag::tagged(
-            &diag::MATERIAL_TEXTURE_MISSING,
-            std::mem::take(&mut r.warnings),
-        ));
-        crate::graph::merge(&mut sections, m);
+    let st = stage::material();
+    if st.on(&s.pipeline) {
+        let m = s.run_over(st, &sections, model, None)?;
+        warnings.extend(m.warnings);
+        crate::graph::merge(&mut sections, m.sections);
     }
     let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
     let view = Pack::from_sections(&sections, &s.view_name()?);
@@ -176,83 +246,22 @@ pub fn model(
     Ok(report("model", out, &sections, warnings))
 }
 
-/// One model's PRT over its model pack.
-pub fn prt(s: &SceneArgs, name: &str, model_pack: &Path, out: &Path) -> Result<UnitReport> {
-    let sections = read_packs(&[model_pack.to_path_buf()])?;
-    let view = Pack::from_sections(&sections, &s.view_name()?);
-    let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
-    let mut warnings = Vec::new();
-    let mut outs = Vec::new();
-    if s.pipeline.stages.prt {
-        let (sec, _) =
-            crate::prt::pack::prt_mesh(&view, &mesh_name, &s.pipeline.prt, &|_| {}, &mut warnings)?;
-        outs.push(sec);
-    }
-    finish("prt", out, outs, warnings)
-}
-
-/// One model's levels of detail over its model pack.
-pub fn lod(s: &SceneArgs, name: &str, model_pack: &Path, out: &Path) -> Result<UnitReport> {
-    let sections = read_packs(&[model_pack.to_path_buf()])?;
-    let view = Pack::from_sections(&sections, &s.view_name()?);
-    let mesh_name = fit_name(crate::mesh::section::mesh_section_name(name));
-    let mut outs = Vec::new();
-    if s.pipeline.stages.lod {
-        let (sec, _) = crate::lod::bake_lod(&view, &mesh_name, &s.pipeline.lod)?;
-        outs.push(sec);
-    }
-    finish("lod", out, outs, Vec::new())
-}
-
 /// The `instances` section of the scene.
 pub fn instances(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
-    let plan = s.plan()?;
-    let meshes = plan
-        .models
-        .iter()
-        .map(|(n, _)| fit_name(crate::mesh::section::mesh_section_name(n)))
-        .collect();
-    let sec =
-        crate::ingest::instances_section::to_section("instances", &plan.scene.instances, meshes);
+    let sec = stage::instances_section(&s.plan()?);
     finish("instances", out, vec![sec], Vec::new())
 }
 
-/// The sky (the built-in clear sky without `--sky`).
-pub fn sky(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
-    let mut sections = Vec::new();
-    if s.pipeline.stages.sky {
-        let img = s.sky.as_deref().map(ingest::skyimage::load).transpose()?;
-        sections = crate::sky::scene_sky_sections(
-            img.as_ref(),
-            &crate::sky::builtin::BuiltinSky::default(),
-            &s.pipeline.sky,
-        )?;
-    }
-    finish("sky", out, sections, Vec::new())
-}
-
-type Traced = (
-    crate::trace::pack_scene::TraceScene,
-    crate::lightmap::BakeLight,
-);
-
-fn traced(view: &Pack) -> Result<Traced> {
-    let light = crate::lightmap::scene_lighting(view)?;
-    let ts = crate::trace::pack_scene::trace_scene(view)?;
+/// The packs' sections a lighting unit traces (the declared kinds of the light maps).
+fn traced_packs(s: &SceneArgs, inputs: &[PathBuf]) -> Result<stage::Traced> {
+    let sections: Vec<Section> = read_packs(inputs)?
+        .into_iter()
+        .filter(|x| stage::TRACED.contains(&x.kind.as_str()))
+        .collect();
+    let view = Pack::from_sections(&sections, &s.view_name()?);
+    let light = crate::lightmap::scene_lighting(&view)?;
+    let ts = crate::trace::pack_scene::trace_scene(&view)?;
     Ok((ts, light))
-}
-
-/// The traced scene and its lighting over the union of the packs `inputs`.
-fn traced_packs(s: &SceneArgs, inputs: &[PathBuf]) -> Result<Traced> {
-    let sections = read_packs(inputs)?;
-    traced(&Pack::from_sections(&sections, &s.view_name()?))
-}
-
-/// The terrain light map over the packs of the terrain, the models, the instances and the sky.
-pub fn lightmap(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
-    let (ts, light) = traced_packs(s, inputs)?;
-    let outs = crate::lightmap::terrain_sections(&ts, &light, &s.pipeline.lightmap)?;
-    finish("lightmap", out, outs, Vec::new())
 }
 
 /// Kind (and name) of the section holding one row shard of the terrain light map.
@@ -346,18 +355,9 @@ pub fn lightmap_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<Un
     finish("lightmap", out, outs, Vec::new())
 }
 
-/// The object atlases over the same packs as [`lightmap`].
-pub fn atlas(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
-    let sections = read_packs(inputs)?;
-    let view = Pack::from_sections(&sections, &s.view_name()?);
-    let (ts, light) = traced(&view)?;
-    let outs = crate::lightmap::object_sections(&view, &ts, &light, &s.pipeline.lightmap)?;
-    finish("atlas", out, outs, Vec::new())
-}
-
 /// The instances of shard `i` of `n` (0-based): `i*len/n .. (i+1)*len/n`.
 pub fn shard_range(i: usize, n: usize, len: usize) -> std::ops::Range<usize> {
-    (i * len / n)..((i + 1) * len / n)
+    Shard::Of(i, n).range(len)
 }
 
 /// Parses `I/N` (1-based I, as written on the command line) into a 0-based shard and count.
@@ -370,25 +370,6 @@ pub fn parse_shard(text: &str) -> std::result::Result<(usize, usize), String> {
         return Err(bad());
     }
     Ok((i - 1, n))
-}
-
-/// One shard's environment maps (a cache-only `envmaps-shard` section, joined by
-/// [`envmaps_join`]).
-pub fn envmaps_shard(
-    s: &SceneArgs,
-    inputs: &[PathBuf],
-    shard: (usize, usize),
-    out: &Path,
-) -> Result<UnitReport> {
-    let (ts, light) = traced_packs(s, inputs)?;
-    let range = shard_range(shard.0, shard.1, ts.instances.items.len());
-    let maps = crate::envmap::instance_traced(&ts, &light, &s.pipeline.envmaps, range)?;
-    finish(
-        "envmaps-shard",
-        out,
-        vec![crate::graph::shard_section(&maps)],
-        Vec::new(),
-    )
 }
 
 /// The `envmaps` section from the shards' packs, in shard order.
@@ -414,74 +395,6 @@ pub fn envmaps_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<Uni
     }
     let sec = crate::envmap::envmaps_section(&maps, &s.pipeline.envmaps);
     finish("envmaps", out, vec![sec], Vec::new())
-}
-
-/// Clustering over the packs of the instances and the environment maps.
-pub fn cluster(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
-    let sections = read_packs(inputs)?;
-    let view = Pack::from_sections(&sections, &s.view_name()?);
-    let (outs, _, w) = crate::envmap::cluster_sections_warned(&view, &s.pipeline.cluster, false)?;
-    // The same warning as the graph's cluster unit (it used to be dropped here).
-    finish(
-        "cluster",
-        out,
-        outs,
-        diag::tagged(&diag::CLUSTER_COMPRESSION_LOW, w),
-    )
-}
-
-/// The BitTree of the scene's instances over the graph's area.
-pub fn bittree(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
-    let plan = s.plan()?;
-    let area = crate::pipeline::instance_area(&plan.scene);
-    let (outs, warnings) = match crate::bittree::section::to_section(
-        "bittree",
-        &plan.scene.instances,
-        area,
-        &s.pipeline.bittree,
-    ) {
-        Ok(sec) => (vec![sec], Vec::new()),
-        Err(e) => (
-            Vec::new(),
-            vec![Warning::new(
-                &diag::BITTREE_NOT_ENCODED,
-                "",
-                format!("no BitTree: {e}"),
-            )],
-        ),
-    };
-    finish("bittree", out, outs, warnings)
-}
-
-/// The sparse voxel octree over the packs of the terrain, the models and the instances.
-pub fn svo(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
-    let sections = read_packs(inputs)?;
-    let name = s.view_name()?;
-    let view = Pack::from_sections(&sections, &name);
-    let (sec, _) = geometry::pack_svo_section(
-        &view,
-        &s.pipeline.svo,
-        &s.ingest.limits,
-        s.first()?,
-        &s.source()?,
-    )?;
-    finish("svo", out, vec![sec], Vec::new())
-}
-
-/// The N-tree with line spaces over the same packs as [`svo`].
-pub fn linespace(s: &SceneArgs, inputs: &[PathBuf], out: &Path) -> Result<UnitReport> {
-    let sections = read_packs(inputs)?;
-    let name = s.view_name()?;
-    let view = Pack::from_sections(&sections, &name);
-    // The flattened `linespace`, or over the budget the two-level `linespace-scene`.
-    let (sec, _) = crate::linespace::scene::pack_linespace_section(
-        &view,
-        &s.pipeline.linespace,
-        &s.ingest.limits,
-        s.first()?,
-        &s.source()?,
-    )?;
-    finish("linespace", out, vec![sec], Vec::new())
 }
 
 /// The files a whole bake reads, as [`crate::graph::build`] records them: the scene's ECO,

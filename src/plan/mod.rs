@@ -7,12 +7,20 @@
 //! folder the engine runs the actions in, so an action run in a folder holding only its declared
 //! inputs succeeds. The last action, `bake merge`, joins the units' packs in the graph's order
 //! into a pack byte-identical to `bake SCENE.eco` run with the same arguments in that folder.
+//!
+//! The stages' actions come from the stage registry ([`crate::graph::stage::REGISTRY`]), in
+//! its order: per model its per-model stages over the model's packs, then the scene's stages,
+//! each over the packs made before it that hold a kind it declares. The terrain, model,
+//! instances, record and merge actions and the shards (env maps by instances, the light map by
+//! rows) with their joins are written here by hand.
 
 pub mod actions;
 pub mod bazel;
 pub mod ninja;
 
 use crate::error::{Error, Result};
+use crate::graph::stage::{AnyStage, Phase};
+use crate::graph::stages::Per;
 use crate::ingest::{self, IngestOptions};
 use std::path::{Component, Path, PathBuf};
 
@@ -121,6 +129,11 @@ pub fn make_plan(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
 }
 
 fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
+    plan_with(opts, dir, crate::graph::stage::REGISTRY)
+}
+
+/// [`plan_in`] over the stages of `registry` (a test adds a stage).
+fn plan_with(opts: &PlanOptions, dir: &Path, registry: &[&dyn AnyStage]) -> Result<Plan> {
     let base = absolute(dir)?;
     let rel = |p: &Path| -> Result<PathBuf> { Ok(relative(&absolute(p)?, &base)) };
     let first = opts
@@ -199,7 +212,6 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
         v.extend(pipeline_rel.iter().cloned());
         v
     };
-    let s = &pipeline.stages;
     let mut actions = Vec::new();
     let unit = |name: &str, extra: &[String]| -> Vec<String> {
         let mut a = vec!["unit".to_string(), name.to_string()];
@@ -208,27 +220,46 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
         a
     };
     let o = |p: &str| vec!["-o".to_string(), p.to_string()];
-    let ins = |packs: &[&PathBuf]| -> Vec<String> {
+    let ins = |packs: &[PathBuf]| -> Vec<String> {
         let mut v = Vec::new();
         for p in packs {
             v.extend(["--in".to_string(), arg(p)]);
         }
         v
     };
-
-    // Units that resolve the scene (they look the model files up, reading none of them).
-    let scene_action = |id: &str, out: &str| Action {
-        id: id.into(),
-        args: unit(id, &o(out)),
-        inputs: Vec::new(),
-        lookups: model_files.clone(),
-        outputs: vec![out.into()],
+    // The kinds the listed stages write (what their packs hold).
+    let writes = |names: &[&str]| -> Vec<&'static str> {
+        names
+            .iter()
+            .filter_map(|n| registry.iter().find(|s| s.def().name == *n))
+            .flat_map(|s| s.def().writes.iter().copied())
+            .collect()
     };
-    let mut terrain = scene_action("terrain", "terrain.bake");
-    terrain.inputs = with_pipeline(scene_files.clone());
-    actions.push(terrain);
+    // The packs among `made` that hold a kind `st` declares, in order: what its actions read.
+    let reading = |st: &dyn AnyStage, made: &[(PathBuf, Vec<&str>)]| -> Vec<PathBuf> {
+        let kinds = st.reads().kinds;
+        made.iter()
+            .filter(|(_, k)| k.iter().any(|k| kinds.contains(k)))
+            .map(|(p, _)| p.clone())
+            .collect()
+    };
+
+    // The terrain unit resolves the scene (it looks the model files up, reading none of them).
+    actions.push(Action {
+        id: "terrain".into(),
+        args: unit("terrain", &o("terrain.bake")),
+        inputs: with_pipeline(scene_files.clone()),
+        lookups: model_files.clone(),
+        outputs: vec!["terrain.bake".into()],
+    });
     let mut merged: Vec<PathBuf> = vec!["terrain.bake".into()];
-    let mut model_packs = Vec::new();
+    // Every pack made so far in merge order, with the kinds it holds.
+    let mut made: Vec<(PathBuf, Vec<&str>)> = vec![("terrain.bake".into(), writes(&["terrain"]))];
+    let model_stages: Vec<&dyn AnyStage> = registry
+        .iter()
+        .copied()
+        .filter(|s| s.phase() == Phase::Model && s.on(&pipeline))
+        .collect();
     let mut model_deps = Vec::new();
     for (k, (name, path)) in plan.models.iter().enumerate() {
         let id = format!("model-{k:03}");
@@ -266,143 +297,121 @@ fn plan_in(opts: &PlanOptions, dir: &Path) -> Result<Plan> {
             outputs: vec![pack.clone(), deps.clone()],
         });
         merged.push(pack.clone());
-        if s.prt {
-            let prt = PathBuf::from(format!("prt/prt-{k:03}.bake"));
+        // The model's packs: its per-model stages read among them.
+        let mut own: Vec<(PathBuf, Vec<&str>)> = vec![(pack, writes(&["ingest", "material"]))];
+        for st in &model_stages {
+            let act = st.def().actions[0];
+            let out = PathBuf::from(format!("{act}/{act}-{k:03}.bake"));
+            let packs = reading(*st, &own);
             let mut a = vec!["--name".to_string(), name.clone()];
-            a.extend(ins(&[&pack]));
-            a.extend(o(&arg(&prt)));
+            a.extend(ins(&packs));
+            a.extend(o(&arg(&out)));
             actions.push(Action {
-                id: format!("prt-{k:03}"),
-                args: unit("prt", &a),
-                inputs: with_pipeline(vec![pack.clone()]),
+                id: format!("{act}-{k:03}"),
+                args: unit(act, &a),
+                inputs: with_pipeline(packs),
                 lookups: Vec::new(),
-                outputs: vec![prt.clone()],
+                outputs: vec![out.clone()],
             });
-            merged.push(prt);
+            merged.push(out.clone());
+            own.push((out, st.def().writes.to_vec()));
         }
-        if s.lod {
-            let lod = PathBuf::from(format!("lod/lod-{k:03}.bake"));
-            let mut a = vec!["--name".to_string(), name.clone()];
-            a.extend(ins(&[&pack]));
-            a.extend(o(&arg(&lod)));
-            actions.push(Action {
-                id: format!("lod-{k:03}"),
-                args: unit("lod", &a),
-                inputs: with_pipeline(vec![pack.clone()]),
-                lookups: Vec::new(),
-                outputs: vec![lod.clone()],
-            });
-            merged.push(lod);
-        }
-        model_packs.push(pack);
+        made.extend(own);
         model_deps.push(deps);
     }
-    let mut inst = scene_action("instances", "instances.bake");
-    inst.inputs = with_pipeline(scene_files.clone());
-    actions.push(inst);
+    actions.push(Action {
+        id: "instances".into(),
+        args: unit("instances", &o("instances.bake")),
+        inputs: with_pipeline(scene_files.clone()),
+        lookups: model_files.clone(),
+        outputs: vec!["instances.bake".into()],
+    });
     merged.push("instances.bake".into());
-    let mut geometry: Vec<PathBuf> = vec!["terrain.bake".into()];
-    geometry.extend(model_packs.iter().cloned());
-    geometry.push("instances.bake".into());
-    let mut trace = geometry.clone();
-    if s.sky {
-        actions.push(Action {
-            id: "sky".into(),
-            args: unit("sky", &o("sky.bake")),
-            inputs: with_pipeline(sky_rel.iter().cloned().collect()),
-            lookups: Vec::new(),
-            outputs: vec!["sky.bake".into()],
-        });
-        merged.push("sky.bake".into());
-        trace.push("sky.bake".into());
-    }
-    let trace_refs: Vec<&PathBuf> = trace.iter().collect();
-    let over = |id: &str, packs: &[&PathBuf], out: &str, extra: &[String]| -> Action {
+    made.push(("instances.bake".into(), vec!["instances"]));
+
+    // One action of a scene stage: `extra` flags, the packs it reads, its pack; its inputs
+    // the scene's files (and lookups its models) where it reads the scene, the sky where it
+    // reads the sky, its packs, the pipeline file.
+    let action = |st: &dyn AnyStage, act: &str, extra: &[String], packs: &[PathBuf], out: &str| {
+        let r = st.reads();
         let mut a = extra.to_vec();
         a.extend(ins(packs));
         a.extend(o(out));
+        let mut inputs = Vec::new();
+        if r.scene {
+            inputs.extend(scene_files.iter().cloned());
+        }
+        if r.sky {
+            inputs.extend(sky_rel.iter().cloned());
+        }
+        inputs.extend(packs.iter().cloned());
         Action {
-            id: id.into(),
-            args: unit(id, &a),
-            inputs: {
-                let mut v: Vec<PathBuf> = packs.iter().map(|p| (*p).clone()).collect();
-                v.extend(pipeline_rel.iter().cloned());
-                v
+            id: act.into(),
+            args: unit(act, &a),
+            inputs: with_pipeline(inputs),
+            lookups: if r.scene {
+                model_files.clone()
+            } else {
+                Vec::new()
             },
-            lookups: Vec::new(),
             outputs: vec![out.into()],
         }
     };
-    // `shards` actions of `unit` over the traced packs, shard I/N in `flag`, writing
-    // `<stem>-I-of-N.bake`, named `<unit>-I-of-N`; returns their packs in shard order.
-    let sharded = |unit: &str, flag: &str, stem: &str, shards: usize, actions: &mut Vec<Action>| {
-        let mut packs = Vec::new();
+    // `shards` actions of `st`'s first action over `packs`, shard I/N in `flag`, writing
+    // `<stem>-I-of-N.bake`, named `<action>-I-of-N`, then its second action joining them.
+    let sharded = |st: &dyn AnyStage,
+                   flag: &str,
+                   stem: &str,
+                   shards: usize,
+                   packs: &[PathBuf],
+                   out: &str,
+                   actions: &mut Vec<Action>| {
+        let acts = st.def().actions;
+        let mut parts = Vec::new();
         for i in 1..=shards {
-            let out = format!("{stem}-{i}-of-{shards}.bake");
-            let mut a = over(
-                unit,
-                &trace_refs,
-                &out,
-                &[flag.into(), format!("{i}/{shards}")],
-            );
-            a.id = format!("{unit}-{i}-of-{shards}");
+            let part = format!("{stem}-{i}-of-{shards}.bake");
+            let extra = [flag.to_string(), format!("{i}/{shards}")];
+            let mut a = action(st, acts[0], &extra, packs, &part);
+            a.id = format!("{}-{i}-of-{shards}", acts[0]);
             actions.push(a);
-            packs.push(PathBuf::from(out));
+            parts.push(PathBuf::from(part));
         }
-        packs
+        actions.push(action(st, acts[1], &[], &parts, out));
     };
-    if s.lightmap {
-        let shards = opts.lightmap_shards.unwrap_or(1).max(1);
-        if shards == 1 {
-            actions.push(over("lightmap", &trace_refs, "lightmap.bake", &[]));
-        } else {
-            let rows = sharded("lightmap", "--rows", "lightmap/rows", shards, &mut actions);
-            let refs: Vec<&PathBuf> = rows.iter().collect();
-            actions.push(over("lightmap-join", &refs, "lightmap.bake", &[]));
+    // The scene's stages in registry order, each over the packs that hold the kinds it reads.
+    for st in registry.iter().copied() {
+        if st.phase() != Phase::Scene || !st.on(&pipeline) {
+            continue;
         }
-        merged.push("lightmap.bake".into());
-    }
-    if s.atlas {
-        actions.push(over("atlas", &trace_refs, "atlas.bake", &[]));
-        merged.push("atlas.bake".into());
-    }
-    if s.envmaps {
-        let n = plan.scene.instances.items.len();
-        let per = pipeline.units.envmap_shard_instances.max(1) as usize;
-        let shards = opts.shards.unwrap_or(n.max(1).div_ceil(per)).max(1);
-        let shard_packs = sharded(
-            "envmaps",
-            "--shard",
-            "envmaps/envmaps",
-            shards,
-            &mut actions,
-        );
-        let refs: Vec<&PathBuf> = shard_packs.iter().collect();
-        let mut join = over("envmaps-join", &refs, "envmaps.bake", &[]);
-        join.id = "envmaps-join".into();
-        actions.push(join);
-        merged.push("envmaps.bake".into());
-    }
-    if s.cluster {
-        let i: PathBuf = "instances.bake".into();
-        let e: PathBuf = "envmaps.bake".into();
-        actions.push(over("cluster", &[&i, &e], "cluster.bake", &[]));
-        merged.push("cluster.bake".into());
-    }
-    if s.bittree {
-        let mut b = scene_action("bittree", "bittree.bake");
-        b.inputs = with_pipeline(scene_files.clone());
-        actions.push(b);
-        merged.push("bittree.bake".into());
-    }
-    let geo_refs: Vec<&PathBuf> = geometry.iter().collect();
-    if s.svo {
-        actions.push(over("svo", &geo_refs, "svo.bake", &[]));
-        merged.push("svo.bake".into());
-    }
-    if s.linespace {
-        actions.push(over("linespace", &geo_refs, "linespace.bake", &[]));
-        merged.push("linespace.bake".into());
+        let d = st.def();
+        let act = d.actions[0];
+        let out = format!("{act}.bake");
+        let packs = reading(st, &made);
+        let lightmap_rows = opts.lightmap_shards.unwrap_or(1).max(1);
+        if d.per == Per::Shards {
+            // Shards of instances (default: the pipeline's `units.envmap_shard_instances`).
+            let n = plan.scene.instances.items.len();
+            let per = pipeline.units.envmap_shard_instances.max(1) as usize;
+            let shards = opts.shards.unwrap_or(n.max(1).div_ceil(per)).max(1);
+            let stem = format!("{act}/{act}");
+            sharded(st, "--shard", &stem, shards, &packs, &out, &mut actions);
+        } else if d.name == "lightmap" && lightmap_rows > 1 {
+            // The terrain light map in shards of rows.
+            let stem = "lightmap/rows";
+            sharded(
+                st,
+                "--rows",
+                stem,
+                lightmap_rows,
+                &packs,
+                &out,
+                &mut actions,
+            );
+        } else {
+            actions.push(action(st, act, &[], &packs, &out));
+        }
+        merged.push(out.clone().into());
+        made.push((out.into(), d.writes.to_vec()));
     }
     // The build record reads the scene, the sky, the pipeline file and the models' records.
     let mut rec_args = Vec::new();
@@ -528,5 +537,207 @@ mod tests {
         assert_eq!(shell_quote("a b"), "'a b'");
         assert_eq!(shell_quote("it's"), "'it'\\''s'");
         assert_eq!(shell_quote(""), "''");
+    }
+}
+
+/// The registry drives the graph, the plan and the units: a toy stage registered here (and
+/// named nowhere else) runs in `graph::build`, gets its action in the plan over the packs
+/// that hold the kind it declares, runs as a unit over packs, and gives the same bytes
+/// each way; a unit that reads an undeclared section, or a key that skips the declared
+/// sections, fails with an error naming them.
+#[cfg(test)]
+mod registry_tests {
+    use super::*;
+    use crate::graph::stage::toy;
+    use crate::graph::{BuildOptions, CacheMode};
+    use crate::pack::{Pack, hex};
+
+    fn fixture() -> (tempfile::TempDir, BuildOptions) {
+        let dir = tempfile::tempdir().unwrap();
+        crate::fixtures::write_all(dir.path()).unwrap();
+        let mut opts = BuildOptions {
+            scenes: vec![dir.path().join("scene.eco")],
+            output: Some(dir.path().join("scene.bake")),
+            sky: Some(dir.path().join("sky.hdr")),
+            cache: CacheMode::Off,
+            ..Default::default()
+        };
+        // Only what the toy needs, and the sky (whose `sun` it must not see).
+        let st = &mut opts.pipeline.stages;
+        (
+            st.prt,
+            st.lod,
+            st.lightmap,
+            st.atlas,
+            st.envmaps,
+            st.cluster,
+        ) = (false, false, false, false, false, false);
+        (dir, opts)
+    }
+
+    fn meta(pack: &Pack, name: &str) -> toy::ToyMeta {
+        let e = pack.find(name).expect("section");
+        pack.view(e).unwrap().meta().unwrap()
+    }
+
+    #[test]
+    fn a_registered_toy_stage_runs_in_the_graph_the_plan_and_as_a_unit() {
+        let (dir, mut opts) = fixture();
+        let registry = toy::with(&toy::TOY);
+        let cache = dir.path().join("cache");
+        opts.cache = CacheMode::Dir(cache);
+        let silent = crate::graph::progress::Silent;
+
+        // The graph: its unit recorded, its section after the other stages' (before `build`),
+        // over the pack's own `instances` section, its view holding that section only.
+        let r = crate::graph::build_with(&opts, &silent, &registry).unwrap();
+        let rec: Vec<_> = r.stages.iter().filter(|s| s.stage == "toy").collect();
+        assert_eq!(rec.len(), 1);
+        assert_eq!((rec[0].unit.as_str(), rec[0].cache), ("scene", "miss"));
+        let out = opts.output.clone().unwrap();
+        let pack = Pack::open(&out).unwrap();
+        let names: Vec<&str> = pack.sections().iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(&names[names.len() - 2..], ["toy", "build"]);
+        let inst = pack.find("instances").unwrap().checksum;
+        let m = meta(&pack, "toy");
+        let want = toy::ToyMeta {
+            instances: hex(&inst),
+            option: 7,
+            sections: 1,
+        };
+        assert_eq!(m, want);
+        let graph_toy = pack.payload(pack.find("toy").unwrap()).to_vec();
+        // Its key is the graph's: the same bake again is a hit.
+        std::fs::remove_file(&out).unwrap();
+        let r = crate::graph::build_with(&opts, &silent, &registry).unwrap();
+        let rec = r.stages.iter().find(|s| s.stage == "toy").unwrap();
+        assert_eq!(rec.cache, "hit");
+
+        // The plan: one action `bake unit toy` over the packs holding `instances`, merged
+        // before the build record.
+        let popts = PlanOptions {
+            scenes: opts.scenes.clone(),
+            sky: opts.sky.clone(),
+            pipeline: Some("default".into()),
+            set: ["prt", "lod", "atlas", "lightmap", "cluster", "envmaps"]
+                .iter()
+                .map(|s| format!("stages.{s}=false"))
+                .collect(),
+            ..Default::default()
+        };
+        let build = dir.path().join("build");
+        std::fs::create_dir_all(&build).unwrap();
+        let plan = plan_with(&popts, &build, &registry).unwrap();
+        let a = plan
+            .actions
+            .iter()
+            .find(|a| a.id == "toy")
+            .expect("toy action");
+        assert_eq!(a.inputs, [PathBuf::from("instances.bake")]);
+        assert_eq!(&a.args[..2], ["unit", "toy"]);
+        assert!(a.args.ends_with(&[
+            "--in".into(),
+            "instances.bake".into(),
+            "-o".into(),
+            "toy.bake".into()
+        ]));
+        let merge = plan.actions.last().unwrap();
+        let n = merge.inputs.len();
+        assert_eq!(
+            &merge.inputs[n - 2..],
+            [PathBuf::from("toy.bake"), "record.bake".into()]
+        );
+        // Without the toy, the plan is the registry's (the same actions less the toy's).
+        let plain = plan_in(&popts, &build).unwrap();
+        let ids = |p: &Plan| -> Vec<String> {
+            p.actions
+                .iter()
+                .map(|a| a.id.clone())
+                .filter(|i| i != "toy")
+                .collect()
+        };
+        assert_eq!(ids(&plain), ids(&plan));
+
+        // As a unit over packs (more than it declares): the graph's bytes.
+        let s = actions::SceneArgs {
+            scenes: opts.scenes.clone(),
+            sky: opts.sky.clone(),
+            pipeline: opts.pipeline.clone(),
+            ..Default::default()
+        };
+        let [ip, tp, sp, up] = ["instances", "terrain", "sky", "toy"]
+            .map(|n| dir.path().join(format!("{n}.unit.bake")));
+        actions::instances(&s, &ip).unwrap();
+        actions::terrain(&s, &tp).unwrap();
+        actions::stage_unit(
+            actions::stage_of_action("sky").unwrap(),
+            &s,
+            None,
+            &[],
+            None,
+            &sp,
+        )
+        .unwrap();
+        let rep =
+            actions::stage_unit(&toy::TOY, &s, None, &[tp, ip, sp.clone()], None, &up).unwrap();
+        assert_eq!(rep.sections, ["toy"]);
+        let unit = Pack::open(&up).unwrap();
+        let unit_toy = unit.payload(unit.find("toy").unwrap()).to_vec();
+        assert_eq!(unit_toy, graph_toy);
+    }
+
+    #[test]
+    fn a_unit_that_reads_an_undeclared_section_fails_naming_it() {
+        let (dir, opts) = fixture();
+        let silent = crate::graph::progress::Silent;
+        let e = crate::graph::build_with(&opts, &silent, &toy::with(&toy::GREEDY))
+            .expect_err("the greedy toy reads `sun`")
+            .to_string();
+        assert!(
+            e.contains("stage toy") && e.contains("\"sun\"") && e.contains("does not declare"),
+            "{e}"
+        );
+        // The same as a unit over packs holding the section.
+        let s = actions::SceneArgs {
+            scenes: opts.scenes.clone(),
+            sky: opts.sky.clone(),
+            pipeline: opts.pipeline.clone(),
+            ..Default::default()
+        };
+        let (ip, sp) = (dir.path().join("i.bake"), dir.path().join("s.bake"));
+        actions::instances(&s, &ip).unwrap();
+        actions::stage_unit(
+            actions::stage_of_action("sky").unwrap(),
+            &s,
+            None,
+            &[],
+            None,
+            &sp,
+        )
+        .unwrap();
+        let e = actions::stage_unit(
+            &toy::GREEDY,
+            &s,
+            None,
+            &[ip, sp],
+            None,
+            &dir.path().join("t.bake"),
+        )
+        .expect_err("refused")
+        .to_string();
+        assert!(
+            e.contains("\"sun\"") && e.contains("does not declare"),
+            "{e}"
+        );
+        // A key that skips the declared sections is refused before the unit runs.
+        let mut cached = opts.clone();
+        cached.cache = CacheMode::Dir(dir.path().join("cache"));
+        let e = crate::graph::build_with(&cached, &silent, &toy::with(&toy::LAZY))
+            .expect_err("the lazy key is refused")
+            .to_string();
+        assert!(
+            e.contains("stage toy") && e.contains("does not hash its declared sections"),
+            "{e}"
+        );
     }
 }
