@@ -98,6 +98,7 @@ pub fn bench_lightmap_error(
     rows: std::ops::Range<u32>,
     configs: &[(crate::lightmap::LightmapVisibility, u32, u32, u32)],
     reference: u32,
+    filters: &[TexelFilter],
 ) -> Result<Report> {
     let dir = tempfile::tempdir().map_err(|e| crate::error::Error::io("temporary folder", e))?;
     let pack = match input {
@@ -190,8 +191,68 @@ pub fn bench_lightmap_error(
             sky["max"].as_f64().unwrap_or(0.0) * 100.0,
             sky["bias"].as_f64().unwrap_or(0.0) * 100.0,
         );
+        // Honest texel-space filters of the part without the direct sun (box of radius r over
+        // the rows' strip, clamped at its edges; the direct sun kept): their error against the
+        // reference includes their bias.
+        let width = e.len() / (rows.end - rows.start).max(1) as usize;
+        let mut filtered = Vec::new();
+        for &TexelFilter {
+            total,
+            radius: r,
+            range: t,
+        } in filters
+        {
+            let filt = |v: &[[f32; 3]]| {
+                if t > 0.0 {
+                    bilateral_filter(v, width, r, t)
+                } else {
+                    box_filter(v, width, r)
+                }
+            };
+            let (f, tot_f): (Vec<[f32; 3]>, Vec<[f32; 3]>) = if total {
+                let tf = filt(&e);
+                let f = tf
+                    .iter()
+                    .zip(&d)
+                    .map(|(a, b)| std::array::from_fn(|c| a[c] - b[c]))
+                    .collect();
+                (f, tf)
+            } else {
+                let f = filt(&ind);
+                let tf = f
+                    .iter()
+                    .zip(&d)
+                    .map(|(a, b)| std::array::from_fn(|c| a[c] + b[c]))
+                    .collect();
+                (f, tf)
+            };
+            let (tf, sf) = (stats(&tot_f, &re, m_tot), stats(&f, &r_ind, m_ind));
+            text += &format!(
+                "  + {8} {0}×{0} on {9}: total rms {1:.2} % p90 {2:.2} % max {3:.2} %; without direct sun rms {4:.2} % p90 {5:.2} % max {6:.2} % bias {7:.3} %\n",
+                2 * r + 1,
+                tf["rms"].as_f64().unwrap_or(0.0) * 100.0,
+                tf["p90"].as_f64().unwrap_or(0.0) * 100.0,
+                tf["max"].as_f64().unwrap_or(0.0) * 100.0,
+                sf["rms"].as_f64().unwrap_or(0.0) * 100.0,
+                sf["p90"].as_f64().unwrap_or(0.0) * 100.0,
+                sf["max"].as_f64().unwrap_or(0.0) * 100.0,
+                sf["bias"].as_f64().unwrap_or(0.0) * 100.0,
+                if t > 0.0 {
+                    format!("bilateral (range {t})")
+                } else {
+                    "box".to_string()
+                },
+                if total {
+                    "the whole irradiance"
+                } else {
+                    "the part without direct sun"
+                },
+            );
+            filtered.push(serde_json::json!({"radius": r, "range": t, "whole": total, "total": tf, "without_direct_sun": sf}));
+        }
         rowsj.push(serde_json::json!({"visibility": visibility, "samples": samples, "sun_samples": sun_samples,
-            "horizon_lattice": lattice, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky}));
+            "horizon_lattice": lattice, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky,
+            "filtered": filtered}));
     }
     Ok(Report {
         json: serde_json::json!({"rows": [rows.start, rows.end], "texels": re.len(),
@@ -199,4 +260,164 @@ pub fn bench_lightmap_error(
             "threads": rayon::current_num_threads(), "estimators": rowsj}),
         text,
     })
+}
+
+/// A texel-space filter of the error mode (`--filters`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TexelFilter {
+    /// The whole irradiance filtered (else the part without the direct sun).
+    pub total: bool,
+    pub radius: usize,
+    /// The bilateral's relative range; 0: a box.
+    pub range: f32,
+}
+
+/// `KIND:RADIUS[:RANGE],…` (see `bake bench lightmap --filters`).
+pub fn parse_filters(s: &str) -> std::result::Result<Vec<TexelFilter>, String> {
+    s.split(',')
+        .map(str::trim)
+        .filter(|f| !f.is_empty())
+        .map(|f| {
+            let p: Vec<&str> = f.split(':').collect();
+            let num = |i: usize| -> std::result::Result<&str, String> {
+                p.get(i)
+                    .copied()
+                    .ok_or_else(|| format!("filter `{f}`: KIND:RADIUS[:RANGE]"))
+            };
+            let radius: usize = num(1)?.parse().map_err(|e| format!("filter `{f}`: {e}"))?;
+            let range: f32 = match p.get(2) {
+                Some(r) => r.parse().map_err(|e| format!("filter `{f}`: {e}"))?,
+                None => 0.0,
+            };
+            let (total, bilateral) = match p[0] {
+                "box" => (false, false),
+                "bilateral" => (false, true),
+                "bilateral-total" => (true, true),
+                k => {
+                    return Err(format!(
+                        "filter `{f}`: kind `{k}` (box, bilateral, bilateral-total)"
+                    ));
+                }
+            };
+            if bilateral != (range > 0.0) || p.len() > 3 {
+                return Err(format!(
+                    "filter `{f}`: a bilateral needs a range > 0, a box none"
+                ));
+            }
+            Ok(TexelFilter {
+                total,
+                radius,
+                range,
+            })
+        })
+        .collect()
+}
+
+/// Box filter of radius `r` over a strip of rows `width` texels wide (clamped at the edges:
+/// the mean of the texels inside both the box and the strip).
+pub fn box_filter(v: &[[f32; 3]], width: usize, r: usize) -> Vec<[f32; 3]> {
+    let width = width.max(1);
+    let h = v.len() / width;
+    let mut out = vec![[0.0f32; 3]; v.len()];
+    for y in 0..h {
+        for x in 0..width {
+            let mut s = [0.0f64; 3];
+            let mut n = 0u32;
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
+                    let t = v[yy * width + xx];
+                    for c in 0..3 {
+                        s[c] += t[c] as f64;
+                    }
+                    n += 1;
+                }
+            }
+            out[y * width + x] = s.map(|q| (q / n as f64) as f32);
+        }
+    }
+    out
+}
+
+/// Bilateral filter of radius `r` over a strip: neighbours weighted by
+/// exp(−(Δ / (t·centre))²) on the RGB mean (Δ their difference from the centre texel's), so
+/// edges larger than about t of the value are kept.
+pub fn bilateral_filter(v: &[[f32; 3]], width: usize, r: usize, t: f32) -> Vec<[f32; 3]> {
+    let width = width.max(1);
+    let h = v.len() / width;
+    let lum = |p: [f32; 3]| (p[0] + p[1] + p[2]) as f64 / 3.0;
+    let mut out = vec![[0.0f32; 3]; v.len()];
+    for y in 0..h {
+        for x in 0..width {
+            let c = lum(v[y * width + x]);
+            let scale = (t as f64 * c.abs()).max(1e-12);
+            let mut s = [0.0f64; 3];
+            let mut wsum = 0.0f64;
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
+                    let q = v[yy * width + xx];
+                    let w = (-((lum(q) - c) / scale).powi(2)).exp();
+                    for k in 0..3 {
+                        s[k] += w * q[k] as f64;
+                    }
+                    wsum += w;
+                }
+            }
+            out[y * width + x] = s.map(|q| (q / wsum) as f32);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_box_filter_averages_inside_the_strip() {
+        // 3 × 2 strip: values 0..6 (one channel repeated).
+        let v: Vec<[f32; 3]> = (0..6).map(|i| [i as f32; 3]).collect();
+        let f = super::box_filter(&v, 3, 1);
+        // Corner (0, 0): texels 0, 1, 3, 4; centre top (1, 0): 0, 1, 2, 3, 4, 5.
+        assert_eq!(f[0], [2.0; 3]);
+        assert_eq!(f[1], [2.5; 3]);
+        assert_eq!(f[5], [(1.0 + 2.0 + 4.0 + 5.0) / 4.0; 3]);
+        assert_eq!(super::box_filter(&v, 3, 0), v);
+    }
+
+    #[test]
+    fn the_bilateral_keeps_an_edge_and_averages_noise_below_its_range() {
+        // A step 1 → 10 across a 6 × 3 strip, ±2 % noise: a range of 0.2 averages the noise
+        // and keeps the step; a huge range blurs it (a box).
+        let v: Vec<[f32; 3]> = (0..18)
+            .map(|i| {
+                let x = i % 6;
+                let base = if x < 3 { 1.0 } else { 10.0 };
+                [base * (1.0 + if i % 2 == 0 { 0.02 } else { -0.02 }); 3]
+            })
+            .collect();
+        let f = super::bilateral_filter(&v, 6, 1, 0.2);
+        for (i, t) in f.iter().enumerate() {
+            let base = if i % 6 < 3 { 1.0 } else { 10.0 };
+            assert!((t[0] - base).abs() < 0.02 * base, "{i}: {t:?}");
+        }
+        let b = super::bilateral_filter(&v, 6, 1, 1e6);
+        assert!(b[2][0] > 3.0, "{:?}", b[2]);
+    }
+
+    #[test]
+    fn filters_parse_and_refuse_bad_ones() {
+        let f = super::parse_filters("box:1, bilateral:2:0.2,bilateral-total:3:0.1").unwrap();
+        assert_eq!(f.len(), 3);
+        assert_eq!(
+            f[1],
+            super::TexelFilter {
+                total: false,
+                radius: 2,
+                range: 0.2
+            }
+        );
+        assert!(f[2].total);
+        assert!(super::parse_filters("").unwrap().is_empty());
+        for bad in ["box", "box:x", "bilateral:2", "box:1:0.2", "gauss:1"] {
+            assert!(super::parse_filters(bad).is_err(), "{bad}");
+        }
+    }
 }
