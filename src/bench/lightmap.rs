@@ -204,9 +204,9 @@ pub fn bench_lightmap_error(
         {
             let filt = |v: &[[f32; 3]]| {
                 if t > 0.0 {
-                    bilateral_filter(v, width, r, t)
+                    crate::lightmap::filter::bilateral(v, width, r, t)
                 } else {
-                    box_filter(v, width, r)
+                    crate::lightmap::filter::box_filter(v, width, r)
                 }
             };
             let (f, tot_f): (Vec<[f32; 3]>, Vec<[f32; 3]>) = if total {
@@ -313,95 +313,8 @@ pub fn parse_filters(s: &str) -> std::result::Result<Vec<TexelFilter>, String> {
         .collect()
 }
 
-/// Box filter of radius `r` over a strip of rows `width` texels wide (clamped at the edges:
-/// the mean of the texels inside both the box and the strip).
-pub fn box_filter(v: &[[f32; 3]], width: usize, r: usize) -> Vec<[f32; 3]> {
-    let width = width.max(1);
-    let h = v.len() / width;
-    let mut out = vec![[0.0f32; 3]; v.len()];
-    for y in 0..h {
-        for x in 0..width {
-            let mut s = [0.0f64; 3];
-            let mut n = 0u32;
-            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
-                    let t = v[yy * width + xx];
-                    for c in 0..3 {
-                        s[c] += t[c] as f64;
-                    }
-                    n += 1;
-                }
-            }
-            out[y * width + x] = s.map(|q| (q / n as f64) as f32);
-        }
-    }
-    out
-}
-
-/// Bilateral filter of radius `r` over a strip: neighbours weighted by
-/// exp(−(Δ / (t·centre))²) on the RGB mean (Δ their difference from the centre texel's), so
-/// edges larger than about t of the value are kept.
-pub fn bilateral_filter(v: &[[f32; 3]], width: usize, r: usize, t: f32) -> Vec<[f32; 3]> {
-    let width = width.max(1);
-    let h = v.len() / width;
-    let lum = |p: [f32; 3]| (p[0] + p[1] + p[2]) as f64 / 3.0;
-    let mut out = vec![[0.0f32; 3]; v.len()];
-    for y in 0..h {
-        for x in 0..width {
-            let c = lum(v[y * width + x]);
-            let scale = (t as f64 * c.abs()).max(1e-12);
-            let mut s = [0.0f64; 3];
-            let mut wsum = 0.0f64;
-            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
-                    let q = v[yy * width + xx];
-                    let w = (-((lum(q) - c) / scale).powi(2)).exp();
-                    for k in 0..3 {
-                        s[k] += w * q[k] as f64;
-                    }
-                    wsum += w;
-                }
-            }
-            out[y * width + x] = s.map(|q| (q / wsum) as f32);
-        }
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
-    #[test]
-    fn the_box_filter_averages_inside_the_strip() {
-        // 3 × 2 strip: values 0..6 (one channel repeated).
-        let v: Vec<[f32; 3]> = (0..6).map(|i| [i as f32; 3]).collect();
-        let f = super::box_filter(&v, 3, 1);
-        // Corner (0, 0): texels 0, 1, 3, 4; centre top (1, 0): 0, 1, 2, 3, 4, 5.
-        assert_eq!(f[0], [2.0; 3]);
-        assert_eq!(f[1], [2.5; 3]);
-        assert_eq!(f[5], [(1.0 + 2.0 + 4.0 + 5.0) / 4.0; 3]);
-        assert_eq!(super::box_filter(&v, 3, 0), v);
-    }
-
-    #[test]
-    fn the_bilateral_keeps_an_edge_and_averages_noise_below_its_range() {
-        // A step 1 → 10 across a 6 × 3 strip, ±2 % noise: a range of 0.2 averages the noise
-        // and keeps the step; a huge range blurs it (a box).
-        let v: Vec<[f32; 3]> = (0..18)
-            .map(|i| {
-                let x = i % 6;
-                let base = if x < 3 { 1.0 } else { 10.0 };
-                [base * (1.0 + if i % 2 == 0 { 0.02 } else { -0.02 }); 3]
-            })
-            .collect();
-        let f = super::bilateral_filter(&v, 6, 1, 0.2);
-        for (i, t) in f.iter().enumerate() {
-            let base = if i % 6 < 3 { 1.0 } else { 10.0 };
-            assert!((t[0] - base).abs() < 0.02 * base, "{i}: {t:?}");
-        }
-        let b = super::bilateral_filter(&v, 6, 1, 1e6);
-        assert!(b[2][0] > 3.0, "{:?}", b[2]);
-    }
-
     #[test]
     fn filters_parse_and_refuse_bad_ones() {
         let f = super::parse_filters("box:1, bilateral:2:0.2,bilateral-total:3:0.1").unwrap();

@@ -1046,6 +1046,9 @@ fn scene_units(
     let lm_key = {
         let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode,
             "visibility": lm.visibility, "horizon_lattice": lm.horizon_lattice});
+        if lm.filter_range > 0.0 && lm.filter_radius > 0 {
+            o["filter"] = json!({"radius": lm.filter_radius, "range": lm.filter_range});
+        }
         keyed_tracer(&mut o, lm.tracer);
         keyed("lightmap", versions::LIGHTMAP, "terrain", &o)
     };

@@ -35,6 +35,16 @@ pub struct TerrainLightmapMeta {
     pub visibility: super::LightmapVisibility,
 }
 
+/// The terrain light map's metadata when its part without the direct sun was filtered
+/// (`lightmap.filter_range` > 0): [`TerrainLightmapMeta`], then the bilateral filter's radius
+/// (texels) and relative range. Read as a prefix, it is a [`TerrainLightmapMeta`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TerrainLightmapMetaFiltered {
+    pub base: TerrainLightmapMeta,
+    pub filter_radius: u32,
+    pub filter_range: f32,
+}
+
 pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
