@@ -566,6 +566,13 @@ fn the_filtered_light_map_is_closer_to_the_reference_and_states_its_filter() {
     assert_eq!((meta.width, meta.samples), (65, 16));
     let full: bake::lightmap::section::TerrainLightmapMetaFiltered = v.meta().unwrap();
     assert_eq!((full.filter_radius, full.filter_range), (2, 0.3));
+    let summary = bake::lightmap::section::summary(&v).unwrap();
+    assert_eq!(summary["filter_radius"], 2);
+    assert!((summary["filter_range"].as_f64().unwrap() - 0.3).abs() < 1e-6);
+    // An unfiltered map's summary states no filter.
+    let up = section(&plain);
+    let us = bake::lightmap::section::summary(&up.view_named("lightmap:terrain").unwrap()).unwrap();
+    assert!(us.get("filter_range").is_none(), "{us}");
     let want = bake::lightmap::filter::filter_indirect(&pm, &pd, 65, 2, 0.3);
     assert!(
         fm.texels == want,

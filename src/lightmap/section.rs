@@ -118,10 +118,15 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     let mean = map.texels.iter().fold([0.0f32; 3], |a, t| {
         [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
     });
-    Ok(
-        json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
-              "sun_samples": m.sun_samples, "visibility": visibility, "mean_irradiance": mean}),
-    )
+    let mut doc = json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
+          "sun_samples": m.sun_samples, "visibility": visibility, "mean_irradiance": mean});
+    // A filtered terrain map states its filter after the prefix (an unfiltered one's metadata
+    // ends before it and does not decode as this).
+    if let Ok(f) = v.meta::<TerrainLightmapMetaFiltered>() {
+        doc["filter_radius"] = f.filter_radius.into();
+        doc["filter_range"] = f.filter_range.into();
+    }
+    Ok(doc)
 }
 
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {
