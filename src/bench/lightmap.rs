@@ -98,6 +98,7 @@ pub fn bench_lightmap_error(
     rows: std::ops::Range<u32>,
     configs: &[(crate::lightmap::LightmapVisibility, u32, u32, u32)],
     reference: u32,
+    filters: &[TexelFilter],
 ) -> Result<Report> {
     let dir = tempfile::tempdir().map_err(|e| crate::error::Error::io("temporary folder", e))?;
     let pack = match input {
@@ -190,8 +191,68 @@ pub fn bench_lightmap_error(
             sky["max"].as_f64().unwrap_or(0.0) * 100.0,
             sky["bias"].as_f64().unwrap_or(0.0) * 100.0,
         );
+        // Honest texel-space filters of the part without the direct sun (box of radius r over
+        // the rows' strip, clamped at its edges; the direct sun kept): their error against the
+        // reference includes their bias.
+        let width = e.len() / (rows.end - rows.start).max(1) as usize;
+        let mut filtered = Vec::new();
+        for &TexelFilter {
+            total,
+            radius: r,
+            range: t,
+        } in filters
+        {
+            let filt = |v: &[[f32; 3]]| {
+                if t > 0.0 {
+                    crate::lightmap::filter::bilateral(v, width, r, t)
+                } else {
+                    crate::lightmap::filter::box_filter(v, width, r)
+                }
+            };
+            let (f, tot_f): (Vec<[f32; 3]>, Vec<[f32; 3]>) = if total {
+                let tf = filt(&e);
+                let f = tf
+                    .iter()
+                    .zip(&d)
+                    .map(|(a, b)| std::array::from_fn(|c| a[c] - b[c]))
+                    .collect();
+                (f, tf)
+            } else {
+                let f = filt(&ind);
+                let tf = f
+                    .iter()
+                    .zip(&d)
+                    .map(|(a, b)| std::array::from_fn(|c| a[c] + b[c]))
+                    .collect();
+                (f, tf)
+            };
+            let (tf, sf) = (stats(&tot_f, &re, m_tot), stats(&f, &r_ind, m_ind));
+            text += &format!(
+                "  + {8} {0}×{0} on {9}: total rms {1:.2} % p90 {2:.2} % max {3:.2} %; without direct sun rms {4:.2} % p90 {5:.2} % max {6:.2} % bias {7:.3} %\n",
+                2 * r + 1,
+                tf["rms"].as_f64().unwrap_or(0.0) * 100.0,
+                tf["p90"].as_f64().unwrap_or(0.0) * 100.0,
+                tf["max"].as_f64().unwrap_or(0.0) * 100.0,
+                sf["rms"].as_f64().unwrap_or(0.0) * 100.0,
+                sf["p90"].as_f64().unwrap_or(0.0) * 100.0,
+                sf["max"].as_f64().unwrap_or(0.0) * 100.0,
+                sf["bias"].as_f64().unwrap_or(0.0) * 100.0,
+                if t > 0.0 {
+                    format!("bilateral (range {t})")
+                } else {
+                    "box".to_string()
+                },
+                if total {
+                    "the whole irradiance"
+                } else {
+                    "the part without direct sun"
+                },
+            );
+            filtered.push(serde_json::json!({"radius": r, "range": t, "whole": total, "total": tf, "without_direct_sun": sf}));
+        }
         rowsj.push(serde_json::json!({"visibility": visibility, "samples": samples, "sun_samples": sun_samples,
-            "horizon_lattice": lattice, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky}));
+            "horizon_lattice": lattice, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky,
+            "filtered": filtered}));
     }
     Ok(Report {
         json: serde_json::json!({"rows": [rows.start, rows.end], "texels": re.len(),
@@ -199,4 +260,77 @@ pub fn bench_lightmap_error(
             "threads": rayon::current_num_threads(), "estimators": rowsj}),
         text,
     })
+}
+
+/// A texel-space filter of the error mode (`--filters`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TexelFilter {
+    /// The whole irradiance filtered (else the part without the direct sun).
+    pub total: bool,
+    pub radius: usize,
+    /// The bilateral's relative range; 0: a box.
+    pub range: f32,
+}
+
+/// `KIND:RADIUS[:RANGE],…` (see `bake bench lightmap --filters`).
+pub fn parse_filters(s: &str) -> std::result::Result<Vec<TexelFilter>, String> {
+    s.split(',')
+        .map(str::trim)
+        .filter(|f| !f.is_empty())
+        .map(|f| {
+            let p: Vec<&str> = f.split(':').collect();
+            let num = |i: usize| -> std::result::Result<&str, String> {
+                p.get(i)
+                    .copied()
+                    .ok_or_else(|| format!("filter `{f}`: KIND:RADIUS[:RANGE]"))
+            };
+            let radius: usize = num(1)?.parse().map_err(|e| format!("filter `{f}`: {e}"))?;
+            let range: f32 = match p.get(2) {
+                Some(r) => r.parse().map_err(|e| format!("filter `{f}`: {e}"))?,
+                None => 0.0,
+            };
+            let (total, bilateral) = match p[0] {
+                "box" => (false, false),
+                "bilateral" => (false, true),
+                "bilateral-total" => (true, true),
+                k => {
+                    return Err(format!(
+                        "filter `{f}`: kind `{k}` (box, bilateral, bilateral-total)"
+                    ));
+                }
+            };
+            if bilateral != (range > 0.0) || p.len() > 3 {
+                return Err(format!(
+                    "filter `{f}`: a bilateral needs a range > 0, a box none"
+                ));
+            }
+            Ok(TexelFilter {
+                total,
+                radius,
+                range,
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn filters_parse_and_refuse_bad_ones() {
+        let f = super::parse_filters("box:1, bilateral:2:0.2,bilateral-total:3:0.1").unwrap();
+        assert_eq!(f.len(), 3);
+        assert_eq!(
+            f[1],
+            super::TexelFilter {
+                total: false,
+                radius: 2,
+                range: 0.2
+            }
+        );
+        assert!(f[2].total);
+        assert!(super::parse_filters("").unwrap().is_empty());
+        for bad in ["box", "box:x", "bilateral:2", "box:1:0.2", "gauss:1"] {
+            assert!(super::parse_filters(bad).is_err(), "{bad}");
+        }
+    }
 }

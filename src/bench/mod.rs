@@ -6,6 +6,7 @@
 pub mod ambient;
 pub mod cluster;
 pub mod cluster_cause;
+pub mod envmap_error;
 pub mod incremental;
 pub mod ingest;
 pub mod lightmap;

@@ -26,6 +26,8 @@ pub enum BenchWhat {
     PrtError(super::prt::PrtErrorBenchArgs),
     /// Environment-map clustering and interpolation weights on a generated scene.
     Cluster(super::cluster::ClusterBenchArgs),
+    /// The env-map tracer's error against a high-ray reference on a pack, per estimator variant.
+    EnvmapError(EnvmapErrorBenchArgs),
     /// Offscreen render of a pack: device setup, upload and draw times.
     Render(super::render::RenderBenchArgs),
     /// The sky stage on a lat-long sky: decode, SH, full bake; SH accuracy against exact integrals.
@@ -53,6 +55,26 @@ pub struct AmbientBenchArgs {
     /// Clustering error bound (relative RMS).
     #[arg(long, default_value_t = 0.02)]
     pub error: f32,
+}
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct EnvmapErrorBenchArgs {
+    /// A pack with the scene (instances, meshes, terrain, sky and sun).
+    #[arg(long)]
+    pub pack: std::path::PathBuf,
+    /// Random instances in the subset (`bench cluster`'s subset for the same count).
+    #[arg(long, default_value_t = 1000)]
+    pub instances: usize,
+    /// Rays of the reference maps (two independent halves).
+    #[arg(long, default_value_t = 4096)]
+    pub reference_samples: u32,
+    /// Estimator variants: comma-separated key=value overrides of the env-map options
+    /// (e.g. `samples=512,noise_estimate=false`); the empty string is the default.
+    #[arg(long = "variant", default_value = "")]
+    pub variants: Vec<String>,
+    /// Independent runs (other seeds) of each variant.
+    #[arg(long, default_value_t = 1)]
+    pub seeds: u32,
 }
 
 #[derive(Debug, Clone, clap::Args)]
@@ -135,6 +157,16 @@ pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
             Ok(crate::bench::terrain_rays::bench_terrain_rays(a.size, a.rays)?.into())
         }
         BenchWhat::Lightmap(a) => super::lightmap::bench(a, g),
+        BenchWhat::EnvmapError(a) => Ok(crate::bench::envmap_error::bench_envmap_error(
+            &crate::bench::envmap_error::EnvmapErrorBench {
+                pack: a.pack.clone(),
+                instances: a.instances,
+                reference_samples: a.reference_samples,
+                variants: a.variants.clone(),
+                seeds: a.seeds,
+            },
+        )?
+        .into()),
         BenchWhat::Incremental(a) => {
             let bake = std::env::current_exe().map_err(|e| Error::runtime(e.to_string()))?;
             let b = crate::bench::incremental::IncrementalBench {

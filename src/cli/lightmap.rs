@@ -115,6 +115,12 @@ pub struct LightmapBenchArgs {
     /// Hemisphere rays of the reference (its sun rays: a quarter of them).
     #[arg(long, default_value_t = 1024)]
     pub reference_samples: u32,
+    /// Error mode: texel-space filters applied to each estimator's rows, their error (bias
+    /// included) against the reference: KIND:RADIUS[:RANGE], comma-separated; KIND `box` or
+    /// `bilateral` (the part without the direct sun filtered) or `bilateral-total` (the whole
+    /// irradiance); RANGE the bilateral's relative range (empty: none).
+    #[arg(long, default_value = "")]
+    pub filters: String,
 }
 
 /// The fixture scene (`bake fixtures`) ingested with its HDR sky's `sky`/`sun`/`sh` sections.
@@ -151,11 +157,13 @@ pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
             };
             configs.push((vis, num(1, 64)?, num(2, 16)?, num(3, 3)?));
         }
+        let filters = crate::bench::lightmap::parse_filters(&a.filters).map_err(bad)?;
         let r = crate::bench::lightmap::bench_lightmap_error(
             a.input.as_deref(),
             parse(s)?..parse(e)?,
             &configs,
             a.reference_samples,
+            &filters,
         )?;
         return Ok(r.into());
     }

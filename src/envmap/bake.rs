@@ -295,8 +295,7 @@ fn radiance_along(
 }
 
 fn blocked(bvh: &dyn SceneTracer, skip: u32, p: Vec3A, d: Vec3A) -> bool {
-    bvh.closest_hit_excluding(&Ray::new(p, d, 1e-4), Some(skip))
-        .is_some()
+    bvh.any_hit_excluding(&Ray::new(p, d, 1e-4), Some(skip))
 }
 
 /// Point k of an N-point spherical Fibonacci set (uniform area, low discrepancy).

@@ -430,6 +430,18 @@ pub fn instance_maps_subset(
     })
 }
 
+/// [`instance_maps_subset`] with the half differences (the noise estimate, [`bake::Traced`]).
+pub fn instance_traced_subset(
+    scene: &crate::trace::pack_scene::TraceScene,
+    light: &crate::lightmap::BakeLight,
+    opts: &bake::EnvmapOptions,
+    subset: &[usize],
+) -> crate::error::Result<bake::Traced> {
+    with_envmap_scene(scene, light, opts, |es| {
+        bake::trace_envmaps_subset(es, opts, subset)
+    })
+}
+
 fn with_envmap_scene<T>(
     scene: &crate::trace::pack_scene::TraceScene,
     light: &crate::lightmap::BakeLight,

@@ -806,6 +806,9 @@ impl Stage for Lightmap {
     fn key(&self, _: &UnitInputs, lm: &Self::Options, k: &mut StageKey) -> Result<()> {
         let mut o = json!({"resolution": lm.resolution, "max_resolution": lm.max_resolution, "samples": lm.samples, "sun_samples": lm.sun_samples, "mode": lm.mode,
             "visibility": lm.visibility, "horizon_lattice": lm.horizon_lattice});
+        if lm.filter_range > 0.0 && lm.filter_radius > 0 {
+            o["filter"] = json!({"radius": lm.filter_radius, "range": lm.filter_range});
+        }
         keyed_tracer(&mut o, lm.tracer);
         k.options(&o).inputs();
         Ok(())

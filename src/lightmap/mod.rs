@@ -28,6 +28,7 @@
 
 pub mod atlas;
 pub mod atlas_section;
+pub mod filter;
 pub mod horizon;
 pub mod objects;
 pub mod section;
@@ -80,6 +81,11 @@ pub struct LightmapOptions {
     /// Horizon directions: every primitive lattice vector with max(|a|, |b|) ≤ this (1, 2, 3,
     /// 4: 8, 16, 32, 48 directions).
     pub horizon_lattice: u32,
+    /// Relative range of the bilateral filter of the terrain map's part without the direct sun
+    /// ([`filter::filter_indirect`], issue 37 item 4); 0 (the default): no filter.
+    pub filter_range: f32,
+    /// Radius in texels of that filter (a (2r+1)² window).
+    pub filter_radius: u32,
 }
 
 impl LightmapOptions {
@@ -95,10 +101,18 @@ impl LightmapOptions {
         tracer: Tracer::Cpu,
         visibility: LightmapVisibility::Horizons,
         horizon_lattice: 3,
+        filter_range: 0.0,
+        filter_radius: 2,
     };
 
     /// Options this binary cannot run (a tracer it was built without).
     pub fn check(&self) -> std::result::Result<(), String> {
+        if !(self.filter_range.is_finite() && self.filter_range >= 0.0) || self.filter_radius > 8 {
+            return Err(format!(
+                "lightmap.filter_range = {}, lightmap.filter_radius = {} (a range ≥ 0, 0 for no filter; a radius of at most 8 texels)",
+                self.filter_range, self.filter_radius
+            ));
+        }
         if !(1..=4).contains(&self.horizon_lattice) {
             return Err(format!(
                 "lightmap.horizon_lattice = {} (1 to 4: 8, 16, 32 or 48 horizon directions)",
@@ -654,6 +668,32 @@ pub(crate) fn terrain_sections_of(
         sun_samples: opts.sun_samples,
         visibility: opts.visibility,
     };
+    if opts.filter_range > 0.0 && opts.filter_radius > 0 {
+        let filtered = Lightmap {
+            width: map.width,
+            height: map.height,
+            texels: filter::filter_indirect(
+                &map.texels,
+                direct,
+                map.width as usize,
+                opts.filter_radius as usize,
+                opts.filter_range,
+            ),
+        };
+        // The filter is stated after the fields every reader reads as a prefix; an unfiltered
+        // map's metadata stays as before.
+        let meta = section::TerrainLightmapMetaFiltered {
+            base: meta,
+            filter_radius: opts.filter_radius,
+            filter_range: opts.filter_range,
+        };
+        return vec![section::to_section_with_indirect(
+            "lightmap:terrain",
+            &meta,
+            &filtered,
+            direct,
+        )];
+    }
     vec![section::to_section_with_indirect(
         "lightmap:terrain",
         &meta,

@@ -35,6 +35,16 @@ pub struct TerrainLightmapMeta {
     pub visibility: super::LightmapVisibility,
 }
 
+/// The terrain light map's metadata when its part without the direct sun was filtered
+/// (`lightmap.filter_range` > 0): [`TerrainLightmapMeta`], then the bilateral filter's radius
+/// (texels) and relative range. Read as a prefix, it is a [`TerrainLightmapMeta`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TerrainLightmapMetaFiltered {
+    pub base: TerrainLightmapMeta,
+    pub filter_radius: u32,
+    pub filter_range: f32,
+}
+
 pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
@@ -108,10 +118,15 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     let mean = map.texels.iter().fold([0.0f32; 3], |a, t| {
         [a[0] + t[0] / n, a[1] + t[1] / n, a[2] + t[2] / n]
     });
-    Ok(
-        json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
-              "sun_samples": m.sun_samples, "visibility": visibility, "mean_irradiance": mean}),
-    )
+    let mut doc = json!({"surface": m.surface, "width": m.width, "height": m.height, "mode": m.mode, "samples": m.samples,
+          "sun_samples": m.sun_samples, "visibility": visibility, "mean_irradiance": mean});
+    // A filtered terrain map states its filter after the prefix (an unfiltered one's metadata
+    // ends before it and does not decode as this).
+    if let Ok(f) = v.meta::<TerrainLightmapMetaFiltered>() {
+        doc["filter_radius"] = f.filter_radius.into();
+        doc["filter_range"] = f.filter_range.into();
+    }
+    Ok(doc)
 }
 
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {

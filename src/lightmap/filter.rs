@@ -1,0 +1,133 @@
+//! Texel-space filters of the terrain light map (issue 37, item 4): a bilateral filter of the
+//! part without the direct sun (sky and bounce), edge-preserving through its range kernel,
+//! and a plain box (the benchmark's comparison). Each output texel is a pure function of its
+//! neighbourhood, so the result does not depend on the thread count.
+
+use rayon::prelude::*;
+
+fn lum(p: [f32; 3]) -> f64 {
+    (p[0] + p[1] + p[2]) as f64 / 3.0
+}
+
+/// Bilateral filter of radius `r` over a map (or a strip of rows) `width` texels wide, clamped
+/// at its edges: neighbours weighted by exp(−(Δ / (t·c))²), Δ the difference of their RGB mean
+/// from the centre texel's mean c, so a step larger than about t of the value is kept and
+/// differences well below it (the Monte-Carlo noise) are averaged.
+pub fn bilateral(v: &[[f32; 3]], width: usize, r: usize, t: f32) -> Vec<[f32; 3]> {
+    let width = width.max(1);
+    let h = v.len() / width;
+    let mut out = vec![[0.0f32; 3]; v.len()];
+    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            let c = lum(v[y * width + x]);
+            let scale = (t as f64 * c.abs()).max(1e-12);
+            let mut s = [0.0f64; 3];
+            let mut wsum = 0.0f64;
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
+                    let q = v[yy * width + xx];
+                    let w = (-((lum(q) - c) / scale).powi(2)).exp();
+                    for k in 0..3 {
+                        s[k] += w * q[k] as f64;
+                    }
+                    wsum += w;
+                }
+            }
+            *o = s.map(|q| (q / wsum) as f32);
+        }
+    });
+    out
+}
+
+/// Box filter of radius `r` over a strip of rows `width` texels wide (clamped at the edges:
+/// the mean of the texels inside both the box and the strip).
+pub fn box_filter(v: &[[f32; 3]], width: usize, r: usize) -> Vec<[f32; 3]> {
+    let width = width.max(1);
+    let h = v.len() / width;
+    let mut out = vec![[0.0f32; 3]; v.len()];
+    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            let mut s = [0.0f64; 3];
+            let mut n = 0u32;
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
+                    let t = v[yy * width + xx];
+                    for c in 0..3 {
+                        s[c] += t[c] as f64;
+                    }
+                    n += 1;
+                }
+            }
+            *o = s.map(|q| (q / n as f64) as f32);
+        }
+    });
+    out
+}
+
+/// The texels with their part without the direct sun (`texels − direct`) filtered by
+/// [`bilateral`] and the direct sun added back unfiltered (its shadow edges are sharp).
+pub fn filter_indirect(
+    texels: &[[f32; 3]],
+    direct: &[[f32; 3]],
+    width: usize,
+    r: usize,
+    t: f32,
+) -> Vec<[f32; 3]> {
+    let ind: Vec<[f32; 3]> = texels
+        .iter()
+        .zip(direct)
+        .map(|(e, d)| std::array::from_fn(|c| e[c] - d[c]))
+        .collect();
+    bilateral(&ind, width, r, t)
+        .iter()
+        .zip(direct)
+        .map(|(f, d)| std::array::from_fn(|c| f[c] + d[c]))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_box_filter_averages_inside_the_strip() {
+        // 3 × 2 strip: values 0..6 (one channel repeated).
+        let v: Vec<[f32; 3]> = (0..6).map(|i| [i as f32; 3]).collect();
+        let f = super::box_filter(&v, 3, 1);
+        // Corner (0, 0): texels 0, 1, 3, 4; centre top (1, 0): 0, 1, 2, 3, 4, 5.
+        assert_eq!(f[0], [2.0; 3]);
+        assert_eq!(f[1], [2.5; 3]);
+        assert_eq!(f[5], [(1.0 + 2.0 + 4.0 + 5.0) / 4.0; 3]);
+        assert_eq!(super::box_filter(&v, 3, 0), v);
+    }
+
+    #[test]
+    fn the_bilateral_keeps_an_edge_and_averages_noise_below_its_range() {
+        // A step 1 → 10 across a 6 × 3 strip, ±2 % noise: a range of 0.2 averages the noise
+        // and keeps the step; a huge range blurs it (a box).
+        let v: Vec<[f32; 3]> = (0..18)
+            .map(|i| {
+                let base = if i % 6 < 3 { 1.0 } else { 10.0 };
+                [base * (1.0 + if i % 2 == 0 { 0.02 } else { -0.02 }); 3]
+            })
+            .collect();
+        let f = super::bilateral(&v, 6, 1, 0.2);
+        for (i, t) in f.iter().enumerate() {
+            let base = if i % 6 < 3 { 1.0 } else { 10.0 };
+            assert!((t[0] - base).abs() < 0.02 * base, "{i}: {t:?}");
+        }
+        let b = super::bilateral(&v, 6, 1, 1e6);
+        assert!(b[2][0] > 3.0, "{:?}", b[2]);
+    }
+
+    #[test]
+    fn filtering_the_indirect_part_keeps_the_direct_sun() {
+        // A sharp direct-sun edge on a flat indirect field: untouched.
+        let direct: Vec<[f32; 3]> = (0..16)
+            .map(|i| [if i % 4 < 2 { 0.0 } else { 5.0 }; 3])
+            .collect();
+        let texels: Vec<[f32; 3]> = direct.iter().map(|d| [d[0] + 1.0; 3]).collect();
+        let f = super::filter_indirect(&texels, &direct, 4, 2, 0.3);
+        for (a, b) in f.iter().zip(&texels) {
+            assert!((a[0] - b[0]).abs() < 1e-6, "{a:?} {b:?}");
+        }
+    }
+}
