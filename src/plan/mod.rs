@@ -659,31 +659,41 @@ mod registry_tests {
         assert_eq!(ids(&plain), ids(&plan));
 
         // As a unit over packs (more than it declares): the graph's bytes.
-        let s = actions::SceneArgs {
-            scenes: opts.scenes.clone(),
-            sky: opts.sky.clone(),
-            pipeline: opts.pipeline.clone(),
-            ..Default::default()
-        };
+        let s = scene_args(&opts);
         let [ip, tp, sp, up] = ["instances", "terrain", "sky", "toy"]
             .map(|n| dir.path().join(format!("{n}.unit.bake")));
         actions::instances(&s, &ip).unwrap();
         actions::terrain(&s, &tp).unwrap();
-        actions::stage_unit(
-            actions::stage_of_action("sky").unwrap(),
-            &s,
-            None,
-            &[],
-            None,
-            &sp,
-        )
-        .unwrap();
+        sky_unit(&s, &sp);
         let rep =
             actions::stage_unit(&toy::TOY, &s, None, &[tp, ip, sp.clone()], None, &up).unwrap();
         assert_eq!(rep.sections, ["toy"]);
         let unit = Pack::open(&up).unwrap();
         let unit_toy = unit.payload(unit.find("toy").unwrap()).to_vec();
         assert_eq!(unit_toy, graph_toy);
+    }
+
+    /// The fixture's scene as `bake unit` arguments.
+    fn scene_args(opts: &crate::graph::BuildOptions) -> actions::SceneArgs {
+        actions::SceneArgs {
+            scenes: opts.scenes.clone(),
+            sky: opts.sky.clone(),
+            pipeline: opts.pipeline.clone(),
+            ..Default::default()
+        }
+    }
+
+    /// The sky stage's unit into `out`.
+    fn sky_unit(s: &actions::SceneArgs, out: &std::path::Path) {
+        actions::stage_unit(
+            actions::stage_of_action("sky").unwrap(),
+            s,
+            None,
+            &[],
+            None,
+            out,
+        )
+        .unwrap();
     }
 
     #[test]
@@ -698,23 +708,10 @@ mod registry_tests {
             "{e}"
         );
         // The same as a unit over packs holding the section.
-        let s = actions::SceneArgs {
-            scenes: opts.scenes.clone(),
-            sky: opts.sky.clone(),
-            pipeline: opts.pipeline.clone(),
-            ..Default::default()
-        };
+        let s = scene_args(&opts);
         let (ip, sp) = (dir.path().join("i.bake"), dir.path().join("s.bake"));
         actions::instances(&s, &ip).unwrap();
-        actions::stage_unit(
-            actions::stage_of_action("sky").unwrap(),
-            &s,
-            None,
-            &[],
-            None,
-            &sp,
-        )
-        .unwrap();
+        sky_unit(&s, &sp);
         let e = actions::stage_unit(
             &toy::GREEDY,
             &s,
