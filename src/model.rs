@@ -386,6 +386,19 @@ pub struct Instance {
     pub layer: i32,
 }
 
+impl Instance {
+    /// A model placed at `position`, scaled, turned about +Z, on layer 0.
+    pub fn new(model: u32, position: [f32; 3], scale: f32, rotation_deg: f32) -> Instance {
+        Instance {
+            model,
+            position,
+            scale,
+            rotation_deg,
+            layer: 0,
+        }
+    }
+}
+
 /// The instances of a scene and the model names they refer to.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Instances {

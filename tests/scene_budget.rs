@@ -229,26 +229,11 @@ fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
     assert_eq!(r["reference"]["mad"], 0.0, "{r}");
 
     // The graph makes the same choice.
-    let out = dir.path().join("graph.bake");
-    let scene = dir.path().join("scene.eco");
-    let o = common::bake(&[
-        scene.to_str().unwrap(),
-        "--sky",
-        dir.path().join("sky.hdr").to_str().unwrap(),
-        "--preview",
-        "--set",
-        "stages.svo=true",
-        "--set",
-        "svo.resolution=64",
-        "--no-cache",
-        "-q",
-        "--max-memory",
+    let g = graph_bake(
+        dir.path(),
+        ["stages.svo=true", "svo.resolution=64"],
         &budget,
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let g = Pack::open(&out).unwrap();
+    );
     assert!(g.find("svo-scene").is_some() && g.find("svo").is_none());
     let (_, gs) = instanced_section::from_section(&g.view_named("svo-scene").unwrap()).unwrap();
     assert_eq!(gs.grid_instances(), 100);
@@ -316,26 +301,11 @@ fn over_the_flattened_budget_the_linespace_stage_writes_the_two_level_line_space
     two_level_on_the_gpu(&flat, &two, &two_out, &ft, &s);
 
     // The graph makes the same choice.
-    let out = dir.path().join("graph.bake");
-    let scene = dir.path().join("scene.eco");
-    let o = common::bake(&[
-        scene.to_str().unwrap(),
-        "--sky",
-        dir.path().join("sky.hdr").to_str().unwrap(),
-        "--preview",
-        "--set",
-        "stages.linespace=true",
-        "--set",
-        "linespace.n=4",
-        "--no-cache",
-        "-q",
-        "--max-memory",
+    let g = graph_bake(
+        dir.path(),
+        ["stages.linespace=true", "linespace.n=4"],
         &budget,
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let g = Pack::open(&out).unwrap();
+    );
     assert!(g.find("linespace-scene").is_some() && g.find("linespace").is_none());
     let (_, gs) =
         instanced_section::from_section(&g.view_named("linespace-scene").unwrap()).unwrap();
@@ -438,4 +408,27 @@ fn two_level_on_the_gpu(
     let shaft = render_pack(two, &options(Refine::Shaft)).unwrap();
     let cmp = shaft.soft_shadows.unwrap().comparison.unwrap();
     assert_eq!(cmp.brighter_pixels, 0, "{cmp:?}");
+}
+
+/// The fixture scene baked by the graph (`--preview` with two `--set`s) under `budget` bytes.
+fn graph_bake(dir: &std::path::Path, sets: [&str; 2], budget: &str) -> Pack {
+    let out = dir.join("graph.bake");
+    let o = common::bake(&[
+        dir.join("scene.eco").to_str().unwrap(),
+        "--sky",
+        dir.join("sky.hdr").to_str().unwrap(),
+        "--preview",
+        "--set",
+        sets[0],
+        "--set",
+        sets[1],
+        "--no-cache",
+        "-q",
+        "--max-memory",
+        budget,
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    Pack::open(&out).unwrap()
 }

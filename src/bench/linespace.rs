@@ -461,13 +461,7 @@ pub fn bench_scene_accuracy(
                 (lit as f32 / rel.len() as f32, st)
             })
             .collect();
-        let mut stats = QueryStats::default();
-        for (_, s) in &per {
-            stats.linespace_lookups += s.linespace_lookups;
-            stats.exact_triangle_tests += s.exact_triangle_tests;
-            stats.dda_steps += s.dda_steps;
-            stats.nodes_visited += s.nodes_visited;
-        }
+        let stats: QueryStats = per.iter().map(|(_, s)| *s).sum();
         let f: Vec<f32> = per.into_iter().map(|(f, _)| f).collect();
         (f, t0.elapsed().as_secs_f64(), stats)
     };

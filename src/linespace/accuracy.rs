@@ -56,13 +56,7 @@ fn fractions(
             (lit as f32 / points.len().max(1) as f32, st)
         })
         .collect();
-    let mut stats = QueryStats::default();
-    for (_, s) in &per {
-        stats.linespace_lookups += s.linespace_lookups;
-        stats.exact_triangle_tests += s.exact_triangle_tests;
-        stats.dda_steps += s.dda_steps;
-        stats.nodes_visited += s.nodes_visited;
-    }
+    let stats: QueryStats = per.iter().map(|(_, s)| *s).sum();
     (per.into_iter().map(|(f, _)| f).collect(), stats)
 }
 

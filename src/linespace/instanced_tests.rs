@@ -11,16 +11,6 @@ use crate::model::Mesh;
 use crate::rng::Rng;
 use crate::voxel::geometry::{Geometry, place_instance, procedural_blob, terrain_mesh};
 
-fn inst(model: u32, position: [f32; 3], scale: f32, rotation_deg: f32) -> Instance {
-    Instance {
-        model,
-        position,
-        scale,
-        rotation_deg,
-        layer: 0,
-    }
-}
-
 fn hills() -> Terrain {
     let (w, h) = (33u32, 25u32);
     let heights = (0..w * h)
@@ -97,7 +87,7 @@ fn scatter(t: &Terrain, count: usize, seed: u64) -> Vec<Instance> {
             let x = -13.0 + 26.0 * rng.f32();
             let y = -9.0 + 18.0 * rng.f32();
             let z = t.mesh_height_at(x, y) - 0.05;
-            inst(
+            Instance::new(
                 (k % 2) as u32,
                 [x, y, z],
                 0.6 + 1.2 * rng.f32(),

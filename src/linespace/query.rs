@@ -95,6 +95,18 @@ pub struct QueryStats {
     pub nodes_visited: u64,
 }
 
+impl std::iter::Sum for QueryStats {
+    /// The counters of several queries added up.
+    fn sum<I: Iterator<Item = QueryStats>>(iter: I) -> QueryStats {
+        iter.fold(QueryStats::default(), |a, b| QueryStats {
+            linespace_lookups: a.linespace_lookups + b.linespace_lookups,
+            exact_triangle_tests: a.exact_triangle_tests + b.exact_triangle_tests,
+            dda_steps: a.dda_steps + b.dda_steps,
+            nodes_visited: a.nodes_visited + b.nodes_visited,
+        })
+    }
+}
+
 /// Converts a triangle for obvhs.
 pub fn to_bvh_triangle(t: &[[f32; 3]; 3]) -> Triangle {
     Triangle {

@@ -138,6 +138,30 @@ pub fn mesh_from_pack(pack: &Pack, name: &str) -> Result<Geometry> {
     Ok(Geometry { mesh, textures })
 }
 
+/// With an `instances` section: each model's mesh section read (`keep` of it; None for a model
+/// without one) and the instances.
+fn placed_models<T>(
+    pack: &Pack,
+    keep: impl Fn(Geometry) -> T,
+) -> Result<Option<(Vec<Option<T>>, crate::model::Instances)>> {
+    let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
+        return Ok(None);
+    };
+    let view = pack.view(e)?;
+    let (meta, inst) =
+        crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
+    let models = meta
+        .mesh_sections
+        .iter()
+        .map(|s| {
+            pack.find(s)
+                .map(|_| mesh_from_pack(pack, s).map(&keep))
+                .transpose()
+        })
+        .collect::<Result<_>>()?;
+    Ok(Some((models, inst)))
+}
+
 /// All geometry of a pack: with an `instances` section, the scene (terrain plus placed
 /// instances); otherwise every mesh section (and the terrain, if any) as it is.
 pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
@@ -145,15 +169,7 @@ pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
     if let Some(t) = pack_terrain(pack)? {
         g.append(terrain_mesh(&t));
     }
-    if let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() {
-        let view = pack.view(e)?;
-        let (meta, inst) =
-            crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
-        let models: Vec<Option<Geometry>> = meta
-            .mesh_sections
-            .iter()
-            .map(|s| pack.find(s).map(|_| mesh_from_pack(pack, s)).transpose())
-            .collect::<Result<_>>()?;
+    if let Some((models, inst)) = placed_models(pack, |g| g)? {
         for i in &inst.items {
             if let Some(Some(m)) = models.get(i.model as usize) {
                 g.append(place_instance(m, i));
@@ -182,19 +198,7 @@ pub fn pack_world_triangles(pack: &Pack) -> Result<Vec<[[f32; 3]; 3]>> {
         let m = terrain_tile_mesh(&t, [0, w.saturating_sub(1)], [0, h.saturating_sub(1)]);
         out.extend(m.triangle_positions());
     }
-    if let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() {
-        let view = pack.view(e)?;
-        let (meta, inst) =
-            crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
-        let models: Vec<Option<Mesh>> = meta
-            .mesh_sections
-            .iter()
-            .map(|s| {
-                pack.find(s)
-                    .map(|_| mesh_from_pack(pack, s).map(|g| g.mesh))
-                    .transpose()
-            })
-            .collect::<Result<_>>()?;
+    if let Some((models, inst)) = placed_models(pack, |g| g.mesh)? {
         for i in &inst.items {
             if let Some(Some(m)) = models.get(i.model as usize) {
                 let place = instance_placement(i);

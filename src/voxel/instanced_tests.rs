@@ -20,16 +20,6 @@ fn geo(mesh: Mesh) -> Geometry {
     }
 }
 
-fn inst(model: u32, position: [f32; 3], scale: f32, rotation_deg: f32) -> Instance {
-    Instance {
-        model,
-        position,
-        scale,
-        rotation_deg,
-        layer: 0,
-    }
-}
-
 fn wavy_terrain() -> Terrain {
     let (w, h) = (17u32, 13u32);
     let heights = (0..w * h)
@@ -106,7 +96,7 @@ fn rays(rng: &mut Rng, lo: [f32; 3], hi: [f32; 3], n: usize) -> Vec<([f32; 3], [
 #[test]
 fn one_instance_at_the_identity_is_the_flattened_svo_bit_for_bit() {
     let model = geo(procedural_blob(24, 12));
-    let instances = [inst(0, [0.0; 3], 1.0, 0.0)];
+    let instances = [Instance::new(0, [0.0; 3], 1.0, 0.0)];
     let opts = VoxelizeOptions::surface(48);
     let two = InstancedSvo::build(
         None,
@@ -167,7 +157,7 @@ fn scene() -> (Terrain, Vec<Geometry>, Vec<Instance>) {
     let instances = (0..14)
         .map(|i| {
             let (x, y) = (rng.range(-7.0, 7.0), rng.range(-5.0, 5.0));
-            inst(
+            Instance::new(
                 i % 2,
                 [x, y, rng.range(0.0, 1.0)],
                 rng.range(0.5, 1.8),
@@ -366,11 +356,11 @@ fn memory_is_the_models_not_the_instances() {
     let model = geo(procedural_blob(20, 10));
     let opts = VoxelizeOptions::surface(64);
     let few: Vec<Instance> = (0..4)
-        .map(|i| inst(0, [i as f32 * 3.0, 0.0, 0.0], 1.0, 30.0 * i as f32))
+        .map(|i| Instance::new(0, [i as f32 * 3.0, 0.0, 0.0], 1.0, 30.0 * i as f32))
         .collect();
     let many: Vec<Instance> = (0..400)
         .map(|i| {
-            inst(
+            Instance::new(
                 0,
                 [(i % 20) as f32 * 3.0, (i / 20) as f32 * 3.0, 0.0],
                 1.0,
