@@ -6,7 +6,7 @@ use crate::error::Result;
 use crate::ingest::limits::Limits;
 use crate::pack::Pack;
 use crate::voxel::geometry::{
-    SceneStage, invalid, mesh_from_pack, pack_terrain, pack_world_triangles, placed_size,
+    SceneStage, pack_placed_models, pack_terrain, pack_world_triangles, placed_size,
 };
 use std::path::Path;
 
@@ -17,26 +17,12 @@ pub fn pack_scene_linespace(
     opts: &crate::linespace::ntree::NTreeOptions,
 ) -> Result<crate::linespace::instanced::SceneLinespace> {
     let terrain = pack_terrain(pack)?;
-    let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
-        return Err(crate::error::Error::Runtime(
-            "the two-level line spaces need an instances section".into(),
-        ));
-    };
-    let view = pack.view(e)?;
-    let (meta, inst) =
-        crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
-    let models: Vec<crate::linespace::instanced::ModelTriangles> = meta
-        .mesh_sections
-        .iter()
-        .map(|s| {
-            pack.find(s)
-                .map(|_| {
-                    mesh_from_pack(pack, s)
-                        .map(|g| (s.clone(), crate::linespace::world_triangles(&g.mesh)))
-                })
-                .transpose()
-        })
-        .collect::<Result<_>>()?;
+    let (models, inst) = pack_placed_models(pack, |s, g| {
+        (s.to_string(), crate::linespace::world_triangles(&g.mesh))
+    })?
+    .ok_or_else(|| {
+        crate::error::Error::Runtime("the two-level line spaces need an instances section".into())
+    })?;
     let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(opts.n));
     crate::linespace::instanced::SceneLinespace::build(
         terrain.as_ref(),

@@ -138,11 +138,11 @@ pub fn mesh_from_pack(pack: &Pack, name: &str) -> Result<Geometry> {
     Ok(Geometry { mesh, textures })
 }
 
-/// With an `instances` section: each model's mesh section read (`keep` of it; None for a model
-/// without one) and the instances.
-fn placed_models<T>(
+/// With an `instances` section: each model's mesh section read once (`keep` of its name and
+/// geometry; None for a model without one) and the instances.
+pub(crate) fn pack_placed_models<T>(
     pack: &Pack,
-    keep: impl Fn(Geometry) -> T,
+    keep: impl Fn(&str, Geometry) -> T,
 ) -> Result<Option<(Vec<Option<T>>, crate::model::Instances)>> {
     let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
         return Ok(None);
@@ -155,7 +155,7 @@ fn placed_models<T>(
         .iter()
         .map(|s| {
             pack.find(s)
-                .map(|_| mesh_from_pack(pack, s).map(&keep))
+                .map(|_| mesh_from_pack(pack, s).map(|g| keep(s, g)))
                 .transpose()
         })
         .collect::<Result<_>>()?;
@@ -169,7 +169,7 @@ pub fn pack_geometry(pack: &Pack) -> Result<Geometry> {
     if let Some(t) = pack_terrain(pack)? {
         g.append(terrain_mesh(&t));
     }
-    if let Some((models, inst)) = placed_models(pack, |g| g)? {
+    if let Some((models, inst)) = pack_placed_models(pack, |_, g| g)? {
         for i in &inst.items {
             if let Some(Some(m)) = models.get(i.model as usize) {
                 g.append(place_instance(m, i));
@@ -198,7 +198,7 @@ pub fn pack_world_triangles(pack: &Pack) -> Result<Vec<[[f32; 3]; 3]>> {
         let m = terrain_tile_mesh(&t, [0, w.saturating_sub(1)], [0, h.saturating_sub(1)]);
         out.extend(m.triangle_positions());
     }
-    if let Some((models, inst)) = placed_models(pack, |g| g.mesh)? {
+    if let Some((models, inst)) = pack_placed_models(pack, |_, g| g.mesh)? {
         for i in &inst.items {
             if let Some(Some(m)) = models.get(i.model as usize) {
                 let place = instance_placement(i);
@@ -283,18 +283,18 @@ impl PlacedSize {
             size.triangles = 2 * (w - 1) * (h - 1);
             terrain_size = (size.vertices, size.triangles);
         }
-        let mut placed_models = vec![false; models.len()];
+        let mut pack_placed_models = vec![false; models.len()];
         for i in instances {
             if let Some(Some((v, t))) = models.get(i.model as usize) {
                 size.instances += 1;
                 size.vertices = size.vertices.saturating_add(*v);
                 size.triangles = size.triangles.saturating_add(*t);
-                placed_models[i.model as usize] = true;
+                pack_placed_models[i.model as usize] = true;
             }
         }
         let model_sizes: Vec<(u64, u64)> = models
             .iter()
-            .zip(&placed_models)
+            .zip(&pack_placed_models)
             .filter_map(|(m, &p)| m.filter(|_| p))
             .collect();
         size.two_level_bytes =
@@ -435,23 +435,9 @@ pub fn pack_instanced_svo(
     opts: &super::voxelize::VoxelizeOptions,
 ) -> Result<super::instanced::InstancedSvo> {
     let terrain = pack_terrain(pack)?;
-    let Some(e) = pack.of_kind(crate::ingest::instances_section::KIND).next() else {
-        return Err(crate::error::Error::Runtime(
-            "the two-level SVO needs an instances section".into(),
-        ));
-    };
-    let view = pack.view(e)?;
-    let (meta, inst) =
-        crate::ingest::instances_section::from_section(&view).map_err(|e| invalid(pack, e))?;
-    let models: Vec<Option<(String, Geometry)>> = meta
-        .mesh_sections
-        .iter()
-        .map(|s| {
-            pack.find(s)
-                .map(|_| mesh_from_pack(pack, s).map(|g| (s.clone(), g)))
-                .transpose()
-        })
-        .collect::<Result<_>>()?;
+    let (models, inst) = pack_placed_models(pack, |s, g| (s.to_string(), g))?.ok_or_else(|| {
+        crate::error::Error::Runtime("the two-level SVO needs an instances section".into())
+    })?;
     super::instanced::InstancedSvo::build(terrain.as_ref(), &models, &inst.items, opts)
 }
 
