@@ -196,16 +196,30 @@ fn far_leaf_cards_are_drawn_with_their_level_0_coverage() {
     }
 }
 
-/// Leaf coverage (pixels) of the region image of a view along +Y from `dist` metres at `scale`
-/// times the test's resolution, 4× MSAA.
-fn leaf_pixels(pack: &Pack, centre: [f32; 3], dist: f32, scale: u32) -> f32 {
+/// Leaf coverage per pixel of the test's resolution, from the region image of a view along +Y
+/// from `dist` metres at `scale` times that resolution (each block of scale² pixels averaged),
+/// 4× MSAA.
+fn leaf_coverage(pack: &Pack, centre: [f32; 3], dist: f32, scale: u32) -> Vec<f32> {
     let mut o = options([centre[0], centre[1] - dist, centre[2]], centre, 4);
     o.width = W * scale;
     o.height = H * scale;
     o.regions = true;
     let out = render_pack(pack, &o).unwrap();
     let reg = out.regions.expect("region image");
-    reg.pixels.iter().map(|p| p[2]).sum::<f32>() / (scale * scale) as f32
+    let mut px = vec![0.0f32; (W * H) as usize];
+    for (i, p) in reg.pixels.iter().enumerate() {
+        let (x, y) = (
+            i as u32 % (W * scale) / scale,
+            i as u32 / (W * scale) / scale,
+        );
+        px[(y * W + x) as usize] += p[2] / (scale * scale) as f32;
+    }
+    px
+}
+
+/// Leaf coverage (pixels) of [`leaf_coverage`].
+fn leaf_pixels(pack: &Pack, centre: [f32; 3], dist: f32, scale: u32) -> f32 {
+    leaf_coverage(pack, centre, dist, scale).iter().sum()
 }
 
 #[test]
@@ -234,4 +248,40 @@ fn far_cards_behind_each_other_cover_as_their_union() {
         (0.9..=1.1).contains(&ratio),
         "far layers cover {far:.1} px, their union {union:.1} px (ratio {ratio:.3})"
     );
+}
+
+/// Far cards are drawn in the pixels their leaves fill (the ground-truth harness' leaf fraction):
+/// the pixels that the 8× view's leaves (the plain alpha test of level-0 shapes, cards 12 pixels
+/// wide) cover at least half of, against the far view's: a pixel counts as drawn where at least
+/// one of its four samples holds a leaf. With one dither threshold per pixel a far card of
+/// c₀ ≈ 0.45 was drawn in only about c₀ of them (0.49 here on lavapipe); with a threshold per
+/// sample every pixel the card covers keeps a sample (0.99).
+#[test]
+fn far_cards_are_drawn_in_the_pixels_their_leaves_fill() {
+    let pack = build_pack();
+    let centre = [
+        (COLS - 1) as f32 * SPACING / 2.0,
+        0.0,
+        (ROWS - 1) as f32 * SPACING / 2.0 + 0.5,
+    ];
+    let far = leaf_coverage(&pack, centre, DIST, 1);
+    let fine = leaf_coverage(&pack, centre, DIST, 8);
+    let leaf: Vec<usize> = (0..fine.len()).filter(|&i| fine[i] >= 0.5).collect();
+    let drawn = leaf.iter().filter(|&&i| far[i] > 0.0).count();
+    let fraction = drawn as f32 / leaf.len() as f32;
+    let (sum_far, sum_fine) = (far.iter().sum::<f32>(), fine.iter().sum::<f32>());
+    eprintln!(
+        "{} leaf pixels at 8x, {drawn} drawn far ({fraction:.3}); coverage far {sum_far:.1} px, \
+         8x {sum_fine:.1} px",
+        leaf.len()
+    );
+    assert!(leaf.len() >= 100, "{} leaf pixels", leaf.len());
+    assert!(
+        fraction >= 0.95,
+        "far cards drawn in {drawn} of the {} pixels their leaves fill ({fraction:.3})",
+        leaf.len()
+    );
+    // And the coverage stays the leaves': the drawn share is not bought with extra area.
+    let ratio = sum_far / sum_fine;
+    assert!((0.85..=1.15).contains(&ratio), "coverage far/8x {ratio:.3}");
 }

@@ -102,7 +102,7 @@ pub struct RenderArgs {
     /// Cascades of the sun's shadow map, 1 to 4 (1: one map over the whole scene).
     #[arg(long, default_value_t = crate::render::shadow::DEFAULT_CASCADES)]
     pub shadow_cascades: u32,
-    /// Samples per pixel: 4 (MSAA with alpha to coverage on leaf cards; the CPU reference
+    /// Samples per pixel: 4 (MSAA, leaf cards' coverage as the sample mask; the CPU reference
     /// averages rays at the same 4 positions) or 1.
     #[arg(long, default_value_t = crate::render::MSAA_SAMPLES)]
     pub msaa: u32,

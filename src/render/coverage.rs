@@ -8,13 +8,18 @@
 //! coverage blends from the alpha test towards the colour map's level-0 coverage `c₀` (times the
 //! material's opacity, [`far_coverage`]): `t = clamp(min(λ, top) − (top − 2), 0, 1)` with `top`
 //! the 1×1 level (0 below three levels). Without MSAA a fragment passes where
-//! `mix(α ≥ ½, c₀, t)` reaches the pixel's 4×4 ordered-dither (Bayer) threshold. Under MSAA the
-//! fragment is kept where `mix(1, c₀, t)` reaches that threshold and writes the alpha-to-coverage
-//! value `mix(ramp, 1, t)`: the pixel-level dither carries the far coverage, because how a device
-//! turns a fractional alpha into samples is its own (lavapipe keeps ⌊4α⌋ of 4, which halved a
-//! coverage of 0.45). The CPU reference's four rays test `mix(α ≥ ½, 1, t)` against `(s + ½)/4`
-//! for sample s, with the same pixel dither ([`AlphaTest`]). `mesh.wgsl` computes the same
-//! (`far_weight`, `bayer4`).
+//! `mix(α ≥ ½, c₀, t)` reaches the pixel's 4×4 ordered-dither (Bayer) threshold `d`. Under MSAA
+//! every sample gets a threshold of its own, `d + k/4` modulo 1 for sample k, and the shader
+//! writes the sample mask itself (`@builtin(sample_mask)`, no device alpha to coverage: how a
+//! device turns a fractional alpha into samples is its own, and lavapipe keeps ⌊4α⌋ of 4, which
+//! halved a coverage of 0.45): a sample is kept where the fragment's coverage
+//! `mix(ramp, c₀, t)` reaches its threshold (`ramp` the near alpha edge, `clamp((α − ½)/fwidth(α)
+//! + ½)`). A pixel's four thresholds are a quarter apart, so a coverage of at least 7/32 keeps a
+//! sample in every pixel the card covers, and a 4×4 block keeps `round(16 c)` sixteenths of its
+//! samples: with one threshold per pixel a far card of c₀ ≈ 0.48 was drawn in only about half of
+//! the pixels its leaves fill (the ground-truth harness' leaf fraction). The CPU reference's four
+//! rays test `mix(α ≥ ½, c₀, t)` against the same thresholds ([`AlphaTest`]); `mesh.wgsl`
+//! computes the same (`far_weight`, `bayer4`, `sample_threshold`).
 //!
 //! The dither threshold is the pixel's shifted by a layer's offset ([`layer_dither`]): a
 //! multiple of 1/16 hashed from the fragment's distance to the eye in slabs of
@@ -51,11 +56,12 @@ pub fn hard_coverage(alpha: f32, far: f32, t: f32) -> f32 {
 }
 
 /// The alpha test of one primary ray: the pixel's dither threshold and, under MSAA, the
-/// sample's threshold `(s + ½)/samples`.
+/// sample's index `k` among `n` ([`sample_threshold`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AlphaTest {
     pub dither: f32,
-    pub sample: Option<f32>,
+    /// `(k, n)`: sample `k` of `n` per pixel; `None` without MSAA.
+    pub sample: Option<(u32, u32)>,
 }
 
 impl AlphaTest {
@@ -69,11 +75,19 @@ impl AlphaTest {
     /// shifted by the layer's offset ([`layer_dither`]), as `mesh.wgsl` tests a fragment.
     pub fn passes_at(&self, alpha: f32, far: f32, t: f32, distance: Option<f32>) -> bool {
         let dither = distance.map_or(self.dither, |d| layer_dither(self.dither, d));
-        match self.sample {
-            None => hard_coverage(alpha, far, t) >= dither,
-            Some(s) => 1.0 + (far - 1.0) * t >= dither && hard_coverage(alpha, 1.0, t) >= s,
-        }
+        let threshold = match self.sample {
+            None => dither,
+            Some((k, n)) => sample_threshold(dither, k, n),
+        };
+        hard_coverage(alpha, far, t) >= threshold
     }
+}
+
+/// The threshold of sample `k` of `n` in a pixel of dither threshold `dither`: `dither + k/n`
+/// modulo 1. For n = 4 every term is a multiple of 1/32, exact in `f32` (as `mesh.wgsl`).
+pub fn sample_threshold(dither: f32, k: u32, n: u32) -> f32 {
+    let x = dither + k as f32 / n as f32;
+    if x >= 1.0 { x - 1.0 } else { x }
 }
 
 /// The 4×4 ordered-dither threshold of pixel (x, y), in (0, 1): `(index + ½)/16`.
@@ -149,6 +163,42 @@ mod tests {
         for c in [0.0f32, 0.1, 0.475, 0.5, 0.9, 1.0] {
             let pass = t.iter().filter(|&&x| c >= x).count();
             assert_eq!(pass, (16.0 * c).round() as usize, "{c}");
+        }
+    }
+
+    #[test]
+    fn a_pixels_sample_thresholds_keep_a_sample_wherever_a_far_card_lies() {
+        // Every pixel of a 4×4 block, every layer offset: the four thresholds are a quarter
+        // apart, the lowest at most 7/32, so a coverage of 0.475 keeps one or two samples in
+        // every pixel (with one threshold per pixel, 8 of 16 pixels kept none).
+        for shift in 0..16 {
+            let mut kept = 0;
+            for p in 0..16u32 {
+                let d = bayer4(p % 4, p / 4) + shift as f32 / 16.0;
+                let d = if d >= 1.0 { d - 1.0 } else { d };
+                let t: Vec<f32> = (0..4).map(|k| sample_threshold(d, k, 4)).collect();
+                let n = t.iter().filter(|&&x| 0.475 >= x).count();
+                assert!((1..=2).contains(&n), "pixel {p}, shift {shift}: {t:?}");
+                assert!(t.iter().cloned().fold(1.0, f32::min) <= 7.0 / 32.0);
+                kept += n;
+                // Multiples of 1/32, so the shader's f32 sums are these bits.
+                for x in t {
+                    assert_eq!((x * 32.0).fract(), 0.0);
+                }
+            }
+            // The block keeps round(16 c) sixteenths of its 64 samples.
+            assert_eq!(
+                kept,
+                4 * (16.0f32 * 0.475).round() as usize,
+                "shift {shift}"
+            );
+            let one_per_pixel = (0..16u32)
+                .filter(|&p| {
+                    let d = bayer4(p % 4, p / 4) + shift as f32 / 16.0;
+                    0.475 >= if d >= 1.0 { d - 1.0 } else { d }
+                })
+                .count();
+            assert_eq!(one_per_pixel, 8);
         }
     }
 }

@@ -306,7 +306,7 @@ pub fn render_pack(pack: &Pack, opts: &RenderOptions) -> Result<RenderOutput> {
 
     let t0 = std::time::Instant::now();
     let gpu = crate::gpu::init_gpu(opts.backend)?;
-    let pipes = pipelines::Pipelines::new(&gpu.device, opts.msaa);
+    let pipes = pipelines::Pipelines::new(&gpu.device, opts.msaa, gpu.backend);
     gpu.check()?;
     let t1 = std::time::Instant::now();
     let mut gpu_scene = upload::upload_scene(&gpu, &pipes, &scene)?;

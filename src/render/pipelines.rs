@@ -164,9 +164,12 @@ pub(super) struct PassDesc<'a> {
     vertex: &'a str,
     /// Samples per pixel of the target (1, or [`super::MSAA_SAMPLES`] for the scene pass).
     samples: u32,
-    /// Alpha to coverage (leaf cards under MSAA): the fragment's alpha becomes its sample mask,
-    /// and the shader's `A2C` override turns the alpha test into a coverage ramp.
-    a2c: bool,
+    /// Coverage by sample mask (leaf cards under MSAA): the shader's `SAMPLE_MASK` override
+    /// turns the alpha test into a coverage tested against four sample thresholds
+    /// (src/render/coverage.rs), written as the fragment's sample mask.
+    sample_mask: bool,
+    /// The fragment entry point.
+    fragment: &'a str,
     /// Triangles, except the skeletons' lines and points.
     topology: wgpu::PrimitiveTopology,
 }
@@ -207,13 +210,17 @@ pub(super) fn pipeline(device: &wgpu::Device, d: &PassDesc) -> wgpu::RenderPipel
         multisample: wgpu::MultisampleState {
             count: d.samples,
             mask: !0,
-            alpha_to_coverage_enabled: d.a2c,
+            alpha_to_coverage_enabled: false,
         },
         fragment: Some(wgpu::FragmentState {
             module: d.module,
-            entry_point: Some("fs_main"),
+            entry_point: Some(d.fragment),
             compilation_options: wgpu::PipelineCompilationOptions {
-                constants: if d.a2c { &[("A2C", 1.0)] } else { &[] },
+                constants: if d.sample_mask {
+                    &[("SAMPLE_MASK", 1.0)]
+                } else {
+                    &[]
+                },
                 ..Default::default()
             },
             targets: &[Some(wgpu::ColorTargetState {
@@ -489,18 +496,35 @@ pub(super) fn hdr_pass<'a>(
         depth,
         vertex: "vs_main",
         samples: 1,
-        a2c: false,
+        sample_mask: false,
+        fragment: "fs_main",
         topology: wgpu::PrimitiveTopology::TriangleList,
     }
 }
 
 impl<'a> PassDesc<'a> {
-    /// The same pass into a target of `samples` samples per pixel, with alpha to coverage
-    /// when `a2c` and more than one sample.
-    pub(super) fn multisampled(self, samples: u32, a2c: bool) -> PassDesc<'a> {
+    /// The same pass into a target of `samples` samples per pixel (1 or
+    /// [`super::MSAA_SAMPLES`], the four thresholds `mesh.wgsl` writes its mask from), with
+    /// coverage by sample mask when `sample_mask` and more than one sample.
+    pub(super) fn multisampled(self, samples: u32, sample_mask: bool) -> PassDesc<'a> {
+        debug_assert!(samples == 1 || samples == super::MSAA_SAMPLES);
         PassDesc {
             samples,
-            a2c: a2c && samples > 1,
+            sample_mask: sample_mask && samples > 1,
+            ..self
+        }
+    }
+
+    /// The same pass for a backend that cannot write the sample mask (`gl`: naga writes
+    /// `gl_SampleMask` as a scalar, gfx-rs/wgpu#6085): the entry point `fs_main_per_sample`,
+    /// shaded once per sample (once per pixel without MSAA), each keeping its sample where the
+    /// mask has it.
+    pub(super) fn mask_by_sample(self, gl: bool) -> PassDesc<'a> {
+        if !gl {
+            return self;
+        }
+        PassDesc {
+            fragment: "fs_main_per_sample",
             ..self
         }
     }
@@ -513,9 +537,10 @@ impl<'a> PassDesc<'a> {
 
 impl Pipelines {
     /// Layouts, then shader modules, then the scene passes (sky, terrain, meshes, impostors;
-    /// `samples` per pixel, alpha to coverage on the alpha-tested meshes when more than one),
-    /// the depth-only shadow passes and the tone map.
-    pub fn new(device: &wgpu::Device, samples: u32) -> Pipelines {
+    /// `samples` per pixel, coverage by sample mask on the alpha-tested meshes when more than one),
+    /// the depth-only shadow passes and the tone map. `backend` picks how the leaf cards'
+    /// sample mask is written ([`PassDesc::mask_by_sample`] on GL).
+    pub fn new(device: &wgpu::Device, samples: u32, backend: wgpu::Backend) -> Pipelines {
         let l = Layouts::new(device);
         let m = Modules::new(device);
         let mesh_buffers = mesh_buffers();
@@ -553,7 +578,8 @@ impl Pipelines {
                 &mesh_buffers,
                 Some(true),
             )
-            .multisampled(samples, true),
+            .multisampled(samples, true)
+            .mask_by_sample(backend == wgpu::Backend::Gl),
         );
         let terrain_shadow = shadow_pipeline(
             device,
@@ -590,7 +616,8 @@ impl Pipelines {
                 depth: None,
                 vertex: "vs_main",
                 samples: 1,
-                a2c: false,
+                sample_mask: false,
+                fragment: "fs_main",
                 topology: wgpu::PrimitiveTopology::TriangleList,
             },
         );

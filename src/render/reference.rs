@@ -415,12 +415,11 @@ impl<'s, 'a> Reference<'s, 'a> {
                 (0..w).map(move |x| {
                     let mut l = [0.0f32; 3];
                     for (k, &[ox, oy]) in offsets.iter().enumerate() {
-                        // The alpha test of each sample: (k + ½)/4 under MSAA (alpha to
-                        // coverage's share of samples) and the pixel's dither value.
+                        // The alpha test of each sample: the pixel's dither value shifted by
+                        // k/4 under MSAA (the sample mask `mesh.wgsl` writes).
                         let thr = super::coverage::AlphaTest {
                             dither: super::coverage::bayer4(x, y),
-                            sample: (offsets.len() > 1)
-                                .then(|| (k as f32 + 0.5) / offsets.len() as f32),
+                            sample: (offsets.len() > 1).then_some((k as u32, offsets.len() as u32)),
                         };
                         let p = (x as f32 + ox, y as f32 + oy);
                         let s = self.sample_with(view, size, terms, p, thr);

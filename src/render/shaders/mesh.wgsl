@@ -177,10 +177,30 @@ fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
     return ambient_layered(m, v, albedo, e_seen, e_other, l_r) * ambient.scale.x;
 }
 
-// Alpha to coverage (set by the pipeline under MSAA, src/render/pipelines.rs): the alpha test
-// at 0.5 becomes a ramp one pixel wide across the alpha edge, whose value the hardware turns
-// into the fragment's sample mask; without it the test is a hard discard.
-override A2C: bool = false;
+// Coverage by sample mask (set by the pipeline under 4× MSAA, src/render/pipelines.rs): the
+// alpha test at 0.5 becomes a ramp one pixel wide across the alpha edge, blended towards the
+// level-0 coverage far away, and each sample is kept where that coverage reaches the sample's
+// threshold (`sample_threshold`); the shader writes the mask. Without it the test is a hard
+// discard against the pixel's threshold.
+override SAMPLE_MASK: bool = false;
+
+// The threshold of sample k of 4 in a pixel of dither threshold d: d + k/4 modulo 1
+// (src/render/coverage.rs `sample_threshold`; multiples of 1/32, exact).
+fn sample_threshold(d: f32, k: u32) -> f32 {
+    let x = d + f32(k) * 0.25;
+    return select(x, x - 1.0, x >= 1.0);
+}
+
+// A shaded fragment: its colour and the samples it keeps.
+struct Shaded {
+    color: vec4<f32>,
+    mask: u32,
+};
+
+struct MeshFragment {
+    @location(0) color: vec4<f32>,
+    @builtin(sample_mask) mask: u32,
+};
 
 // Far leaf cards (src/render/coverage.rs): the weight of the level-0 coverage at mip level
 // lambda of a chain of `levels` levels, 0 up to the 4×4 level, 1 from the 2×2 level on.
@@ -253,7 +273,26 @@ fn parallax_uv(in: MeshOut, dux: vec2<f32>, duy: vec2<f32>) -> vec2<f32> {
 }
 
 @fragment
-fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
+fn fs_main(in: MeshOut) -> MeshFragment {
+    let f = shade(in);
+    return MeshFragment(f.color, f.mask);
+}
+
+// The entry point where the backend cannot write the sample mask (GL: naga writes
+// `gl_SampleMask` as a scalar, gfx-rs/wgpu#6085; src/render/pipelines.rs `mask_by_sample`): run
+// per sample (reading `sample_index` makes the shader run once per sample), each invocation
+// keeping its own sample where the mask has it: the same samples as `fs_main`, at four times the
+// shading.
+@fragment
+fn fs_main_per_sample(in: MeshOut, @builtin(sample_index) k: u32) -> @location(0) vec4<f32> {
+    let f = shade(in);
+    if (((f.mask >> k) & 1u) == 0u) {
+        discard;
+    }
+    return f.color;
+}
+
+fn shade(in: MeshOut) -> Shaded {
     // Every texture read and derivative before the discard (uniform control flow: the parallax
     // switch is a uniform).
     var texel: vec4<f32>;
@@ -275,30 +314,37 @@ fn fs_main(in: MeshOut) -> @location(0) vec4<f32> {
     let dims = vec2<f32>(textureDimensions(color_map, 0));
     let rho = max(length(dpdx(in.uv) * dims), length(dpdy(in.uv) * dims));
     let t = far_weight(material.alpha.x, log2(max(rho, 1e-30)));
-    var coverage = 1.0;
-    if (A2C) {
-        // The far coverage by the pixel dither (a device's own alpha-to-coverage pattern may
-        // round a fraction down), the near ramp by alpha to coverage.
+    let d = layer_dither(in.position.xy, in.world);
+    var mask = 0xffffffffu;
+    if (SAMPLE_MASK) {
+        // The near ramp across the alpha edge, the level-0 coverage far away; each of the four
+        // samples against its own threshold.
         let near = clamp((a - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
-        coverage = mix(near, 1.0, t);
-        if (coverage <= 0.0 || mix(1.0, material.alpha.y, t) < layer_dither(in.position.xy, in.world)) {
+        let c = mix(near, material.alpha.y, t);
+        mask = 0u;
+        for (var k = 0u; k < 4u; k++) {
+            if (c >= sample_threshold(d, k)) {
+                mask = mask | (1u << k);
+            }
+        }
+        if (mask == 0u) {
             discard;
         }
     } else {
         let c = mix(select(0.0, 1.0, a >= 0.5), material.alpha.y, t);
-        if (c < layer_dither(in.position.xy, in.world)) {
+        if (c < d) {
             discard;
         }
     }
     if (region_pass()) {
-        return vec4<f32>(model_region(direct_material.record[5].w != 0.0), coverage);
+        return Shaded(vec4<f32>(model_region(direct_material.record[5].w != 0.0), 1.0), mask);
     }
     // Emission (the record's last vec4, zero without a material section): emitted radiance on
     // both faces, drawn in full renders only (weight kd · ka), in neither term alone.
     let emission = direct_material.record[5].xyz * (globals.viewport.z * globals.viewport.w);
     let l = mesh_direct(in, texel.rgb, ts, nm.a) * globals.viewport.z
         + mesh_ambient(in, texel.rgb) * globals.viewport.w + emission;
-    return vec4<f32>(l, coverage);
+    return Shaded(vec4<f32>(l, 1.0), mask);
 }
 
 // The shadow pass: depth only, with the same alpha test.
