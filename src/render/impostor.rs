@@ -130,6 +130,7 @@ impl ImpostorPipeline {
         shadow: &wgpu::BindGroupLayout,
         ambient: &wgpu::BindGroupLayout,
         samples: u32,
+        backend: wgpu::Backend,
     ) -> ImpostorPipeline {
         use wgpu::ShaderStages as S;
         let layout = pipelines::layout(
@@ -167,7 +168,8 @@ impl ImpostorPipeline {
                 &buffers,
                 Some(true),
             )
-            .multisampled(samples, false),
+            .multisampled(samples, true)
+            .mask_by_sample(backend == wgpu::Backend::Gl),
         );
         let shadow = pipelines::shadow_pipeline(
             device,
@@ -200,27 +202,31 @@ pub(super) fn upload(
     materials: &[super::upload::DirectMaterialParams],
 ) -> Result<ImpostorGpu> {
     let side = d.meta.side() as u32;
-    let size = (side, side);
-    let color = up.texture(
+    let chains = atlas_chains(d, side, d.meta.tile);
+    let mips = |texels| super::scene::Mips {
+        levels: chains.levels.clone(),
+        texels,
+    };
+    let color = up.mips(
         &format!("{label}: impostor colour"),
-        size,
+        &mips(&chains.color),
         wgpu::TextureFormat::Rgba8UnormSrgb,
         4,
-        bytemuck::cast_slice(&d.color),
     )?;
-    let normal = up.texture(
+    let normal = up.mips(
         &format!("{label}: impostor normal"),
-        size,
+        &mips(&chains.normal),
         wgpu::TextureFormat::Rgba8Unorm,
         4,
-        bytemuck::cast_slice(&d.normal),
     )?;
-    let depth = up.texture(
+    let depth = up.mips(
         &format!("{label}: impostor depth"),
-        size,
+        &super::scene::Mips {
+            levels: chains.levels.clone(),
+            texels: &chains.depth,
+        },
         wgpu::TextureFormat::R8Unorm,
         1,
-        &d.depth,
     )?;
     let m = &d.meta;
     let params = ImpostorParams {
@@ -256,6 +262,123 @@ pub(super) fn upload(
         ],
     });
     Ok(ImpostorGpu { bind_group })
+}
+
+/// An atlas' mip chains (`[width, height, first, count]` per level, then the texels of every
+/// level one after another): level 0 is the atlas; a texel of level L stands for the 2^L × 2^L
+/// block of level-0 texels below it, down to one texel per tile (the levels while the tile side
+/// halves evenly, so no texel mixes two views). Its alpha is the block's coverage,
+/// round(255 · the share of level-0 texels whose alpha passes ½ (≥ 128)); its colour the mean
+/// of those texels' linear colours (sRGB-encoded again), its normal their mean normal (not
+/// renormalized: its length says how far the block's normals spread) with the material (the normal's alpha) of the child block of most coverage
+/// (the first of the tied), its depth code their least (the surface nearest the tile's eye: a
+/// mean would put the surface inside the model, in its own shadow); a block without coverage
+/// is zero.
+pub struct AtlasChains {
+    pub levels: Vec<[u32; 4]>,
+    pub color: Vec<[u8; 4]>,
+    pub normal: Vec<[u8; 4]>,
+    pub depth: Vec<u8>,
+}
+
+/// The sums of one block's covered level-0 texels.
+#[derive(Clone, Copy, Default)]
+struct BlockSum {
+    n: u32,
+    rgb: [f64; 3],
+    normal: [f64; 3],
+    depth: u8,
+    material: u8,
+}
+
+/// [`AtlasChains`] of an atlas of `side`² texels in tiles of `tile`².
+pub fn atlas_chains(d: &ImpostorData, side: u32, tile: u32) -> AtlasChains {
+    let top = tile.trailing_zeros().min(side.trailing_zeros());
+    let mut out = AtlasChains {
+        levels: Vec::new(),
+        color: Vec::new(),
+        normal: Vec::new(),
+        depth: Vec::new(),
+    };
+    let mut sums: Vec<BlockSum> = (0..d.color.len())
+        .map(|i| {
+            let (c, nm) = (d.color[i], d.normal[i]);
+            if c[3] < 128 {
+                return BlockSum::default();
+            }
+            let lin = |k: usize| f64::from(crate::color::srgb_to_linear(f32::from(c[k]) / 255.0));
+            let unit = |k: usize| f64::from(nm[k]) / 255.0 * 2.0 - 1.0;
+            BlockSum {
+                n: 1,
+                rgb: [lin(0), lin(1), lin(2)],
+                normal: [unit(0), unit(1), unit(2)],
+                depth: d.depth[i],
+                material: nm[3],
+            }
+        })
+        .collect();
+    let mut w = side;
+    for level in 0..=top {
+        let per_block = 1u64 << (2 * level);
+        out.levels.push([w, w, out.color.len() as u32, w * w]);
+        if level == 0 {
+            // Level 0 as the atlas holds it.
+            out.color.extend_from_slice(&d.color);
+            out.normal.extend_from_slice(&d.normal);
+            out.depth.extend_from_slice(&d.depth);
+        } else {
+            for b in &sums {
+                if b.n == 0 {
+                    out.color.push([0; 4]);
+                    out.normal.push([0; 4]);
+                    out.depth.push(0);
+                    continue;
+                }
+                let n = f64::from(b.n);
+                let enc =
+                    |l: f64| (crate::color::linear_to_srgb((l / n) as f32) * 255.0).round() as u8;
+                let cov = ((u64::from(b.n) * 255 * 2 + per_block) / (2 * per_block)) as u8;
+                out.color
+                    .push([enc(b.rgb[0]), enc(b.rgb[1]), enc(b.rgb[2]), cov]);
+                let q = |k: usize| ((b.normal[k] / n * 0.5 + 0.5) * 255.0).round() as u8;
+                out.normal.push([q(0), q(1), q(2), b.material]);
+                out.depth.push(b.depth);
+            }
+        }
+        if level == top {
+            break;
+        }
+        let h = w / 2;
+        sums = (0..h * h)
+            .map(|i| {
+                let (x, y) = (2 * (i % h), 2 * (i / h));
+                let kids = [(x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1)]
+                    .map(|(x, y)| sums[(y * w + x) as usize]);
+                let mut s = BlockSum {
+                    depth: u8::MAX,
+                    ..BlockSum::default()
+                };
+                let mut best = 0;
+                for k in kids {
+                    s.n += k.n;
+                    for c in 0..3 {
+                        s.rgb[c] += k.rgb[c];
+                        s.normal[c] += k.normal[c];
+                    }
+                    if k.n > 0 {
+                        s.depth = s.depth.min(k.depth);
+                    }
+                    if k.n > best {
+                        best = k.n;
+                        s.material = k.material;
+                    }
+                }
+                s
+            })
+            .collect();
+        w = h;
+    }
+    out
 }
 
 /// The impostors of shadow pass `p` (bucket pass index): per model with an atlas, its impostor
@@ -326,5 +449,99 @@ pub(super) fn draw(
         counts.triangles += 2 * n;
         counts.instances += n;
         counts.impostor_instances += n;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every level of the chains against brute force over the level-0 block below each texel.
+    #[test]
+    fn the_atlas_chains_are_the_blocks_coverage_mean_colour_normal_and_nearest_depth() {
+        let (grid, tile) = (2u32, 8u32);
+        let side = grid * tile;
+        let n = (side * side) as usize;
+        let mut h = 0x9e37_79b9u32;
+        let mut next = || {
+            h = crate::render::coverage::lowbias32(h.wrapping_add(0x6d2b_79f5));
+            h
+        };
+        let mut d = ImpostorData {
+            meta: crate::lod::section::ImpostorMeta {
+                layout: crate::lod::section::HEMI_OCTAHEDRAL.into(),
+                grid,
+                tile,
+                centre: [0.0; 3],
+                radius: 1.0,
+                error: 0.1,
+            },
+            color: Vec::with_capacity(n),
+            normal: Vec::with_capacity(n),
+            depth: Vec::with_capacity(n),
+        };
+        for _ in 0..n {
+            let r = next();
+            let covered = r % 3 != 0;
+            let b = r.to_le_bytes();
+            d.color
+                .push([b[0], b[1], b[2], if covered { 255 } else { b[3] % 128 }]);
+            d.normal.push([b[1], b[2], b[3], (next() % 4) as u8]);
+            d.depth.push(next() as u8);
+        }
+        let c = atlas_chains(&d, side, tile);
+        // Levels down to one texel per tile: 16², 8², 4², 2².
+        assert_eq!(c.levels.len(), 4);
+        for (level, &[w, hh, first, count]) in c.levels.iter().enumerate() {
+            assert_eq!((w, hh, count), (side >> level, side >> level, w * w));
+            let b = 1u32 << level;
+            for y in 0..w {
+                for x in 0..w {
+                    let at = (first + y * w + x) as usize;
+                    let block: Vec<usize> = (0..b * b)
+                        .map(|k| ((y * b + k / b) * side + x * b + k % b) as usize)
+                        .filter(|&i| d.color[i][3] >= 128)
+                        .collect();
+                    if level == 0 {
+                        assert_eq!(c.color[at], d.color[at]);
+                        continue;
+                    }
+                    let cov = (255.0 * block.len() as f64 / f64::from(b * b)).round() as u8;
+                    assert_eq!(c.color[at][3], cov, "level {level} ({x}, {y})");
+                    if block.is_empty() {
+                        assert_eq!(
+                            (c.color[at], c.normal[at], c.depth[at]),
+                            ([0; 4], [0; 4], 0)
+                        );
+                        continue;
+                    }
+                    let m = block.len() as f64;
+                    for k in 0..3 {
+                        let lin: f64 = block
+                            .iter()
+                            .map(|&i| {
+                                f64::from(crate::color::srgb_to_linear(
+                                    f32::from(d.color[i][k]) / 255.0,
+                                ))
+                            })
+                            .sum::<f64>()
+                            / m;
+                        let want = crate::color::linear_to_srgb(lin as f32) * 255.0;
+                        assert!((f32::from(c.color[at][k]) - want).abs() <= 0.5 + 1e-3);
+                        let nm: f64 = block
+                            .iter()
+                            .map(|&i| f64::from(d.normal[i][k]) / 255.0 * 2.0 - 1.0)
+                            .sum::<f64>()
+                            / m;
+                        let want = (nm * 0.5 + 0.5) * 255.0;
+                        assert!((f64::from(c.normal[at][k]) - want).abs() <= 0.5 + 1e-9);
+                    }
+                    let nearest = block.iter().map(|&i| d.depth[i]).min().unwrap();
+                    assert_eq!(c.depth[at], nearest);
+                    // The material is one of the block's.
+                    assert!(block.iter().any(|&i| d.normal[i][3] == c.normal[at][3]));
+                }
+            }
+        }
     }
 }

@@ -622,7 +622,7 @@ impl Pipelines {
             },
         );
         let impostor = super::impostor::ImpostorPipeline::new(
-            device, &l.globals, &l.shadow, &l.ambient, samples,
+            device, &l.globals, &l.shadow, &l.ambient, samples, backend,
         );
         let skeleton = super::skeleton::SkeletonPipeline::new(
             device, &l.globals, &l.shadow, &l.ambient, samples,

@@ -253,7 +253,7 @@ impl Uploader<'_> {
     /// A processed texture with its whole mip chain (the section's texels level by level, in
     /// `format` of `texel_bytes` per texel), sampled trilinear: colour maps as `Rgba16Float`,
     /// normal maps as `Rgba8Unorm` (the alpha, |n̄|, filtered like the rest).
-    fn mips<T: Pod>(
+    pub(super) fn mips<T: Pod>(
         &mut self,
         label: &str,
         mips: &super::scene::Mips<T>,

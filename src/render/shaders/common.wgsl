@@ -75,3 +75,70 @@ fn facing_normal(n_in: vec3<f32>, world: vec3<f32>) -> vec3<f32> {
     }
     return n;
 }
+
+// Alpha coverage as samples (src/render/coverage.rs; the mesh and impostor passes).
+
+// Coverage by sample mask (set by the pipeline under 4× MSAA, src/render/pipelines.rs), in the
+// mesh and impostor passes: the mesh's alpha test at 0.5 becomes a ramp one pixel wide across the alpha edge, blended towards the
+// level-0 coverage far away, and each sample is kept where that coverage reaches the sample's
+// threshold (`sample_threshold`); the shader writes the mask. Without it the test is a hard
+// discard against the pixel's threshold.
+override SAMPLE_MASK: bool = false;
+
+// The threshold of sample k of 4 in a pixel of dither threshold d: d + k/4 modulo 1
+// (src/render/coverage.rs `sample_threshold`; multiples of 1/32, exact).
+fn sample_threshold(d: f32, k: u32) -> f32 {
+    let x = d + f32(k) * 0.25;
+    return select(x, x - 1.0, x >= 1.0);
+}
+
+// A shaded fragment: its colour and the samples it keeps.
+struct Shaded {
+    color: vec4<f32>,
+    mask: u32,
+};
+
+// The scene pass' fragment where the backend writes the sample mask.
+struct MaskedFragment {
+    @location(0) color: vec4<f32>,
+    @builtin(sample_mask) mask: u32,
+};
+
+// The samples of 4 a fragment of coverage c keeps in a pixel of dither threshold d.
+fn sample_mask_of(c: f32, d: f32) -> u32 {
+    var mask = 0u;
+    for (var k = 0u; k < 4u; k++) {
+        if (c >= sample_threshold(d, k)) {
+            mask = mask | (1u << k);
+        }
+    }
+    return mask;
+}
+
+// The 4×4 ordered-dither threshold of a pixel, (index + 0.5)/16.
+fn bayer4(p: vec2<f32>) -> f32 {
+    let m = array<u32, 16>(0u, 8u, 2u, 10u, 12u, 4u, 14u, 6u, 3u, 11u, 1u, 9u, 15u, 7u, 13u, 5u);
+    let x = u32(p.x) & 3u;
+    let y = u32(p.y) & 3u;
+    return (f32(m[y * 4u + x]) + 0.5) / 16.0;
+}
+
+// Wellons' lowbias32 integer hash (src/render/coverage.rs `lowbias32`).
+fn lowbias32(v: u32) -> u32 {
+    var x = v;
+    x = x ^ (x >> 16u);
+    x = x * 0x7feb352du;
+    x = x ^ (x >> 15u);
+    x = x * 0x846ca68bu;
+    return x ^ (x >> 16u);
+}
+
+// The dither threshold of the fragment at `world`: the pixel's, shifted by k/16 (modulo 1) with
+// k hashed from its 2 cm slab of distance to the eye, so far cards behind each other pass
+// independent shares of the pixels (src/render/coverage.rs `layer_dither`).
+fn layer_dither(p: vec2<f32>, world: vec3<f32>) -> f32 {
+    let slab = u32(floor(max(distance(globals.eye.xyz, world), 0.0) * 50.0));
+    let k = lowbias32(slab) >> 28u;
+    let x = bayer4(p) + f32(k) / 16.0;
+    return select(x, x - 1.0, x >= 1.0);
+}

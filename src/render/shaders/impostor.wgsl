@@ -269,15 +269,35 @@ fn impostor_vertex(v: ImpostorIn, w_world: vec3<f32>) -> ImpostorOut {
 // The atlas texel of a quad fragment: texel (c, r) of its tile, as lod/impostor.rs
 // `texel_ray` (s = 2(c + ½)/tile − 1, t = 1 − 2(r + ½)/tile), nearest.
 fn atlas_texel(in: ImpostorOut) -> vec2<i32> {
+    return atlas_texel_at(in, in.st);
+}
+
+// The atlas texel of the quad's point `st` in the fragment's tile.
+fn atlas_texel_at(in: ImpostorOut, st: vec2<f32>) -> vec2<i32> {
     let tile = impostor.grid_tile.y;
-    let fc = clamp(floor((in.st.x * 0.5 + 0.5) * f32(tile)), 0.0, f32(tile - 1u));
-    let fr = clamp(floor((0.5 - in.st.y * 0.5) * f32(tile)), 0.0, f32(tile - 1u));
+    let fc = clamp(floor((st.x * 0.5 + 0.5) * f32(tile)), 0.0, f32(tile - 1u));
+    let fr = clamp(floor((0.5 - st.y * 0.5) * f32(tile)), 0.0, f32(tile - 1u));
     return vec2<i32>(in.tile * tile + vec2<u32>(u32(fc), u32(fr)));
+}
+
+// The atlas level of the fragment's footprint (src/render/coverage.rs, impostors): log₂ of its
+// larger side in level-0 texels, rounded, within the chains (src/render/impostor.rs
+// `atlas_chains`: a level-L texel is the 2^L-wide block below it, its alpha the block's
+// coverage). `dx`, `dy`: the derivatives of `st`.
+fn atlas_level(dx: vec2<f32>, dy: vec2<f32>) -> u32 {
+    let rho = max(length(dx), length(dy)) * 0.5 * f32(impostor.grid_tile.y);
+    let top = f32(textureNumLevels(atlas_color) - 1u);
+    return u32(clamp(round(log2(max(rho, 1e-8))), 0.0, top));
 }
 
 // The depth atlas' offset δ = (centre − x)·w of the surface behind a fragment.
 fn atlas_delta(in: ImpostorOut, px: vec2<i32>) -> f32 {
-    return (textureLoad(atlas_depth, px, 0).r * 2.0 - 1.0) * in.radius;
+    return atlas_delta_at(in, px, 0u);
+}
+
+// `atlas_delta` of texel `px` of level `level`.
+fn atlas_delta_at(in: ImpostorOut, px: vec2<i32>, level: u32) -> f32 {
+    return (textureLoad(atlas_depth, px, level).r * 2.0 - 1.0) * in.radius;
 }
 
 // The shadow pass: the same alpha test, the depth of the surface point the depth atlas gives.
@@ -323,14 +343,50 @@ fn impostor_self_visibility(in: ImpostorOut, surface: vec3<f32>, sun_tile: vec2<
     return select(1.0, 0.0, mine > first + tol);
 }
 
+// The irradiance of a block of the atlas whose mean normal is `n` times `spread` (its length,
+// 1 for a texel of level 0): the mean of E over the block's normals, E being linear in the
+// normal but for band 2, is E's even part plus `spread` times its odd part along n (the mean
+// normal renormalized would light a block whose normals spread as if they all faced n).
+fn block_irradiance(in: ImpostorOut, n: vec3<f32>, spread: f32) -> vec3<f32> {
+    let e = impostor_env(in, n, true);
+    let back = impostor_env(in, -n, true);
+    return mix(0.5 * (e + back), e, spread);
+}
+
 @fragment
-fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
-    let px = atlas_texel(in);
-    let texel = textureLoad(atlas_color, px, 0);
-    if (texel.a < 0.5) {
+fn fs_main(in: ImpostorOut) -> MaskedFragment {
+    let f = shade(in);
+    return MaskedFragment(f.color, f.mask);
+}
+
+// Where the backend cannot write the sample mask (GL; mesh.wgsl `fs_main_per_sample`).
+@fragment
+fn fs_main_per_sample(in: ImpostorOut, @builtin(sample_index) k: u32) -> @location(0) vec4<f32> {
+    let f = shade(in);
+    if (((f.mask >> k) & 1u) == 0u) {
         discard;
     }
-    let nt = textureLoad(atlas_normal, px, 0);
+    return f.color;
+}
+
+fn shade(in: ImpostorOut) -> Shaded {
+    // The atlas at the footprint's level: its texel's coverage against the samples'
+    // thresholds (as far leaf cards: the view's coverage over the pixel rather than the one
+    // texel at its centre), its mean colour, normal and depth for the light.
+    let level = atlas_level(dpdx(in.st), dpdy(in.st));
+    let px = atlas_texel(in) >> vec2<u32>(level);
+    let texel = textureLoad(atlas_color, px, level);
+    let d = layer_dither(in.position.xy, in.world);
+    var mask = 0xffffffffu;
+    if (SAMPLE_MASK) {
+        mask = sample_mask_of(texel.a, d);
+        if (mask == 0u || texel.a <= 0.0) {
+            discard;
+        }
+    } else if (texel.a < d || texel.a <= 0.0) {
+        discard;
+    }
+    let nt = textureLoad(atlas_normal, px, level);
     let k = u32(round(nt.a * 255.0));
     if (region_pass()) {
         // The texel's material names its region (a trunk is opaque, its crown leaves), as the
@@ -339,14 +395,16 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
         if (k < impostor_materials.count.x) {
             leaves = impostor_materials.m[k].record[5].w != 0.0;
         }
-        return vec4<f32>(model_region(leaves), 1.0);
+        return Shaded(vec4<f32>(model_region(leaves), 1.0), mask);
     }
     let nm = nt.xyz * 2.0 - 1.0;
+    // Past level 0 the normal is the block's mean, shorter where its normals spread.
+    let spread = select(1.0, clamp(length(nm), 0.0, 1.0), level > 0u);
     let c = in.rot.x;
     let s = in.rot.y;
     let n_world = vec3<f32>(c * nm.x - s * nm.y, s * nm.x + c * nm.y, nm.z);
     // The surface point: depth code d = 255 (δ + r)/(2r), δ = (centre − x)·w.
-    let delta = atlas_delta(in, px);
+    let delta = atlas_delta_at(in, px, level);
     let surface = in.world - in.view_dir * delta;
     let n = facing_normal(n_world, surface);
     let albedo = texel.rgb;
@@ -377,13 +435,13 @@ fn fs_main(in: ImpostorOut) -> @location(0) vec4<f32> {
         m.bottom.color = vec3<f32>(1.0);
         let wo = normalize(globals.eye.xyz - surface);
         let direct = direct_schlick(m, albedo, n, any_tangent(n), n, lit_at) * self_vis;
-        let e_seen = max(impostor_env(in, n, true), vec3<f32>(0.0)) / PI;
-        let e_other = max(impostor_env(in, -n, true), vec3<f32>(0.0)) / PI;
+        let e_seen = max(block_irradiance(in, n, spread), vec3<f32>(0.0)) / PI;
+        let e_other = max(block_irradiance(in, -n, spread), vec3<f32>(0.0)) / PI;
         let l_r = impostor_env(in, 2.0 * dot(n, wo) * n - wo, false);
         let amb = ambient_layered(m, dot(n, wo), albedo, e_seen, e_other, l_r) * ambient.scale.x;
-        return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
+        return Shaded(vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0), mask);
     }
     let direct = direct_lambert(albedo, n, lit_at) * self_vis;
-    let amb = albedo * max(impostor_env(in, n, true), vec3<f32>(0.0)) / PI * ambient.scale.x;
-    return vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0);
+    let amb = albedo * max(block_irradiance(in, n, spread), vec3<f32>(0.0)) / PI * ambient.scale.x;
+    return Shaded(vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0), mask);
 }
