@@ -1,9 +1,11 @@
 // First hit of a batch of world rays in the two-level SVO (the `svo-scene` section's arrays bound
 // as they are; src/voxel/instanced.rs): the terrain's octree, then a DDA over the top grid whose
 // cells list instances; each instance's octree is traced on the ray moved into its voxel units,
-// operation for operation as InstancedSvo::trace (an instance listed in several cells is traced
-// again, with the same answer, where the CPU remembers it). Output per ray: two vec4<u32>:
-// (instance, i, j, k) and (bits of t, 0, 0, 0); instance all ones on a miss.
+// operation for operation as InstancedSvo::trace_lod (an instance listed in several cells is
+// traced again, with the same answer, where the CPU remembers it). With a cone > 0 a top cell or
+// sub-cell no wider than cone·t where the walk enters it, whose aggregate covers enough, ends the
+// walk (InstancedSvo::region_stop). Output per ray: two vec4<u32>: (instance, i, j, k) and
+// (bits of t, 0, 0, 0); instance all ones on a miss; on an aggregate (AGG, attribute, level, 0).
 // Prepended: dda.wgsl and svo_common.wgsl.
 
 struct Params {
@@ -16,6 +18,12 @@ struct Params {
     terrain: u32,
     // Index of cell_instances' first element in `cells` (cell count + 1).
     list_base: u32,
+    // Footprint per unit t (world units); 0: never stop on an aggregate.
+    cone: f32,
+    // Index in `cells` of top_nodes (4 words per cell) and of top_colors.
+    node_base: u32,
+    color_base: u32,
+    pad: u32,
 }
 
 struct Model {
@@ -51,13 +59,53 @@ struct GpuRay {
 @group(0) @binding(2) var<storage, read> leaves: array<u32>;
 @group(0) @binding(3) var<storage, read> models: array<Model>;
 @group(0) @binding(4) var<storage, read> insts: array<Inst>;
-// cell_start (cells + 1), then cell_instances.
+// cell_start (cells + 1), cell_instances, top_nodes (4 per cell), top_colors.
 @group(0) @binding(5) var<storage, read> cells: array<u32>;
 @group(0) @binding(6) var<storage, read> rays: array<GpuRay>;
 @group(0) @binding(7) var<storage, read_write> hits: array<vec4<u32>>;
 
 const MAX_INNER: u32 = 10u;
 const MISS: vec4<u32> = vec4<u32>(0xffffffffu);
+const AGG: u32 = 0xfffffffeu;
+// lod_trace::MIN_STOP_ALPHA.
+const MIN_STOP_ALPHA: u32 = 16u;
+
+fn can_stop(c: u32) -> bool {
+    return (c >> 24u) >= MIN_STOP_ALPHA;
+}
+
+// InstancedSvo::region_stop: (attribute, level, bits of t, 1) of the region of top cell `c`
+// (corner cc, entered at tc, left at exit) that ends the walk, or w = 0.
+fn region_stop(o: vec3<f32>, d: vec3<f32>, c: u32, cc: vec3<f32>, tc: f32, exit: f32, t0: f32, t1: f32, cone: f32) -> vec4<u32> {
+    let side = params.top_cell;
+    if (side <= cone * tc && can_stop(cells[params.color_base + c])) {
+        return vec4<u32>(c, 0u, bitcast<u32>(tc), 1u);
+    }
+    let nb = params.node_base + 4u * c;
+    let mask = vec2<u32>(cells[nb], cells[nb + 1u]);
+    let sub = side / 4.0;
+    if ((mask.x | mask.y) == 0u || sub > cone * min(exit, t1)) {
+        return vec4<u32>(0u);
+    }
+    let q = 0.25;
+    let top_cells = params.top_dims.x * params.top_dims.y * params.top_dims.z;
+    var dd = dda_new(o, d, cc, q, vec3<i32>(4), tc);
+    loop {
+        let s = slot_of(dd.c);
+        if (mask_bit(mask, s)) {
+            let lo = cc + vec3<f32>(dd.c) * q;
+            let ts = max(box_interval(o, d, lo, lo + vec3<f32>(q)).x, t0);
+            let attr = top_cells + cells[nb + 2u] + count_below(mask, s);
+            if (ts <= t1 && sub <= cone * ts && can_stop(cells[params.color_base + attr])) {
+                return vec4<u32>(attr, 1u, bitcast<u32>(ts), 1u);
+            }
+        }
+        if (dda_exit(dd) > t1 || !dda_advance(&dd, 4)) {
+            return vec4<u32>(0u);
+        }
+    }
+    return vec4<u32>(0u);
+}
 
 fn trace_brick(r: GpuRay, mask: vec2<u32>, base: vec3<f32>, t0: f32, t1: f32, dims: vec3<u32>) -> vec4<u32> {
     var dda = dda_new(r.origin, r.dir, base, 1.0, vec3<i32>(4), t0);
@@ -180,11 +228,21 @@ fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
         let k = max(max(n.x, n.y), n.z);
         loop {
             let ci = u32(dda.c.x) + params.top_dims.x * (u32(dda.c.y) + params.top_dims.y * u32(dda.c.z));
+            let exit0 = dda_exit(dda);
+            var stop = vec4<u32>(0u);
+            if (params.cone > 0.0) {
+                let cc = vec3<f32>(dda.c);
+                let tc = max(box_interval(o, d, cc, cc + vec3<f32>(1.0)).x, t0);
+                stop = region_stop(o, d, ci, cc, tc, exit0, t0, t1, params.cone);
+            }
             for (var e = cells[ci]; e < cells[ci + 1u]; e++) {
                 let i = cells[params.list_base + e];
                 var cap = w.t_max;
                 if (best_i != 0xffffffffu) {
                     cap = bitcast<f32>(best.w);
+                }
+                if (stop.w == 1u) {
+                    cap = min(cap, bitcast<f32>(stop.z));
                 }
                 let h = trace_instance(i, w.origin, w.dir, w.t_min, cap);
                 if (h.x != 0xffffffffu) {
@@ -195,6 +253,15 @@ fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
                         best_i = i;
                     }
                 }
+            }
+            if (stop.w == 1u) {
+                if (best_i == 0xffffffffu || bitcast<f32>(best.w) > bitcast<f32>(stop.z)) {
+                    var agg: array<vec4<u32>, 2>;
+                    agg[0] = vec4<u32>(AGG, stop.x, stop.y, 0u);
+                    agg[1] = vec4<u32>(stop.z, 0u, 0u, 0u);
+                    return agg;
+                }
+                break;
             }
             let exit = dda_exit(dda);
             if ((best_i != 0xffffffffu && bitcast<f32>(best.w) < exit) || exit > t1) {
