@@ -474,8 +474,8 @@ fn oracle_region(top: &TopGrid, p: [f32; 3]) -> (usize, u32) {
         + top.dims[0] as usize * (c[1] as usize + top.dims[1] as usize * c[2] as usize);
     let mut s = 0;
     for bit in 0..2 {
-        for k in 0..3 {
-            s |= (sub[k] >> bit & 1) << (3 * bit + k as u32);
+        for (k, v) in sub.iter().enumerate() {
+            s |= (v >> bit & 1) << (3 * bit + k as u32);
         }
     }
     (cell, s)
