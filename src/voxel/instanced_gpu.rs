@@ -5,7 +5,7 @@
 //! compares it with the CPU on random world rays.
 
 use super::compute::{self, Kernel};
-use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, t_off};
+use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, SVO_WALK_WGSL, t_off};
 use super::instanced::{AggregateHit, InstanceHit, InstancedSvo, SceneHit};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
@@ -130,7 +130,7 @@ pub fn trace_gpu(
     let kernel = Kernel::new(
         gpu,
         "svo-scene trace",
-        &[DDA_WGSL, SVO_COMMON_WGSL, SCENE_WGSL],
+        &[DDA_WGSL, SVO_COMMON_WGSL, SVO_WALK_WGSL, SCENE_WGSL],
         "main",
         6,
     )?;

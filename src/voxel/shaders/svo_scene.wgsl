@@ -6,7 +6,8 @@
 // sub-cell no wider than cone·t where the walk enters it, whose aggregate covers enough, ends the
 // walk (InstancedSvo::region_stop). Output per ray: two vec4<u32>: (instance, i, j, k) and
 // (bits of t, 0, 0, 0); instance all ones on a miss; on an aggregate (AGG, attribute, level, 0).
-// Prepended: dda.wgsl and svo_common.wgsl.
+// Each model's octree is walked by svo_walk.wgsl. Prepended: dda.wgsl, svo_common.wgsl and
+// svo_walk.wgsl.
 
 struct Params {
     top_origin: vec3<f32>,
@@ -64,8 +65,6 @@ struct GpuRay {
 @group(0) @binding(6) var<storage, read> rays: array<GpuRay>;
 @group(0) @binding(7) var<storage, read_write> hits: array<vec4<u32>>;
 
-const MAX_INNER: u32 = 10u;
-const MISS: vec4<u32> = vec4<u32>(0xffffffffu);
 const AGG: u32 = 0xfffffffeu;
 // lod_trace::MIN_STOP_ALPHA.
 const MIN_STOP_ALPHA: u32 = 16u;
@@ -107,88 +106,6 @@ fn region_stop(o: vec3<f32>, d: vec3<f32>, c: u32, cc: vec3<f32>, tc: f32, exit:
     return vec4<u32>(0u);
 }
 
-fn trace_brick(r: GpuRay, mask: vec2<u32>, base: vec3<f32>, t0: f32, t1: f32, dims: vec3<u32>) -> vec4<u32> {
-    var dda = dda_new(r.origin, r.dir, base, 1.0, vec3<i32>(4), t0);
-    loop {
-        if (mask_bit(mask, slot_of(dda.c))) {
-            let vi = vec3<i32>(base) + dda.c;
-            let v = vec3<u32>(vi);
-            if (all(v < dims)) {
-                return vec4<u32>(v, bitcast<u32>(voxel_entry_t(r.origin, r.dir, r.t_min, v)));
-            }
-        }
-        if (dda_exit(dda) > t1 || !dda_advance(&dda, 4)) {
-            return MISS;
-        }
-    }
-    return MISS;
-}
-
-// svo_trace.wgsl's trace on model m (its nodes from m.first_node, its bytes from m.first_leaf).
-fn trace_model(m: Model, r: GpuRay) -> vec4<u32> {
-    let iv = box_interval(r.origin, r.dir, vec3<f32>(0.0), vec3<f32>(m.dims));
-    let t0 = max(iv.x, r.t_min);
-    let t1 = min(iv.y, r.t_max);
-    if (t0 > t1) {
-        return MISS;
-    }
-    var node: array<u32, MAX_INNER>;
-    var base: array<vec3<f32>, MAX_INNER>;
-    var cell: array<f32, MAX_INNER>;
-    var t: array<f32, MAX_INNER>;
-    var t_end: array<f32, MAX_INNER>;
-    var dda: array<Dda, MAX_INNER>;
-    var lv = 0u;
-    node[0] = 0u;
-    base[0] = vec3<f32>(0.0);
-    cell[0] = m.side / 4.0;
-    t[0] = t0;
-    t_end[0] = t1;
-    dda[0] = dda_new(r.origin, r.dir, base[0], cell[0], vec3<i32>(4), t0);
-    loop {
-        let nd = nodes[m.first_node + node[lv]];
-        let s = slot_of(dda[lv].c);
-        let exit = min(dda_exit(dda[lv]), t_end[lv]);
-        if (mask_bit(nd.xy, s)) {
-            let below = count_below(nd.xy, s);
-            let child = nd.z + below;
-            let cbase = base[lv] + vec3<f32>(dda[lv].c) * cell[lv];
-            if (lv + 1u == m.inner_levels) {
-                let h = trace_brick(r, brick_mask(m.first_leaf + nd.z, below), cbase, t[lv], exit, m.dims);
-                if (h.x != 0xffffffffu) {
-                    return h;
-                }
-            } else {
-                let c = cell[lv] / 4.0;
-                node[lv + 1u] = child;
-                base[lv + 1u] = cbase;
-                cell[lv + 1u] = c;
-                t[lv + 1u] = t[lv];
-                t_end[lv + 1u] = exit;
-                dda[lv + 1u] = dda_new(r.origin, r.dir, cbase, c, vec3<i32>(4), t[lv]);
-                lv += 1u;
-                continue;
-            }
-        }
-        loop {
-            var d = dda[lv];
-            let e = dda_exit(d);
-            let ex = min(e, t_end[lv]);
-            if (e > t_end[lv] || !dda_advance(&d, 4)) {
-                if (lv == 0u) {
-                    return MISS;
-                }
-                lv -= 1u;
-                continue;
-            }
-            dda[lv] = d;
-            t[lv] = ex;
-            break;
-        }
-    }
-    return MISS;
-}
-
 // InstancedSvo::ray_in + trace_instance: (voxel, t bits) or MISS.
 fn trace_instance(i: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> vec4<u32> {
     let inst = insts[i];
@@ -203,7 +120,7 @@ fn trace_instance(i: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> vec4<
     r.dir = dm / (inst.scale * m.voxel_size);
     r.t_min = t0;
     r.t_max = t1;
-    return trace_model(m, r);
+    return svo_walk(r, m.dims, m.side, m.inner_levels, m.first_node, m.first_leaf);
 }
 
 fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
