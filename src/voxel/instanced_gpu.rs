@@ -343,6 +343,15 @@ mod tests {
     use crate::gpu::{BackendChoice, init_gpu};
 
     #[test]
+    fn the_shader_has_the_cpu_coverage_floor() {
+        let line = format!(
+            "const MIN_STOP_ALPHA: u32 = {}u;",
+            crate::voxel::lod_trace::MIN_STOP_ALPHA
+        );
+        assert!(SCENE_WGSL.contains(&line), "svo_scene.wgsl: {line}");
+    }
+
+    #[test]
     fn gpu_two_level_traversal_equals_cpu() {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
         let s = super::super::instanced::tests::test_scene(64);

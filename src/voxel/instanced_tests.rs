@@ -640,6 +640,22 @@ fn a_solid_box_fills_its_cells_with_its_colour() {
     let grid_vol = (0..3)
         .map(|k| g.dims[k] as f64 * g.voxel_size[k] as f64)
         .product::<f64>();
+    // One instance: one top cell, the instance's box grown by 10⁻⁶; its 4³ sub-cells each hold
+    // (dims/4)³ whole voxels of volume v³: coverage 1, and every voxel's colour.
+    assert_eq!(s.top.dims, [1, 1, 1]);
+    assert_eq!(s.aggregates.mask(0), u64::MAX, "every sub-cell occupied");
+    let want = (g.dims[0] as f64 / 4.0).powi(3) * (g.voxel_size[0] as f64).powi(3) / sub_vol;
+    assert!((want - 1.0).abs() < 1e-4, "{want}");
+    let voxel = s.models[0].svo.voxel_colors[0];
+    assert!(
+        s.models[0].svo.voxel_colors.iter().all(|&c| c == voxel),
+        "one colour"
+    );
+    for e in 0..65 {
+        let c = s.aggregates.colors[e];
+        assert_eq!(c >> 24, 255, "entry {e}: full coverage");
+        assert_eq!(c, voxel, "entry {e}: the voxels' colour");
+    }
     assert!(
         (covered - grid_vol).abs() <= grid_vol * 0.02,
         "covered {covered} m³ of {grid_vol}"
