@@ -824,3 +824,48 @@ fn the_section_is_byte_identical_on_one_and_two_threads() {
     let (one, two) = (bytes(1), bytes(2));
     assert!(one == two, "1 and 2 threads differ");
 }
+
+/// A version 1 section (metadata ending at `solid`, no `top_*` arrays) is refused with a
+/// message that names it and says to rebuild, not a decoding error.
+#[test]
+fn a_version_1_section_is_refused_with_a_message_to_rebuild() {
+    use super::super::instanced_section::{SvoSceneModel, from_section, to_section};
+    #[derive(serde::Serialize, serde::Deserialize)]
+    struct V1 {
+        source: String,
+        scene_grid: Grid,
+        models: Vec<SvoSceneModel>,
+        terrain: bool,
+        top: TopGrid,
+        solid: bool,
+    }
+    let two = test_scene(32);
+    let now = to_section("svo-scene", "scene:x.eco", &two, false);
+    let view = crate::pack::section::SectionView::parse(&now.payload, 0).unwrap();
+    let (meta, _) = from_section(&view).unwrap();
+    let old = V1 {
+        source: meta.source,
+        scene_grid: meta.scene_grid,
+        models: meta.models,
+        terrain: meta.terrain,
+        top: meta.top,
+        solid: meta.solid,
+    };
+    let mut b = crate::pack::SectionBuilder::new("svo-scene", "svo-scene");
+    b.meta(&old);
+    for name in [
+        "voxel_colors",
+        "voxel_normals",
+        "node_colors",
+        "node_normals",
+        "cell_start",
+        "cell_instances",
+    ] {
+        let a: Vec<u32> = view.array_vec(name).unwrap();
+        b.array(name, crate::pack::ArrayFormat::U32, 1, &a);
+    }
+    let sec = b.finish();
+    let v = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
+    let e = from_section(&v).unwrap_err().to_string();
+    assert!(e.contains("version 1") && e.contains("rebuild"), "{e}");
+}
