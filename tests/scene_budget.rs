@@ -227,6 +227,36 @@ fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
     );
     assert_eq!(r["reference"]["rays_disagree"], 0, "{r}");
     assert_eq!(r["reference"]["mad"], 0.0, "{r}");
+    // The validation's LOD batch stops on the top level's aggregates, GPU = CPU.
+    assert!(
+        v["svo_scene"]["lod"]["aggregate_hits"].as_u64().unwrap() > 30,
+        "{v}"
+    );
+    // With a wide cone the view reads the aggregates (top cells or sub-cells), GPU = CPU; with
+    // cone 0 only voxels.
+    for (scale, aggregates) in [("40", true), ("0", false)] {
+        let r = common::json(&common::bake(&[
+            "render",
+            two_out.to_str().unwrap(),
+            "--view",
+            "svo",
+            "--svo-lod-scale",
+            scale,
+            "-o",
+            img.to_str().unwrap(),
+            "--reference",
+            reference.to_str().unwrap(),
+            "--width",
+            "96",
+            "--height",
+            "64",
+            "--json",
+        ]));
+        let on_aggregates = r["svo_scene"]["cell_hits"].as_u64().unwrap()
+            + r["svo_scene"]["sub_cell_hits"].as_u64().unwrap();
+        assert_eq!(on_aggregates > 20, aggregates, "scale {scale}: {r}");
+        assert_eq!(r["reference"]["rays_disagree"], 0, "{r}");
+    }
 
     // The graph makes the same choice.
     let g = graph_bake(

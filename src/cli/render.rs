@@ -304,7 +304,7 @@ fn run_svo(args: &RenderArgs, pack: &Pack, opts: &RenderOptions) -> Result<Outco
         lod_scale: args.svo_lod_scale,
     };
     if pack.of_kind(crate::voxel::section::KIND).next().is_none()
-        && let Some(v) = svo_view::prepare_scene_view(pack, opts, args.svo_show)?
+        && let Some(v) = svo_view::prepare_scene_view(pack, opts, view)?
     {
         return run_svo_scene(args, &v);
     }
@@ -362,32 +362,52 @@ fn run_svo(args: &RenderArgs, pack: &Pack, opts: &RenderOptions) -> Result<Outco
     })
 }
 
-/// `--view svo` of a pack whose voxels are the two-level `svo-scene` section: its voxels
-/// (no LOD yet, `--svo-lod-scale` is not read), the GPU's traversal, with `--reference` the
-/// CPU's on the same rays and how many answers differ.
+/// `--view svo` of a pack whose voxels are the two-level `svo-scene` section: the GPU's LOD
+/// walk (the top level's aggregates where a region is no wider than the pixel's footprint,
+/// `--svo-lod-scale` scaling the cone; 0: the voxels), with `--reference` the CPU's on the same
+/// rays and how many answers differ.
 fn run_svo_scene(args: &RenderArgs, v: &svo_view::SceneView) -> Result<Outcome> {
+    use crate::voxel::instanced::SceneHit;
     let gpu = crate::gpu::init_gpu(args.backend)?;
     let t0 = std::time::Instant::now();
-    let hits = crate::voxel::instanced_gpu::trace_gpu(&gpu, &v.scene, &v.rays)?;
+    let hits = crate::voxel::instanced_gpu::trace_gpu(&gpu, &v.scene, &v.rays, v.cone)?;
     let seconds = t0.elapsed().as_secs_f64();
     let image = svo_view::shade_scene(v, &hits);
     crate::pack::write_atomic(&args.output, &encode_png(&image)?)?;
-    let hit_count = hits.iter().filter(|h| h.is_some()).count();
+    let count = |level: Option<u32>| {
+        hits.iter()
+            .filter(|h| match (h, level) {
+                (Some(SceneHit::Voxel(_)), None) => true,
+                (Some(SceneHit::Aggregate(a)), Some(l)) => a.level == l,
+                _ => false,
+            })
+            .count()
+    };
+    let (voxel_hits, cell_hits, sub_hits) = (count(None), count(Some(0)), count(Some(1)));
+    let hit_count = voxel_hits + cell_hits + sub_hits;
     let mut text = format!(
-        "{}: svo-scene view (two-level, voxels) {}×{} on {}, {} of {} pixels hit, {:.3} s\n",
+        "{}: svo-scene view (two-level) {}×{} on {}, lod scale {}, {} of {} pixels hit ({} on top cells, {} on sub-cells, {} on voxels), {:.3} s\n",
         args.output.display(),
         v.size.0,
         v.size.1,
         gpu.adapter,
+        args.svo_lod_scale,
         hit_count,
         v.rays.len(),
+        cell_hits,
+        sub_hits,
+        voxel_hits,
         seconds
     );
     let mut json = serde_json::json!({
         "output": args.output,
         "adapter": gpu.adapter,
         "seconds": seconds,
-        "svo_scene": { "width": v.size.0, "height": v.size.1, "hits": hit_count, "show": v.show },
+        "svo_scene": {
+            "width": v.size.0, "height": v.size.1, "hits": hit_count, "show": v.show,
+            "lod_scale": args.svo_lod_scale, "cone": v.cone,
+            "cell_hits": cell_hits, "sub_cell_hits": sub_hits, "voxel_hits": voxel_hits,
+        },
     });
     if let Some(path) = &args.reference {
         let t0 = std::time::Instant::now();
@@ -397,7 +417,11 @@ fn run_svo_scene(args: &RenderArgs, v: &svo_view::SceneView) -> Result<Outcome> 
         crate::pack::write_atomic(path, &encode_png(&reference)?)?;
         let d = crate::render::reference::image_difference(&image, &reference, REFERENCE_THRESHOLD)
             .ok_or_else(|| crate::error::Error::runtime("reference image has another size"))?;
-        let disagree = hits.iter().zip(&cpu).filter(|(g, c)| g != c).count();
+        let disagree = hits
+            .iter()
+            .zip(&cpu)
+            .filter(|(g, c)| !crate::voxel::instanced_gpu::same_scene_hit(g, c))
+            .count();
         text += &format!(
             "{}: CPU traversal, {:.3} s; mean absolute difference {:.2}/255; {} of {} rays disagree\n",
             path.display(),

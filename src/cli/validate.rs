@@ -151,6 +151,15 @@ pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
             "svo-scene: {} rays, {} hits ({} on instances), {} voxel mismatches, {} t mismatches (max |Δt| {:.2e})\n",
             a.rays, a.hits, a.instance_hits, a.voxel_mismatches, a.t_mismatches, a.max_t_error
         );
+        text += &format!(
+            "svo-scene lod (cone {:.4}): {} rays, {} hits ({} on top-level aggregates), {} disagree (at most {} of the rays may)\n",
+            a.lod.cone,
+            a.lod.rays,
+            a.lod.hits,
+            a.lod.aggregate_hits,
+            a.lod.mismatches,
+            crate::voxel::lod_gpu::LOD_MISMATCH_FRACTION
+        );
         json["svo_scene"] = json!(a);
         json["svo_scene"]["agree"] = json!(a.agrees());
     }

@@ -102,7 +102,9 @@ pub mod versions {
     /// 3: per-instance residuals within the leaf cell (`residual`, issue 35).
     pub const BITTREE: u32 = 3;
     /// 2: voxel colours from the linear albedo (issue 35).
-    pub const SVO: u32 = 2;
+    /// 3: the two-level `svo-scene` section's top level carries filtered attributes (section
+    /// version 2, issue 39).
+    pub const SVO: u32 = 3;
     /// 2: the compact section layout (issue 15).
     pub const LINESPACE: u32 = 2;
 

@@ -313,6 +313,9 @@ pub const KINDS: &[SectionKind] = &[
             ("instances", &[U32], 8),
             ("cell_start", &[U32], 1),
             ("cell_instances", &[U32], 1),
+            ("top_nodes", &[U32], 4),
+            ("top_colors", &[U32], 1),
+            ("top_normals", &[U32], 1),
         ],
         decode: |v| crate::voxel::instanced_section::from_section(v).map(drop),
         views: Some((

@@ -22,6 +22,7 @@ use crate::error::{Error, Result};
 use crate::model::Rgba8Image;
 use crate::pack::Pack;
 use crate::voxel::Grid;
+use crate::voxel::instanced::SceneHit;
 use crate::voxel::lod_trace::{LodHit, trace_lod};
 use crate::voxel::svo::Svo;
 use crate::voxel::traverse::VoxelRay;
@@ -310,11 +311,15 @@ pub fn render_svo(scene: &SvoScene, backend: super::BackendChoice) -> Result<Svo
     })
 }
 
-/// The two-level `svo-scene` section of a pack drawn at its voxels (no filtered top level yet,
-/// so no LOD): one world ray per pixel centre from the camera framing the scene grid, traced on
-/// the GPU (`voxel::instanced_gpu`) or the CPU (`InstancedSvo::trace`), shaded as [`shade`]
-/// shades a voxel (colour and normal of the hit voxel, the normal turned by the instance's
-/// rotation; `level` shows the voxel level of its model).
+/// The two-level `svo-scene` section of a pack: one world ray per pixel centre from the camera
+/// framing the scene grid, walked with the pixel's cone ([`pixel_cone`] × `--svo-lod-scale`, in
+/// metres per metre: the rays' directions are unit vectors) on the GPU
+/// (`voxel::instanced_gpu`) or the CPU (`InstancedSvo::trace_lod`): a top cell or sub-cell no
+/// wider than the footprint where the ray enters it ends the walk on its filtered aggregate,
+/// nearer ones descend into their instances' voxels. Shaded as [`shade`] shades a cell: an
+/// aggregate's colour un-premultiplied and its world normal; a voxel's colour and its normal
+/// turned by the instance's rotation; `level` shows 0 for a top cell, 1 for a sub-cell and the
+/// model's voxel level (its octree's `levels`, at least 2) for a voxel.
 pub struct SceneView {
     pub scene: crate::voxel::instanced::InstancedSvo,
     pub camera: Camera,
@@ -322,14 +327,22 @@ pub struct SceneView {
     pub light: [f32; 3],
     pub size: (u32, u32),
     pub show: SvoShow,
+    /// Footprint per metre along a ray, in metres (0: the voxels).
+    pub cone: f32,
 }
 
 /// The `svo-scene` section of `pack` and the view of `opts` over it, or None without one.
 pub fn prepare_scene_view(
     pack: &Pack,
     opts: &super::RenderOptions,
-    show: SvoShow,
+    view: SvoViewOptions,
 ) -> Result<Option<SceneView>> {
+    if !(view.lod_scale >= 0.0 && view.lod_scale.is_finite()) {
+        return Err(Error::usage(format!(
+            "svo lod scale {} must be 0 or more",
+            view.lod_scale
+        )));
+    }
     let Some(e) = pack.of_kind(crate::voxel::instanced_section::KIND).next() else {
         return Ok(None);
     };
@@ -357,48 +370,59 @@ pub fn prepare_scene_view(
         .to_array();
     Ok(Some(SceneView {
         scene,
+        cone: pixel_cone(&camera, h, view.lod_scale),
         camera,
         rays,
         light,
         size: (w, h),
-        show,
+        show: view.show,
     }))
 }
 
 /// The CPU's answers of a [`SceneView`].
-pub fn trace_scene_cpu(v: &SceneView) -> Vec<Option<crate::voxel::instanced::InstanceHit>> {
+pub fn trace_scene_cpu(v: &SceneView) -> Vec<Option<SceneHit>> {
     v.rays
         .par_iter()
-        .map(|(o, d, t)| v.scene.trace(*o, *d, *t))
+        .map(|(o, d, t)| v.scene.trace_lod(*o, *d, *t, v.cone))
         .collect()
 }
 
+/// A [`SceneView`] answer as the cell [`shade`] draws (None where a voxel has no attributes).
+pub fn scene_cell(v: &SceneView, hit: &SceneHit) -> Option<LodHit> {
+    use crate::voxel::svo::{pack_normal, pack_rgba8};
+    match hit {
+        SceneHit::Voxel(hit) => {
+            let (c, n) = v.scene.hit_attributes(hit)?;
+            let model = v.scene.instances[hit.instance as usize].model as usize;
+            Some(LodHit {
+                level: v.scene.models[model].svo.levels,
+                cell: hit.voxel,
+                t: hit.t,
+                color: pack_rgba8([c[0] * c[3], c[1] * c[3], c[2] * c[3], c[3]]),
+                normal: pack_normal(n),
+            })
+        }
+        SceneHit::Aggregate(a) => Some(LodHit {
+            level: a.level,
+            cell: [a.attr, 0, 0],
+            t: a.t,
+            color: v.scene.aggregates.colors[a.attr as usize],
+            normal: v.scene.aggregates.normals[a.attr as usize],
+        }),
+    }
+}
+
 /// The image of a [`SceneView`]'s answers.
-pub fn shade_scene(
-    v: &SceneView,
-    hits: &[Option<crate::voxel::instanced::InstanceHit>],
-) -> Rgba8Image {
+pub fn shade_scene(v: &SceneView, hits: &[Option<SceneHit>]) -> Rgba8Image {
     let (w, h) = v.size;
     let pixels = (0..w * h)
         .into_par_iter()
         .map(|i| {
-            let Some(hit) = hits[i as usize] else {
+            let Some(cell) = hits[i as usize].as_ref().and_then(|h| scene_cell(v, h)) else {
                 return BACKGROUND;
-            };
-            let Some((c, n)) = v.scene.hit_attributes(&hit) else {
-                return BACKGROUND;
-            };
-            let model = v.scene.instances[hit.instance as usize].model as usize;
-            let level = v.scene.models[model].svo.levels;
-            let as_hit = LodHit {
-                level,
-                cell: hit.voxel,
-                t: hit.t,
-                color: crate::voxel::svo::pack_rgba8([c[0] * c[3], c[1] * c[3], c[2] * c[3], c[3]]),
-                normal: crate::voxel::svo::pack_normal(n),
             };
             let dir = v.camera.pixel_ray(pixel_centre(i, w), (w, h));
-            shade(Some(&as_hit), v.show, v.light, dir)
+            shade(Some(&cell), v.show, v.light, dir)
         })
         .collect();
     Rgba8Image {

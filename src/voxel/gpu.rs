@@ -13,6 +13,8 @@ use bytemuck::{Pod, Zeroable};
 
 pub(crate) const DDA_WGSL: &str = include_str!("shaders/dda.wgsl");
 pub(crate) const SVO_COMMON_WGSL: &str = include_str!("shaders/svo_common.wgsl");
+/// The octree walk shared by `svo_trace.wgsl` and `svo_scene.wgsl`.
+pub(crate) const SVO_WALK_WGSL: &str = include_str!("shaders/svo_walk.wgsl");
 const SVO_WGSL: &str = include_str!("shaders/svo_trace.wgsl");
 
 /// Tolerance of the hit `t` between GPU and CPU, relative to max(1, |t|): the slab divisions
@@ -92,7 +94,7 @@ impl<'g> SvoGpu<'g> {
             kernel: Kernel::new(
                 gpu,
                 "svo trace",
-                &[DDA_WGSL, SVO_COMMON_WGSL, SVO_WGSL],
+                &[DDA_WGSL, SVO_COMMON_WGSL, SVO_WALK_WGSL, SVO_WGSL],
                 "main",
                 3,
             )?,

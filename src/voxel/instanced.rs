@@ -20,8 +20,9 @@
 
 use super::Grid;
 use super::geometry::Geometry;
+use super::lod_trace::can_stop;
 use super::svo::{Svo, voxels_to_svo};
-use super::traverse::{Dda, VoxelRay, box_interval, trace_svo};
+use super::traverse::{Dda, VoxelRay, box_interval, slot, trace_svo};
 use super::voxelize::{VoxelizeOptions, Voxels, mesh_to_voxels_in};
 use crate::error::{Error, Result};
 use crate::model::{Instance, Terrain};
@@ -147,6 +148,70 @@ pub struct InstancedSvo {
     /// Cell c lists `cell_instances[cell_start[c]..cell_start[c + 1]]` (x fastest, then y, z).
     pub cell_start: Vec<u32>,
     pub cell_instances: Vec<u32>,
+    /// The top level's filtered attributes ([`TopAggregates`]).
+    pub aggregates: TopAggregates,
+}
+
+/// Sub-cells per axis of a top cell (one 4³ node, a 64-bit mask in Morton slot order).
+pub const SUB: u32 = 4;
+
+/// Filtered attributes of the top grid (docs/CONVENTIONS.md, "Instanced SVO"): per top cell the
+/// aggregate of the placed model voxels whose centres fall in it, and per occupied sub-cell of
+/// its 4³ subdivision the same over the sub-cell. Premultiplied RGBA8 colours whose α is the
+/// coverage min(1, Σ (s·v_m)³·α_voxel / volume), octahedral world normals (the coverage- and
+/// volume-weighted sum of the voxels' turned normals). The terrain is not aggregated: its own
+/// octree keeps its filtered parents.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TopAggregates {
+    /// Per top cell: (mask low, mask high, first sub-cell, 0); bit s of the mask: sub-cell at
+    /// Morton slot s holds a voxel centre. Sub-cell s of cell c has attribute
+    /// `cells + first + popcount(mask below s)`.
+    pub nodes: Vec<[u32; 4]>,
+    /// Per top cell, then per occupied sub-cell: RGBA8 linear premultiplied.
+    pub colors: Vec<u32>,
+    /// The same entries: octahedral world normal (0: none).
+    pub normals: Vec<u32>,
+}
+
+impl TopAggregates {
+    /// The 64-bit sub-cell mask of cell `c`.
+    pub fn mask(&self, c: usize) -> u64 {
+        let n = self.nodes[c];
+        n[0] as u64 | (n[1] as u64) << 32
+    }
+
+    /// Attribute index of sub-cell `s` of cell `c` (its bit must be set).
+    pub fn sub_attr(&self, c: usize, s: u32) -> usize {
+        let below = self.mask(c) & ((1u64 << s) - 1);
+        self.nodes.len() + self.nodes[c][2] as usize + below.count_ones() as usize
+    }
+}
+
+/// A walk's stop on a top-level aggregate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AggregateHit {
+    /// 0: a top cell, 1: a sub-cell.
+    pub level: u32,
+    /// Index into [`TopAggregates::colors`] / `normals`.
+    pub attr: u32,
+    /// World ray parameter where the walk enters the region.
+    pub t: f32,
+}
+
+/// What the LOD walk ([`InstancedSvo::trace_lod`]) ends on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SceneHit {
+    Voxel(InstanceHit),
+    Aggregate(AggregateHit),
+}
+
+impl SceneHit {
+    pub fn t(&self) -> f32 {
+        match self {
+            SceneHit::Voxel(h) => h.t,
+            SceneHit::Aggregate(a) => a.t,
+        }
+    }
 }
 
 /// The first voxel hit along a world ray.
@@ -307,7 +372,7 @@ impl InstancedSvo {
             .map(|r| instance_box(r, &out_models[r.model as usize].svo.grid))
             .collect();
         let (top, cell_start, cell_instances) = top_grid(&boxes);
-        Ok(InstancedSvo {
+        let mut s = InstancedSvo {
             scene_grid,
             models: out_models,
             instances: refs,
@@ -315,7 +380,10 @@ impl InstancedSvo {
             top,
             cell_start,
             cell_instances,
-        })
+            aggregates: TopAggregates::default(),
+        };
+        s.aggregates = top_aggregates(&s);
+        Ok(s)
     }
 
     /// Instances in the top grid (all but the terrain).
@@ -354,8 +422,92 @@ impl InstancedSvo {
         })
     }
 
-    /// The first voxel along a world ray `origin + t·dir`, t in `t` (both levels).
+    /// The first voxel along a world ray `origin + t·dir`, t in `t` (both levels): the LOD
+    /// walk with cone 0, which never stops on an aggregate.
     pub fn trace(&self, origin: [f32; 3], dir: [f32; 3], t: [f32; 2]) -> Option<InstanceHit> {
+        match self.trace_lod(origin, dir, t, 0.0) {
+            Some(SceneHit::Voxel(h)) => Some(h),
+            _ => None,
+        }
+    }
+
+    /// The world ray in top-grid units (the same `t`).
+    fn top_ray(&self, origin: [f32; 3], dir: [f32; 3], t: [f32; 2]) -> VoxelRay {
+        let top = &self.top;
+        VoxelRay {
+            origin: [0, 1, 2].map(|k| (origin[k] - top.origin[k]) / top.cell),
+            dir: dir.map(|d| d / top.cell),
+            t_min: t[0],
+            t_max: t[1],
+        }
+    }
+
+    /// The first top-level region along the ray, in cell `c` (at `cc`, entered at `tc`, left
+    /// at `exit`), that stops the walk by the LOD rule: the cell itself when its side is at most
+    /// `cone · tc` and its coverage [`can_stop`]; else its first occupied sub-cell, front to
+    /// back, entered at `ts ≤ t1` with side/4 ≤ `cone · ts` that can stop.
+    #[allow(clippy::too_many_arguments)]
+    fn region_stop(
+        &self,
+        r: &VoxelRay,
+        c: usize,
+        cc: [f32; 3],
+        tc: f32,
+        exit: f32,
+        t0: f32,
+        t1: f32,
+        cone: f32,
+    ) -> Option<AggregateHit> {
+        let a = &self.aggregates;
+        let side = self.top.cell;
+        if side <= cone * tc && can_stop(a.colors[c]) {
+            return Some(AggregateHit {
+                level: 0,
+                attr: c as u32,
+                t: tc,
+            });
+        }
+        let mask = a.mask(c);
+        let sub = side / SUB as f32;
+        if mask == 0 || sub > cone * exit.min(t1) {
+            return None;
+        }
+        let q = 1.0 / SUB as f32;
+        let mut d = Dda::new(r, cc, q, [SUB as i64; 3], tc);
+        loop {
+            let s = slot(d.c);
+            if mask >> s & 1 == 1 {
+                let lo = [0, 1, 2].map(|k| cc[k] + d.c[k] as f32 * q);
+                let ts = box_interval(r, lo, lo.map(|x| x + q)).0.max(t0);
+                let attr = a.sub_attr(c, s);
+                if ts <= t1 && sub <= cone * ts && can_stop(a.colors[attr]) {
+                    return Some(AggregateHit {
+                        level: 1,
+                        attr: attr as u32,
+                        t: ts,
+                    });
+                }
+            }
+            if d.exit() > t1 || !d.advance(SUB as i64) {
+                return None;
+            }
+        }
+    }
+
+    /// The LOD walk (docs/CONVENTIONS.md, "Instanced SVO"): the terrain's voxels, then the top
+    /// grid front to back; a cell or sub-cell whose side is at most `cone · t` where the walk
+    /// enters it (t the later of its slab entry and the grid's) and whose aggregate covers at
+    /// least [`super::lod_trace::MIN_STOP_ALPHA`]/255 ends the walk at that t, unless a voxel
+    /// hit (terrain or an instance listed in a cell visited so far) lies at or before it; other
+    /// cells trace their instances as [`InstancedSvo::trace`]. `dir` should be a unit vector:
+    /// the footprint at t is `cone · t` world units. Cone 0 is the voxel walk exactly.
+    pub fn trace_lod(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t: [f32; 2],
+        cone: f32,
+    ) -> Option<SceneHit> {
         let mut best: Option<InstanceHit> = None;
         let better = |h: InstanceHit, b: &Option<InstanceHit>| match b {
             None => true,
@@ -365,23 +517,26 @@ impl InstancedSvo {
             best = self.trace_instance(self.instances.len() - 1, origin, dir, t);
         }
         let top = &self.top;
-        let r = VoxelRay {
-            origin: [0, 1, 2].map(|k| (origin[k] - top.origin[k]) / top.cell),
-            dir: dir.map(|d| d / top.cell),
-            t_min: t[0],
-            t_max: t[1],
-        };
+        let r = self.top_ray(origin, dir, t);
         let dims = top.dims.map(|d| d as f32);
         let (t0, t1) = box_interval(&r, [0.0; 3], dims);
         let (t0, t1) = (t0.max(t[0]), t1.min(t[1]));
         if t0 > t1 || self.cell_instances.is_empty() {
-            return best;
+            return best.map(SceneHit::Voxel);
         }
         let n = top.dims.map(|d| d as i64);
         let mut dda = Dda::new(&r, [0.0; 3], 1.0, n, t0);
         let mut tested: Vec<u32> = Vec::new();
         loop {
             let c = top.index(dda.c);
+            let exit = dda.exit();
+            let stop = if cone > 0.0 {
+                let cc = dda.c.map(|x| x as f32);
+                let tc = box_interval(&r, cc, cc.map(|x| x + 1.0)).0.max(t0);
+                self.region_stop(&r, c, cc, tc, exit, t0, t1, cone)
+            } else {
+                None
+            };
             let list =
                 &self.cell_instances[self.cell_start[c] as usize..self.cell_start[c + 1] as usize];
             for &i in list {
@@ -390,21 +545,37 @@ impl InstancedSvo {
                 }
                 tested.push(i);
                 let cap = best.map_or(t[1], |b| b.t);
+                let cap = stop.map_or(cap, |s| cap.min(s.t));
                 if let Some(h) = self.trace_instance(i as usize, origin, dir, [t[0], cap])
                     && better(h, &best)
                 {
                     best = Some(h);
                 }
             }
-            let exit = dda.exit();
+            if let Some(s) = stop {
+                return Some(match best {
+                    Some(b) if b.t <= s.t => SceneHit::Voxel(b),
+                    _ => SceneHit::Aggregate(s),
+                });
+            }
             if best.is_some_and(|b| b.t < exit) || exit > t1 {
-                return best;
+                return best.map(SceneHit::Voxel);
             }
             let k = n.iter().copied().max().unwrap_or(1);
             if !dda.advance(k) || (0..3).any(|a| dda.c[a] >= n[a]) {
-                return best;
+                return best.map(SceneHit::Voxel);
             }
         }
+    }
+
+    /// Colour (linear RGBA, straight alpha: rgb/α, the coverage) and world normal of an
+    /// aggregate.
+    pub fn aggregate_attributes(&self, a: &AggregateHit) -> ([f32; 4], [f32; 3]) {
+        let i = a.attr as usize;
+        (
+            super::lod_trace::straight(super::svo::unpack_rgba8(self.aggregates.colors[i])),
+            super::svo::unpack_normal(self.aggregates.normals[i]),
+        )
     }
 
     /// Colour (linear RGBA, straight alpha) and world normal of a hit voxel.
@@ -432,7 +603,9 @@ impl InstancedSvo {
             bytes += s.topology_bytes + s.attribute_bytes;
         }
         bytes += 32 * self.instances.len() as u64
-            + 4 * (self.cell_start.len() + self.cell_instances.len()) as u64;
+            + 4 * (self.cell_start.len() + self.cell_instances.len()) as u64
+            + 16 * self.aggregates.nodes.len() as u64
+            + 8 * self.aggregates.colors.len() as u64;
         (voxels, bytes)
     }
 }
@@ -532,6 +705,164 @@ pub fn terrain_voxels(
         out.normals.extend(n);
     }
     Ok(out)
+}
+
+/// One model voxel as the aggregates read it: its centre in the model's frame, its stored
+/// premultiplied colour and its stored normal (model frame), both decoded.
+struct ModelVoxel {
+    centre: [f32; 3],
+    color: [f32; 4],
+    normal: [f32; 3],
+}
+
+fn model_voxels(svo: &Svo) -> Vec<ModelVoxel> {
+    let mut out = Vec::with_capacity(svo.voxel_colors.len());
+    for b in svo.leaf_bricks() {
+        let mut m = b.mask;
+        while m != 0 {
+            let s = m.trailing_zeros() as u64;
+            let v = super::morton_decode(b.key << 6 | s);
+            let i = out.len();
+            out.push(ModelVoxel {
+                centre: svo.grid.to_world(v.map(|x| x as f32 + 0.5)),
+                color: super::svo::unpack_rgba8(svo.voxel_colors[i]),
+                normal: super::svo::unpack_normal(svo.voxel_normals[i]),
+            });
+            m &= m - 1;
+        }
+    }
+    out
+}
+
+/// The top cell and sub-cell slot holding world point `p` (clamped into the grid).
+pub fn region_of(top: &TopGrid, p: [f32; 3]) -> (usize, u32) {
+    let u = [0, 1, 2].map(|k| (p[k] - top.origin[k]) / top.cell);
+    let c = [0, 1, 2].map(|k| (u[k].floor() as i64).clamp(0, top.dims[k] as i64 - 1));
+    let sub = [0, 1, 2]
+        .map(|k| (((u[k] - c[k] as f32) * SUB as f32).floor() as i64).clamp(0, SUB as i64 - 1));
+    (top.index(c), slot(sub))
+}
+
+/// Sums of one region: Σ w·α, Σ w·rgb (premultiplied), Σ w·α·n (world), w the voxel's volume.
+type Sums = [f64; 7];
+
+fn add(a: &mut Sums, b: &Sums) {
+    for k in 0..7 {
+        a[k] += b[k];
+    }
+}
+
+/// The stored colour and normal of a region of volume `vol` from its sums (see
+/// [`TopAggregates`]).
+pub fn aggregate_of(a: &[f64; 7], vol: f64) -> (u32, u32) {
+    let l = (a[4] * a[4] + a[5] * a[5] + a[6] * a[6]).sqrt();
+    let normal = if l > 0.0 {
+        super::svo::pack_normal([a[4] / l, a[5] / l, a[6] / l].map(|x| x as f32))
+    } else {
+        0
+    };
+    if a[0] <= 0.0 {
+        return (0, normal);
+    }
+    let alpha = (a[0] / vol).min(1.0);
+    let k = alpha / a[0];
+    let c = [a[1] * k, a[2] * k, a[3] * k, alpha].map(|x| x as f32);
+    (super::svo::pack_rgba8(c), normal)
+}
+
+/// Instances summed per task: the sums' grouping, so the bytes do not depend on the threads.
+const AGGREGATE_CHUNK: usize = 256;
+
+/// The top level's filtered attributes of a built scene (see [`TopAggregates`]). Every gridded
+/// instance's voxels are placed (centre p + R_z(θ)·(s·x)), binned by centre, summed in f64 in a
+/// fixed order (instances in chunks of [`AGGREGATE_CHUNK`], each in instance and Morton order,
+/// the chunks' sums added in chunk order), then quantized.
+pub fn top_aggregates(s: &InstancedSvo) -> TopAggregates {
+    let voxels: Vec<Vec<ModelVoxel>> = s.models.iter().map(|m| model_voxels(&m.svo)).collect();
+    let gridded = &s.instances[..s.grid_instances()];
+    let chunks: Vec<Vec<(u64, Sums)>> = gridded
+        .par_chunks(AGGREGATE_CHUNK)
+        .map(|chunk| {
+            let mut raw: Vec<(u64, Sums)> = Vec::new();
+            for r in chunk {
+                let g = &s.models[r.model as usize].svo.grid;
+                let w = (r.scale.abs() as f64 * g.voxel_size[0] as f64).powi(3);
+                for v in &voxels[r.model as usize] {
+                    let (c, sl) = region_of(&s.top, r.to_world(v.centre));
+                    let n = r.dir_to_world(v.normal);
+                    let wa = w * v.color[3] as f64;
+                    raw.push((
+                        (c as u64) << 6 | sl as u64,
+                        [
+                            wa,
+                            w * v.color[0] as f64,
+                            w * v.color[1] as f64,
+                            w * v.color[2] as f64,
+                            wa * n[0] as f64,
+                            wa * n[1] as f64,
+                            wa * n[2] as f64,
+                        ],
+                    ));
+                }
+            }
+            collapse(raw)
+        })
+        .collect();
+    let merged = collapse(chunks.into_iter().flatten().collect());
+    let cells = s.top.cells();
+    let mut nodes = vec![[0u32; 4]; cells];
+    let (mut colors, mut normals) = (vec![0u32; cells], vec![0u32; cells]);
+    let (mut sub_colors, mut sub_normals) = (Vec::new(), Vec::new());
+    let side = s.top.cell as f64;
+    let (cell_vol, sub_vol) = (side.powi(3), (side / SUB as f64).powi(3));
+    let mut i = 0;
+    while i < merged.len() {
+        let c = (merged[i].0 >> 6) as usize;
+        let mut mask = 0u64;
+        let mut sum = [0.0f64; 7];
+        nodes[c][2] = sub_colors.len() as u32;
+        while i < merged.len() && (merged[i].0 >> 6) as usize == c {
+            let (key, sums) = &merged[i];
+            mask |= 1 << (key & 63);
+            add(&mut sum, sums);
+            let (col, nor) = aggregate_of(sums, sub_vol);
+            sub_colors.push(col);
+            sub_normals.push(nor);
+            i += 1;
+        }
+        nodes[c][0] = mask as u32;
+        nodes[c][1] = (mask >> 32) as u32;
+        (colors[c], normals[c]) = aggregate_of(&sum, cell_vol);
+    }
+    // Cells without sub-cells start where the next occupied one does (ascending firsts).
+    let mut next = sub_colors.len() as u32;
+    for n in nodes.iter_mut().rev() {
+        if n[0] | n[1] == 0 {
+            n[2] = next;
+        } else {
+            next = n[2];
+        }
+    }
+    colors.extend(sub_colors);
+    normals.extend(sub_normals);
+    TopAggregates {
+        nodes,
+        colors,
+        normals,
+    }
+}
+
+/// Sorts (key, sums) pairs by key (stable) and adds equal keys' sums in their order.
+fn collapse(mut v: Vec<(u64, Sums)>) -> Vec<(u64, Sums)> {
+    v.sort_by_key(|e| e.0);
+    let mut out: Vec<(u64, Sums)> = Vec::new();
+    for (k, s) in v {
+        match out.last_mut() {
+            Some(last) if last.0 == k => add(&mut last.1, &s),
+            _ => out.push((k, s)),
+        }
+    }
+    out
 }
 
 /// World bounds of an instance's voxel grid box (its 8 corners placed).

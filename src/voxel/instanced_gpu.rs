@@ -5,8 +5,8 @@
 //! compares it with the CPU on random world rays.
 
 use super::compute::{self, Kernel};
-use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, t_off};
-use super::instanced::{InstanceHit, InstancedSvo};
+use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, SVO_WALK_WGSL, t_off};
+use super::instanced::{AggregateHit, InstanceHit, InstancedSvo, SceneHit};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::rng::Rng;
@@ -25,6 +25,10 @@ struct Params {
     instances: u32,
     terrain: u32,
     list_base: u32,
+    cone: f32,
+    node_base: u32,
+    color_base: u32,
+    pad: u32,
 }
 
 #[repr(C)]
@@ -44,12 +48,17 @@ const _: () = assert!(size_of::<GpuModel>() == 64);
 /// A world ray: origin, direction, [t_min, t_max].
 pub type WorldRay = ([f32; 3], [f32; 3], [f32; 2]);
 
-/// First hits of world rays on the GPU, as [`InstancedSvo::trace`] computes them.
+/// Marks an aggregate in the shader's output.
+const AGG: u32 = u32::MAX - 1;
+
+/// First hits of world rays on the GPU, as [`InstancedSvo::trace_lod`] computes them with
+/// `cone` (0: the voxels, as [`InstancedSvo::trace`]).
 pub fn trace_gpu(
     gpu: &Gpu,
     s: &InstancedSvo,
     rays: &[WorldRay],
-) -> Result<Vec<Option<InstanceHit>>> {
+    cone: f32,
+) -> Result<Vec<Option<SceneHit>>> {
     if s.models.is_empty() || s.instances.is_empty() {
         return Ok(vec![None; rays.len()]);
     }
@@ -81,6 +90,10 @@ pub fn trace_gpu(
     }
     let mut cells = s.cell_start.clone();
     cells.extend(&s.cell_instances);
+    let node_base = cells.len() as u32;
+    cells.extend(s.aggregates.nodes.iter().flatten());
+    let color_base = cells.len() as u32;
+    cells.extend(&s.aggregates.colors);
     let count =
         u32::try_from(rays.len()).map_err(|_| Error::runtime("svo-scene trace: too many rays"))?;
     let (grid, stride) = compute::grid_for(count);
@@ -93,6 +106,10 @@ pub fn trace_gpu(
         instances: s.instances.len() as u32,
         terrain: s.terrain as u32,
         list_base: s.cell_start.len() as u32,
+        cone,
+        node_base,
+        color_base,
+        pad: 0,
     };
     let big = |t: f32| {
         if t.is_finite() {
@@ -113,7 +130,7 @@ pub fn trace_gpu(
     let kernel = Kernel::new(
         gpu,
         "svo-scene trace",
-        &[DDA_WGSL, SVO_COMMON_WGSL, SCENE_WGSL],
+        &[DDA_WGSL, SVO_COMMON_WGSL, SVO_WALK_WGSL, SCENE_WGSL],
         "main",
         6,
     )?;
@@ -134,12 +151,18 @@ pub fn trace_gpu(
     let words: &[[u32; 8]] = bytemuck::cast_slice(&raw);
     Ok(words
         .iter()
-        .map(|w| {
-            (w[0] != u32::MAX).then(|| InstanceHit {
+        .map(|w| match w[0] {
+            u32::MAX => None,
+            AGG => Some(SceneHit::Aggregate(AggregateHit {
+                level: w[2],
+                attr: w[1],
+                t: f32::from_bits(w[4]),
+            })),
+            _ => Some(SceneHit::Voxel(InstanceHit {
                 instance: w[0],
                 voxel: [w[1], w[2], w[3]],
                 t: f32::from_bits(w[4]),
-            })
+            })),
         })
         .collect())
 }
@@ -189,15 +212,60 @@ pub struct InstancedAgreement {
     pub examples: Vec<usize>,
     pub gpu_seconds: f64,
     pub cpu_seconds: f64,
+    /// The same rays walked with [`lod_cone`] (the top level's aggregates on).
+    pub lod: LodSceneAgreement,
+}
+
+/// Agreement of the LOD walks ([`InstancedSvo::trace_lod`] and the shader) on the same rays.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct LodSceneAgreement {
+    pub cone: f32,
+    pub rays: usize,
+    pub hits: usize,
+    /// Of the agreeing hits, those on aggregates (top cells and sub-cells).
+    pub aggregate_hits: usize,
+    /// Rays whose answers differ (another voxel or region, only one hits, or t off).
+    pub mismatches: usize,
+    pub examples: Vec<usize>,
 }
 
 impl InstancedAgreement {
+    /// The voxel walk agrees on every ray; the LOD walk on all but at most
+    /// [`super::lod_gpu::LOD_MISMATCH_FRACTION`] of them (a level choice `s ≤ cone·t` flips
+    /// where t lands on the boundary and the GPU rounds a division differently).
     pub fn agrees(&self) -> bool {
-        self.voxel_mismatches == 0 && self.t_mismatches == 0
+        self.voxel_mismatches == 0
+            && self.t_mismatches == 0
+            && self.lod.mismatches as f64
+                <= super::lod_gpu::LOD_MISMATCH_FRACTION * self.lod.rays as f64
     }
 }
 
-/// Traces `rays` random world rays on both and compares them.
+/// The cone of the validation's LOD batch: a top cell stops the walk from one scene diagonal
+/// away, a sub-cell from a quarter of it.
+pub fn lod_cone(s: &InstancedSvo) -> f32 {
+    let g = &s.scene_grid;
+    let ext = [0, 1, 2].map(|k| g.dims[k] as f32 * g.voxel_size[k]);
+    let diag = (ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]).sqrt();
+    s.top.cell / diag.max(1e-6)
+}
+
+/// Whether two answers of the LOD walk agree (same voxel or region, t within tolerance).
+pub fn same_scene_hit(g: &Option<SceneHit>, c: &Option<SceneHit>) -> bool {
+    match (g, c) {
+        (None, None) => true,
+        (Some(SceneHit::Voxel(g)), Some(SceneHit::Voxel(c))) => {
+            g.instance == c.instance && g.voxel == c.voxel && !t_off(g.t, c.t)
+        }
+        (Some(SceneHit::Aggregate(g)), Some(SceneHit::Aggregate(c))) => {
+            g.attr == c.attr && g.level == c.level && !t_off(g.t, c.t)
+        }
+        _ => false,
+    }
+}
+
+/// Traces `rays` random world rays on both and compares them: the voxel walk (cone 0), then
+/// the LOD walk with [`lod_cone`].
 pub fn validate_instanced(
     gpu: &Gpu,
     s: &InstancedSvo,
@@ -206,7 +274,7 @@ pub fn validate_instanced(
 ) -> Result<InstancedAgreement> {
     let batch = random_world_rays(s, rays, seed);
     let t0 = std::time::Instant::now();
-    let on_gpu = trace_gpu(gpu, s, &batch)?;
+    let on_gpu = trace_gpu(gpu, s, &batch, 0.0)?;
     let t1 = std::time::Instant::now();
     let on_cpu: Vec<Option<InstanceHit>> =
         batch.iter().map(|(o, d, t)| s.trace(*o, *d, *t)).collect();
@@ -218,6 +286,13 @@ pub fn validate_instanced(
         ..Default::default()
     };
     for (i, (g, c)) in on_gpu.iter().zip(&on_cpu).enumerate() {
+        let g = match g {
+            Some(SceneHit::Voxel(h)) => Some(*h),
+            Some(SceneHit::Aggregate(_)) => {
+                return Err(Error::runtime("svo-scene: an aggregate hit with cone 0"));
+            }
+            None => None,
+        };
         let bad = match (g, c) {
             (None, None) => false,
             (Some(g), Some(c)) if g.instance == c.instance && g.voxel == c.voxel => {
@@ -237,6 +312,28 @@ pub fn validate_instanced(
             a.examples.push(i);
         }
     }
+    let cone = lod_cone(s);
+    let on_gpu = trace_gpu(gpu, s, &batch, cone)?;
+    let on_cpu: Vec<Option<SceneHit>> = batch
+        .iter()
+        .map(|(o, d, t)| s.trace_lod(*o, *d, *t, cone))
+        .collect();
+    a.lod = LodSceneAgreement {
+        cone,
+        rays,
+        ..Default::default()
+    };
+    for (i, (g, c)) in on_gpu.iter().zip(&on_cpu).enumerate() {
+        if !same_scene_hit(g, c) {
+            a.lod.mismatches += 1;
+            if a.lod.examples.len() < 5 {
+                a.lod.examples.push(i);
+            }
+        } else if let Some(h) = c {
+            a.lod.hits += 1;
+            a.lod.aggregate_hits += matches!(h, SceneHit::Aggregate(_)) as usize;
+        }
+    }
     Ok(a)
 }
 
@@ -246,11 +343,23 @@ mod tests {
     use crate::gpu::{BackendChoice, init_gpu};
 
     #[test]
+    fn the_shader_has_the_cpu_coverage_floor() {
+        let line = format!(
+            "const MIN_STOP_ALPHA: u32 = {}u;",
+            crate::voxel::lod_trace::MIN_STOP_ALPHA
+        );
+        assert!(SCENE_WGSL.contains(&line), "svo_scene.wgsl: {line}");
+    }
+
+    #[test]
     fn gpu_two_level_traversal_equals_cpu() {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
         let s = super::super::instanced::tests::test_scene(64);
         let a = validate_instanced(&gpu, &s, 4000, 17).unwrap();
         assert!(a.hits > 1000 && a.instance_hits > 200, "{a:?}");
         assert!(a.agrees(), "{a:?}");
+        // The LOD batch stops on aggregates of both levels, and agrees on every ray here.
+        assert!(a.lod.aggregate_hits > 200, "{:?}", a.lod);
+        assert_eq!(a.lod.mismatches, 0, "{:?}", a.lod);
     }
 }

@@ -3,7 +3,7 @@
 //! one after another in the `svo` arrays' layout, each model's indices local to its own ranges.
 
 use super::Grid;
-use super::instanced::{InstanceRef, InstancedSvo, ModelSvo, TopGrid};
+use super::instanced::{InstanceRef, InstancedSvo, ModelSvo, TopAggregates, TopGrid};
 use super::svo::{Node, Svo};
 use crate::error::ParseError;
 use crate::pack::section::SectionView;
@@ -12,6 +12,11 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
 pub const KIND: &str = "svo-scene";
+
+/// The section's layout version: 2 added the top level's filtered attributes (`top_nodes`,
+/// `top_colors`, `top_normals`); version 1 sections (metadata ending at `solid`) are refused
+/// with a message to rebuild.
+pub const VERSION: u32 = 2;
 
 /// One model's octree inside the section's arrays.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -46,6 +51,19 @@ pub struct SvoSceneMeta {
     pub terrain: bool,
     pub top: TopGrid,
     pub solid: bool,
+    /// [`VERSION`].
+    pub version: u32,
+}
+
+/// Version 1 metadata (to name it in the refusal).
+#[derive(Deserialize)]
+struct SvoSceneMetaV1 {
+    _source: String,
+    _scene_grid: Grid,
+    _models: Vec<SvoSceneModel>,
+    _terrain: bool,
+    _top: TopGrid,
+    _solid: bool,
 }
 
 pub fn to_section(name: &str, source: &str, s: &InstancedSvo, solid: bool) -> Section {
@@ -84,6 +102,7 @@ pub fn to_section(name: &str, source: &str, s: &InstancedSvo, solid: bool) -> Se
         terrain: s.terrain,
         top: s.top,
         solid,
+        version: VERSION,
     };
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(&meta)
@@ -95,7 +114,10 @@ pub fn to_section(name: &str, source: &str, s: &InstancedSvo, solid: bool) -> Se
         .array("node_normals", ArrayFormat::U32, 1, &nn)
         .array("instances", ArrayFormat::U32, 8, &s.instances)
         .array("cell_start", ArrayFormat::U32, 1, &s.cell_start)
-        .array("cell_instances", ArrayFormat::U32, 1, &s.cell_instances);
+        .array("cell_instances", ArrayFormat::U32, 1, &s.cell_instances)
+        .array("top_nodes", ArrayFormat::U32, 4, &s.aggregates.nodes)
+        .array("top_colors", ArrayFormat::U32, 1, &s.aggregates.colors)
+        .array("top_normals", ArrayFormat::U32, 1, &s.aggregates.normals);
     b.finish()
 }
 
@@ -107,7 +129,25 @@ fn slice<'a, T>(a: &'a [T], first: u32, n: u32, what: &str) -> Result<&'a [T], S
 
 pub fn from_section(v: &SectionView) -> Result<(SvoSceneMeta, InstancedSvo), ParseError> {
     let err = |m: String| ParseError::new("svo-scene section", m);
-    let meta: SvoSceneMeta = v.meta()?;
+    let meta: SvoSceneMeta = match v.meta() {
+        Ok(m) => m,
+        Err(e) => {
+            if v.meta::<SvoSceneMetaV1>().is_ok() {
+                return Err(err(
+                    "a version 1 svo-scene section (without the top level's filtered \
+                     attributes); rebuild it with this bake (`bake svo`)"
+                        .into(),
+                ));
+            }
+            return Err(e);
+        }
+    };
+    if meta.version != VERSION {
+        return Err(err(format!(
+            "svo-scene section version {}, this bake reads version {VERSION}",
+            meta.version
+        )));
+    }
     let nodes: Vec<Node> = v.array_vec("nodes")?;
     let leaves: &[u8] = v.array("leaves")?;
     let vc: Vec<u32> = v.array_vec("voxel_colors")?;
@@ -117,6 +157,11 @@ pub fn from_section(v: &SectionView) -> Result<(SvoSceneMeta, InstancedSvo), Par
     let instances: Vec<InstanceRef> = v.array_vec("instances")?;
     let cell_start: Vec<u32> = v.array_vec("cell_start")?;
     let cell_instances: Vec<u32> = v.array_vec("cell_instances")?;
+    let aggregates = TopAggregates {
+        nodes: v.array_vec("top_nodes")?,
+        colors: v.array_vec("top_colors")?,
+        normals: v.array_vec("top_normals")?,
+    };
     let mut models = Vec::with_capacity(meta.models.len());
     for (k, m) in meta.models.iter().enumerate() {
         let what = |a: &str| format!("model {k} {a}");
@@ -157,6 +202,7 @@ pub fn from_section(v: &SectionView) -> Result<(SvoSceneMeta, InstancedSvo), Par
         top: meta.top,
         cell_start,
         cell_instances,
+        aggregates,
     };
     validate(&s).map_err(err)?;
     Ok((meta, s))
@@ -204,6 +250,32 @@ pub fn validate(s: &InstancedSvo) -> Result<(), String> {
     if let Some(i) = s.cell_instances.iter().position(|&i| i >= n) {
         return Err(format!("cell_instances[{i}] names no gridded instance"));
     }
+    let a = &s.aggregates;
+    if a.nodes.len() != t.cells() {
+        return Err(format!(
+            "top_nodes has {} entries for {} cells",
+            a.nodes.len(),
+            t.cells()
+        ));
+    }
+    let mut next = 0u64;
+    for (c, n) in a.nodes.iter().enumerate() {
+        if n[2] as u64 != next || n[3] != 0 {
+            return Err(format!(
+                "top_nodes[{c}]: first sub-cell {} (expected {next}) or reserved {}",
+                n[2], n[3]
+            ));
+        }
+        next += a.mask(c).count_ones() as u64;
+    }
+    let entries = t.cells() as u64 + next;
+    if a.colors.len() as u64 != entries || a.normals.len() as u64 != entries {
+        return Err(format!(
+            "top_colors/top_normals hold {}/{} entries, the cells and sub-cells {entries}",
+            a.colors.len(),
+            a.normals.len()
+        ));
+    }
     Ok(())
 }
 
@@ -220,6 +292,7 @@ pub fn summary_of(s: &InstancedSvo) -> Value {
         "top_grid": s.top.dims,
         "top_cell": s.top.cell,
         "cell_references": s.cell_instances.len(),
+        "aggregate_sub_cells": s.aggregates.colors.len() - s.aggregates.nodes.len(),
         "model_resolutions": s.models.iter().map(|m| m.svo.grid.dims).collect::<Vec<_>>(),
     })
 }

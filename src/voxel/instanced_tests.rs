@@ -400,6 +400,19 @@ fn the_section_round_trips() {
     let mut bad = two.clone();
     bad.cell_instances[0] = 999;
     assert!(super::super::instanced_section::validate(&bad).is_err());
+    // Aggregates that do not match the grid, or whose sub-cells are not numbered in order.
+    let mut bad = two.clone();
+    bad.aggregates.nodes.pop();
+    assert!(super::super::instanced_section::validate(&bad).is_err());
+    let mut bad = two.clone();
+    let c = (0..bad.top.cells())
+        .find(|&c| bad.aggregates.mask(c) != 0)
+        .unwrap();
+    bad.aggregates.nodes[c][1] ^= 1 << 31;
+    assert!(super::super::instanced_section::validate(&bad).is_err());
+    let mut bad = two.clone();
+    bad.aggregates.colors.pop();
+    assert!(super::super::instanced_section::validate(&bad).is_err());
 }
 
 #[test]
@@ -449,4 +462,410 @@ pub(crate) fn test_scene(resolution: u32) -> InstancedSvo {
         &VoxelizeOptions::surface(resolution),
     )
     .unwrap()
+}
+
+/// The oracle's region of a world point: its own floor and bit interleave (x, y, z of bit 0,
+/// then of bit 1), as docs/FORMAT.md states the slot.
+fn oracle_region(top: &TopGrid, p: [f32; 3]) -> (usize, u32) {
+    let u = [0, 1, 2].map(|k| (p[k] - top.origin[k]) / top.cell);
+    let c = [0, 1, 2].map(|k| u[k].floor().clamp(0.0, top.dims[k] as f32 - 1.0));
+    let sub = [0, 1, 2].map(|k| ((u[k] - c[k]) * 4.0).floor().clamp(0.0, 3.0) as u32);
+    let cell = c[0] as usize
+        + top.dims[0] as usize * (c[1] as usize + top.dims[1] as usize * c[2] as usize);
+    let mut s = 0;
+    for bit in 0..2 {
+        for (k, v) in sub.iter().enumerate() {
+            s |= (v >> bit & 1) << (3 * bit + k as u32);
+        }
+    }
+    (cell, s)
+}
+
+/// Brute force: every gridded instance's every voxel (found by probing each coordinate of its
+/// model's grid), placed, binned by centre; sums of volume·α, volume·rgb (premultiplied) and
+/// volume·α·normal (turned) per (cell, slot).
+fn brute_force_sums(s: &InstancedSvo) -> std::collections::BTreeMap<(usize, u32), [f64; 7]> {
+    let mut out = std::collections::BTreeMap::new();
+    for r in &s.instances[..s.grid_instances()] {
+        let svo = &s.models[r.model as usize].svo;
+        let g = svo.grid;
+        let vol = (r.scale as f64 * g.voxel_size[0] as f64).powi(3);
+        for z in 0..g.dims[2] {
+            for y in 0..g.dims[1] {
+                for x in 0..g.dims[0] {
+                    let Some(i) = svo.voxel_index([x, y, z]) else {
+                        continue;
+                    };
+                    let c = crate::voxel::svo::unpack_rgba8(svo.voxel_colors[i]);
+                    let n = r.dir_to_world(crate::voxel::svo::unpack_normal(svo.voxel_normals[i]));
+                    let centre = r.to_world(g.to_world([x, y, z].map(|v| v as f32 + 0.5)));
+                    let e: &mut [f64; 7] = out.entry(oracle_region(&s.top, centre)).or_default();
+                    let a = vol * c[3] as f64;
+                    e[0] += a;
+                    for k in 0..3 {
+                        e[1 + k] += vol * c[k] as f64;
+                        e[4 + k] += a * n[k] as f64;
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The stored aggregate (colour, normal) against sums: premultiplied colour within half a step
+/// of RGBA8 (plus rounding), normal within 10⁻³ rad of the sum's direction.
+fn assert_aggregate(what: &str, color: u32, normal: u32, sums: &[f64; 7], vol: f64) {
+    let got = crate::voxel::svo::unpack_rgba8(color);
+    let alpha = (sums[0] / vol).min(1.0);
+    let want = if sums[0] > 0.0 {
+        [
+            sums[1] / sums[0] * alpha,
+            sums[2] / sums[0] * alpha,
+            sums[3] / sums[0] * alpha,
+            alpha,
+        ]
+    } else {
+        [0.0; 4]
+    };
+    for k in 0..4 {
+        assert!(
+            (got[k] as f64 - want[k]).abs() <= 0.5 / 255.0 + 1e-5,
+            "{what}: colour {got:?}, brute force {want:?}"
+        );
+    }
+    let l = (sums[4] * sums[4] + sums[5] * sums[5] + sums[6] * sums[6]).sqrt();
+    if l > 1e-9 * sums[0].max(1e-30) {
+        let n = crate::voxel::svo::unpack_normal(normal);
+        let dot: f64 = (0..3).map(|k| n[k] as f64 * sums[4 + k] / l).sum();
+        assert!(
+            dot > 1.0 - 1e-6,
+            "{what}: normal {n:?}, brute force {:?}",
+            &sums[4..]
+        );
+    }
+}
+
+#[test]
+fn the_top_aggregates_are_the_brute_force_average_of_the_placed_voxels() {
+    let s = test_scene(96);
+    let sums = brute_force_sums(&s);
+    let a = &s.aggregates;
+    let cells = s.top.cells();
+    assert_eq!(a.nodes.len(), cells);
+    let side = s.top.cell as f64;
+    let mut occupied = 0;
+    for c in 0..cells {
+        let subs: Vec<(&(usize, u32), &[f64; 7])> = sums.range((c, 0)..(c, 64)).collect();
+        let want_mask = subs.iter().fold(0u64, |m, ((_, sl), _)| m | 1 << sl);
+        assert_eq!(a.mask(c), want_mask, "cell {c}: occupied sub-cells");
+        let mut cell_sum = [0.0f64; 7];
+        for ((_, sl), e) in &subs {
+            for k in 0..7 {
+                cell_sum[k] += e[k];
+            }
+            let i = a.sub_attr(c, *sl);
+            assert_aggregate(
+                &format!("cell {c} slot {sl}"),
+                a.colors[i],
+                a.normals[i],
+                e,
+                (side / 4.0).powi(3),
+            );
+        }
+        assert_aggregate(
+            &format!("cell {c}"),
+            a.colors[c],
+            a.normals[c],
+            &cell_sum,
+            side.powi(3),
+        );
+        occupied += subs.len();
+    }
+    assert_eq!(a.colors.len(), cells + occupied);
+    // Rotated, scaled instances; sub-cells of every coverage, some enough to stop on.
+    assert!(occupied > 50, "{occupied} occupied sub-cells");
+    let stoppable = a.colors[cells..]
+        .iter()
+        .filter(|&&c| crate::voxel::lod_trace::can_stop(c))
+        .count();
+    assert!(
+        stoppable > 10 && stoppable < occupied,
+        "{stoppable} of {occupied} sub-cells can stop"
+    );
+}
+
+/// An analytic case: one instance at the identity of a model that fills its grid (a solid
+/// box), every voxel colour c and normal +Z: every sub-cell inside is covered exactly once.
+#[test]
+fn a_solid_box_fills_its_cells_with_its_colour() {
+    let model = geo(box_mesh([0.0; 3], [4.0, 4.0, 4.0]));
+    let opts = VoxelizeOptions {
+        solid: true,
+        ..VoxelizeOptions::surface(32)
+    };
+    let instances = [Instance::new(0, [0.0; 3], 1.0, 0.0)];
+    let s = InstancedSvo::build(
+        None,
+        &named(std::slice::from_ref(&model)),
+        &instances,
+        &opts,
+    )
+    .unwrap();
+    let voxels = s.models[0].svo.voxel_colors.len();
+    let g = s.models[0].svo.grid;
+    assert_eq!(
+        voxels as u32,
+        g.dims.iter().product::<u32>(),
+        "solid: every voxel"
+    );
+    // Total coverage volume: Σ over the stored regions of α·volume is the box's volume where
+    // no region is over-full (α < 1 only at the box's boundary cells; α = 1 inside).
+    let side = s.top.cell as f64;
+    let cells = s.top.cells();
+    let sub_vol = (side / 4.0).powi(3);
+    let covered: f64 = (0..cells)
+        .flat_map(|c| {
+            let m = s.aggregates.mask(c);
+            (0..64u32)
+                .filter(move |sl| m >> sl & 1 == 1)
+                .map(move |sl| (c, sl))
+        })
+        .map(|(c, sl)| {
+            let col =
+                crate::voxel::svo::unpack_rgba8(s.aggregates.colors[s.aggregates.sub_attr(c, sl)]);
+            col[3] as f64 * sub_vol
+        })
+        .sum();
+    let grid_vol = (0..3)
+        .map(|k| g.dims[k] as f64 * g.voxel_size[k] as f64)
+        .product::<f64>();
+    // One instance: one top cell, the instance's box grown by 10⁻⁶; its 4³ sub-cells each hold
+    // (dims/4)³ whole voxels of volume v³: coverage 1, and every voxel's colour.
+    assert_eq!(s.top.dims, [1, 1, 1]);
+    assert_eq!(s.aggregates.mask(0), u64::MAX, "every sub-cell occupied");
+    let want = (g.dims[0] as f64 / 4.0).powi(3) * (g.voxel_size[0] as f64).powi(3) / sub_vol;
+    assert!((want - 1.0).abs() < 1e-4, "{want}");
+    let voxel = s.models[0].svo.voxel_colors[0];
+    assert!(
+        s.models[0].svo.voxel_colors.iter().all(|&c| c == voxel),
+        "one colour"
+    );
+    for e in 0..65 {
+        let c = s.aggregates.colors[e];
+        assert_eq!(c >> 24, 255, "entry {e}: full coverage");
+        assert_eq!(c, voxel, "entry {e}: the voxels' colour");
+    }
+    assert!(
+        (covered - grid_vol).abs() <= grid_vol * 0.02,
+        "covered {covered} m³ of {grid_vol}"
+    );
+}
+
+/// A ray in top-grid units, as the oracle builds it.
+fn oracle_top_ray(s: &InstancedSvo, o: [f32; 3], d: [f32; 3]) -> VoxelRay {
+    VoxelRay {
+        origin: [0, 1, 2].map(|k| (o[k] - s.top.origin[k]) / s.top.cell),
+        dir: d.map(|x| x / s.top.cell),
+        t_min: 0.0,
+        t_max: f32::INFINITY,
+    }
+}
+
+/// The cut-off rule applied by brute force: every cell of the grid and every occupied sub-cell
+/// the ray crosses (slab tests, no DDA), the nearest whose side is at most cone·t at its entry
+/// and whose aggregate can stop (a sub-cell only where its cell does not); against the nearest
+/// voxel of all instances and the terrain, each traced on its own.
+fn brute_force_lod(s: &InstancedSvo, o: [f32; 3], d: [f32; 3], cone: f32) -> Option<SceneHit> {
+    let want = (0..s.instances.len())
+        .filter_map(|i| s.trace_instance(i, o, d, [0.0, f32::INFINITY]))
+        .min_by(|a, b| a.t.total_cmp(&b.t).then(a.instance.cmp(&b.instance)));
+    let r = oracle_top_ray(s, o, d);
+    let (g0, g1) = box_interval(&r, [0.0; 3], s.top.dims.map(|x| x as f32));
+    let (t0, t1) = (g0.max(0.0), g1);
+    let mut agg: Option<AggregateHit> = None;
+    let mut consider = |h: AggregateHit| {
+        if agg.is_none_or(|a| h.t < a.t) {
+            agg = Some(h);
+        }
+    };
+    if t0 <= t1 && !s.cell_instances.is_empty() {
+        let a = &s.aggregates;
+        for z in 0..s.top.dims[2] {
+            for y in 0..s.top.dims[1] {
+                for x in 0..s.top.dims[0] {
+                    let cc = [x, y, z].map(|v| v as f32);
+                    let c = s.top.index([x as i64, y as i64, z as i64]);
+                    let (e, x1) = box_interval(&r, cc, cc.map(|v| v + 1.0));
+                    let tc = e.max(t0);
+                    if tc >= x1.min(t1) {
+                        continue;
+                    }
+                    if s.top.cell <= cone * tc && crate::voxel::lod_trace::can_stop(a.colors[c]) {
+                        consider(AggregateHit {
+                            level: 0,
+                            attr: c as u32,
+                            t: tc,
+                        });
+                        continue;
+                    }
+                    for sl in 0..64u32 {
+                        if a.mask(c) >> sl & 1 == 0 {
+                            continue;
+                        }
+                        let sub = [
+                            sl & 1 | (sl >> 2 & 2),
+                            sl >> 1 & 1 | (sl >> 3 & 2),
+                            sl >> 2 & 1 | (sl >> 4 & 2),
+                        ];
+                        let lo = [0, 1, 2].map(|k| cc[k] + sub[k] as f32 * 0.25);
+                        let (e, x1) = box_interval(&r, lo, lo.map(|v| v + 0.25));
+                        let ts = e.max(t0);
+                        let attr = a.sub_attr(c, sl);
+                        if ts < x1.min(t1)
+                            && s.top.cell / 4.0 <= cone * ts
+                            && crate::voxel::lod_trace::can_stop(a.colors[attr])
+                        {
+                            consider(AggregateHit {
+                                level: 1,
+                                attr: attr as u32,
+                                t: ts,
+                            });
+                        }
+                    }
+                }
+            }
+        }
+    }
+    match (want, agg) {
+        (Some(w), Some(a)) if a.t < w.t => Some(SceneHit::Aggregate(a)),
+        (None, Some(a)) => Some(SceneHit::Aggregate(a)),
+        (w, _) => w.map(SceneHit::Voxel),
+    }
+}
+
+#[test]
+fn the_lod_walk_is_the_cut_off_rule_applied_by_brute_force() {
+    let s = test_scene(96);
+    let g = s.scene_grid;
+    let (lo, hi) = (g.origin, g.to_world(g.dims.map(|d| d as f32)));
+    let base = crate::voxel::instanced_gpu::lod_cone(&s);
+    let mut rng = Rng::new(21);
+    let rays = rays(&mut rng, lo, hi, 1500);
+    for scale in [0.0, 0.5, 1.0, 4.0] {
+        let cone = base * scale;
+        let (mut cells, mut subs, mut voxels) = (0, 0, 0);
+        for &(o, d) in &rays {
+            let got = s.trace_lod(o, d, [0.0, f32::INFINITY], cone);
+            let want = brute_force_lod(&s, o, d, cone);
+            assert_eq!(got, want, "cone {cone}, ray {o:?} {d:?}");
+            match got {
+                Some(SceneHit::Aggregate(a)) if a.level == 0 => cells += 1,
+                Some(SceneHit::Aggregate(_)) => subs += 1,
+                Some(SceneHit::Voxel(_)) => voxels += 1,
+                None => {}
+            }
+        }
+        if scale == 0.0 {
+            assert_eq!(cells + subs, 0, "cone 0 is the voxel walk");
+        } else {
+            assert!(
+                subs > 30 && voxels > 30,
+                "cone ×{scale}: {cells} cells, {subs} sub-cells, {voxels} voxels"
+            );
+        }
+        if scale == 4.0 {
+            assert!(cells > 30, "wide cones stop on whole cells: {cells}");
+        }
+    }
+}
+
+/// The section's bytes do not depend on the number of threads (the aggregates are summed in
+/// fixed chunks of instances).
+#[test]
+fn the_section_is_byte_identical_on_one_and_two_threads() {
+    let t = wavy_terrain();
+    let models = vec![
+        geo(procedural_blob(12, 6)),
+        geo(box_mesh([-0.3, -0.2, 0.0], [0.3, 0.2, 1.0])),
+    ];
+    let mut rng = Rng::new(4);
+    let instances: Vec<Instance> = (0..1200)
+        .map(|i| {
+            Instance::new(
+                i % 2,
+                [
+                    rng.range(-7.5, 7.5),
+                    rng.range(-5.5, 5.5),
+                    rng.range(0.0, 0.5),
+                ],
+                rng.range(0.1, 0.4),
+                rng.range(-180.0, 180.0),
+            )
+        })
+        .collect();
+    let bytes = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let s = InstancedSvo::build(
+                Some(&t),
+                &named(&models),
+                &instances,
+                &VoxelizeOptions::surface(64),
+            )
+            .unwrap();
+            super::super::instanced_section::to_section("svo-scene", "scene:x.eco", &s, false)
+                .payload
+        })
+    };
+    let (one, two) = (bytes(1), bytes(2));
+    assert!(one == two, "1 and 2 threads differ");
+}
+
+/// A version 1 section (metadata ending at `solid`, no `top_*` arrays) is refused with a
+/// message that names it and says to rebuild, not a decoding error.
+#[test]
+fn a_version_1_section_is_refused_with_a_message_to_rebuild() {
+    use super::super::instanced_section::{SvoSceneModel, from_section, to_section};
+    #[derive(serde::Serialize, serde::Deserialize)]
+    struct V1 {
+        source: String,
+        scene_grid: Grid,
+        models: Vec<SvoSceneModel>,
+        terrain: bool,
+        top: TopGrid,
+        solid: bool,
+    }
+    let two = test_scene(32);
+    let now = to_section("svo-scene", "scene:x.eco", &two, false);
+    let view = crate::pack::section::SectionView::parse(&now.payload, 0).unwrap();
+    let (meta, _) = from_section(&view).unwrap();
+    let old = V1 {
+        source: meta.source,
+        scene_grid: meta.scene_grid,
+        models: meta.models,
+        terrain: meta.terrain,
+        top: meta.top,
+        solid: meta.solid,
+    };
+    let mut b = crate::pack::SectionBuilder::new("svo-scene", "svo-scene");
+    b.meta(&old);
+    for name in [
+        "voxel_colors",
+        "voxel_normals",
+        "node_colors",
+        "node_normals",
+        "cell_start",
+        "cell_instances",
+    ] {
+        let a: Vec<u32> = view.array_vec(name).unwrap();
+        b.array(name, crate::pack::ArrayFormat::U32, 1, &a);
+    }
+    let sec = b.finish();
+    let v = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
+    let e = from_section(&v).unwrap_err().to_string();
+    assert!(e.contains("version 1") && e.contains("rebuild"), "{e}");
 }

@@ -1,10 +1,13 @@
 // First hit of a batch of world rays in the two-level SVO (the `svo-scene` section's arrays bound
 // as they are; src/voxel/instanced.rs): the terrain's octree, then a DDA over the top grid whose
 // cells list instances; each instance's octree is traced on the ray moved into its voxel units,
-// operation for operation as InstancedSvo::trace (an instance listed in several cells is traced
-// again, with the same answer, where the CPU remembers it). Output per ray: two vec4<u32>:
-// (instance, i, j, k) and (bits of t, 0, 0, 0); instance all ones on a miss.
-// Prepended: dda.wgsl and svo_common.wgsl.
+// operation for operation as InstancedSvo::trace_lod (an instance listed in several cells is
+// traced again, with the same answer, where the CPU remembers it). With a cone > 0 a top cell or
+// sub-cell no wider than cone·t where the walk enters it, whose aggregate covers enough, ends the
+// walk (InstancedSvo::region_stop). Output per ray: two vec4<u32>: (instance, i, j, k) and
+// (bits of t, 0, 0, 0); instance all ones on a miss; on an aggregate (AGG, attribute, level, 0).
+// Each model's octree is walked by svo_walk.wgsl. Prepended: dda.wgsl, svo_common.wgsl and
+// svo_walk.wgsl.
 
 struct Params {
     top_origin: vec3<f32>,
@@ -16,6 +19,12 @@ struct Params {
     terrain: u32,
     // Index of cell_instances' first element in `cells` (cell count + 1).
     list_base: u32,
+    // Footprint per unit t (world units); 0: never stop on an aggregate.
+    cone: f32,
+    // Index in `cells` of top_nodes (4 words per cell) and of top_colors.
+    node_base: u32,
+    color_base: u32,
+    pad: u32,
 }
 
 struct Model {
@@ -51,94 +60,50 @@ struct GpuRay {
 @group(0) @binding(2) var<storage, read> leaves: array<u32>;
 @group(0) @binding(3) var<storage, read> models: array<Model>;
 @group(0) @binding(4) var<storage, read> insts: array<Inst>;
-// cell_start (cells + 1), then cell_instances.
+// cell_start (cells + 1), cell_instances, top_nodes (4 per cell), top_colors.
 @group(0) @binding(5) var<storage, read> cells: array<u32>;
 @group(0) @binding(6) var<storage, read> rays: array<GpuRay>;
 @group(0) @binding(7) var<storage, read_write> hits: array<vec4<u32>>;
 
-const MAX_INNER: u32 = 10u;
-const MISS: vec4<u32> = vec4<u32>(0xffffffffu);
+const AGG: u32 = 0xfffffffeu;
+// lod_trace::MIN_STOP_ALPHA.
+const MIN_STOP_ALPHA: u32 = 16u;
 
-fn trace_brick(r: GpuRay, mask: vec2<u32>, base: vec3<f32>, t0: f32, t1: f32, dims: vec3<u32>) -> vec4<u32> {
-    var dda = dda_new(r.origin, r.dir, base, 1.0, vec3<i32>(4), t0);
-    loop {
-        if (mask_bit(mask, slot_of(dda.c))) {
-            let vi = vec3<i32>(base) + dda.c;
-            let v = vec3<u32>(vi);
-            if (all(v < dims)) {
-                return vec4<u32>(v, bitcast<u32>(voxel_entry_t(r.origin, r.dir, r.t_min, v)));
-            }
-        }
-        if (dda_exit(dda) > t1 || !dda_advance(&dda, 4)) {
-            return MISS;
-        }
-    }
-    return MISS;
+fn can_stop(c: u32) -> bool {
+    return (c >> 24u) >= MIN_STOP_ALPHA;
 }
 
-// svo_trace.wgsl's trace on model m (its nodes from m.first_node, its bytes from m.first_leaf).
-fn trace_model(m: Model, r: GpuRay) -> vec4<u32> {
-    let iv = box_interval(r.origin, r.dir, vec3<f32>(0.0), vec3<f32>(m.dims));
-    let t0 = max(iv.x, r.t_min);
-    let t1 = min(iv.y, r.t_max);
-    if (t0 > t1) {
-        return MISS;
+// InstancedSvo::region_stop: (attribute, level, bits of t, 1) of the region of top cell `c`
+// (corner cc, entered at tc, left at exit) that ends the walk, or w = 0.
+fn region_stop(o: vec3<f32>, d: vec3<f32>, c: u32, cc: vec3<f32>, tc: f32, exit: f32, t0: f32, t1: f32, cone: f32) -> vec4<u32> {
+    let side = params.top_cell;
+    if (side <= cone * tc && can_stop(cells[params.color_base + c])) {
+        return vec4<u32>(c, 0u, bitcast<u32>(tc), 1u);
     }
-    var node: array<u32, MAX_INNER>;
-    var base: array<vec3<f32>, MAX_INNER>;
-    var cell: array<f32, MAX_INNER>;
-    var t: array<f32, MAX_INNER>;
-    var t_end: array<f32, MAX_INNER>;
-    var dda: array<Dda, MAX_INNER>;
-    var lv = 0u;
-    node[0] = 0u;
-    base[0] = vec3<f32>(0.0);
-    cell[0] = m.side / 4.0;
-    t[0] = t0;
-    t_end[0] = t1;
-    dda[0] = dda_new(r.origin, r.dir, base[0], cell[0], vec3<i32>(4), t0);
+    let nb = params.node_base + 4u * c;
+    let mask = vec2<u32>(cells[nb], cells[nb + 1u]);
+    let sub = side / 4.0;
+    if ((mask.x | mask.y) == 0u || sub > cone * min(exit, t1)) {
+        return vec4<u32>(0u);
+    }
+    let q = 0.25;
+    let top_cells = params.top_dims.x * params.top_dims.y * params.top_dims.z;
+    var dd = dda_new(o, d, cc, q, vec3<i32>(4), tc);
     loop {
-        let nd = nodes[m.first_node + node[lv]];
-        let s = slot_of(dda[lv].c);
-        let exit = min(dda_exit(dda[lv]), t_end[lv]);
-        if (mask_bit(nd.xy, s)) {
-            let below = count_below(nd.xy, s);
-            let child = nd.z + below;
-            let cbase = base[lv] + vec3<f32>(dda[lv].c) * cell[lv];
-            if (lv + 1u == m.inner_levels) {
-                let h = trace_brick(r, brick_mask(m.first_leaf + nd.z, below), cbase, t[lv], exit, m.dims);
-                if (h.x != 0xffffffffu) {
-                    return h;
-                }
-            } else {
-                let c = cell[lv] / 4.0;
-                node[lv + 1u] = child;
-                base[lv + 1u] = cbase;
-                cell[lv + 1u] = c;
-                t[lv + 1u] = t[lv];
-                t_end[lv + 1u] = exit;
-                dda[lv + 1u] = dda_new(r.origin, r.dir, cbase, c, vec3<i32>(4), t[lv]);
-                lv += 1u;
-                continue;
+        let s = slot_of(dd.c);
+        if (mask_bit(mask, s)) {
+            let lo = cc + vec3<f32>(dd.c) * q;
+            let ts = max(box_interval(o, d, lo, lo + vec3<f32>(q)).x, t0);
+            let attr = top_cells + cells[nb + 2u] + count_below(mask, s);
+            if (ts <= t1 && sub <= cone * ts && can_stop(cells[params.color_base + attr])) {
+                return vec4<u32>(attr, 1u, bitcast<u32>(ts), 1u);
             }
         }
-        loop {
-            var d = dda[lv];
-            let e = dda_exit(d);
-            let ex = min(e, t_end[lv]);
-            if (e > t_end[lv] || !dda_advance(&d, 4)) {
-                if (lv == 0u) {
-                    return MISS;
-                }
-                lv -= 1u;
-                continue;
-            }
-            dda[lv] = d;
-            t[lv] = ex;
-            break;
+        if (dda_exit(dd) > t1 || !dda_advance(&dd, 4)) {
+            return vec4<u32>(0u);
         }
     }
-    return MISS;
+    return vec4<u32>(0u);
 }
 
 // InstancedSvo::ray_in + trace_instance: (voxel, t bits) or MISS.
@@ -155,7 +120,7 @@ fn trace_instance(i: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> vec4<
     r.dir = dm / (inst.scale * m.voxel_size);
     r.t_min = t0;
     r.t_max = t1;
-    return trace_model(m, r);
+    return svo_walk(r, m.dims, m.side, m.inner_levels, m.first_node, m.first_leaf);
 }
 
 fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
@@ -180,11 +145,21 @@ fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
         let k = max(max(n.x, n.y), n.z);
         loop {
             let ci = u32(dda.c.x) + params.top_dims.x * (u32(dda.c.y) + params.top_dims.y * u32(dda.c.z));
+            let exit0 = dda_exit(dda);
+            var stop = vec4<u32>(0u);
+            if (params.cone > 0.0) {
+                let cc = vec3<f32>(dda.c);
+                let tc = max(box_interval(o, d, cc, cc + vec3<f32>(1.0)).x, t0);
+                stop = region_stop(o, d, ci, cc, tc, exit0, t0, t1, params.cone);
+            }
             for (var e = cells[ci]; e < cells[ci + 1u]; e++) {
                 let i = cells[params.list_base + e];
                 var cap = w.t_max;
                 if (best_i != 0xffffffffu) {
                     cap = bitcast<f32>(best.w);
+                }
+                if (stop.w == 1u) {
+                    cap = min(cap, bitcast<f32>(stop.z));
                 }
                 let h = trace_instance(i, w.origin, w.dir, w.t_min, cap);
                 if (h.x != 0xffffffffu) {
@@ -195,6 +170,15 @@ fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
                         best_i = i;
                     }
                 }
+            }
+            if (stop.w == 1u) {
+                if (best_i == 0xffffffffu || bitcast<f32>(best.w) > bitcast<f32>(stop.z)) {
+                    var agg: array<vec4<u32>, 2>;
+                    agg[0] = vec4<u32>(AGG, stop.x, stop.y, 0u);
+                    agg[1] = vec4<u32>(stop.z, 0u, 0u, 0u);
+                    return agg;
+                }
+                break;
             }
             let exit = dda_exit(dda);
             if ((best_i != 0xffffffffu && bitcast<f32>(best.w) < exit) || exit > t1) {
