@@ -344,8 +344,15 @@ fn the_khronos_validator_finds_no_errors() {
         lit.to_str().unwrap(),
         &["--bake-light"],
     );
+    // And with the PRT ambient as COLOR_0, beside the baked light.
+    let ambient = dir.path().join("ambient.glb");
+    export_ok(
+        pack.to_str().unwrap(),
+        ambient.to_str().unwrap(),
+        &["--bake-light", "--vertex-ambient"],
+    );
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
-    for file in [glb, gltf, lit] {
+    for file in [glb, gltf, lit, ambient] {
         let o = std::process::Command::new("node")
             .arg(&script)
             .arg(&validator)
@@ -822,4 +829,163 @@ fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
         );
         assert_eq!(summary["got"]["suns"], 1);
     }
+}
+
+/// COLOR_0 (`--vertex-ambient`) against the renderer's own evaluation: per model, per instance,
+/// `render::ambient::side_radiance` (both transfer sets under the instance's light, as
+/// `load_ambient` resolves it for `bake render`), times the material's `1/albedo_folded`, mixed
+/// per eq. 4.8 with the translucence for the front side (written out here), averaged over the
+/// model's instances; COLOR_0 × the file's scale must match it on every drawn vertex copy of
+/// every primitive's triangles.
+#[test]
+fn vertex_ambient_color_0_is_the_renderers_prt_ambient() {
+    use bake::render::ambient::{PrtLayout, load_ambient, side_radiance};
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let out = dir.path().join("ambient.glb");
+    let report = common::json(&common::bake(&[
+        "export",
+        pack_path.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--vertex-ambient",
+        "--json",
+    ]));
+    let pack = Pack::open(&pack_path).unwrap();
+    let scene = bake::render::scene::load_scene(&pack).unwrap();
+    let amb = load_ambient(&pack, &scene, PrtLayout::Full, None).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let blob = &buffers[0].0;
+    let scale = report["vertex_ambient_scale"].as_f64().unwrap() as f32;
+    assert_eq!(
+        json["nodes"].as_array().unwrap().last().unwrap()["extras"]["vertex_ambient_scale"]
+            .as_f64()
+            .unwrap() as f32,
+        scale
+    );
+    let with_prt = amb.models.iter().filter(|m| m.prt.is_some()).count();
+    assert!(with_prt >= 1, "the preview fixture has PRT");
+    assert_eq!(report["vertex_ambient_models"], with_prt);
+    let mut peak = 0.0f32;
+    let mut checked = 0usize;
+    let mut distinct = BTreeSet::new();
+    for (m, a) in scene.models.iter().zip(&amb.models) {
+        let mesh = doc
+            .meshes()
+            .find(|x| x.name() == Some(m.name.as_str()))
+            .unwrap_or_else(|| panic!("no mesh {}", m.name));
+        let Some(prt) = &a.prt else {
+            assert!(
+                mesh.primitives()
+                    .all(|p| p.get(&gltf::Semantic::Colors(0)).is_none())
+            );
+            continue;
+        };
+        let mj = &json["meshes"][mesh.index()];
+        assert_eq!(
+            mj["extras"]["vertex_ambient"]["section"],
+            format!("prt:{}", m.section.trim_start_matches("mesh:"))
+        );
+        assert_eq!(mj["extras"]["vertex_ambient"]["instances"], a.envs.len());
+        // The drawn rows of every mesh vertex (split vertices copy their mesh vertex's transfer).
+        let rows: Vec<(usize, usize)> = match &m.vertex_source {
+            None => (0..prt.vertices).map(|j| (j, j)).collect(),
+            Some(src) => src
+                .iter()
+                .enumerate()
+                .map(|(j, &s)| (s as usize, j))
+                .collect(),
+        };
+        for p in mesh.primitives() {
+            let material = p.material().index().unwrap();
+            let index = json["materials"][material]["extras"]["index"]
+                .as_u64()
+                .unwrap() as usize;
+            let color = p.get(&gltf::Semantic::Colors(0)).expect("COLOR_0");
+            let colors = floats::<3>(&doc, blob, color.index());
+            let reader = p.reader(|_| Some(&blob[..]));
+            let used: BTreeSet<usize> = reader
+                .read_indices()
+                .unwrap()
+                .into_u32()
+                .map(|i| i as usize)
+                .collect();
+            let k = prt.albedo_scale(index);
+            let t = prt.translucence(index);
+            for &(v, row) in rows.iter().filter(|(v, _)| used.contains(v)) {
+                // The mean over the instances of eq. 4.8 before the renderer's clamp at 0 (the
+                // export evaluates it once under the instances' mean light: the same by
+                // linearity), then the clamp.
+                let mut want = [0.0f64; 3];
+                for env in &a.envs {
+                    let [f, b] = side_radiance(prt, PrtLayout::Full, row, env);
+                    for c in 0..3 {
+                        let l = (1.0 - t) * f[c] * k[c] + t * b[c] * k[c];
+                        want[c] += l as f64 / a.envs.len() as f64;
+                    }
+                }
+                let want = want.map(|x| x.max(0.0));
+                let got = colors[v];
+                for c in 0..3 {
+                    assert!((0.0..=1.0).contains(&got[c]), "{got:?}");
+                    let g = got[c] * scale;
+                    assert!(
+                        (g as f64 - want[c]).abs() <= 1e-4 * want[c].abs() + 1e-6 * scale as f64,
+                        "{} vertex {v} (row {row}) material {index}: {g} against {}",
+                        m.name,
+                        want[c]
+                    );
+                    peak = peak.max(want[c] as f32);
+                }
+                distinct.insert(got.map(f32::to_bits));
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 100, "{checked} vertices checked");
+    assert!(distinct.len() > 50, "COLOR_0 varies over the vertices");
+    assert!(
+        (peak - scale).abs() <= 1e-4 * scale,
+        "scale {scale} is the largest value {peak}"
+    );
+}
+
+#[test]
+fn vertex_ambient_on_a_pack_without_prt_is_refused_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    bake::fixtures::write_all(dir.path()).unwrap();
+    let pack = dir.path().join("ingested.bake");
+    let o = common::bake(&[
+        "ingest",
+        dir.path().join("scene.eco").to_str().unwrap(),
+        "-o",
+        pack.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = dir.path().join("out/scene.glb");
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--vertex-ambient",
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("ingested.bake")
+            && err.contains("no prt section")
+            && err.contains("--vertex-ambient"),
+        "{err}"
+    );
+    assert!(
+        !out.exists() && !dir.path().join("out").exists(),
+        "no output, no folder"
+    );
+    // The same pack exports without the option.
+    export_ok(pack.to_str().unwrap(), out.to_str().unwrap(), &[]);
+    assert!(out.exists());
 }

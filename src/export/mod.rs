@@ -17,6 +17,10 @@
 //! about +Z. Every node, mesh, material and image names the pack section it came from in
 //! `extras.section`.
 
+mod ambient;
+
+pub use ambient::{mean_env, vertex_radiance};
+
 use crate::error::{Error, ParseError, Result};
 use crate::ingest::instances_section::{self as instances, InstanceRecord, InstancesMeta};
 use crate::material::section::{self as material, MaterialMeta};
@@ -81,6 +85,11 @@ pub struct ExportReport {
     pub lightmap: Option<String>,
     /// Whether the light map was multiplied into the terrain's (unlit) base colour.
     pub bake_light: bool,
+    /// Models given COLOR_0 (`--vertex-ambient`).
+    pub vertex_ambient_models: usize,
+    /// W/m²/sr: the ambient radiance of an albedo-1 surface is COLOR_0 × this
+    /// (`--vertex-ambient`).
+    pub vertex_ambient_scale: Option<f32>,
     /// The sun's illuminance in lux, `None` without a `sun` section.
     pub sun_lux: Option<f32>,
     pub bytes: usize,
@@ -94,6 +103,9 @@ pub struct ExportOptions {
     /// Multiply the terrain's light map into its base colour, the material unlit
     /// (`KHR_materials_unlit`), so that viewers without light-map support show the baked light.
     pub bake_light: bool,
+    /// Every model vertex's PRT ambient (the renderer's, under the pack's light) as `COLOR_0`,
+    /// divided by one scale for the file (docs/MATERIALS.md). Needs a `prt` section.
+    pub vertex_ambient: bool,
 }
 
 impl ExportOptions {
@@ -101,6 +113,7 @@ impl ExportOptions {
         ExportOptions {
             container,
             bake_light: false,
+            vertex_ambient: false,
         }
     }
 }
@@ -300,6 +313,8 @@ struct Exporter<'a> {
     unlit: bool,
     /// The terrain's light-map section, where exported.
     lightmap: Option<String>,
+    /// `--vertex-ambient`: the models' COLOR_0.
+    ambient: Option<ambient::VertexAmbient>,
     doc: Doc,
     textures: HashMap<String, Option<Exported>>,
     warnings: Vec<crate::diag::Warning>,
@@ -431,6 +446,21 @@ impl Exporter<'_> {
             .floats(&m.positions, "VEC3", Some(ARRAY_BUFFER), true);
         let nrm = self.doc.floats(&normals, "VEC3", Some(ARRAY_BUFFER), false);
         let uv = self.doc.floats(&m.uvs, "VEC2", Some(ARRAY_BUFFER), false);
+        // COLOR_0 (`--vertex-ambient`): one accessor, or one per material where they differ.
+        // Taken out for the loop (self.material borrows self) and put back at the end.
+        let amb = self.ambient.take();
+        let colors = amb.as_ref().and_then(|a| a.models.get(section));
+        let mut color_of = HashMap::new();
+        let mut extras = json!({"section": section});
+        if let Some(c) = colors {
+            let scale = amb.as_ref().map_or(1.0, |a| a.scale);
+            let source = amb.as_ref().map(|a| a.source);
+            extras["vertex_ambient"] = json!({
+                "section": c.prt_section, "attribute": "COLOR_0", "scale": scale,
+                "unit": "W/m^2/sr", "instances": c.instances, "light": source,
+                "per_material": matches!(c.colors, ambient::Colors::PerMaterial(_)),
+                "radiance": "L_ambient = base colour * COLOR_0 * scale (front side, eq. 4.8, mean over the model's instances)"});
+        }
         let mut primitives = Vec::new();
         for (i, input) in m.materials.iter().enumerate() {
             let tris: Vec<[u32; 3]> = m
@@ -448,8 +478,26 @@ impl Exporter<'_> {
                 .map(|(s, mm)| (s.as_str(), mm));
             let material = self.material(section, i, input, converted)?;
             let idx = self.doc.indices(&tris);
+            let mut attributes = json!({"POSITION": pos, "NORMAL": nrm, "TEXCOORD_0": uv});
+            if let Some(c) = colors {
+                let key = match c.colors {
+                    ambient::Colors::Shared(_) => usize::MAX,
+                    ambient::Colors::PerMaterial(_) => i,
+                };
+                let acc = match color_of.get(&key) {
+                    Some(&a) => a,
+                    None => {
+                        let a = self
+                            .doc
+                            .floats(c.colors.of(i), "VEC3", Some(ARRAY_BUFFER), false);
+                        color_of.insert(key, a);
+                        a
+                    }
+                };
+                attributes["COLOR_0"] = json!(acc);
+            }
             primitives.push(json!({
-                "attributes": {"POSITION": pos, "NORMAL": nrm, "TEXCOORD_0": uv},
+                "attributes": attributes,
                 "indices": idx, "material": material, "mode": 4,
             }));
         }
@@ -460,10 +508,10 @@ impl Exporter<'_> {
                 "the mesh has no triangles",
             ));
         }
+        self.ambient = amb;
         self.doc
             .meshes
-            .push(json!({"name": name, "primitives": primitives,
-            "extras": {"section": section}}));
+            .push(json!({"name": name, "primitives": primitives, "extras": extras}));
         Ok(self.doc.meshes.len() - 1)
     }
 
@@ -818,15 +866,23 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => std::path::PathBuf::from("."),
     };
+    let mut warnings = Vec::new();
+    // Before anything is created: a pack without PRT is refused here.
+    let vertex_ambient = if opts.vertex_ambient {
+        Some(ambient::load(pack, &mut warnings)?)
+    } else {
+        None
+    };
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let mut ex = Exporter {
         pack,
         bake_light: opts.bake_light,
         unlit: false,
         lightmap: None,
+        ambient: vertex_ambient,
         doc: Doc::new(&dir)?,
         textures: HashMap::new(),
-        warnings: Vec::new(),
+        warnings,
     };
     let mut report = ExportReport::default();
     // Material sections by (mesh section, index).
@@ -948,9 +1004,14 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
         .file_name()
         .map(|f| f.to_string_lossy().into_owned())
         .unwrap_or_default();
-    ex.doc.nodes.push(json!({"name": "bake Z-up to glTF Y-up", "rotation": Z_UP_TO_Y_UP,
-        "children": children,
-        "extras": {"pack": pack_name, "axes": "children in bake's frame: Z up, metres; this node maps (x, y, z) to (x, z, -y)"}}));
+    let mut root_extras = json!({"pack": pack_name, "axes": "children in bake's frame: Z up, metres; this node maps (x, y, z) to (x, z, -y)"});
+    if let Some(a) = &ex.ambient {
+        root_extras["vertex_ambient_scale"] = json!(a.scale);
+    }
+    ex.doc.nodes.push(
+        json!({"name": "bake Z-up to glTF Y-up", "rotation": Z_UP_TO_Y_UP,
+        "children": children, "extras": root_extras}),
+    );
     let root = ex.doc.nodes.len() - 1;
 
     let mut used = Vec::new();
@@ -971,6 +1032,10 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
     report.images = doc.images.len();
     report.lightmap = ex.lightmap.clone();
     report.bake_light = ex.unlit;
+    if let Some(a) = &ex.ambient {
+        report.vertex_ambient_models = a.models.len();
+        report.vertex_ambient_scale = Some(a.scale);
+    }
     let (mut bin, bin_len) = doc.bin.finish(&dir)?;
     let mut buffer = Map::new();
     buffer.insert("byteLength".into(), json!(bin_len));
