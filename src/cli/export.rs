@@ -24,6 +24,11 @@ pub struct ExportArgs {
     /// that the brightest vertex is 1 (docs/MATERIALS.md, "Export to glTF"). Needs `prt` sections.
     #[arg(long)]
     pub vertex_ambient: bool,
+    /// Export every model's levels of detail (the `lod` sections' mesh levels 1..) as meshes on
+    /// nodes that the model node names through `MSFT_lod` (with `MSFT_screencoverage` and bake's
+    /// selection rule in its extras), for viewers that pick a level (docs/MATERIALS.md).
+    #[arg(long)]
+    pub lod: bool,
 }
 
 pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
@@ -46,11 +51,12 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         container,
         bake_light: args.bake_light,
         vertex_ambient: args.vertex_ambient,
+        lod: args.lod,
     };
     // Written to a temporary file and renamed, as packs are: a failed run leaves no output.
     let report = export(&pack, opts, &args.output)?;
     let text = format!(
-        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}{}\n",
+        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}{}{}\n",
         args.output.display(),
         report.bytes,
         report.models,

@@ -85,6 +85,8 @@ pub struct ExportReport {
     pub lightmap: Option<String>,
     /// Whether the light map was multiplied into the terrain's (unlit) base colour.
     pub bake_light: bool,
+    /// Meshes of `lod` levels 1.. (`--lod`).
+    pub lod_meshes: usize,
     /// Models given COLOR_0 (`--vertex-ambient`).
     pub vertex_ambient_models: usize,
     /// W/m²/sr: the ambient radiance of an albedo-1 surface is COLOR_0 × this
@@ -106,6 +108,8 @@ pub struct ExportOptions {
     /// Every model vertex's PRT ambient (the renderer's, under the pack's light) as `COLOR_0`,
     /// divided by one scale for the file (docs/MATERIALS.md). Needs a `prt` section.
     pub vertex_ambient: bool,
+    /// Every model's `lod` levels 1.. as meshes, on nodes named by the model node's `MSFT_lod`.
+    pub lod: bool,
 }
 
 impl ExportOptions {
@@ -114,6 +118,7 @@ impl ExportOptions {
             container,
             bake_light: false,
             vertex_ambient: false,
+            lod: false,
         }
     }
 }
@@ -306,6 +311,23 @@ fn texture_image(pack: &Pack, name: &str) -> Result<Rgba8Image> {
     })
 }
 
+/// A model's lower levels as exported: their meshes (levels 1..), `MSFT_screencoverage` and the
+/// selection rule for the node's extras.
+struct Lods {
+    meshes: Vec<usize>,
+    screen: Vec<f32>,
+    info: Value,
+}
+
+/// The geometry of one glTF mesh of a model (see [`Exporter::geometry_mesh`]).
+struct Geometry<'a> {
+    positions: &'a [[f32; 3]],
+    /// Per vertex, the mesh vertex it copies (a `lod` level); `None`: the mesh's own vertices.
+    source: Option<&'a [u32]>,
+    indices: &'a [[u32; 3]],
+    triangle_materials: &'a [u32],
+}
+
 struct Exporter<'a> {
     pack: &'a Pack,
     bake_light: bool,
@@ -315,6 +337,10 @@ struct Exporter<'a> {
     lightmap: Option<String>,
     /// `--vertex-ambient`: the models' COLOR_0.
     ambient: Option<ambient::VertexAmbient>,
+    /// glTF materials made, by (mesh section, mesh material): shared by a model's levels.
+    made: HashMap<(String, usize), usize>,
+    /// Whether a node carries `MSFT_lod`.
+    lod_used: bool,
     doc: Doc,
     textures: HashMap<String, Option<Exported>>,
     warnings: Vec<crate::diag::Warning>,
@@ -425,13 +451,14 @@ impl Exporter<'_> {
         Ok(self.doc.materials.len() - 1)
     }
 
-    /// A model's mesh: shared vertex accessors, one primitive per material that has triangles.
+    /// A model's mesh (level 0): shared vertex accessors, one primitive per material that has
+    /// triangles. Returns the glTF mesh and the pack's mesh.
     fn model_mesh(
         &mut self,
         name: &str,
         section: &str,
         materials: &HashMap<(String, u32), (String, MaterialMeta)>,
-    ) -> Result<usize> {
+    ) -> Result<(usize, Mesh)> {
         let v = self.pack.view_named(section)?;
         let (_, m): (_, Mesh) = mesh::from_section(&v).map_err(|e| {
             Error::invalid_at(
@@ -440,18 +467,56 @@ impl Exporter<'_> {
                 e.to_string(),
             )
         })?;
-        let normals: Vec<[f32; 3]> = m.normals.iter().map(|&n| unit(n)).collect();
+        let geometry = Geometry {
+            positions: &m.positions,
+            source: None,
+            indices: &m.indices,
+            triangle_materials: &m.triangle_materials,
+        };
+        let mesh = self.geometry_mesh(name, section, &m, geometry, materials, json!({}))?;
+        Ok((mesh, m))
+    }
+
+    /// One glTF mesh of a model's geometry: level 0 (the mesh's own vertices) or a `lod` level
+    /// (its vertices, each a copy of mesh vertex `source[i]`: normal, UV and COLOR_0 gathered
+    /// from it). Materials are made once per model and shared between its levels.
+    fn geometry_mesh(
+        &mut self,
+        name: &str,
+        section: &str,
+        m: &Mesh,
+        g: Geometry,
+        materials: &HashMap<(String, u32), (String, MaterialMeta)>,
+        mut extras: Value,
+    ) -> Result<usize> {
+        let gather = |a: &[[f32; 3]]| -> Vec<[f32; 3]> {
+            match g.source {
+                None => a.to_vec(),
+                Some(src) => src
+                    .iter()
+                    .map(|&s| a.get(s as usize).copied().unwrap_or([0.0; 3]))
+                    .collect(),
+            }
+        };
+        let normals: Vec<[f32; 3]> = gather(&m.normals).into_iter().map(unit).collect();
+        let uvs: Vec<[f32; 2]> = match g.source {
+            None => m.uvs.clone(),
+            Some(src) => src
+                .iter()
+                .map(|&s| m.uvs.get(s as usize).copied().unwrap_or([0.0; 2]))
+                .collect(),
+        };
         let pos = self
             .doc
-            .floats(&m.positions, "VEC3", Some(ARRAY_BUFFER), true);
+            .floats(g.positions, "VEC3", Some(ARRAY_BUFFER), true);
         let nrm = self.doc.floats(&normals, "VEC3", Some(ARRAY_BUFFER), false);
-        let uv = self.doc.floats(&m.uvs, "VEC2", Some(ARRAY_BUFFER), false);
+        let uv = self.doc.floats(&uvs, "VEC2", Some(ARRAY_BUFFER), false);
         // COLOR_0 (`--vertex-ambient`): one accessor, or one per material where they differ.
         // Taken out for the loop (self.material borrows self) and put back at the end.
         let amb = self.ambient.take();
         let colors = amb.as_ref().and_then(|a| a.models.get(section));
         let mut color_of = HashMap::new();
-        let mut extras = json!({"section": section});
+        extras["section"] = json!(section);
         if let Some(c) = colors {
             let scale = amb.as_ref().map_or(1.0, |a| a.scale);
             let source = amb.as_ref().map(|a| a.source);
@@ -463,20 +528,27 @@ impl Exporter<'_> {
         }
         let mut primitives = Vec::new();
         for (i, input) in m.materials.iter().enumerate() {
-            let tris: Vec<[u32; 3]> = m
+            let tris: Vec<[u32; 3]> = g
                 .indices
                 .iter()
-                .zip(&m.triangle_materials)
+                .zip(g.triangle_materials)
                 .filter(|(_, mat)| **mat as usize == i)
                 .map(|(t, _)| *t)
                 .collect();
             if tris.is_empty() {
                 continue;
             }
-            let converted = materials
-                .get(&(section.to_string(), i as u32))
-                .map(|(s, mm)| (s.as_str(), mm));
-            let material = self.material(section, i, input, converted)?;
+            let material = match self.made.get(&(section.to_string(), i)) {
+                Some(&k) => k,
+                None => {
+                    let converted = materials
+                        .get(&(section.to_string(), i as u32))
+                        .map(|(s, mm)| (s.as_str(), mm));
+                    let k = self.material(section, i, input, converted)?;
+                    self.made.insert((section.to_string(), i), k);
+                    k
+                }
+            };
             let idx = self.doc.indices(&tris);
             let mut attributes = json!({"POSITION": pos, "NORMAL": nrm, "TEXCOORD_0": uv});
             if let Some(c) = colors {
@@ -487,9 +559,8 @@ impl Exporter<'_> {
                 let acc = match color_of.get(&key) {
                     Some(&a) => a,
                     None => {
-                        let a = self
-                            .doc
-                            .floats(c.colors.of(i), "VEC3", Some(ARRAY_BUFFER), false);
+                        let values = gather(c.colors.of(i));
+                        let a = self.doc.floats(&values, "VEC3", Some(ARRAY_BUFFER), false);
                         color_of.insert(key, a);
                         a
                     }
@@ -501,6 +572,7 @@ impl Exporter<'_> {
                 "indices": idx, "material": material, "mode": 4,
             }));
         }
+        self.ambient = amb;
         if primitives.is_empty() {
             return Err(Error::invalid_at(
                 self.pack.path(),
@@ -508,35 +580,133 @@ impl Exporter<'_> {
                 "the mesh has no triangles",
             ));
         }
-        self.ambient = amb;
         self.doc
             .meshes
             .push(json!({"name": name, "primitives": primitives, "extras": extras}));
         Ok(self.doc.meshes.len() - 1)
     }
 
-    /// One node per model, its instances through `EXT_mesh_gpu_instancing`.
-    fn instanced_node(
+    /// The `lod` levels 1.. of a model as meshes (`<name> lod<l>`), where the pack has a `lod`
+    /// section with more than one level; `None` otherwise.
+    fn lod_meshes(
+        &mut self,
+        name: &str,
+        section: &str,
+        m: &Mesh,
+        materials: &HashMap<(String, u32), (String, MaterialMeta)>,
+    ) -> Result<Option<Lods>> {
+        let Some(view) = crate::lod::section::read(self.pack, section)? else {
+            return Ok(None);
+        };
+        let meta = &view.meta;
+        if meta.levels.len() < 2 {
+            return Ok(None);
+        }
+        let lod_section = crate::lod::section::lod_section_name(section);
+        let mut meshes = Vec::new();
+        for (l, level) in meta.levels.iter().enumerate().skip(1) {
+            let first = level.first_vertex as usize;
+            let source = &view.vertex_source[first..first + level.vertex_count as usize];
+            let (indices, triangle_materials) = view.level_triangles(l);
+            let g = Geometry {
+                positions: view.level_positions(l),
+                source: Some(source),
+                indices,
+                triangle_materials,
+            };
+            let extras = json!({"lod_section": lod_section, "level": l, "error": level.error});
+            meshes.push(self.geometry_mesh(
+                &format!("{name} lod{l}"),
+                section,
+                m,
+                g,
+                materials,
+                extras,
+            )?);
+        }
+        let k = crate::lod::select::reference_k();
+        let tau = crate::lod::select::DEFAULT_TAU;
+        let errors: Vec<f32> = meta.levels.iter().map(|l| l.error).collect();
+        // The fraction of the reference view's height the bounding sphere's diameter covers
+        // where the renderer switches to each level: 2R·k/(d·H) at d = e·k/τ, i.e. 2R·τ/(e·H).
+        let coverage = |e: f32| {
+            if e > 0.0 {
+                2.0 * meta.radius * tau / (e * crate::lod::select::REFERENCE_HEIGHT as f32)
+            } else {
+                f32::INFINITY
+            }
+        };
+        let mut screen: Vec<f32> = errors[1..].iter().map(|&e| coverage(e)).collect();
+        screen.push(0.0);
+        let info = json!({
+            "section": lod_section, "errors": errors, "centre": meta.centre,
+            "radius": meta.radius,
+            "switch_distance": errors.iter()
+                .map(|&e| crate::lod::select::switch_distance(e, 1.0, k, tau)).collect::<Vec<_>>(),
+            "reference": {"height": crate::lod::select::REFERENCE_HEIGHT,
+                          "fov_y_deg": crate::lod::select::REFERENCE_FOV_Y_DEG, "tau": tau},
+            "rule": "level l where e_l * s * k <= tau * d (largest such l); k = H / (2 tan(fov_y / 2)) pixels per unit at distance 1, s the instance scale, d the distance from the eye to the placed sphere centre"});
+        Ok(Some(Lods {
+            meshes,
+            screen,
+            info,
+        }))
+    }
+
+    /// A model's node (instanced through `EXT_mesh_gpu_instancing` where `list` is given, else
+    /// at the origin) and, with `lods`, one node per lower level (the same instance accessors)
+    /// named by the first one's `MSFT_lod`; the lower levels are not in the scene's hierarchy.
+    fn model_node(
         &mut self,
         name: &str,
         section: &str,
         mesh: usize,
-        list: &[InstanceRecord],
+        list: Option<&[InstanceRecord]>,
+        lods: Option<&Lods>,
     ) -> usize {
-        let t: Vec<[f32; 3]> = list.iter().map(|r| r.position).collect();
-        let r: Vec<[f32; 4]> = list.iter().map(|r| rotation_z(r.rotation_deg)).collect();
-        let s: Vec<[f32; 3]> = list.iter().map(|r| [r.scale; 3]).collect();
-        let ta = self.doc.floats(&t, "VEC3", None, true);
-        let ra = self.doc.floats(&r, "VEC4", None, false);
-        let sa = self.doc.floats(&s, "VEC3", None, false);
-        self.doc.nodes.push(json!({
-            "name": name, "mesh": mesh,
-            "extensions": {"EXT_mesh_gpu_instancing": {"attributes":
-                {"TRANSLATION": ta, "ROTATION": ra, "SCALE": sa}}},
-            "extras": {"section": section, "instances_section": instances::KIND,
-                       "instances": list.len()},
-        }));
-        self.doc.nodes.len() - 1
+        let mut extensions = json!({});
+        let mut extras = json!({"section": section});
+        if let Some(list) = list {
+            let t: Vec<[f32; 3]> = list.iter().map(|r| r.position).collect();
+            let r: Vec<[f32; 4]> = list.iter().map(|r| rotation_z(r.rotation_deg)).collect();
+            let s: Vec<[f32; 3]> = list.iter().map(|r| [r.scale; 3]).collect();
+            let ta = self.doc.floats(&t, "VEC3", None, true);
+            let ra = self.doc.floats(&r, "VEC4", None, false);
+            let sa = self.doc.floats(&s, "VEC3", None, false);
+            extensions["EXT_mesh_gpu_instancing"] =
+                json!({"attributes": {"TRANSLATION": ta, "ROTATION": ra, "SCALE": sa}});
+            extras["instances_section"] = json!(instances::KIND);
+            extras["instances"] = json!(list.len());
+        }
+        let with = |mesh: usize, name: String, extensions: &Value, extras: Value| {
+            let mut n = json!({"name": name, "mesh": mesh, "extras": extras});
+            if extensions.as_object().is_some_and(|o| !o.is_empty()) {
+                n["extensions"] = extensions.clone();
+            }
+            n
+        };
+        let node = self.doc.nodes.len();
+        self.doc
+            .nodes
+            .push(with(mesh, name.to_string(), &extensions, extras.clone()));
+        if let Some(lods) = lods {
+            let mut ids = Vec::new();
+            for (l, &m) in lods.meshes.iter().enumerate() {
+                let mut e = extras.clone();
+                e["lod_level"] = json!(l + 1);
+                ids.push(self.doc.nodes.len());
+                self.doc
+                    .nodes
+                    .push(with(m, format!("{name} lod{}", l + 1), &extensions, e));
+            }
+            let n = &mut self.doc.nodes[node];
+            n["extensions"]["MSFT_lod"] = json!({"ids": ids});
+            n["extras"]["MSFT_screencoverage"] = json!(lods.screen);
+            n["extras"]["lod"] = lods.info.clone();
+            n["extras"]["lod"]["nodes"] = json!(ids);
+            self.lod_used = true;
+        }
+        node
     }
 
     /// The terrain as one mesh of chunk primitives; returns its node and the chunk count.
@@ -880,6 +1050,8 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
         unlit: false,
         lightmap: None,
         ambient: vertex_ambient,
+        made: HashMap::new(),
+        lod_used: false,
         doc: Doc::new(&dir)?,
         textures: HashMap::new(),
         warnings,
@@ -942,7 +1114,14 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
             ));
             continue;
         }
-        let mesh = ex.model_mesh(name, section, &materials)?;
+        let (mesh, m) = ex.model_mesh(name, section, &materials)?;
+        let lods = if opts.lod {
+            ex.lod_meshes(name, section, &m, &materials)?
+        } else {
+            None
+        };
+        drop(m);
+        report.lod_meshes += lods.as_ref().map_or(0, |l| l.meshes.len());
         report.models += 1;
         match list {
             Some(list) if list.is_empty() => ex.warnings.push(crate::diag::Warning::new(
@@ -951,14 +1130,10 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
                 format!("model {name:?} has no instances: its mesh is exported without a node"),
             )),
             Some(list) => {
-                children.push(ex.instanced_node(name, section, mesh, list));
+                children.push(ex.model_node(name, section, mesh, Some(list), lods.as_ref()));
                 report.instances += list.len();
             }
-            None => {
-                ex.doc.nodes.push(json!({"name": name, "mesh": mesh,
-                    "extras": {"section": section}}));
-                children.push(ex.doc.nodes.len() - 1);
-            }
+            None => children.push(ex.model_node(name, section, mesh, None, lods.as_ref())),
         }
     }
     if let Some(e) = pack.of_kind(terrain::KIND).next()
@@ -1023,6 +1198,9 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
     }
     if ex.unlit {
         used.push("KHR_materials_unlit");
+    }
+    if ex.lod_used {
+        used.push("MSFT_lod");
     }
     let doc = ex.doc;
     report.meshes = doc.meshes.len();
