@@ -76,6 +76,11 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         report
             .sun_lux
             .map_or(String::new(), |l| format!(", sun {l:.0} lx")),
+        if report.lod_meshes > 0 {
+            format!(", {} LOD meshes (MSFT_lod)", report.lod_meshes)
+        } else {
+            String::new()
+        },
         report
             .vertex_ambient_scale
             .map_or(String::new(), |s| format!(
