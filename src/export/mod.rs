@@ -85,7 +85,7 @@ pub struct ExportReport {
     pub lightmap: Option<String>,
     /// Whether the light map was multiplied into the terrain's (unlit) base colour.
     pub bake_light: bool,
-    /// Meshes of `lod` levels 1.. (`--lod`).
+    /// Meshes of `lod` levels 1.. and skeletons (`--lod`).
     pub lod_meshes: usize,
     /// Models given COLOR_0 (`--vertex-ambient`).
     pub vertex_ambient_models: usize,
@@ -315,6 +315,8 @@ fn texture_image(pack: &Pack, name: &str) -> Result<Rgba8Image> {
 /// selection rule for the node's extras.
 struct Lods {
     meshes: Vec<usize>,
+    /// The skeleton's mesh (lines and points), after the mesh levels.
+    skeleton: Option<usize>,
     screen: Vec<f32>,
     info: Value,
 }
@@ -599,7 +601,7 @@ impl Exporter<'_> {
             return Ok(None);
         };
         let meta = &view.meta;
-        if meta.levels.len() < 2 {
+        if meta.levels.len() < 2 && meta.skeleton.is_none() {
             return Ok(None);
         }
         let lod_section = crate::lod::section::lod_section_name(section);
@@ -624,6 +626,47 @@ impl Exporter<'_> {
                 extras,
             )?);
         }
+        // The skeleton (TXF line and point arrays), the renderer's farthest representation: a
+        // mesh of a LINES and a POINTS primitive in the model's mean albedo.
+        let mut skeleton = None;
+        if let Some(sk) = &meta.skeleton
+            && (!view.skeleton_lines.is_empty() || !view.skeleton_points.is_empty())
+        {
+            let albedo = sk
+                .albedo
+                .map(|c| crate::color::srgb_to_linear(c as f32 / 255.0));
+            self.doc.materials.push(json!({
+                "name": format!("{name} skeleton"),
+                "pbrMetallicRoughness": {"baseColorFactor": [albedo[0], albedo[1], albedo[2], 1.0],
+                    "metallicFactor": 0.0, "roughnessFactor": 1.0},
+                "extras": {"section": lod_section, "skeleton_albedo_srgb8": sk.albedo}}));
+            let material = self.doc.materials.len() - 1;
+            let mut primitives = Vec::new();
+            let lines = view.skeleton_lines.len() / 2 * 2;
+            if lines > 0 {
+                let a = self.doc.floats(
+                    &view.skeleton_lines[..lines],
+                    "VEC3",
+                    Some(ARRAY_BUFFER),
+                    true,
+                );
+                primitives
+                    .push(json!({"attributes": {"POSITION": a}, "material": material, "mode": 1}));
+            }
+            if !view.skeleton_points.is_empty() {
+                let a = self
+                    .doc
+                    .floats(view.skeleton_points, "VEC3", Some(ARRAY_BUFFER), true);
+                primitives
+                    .push(json!({"attributes": {"POSITION": a}, "material": material, "mode": 0}));
+            }
+            self.doc
+                .meshes
+                .push(json!({"name": format!("{name} skeleton"),
+                "primitives": primitives,
+                "extras": {"section": section, "lod_section": lod_section, "skeleton": true}}));
+            skeleton = Some((self.doc.meshes.len() - 1, sk.pixels));
+        }
         let k = crate::lod::select::reference_k();
         let tau = crate::lod::select::DEFAULT_TAU;
         let errors: Vec<f32> = meta.levels.iter().map(|l| l.error).collect();
@@ -637,6 +680,14 @@ impl Exporter<'_> {
             }
         };
         let mut screen: Vec<f32> = errors[1..].iter().map(|&e| coverage(e)).collect();
+        if let Some((_, pixels)) = skeleton {
+            // Drawn where the sphere's radius projects to at most `pixels`: a diameter of 2P.
+            screen.push(2.0 * pixels / crate::lod::select::REFERENCE_HEIGHT as f32);
+        }
+        // Non-increasing, as MSFT_screencoverage reads them.
+        for i in 1..screen.len() {
+            screen[i] = screen[i].min(screen[i - 1]);
+        }
         screen.push(0.0);
         let info = json!({
             "section": lod_section, "errors": errors, "centre": meta.centre,
@@ -646,8 +697,14 @@ impl Exporter<'_> {
             "reference": {"height": crate::lod::select::REFERENCE_HEIGHT,
                           "fov_y_deg": crate::lod::select::REFERENCE_FOV_Y_DEG, "tau": tau},
             "rule": "level l where e_l * s * k <= tau * d (largest such l); k = H / (2 tan(fov_y / 2)) pixels per unit at distance 1, s the instance scale, d the distance from the eye to the placed sphere centre"});
+        let mut info = info;
+        if let Some((_, pixels)) = skeleton {
+            info["skeleton"] = json!({"pixels": pixels,
+                "rule": "drawn where radius * s * k <= pixels * d, before any mesh level"});
+        }
         Ok(Some(Lods {
             meshes,
+            skeleton: skeleton.map(|s| s.0),
             screen,
             info,
         }))
@@ -699,11 +756,24 @@ impl Exporter<'_> {
                     .nodes
                     .push(with(m, format!("{name} lod{}", l + 1), &extensions, e));
             }
+            if let Some(m) = lods.skeleton {
+                let mut e = extras.clone();
+                e["lod_level"] = json!("skeleton");
+                ids.push(self.doc.nodes.len());
+                // The same instances (three.js does not instance lines and points: its page
+                // places them itself, scripts/threejs/page.js).
+                self.doc
+                    .nodes
+                    .push(with(m, format!("{name} skeleton"), &extensions, e));
+            }
             let n = &mut self.doc.nodes[node];
             n["extensions"]["MSFT_lod"] = json!({"ids": ids});
             n["extras"]["MSFT_screencoverage"] = json!(lods.screen);
             n["extras"]["lod"] = lods.info.clone();
-            n["extras"]["lod"]["nodes"] = json!(ids);
+            n["extras"]["lod"]["nodes"] = json!(ids[..lods.meshes.len()]);
+            if lods.skeleton.is_some() {
+                n["extras"]["lod"]["skeleton"]["node"] = json!(ids.last());
+            }
             self.lod_used = true;
         }
         node
@@ -1121,7 +1191,9 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
             None
         };
         drop(m);
-        report.lod_meshes += lods.as_ref().map_or(0, |l| l.meshes.len());
+        report.lod_meshes += lods
+            .as_ref()
+            .map_or(0, |l| l.meshes.len() + l.skeleton.is_some() as usize);
         report.models += 1;
         match list {
             Some(list) if list.is_empty() => ex.warnings.push(crate::diag::Warning::new(
