@@ -344,12 +344,12 @@ fn the_khronos_validator_finds_no_errors() {
         lit.to_str().unwrap(),
         &["--bake-light"],
     );
-    // And with the PRT ambient as COLOR_0, beside the baked light.
+    // And with the PRT ambient as COLOR_0 and the LOD chain, beside the baked light.
     let ambient = dir.path().join("ambient.glb");
     export_ok(
         pack.to_str().unwrap(),
         ambient.to_str().unwrap(),
-        &["--bake-light", "--vertex-ambient"],
+        &["--bake-light", "--vertex-ambient", "--lod"],
     );
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
     for file in [glb, gltf, lit, ambient] {
@@ -988,4 +988,166 @@ fn vertex_ambient_on_a_pack_without_prt_is_refused_and_nothing_is_written() {
     // The same pack exports without the option.
     export_ok(pack.to_str().unwrap(), out.to_str().unwrap(), &[]);
     assert!(out.exists());
+}
+
+/// `--lod`: every model's `lod` levels 1.. (and its skeleton) as meshes on nodes that the model
+/// node names through `MSFT_lod`, against the pack's `lod` sections: vertex positions, triangle
+/// counts per level, the instances shared, COLOR_0 gathered from the mesh vertex each level
+/// vertex copies, and the selection rule's numbers in the extras.
+#[test]
+fn lod_levels_are_meshes_on_msft_lod_nodes_as_the_pack_has_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let out = dir.path().join("lod.glb");
+    let report = common::json(&common::bake(&[
+        "export",
+        pack_path.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--lod",
+        "--vertex-ambient",
+        "--json",
+    ]));
+    let pack = Pack::open(&pack_path).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let blob = &buffers[0].0;
+    assert!(
+        json["extensionsUsed"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e == "MSFT_lod")
+    );
+    let nodes = json["nodes"].as_array().unwrap();
+    let mesh_of = |n: &Value| {
+        doc.meshes()
+            .nth(n["mesh"].as_u64().unwrap() as usize)
+            .unwrap()
+    };
+    let colors = |m: &gltf::Mesh| -> Vec<[f32; 3]> {
+        let p = m.primitives().next().unwrap();
+        floats::<3>(
+            &doc,
+            blob,
+            p.get(&gltf::Semantic::Colors(0)).unwrap().index(),
+        )
+    };
+    let (meta, _) = instances_of(&pack);
+    let mut lod_meshes = 0;
+    let mut with_levels = 0;
+    for section in &meta.mesh_sections {
+        let Some(view) = bake::lod::section::read(&pack, section).unwrap() else {
+            continue;
+        };
+        let named = |n: &&Value| {
+            n["extras"]["section"] == section.as_str() && n["extras"].get("lod").is_some()
+        };
+        if view.meta.levels.len() < 2 && view.meta.skeleton.is_none() {
+            // Full detail only: nothing to name.
+            assert!(!nodes.iter().any(|n| named(&n)), "{section}");
+            continue;
+        }
+        let node = nodes
+            .iter()
+            .find(|n| {
+                n["extras"]["section"] == section.as_str() && n["extras"].get("lod").is_some()
+            })
+            .unwrap_or_else(|| panic!("no MSFT_lod node for {section}"));
+        let ids: Vec<usize> = node["extensions"]["MSFT_lod"]["ids"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|i| i.as_u64().unwrap() as usize)
+            .collect();
+        let levels = view.meta.levels.len();
+        let skeleton = view.meta.skeleton.is_some() as usize;
+        assert_eq!(ids.len(), levels - 1 + skeleton, "{section}");
+        lod_meshes += ids.len();
+        with_levels += (levels > 1) as usize;
+        // MSFT_screencoverage: one per node (the model's and each lower one) and a final 0,
+        // non-increasing.
+        let cover: Vec<f64> = node["extras"]["MSFT_screencoverage"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c.as_f64().unwrap())
+            .collect();
+        assert_eq!(cover.len(), ids.len() + 1);
+        assert!(
+            cover.windows(2).all(|w| w[0] >= w[1]) && cover[ids.len()] == 0.0,
+            "{cover:?}"
+        );
+        let lod = &node["extras"]["lod"];
+        let errors: Vec<f32> = lod["errors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e.as_f64().unwrap() as f32)
+            .collect();
+        assert_eq!(
+            errors,
+            view.meta.levels.iter().map(|l| l.error).collect::<Vec<_>>()
+        );
+        assert_eq!(lod["radius"].as_f64().unwrap() as f32, view.meta.radius);
+        let base_colors = colors(&mesh_of(node));
+        for (l, &id) in ids.iter().enumerate().take(levels - 1) {
+            let l = l + 1;
+            let n = &nodes[id];
+            // The same instances as the model node.
+            assert_eq!(
+                n["extensions"]["EXT_mesh_gpu_instancing"],
+                node["extensions"]["EXT_mesh_gpu_instancing"]
+            );
+            let m = mesh_of(n);
+            let p0 = m.primitives().next().unwrap();
+            let pos = floats::<3>(
+                &doc,
+                blob,
+                p0.get(&gltf::Semantic::Positions).unwrap().index(),
+            );
+            assert_eq!(pos, view.level_positions(l), "{section} level {l}");
+            let triangles: usize = m
+                .primitives()
+                .map(|p| p.indices().unwrap().count() / 3)
+                .sum();
+            assert_eq!(triangles, view.meta.levels[l].triangle_count as usize);
+            // COLOR_0 of a level vertex is that of the mesh vertex it copies.
+            let first = view.meta.levels[l].first_vertex as usize;
+            let source = &view.vertex_source[first..first + pos.len()];
+            for (c, &s) in colors(&m).iter().zip(source) {
+                assert_eq!(*c, base_colors[s as usize]);
+            }
+        }
+        if skeleton == 1 {
+            let m = mesh_of(&nodes[*ids.last().unwrap()]);
+            let modes: Vec<_> = m.primitives().map(|p| p.mode()).collect();
+            assert!(modes.contains(&gltf::mesh::Mode::Lines), "{modes:?}");
+            let p = m
+                .primitives()
+                .find(|p| p.mode() == gltf::mesh::Mode::Lines)
+                .unwrap();
+            let lines = floats::<3>(
+                &doc,
+                blob,
+                p.get(&gltf::Semantic::Positions).unwrap().index(),
+            );
+            assert_eq!(lines, view.skeleton_lines);
+        }
+    }
+    assert!(
+        with_levels >= 1,
+        "the preview fixture has a model with levels"
+    );
+    assert_eq!(report["lod_meshes"], lod_meshes);
+    // Without --lod nothing of it.
+    let plain = dir.path().join("plain.glb");
+    export_ok(pack_path.to_str().unwrap(), plain.to_str().unwrap(), &[]);
+    let pj = glb_json(&std::fs::read(&plain).unwrap());
+    assert!(!pj.to_string().contains("MSFT_lod"));
+    assert_eq!(
+        pj["meshes"].as_array().unwrap().len() + lod_meshes,
+        json["meshes"].as_array().unwrap().len()
+    );
 }
