@@ -770,6 +770,62 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     assert!((0.92..=1.08).contains(&ratio), "terrain ratio {ratio}");
     assert!(m["terrain_blurred_rms"].as_f64().unwrap() <= 0.05);
     assert!(d.join("three/side-by-side.png").is_file());
+
+    // With the LOD chain and the page choosing each instance's level by bake's rule: the same
+    // bounds, and the same instanced triangles and skeletons as bake's frame.
+    export_ok(
+        pack.to_str().unwrap(),
+        &p("lod.glb"),
+        &["--bake-light", "--lod"],
+    );
+    let o = std::process::Command::new("node")
+        .arg(&script)
+        .args(["--glb", &p("lod.glb"), "--bake", &p("bake.png")])
+        .args([
+            "--regions",
+            &p("regions.png"),
+            "--render-json",
+            &p("render.json"),
+        ])
+        .args([
+            "--out",
+            &p("three-lod"),
+            "--timeout",
+            "120",
+            "--lod-select",
+            "1",
+        ])
+        .arg("--three")
+        .arg(&three)
+        .arg("--chromium")
+        .arg(&chromium)
+        .output()
+        .expect("run node");
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{log}");
+    assert!(
+        o.status.success(),
+        "three.js check with --lod-select: {log}"
+    );
+    let m: Value =
+        serde_json::from_slice(&std::fs::read(d.join("three-lod/metrics.json")).unwrap()).unwrap();
+    let render: Value =
+        serde_json::from_slice(&std::fs::read(d.join("render.json")).unwrap()).unwrap();
+    let stats = &render["stats"];
+    let lod = &m["lod_select"];
+    assert!(lod["models"].as_u64().unwrap() >= 1, "{lod}");
+    assert_eq!(lod["skeleton"], stats["skeleton_instances"]);
+    if stats["impostor_instances"] == 0 {
+        assert_eq!(
+            lod["instance_triangles"].as_u64().unwrap(),
+            stats["triangles"].as_u64().unwrap() - stats["terrain_triangles"].as_u64().unwrap(),
+            "{lod} against {stats}"
+        );
+    }
 }
 
 #[test]

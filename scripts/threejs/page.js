@@ -163,6 +163,12 @@ async function main() {
         });
       }
     }
+    // Every instanced triangle the frame draws (models without levels included), to set
+    // beside `bake render`'s statistics (its triangles less the terrain's).
+    lodStats.instance_triangles = 0;
+    scene.traverse((o) => {
+      if (o.isInstancedMesh && o.visible) lodStats.instance_triangles += o.count * (o.geometry.index ? o.geometry.index.count : o.geometry.attributes.position.count) / 3;
+    });
     await post('/progress', { stage: `levels chosen: ${JSON.stringify(lodStats)}` });
   }
   // The sky's ambient on the models, as bake's sky fallback: albedo/π · E_sky · (1 + n_z)/2.
