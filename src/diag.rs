@@ -327,6 +327,7 @@ mod tests {
         "export.mesh-missing",
         "export.model-without-instances",
         "export.no-light-map",
+        "export.no-prt",
         "mitsuba.sun-in-sky",
         "svo.triangles-without-voxel",
         "svo.mesh-not-closed",
