@@ -344,12 +344,13 @@ fn the_khronos_validator_finds_no_errors() {
         lit.to_str().unwrap(),
         &["--bake-light"],
     );
-    // And with the PRT ambient as COLOR_0 and the LOD chain, beside the baked light.
+    // And with the PRT ambient as COLOR_0, the LOD chain and the normal maps, beside the baked
+    // light.
     let ambient = dir.path().join("ambient.glb");
     export_ok(
         pack.to_str().unwrap(),
         ambient.to_str().unwrap(),
-        &["--bake-light", "--vertex-ambient", "--lod"],
+        &["--bake-light", "--vertex-ambient", "--lod", "--normal-maps"],
     );
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
     for file in [glb, gltf, lit, ambient] {
@@ -1206,4 +1207,130 @@ fn lod_levels_are_meshes_on_msft_lod_nodes_as_the_pack_has_them() {
         pj["meshes"].as_array().unwrap().len() + lod_meshes,
         json["meshes"].as_array().unwrap().len()
     );
+}
+
+/// `--normal-maps`: each normal-mapped material's `normalTexture` is the pack's `normal` array
+/// (level 0) in glTF's frame (green mirrored), its primitives carry the pack's tangents with w
+/// negated, and the resulting glTF bitangent `w·(n × t)` points up the image (towards
+/// decreasing v, glTF's "+Y up" with the UV origin at the top left), checked against each
+/// triangle's own ∂p/∂v.
+#[test]
+fn normal_maps_ride_in_gltfs_tangent_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let out = dir.path().join("normals.glb");
+    export_ok(
+        pack_path.to_str().unwrap(),
+        out.to_str().unwrap(),
+        &["--normal-maps"],
+    );
+    let pack = Pack::open(&pack_path).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, buffers, images) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let blob = &buffers[0].0;
+    let mut mapped = 0;
+    let (mut up, mut down) = (0usize, 0usize);
+    for mesh in doc.meshes() {
+        let section = json["meshes"][mesh.index()]["extras"]["section"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        for p in mesh.primitives() {
+            let mj = &json["materials"][p.material().index().unwrap()];
+            let Some(nt) = mj.get("normalTexture") else {
+                assert!(p.get(&gltf::Semantic::Tangents).is_none());
+                continue;
+            };
+            mapped += 1;
+            // The texture against the pack's normal array, level 0.
+            let name = mj["extras"]["normal_map"].as_str().unwrap();
+            let v = pack.view_named(name).unwrap();
+            let meta: bake::texture::source_section::TextureMeta = v.meta().unwrap();
+            let table = bake::texture::section::levels(&v, &meta, "normal").unwrap();
+            let normal: Vec<[u8; 4]> = v.array_vec("normal").unwrap();
+            let l0 = table[0];
+            let texture = &json["textures"][nt["index"].as_u64().unwrap() as usize];
+            let img = &images[texture["source"].as_u64().unwrap() as usize];
+            assert_eq!((img.width, img.height), (l0[0], l0[1]));
+            assert_eq!(img.format, gltf::image::Format::R8G8B8A8);
+            for (k, px) in img.pixels.chunks(4).enumerate() {
+                let n = normal[l0[2] as usize + k];
+                assert_eq!(
+                    [px[0], px[1], px[2]],
+                    [n[0], 255 - n[1], n[2]],
+                    "{name} texel {k}"
+                );
+            }
+            // TANGENT: the pack's, w negated.
+            let tv = pack
+                .of_kind("tangents")
+                .map(|e| pack.view(e).unwrap())
+                .find(|v| {
+                    bake::mesh::tangents::from_section(v)
+                        .unwrap()
+                        .0
+                        .mesh_section
+                        == section
+                })
+                .expect("the model's tangents");
+            let (_, tangents) = bake::mesh::tangents::from_section(&tv).unwrap();
+            let t = floats::<4>(
+                &doc,
+                blob,
+                p.get(&gltf::Semantic::Tangents).unwrap().index(),
+            );
+            assert_eq!(t.len(), tangents.len());
+            for (a, b) in t.iter().zip(&tangents) {
+                assert_eq!(*a, [b[0], b[1], b[2], -b[3]]);
+            }
+            // glTF's bitangent against each triangle's ∂p/∂v.
+            let pos = floats::<3>(
+                &doc,
+                blob,
+                p.get(&gltf::Semantic::Positions).unwrap().index(),
+            );
+            let nrm = floats::<3>(&doc, blob, p.get(&gltf::Semantic::Normals).unwrap().index());
+            let uv = floats::<2>(
+                &doc,
+                blob,
+                p.get(&gltf::Semantic::TexCoords(0)).unwrap().index(),
+            );
+            let reader = p.reader(|_| Some(&blob[..]));
+            let idx: Vec<u32> = reader.read_indices().unwrap().into_u32().collect();
+            for tri in idx.chunks(3) {
+                let [a, b, c] = [tri[0], tri[1], tri[2]].map(|i| i as usize);
+                let (e1, e2) = (
+                    Vec3::from(pos[b]) - Vec3::from(pos[a]),
+                    Vec3::from(pos[c]) - Vec3::from(pos[a]),
+                );
+                let (du1, dv1) = (uv[b][0] - uv[a][0], uv[b][1] - uv[a][1]);
+                let (du2, dv2) = (uv[c][0] - uv[a][0], uv[c][1] - uv[a][1]);
+                let det = du1 * dv2 - du2 * dv1;
+                if det.abs() < 1e-8 {
+                    continue;
+                }
+                let dpdv = (e2 * du1 - e1 * du2) / det;
+                for i in [a, b, c] {
+                    let tt = t[i];
+                    let bt = Vec3::from(nrm[i]).cross(Vec3::new(tt[0], tt[1], tt[2])) * tt[3];
+                    let d = bt.dot(dpdv);
+                    if d < 0.0 {
+                        up += 1;
+                    } else if d > 0.0 {
+                        down += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        mapped >= 1,
+        "the preview fixture has normal-mapped materials"
+    );
+    assert!(
+        up as f64 >= 0.95 * (up + down) as f64,
+        "glTF bitangents up the image at {up} corners, down at {down}"
+    );
+    eprintln!("bitangent up the image at {up} of {} corners", up + down);
 }

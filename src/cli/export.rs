@@ -29,6 +29,10 @@ pub struct ExportArgs {
     /// selection rule in its extras), for viewers that pick a level (docs/MATERIALS.md).
     #[arg(long)]
     pub lod: bool,
+    /// Export the materials' normal maps as `normalTexture` (linear PNG, glTF's tangent frame)
+    /// with the pack's tangents as `TANGENT` (docs/MATERIALS.md).
+    #[arg(long)]
+    pub normal_maps: bool,
 }
 
 pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
@@ -52,6 +56,7 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         bake_light: args.bake_light,
         vertex_ambient: args.vertex_ambient,
         lod: args.lod,
+        normal_maps: args.normal_maps,
     };
     // Written to a temporary file and renamed, as packs are: a failed run leaves no output.
     let report = export(&pack, opts, &args.output)?;

@@ -110,6 +110,9 @@ pub struct ExportOptions {
     pub vertex_ambient: bool,
     /// Every model's `lod` levels 1.. as meshes, on nodes named by the model node's `MSFT_lod`.
     pub lod: bool,
+    /// Normal maps as `normalTexture` (linear PNG in glTF's tangent frame) with the pack's
+    /// tangents as `TANGENT`, where a material has a normal map and its model tangents.
+    pub normal_maps: bool,
 }
 
 impl ExportOptions {
@@ -119,6 +122,7 @@ impl ExportOptions {
             bake_light: false,
             vertex_ambient: false,
             lod: false,
+            normal_maps: false,
         }
     }
 }
@@ -343,6 +347,8 @@ struct Exporter<'a> {
     made: HashMap<(String, usize), usize>,
     /// Whether a node carries `MSFT_lod`.
     lod_used: bool,
+    /// `--normal-maps`.
+    normal_maps: bool,
     doc: Doc,
     textures: HashMap<String, Option<Exported>>,
     warnings: Vec<crate::diag::Warning>,
@@ -375,6 +381,58 @@ impl Exporter<'_> {
         Ok(out)
     }
 
+    /// The glTF texture of the normal map in texture section `name` (its `normal` array's level
+    /// 0), exported once. bake's tangent frame has the bitangent along increasing v (down the
+    /// image, src/mesh/tangents.rs); glTF's has it up the image (+Y up): the green channel is
+    /// mirrored (G → 255 − G) and the TANGENT's w negated, so both files give the same normal
+    /// (t·x + b·y + n·z with b and y both turned). Linear PNG (glTF reads normal textures as
+    /// data, not colour).
+    fn normal_texture(&mut self, name: &str) -> Result<Option<usize>> {
+        let key = format!("normal map {name}");
+        if let Some(t) = self.textures.get(&key) {
+            return Ok(t.map(|e| e.texture));
+        }
+        let bad = |e: ParseError| {
+            Error::invalid_at(self.pack.path(), format!("section {name:?}"), e.to_string())
+        };
+        let out = match self.pack.find(name) {
+            None => None,
+            Some(_) => {
+                let v = self.pack.view_named(name)?;
+                let meta: TextureMeta = v.meta().map_err(bad)?;
+                let table = crate::texture::section::levels(&v, &meta, "normal").map_err(bad)?;
+                let normal: &[[u8; 4]] = v.array("normal").map_err(bad)?;
+                let l0 = table.first().copied().unwrap_or_default();
+                let texels = normal
+                    .get(l0[2] as usize..(l0[2] + l0[3]) as usize)
+                    .filter(|t| !t.is_empty() && t.len() as u64 == l0[0] as u64 * l0[1] as u64)
+                    .ok_or_else(|| bad(ParseError::new("normal", "level 0 outside the array")))?;
+                let img = Rgba8Image {
+                    width: l0[0],
+                    height: l0[1],
+                    pixels: texels
+                        .iter()
+                        .map(|p| [p[0], 255 - p[1], p[2], 255])
+                        .collect(),
+                };
+                let png = crate::render::encode_png(&img)?;
+                let texture = self.doc.png_texture(
+                    &png,
+                    &format!("{name} normal"),
+                    json!({"section": name, "array": "normal",
+                           "frame": "glTF (+Y up the image): bake's green mirrored, TANGENT w negated"}),
+                    SAMPLER_REPEAT,
+                );
+                Some(Exported {
+                    texture,
+                    has_alpha: false,
+                })
+            }
+        };
+        self.textures.insert(key, out);
+        Ok(out.map(|e| e.texture))
+    }
+
     /// One glTF material from a `material:` section (or, where the pack has none, from the
     /// mesh's own material: its diffuse colour, roughness 1).
     fn material(
@@ -383,8 +441,13 @@ impl Exporter<'_> {
         index: usize,
         input: &crate::model::Material,
         converted: Option<(&str, &MaterialMeta)>,
+        tangents: bool,
     ) -> Result<usize> {
         let double_sided = input.double_sided;
+        let normal_map = match converted {
+            Some((_, m)) if self.normal_maps && tangents => m.normal_map.clone(),
+            _ => None,
+        };
         let (name, base, roughness, opacity, emission, color_map, section) = match converted {
             Some((section, m)) => {
                 let s = &m.material;
@@ -434,6 +497,10 @@ impl Exporter<'_> {
         if let Some(t) = tex {
             pbr["baseColorTexture"] = json!({"index": t.texture});
         }
+        let normal = match &normal_map {
+            Some(n) => self.normal_texture(n)?,
+            None => None,
+        };
         let masked = tex.is_some_and(|t| t.has_alpha) || opacity < 1.0;
         let mut m = json!({
             "name": name,
@@ -442,6 +509,10 @@ impl Exporter<'_> {
             "extras": {"section": section, "mesh_section": mesh_section, "index": index,
                        "color_map": color_map},
         });
+        if let Some(t) = normal {
+            m["normalTexture"] = json!({"index": t});
+            m["extras"]["normal_map"] = json!(normal_map);
+        }
         if masked {
             m["alphaMode"] = json!("MASK");
             m["alphaCutoff"] = json!(0.5);
@@ -513,6 +584,25 @@ impl Exporter<'_> {
             .floats(g.positions, "VEC3", Some(ARRAY_BUFFER), true);
         let nrm = self.doc.floats(&normals, "VEC3", Some(ARRAY_BUFFER), false);
         let uv = self.doc.floats(&uvs, "VEC2", Some(ARRAY_BUFFER), false);
+        // TANGENT (`--normal-maps`): the pack's tangents in glTF's frame (w negated: see
+        // `normal_texture`), gathered like the normals.
+        let tangent = match self.normal_maps {
+            true => match model_tangents(self.pack, section, m.positions.len())? {
+                Some(t) => {
+                    let t: Vec<[f32; 4]> = match g.source {
+                        None => t,
+                        Some(src) => src
+                            .iter()
+                            .map(|&s| t.get(s as usize).copied().unwrap_or([1.0, 0.0, 0.0, 1.0]))
+                            .collect(),
+                    };
+                    let t: Vec<[f32; 4]> = t.iter().map(|v| [v[0], v[1], v[2], -v[3]]).collect();
+                    Some(self.doc.floats(&t, "VEC4", Some(ARRAY_BUFFER), false))
+                }
+                None => None,
+            },
+            false => None,
+        };
         // COLOR_0 (`--vertex-ambient`): one accessor, or one per material where they differ.
         // Taken out for the loop (self.material borrows self) and put back at the end.
         let amb = self.ambient.take();
@@ -546,13 +636,18 @@ impl Exporter<'_> {
                     let converted = materials
                         .get(&(section.to_string(), i as u32))
                         .map(|(s, mm)| (s.as_str(), mm));
-                    let k = self.material(section, i, input, converted)?;
+                    let k = self.material(section, i, input, converted, tangent.is_some())?;
                     self.made.insert((section.to_string(), i), k);
                     k
                 }
             };
             let idx = self.doc.indices(&tris);
             let mut attributes = json!({"POSITION": pos, "NORMAL": nrm, "TEXCOORD_0": uv});
+            if let Some(t) = tangent
+                && self.doc.materials[material].get("normalTexture").is_some()
+            {
+                attributes["TANGENT"] = json!(t);
+            }
             if let Some(c) = colors {
                 let key = match c.colors {
                     ambient::Colors::Shared(_) => usize::MAX,
@@ -952,6 +1047,29 @@ struct TerrainLight {
     scale: f32,
 }
 
+/// The `tangents` section of mesh section `mesh_section` (one per vertex), or `None` where the
+/// pack has none or its count does not match.
+fn model_tangents(
+    pack: &Pack,
+    mesh_section: &str,
+    vertices: usize,
+) -> Result<Option<Vec<[f32; 4]>>> {
+    for e in pack.of_kind(crate::mesh::tangents::KIND) {
+        let v = pack.view(e)?;
+        let (meta, t) = crate::mesh::tangents::from_section(&v).map_err(|err| {
+            Error::invalid_at(
+                pack.path(),
+                format!("section {:?}", e.name),
+                err.to_string(),
+            )
+        })?;
+        if meta.mesh_section == mesh_section {
+            return Ok((t.len() == vertices).then_some(t));
+        }
+    }
+    Ok(None)
+}
+
 fn terrain_light(pack: &Pack) -> Result<Option<TerrainLight>> {
     use crate::lightmap::section::{self as lightmap, LightmapMeta};
     for e in pack.of_kind(lightmap::KIND) {
@@ -1122,6 +1240,7 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
         ambient: vertex_ambient,
         made: HashMap::new(),
         lod_used: false,
+        normal_maps: opts.normal_maps,
         doc: Doc::new(&dir)?,
         textures: HashMap::new(),
         warnings,
