@@ -168,6 +168,10 @@ pub const EXPORT_NO_LIGHT_MAP: Diagnostic = warning(
     "export.no-light-map",
     "`--bake-light` without a terrain light map in the pack; the terrain is exported lit",
 );
+pub const EXPORT_NO_PRT: Diagnostic = warning(
+    "export.no-prt",
+    "`--vertex-ambient`: a model without a usable prt section; exported without COLOR_0",
+);
 pub const MITSUBA_SUN_IN_SKY: Diagnostic = warning(
     "mitsuba.sun-in-sky",
     "a lat-long sky that still holds its sun: the sun counts twice (run the sky stage)",
@@ -222,6 +226,7 @@ pub const DIAGNOSTICS: &[Diagnostic] = &[
     EXPORT_MESH_MISSING,
     EXPORT_MODEL_WITHOUT_INSTANCES,
     EXPORT_NO_LIGHT_MAP,
+    EXPORT_NO_PRT,
     MITSUBA_SUN_IN_SKY,
     SVO_TRIANGLES_WITHOUT_VOXEL,
     SVO_MESH_NOT_CLOSED,
@@ -322,6 +327,7 @@ mod tests {
         "export.mesh-missing",
         "export.model-without-instances",
         "export.no-light-map",
+        "export.no-prt",
         "mitsuba.sun-in-sky",
         "svo.triangles-without-voxel",
         "svo.mesh-not-closed",

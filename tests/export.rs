@@ -344,8 +344,16 @@ fn the_khronos_validator_finds_no_errors() {
         lit.to_str().unwrap(),
         &["--bake-light"],
     );
+    // And with the PRT ambient as COLOR_0, the LOD chain and the normal maps, beside the baked
+    // light.
+    let ambient = dir.path().join("ambient.glb");
+    export_ok(
+        pack.to_str().unwrap(),
+        ambient.to_str().unwrap(),
+        &["--bake-light", "--vertex-ambient", "--lod", "--normal-maps"],
+    );
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
-    for file in [glb, gltf, lit] {
+    for file in [glb, gltf, lit, ambient] {
         let o = std::process::Command::new("node")
             .arg(&script)
             .arg(&validator)
@@ -763,6 +771,62 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     assert!((0.92..=1.08).contains(&ratio), "terrain ratio {ratio}");
     assert!(m["terrain_blurred_rms"].as_f64().unwrap() <= 0.05);
     assert!(d.join("three/side-by-side.png").is_file());
+
+    // With the LOD chain and the page choosing each instance's level by bake's rule: the same
+    // bounds, and the same instanced triangles and skeletons as bake's frame.
+    export_ok(
+        pack.to_str().unwrap(),
+        &p("lod.glb"),
+        &["--bake-light", "--lod"],
+    );
+    let o = std::process::Command::new("node")
+        .arg(&script)
+        .args(["--glb", &p("lod.glb"), "--bake", &p("bake.png")])
+        .args([
+            "--regions",
+            &p("regions.png"),
+            "--render-json",
+            &p("render.json"),
+        ])
+        .args([
+            "--out",
+            &p("three-lod"),
+            "--timeout",
+            "120",
+            "--lod-select",
+            "1",
+        ])
+        .arg("--three")
+        .arg(&three)
+        .arg("--chromium")
+        .arg(&chromium)
+        .output()
+        .expect("run node");
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{log}");
+    assert!(
+        o.status.success(),
+        "three.js check with --lod-select: {log}"
+    );
+    let m: Value =
+        serde_json::from_slice(&std::fs::read(d.join("three-lod/metrics.json")).unwrap()).unwrap();
+    let render: Value =
+        serde_json::from_slice(&std::fs::read(d.join("render.json")).unwrap()).unwrap();
+    let stats = &render["stats"];
+    let lod = &m["lod_select"];
+    assert!(lod["models"].as_u64().unwrap() >= 1, "{lod}");
+    assert_eq!(lod["skeleton"], stats["skeleton_instances"]);
+    if stats["impostor_instances"] == 0 {
+        assert_eq!(
+            lod["instance_triangles"].as_u64().unwrap(),
+            stats["triangles"].as_u64().unwrap() - stats["terrain_triangles"].as_u64().unwrap(),
+            "{lod} against {stats}"
+        );
+    }
 }
 
 #[test]
@@ -822,4 +886,451 @@ fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
         );
         assert_eq!(summary["got"]["suns"], 1);
     }
+}
+
+/// COLOR_0 (`--vertex-ambient`) against the renderer's own evaluation: per model, per instance,
+/// `render::ambient::side_radiance` (both transfer sets under the instance's light, as
+/// `load_ambient` resolves it for `bake render`), times the material's `1/albedo_folded`, mixed
+/// per eq. 4.8 with the translucence for the front side (written out here), averaged over the
+/// model's instances; COLOR_0 × the file's scale must match it on every drawn vertex copy of
+/// every primitive's triangles.
+#[test]
+fn vertex_ambient_color_0_is_the_renderers_prt_ambient() {
+    use bake::render::ambient::{PrtLayout, load_ambient, side_radiance};
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let out = dir.path().join("ambient.glb");
+    let report = common::json(&common::bake(&[
+        "export",
+        pack_path.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--vertex-ambient",
+        "--json",
+    ]));
+    let pack = Pack::open(&pack_path).unwrap();
+    let scene = bake::render::scene::load_scene(&pack).unwrap();
+    let amb = load_ambient(&pack, &scene, PrtLayout::Full, None).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let blob = &buffers[0].0;
+    let scale = report["vertex_ambient_scale"].as_f64().unwrap() as f32;
+    assert_eq!(
+        json["nodes"].as_array().unwrap().last().unwrap()["extras"]["vertex_ambient_scale"]
+            .as_f64()
+            .unwrap() as f32,
+        scale
+    );
+    let with_prt = amb.models.iter().filter(|m| m.prt.is_some()).count();
+    assert!(with_prt >= 1, "the preview fixture has PRT");
+    assert_eq!(report["vertex_ambient_models"], with_prt);
+    let mut peak = 0.0f32;
+    let mut checked = 0usize;
+    let mut distinct = BTreeSet::new();
+    for (m, a) in scene.models.iter().zip(&amb.models) {
+        let mesh = doc
+            .meshes()
+            .find(|x| x.name() == Some(m.name.as_str()))
+            .unwrap_or_else(|| panic!("no mesh {}", m.name));
+        let Some(prt) = &a.prt else {
+            assert!(
+                mesh.primitives()
+                    .all(|p| p.get(&gltf::Semantic::Colors(0)).is_none())
+            );
+            continue;
+        };
+        let mj = &json["meshes"][mesh.index()];
+        assert_eq!(
+            mj["extras"]["vertex_ambient"]["section"],
+            format!("prt:{}", m.section.trim_start_matches("mesh:"))
+        );
+        assert_eq!(mj["extras"]["vertex_ambient"]["instances"], a.envs.len());
+        // The drawn rows of every mesh vertex (split vertices copy their mesh vertex's transfer).
+        let rows: Vec<(usize, usize)> = match &m.vertex_source {
+            None => (0..prt.vertices).map(|j| (j, j)).collect(),
+            Some(src) => src
+                .iter()
+                .enumerate()
+                .map(|(j, &s)| (s as usize, j))
+                .collect(),
+        };
+        for p in mesh.primitives() {
+            let material = p.material().index().unwrap();
+            let index = json["materials"][material]["extras"]["index"]
+                .as_u64()
+                .unwrap() as usize;
+            let color = p.get(&gltf::Semantic::Colors(0)).expect("COLOR_0");
+            let colors = floats::<3>(&doc, blob, color.index());
+            let reader = p.reader(|_| Some(&blob[..]));
+            let used: BTreeSet<usize> = reader
+                .read_indices()
+                .unwrap()
+                .into_u32()
+                .map(|i| i as usize)
+                .collect();
+            let k = prt.albedo_scale(index);
+            let t = prt.translucence(index);
+            for &(v, row) in rows.iter().filter(|(v, _)| used.contains(v)) {
+                // The mean over the instances of eq. 4.8 before the renderer's clamp at 0 (the
+                // export evaluates it once under the instances' mean light: the same by
+                // linearity), then the clamp.
+                let mut want = [0.0f64; 3];
+                for env in &a.envs {
+                    let [f, b] = side_radiance(prt, PrtLayout::Full, row, env);
+                    for c in 0..3 {
+                        let l = (1.0 - t) * f[c] * k[c] + t * b[c] * k[c];
+                        want[c] += l as f64 / a.envs.len() as f64;
+                    }
+                }
+                let want = want.map(|x| x.max(0.0));
+                let got = colors[v];
+                for c in 0..3 {
+                    assert!((0.0..=1.0).contains(&got[c]), "{got:?}");
+                    let g = got[c] * scale;
+                    assert!(
+                        (g as f64 - want[c]).abs() <= 1e-4 * want[c].abs() + 1e-6 * scale as f64,
+                        "{} vertex {v} (row {row}) material {index}: {g} against {}",
+                        m.name,
+                        want[c]
+                    );
+                    peak = peak.max(want[c] as f32);
+                }
+                distinct.insert(got.map(f32::to_bits));
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 100, "{checked} vertices checked");
+    assert!(distinct.len() > 50, "COLOR_0 varies over the vertices");
+    assert!(
+        (peak - scale).abs() <= 1e-4 * scale,
+        "scale {scale} is the largest value {peak}"
+    );
+}
+
+#[test]
+fn vertex_ambient_on_a_pack_without_prt_is_refused_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    bake::fixtures::write_all(dir.path()).unwrap();
+    let pack = dir.path().join("ingested.bake");
+    let o = common::bake(&[
+        "ingest",
+        dir.path().join("scene.eco").to_str().unwrap(),
+        "-o",
+        pack.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = dir.path().join("out/scene.glb");
+    let o = common::bake(&[
+        "export",
+        pack.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--vertex-ambient",
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("ingested.bake")
+            && err.contains("no prt section")
+            && err.contains("--vertex-ambient"),
+        "{err}"
+    );
+    assert!(
+        !out.exists() && !dir.path().join("out").exists(),
+        "no output, no folder"
+    );
+    // The same pack exports without the option.
+    export_ok(pack.to_str().unwrap(), out.to_str().unwrap(), &[]);
+    assert!(out.exists());
+}
+
+/// `--lod`: every model's `lod` levels 1.. (and its skeleton) as meshes on nodes that the model
+/// node names through `MSFT_lod`, against the pack's `lod` sections: vertex positions, triangle
+/// counts per level, the instances shared, COLOR_0 gathered from the mesh vertex each level
+/// vertex copies, and the selection rule's numbers in the extras.
+#[test]
+fn lod_levels_are_meshes_on_msft_lod_nodes_as_the_pack_has_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let out = dir.path().join("lod.glb");
+    let report = common::json(&common::bake(&[
+        "export",
+        pack_path.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--lod",
+        "--vertex-ambient",
+        "--json",
+    ]));
+    let pack = Pack::open(&pack_path).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let blob = &buffers[0].0;
+    assert!(
+        json["extensionsUsed"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e == "MSFT_lod")
+    );
+    let nodes = json["nodes"].as_array().unwrap();
+    let mesh_of = |n: &Value| {
+        doc.meshes()
+            .nth(n["mesh"].as_u64().unwrap() as usize)
+            .unwrap()
+    };
+    let colors = |m: &gltf::Mesh| -> Vec<[f32; 3]> {
+        let p = m.primitives().next().unwrap();
+        floats::<3>(
+            &doc,
+            blob,
+            p.get(&gltf::Semantic::Colors(0)).unwrap().index(),
+        )
+    };
+    let (meta, _) = instances_of(&pack);
+    let mut lod_meshes = 0;
+    let mut with_levels = 0;
+    for section in &meta.mesh_sections {
+        let Some(view) = bake::lod::section::read(&pack, section).unwrap() else {
+            continue;
+        };
+        let named = |n: &&Value| {
+            n["extras"]["section"] == section.as_str() && n["extras"].get("lod").is_some()
+        };
+        if view.meta.levels.len() < 2 && view.meta.skeleton.is_none() {
+            // Full detail only: nothing to name.
+            assert!(!nodes.iter().any(|n| named(&n)), "{section}");
+            continue;
+        }
+        let node = nodes
+            .iter()
+            .find(|n| {
+                n["extras"]["section"] == section.as_str() && n["extras"].get("lod").is_some()
+            })
+            .unwrap_or_else(|| panic!("no MSFT_lod node for {section}"));
+        let ids: Vec<usize> = node["extensions"]["MSFT_lod"]["ids"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|i| i.as_u64().unwrap() as usize)
+            .collect();
+        let levels = view.meta.levels.len();
+        let skeleton = view.meta.skeleton.is_some() as usize;
+        assert_eq!(ids.len(), levels - 1 + skeleton, "{section}");
+        lod_meshes += ids.len();
+        with_levels += (levels > 1) as usize;
+        // MSFT_screencoverage: one per node (the model's and each lower one) and a final 0,
+        // non-increasing.
+        let cover: Vec<f64> = node["extras"]["MSFT_screencoverage"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c.as_f64().unwrap())
+            .collect();
+        assert_eq!(cover.len(), ids.len() + 1);
+        assert!(
+            cover.windows(2).all(|w| w[0] >= w[1]) && cover[ids.len()] == 0.0,
+            "{cover:?}"
+        );
+        let lod = &node["extras"]["lod"];
+        let errors: Vec<f32> = lod["errors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e.as_f64().unwrap() as f32)
+            .collect();
+        assert_eq!(
+            errors,
+            view.meta.levels.iter().map(|l| l.error).collect::<Vec<_>>()
+        );
+        assert_eq!(lod["radius"].as_f64().unwrap() as f32, view.meta.radius);
+        let base_colors = colors(&mesh_of(node));
+        for (l, &id) in ids.iter().enumerate().take(levels - 1) {
+            let l = l + 1;
+            let n = &nodes[id];
+            // The same instances as the model node.
+            assert_eq!(
+                n["extensions"]["EXT_mesh_gpu_instancing"],
+                node["extensions"]["EXT_mesh_gpu_instancing"]
+            );
+            let m = mesh_of(n);
+            let p0 = m.primitives().next().unwrap();
+            let pos = floats::<3>(
+                &doc,
+                blob,
+                p0.get(&gltf::Semantic::Positions).unwrap().index(),
+            );
+            assert_eq!(pos, view.level_positions(l), "{section} level {l}");
+            let triangles: usize = m
+                .primitives()
+                .map(|p| p.indices().unwrap().count() / 3)
+                .sum();
+            assert_eq!(triangles, view.meta.levels[l].triangle_count as usize);
+            // COLOR_0 of a level vertex is that of the mesh vertex it copies.
+            let first = view.meta.levels[l].first_vertex as usize;
+            let source = &view.vertex_source[first..first + pos.len()];
+            for (c, &s) in colors(&m).iter().zip(source) {
+                assert_eq!(*c, base_colors[s as usize]);
+            }
+        }
+        if skeleton == 1 {
+            let m = mesh_of(&nodes[*ids.last().unwrap()]);
+            let modes: Vec<_> = m.primitives().map(|p| p.mode()).collect();
+            assert!(modes.contains(&gltf::mesh::Mode::Lines), "{modes:?}");
+            let p = m
+                .primitives()
+                .find(|p| p.mode() == gltf::mesh::Mode::Lines)
+                .unwrap();
+            let lines = floats::<3>(
+                &doc,
+                blob,
+                p.get(&gltf::Semantic::Positions).unwrap().index(),
+            );
+            assert_eq!(lines, view.skeleton_lines);
+        }
+    }
+    assert!(
+        with_levels >= 1,
+        "the preview fixture has a model with levels"
+    );
+    assert_eq!(report["lod_meshes"], lod_meshes);
+    // Without --lod nothing of it.
+    let plain = dir.path().join("plain.glb");
+    export_ok(pack_path.to_str().unwrap(), plain.to_str().unwrap(), &[]);
+    let pj = glb_json(&std::fs::read(&plain).unwrap());
+    assert!(!pj.to_string().contains("MSFT_lod"));
+    assert_eq!(
+        pj["meshes"].as_array().unwrap().len() + lod_meshes,
+        json["meshes"].as_array().unwrap().len()
+    );
+}
+
+/// `--normal-maps`: each normal-mapped material's `normalTexture` is the pack's `normal` array
+/// (level 0) in glTF's frame (green mirrored), its primitives carry the pack's tangents with w
+/// negated, and the resulting glTF bitangent `w·(n × t)` points up the image (towards
+/// decreasing v, glTF's "+Y up" with the UV origin at the top left), checked against each
+/// triangle's own ∂p/∂v.
+#[test]
+fn normal_maps_ride_in_gltfs_tangent_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = common::preview_fixture_pack(dir.path());
+    let out = dir.path().join("normals.glb");
+    export_ok(
+        pack_path.to_str().unwrap(),
+        out.to_str().unwrap(),
+        &["--normal-maps"],
+    );
+    let pack = Pack::open(&pack_path).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    let (doc, buffers, images) = gltf::import_slice(&bytes).unwrap();
+    let json = glb_json(&bytes);
+    let blob = &buffers[0].0;
+    let mut mapped = 0;
+    let (mut up, mut down) = (0usize, 0usize);
+    for mesh in doc.meshes() {
+        let section = json["meshes"][mesh.index()]["extras"]["section"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        for p in mesh.primitives() {
+            let mj = &json["materials"][p.material().index().unwrap()];
+            let Some(nt) = mj.get("normalTexture") else {
+                assert!(p.get(&gltf::Semantic::Tangents).is_none());
+                continue;
+            };
+            mapped += 1;
+            // The texture against the pack's normal array, level 0.
+            let name = mj["extras"]["normal_map"].as_str().unwrap();
+            let v = pack.view_named(name).unwrap();
+            let meta: bake::texture::source_section::TextureMeta = v.meta().unwrap();
+            let table = bake::texture::section::levels(&v, &meta, "normal").unwrap();
+            let normal: Vec<[u8; 4]> = v.array_vec("normal").unwrap();
+            let l0 = table[0];
+            let texture = &json["textures"][nt["index"].as_u64().unwrap() as usize];
+            let img = &images[texture["source"].as_u64().unwrap() as usize];
+            assert_eq!((img.width, img.height), (l0[0], l0[1]));
+            assert_eq!(img.format, gltf::image::Format::R8G8B8A8);
+            for (k, px) in img.pixels.chunks(4).enumerate() {
+                let n = normal[l0[2] as usize + k];
+                assert_eq!(
+                    [px[0], px[1], px[2]],
+                    [n[0], 255 - n[1], n[2]],
+                    "{name} texel {k}"
+                );
+            }
+            // TANGENT: the pack's, w negated.
+            let tv = pack
+                .of_kind("tangents")
+                .map(|e| pack.view(e).unwrap())
+                .find(|v| {
+                    bake::mesh::tangents::from_section(v)
+                        .unwrap()
+                        .0
+                        .mesh_section
+                        == section
+                })
+                .expect("the model's tangents");
+            let (_, tangents) = bake::mesh::tangents::from_section(&tv).unwrap();
+            let t = floats::<4>(
+                &doc,
+                blob,
+                p.get(&gltf::Semantic::Tangents).unwrap().index(),
+            );
+            assert_eq!(t.len(), tangents.len());
+            for (a, b) in t.iter().zip(&tangents) {
+                assert_eq!(*a, [b[0], b[1], b[2], -b[3]]);
+            }
+            // glTF's bitangent against each triangle's ∂p/∂v.
+            let pos = floats::<3>(
+                &doc,
+                blob,
+                p.get(&gltf::Semantic::Positions).unwrap().index(),
+            );
+            let nrm = floats::<3>(&doc, blob, p.get(&gltf::Semantic::Normals).unwrap().index());
+            let uv = floats::<2>(
+                &doc,
+                blob,
+                p.get(&gltf::Semantic::TexCoords(0)).unwrap().index(),
+            );
+            let reader = p.reader(|_| Some(&blob[..]));
+            let idx: Vec<u32> = reader.read_indices().unwrap().into_u32().collect();
+            for tri in idx.chunks(3) {
+                let [a, b, c] = [tri[0], tri[1], tri[2]].map(|i| i as usize);
+                let (e1, e2) = (
+                    Vec3::from(pos[b]) - Vec3::from(pos[a]),
+                    Vec3::from(pos[c]) - Vec3::from(pos[a]),
+                );
+                let (du1, dv1) = (uv[b][0] - uv[a][0], uv[b][1] - uv[a][1]);
+                let (du2, dv2) = (uv[c][0] - uv[a][0], uv[c][1] - uv[a][1]);
+                let det = du1 * dv2 - du2 * dv1;
+                if det.abs() < 1e-8 {
+                    continue;
+                }
+                let dpdv = (e2 * du1 - e1 * du2) / det;
+                for i in [a, b, c] {
+                    let tt = t[i];
+                    let bt = Vec3::from(nrm[i]).cross(Vec3::new(tt[0], tt[1], tt[2])) * tt[3];
+                    let d = bt.dot(dpdv);
+                    if d < 0.0 {
+                        up += 1;
+                    } else if d > 0.0 {
+                        down += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        mapped >= 1,
+        "the preview fixture has normal-mapped materials"
+    );
+    assert!(
+        up as f64 >= 0.95 * (up + down) as f64,
+        "glTF bitangents up the image at {up} corners, down at {down}"
+    );
+    eprintln!("bitangent up the image at {up} of {} corners", up + down);
 }

@@ -6,7 +6,7 @@
 //
 //   node scripts/threejs/check.js --glb scene.glb --bake bake.png --regions regions.png \
 //        --render-json render.json --out DIR [--three DIR] [--chromium PATH] [--timeout S]
-//        [--hide-instances 1]
+//        [--hide-instances 1] [--lod-select 1]
 //
 // bake.png, regions.png and render.json come from one `bake render PACK -o bake.png --regions
 // regions.png --json` (its stats give the camera, the exposure and the sky's ambient). No
@@ -66,6 +66,9 @@ const params = {
   width: s.width, height: s.height, eye: s.eye, target: s.target, fov_y_deg: s.fov_y_deg,
   exposure: s.exposure, ambient: s.lighting.ambient,
   hide_instances: a['hide-instances'] === '1',
+  // --lod-select 1: per instance, the level bake's rule picks for this view (the GLB's MSFT_lod
+  // nodes, `bake export --lod`) and only the instances whose sphere meets the view frustum.
+  lod_select: a['lod-select'] === '1',
 };
 fs.mkdirSync(a.out, { recursive: true });
 

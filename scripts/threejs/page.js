@@ -66,6 +66,111 @@ async function main() {
       }
     }
   });
+  // --lod-select: per instance the level bake's renderer picks (src/lod/select.rs: the coarsest
+  // level l with e_l·s·k ≤ τ·d, k = H / (2 tan(fov/2)), τ = 1 px, d = |eye − placed sphere
+  // centre|), from the model node's extras.lod and its MSFT_lod nodes; instances whose placed
+  // sphere misses the view frustum are dropped, as the renderer culls them.
+  const lodStats = { models: 0, levels: [], culled: 0, triangles: 0 };
+  if (p.lod_select) {
+    const json = gltf.parser.json;
+    const sunNode = json.nodes.find((n) => n.extras && n.extras.section === 'sun' && n.extras.direction);
+    const sunDir = sunNode ? sunNode.extras.direction : null;
+    const sunLight = json.extensions && json.extensions.KHR_lights_punctual && json.extensions.KHR_lights_punctual.lights[0];
+    const sunIrr = sunLight && sunLight.extras ? sunLight.extras.irradiance : null;
+    const kView = H / (2 * Math.tan((p.fov_y_deg * Math.PI) / 360));
+    const eyeZ = new THREE.Vector3(...p.eye);
+    const cam0 = new THREE.PerspectiveCamera(p.fov_y_deg, W / H, 0.01, 1e7);
+    cam0.position.copy(yUp(p.eye));
+    cam0.up.set(0, 1, 0);
+    cam0.lookAt(yUp(p.target));
+    cam0.updateMatrixWorld();
+    const frustum = new THREE.Frustum().setFromProjectionMatrix(
+      new THREE.Matrix4().multiplyMatrices(cam0.projectionMatrix, cam0.matrixWorldInverse));
+    const instancedOf = (o) => { const out = []; o.traverse((c) => { if (c.isInstancedMesh) out.push(c); }); return out; };
+    const trianglesOf = (m) => (m.geometry.index ? m.geometry.index.count : m.geometry.attributes.position.count) / 3;
+    for (let i = 0; i < json.nodes.length; i++) {
+      const lod = json.nodes[i].extras && json.nodes[i].extras.lod;
+      if (!lod) continue;
+      const main = await gltf.parser.getDependency('node', i);
+      const levels = [main];
+      for (const id of lod.nodes) levels.push(await gltf.parser.getDependency('node', id));
+      const meshes = levels.map(instancedOf);
+      const base = meshes[0][0];
+      if (!base) continue;
+      lodStats.models += 1;
+      const n = base.count;
+      const m = new THREE.Matrix4(), pos = new THREE.Vector3(), q = new THREE.Quaternion(), sc = new THREE.Vector3();
+      const centre = new THREE.Vector3(...lod.centre);
+      const chosen = levels.map(() => []);
+      const skeleton = [];
+      for (let k = 0; k < n; k++) {
+        base.getMatrixAt(k, m);
+        m.decompose(pos, q, sc);
+        const s = Math.abs(sc.x);
+        const c = centre.clone().multiplyScalar(s).applyQuaternion(q).add(pos); // bake's frame
+        const sphere = new THREE.Sphere(yUp([c.x, c.y, c.z]), lod.radius * s);
+        if (!frustum.intersectsSphere(sphere)) { lodStats.culled += 1; continue; }
+        const d = c.distanceTo(eyeZ);
+        if (lod.skeleton && lod.radius * s * kView <= lod.skeleton.pixels * d) { skeleton.push(k); continue; }
+        let l = 0;
+        for (let j = lod.errors.length - 1; j > 0; j--) if (lod.errors[j] * s * kView <= d) { l = j; break; }
+        chosen[l].push(k);
+      }
+      const matrices = meshes[0].map((im) => im.instanceMatrix.array.slice());
+      for (let l = 0; l < levels.length; l++) {
+        lodStats.levels[l] = (lodStats.levels[l] || 0) + chosen[l].length;
+        for (const im of meshes[l]) {
+          const src = matrices[0];
+          for (let j = 0; j < chosen[l].length; j++) im.instanceMatrix.array.set(src.subarray(16 * chosen[l][j], 16 * chosen[l][j] + 16), 16 * j);
+          im.count = chosen[l].length;
+          im.instanceMatrix.needsUpdate = true;
+          im.computeBoundingSphere();
+          im.frustumCulled = false;
+          lodStats.triangles += trianglesOf(im) * chosen[l].length;
+          if (p.hide_instances) im.visible = false;
+        }
+        if (l > 0) main.parent.add(levels[l]);
+      }
+      // The skeleton: three.js does not instance lines and points, so the chosen instances'
+      // copies are placed here, in one line-segment and one point object per model, lit as bake
+      // lights them (a surface facing +Z: albedo/π · (E_sky(+Z) + E_sun · max(0, s_z))).
+      lodStats.skeleton = (lodStats.skeleton || 0) + skeleton.length;
+      if (lod.skeleton && skeleton.length) {
+        const sk = await gltf.parser.getDependency('node', lod.skeleton.node);
+        const lit = (sunIrr && sunDir) ? sunIrr.map((e, c) => p.ambient[c] + e * Math.max(0, sunDir[2])) : p.ambient;
+        sk.traverse((o) => {
+          if (!(o.isLineSegments || o.isPoints)) return;
+          const src = o.geometry.attributes.position;
+          const out = new Float32Array(3 * src.count * skeleton.length);
+          const v = new THREE.Vector3();
+          let w = 0;
+          for (const k of skeleton) {
+            base.getMatrixAt(k, m);
+            for (let j = 0; j < src.count; j++) {
+              v.fromBufferAttribute(src, j).applyMatrix4(m);
+              out[w++] = v.x; out[w++] = v.y; out[w++] = v.z;
+            }
+          }
+          const g = new THREE.BufferGeometry();
+          g.setAttribute('position', new THREE.BufferAttribute(out, 3));
+          const material = o.material.clone();
+          material.color.multiply(new THREE.Color().setRGB(...lit.map((e) => e / Math.PI)));
+          if (o.isPoints) { material.size = 1; material.sizeAttenuation = false; }
+          const obj = o.isPoints ? new THREE.Points(g, material) : new THREE.LineSegments(g, material);
+          obj.frustumCulled = false;
+          if (p.hide_instances) obj.visible = false;
+          main.parent.add(obj);
+        });
+      }
+    }
+    // Every instanced triangle the frame draws (models without levels included), to set
+    // beside `bake render`'s statistics (its triangles less the terrain's).
+    lodStats.instance_triangles = 0;
+    scene.traverse((o) => {
+      if (o.isInstancedMesh && o.visible) lodStats.instance_triangles += o.count * (o.geometry.index ? o.geometry.index.count : o.geometry.attributes.position.count) / 3;
+    });
+    await post('/progress', { stage: `levels chosen: ${JSON.stringify(lodStats)}` });
+  }
   // The sky's ambient on the models, as bake's sky fallback: albedo/π · E_sky · (1 + n_z)/2.
   const hemi = new THREE.HemisphereLight(new THREE.Color().setRGB(...p.ambient), new THREE.Color(0, 0, 0), 1);
   hemi.position.set(0, 1, 0);
@@ -101,6 +206,10 @@ async function main() {
   const g3 = c3.getContext('2d', { willReadFrequently: true });
   g3.drawImage(canvas, 0, 0);
   const three = g3.getImageData(0, 0, W, H).data;
+  // The frame's pixels in hand: Chromium's WebGL may return from finish() before SwiftShader has
+  // drawn everything, so this is the honest end of the draw.
+  const tPixels = performance.now() - t1;
+  await post('/progress', { stage: `drawn and read back in ${(tPixels / 1000).toFixed(2)} s` });
   const bake = await pixels('/bake.png', W, H);
   const regions = await pixels('/regions.png', W, H);
 
@@ -181,7 +290,7 @@ async function main() {
   await post('/result', {
     metrics: {
       width: W, height: H, found, gl: info, three_revision: THREE.REVISION,
-      seconds_load: tLoad / 1000, seconds_render: tRender / 1000,
+      seconds_load: tLoad / 1000, seconds_render: tRender / 1000, seconds_render_readback: tPixels / 1000, lod_select: p.lod_select ? lodStats : null,
       coverage_iou: union ? inter / union : null,
       terrain, models, tiles, blur_radius: R,
       terrain_blurred_rms: ns ? Math.sqrt(se / ns) : null,

@@ -19,6 +19,20 @@ pub struct ExportArgs {
     /// light-map support show the baked light (docs/MATERIALS.md, "Export to glTF").
     #[arg(long)]
     pub bake_light: bool,
+    /// Write every model vertex's PRT ambient (the renderer's eq. 4.8 under the pack's light,
+    /// averaged over the model's instances) as `COLOR_0`, divided by one scale for the file so
+    /// that the brightest vertex is 1 (docs/MATERIALS.md, "Export to glTF"). Needs `prt` sections.
+    #[arg(long)]
+    pub vertex_ambient: bool,
+    /// Export every model's levels of detail (the `lod` sections' mesh levels 1..) as meshes on
+    /// nodes that the model node names through `MSFT_lod` (with `MSFT_screencoverage` and bake's
+    /// selection rule in its extras), for viewers that pick a level (docs/MATERIALS.md).
+    #[arg(long)]
+    pub lod: bool,
+    /// Export the materials' normal maps as `normalTexture` (linear PNG, glTF's tangent frame)
+    /// with the pack's tangents as `TANGENT` (docs/MATERIALS.md).
+    #[arg(long)]
+    pub normal_maps: bool,
 }
 
 pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
@@ -40,11 +54,14 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
     let opts = ExportOptions {
         container,
         bake_light: args.bake_light,
+        vertex_ambient: args.vertex_ambient,
+        lod: args.lod,
+        normal_maps: args.normal_maps,
     };
     // Written to a temporary file and renamed, as packs are: a failed run leaves no output.
     let report = export(&pack, opts, &args.output)?;
     let text = format!(
-        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}\n",
+        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}{}{}\n",
         args.output.display(),
         report.bytes,
         report.models,
@@ -63,7 +80,18 @@ pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         )),
         report
             .sun_lux
-            .map_or(String::new(), |l| format!(", sun {l:.0} lx"))
+            .map_or(String::new(), |l| format!(", sun {l:.0} lx")),
+        if report.lod_meshes > 0 {
+            format!(", {} LOD meshes (MSFT_lod)", report.lod_meshes)
+        } else {
+            String::new()
+        },
+        report
+            .vertex_ambient_scale
+            .map_or(String::new(), |s| format!(
+                ", COLOR_0 on {} models (scale {s:.4} W/m²/sr)",
+                report.vertex_ambient_models
+            ))
     );
     let warnings = report.warnings.clone();
     Ok(Outcome::written(

@@ -17,6 +17,10 @@
 //! about +Z. Every node, mesh, material and image names the pack section it came from in
 //! `extras.section`.
 
+mod ambient;
+
+pub use ambient::{mean_env, vertex_radiance};
+
 use crate::error::{Error, ParseError, Result};
 use crate::ingest::instances_section::{self as instances, InstanceRecord, InstancesMeta};
 use crate::material::section::{self as material, MaterialMeta};
@@ -81,6 +85,13 @@ pub struct ExportReport {
     pub lightmap: Option<String>,
     /// Whether the light map was multiplied into the terrain's (unlit) base colour.
     pub bake_light: bool,
+    /// Meshes of `lod` levels 1.. and skeletons (`--lod`).
+    pub lod_meshes: usize,
+    /// Models given COLOR_0 (`--vertex-ambient`).
+    pub vertex_ambient_models: usize,
+    /// W/m²/sr: the ambient radiance of an albedo-1 surface is COLOR_0 × this
+    /// (`--vertex-ambient`).
+    pub vertex_ambient_scale: Option<f32>,
     /// The sun's illuminance in lux, `None` without a `sun` section.
     pub sun_lux: Option<f32>,
     pub bytes: usize,
@@ -94,6 +105,14 @@ pub struct ExportOptions {
     /// Multiply the terrain's light map into its base colour, the material unlit
     /// (`KHR_materials_unlit`), so that viewers without light-map support show the baked light.
     pub bake_light: bool,
+    /// Every model vertex's PRT ambient (the renderer's, under the pack's light) as `COLOR_0`,
+    /// divided by one scale for the file (docs/MATERIALS.md). Needs a `prt` section.
+    pub vertex_ambient: bool,
+    /// Every model's `lod` levels 1.. as meshes, on nodes named by the model node's `MSFT_lod`.
+    pub lod: bool,
+    /// Normal maps as `normalTexture` (linear PNG in glTF's tangent frame) with the pack's
+    /// tangents as `TANGENT`, where a material has a normal map and its model tangents.
+    pub normal_maps: bool,
 }
 
 impl ExportOptions {
@@ -101,6 +120,9 @@ impl ExportOptions {
         ExportOptions {
             container,
             bake_light: false,
+            vertex_ambient: false,
+            lod: false,
+            normal_maps: false,
         }
     }
 }
@@ -293,6 +315,25 @@ fn texture_image(pack: &Pack, name: &str) -> Result<Rgba8Image> {
     })
 }
 
+/// A model's lower levels as exported: their meshes (levels 1..), `MSFT_screencoverage` and the
+/// selection rule for the node's extras.
+struct Lods {
+    meshes: Vec<usize>,
+    /// The skeleton's mesh (lines and points), after the mesh levels.
+    skeleton: Option<usize>,
+    screen: Vec<f32>,
+    info: Value,
+}
+
+/// The geometry of one glTF mesh of a model (see [`Exporter::geometry_mesh`]).
+struct Geometry<'a> {
+    positions: &'a [[f32; 3]],
+    /// Per vertex, the mesh vertex it copies (a `lod` level); `None`: the mesh's own vertices.
+    source: Option<&'a [u32]>,
+    indices: &'a [[u32; 3]],
+    triangle_materials: &'a [u32],
+}
+
 struct Exporter<'a> {
     pack: &'a Pack,
     bake_light: bool,
@@ -300,6 +341,14 @@ struct Exporter<'a> {
     unlit: bool,
     /// The terrain's light-map section, where exported.
     lightmap: Option<String>,
+    /// `--vertex-ambient`: the models' COLOR_0.
+    ambient: Option<ambient::VertexAmbient>,
+    /// glTF materials made, by (mesh section, mesh material): shared by a model's levels.
+    made: HashMap<(String, usize), usize>,
+    /// Whether a node carries `MSFT_lod`.
+    lod_used: bool,
+    /// `--normal-maps`.
+    normal_maps: bool,
     doc: Doc,
     textures: HashMap<String, Option<Exported>>,
     warnings: Vec<crate::diag::Warning>,
@@ -332,6 +381,58 @@ impl Exporter<'_> {
         Ok(out)
     }
 
+    /// The glTF texture of the normal map in texture section `name` (its `normal` array's level
+    /// 0), exported once. bake's tangent frame has the bitangent along increasing v (down the
+    /// image, src/mesh/tangents.rs); glTF's has it up the image (+Y up): the green channel is
+    /// mirrored (G → 255 − G) and the TANGENT's w negated, so both files give the same normal
+    /// (t·x + b·y + n·z with b and y both turned). Linear PNG (glTF reads normal textures as
+    /// data, not colour).
+    fn normal_texture(&mut self, name: &str) -> Result<Option<usize>> {
+        let key = format!("normal map {name}");
+        if let Some(t) = self.textures.get(&key) {
+            return Ok(t.map(|e| e.texture));
+        }
+        let bad = |e: ParseError| {
+            Error::invalid_at(self.pack.path(), format!("section {name:?}"), e.to_string())
+        };
+        let out = match self.pack.find(name) {
+            None => None,
+            Some(_) => {
+                let v = self.pack.view_named(name)?;
+                let meta: TextureMeta = v.meta().map_err(bad)?;
+                let table = crate::texture::section::levels(&v, &meta, "normal").map_err(bad)?;
+                let normal: &[[u8; 4]] = v.array("normal").map_err(bad)?;
+                let l0 = table.first().copied().unwrap_or_default();
+                let texels = normal
+                    .get(l0[2] as usize..(l0[2] + l0[3]) as usize)
+                    .filter(|t| !t.is_empty() && t.len() as u64 == l0[0] as u64 * l0[1] as u64)
+                    .ok_or_else(|| bad(ParseError::new("normal", "level 0 outside the array")))?;
+                let img = Rgba8Image {
+                    width: l0[0],
+                    height: l0[1],
+                    pixels: texels
+                        .iter()
+                        .map(|p| [p[0], 255 - p[1], p[2], 255])
+                        .collect(),
+                };
+                let png = crate::render::encode_png(&img)?;
+                let texture = self.doc.png_texture(
+                    &png,
+                    &format!("{name} normal"),
+                    json!({"section": name, "array": "normal",
+                           "frame": "glTF (+Y up the image): bake's green mirrored, TANGENT w negated"}),
+                    SAMPLER_REPEAT,
+                );
+                Some(Exported {
+                    texture,
+                    has_alpha: false,
+                })
+            }
+        };
+        self.textures.insert(key, out);
+        Ok(out.map(|e| e.texture))
+    }
+
     /// One glTF material from a `material:` section (or, where the pack has none, from the
     /// mesh's own material: its diffuse colour, roughness 1).
     fn material(
@@ -340,8 +441,13 @@ impl Exporter<'_> {
         index: usize,
         input: &crate::model::Material,
         converted: Option<(&str, &MaterialMeta)>,
+        tangents: bool,
     ) -> Result<usize> {
         let double_sided = input.double_sided;
+        let normal_map = match converted {
+            Some((_, m)) if self.normal_maps && tangents => m.normal_map.clone(),
+            _ => None,
+        };
         let (name, base, roughness, opacity, emission, color_map, section) = match converted {
             Some((section, m)) => {
                 let s = &m.material;
@@ -391,6 +497,10 @@ impl Exporter<'_> {
         if let Some(t) = tex {
             pbr["baseColorTexture"] = json!({"index": t.texture});
         }
+        let normal = match &normal_map {
+            Some(n) => self.normal_texture(n)?,
+            None => None,
+        };
         let masked = tex.is_some_and(|t| t.has_alpha) || opacity < 1.0;
         let mut m = json!({
             "name": name,
@@ -399,6 +509,10 @@ impl Exporter<'_> {
             "extras": {"section": section, "mesh_section": mesh_section, "index": index,
                        "color_map": color_map},
         });
+        if let Some(t) = normal {
+            m["normalTexture"] = json!({"index": t});
+            m["extras"]["normal_map"] = json!(normal_map);
+        }
         if masked {
             m["alphaMode"] = json!("MASK");
             m["alphaCutoff"] = json!(0.5);
@@ -410,13 +524,14 @@ impl Exporter<'_> {
         Ok(self.doc.materials.len() - 1)
     }
 
-    /// A model's mesh: shared vertex accessors, one primitive per material that has triangles.
+    /// A model's mesh (level 0): shared vertex accessors, one primitive per material that has
+    /// triangles. Returns the glTF mesh and the pack's mesh.
     fn model_mesh(
         &mut self,
         name: &str,
         section: &str,
         materials: &HashMap<(String, u32), (String, MaterialMeta)>,
-    ) -> Result<usize> {
+    ) -> Result<(usize, Mesh)> {
         let v = self.pack.view_named(section)?;
         let (_, m): (_, Mesh) = mesh::from_section(&v).map_err(|e| {
             Error::invalid_at(
@@ -425,34 +540,136 @@ impl Exporter<'_> {
                 e.to_string(),
             )
         })?;
-        let normals: Vec<[f32; 3]> = m.normals.iter().map(|&n| unit(n)).collect();
+        let geometry = Geometry {
+            positions: &m.positions,
+            source: None,
+            indices: &m.indices,
+            triangle_materials: &m.triangle_materials,
+        };
+        let mesh = self.geometry_mesh(name, section, &m, geometry, materials, json!({}))?;
+        Ok((mesh, m))
+    }
+
+    /// One glTF mesh of a model's geometry: level 0 (the mesh's own vertices) or a `lod` level
+    /// (its vertices, each a copy of mesh vertex `source[i]`: normal, UV and COLOR_0 gathered
+    /// from it). Materials are made once per model and shared between its levels.
+    fn geometry_mesh(
+        &mut self,
+        name: &str,
+        section: &str,
+        m: &Mesh,
+        g: Geometry,
+        materials: &HashMap<(String, u32), (String, MaterialMeta)>,
+        mut extras: Value,
+    ) -> Result<usize> {
+        let gather = |a: &[[f32; 3]]| -> Vec<[f32; 3]> {
+            match g.source {
+                None => a.to_vec(),
+                Some(src) => src
+                    .iter()
+                    .map(|&s| a.get(s as usize).copied().unwrap_or([0.0; 3]))
+                    .collect(),
+            }
+        };
+        let normals: Vec<[f32; 3]> = gather(&m.normals).into_iter().map(unit).collect();
+        let uvs: Vec<[f32; 2]> = match g.source {
+            None => m.uvs.clone(),
+            Some(src) => src
+                .iter()
+                .map(|&s| m.uvs.get(s as usize).copied().unwrap_or([0.0; 2]))
+                .collect(),
+        };
         let pos = self
             .doc
-            .floats(&m.positions, "VEC3", Some(ARRAY_BUFFER), true);
+            .floats(g.positions, "VEC3", Some(ARRAY_BUFFER), true);
         let nrm = self.doc.floats(&normals, "VEC3", Some(ARRAY_BUFFER), false);
-        let uv = self.doc.floats(&m.uvs, "VEC2", Some(ARRAY_BUFFER), false);
+        let uv = self.doc.floats(&uvs, "VEC2", Some(ARRAY_BUFFER), false);
+        // TANGENT (`--normal-maps`): the pack's tangents in glTF's frame (w negated: see
+        // `normal_texture`), gathered like the normals.
+        let tangent = match self.normal_maps {
+            true => match model_tangents(self.pack, section, m.positions.len())? {
+                Some(t) => {
+                    let t: Vec<[f32; 4]> = match g.source {
+                        None => t,
+                        Some(src) => src
+                            .iter()
+                            .map(|&s| t.get(s as usize).copied().unwrap_or([1.0, 0.0, 0.0, 1.0]))
+                            .collect(),
+                    };
+                    let t: Vec<[f32; 4]> = t.iter().map(|v| [v[0], v[1], v[2], -v[3]]).collect();
+                    Some(self.doc.floats(&t, "VEC4", Some(ARRAY_BUFFER), false))
+                }
+                None => None,
+            },
+            false => None,
+        };
+        // COLOR_0 (`--vertex-ambient`): one accessor, or one per material where they differ.
+        // Taken out for the loop (self.material borrows self) and put back at the end.
+        let amb = self.ambient.take();
+        let colors = amb.as_ref().and_then(|a| a.models.get(section));
+        let mut color_of = HashMap::new();
+        extras["section"] = json!(section);
+        if let Some(c) = colors {
+            let scale = amb.as_ref().map_or(1.0, |a| a.scale);
+            let source = amb.as_ref().map(|a| a.source);
+            extras["vertex_ambient"] = json!({
+                "section": c.prt_section, "attribute": "COLOR_0", "scale": scale,
+                "unit": "W/m^2/sr", "instances": c.instances, "light": source,
+                "per_material": matches!(c.colors, ambient::Colors::PerMaterial(_)),
+                "radiance": "L_ambient = base colour * COLOR_0 * scale (front side, eq. 4.8, mean over the model's instances)"});
+        }
         let mut primitives = Vec::new();
         for (i, input) in m.materials.iter().enumerate() {
-            let tris: Vec<[u32; 3]> = m
+            let tris: Vec<[u32; 3]> = g
                 .indices
                 .iter()
-                .zip(&m.triangle_materials)
+                .zip(g.triangle_materials)
                 .filter(|(_, mat)| **mat as usize == i)
                 .map(|(t, _)| *t)
                 .collect();
             if tris.is_empty() {
                 continue;
             }
-            let converted = materials
-                .get(&(section.to_string(), i as u32))
-                .map(|(s, mm)| (s.as_str(), mm));
-            let material = self.material(section, i, input, converted)?;
+            let material = match self.made.get(&(section.to_string(), i)) {
+                Some(&k) => k,
+                None => {
+                    let converted = materials
+                        .get(&(section.to_string(), i as u32))
+                        .map(|(s, mm)| (s.as_str(), mm));
+                    let k = self.material(section, i, input, converted, tangent.is_some())?;
+                    self.made.insert((section.to_string(), i), k);
+                    k
+                }
+            };
             let idx = self.doc.indices(&tris);
+            let mut attributes = json!({"POSITION": pos, "NORMAL": nrm, "TEXCOORD_0": uv});
+            if let Some(t) = tangent
+                && self.doc.materials[material].get("normalTexture").is_some()
+            {
+                attributes["TANGENT"] = json!(t);
+            }
+            if let Some(c) = colors {
+                let key = match c.colors {
+                    ambient::Colors::Shared(_) => usize::MAX,
+                    ambient::Colors::PerMaterial(_) => i,
+                };
+                let acc = match color_of.get(&key) {
+                    Some(&a) => a,
+                    None => {
+                        let values = gather(c.colors.of(i));
+                        let a = self.doc.floats(&values, "VEC3", Some(ARRAY_BUFFER), false);
+                        color_of.insert(key, a);
+                        a
+                    }
+                };
+                attributes["COLOR_0"] = json!(acc);
+            }
             primitives.push(json!({
-                "attributes": {"POSITION": pos, "NORMAL": nrm, "TEXCOORD_0": uv},
+                "attributes": attributes,
                 "indices": idx, "material": material, "mode": 4,
             }));
         }
+        self.ambient = amb;
         if primitives.is_empty() {
             return Err(Error::invalid_at(
                 self.pack.path(),
@@ -462,33 +679,199 @@ impl Exporter<'_> {
         }
         self.doc
             .meshes
-            .push(json!({"name": name, "primitives": primitives,
-            "extras": {"section": section}}));
+            .push(json!({"name": name, "primitives": primitives, "extras": extras}));
         Ok(self.doc.meshes.len() - 1)
     }
 
-    /// One node per model, its instances through `EXT_mesh_gpu_instancing`.
-    fn instanced_node(
+    /// The `lod` levels 1.. of a model as meshes (`<name> lod<l>`), where the pack has a `lod`
+    /// section with more than one level; `None` otherwise.
+    fn lod_meshes(
+        &mut self,
+        name: &str,
+        section: &str,
+        m: &Mesh,
+        materials: &HashMap<(String, u32), (String, MaterialMeta)>,
+    ) -> Result<Option<Lods>> {
+        let Some(view) = crate::lod::section::read(self.pack, section)? else {
+            return Ok(None);
+        };
+        let meta = &view.meta;
+        if meta.levels.len() < 2 && meta.skeleton.is_none() {
+            return Ok(None);
+        }
+        let lod_section = crate::lod::section::lod_section_name(section);
+        let mut meshes = Vec::new();
+        for (l, level) in meta.levels.iter().enumerate().skip(1) {
+            let first = level.first_vertex as usize;
+            let source = &view.vertex_source[first..first + level.vertex_count as usize];
+            let (indices, triangle_materials) = view.level_triangles(l);
+            let g = Geometry {
+                positions: view.level_positions(l),
+                source: Some(source),
+                indices,
+                triangle_materials,
+            };
+            let extras = json!({"lod_section": lod_section, "level": l, "error": level.error});
+            meshes.push(self.geometry_mesh(
+                &format!("{name} lod{l}"),
+                section,
+                m,
+                g,
+                materials,
+                extras,
+            )?);
+        }
+        // The skeleton (TXF line and point arrays), the renderer's farthest representation: a
+        // mesh of a LINES and a POINTS primitive in the model's mean albedo.
+        let mut skeleton = None;
+        if let Some(sk) = &meta.skeleton
+            && (!view.skeleton_lines.is_empty() || !view.skeleton_points.is_empty())
+        {
+            let albedo = sk
+                .albedo
+                .map(|c| crate::color::srgb_to_linear(c as f32 / 255.0));
+            self.doc.materials.push(json!({
+                "name": format!("{name} skeleton"),
+                "pbrMetallicRoughness": {"baseColorFactor": [albedo[0], albedo[1], albedo[2], 1.0],
+                    "metallicFactor": 0.0, "roughnessFactor": 1.0},
+                "extras": {"section": lod_section, "skeleton_albedo_srgb8": sk.albedo}}));
+            let material = self.doc.materials.len() - 1;
+            let mut primitives = Vec::new();
+            let lines = view.skeleton_lines.len() / 2 * 2;
+            if lines > 0 {
+                let a = self.doc.floats(
+                    &view.skeleton_lines[..lines],
+                    "VEC3",
+                    Some(ARRAY_BUFFER),
+                    true,
+                );
+                primitives
+                    .push(json!({"attributes": {"POSITION": a}, "material": material, "mode": 1}));
+            }
+            if !view.skeleton_points.is_empty() {
+                let a = self
+                    .doc
+                    .floats(view.skeleton_points, "VEC3", Some(ARRAY_BUFFER), true);
+                primitives
+                    .push(json!({"attributes": {"POSITION": a}, "material": material, "mode": 0}));
+            }
+            self.doc
+                .meshes
+                .push(json!({"name": format!("{name} skeleton"),
+                "primitives": primitives,
+                "extras": {"section": section, "lod_section": lod_section, "skeleton": true}}));
+            skeleton = Some((self.doc.meshes.len() - 1, sk.pixels));
+        }
+        let k = crate::lod::select::reference_k();
+        let tau = crate::lod::select::DEFAULT_TAU;
+        let errors: Vec<f32> = meta.levels.iter().map(|l| l.error).collect();
+        // The fraction of the reference view's height the bounding sphere's diameter covers
+        // where the renderer switches to each level: 2R·k/(d·H) at d = e·k/τ, i.e. 2R·τ/(e·H).
+        let coverage = |e: f32| {
+            if e > 0.0 {
+                2.0 * meta.radius * tau / (e * crate::lod::select::REFERENCE_HEIGHT as f32)
+            } else {
+                f32::INFINITY
+            }
+        };
+        let mut screen: Vec<f32> = errors[1..].iter().map(|&e| coverage(e)).collect();
+        if let Some((_, pixels)) = skeleton {
+            // Drawn where the sphere's radius projects to at most `pixels`: a diameter of 2P.
+            screen.push(2.0 * pixels / crate::lod::select::REFERENCE_HEIGHT as f32);
+        }
+        // Non-increasing, as MSFT_screencoverage reads them.
+        for i in 1..screen.len() {
+            screen[i] = screen[i].min(screen[i - 1]);
+        }
+        screen.push(0.0);
+        let info = json!({
+            "section": lod_section, "errors": errors, "centre": meta.centre,
+            "radius": meta.radius,
+            "switch_distance": errors.iter()
+                .map(|&e| crate::lod::select::switch_distance(e, 1.0, k, tau)).collect::<Vec<_>>(),
+            "reference": {"height": crate::lod::select::REFERENCE_HEIGHT,
+                          "fov_y_deg": crate::lod::select::REFERENCE_FOV_Y_DEG, "tau": tau},
+            "rule": "level l where e_l * s * k <= tau * d (largest such l); k = H / (2 tan(fov_y / 2)) pixels per unit at distance 1, s the instance scale, d the distance from the eye to the placed sphere centre"});
+        let mut info = info;
+        if let Some((_, pixels)) = skeleton {
+            info["skeleton"] = json!({"pixels": pixels,
+                "rule": "drawn where radius * s * k <= pixels * d, before any mesh level"});
+        }
+        Ok(Some(Lods {
+            meshes,
+            skeleton: skeleton.map(|s| s.0),
+            screen,
+            info,
+        }))
+    }
+
+    /// A model's node (instanced through `EXT_mesh_gpu_instancing` where `list` is given, else
+    /// at the origin) and, with `lods`, one node per lower level (the same instance accessors)
+    /// named by the first one's `MSFT_lod`; the lower levels are not in the scene's hierarchy.
+    fn model_node(
         &mut self,
         name: &str,
         section: &str,
         mesh: usize,
-        list: &[InstanceRecord],
+        list: Option<&[InstanceRecord]>,
+        lods: Option<&Lods>,
     ) -> usize {
-        let t: Vec<[f32; 3]> = list.iter().map(|r| r.position).collect();
-        let r: Vec<[f32; 4]> = list.iter().map(|r| rotation_z(r.rotation_deg)).collect();
-        let s: Vec<[f32; 3]> = list.iter().map(|r| [r.scale; 3]).collect();
-        let ta = self.doc.floats(&t, "VEC3", None, true);
-        let ra = self.doc.floats(&r, "VEC4", None, false);
-        let sa = self.doc.floats(&s, "VEC3", None, false);
-        self.doc.nodes.push(json!({
-            "name": name, "mesh": mesh,
-            "extensions": {"EXT_mesh_gpu_instancing": {"attributes":
-                {"TRANSLATION": ta, "ROTATION": ra, "SCALE": sa}}},
-            "extras": {"section": section, "instances_section": instances::KIND,
-                       "instances": list.len()},
-        }));
-        self.doc.nodes.len() - 1
+        let mut extensions = json!({});
+        let mut extras = json!({"section": section});
+        if let Some(list) = list {
+            let t: Vec<[f32; 3]> = list.iter().map(|r| r.position).collect();
+            let r: Vec<[f32; 4]> = list.iter().map(|r| rotation_z(r.rotation_deg)).collect();
+            let s: Vec<[f32; 3]> = list.iter().map(|r| [r.scale; 3]).collect();
+            let ta = self.doc.floats(&t, "VEC3", None, true);
+            let ra = self.doc.floats(&r, "VEC4", None, false);
+            let sa = self.doc.floats(&s, "VEC3", None, false);
+            extensions["EXT_mesh_gpu_instancing"] =
+                json!({"attributes": {"TRANSLATION": ta, "ROTATION": ra, "SCALE": sa}});
+            extras["instances_section"] = json!(instances::KIND);
+            extras["instances"] = json!(list.len());
+        }
+        let with = |mesh: usize, name: String, extensions: &Value, extras: Value| {
+            let mut n = json!({"name": name, "mesh": mesh, "extras": extras});
+            if extensions.as_object().is_some_and(|o| !o.is_empty()) {
+                n["extensions"] = extensions.clone();
+            }
+            n
+        };
+        let node = self.doc.nodes.len();
+        self.doc
+            .nodes
+            .push(with(mesh, name.to_string(), &extensions, extras.clone()));
+        if let Some(lods) = lods {
+            let mut ids = Vec::new();
+            for (l, &m) in lods.meshes.iter().enumerate() {
+                let mut e = extras.clone();
+                e["lod_level"] = json!(l + 1);
+                ids.push(self.doc.nodes.len());
+                self.doc
+                    .nodes
+                    .push(with(m, format!("{name} lod{}", l + 1), &extensions, e));
+            }
+            if let Some(m) = lods.skeleton {
+                let mut e = extras.clone();
+                e["lod_level"] = json!("skeleton");
+                ids.push(self.doc.nodes.len());
+                // The same instances (three.js does not instance lines and points: its page
+                // places them itself, scripts/threejs/page.js).
+                self.doc
+                    .nodes
+                    .push(with(m, format!("{name} skeleton"), &extensions, e));
+            }
+            let n = &mut self.doc.nodes[node];
+            n["extensions"]["MSFT_lod"] = json!({"ids": ids});
+            n["extras"]["MSFT_screencoverage"] = json!(lods.screen);
+            n["extras"]["lod"] = lods.info.clone();
+            n["extras"]["lod"]["nodes"] = json!(ids[..lods.meshes.len()]);
+            if lods.skeleton.is_some() {
+                n["extras"]["lod"]["skeleton"]["node"] = json!(ids.last());
+            }
+            self.lod_used = true;
+        }
+        node
     }
 
     /// The terrain as one mesh of chunk primitives; returns its node and the chunk count.
@@ -664,6 +1047,29 @@ struct TerrainLight {
     scale: f32,
 }
 
+/// The `tangents` section of mesh section `mesh_section` (one per vertex), or `None` where the
+/// pack has none or its count does not match.
+fn model_tangents(
+    pack: &Pack,
+    mesh_section: &str,
+    vertices: usize,
+) -> Result<Option<Vec<[f32; 4]>>> {
+    for e in pack.of_kind(crate::mesh::tangents::KIND) {
+        let v = pack.view(e)?;
+        let (meta, t) = crate::mesh::tangents::from_section(&v).map_err(|err| {
+            Error::invalid_at(
+                pack.path(),
+                format!("section {:?}", e.name),
+                err.to_string(),
+            )
+        })?;
+        if meta.mesh_section == mesh_section {
+            return Ok((t.len() == vertices).then_some(t));
+        }
+    }
+    Ok(None)
+}
+
 fn terrain_light(pack: &Pack) -> Result<Option<TerrainLight>> {
     use crate::lightmap::section::{self as lightmap, LightmapMeta};
     for e in pack.of_kind(lightmap::KIND) {
@@ -818,15 +1224,26 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => std::path::PathBuf::from("."),
     };
+    let mut warnings = Vec::new();
+    // Before anything is created: a pack without PRT is refused here.
+    let vertex_ambient = if opts.vertex_ambient {
+        Some(ambient::load(pack, &mut warnings)?)
+    } else {
+        None
+    };
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
     let mut ex = Exporter {
         pack,
         bake_light: opts.bake_light,
         unlit: false,
         lightmap: None,
+        ambient: vertex_ambient,
+        made: HashMap::new(),
+        lod_used: false,
+        normal_maps: opts.normal_maps,
         doc: Doc::new(&dir)?,
         textures: HashMap::new(),
-        warnings: Vec::new(),
+        warnings,
     };
     let mut report = ExportReport::default();
     // Material sections by (mesh section, index).
@@ -886,7 +1303,16 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
             ));
             continue;
         }
-        let mesh = ex.model_mesh(name, section, &materials)?;
+        let (mesh, m) = ex.model_mesh(name, section, &materials)?;
+        let lods = if opts.lod {
+            ex.lod_meshes(name, section, &m, &materials)?
+        } else {
+            None
+        };
+        drop(m);
+        report.lod_meshes += lods
+            .as_ref()
+            .map_or(0, |l| l.meshes.len() + l.skeleton.is_some() as usize);
         report.models += 1;
         match list {
             Some(list) if list.is_empty() => ex.warnings.push(crate::diag::Warning::new(
@@ -895,14 +1321,10 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
                 format!("model {name:?} has no instances: its mesh is exported without a node"),
             )),
             Some(list) => {
-                children.push(ex.instanced_node(name, section, mesh, list));
+                children.push(ex.model_node(name, section, mesh, Some(list), lods.as_ref()));
                 report.instances += list.len();
             }
-            None => {
-                ex.doc.nodes.push(json!({"name": name, "mesh": mesh,
-                    "extras": {"section": section}}));
-                children.push(ex.doc.nodes.len() - 1);
-            }
+            None => children.push(ex.model_node(name, section, mesh, None, lods.as_ref())),
         }
     }
     if let Some(e) = pack.of_kind(terrain::KIND).next()
@@ -948,9 +1370,14 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
         .file_name()
         .map(|f| f.to_string_lossy().into_owned())
         .unwrap_or_default();
-    ex.doc.nodes.push(json!({"name": "bake Z-up to glTF Y-up", "rotation": Z_UP_TO_Y_UP,
-        "children": children,
-        "extras": {"pack": pack_name, "axes": "children in bake's frame: Z up, metres; this node maps (x, y, z) to (x, z, -y)"}}));
+    let mut root_extras = json!({"pack": pack_name, "axes": "children in bake's frame: Z up, metres; this node maps (x, y, z) to (x, z, -y)"});
+    if let Some(a) = &ex.ambient {
+        root_extras["vertex_ambient_scale"] = json!(a.scale);
+    }
+    ex.doc.nodes.push(
+        json!({"name": "bake Z-up to glTF Y-up", "rotation": Z_UP_TO_Y_UP,
+        "children": children, "extras": root_extras}),
+    );
     let root = ex.doc.nodes.len() - 1;
 
     let mut used = Vec::new();
@@ -963,6 +1390,9 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
     if ex.unlit {
         used.push("KHR_materials_unlit");
     }
+    if ex.lod_used {
+        used.push("MSFT_lod");
+    }
     let doc = ex.doc;
     report.meshes = doc.meshes.len();
     report.nodes = doc.nodes.len();
@@ -971,6 +1401,10 @@ pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportR
     report.images = doc.images.len();
     report.lightmap = ex.lightmap.clone();
     report.bake_light = ex.unlit;
+    if let Some(a) = &ex.ambient {
+        report.vertex_ambient_models = a.models.len();
+        report.vertex_ambient_scale = Some(a.scale);
+    }
     let (mut bin, bin_len) = doc.bin.finish(&dir)?;
     let mut buffer = Map::new();
     buffer.insert("byteLength".into(), json!(bin_len));
