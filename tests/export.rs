@@ -738,32 +738,40 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     ]);
     common::json(&o);
     std::fs::write(d.join("render.json"), &o.stdout).unwrap();
+    // scripts/threejs/check.js on `glb` against bake's picture: its metrics, the run asserted.
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/threejs/check.js");
-    let o = std::process::Command::new("node")
-        .arg(&script)
-        .args(["--glb", &p("lit.glb"), "--bake", &p("bake.png")])
-        .args([
-            "--regions",
-            &p("regions.png"),
-            "--render-json",
-            &p("render.json"),
-        ])
-        .args(["--out", &p("three"), "--timeout", "120"])
-        .arg("--three")
-        .arg(&three)
-        .arg("--chromium")
-        .arg(&chromium)
-        .output()
-        .expect("run node");
-    let log = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    eprintln!("{log}");
-    assert!(o.status.success(), "three.js check: {log}");
-    let m: Value =
-        serde_json::from_slice(&std::fs::read(d.join("three/metrics.json")).unwrap()).unwrap();
+    let check = |glb: &str, out: &str, extra: &[&str]| -> Value {
+        let o = std::process::Command::new("node")
+            .arg(&script)
+            .args(["--glb", &p(glb), "--bake", &p("bake.png")])
+            .args([
+                "--regions",
+                &p("regions.png"),
+                "--render-json",
+                &p("render.json"),
+            ])
+            .args(["--out", &p(out), "--timeout", "120"])
+            .args(extra)
+            .arg("--three")
+            .arg(&three)
+            .arg("--chromium")
+            .arg(&chromium)
+            .output()
+            .expect("run node");
+        let log = format!(
+            "{}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+        eprintln!("{log}");
+        assert!(
+            o.status.success(),
+            "three.js check of {glb} {extra:?}: {log}"
+        );
+        let metrics = d.join(out).join("metrics.json");
+        serde_json::from_slice(&std::fs::read(metrics).unwrap()).unwrap()
+    };
+    let m = check("lit.glb", "three", &[]);
     assert_eq!(m["failures"], serde_json::json!([]));
     // The script's own bounds, restated: the judge cannot have been loosened silently.
     assert!(m["coverage_iou"].as_f64().unwrap() >= 0.97);
@@ -779,41 +787,8 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
         &p("lod.glb"),
         &["--bake-light", "--lod"],
     );
-    let o = std::process::Command::new("node")
-        .arg(&script)
-        .args(["--glb", &p("lod.glb"), "--bake", &p("bake.png")])
-        .args([
-            "--regions",
-            &p("regions.png"),
-            "--render-json",
-            &p("render.json"),
-        ])
-        .args([
-            "--out",
-            &p("three-lod"),
-            "--timeout",
-            "120",
-            "--lod-select",
-            "1",
-        ])
-        .arg("--three")
-        .arg(&three)
-        .arg("--chromium")
-        .arg(&chromium)
-        .output()
-        .expect("run node");
-    let log = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    eprintln!("{log}");
-    assert!(
-        o.status.success(),
-        "three.js check with --lod-select: {log}"
-    );
-    let m: Value =
-        serde_json::from_slice(&std::fs::read(d.join("three-lod/metrics.json")).unwrap()).unwrap();
+    let m = check("lod.glb", "three-lod", &["--lod-select", "1"]);
+    assert_eq!(m["failures"], serde_json::json!([]));
     let render: Value =
         serde_json::from_slice(&std::fs::read(d.join("render.json")).unwrap()).unwrap();
     let stats = &render["stats"];

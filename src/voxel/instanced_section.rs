@@ -222,7 +222,8 @@ pub fn validate(s: &InstancedSvo) -> Result<(), String> {
             return Err(format!("instance {i}: reserved field is not zero"));
         }
         let unit = r.cos * r.cos + r.sin * r.sin;
-        if !(r.scale > 0.0 && r.scale.is_finite()) || (unit - 1.0).abs() > 1e-4 {
+        // A negative scale mirrors the model (docs/CONVENTIONS.md); zero is refused.
+        if !(r.scale != 0.0 && r.scale.is_finite()) || (unit - 1.0).abs() > 1e-4 {
             return Err(format!(
                 "instance {i}: scale {} or rotation (cos {}, sin {}) invalid",
                 r.scale, r.cos, r.sin

@@ -272,9 +272,44 @@ fn point_triangle(p: [f32; 3], tri: [[f32; 3]; 3]) -> f32 {
 #[test]
 fn rotated_scaled_instances_keep_the_bound_against_the_triangles_and_the_flattened_svo() {
     let (t, models, instances) = scene();
+    assert_traced_as_the_triangles(&t, &models, &instances);
+}
+
+/// A mirrored instance (negative scale, docs/CONVENTIONS.md) is traced where its placed
+/// triangles are, and its section is written and read back (the section check refused any
+/// scale ≤ 0, so such a scene wrote a section it could not read).
+#[test]
+fn a_mirrored_instance_is_traced_as_its_triangles_and_its_section_round_trips() {
+    let (t, models, mut instances) = scene();
+    instances[0].scale = -instances[0].scale;
+    instances[3].scale = -instances[3].scale;
+    assert_traced_as_the_triangles(&t, &models, &instances);
+    let two = InstancedSvo::build(
+        Some(&t),
+        &named(&models),
+        &instances,
+        &VoxelizeOptions::surface(48),
+    )
+    .unwrap();
+    let sec = super::super::instanced_section::to_section("svo-scene", "scene:x.eco", &two, false);
+    let view = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
+    let (_, back) = super::super::instanced_section::from_section(&view).unwrap();
+    assert_eq!(back, two);
+    assert!(back.instances[0].scale < 0.0);
+    // Zero and non-finite scales stay refused.
+    for bad_scale in [0.0, f32::NAN, f32::INFINITY] {
+        let mut bad = two.clone();
+        bad.instances[0].scale = bad_scale;
+        assert!(super::super::instanced_section::validate(&bad).is_err());
+    }
+}
+
+/// The two-level SVO of `instances` against the placed triangles (every surface hit found, no
+/// later than the surface, within a voxel diagonal of it) and the flattened SVO.
+fn assert_traced_as_the_triangles(t: &Terrain, models: &[Geometry], instances: &[Instance]) {
     let opts = VoxelizeOptions::surface(96);
-    let two = InstancedSvo::build(Some(&t), &named(&models), &instances, &opts).unwrap();
-    let flat = flattened(Some(&terrain_mesh(&t)), &models, &instances);
+    let two = InstancedSvo::build(Some(t), &named(models), instances, &opts).unwrap();
+    let flat = flattened(Some(&terrain_mesh(t)), models, instances);
     let fsvo = voxels_to_svo(&mesh_to_voxels(&flat.mesh, &flat.textures, &opts).unwrap());
     assert_eq!(
         two.scene_grid, fsvo.grid,
@@ -285,7 +320,7 @@ fn rotated_scaled_instances_keep_the_bound_against_the_triangles_and_the_flatten
         assert!(m.svo.grid.voxel_size[0] > 0.0);
     }
     for r in &two.instances {
-        let vm = two.models[r.model as usize].svo.grid.voxel_size[0] * r.scale;
+        let vm = two.models[r.model as usize].svo.grid.voxel_size[0] * r.scale.abs();
         assert!(
             vm <= v * (1.0 + 1e-5),
             "an instance's voxel {vm} is no wider than {v}"

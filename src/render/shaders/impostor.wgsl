@@ -284,19 +284,19 @@ fn atlas_texel_at(in: ImpostorOut, st: vec2<f32>) -> vec2<i32> {
 // larger side in level-0 texels, rounded, within the chains (src/render/impostor.rs
 // `atlas_chains`: a level-L texel is the 2^L-wide block below it, its alpha the block's
 // coverage). `dx`, `dy`: the derivatives of `st`.
-fn atlas_level(dx: vec2<f32>, dy: vec2<f32>) -> u32 {
+fn atlas_level(dx: vec2<f32>, dy: vec2<f32>) -> i32 {
     let rho = max(length(dx), length(dy)) * 0.5 * f32(impostor.grid_tile.y);
     let top = f32(textureNumLevels(atlas_color) - 1u);
-    return u32(clamp(round(log2(max(rho, 1e-8))), 0.0, top));
+    return i32(clamp(round(log2(max(rho, 1e-8))), 0.0, top));
 }
 
 // The depth atlas' offset δ = (centre − x)·w of the surface behind a fragment.
 fn atlas_delta(in: ImpostorOut, px: vec2<i32>) -> f32 {
-    return atlas_delta_at(in, px, 0u);
+    return atlas_delta_at(in, px, 0);
 }
 
 // `atlas_delta` of texel `px` of level `level`.
-fn atlas_delta_at(in: ImpostorOut, px: vec2<i32>, level: u32) -> f32 {
+fn atlas_delta_at(in: ImpostorOut, px: vec2<i32>, level: i32) -> f32 {
     return (textureLoad(atlas_depth, px, level).r * 2.0 - 1.0) * in.radius;
 }
 
@@ -374,7 +374,7 @@ fn shade(in: ImpostorOut) -> Shaded {
     // thresholds (as far leaf cards: the view's coverage over the pixel rather than the one
     // texel at its centre), its mean colour, normal and depth for the light.
     let level = atlas_level(dpdx(in.st), dpdy(in.st));
-    let px = atlas_texel(in) >> vec2<u32>(level);
+    let px = atlas_texel(in) >> vec2<u32>(u32(level));
     let texel = textureLoad(atlas_color, px, level);
     let d = layer_dither(in.position.xy, in.world);
     var mask = 0xffffffffu;
@@ -399,7 +399,7 @@ fn shade(in: ImpostorOut) -> Shaded {
     }
     let nm = nt.xyz * 2.0 - 1.0;
     // Past level 0 the normal is the block's mean, shorter where its normals spread.
-    let spread = select(1.0, clamp(length(nm), 0.0, 1.0), level > 0u);
+    let spread = select(1.0, clamp(length(nm), 0.0, 1.0), level > 0);
     let c = in.rot.x;
     let s = in.rot.y;
     let n_world = vec3<f32>(c * nm.x - s * nm.y, s * nm.x + c * nm.y, nm.z);
