@@ -15,14 +15,7 @@ use std::path::{Path, PathBuf};
 fn exported(dir: &Path, ext: &str) -> (PathBuf, PathBuf, Value) {
     let pack = common::preview_fixture_pack(dir);
     let out = dir.join(format!("scene.{ext}"));
-    let o = common::bake(&[
-        "export",
-        pack.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--json",
-    ]);
-    let report = common::json(&o);
+    let report = export_json(pack.to_str().unwrap(), out.to_str().unwrap(), &[]);
     (pack, out, report)
 }
 
@@ -308,6 +301,14 @@ fn export_ok(pack: &str, out: &str, extra: &[&str]) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
+/// `bake export PACK -o OUT EXTRA... --json`, which must succeed: its report.
+fn export_json(pack: &str, out: &str, extra: &[&str]) -> Value {
+    let mut args = vec!["export", pack, "-o", out];
+    args.extend_from_slice(extra);
+    args.push("--json");
+    common::json(&common::bake(&args))
+}
+
 /// The Khronos validator's package folder, or `None` (a skip; a failure under `CI`).
 fn validator() -> Option<PathBuf> {
     let dir = std::env::var_os("GLTF_VALIDATOR")
@@ -457,13 +458,7 @@ fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin(
             String::from_utf8_lossy(&o.stderr)
         );
     }
-    let report = common::json(&common::bake(&[
-        "export",
-        &p("m.bake"),
-        "-o",
-        &p("m.glb"),
-        "--json",
-    ]));
+    let report = export_json(&p("m.bake"), &p("m.glb"), &[]);
     assert_eq!(report["terrain_chunks"], 6);
     assert_eq!(report["instances"], 0);
     let bytes = std::fs::read(d.join("m.glb")).unwrap();
@@ -607,14 +602,11 @@ fn the_terrain_light_map_rides_on_texcoord_1_and_bakes_into_an_unlit_base_colour
     // --bake-light: unlit, its base colour albedo × E / irradiance_scale, sampled at the finer
     // of the two maps' resolutions; the pack's colour map and light map are the oracle.
     let lit = dir.path().join("lit.glb");
-    let r = common::json(&common::bake(&[
-        "export",
+    let r = export_json(
         pack_path.to_str().unwrap(),
-        "-o",
         lit.to_str().unwrap(),
-        "--bake-light",
-        "--json",
-    ]));
+        &["--bake-light"],
+    );
     assert_eq!(r["bake_light"], true);
     let bytes = std::fs::read(&lit).unwrap();
     let (_, _, images) = gltf::import_slice(&bytes).unwrap();
@@ -875,14 +867,11 @@ fn vertex_ambient_color_0_is_the_renderers_prt_ambient() {
     let dir = tempfile::tempdir().unwrap();
     let pack_path = common::preview_fixture_pack(dir.path());
     let out = dir.path().join("ambient.glb");
-    let report = common::json(&common::bake(&[
-        "export",
+    let report = export_json(
         pack_path.to_str().unwrap(),
-        "-o",
         out.to_str().unwrap(),
-        "--vertex-ambient",
-        "--json",
-    ]));
+        &["--vertex-ambient"],
+    );
     let pack = Pack::open(&pack_path).unwrap();
     let scene = bake::render::scene::load_scene(&pack).unwrap();
     let amb = load_ambient(&pack, &scene, PrtLayout::Full, None).unwrap();
@@ -1031,15 +1020,11 @@ fn lod_levels_are_meshes_on_msft_lod_nodes_as_the_pack_has_them() {
     let dir = tempfile::tempdir().unwrap();
     let pack_path = common::preview_fixture_pack(dir.path());
     let out = dir.path().join("lod.glb");
-    let report = common::json(&common::bake(&[
-        "export",
+    let report = export_json(
         pack_path.to_str().unwrap(),
-        "-o",
         out.to_str().unwrap(),
-        "--lod",
-        "--vertex-ambient",
-        "--json",
-    ]));
+        &["--lod", "--vertex-ambient"],
+    );
     let pack = Pack::open(&pack_path).unwrap();
     let bytes = std::fs::read(&out).unwrap();
     let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();

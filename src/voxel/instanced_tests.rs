@@ -284,16 +284,8 @@ fn a_mirrored_instance_is_traced_as_its_triangles_and_its_section_round_trips() 
     instances[0].scale = -instances[0].scale;
     instances[3].scale = -instances[3].scale;
     assert_traced_as_the_triangles(&t, &models, &instances);
-    let two = InstancedSvo::build(
-        Some(&t),
-        &named(&models),
-        &instances,
-        &VoxelizeOptions::surface(48),
-    )
-    .unwrap();
-    let sec = super::super::instanced_section::to_section("svo-scene", "scene:x.eco", &two, false);
-    let view = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
-    let (_, back) = super::super::instanced_section::from_section(&view).unwrap();
+    let two = build48(&t, &models, &instances);
+    let (_, back) = round_trip(&two);
     assert_eq!(back, two);
     assert!(back.instances[0].scale < 0.0);
     // Zero and non-finite scales stay refused.
@@ -413,19 +405,29 @@ fn memory_is_the_models_not_the_instances() {
     assert!(refs < 400 * 9, "{refs} grid references for 400 instances");
 }
 
+/// The scene's two-level SVO at resolution 48.
+fn build48(t: &Terrain, models: &[Geometry], instances: &[Instance]) -> InstancedSvo {
+    InstancedSvo::build(
+        Some(t),
+        &named(models),
+        instances,
+        &VoxelizeOptions::surface(48),
+    )
+    .unwrap()
+}
+
+/// `two` written as an `svo-scene` section (source "scene:x.eco") and read back.
+fn round_trip(two: &InstancedSvo) -> (super::super::instanced_section::SvoSceneMeta, InstancedSvo) {
+    let sec = super::super::instanced_section::to_section("svo-scene", "scene:x.eco", two, false);
+    let view = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
+    super::super::instanced_section::from_section(&view).unwrap()
+}
+
 #[test]
 fn the_section_round_trips() {
     let (t, models, instances) = scene();
-    let two = InstancedSvo::build(
-        Some(&t),
-        &named(&models),
-        &instances,
-        &VoxelizeOptions::surface(48),
-    )
-    .unwrap();
-    let sec = super::super::instanced_section::to_section("svo-scene", "scene:x.eco", &two, false);
-    let view = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
-    let (meta, back) = super::super::instanced_section::from_section(&view).unwrap();
+    let two = build48(&t, &models, &instances);
+    let (meta, back) = round_trip(&two);
     assert_eq!(meta.source, "scene:x.eco");
     assert_eq!(back, two);
     // A broken record is refused.
