@@ -270,10 +270,11 @@ pub(super) fn upload(
 /// halves evenly, so no texel mixes two views). Its alpha is the block's coverage,
 /// round(255 · the share of level-0 texels whose alpha passes ½ (≥ 128)); its colour the mean
 /// of those texels' linear colours (sRGB-encoded again), its normal their mean normal (not
-/// renormalized: its length says how far the block's normals spread) with the material (the normal's alpha) of the child block of most coverage
-/// (the first of the tied), its depth code their least (the surface nearest the tile's eye: a
-/// mean would put the surface inside the model, in its own shadow); a block without coverage
-/// is zero.
+/// renormalized: its length says how far the block's normals spread) with the material (the
+/// normal's alpha) most of those texels have (the lowest of the tied; every material from
+/// [`IMPOSTOR_MATERIALS`] on counted as one, written 255), its depth code their least (the
+/// surface nearest the tile's eye: a mean would put the surface inside the model, in its own
+/// shadow); a block without coverage is zero.
 pub struct AtlasChains {
     pub levels: Vec<[u32; 4]>,
     pub color: Vec<[u8; 4]>,
@@ -288,7 +289,26 @@ struct BlockSum {
     rgb: [f64; 3],
     normal: [f64; 3],
     depth: u8,
-    material: u8,
+    /// Covered level-0 texels per material (the last entry: every material from
+    /// [`IMPOSTOR_MATERIALS`] on, which the shader lights alike).
+    materials: [u32; IMPOSTOR_MATERIALS + 1],
+}
+
+impl BlockSum {
+    /// The material of most covered texels (the first of the tied); 255 for the last bucket.
+    fn material(&self) -> u8 {
+        let mut best = 0;
+        for (k, &c) in self.materials.iter().enumerate() {
+            if c > self.materials[best] {
+                best = k;
+            }
+        }
+        if best == IMPOSTOR_MATERIALS {
+            255
+        } else {
+            best as u8
+        }
+    }
 }
 
 /// [`AtlasChains`] of an atlas of `side`² texels in tiles of `tile`².
@@ -313,7 +333,9 @@ pub fn atlas_chains(d: &ImpostorData, side: u32, tile: u32) -> AtlasChains {
                 rgb: [lin(0), lin(1), lin(2)],
                 normal: [unit(0), unit(1), unit(2)],
                 depth: d.depth[i],
-                material: nm[3],
+                materials: std::array::from_fn(|k| {
+                    u32::from(k == usize::from(nm[3]).min(IMPOSTOR_MATERIALS))
+                }),
             }
         })
         .collect();
@@ -341,7 +363,7 @@ pub fn atlas_chains(d: &ImpostorData, side: u32, tile: u32) -> AtlasChains {
                 out.color
                     .push([enc(b.rgb[0]), enc(b.rgb[1]), enc(b.rgb[2]), cov]);
                 let q = |k: usize| ((b.normal[k] / n * 0.5 + 0.5) * 255.0).round() as u8;
-                out.normal.push([q(0), q(1), q(2), b.material]);
+                out.normal.push([q(0), q(1), q(2), b.material()]);
                 out.depth.push(b.depth);
             }
         }
@@ -358,7 +380,6 @@ pub fn atlas_chains(d: &ImpostorData, side: u32, tile: u32) -> AtlasChains {
                     depth: u8::MAX,
                     ..BlockSum::default()
                 };
-                let mut best = 0;
                 for k in kids {
                     s.n += k.n;
                     for c in 0..3 {
@@ -368,9 +389,8 @@ pub fn atlas_chains(d: &ImpostorData, side: u32, tile: u32) -> AtlasChains {
                     if k.n > 0 {
                         s.depth = s.depth.min(k.depth);
                     }
-                    if k.n > best {
-                        best = k.n;
-                        s.material = k.material;
+                    for (m, c) in s.materials.iter_mut().zip(k.materials) {
+                        *m += c;
                     }
                 }
                 s
@@ -458,7 +478,8 @@ mod tests {
 
     /// Every level of the chains against brute force over the level-0 block below each texel.
     #[test]
-    fn the_atlas_chains_are_the_blocks_coverage_mean_colour_normal_and_nearest_depth() {
+    fn the_atlas_chains_are_the_blocks_coverage_mean_colour_normal_nearest_depth_and_main_material()
+    {
         let (grid, tile) = (2u32, 8u32);
         let side = grid * tile;
         let n = (side * side) as usize;
@@ -538,8 +559,19 @@ mod tests {
                     }
                     let nearest = block.iter().map(|&i| d.depth[i]).min().unwrap();
                     assert_eq!(c.depth[at], nearest);
-                    // The material is one of the block's.
-                    assert!(block.iter().any(|&i| d.normal[i][3] == c.normal[at][3]));
+                    // The material most of the block's covered texels have (the lowest of the tied).
+                    let mut count = [0usize; 4];
+                    for &i in &block {
+                        count[usize::from(d.normal[i][3])] += 1;
+                    }
+                    let most = (0..4)
+                        .max_by_key(|&k| (count[k], std::cmp::Reverse(k)))
+                        .unwrap();
+                    assert_eq!(
+                        usize::from(c.normal[at][3]),
+                        most,
+                        "level {level} ({x}, {y})"
+                    );
                 }
             }
         }
