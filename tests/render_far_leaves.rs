@@ -161,6 +161,15 @@ fn radiance(p: [u8; 4]) -> f32 {
     -(1.0 - ls).ln() / EXPOSURE
 }
 
+/// The centre of a grid of cards `spacing` metres apart (the views look at it along +Y).
+fn grid_centre(spacing: f32) -> [f32; 3] {
+    [
+        (COLS - 1) as f32 * spacing / 2.0,
+        0.0,
+        (ROWS - 1) as f32 * spacing / 2.0 + 0.5,
+    ]
+}
+
 fn drawn_area(pack: &Pack, msaa: u32) -> (f32, f32) {
     // L_leaf: a close view straight at one card's centre (the disc fills the middle).
     let (x0, z0) = (jitter(0), jitter(1) + 0.5);
@@ -168,11 +177,7 @@ fn drawn_area(pack: &Pack, msaa: u32) -> (f32, f32) {
     let l_leaf = radiance(near.image.pixels[((H / 2) * W + W / 2) as usize]);
     assert!(l_leaf > 0.05, "leaf radiance {l_leaf}");
     // The grid's centre, seen along +Y from DIST away.
-    let c = [
-        (COLS - 1) as f32 * SPACING / 2.0,
-        0.0,
-        (ROWS - 1) as f32 * SPACING / 2.0 + 0.5,
-    ];
+    let c = grid_centre(SPACING);
     let far = render_pack(pack, &options([c[0], -DIST, c[2]], c, msaa)).unwrap();
     let drawn: f32 = far.image.pixels.iter().map(|&p| radiance(p) / l_leaf).sum();
     let f = H as f32 / 2.0 / (FOV.to_radians() / 2.0).tan();
@@ -227,11 +232,7 @@ fn far_cards_behind_each_other_cover_as_their_union() {
     const LAYERS: u32 = 6;
     const SPACING_1: f32 = 1.0;
     let pack = build_pack_of(&layered_grid(LAYERS, SPACING_1, 0.3));
-    let centre = [
-        (COLS - 1) as f32 * SPACING_1 / 2.0,
-        0.0,
-        (ROWS - 1) as f32 * SPACING_1 / 2.0 + 0.5,
-    ];
+    let centre = grid_centre(SPACING_1);
     // Far: a card 1.5 pixels wide, between the 2×2 and 1×1 levels (the dither path); near the
     // same view at 8× the resolution, a card 12 pixels wide (level 2, the plain alpha test).
     let far = leaf_pixels(&pack, centre, DIST, 1);
@@ -259,11 +260,7 @@ fn far_cards_behind_each_other_cover_as_their_union() {
 #[test]
 fn far_cards_are_drawn_in_the_pixels_their_leaves_fill() {
     let pack = build_pack();
-    let centre = [
-        (COLS - 1) as f32 * SPACING / 2.0,
-        0.0,
-        (ROWS - 1) as f32 * SPACING / 2.0 + 0.5,
-    ];
+    let centre = grid_centre(SPACING);
     let far = leaf_coverage(&pack, centre, DIST, 1);
     let fine = leaf_coverage(&pack, centre, DIST, 8);
     let leaf: Vec<usize> = (0..fine.len()).filter(|&i| fine[i] >= 0.5).collect();

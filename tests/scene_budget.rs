@@ -206,21 +206,23 @@ fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
     // `bake render --view svo` draws it (GPU) beside the CPU's traversal of the same rays.
     let img = dir.path().join("svo.png");
     let reference = dir.path().join("svo-cpu.png");
-    let r = common::json(&common::bake(&[
-        "render",
-        two_out.to_str().unwrap(),
-        "--view",
-        "svo",
-        "-o",
-        img.to_str().unwrap(),
-        "--reference",
-        reference.to_str().unwrap(),
-        "--width",
-        "96",
-        "--height",
-        "64",
-        "--json",
-    ]));
+    let svo_view = |extra: &[&str]| {
+        let mut args = vec!["render", two_out.to_str().unwrap(), "--view", "svo"];
+        args.extend_from_slice(extra);
+        args.extend([
+            "-o",
+            img.to_str().unwrap(),
+            "--reference",
+            reference.to_str().unwrap(),
+            "--width",
+            "96",
+            "--height",
+            "64",
+            "--json",
+        ]);
+        common::json(&common::bake(&args))
+    };
+    let r = svo_view(&[]);
     assert!(
         r["svo_scene"]["hits"].as_u64().unwrap() > 96 * 64 / 4,
         "{r}"
@@ -235,23 +237,7 @@ fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
     // With a wide cone the view reads the aggregates (top cells or sub-cells), GPU = CPU; with
     // cone 0 only voxels.
     for (scale, aggregates) in [("40", true), ("0", false)] {
-        let r = common::json(&common::bake(&[
-            "render",
-            two_out.to_str().unwrap(),
-            "--view",
-            "svo",
-            "--svo-lod-scale",
-            scale,
-            "-o",
-            img.to_str().unwrap(),
-            "--reference",
-            reference.to_str().unwrap(),
-            "--width",
-            "96",
-            "--height",
-            "64",
-            "--json",
-        ]));
+        let r = svo_view(&["--svo-lod-scale", scale]);
         let on_aggregates = r["svo_scene"]["cell_hits"].as_u64().unwrap()
             + r["svo_scene"]["sub_cell_hits"].as_u64().unwrap();
         assert_eq!(on_aggregates > 20, aggregates, "scale {scale}: {r}");
