@@ -87,16 +87,99 @@ pub fn bench_lightmap(
     })
 }
 
+/// One estimator of `bake bench lightmap --rows`: `VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES]]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimator {
+    pub visibility: crate::lightmap::LightmapVisibility,
+    pub samples: u32,
+    pub sun_samples: u32,
+    pub lattice: u32,
+    /// Texels per side of its map (`lightmap.max_resolution`); `None`: the reference's.
+    pub resolution: Option<u32>,
+}
+
+impl Estimator {
+    /// Parses `VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES]]` (defaults 64, 16, 3, full).
+    pub fn parse(c: &str) -> std::result::Result<Estimator, String> {
+        let f: Vec<&str> = c.trim().split(':').collect();
+        let visibility = match f.first().copied() {
+            Some("horizons") => crate::lightmap::LightmapVisibility::Horizons,
+            Some("rays") => crate::lightmap::LightmapVisibility::Rays,
+            _ => return Err(format!("--compare {c}: horizons or rays first")),
+        };
+        if f.len() > 5 {
+            return Err(format!(
+                "--compare {c}: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES]]"
+            ));
+        }
+        let num = |k: usize| -> std::result::Result<Option<u32>, String> {
+            f.get(k)
+                .map(|v| v.parse().map_err(|e| format!("--compare {c}: {e}")))
+                .transpose()
+        };
+        let resolution = num(4)?;
+        if resolution == Some(0) {
+            return Err(format!("--compare {c}: a resolution of at least 1 texel"));
+        }
+        Ok(Estimator {
+            visibility,
+            samples: num(1)?.unwrap_or(64),
+            sun_samples: num(2)?.unwrap_or(16),
+            lattice: num(3)?.unwrap_or(3),
+            resolution,
+        })
+    }
+}
+
+/// The rows `c0..c1` of a coarse `cw × ch` map (texel-centred, as the light map places its
+/// texels) sampled bilinearly, clamped at the map's edges as the renderer's sampler is, at the
+/// texel centres of rows `rows` of a `w × h` map.
+pub fn upsample_rows(
+    coarse: &[[f32; 3]],
+    (cw, ch): (u32, u32),
+    c0: u32,
+    (w, h): (u32, u32),
+    rows: std::ops::Range<u32>,
+) -> Vec<[f32; 3]> {
+    let c1 = c0 + (coarse.len() / cw.max(1) as usize) as u32;
+    let axis = |i: u32, n: u32, cn: u32| {
+        let u = (i as f32 + 0.5) / n as f32 * cn as f32 - 0.5;
+        let u = u.clamp(0.0, (cn - 1) as f32);
+        let a = (u.floor() as u32).min(cn - 1);
+        (a, (a + 1).min(cn - 1), u - a as f32)
+    };
+    let mut out = Vec::with_capacity((rows.len()) * w as usize);
+    for j in rows {
+        let (r0, r1, fy) = axis(j, h, ch);
+        let (r0, r1) = (r0.clamp(c0, c1 - 1), r1.clamp(c0, c1 - 1));
+        for i in 0..w {
+            let (q0, q1, fx) = axis(i, w, cw);
+            let t = |r: u32, q: u32| coarse[((r - c0) * cw + q) as usize];
+            let (a, b, c, d) = (t(r0, q0), t(r0, q1), t(r1, q0), t(r1, q1));
+            out.push(std::array::from_fn(|k| {
+                let top = a[k] + (b[k] - a[k]) * fx;
+                let bot = c[k] + (d[k] - c[k]) * fx;
+                top + (bot - top) * fy
+            }));
+        }
+    }
+    out
+}
+
 /// `bake bench lightmap --rows A..B` (issue 37): rows `rows` of the terrain light map by every
-/// estimator of `configs` (visibility, samples, sun samples, horizon lattice), timed (wall and
-/// CPU seconds of this process), against the ray estimator at `reference` hemisphere and
-/// `reference / 4` sun rays. Errors per texel, relative to the mean irradiance of the rows:
-/// RMS, 90th percentile and largest of |E − E_ref| over the texels (RGB mean), for the total
-/// and for the part without the direct sun.
+/// estimator of `configs` (visibility, samples, sun samples, horizon lattice, resolution), timed
+/// (wall and CPU seconds of this process), against the ray estimator at `reference` hemisphere
+/// and `reference / 4` sun rays at the terrain's full resolution. Errors per texel of the
+/// reference, relative to the mean irradiance of the rows: RMS, 90th percentile and largest of
+/// |E − E_ref| over the texels (RGB mean), for the total and for the part without the direct
+/// sun. An estimator at a lower resolution bakes the coarse rows under the reference's (plus a
+/// margin for the bilinear taps and the filters), is filtered there, and is sampled bilinearly at
+/// the reference's texel centres ([`upsample_rows`]); its CPU seconds are scaled to the coarse
+/// rows that cover the same ground (the margin's share taken out).
 pub fn bench_lightmap_error(
     input: Option<&Path>,
     rows: std::ops::Range<u32>,
-    configs: &[(crate::lightmap::LightmapVisibility, u32, u32, u32)],
+    configs: &[Estimator],
     reference: u32,
     filters: &[TexelFilter],
 ) -> Result<Report> {
@@ -107,7 +190,9 @@ pub fn bench_lightmap_error(
     };
     let light = crate::lightmap::scene_lighting(&pack)?;
     let scene = crate::trace::pack_scene::trace_scene(&pack)?;
-    let run = |opts: &LightmapOptions| -> Result<(f64, f64, crate::lightmap::TexelRows)> {
+    let run = |opts: &LightmapOptions,
+               rows: std::ops::Range<u32>|
+     -> Result<(f64, f64, crate::lightmap::TexelRows)> {
         let (t0, c0) = (
             std::time::Instant::now(),
             super::cpu_seconds().unwrap_or(0.0),
@@ -124,7 +209,10 @@ pub fn bench_lightmap_error(
         visibility: crate::lightmap::LightmapVisibility::Rays,
         ..Default::default()
     };
-    let (rw, rc, (re, rd)) = run(&ref_opts)?;
+    let full = crate::lightmap::terrain_lightmap_size(&scene, &ref_opts)
+        .ok_or_else(|| crate::error::Error::usage("the pack has no terrain".to_string()))?;
+    let rows = rows.start.min(full.1)..rows.end.min(full.1);
+    let (rw, rc, (re, rd)) = run(&ref_opts, rows.clone())?;
     let mean = |v: &[[f32; 3]]| {
         v.iter()
             .map(|t| (t[0] + t[1] + t[2]) as f64 / 3.0)
@@ -164,16 +252,53 @@ pub fn bench_lightmap_error(
         re.len(),
         ref_opts.sun_samples
     );
-    for &(visibility, samples, sun_samples, lattice) in configs {
+    let margin = 1 + filters.iter().map(|f| f.radius as u32).max().unwrap_or(0);
+    for &Estimator {
+        visibility,
+        samples,
+        sun_samples,
+        lattice,
+        resolution,
+    } in configs
+    {
         let opts = LightmapOptions {
             samples,
             sun_samples,
             visibility,
             horizon_lattice: lattice,
+            max_resolution: resolution,
             ..Default::default()
         };
         opts.check().map_err(crate::error::Error::usage)?;
-        let (w, c, (e, d)) = run(&opts)?;
+        let size = crate::lightmap::terrain_lightmap_size(&scene, &opts).unwrap_or(full);
+        // The coarse rows under the reference's, with a margin (none at full resolution).
+        let (cr, share) = if size == full {
+            (rows.clone(), 1.0)
+        } else {
+            let at = |j: f32| j / full.1 as f32 * size.1 as f32 - 0.5;
+            let lo = at(rows.start as f32 + 0.5).floor().max(0.0) as u32;
+            let hi = (at(rows.end as f32 - 0.5).floor() as u32 + 2).min(size.1);
+            let cr = lo.saturating_sub(margin)..(hi + margin).min(size.1);
+            let ground = rows.len() as f64 * size.1 as f64 / full.1 as f64;
+            (cr.clone(), ground / cr.len().max(1) as f64)
+        };
+        let (w, c, (e, d)) = run(&opts, cr.clone())?;
+        let (w, c) = (w * share, c * share);
+        let width = size.0 as usize;
+        let up = |v: &[[f32; 3]]| {
+            if size == full {
+                v.to_vec()
+            } else {
+                upsample_rows(v, size, cr.start, full, rows.clone())
+            }
+        };
+        let ind_c: Vec<[f32; 3]> = e
+            .iter()
+            .zip(&d)
+            .map(|(e, d)| std::array::from_fn(|c| e[c] - d[c]))
+            .collect();
+        let (e_c, d_c) = (e, d);
+        let (e, d) = (up(&e_c), up(&d_c));
         let ind: Vec<[f32; 3]> = e
             .iter()
             .zip(&d)
@@ -181,7 +306,8 @@ pub fn bench_lightmap_error(
             .collect();
         let (tot, sky) = (stats(&e, &re, m_tot), stats(&ind, &r_ind, m_ind));
         text += &format!(
-            "{visibility:?}:{samples}:{sun_samples}:{lattice}: {w:.2} s wall, {c:.2} CPU s; total rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %; without direct sun rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %\n",
+            "{visibility:?}:{samples}:{sun_samples}:{lattice}:{}: {w:.2} s wall, {c:.2} CPU s; total rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %; without direct sun rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %\n",
+            size.0,
             tot["rms"].as_f64().unwrap_or(0.0) * 100.0,
             tot["p90"].as_f64().unwrap_or(0.0) * 100.0,
             tot["max"].as_f64().unwrap_or(0.0) * 100.0,
@@ -192,9 +318,8 @@ pub fn bench_lightmap_error(
             sky["bias"].as_f64().unwrap_or(0.0) * 100.0,
         );
         // Honest texel-space filters of the part without the direct sun (box of radius r over
-        // the rows' strip, clamped at its edges; the direct sun kept): their error against the
-        // reference includes their bias.
-        let width = e.len() / (rows.end - rows.start).max(1) as usize;
+        // the rows' strip, clamped at its edges; the direct sun kept), on the estimator's own
+        // texels before any upsampling: their error against the reference includes their bias.
         let mut filtered = Vec::new();
         for &TexelFilter {
             total,
@@ -210,22 +335,23 @@ pub fn bench_lightmap_error(
                 }
             };
             let (f, tot_f): (Vec<[f32; 3]>, Vec<[f32; 3]>) = if total {
-                let tf = filt(&e);
+                let tf = filt(&e_c);
                 let f = tf
                     .iter()
-                    .zip(&d)
+                    .zip(&d_c)
                     .map(|(a, b)| std::array::from_fn(|c| a[c] - b[c]))
                     .collect();
                 (f, tf)
             } else {
-                let f = filt(&ind);
+                let f = filt(&ind_c);
                 let tf = f
                     .iter()
-                    .zip(&d)
+                    .zip(&d_c)
                     .map(|(a, b)| std::array::from_fn(|c| a[c] + b[c]))
                     .collect();
                 (f, tf)
             };
+            let (f, tot_f) = (up(&f), up(&tot_f));
             let (tf, sf) = (stats(&tot_f, &re, m_tot), stats(&f, &r_ind, m_ind));
             text += &format!(
                 "  + {8} {0}×{0} on {9}: total rms {1:.2} % p90 {2:.2} % max {3:.2} %; without direct sun rms {4:.2} % p90 {5:.2} % max {6:.2} % bias {7:.3} %\n",
@@ -251,7 +377,7 @@ pub fn bench_lightmap_error(
             filtered.push(serde_json::json!({"radius": r, "range": t, "whole": total, "total": tf, "without_direct_sun": sf}));
         }
         rowsj.push(serde_json::json!({"visibility": visibility, "samples": samples, "sun_samples": sun_samples,
-            "horizon_lattice": lattice, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky,
+            "horizon_lattice": lattice, "resolution": size.0, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky,
             "filtered": filtered}));
     }
     Ok(Report {
@@ -315,6 +441,45 @@ pub fn parse_filters(s: &str) -> std::result::Result<Vec<TexelFilter>, String> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn upsampling_reproduces_a_linear_field_and_the_same_size() {
+        // A coarse map of a linear field f(x, y) = 2x − 3y + 1 (texel centres); inside the
+        // coarse centres' hull bilinear sampling is exact, at the edges it clamps.
+        let (cw, ch, w, h) = (9u32, 7u32, 36u32, 28u32);
+        let f = |x: f32, y: f32| 2.0 * x - 3.0 * y + 1.0;
+        let coarse: Vec<[f32; 3]> = (0..ch)
+            .flat_map(|j| (0..cw).map(move |i| (i, j)))
+            .map(|(i, j)| {
+                let v = f((i as f32 + 0.5) / cw as f32, (j as f32 + 0.5) / ch as f32);
+                [v, v, v]
+            })
+            .collect();
+        // Coarse rows 1..6 only, fine rows 8..20 (inside them).
+        let part = &coarse[cw as usize..6 * cw as usize];
+        let up = super::upsample_rows(part, (cw, ch), 1, (w, h), 8..20);
+        assert_eq!(up.len(), 12 * w as usize);
+        for (k, t) in up.iter().enumerate() {
+            let (i, j) = (k as u32 % w, 8 + k as u32 / w);
+            let (x, y) = ((i as f32 + 0.5) / w as f32, (j as f32 + 0.5) / h as f32);
+            let xc = x.clamp(0.5 / cw as f32, 1.0 - 0.5 / cw as f32);
+            assert!((t[0] - f(xc, y)).abs() < 1e-4, "{i},{j}: {} vs {}", t[0], f(xc, y));
+        }
+        // The same size is the identity.
+        let same = super::upsample_rows(&coarse, (cw, ch), 0, (cw, ch), 0..ch);
+        assert_eq!(same, coarse);
+    }
+
+    #[test]
+    fn estimators_parse_with_a_resolution_and_refuse_bad_ones() {
+        let e = super::Estimator::parse("horizons:32:16:3:2049").unwrap();
+        assert_eq!((e.samples, e.sun_samples, e.lattice), (32, 16, 3));
+        assert_eq!(e.resolution, Some(2049));
+        assert_eq!(super::Estimator::parse("rays").unwrap().resolution, None);
+        for bad in ["sky:1", "horizons:x", "horizons:1:1:1:0", "horizons:1:1:1:1:1"] {
+            assert!(super::Estimator::parse(bad).is_err(), "{bad}");
+        }
+    }
+
     #[test]
     fn filters_parse_and_refuse_bad_ones() {
         let f = super::parse_filters("box:1, bilateral:2:0.2,bilateral-total:3:0.1").unwrap();

@@ -105,8 +105,9 @@ pub struct LightmapBenchArgs {
     /// CPU seconds, in this process.
     #[arg(long, value_name = "START..END")]
     pub rows: Option<String>,
-    /// Estimators to compare: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE], comma-separated
-    /// (VISIBILITY horizons or rays).
+    /// Estimators to compare: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES]], comma-separated
+    /// (VISIBILITY horizons or rays; RES the map's texels per side, sampled bilinearly at the
+    /// reference's texels; default the reference's).
     #[arg(
         long,
         default_value = "rays:64:16,horizons:64:16,horizons:32:8,horizons:16:4,horizons:16:4:2"
@@ -142,21 +143,12 @@ pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
                 .parse::<u32>()
                 .map_err(|e| bad(format!("--rows {rows}: {e}")))
         };
-        let mut configs = Vec::new();
-        for c in a.compare.split(',') {
-            let f: Vec<&str> = c.trim().split(':').collect();
-            let vis = match f.first().copied() {
-                Some("horizons") => crate::lightmap::LightmapVisibility::Horizons,
-                Some("rays") => crate::lightmap::LightmapVisibility::Rays,
-                _ => return Err(bad(format!("--compare {c}: horizons or rays first"))),
-            };
-            let num = |k: usize, d: u32| -> Result<u32> {
-                f.get(k).map_or(Ok(d), |v| {
-                    v.parse().map_err(|e| bad(format!("--compare {c}: {e}")))
-                })
-            };
-            configs.push((vis, num(1, 64)?, num(2, 16)?, num(3, 3)?));
-        }
+        let configs = a
+            .compare
+            .split(',')
+            .map(crate::bench::lightmap::Estimator::parse)
+            .collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(bad)?;
         let filters = crate::bench::lightmap::parse_filters(&a.filters).map_err(bad)?;
         let r = crate::bench::lightmap::bench_lightmap_error(
             a.input.as_deref(),
