@@ -4,7 +4,6 @@
 use super::{Global, Outcome};
 use crate::error::Result;
 use crate::lightmap::{LightmapMode, LightmapOptions};
-use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
@@ -45,7 +44,6 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
         .available_as("lightmap.tracer")
         .map_err(refused)?;
     let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
-    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
     let opts = LightmapOptions {
         resolution: args.resolution,
         samples: args.samples,
@@ -59,9 +57,26 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
         tracer: args.tracer,
         ..Default::default()
     };
+    let pipeline = crate::graph::Pipeline {
+        lightmap: opts,
+        ..crate::graph::Pipeline::default()
+    };
     let start = std::time::Instant::now();
-    let mut sections = crate::lightmap::lightmap_sections(&pack, &opts)?;
-    sections.extend(crate::lightmap::atlas_sections(&pack, &opts)?);
+    // Through the registry's `lightmap` (the terrain's) and `atlas` (the objects') units, the
+    // graph's and `bake unit`'s.
+    let mut sections = Vec::new();
+    for stage in ["lightmap", "atlas"] {
+        let o = crate::graph::stage::pack_unit(
+            stage,
+            &args.input,
+            w.sections(),
+            &pipeline,
+            None,
+            None,
+            &|_| {},
+        )?;
+        sections.extend(o.sections);
+    }
     let seconds = start.elapsed().as_secs_f64();
     let mut summaries = Vec::new();
     for s in sections {

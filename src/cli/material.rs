@@ -4,8 +4,7 @@
 
 use super::{Global, Outcome};
 use crate::error::Result;
-use crate::material::{MaterialOptions, bake_materials};
-use crate::pack::Pack;
+use crate::material::MaterialOptions;
 use crate::texture::linear::TransferFunction;
 use std::path::PathBuf;
 
@@ -31,27 +30,40 @@ pub fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
         preserve_coverage: !args.no_coverage,
     };
     let bar = g.progress(1, "material");
-    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
-    let (sections, report) = bake_materials(&pack, &opts)?;
+    // Through the registry's `material` unit (the graph's and `bake unit model`'s), over every
+    // mesh of the pack at once.
+    let pipeline = crate::graph::Pipeline {
+        material: opts,
+        ..crate::graph::Pipeline::default()
+    };
+    let o = crate::graph::stage::pack_unit(
+        "material",
+        &args.input,
+        w.sections(),
+        &pipeline,
+        None,
+        None,
+        &|_| {},
+    )?;
     bar.finish_and_clear();
-    let bytes = super::write_pack(w, sections, &output)?;
+    let bytes = super::write_pack(w, o.sections, &output)?;
+    // The report as the stage made it, with its warnings' messages (the unit returns them apart).
+    let mut report = o.report;
+    report["warnings"] = o.warnings.iter().map(|w| w.message.clone()).collect();
     let text = format!(
         "{}: {} materials ({} leaf defaults), {} textures, {} meshes with tangents ({} vertices split)\n",
         output.display(),
-        report.materials,
-        report.leaf_defaults,
-        report.textures,
-        report.meshes,
-        report.split_vertices
+        report["materials"],
+        report["leaf_defaults"],
+        report["textures"],
+        report["meshes"],
+        report["split_vertices"]
     );
     Ok(Outcome::written(
         &report,
         &output,
         bytes.len(),
         text,
-        crate::diag::tagged(
-            &crate::diag::MATERIAL_TEXTURE_MISSING,
-            report.warnings.clone(),
-        ),
+        o.warnings,
     ))
 }

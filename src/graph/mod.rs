@@ -211,7 +211,7 @@ pub fn process_usage() -> (f64, u64) {
 }
 
 /// What a unit computed: sections, the stage's report, warnings, files read beyond its key.
-#[derive(Default)]
+#[derive(Debug, Default)]
 pub struct Output {
     pub sections: Vec<Section>,
     pub report: Value,

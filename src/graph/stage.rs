@@ -461,6 +461,159 @@ impl<S: Stage> AnyStage for S {
     }
 }
 
+/// One unit of the registered stage `st` outside the graph: its declared inputs among
+/// `candidates` (the sections in the unit's scope), the trace structures built over them where
+/// declared, no cache. The one entry by which a stage runs besides [`super::build`]: the
+/// actions of a plan (`bake unit`, `crate::plan::actions::stage_unit`) and the per-stage
+/// subcommands (`bake prt`, `bake lod`, ...: [`pack_unit`]) call it.
+pub fn run_unit(
+    st: &dyn AnyStage,
+    scope: &Scope,
+    candidates: &[Section],
+    model: Option<(&str, &Path)>,
+    shard: Option<Shard>,
+    progress: &(dyn Fn(u64) + Sync),
+    p: &Pipeline,
+) -> Result<Output> {
+    let u = UnitInputs::new(st, scope, candidates, model, shard);
+    let trace = st.reads().trace.then(|| TraceCell::new(&u));
+    st.run(&UnitCtx::new(&u, progress, trace.as_ref()), p)
+}
+
+/// One unit of the registered stage `stage` for a stage command (`bake prt`, `bake lod`, ...),
+/// through the registry's one entry ([`run_unit`]), as `bake unit` and the
+/// graph run it: over `sections` (the command's pack; the unit reads those of its declared
+/// kinds), named after `input` (in errors, and as the scene's source the sections record), with
+/// the options of `p`. `mesh`: the mesh section (`mesh:<model>`) of a per-model unit.
+pub fn pack_unit(
+    stage: &str,
+    input: &Path,
+    sections: &[Section],
+    p: &Pipeline,
+    mesh: Option<&str>,
+    shard: Option<Shard>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Output> {
+    pack_unit_of(
+        find_or_err(stage)?,
+        input,
+        sections,
+        p,
+        mesh,
+        shard,
+        progress,
+    )
+}
+
+/// The registered stage named `stage`, or an error.
+fn find_or_err(stage: &str) -> Result<&'static dyn AnyStage> {
+    find(stage).ok_or_else(|| Error::runtime(format!("no registered stage {stage:?}")))
+}
+
+/// [`pack_unit`] of the stage `st` (a test's toy stage too).
+fn pack_unit_of(
+    st: &dyn AnyStage,
+    input: &Path,
+    sections: &[Section],
+    p: &Pipeline,
+    mesh: Option<&str>,
+    shard: Option<Shard>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Output> {
+    let model = match mesh {
+        Some(m) => Some(
+            m.strip_prefix("mesh:")
+                .filter(|n| !n.is_empty())
+                .ok_or_else(|| {
+                    Error::invalid_at(
+                        input,
+                        format!("section {m:?}"),
+                        "a mesh section's name is mesh:<model>",
+                    )
+                })?,
+        ),
+        None => None,
+    };
+    let view_name = input.display().to_string();
+    let source = crate::ingest::confine::SourceNames::first_name(input);
+    let limits = crate::ingest::limits::Limits::DEFAULT;
+    let scope = Scope {
+        view_name: &view_name,
+        source: &source,
+        limits: &limits,
+        first: input,
+        sky: None,
+        plan: None,
+        names: None,
+        policy: None,
+    };
+    run_unit(
+        st,
+        &scope,
+        sections,
+        model.map(|m| (m, input)),
+        shard,
+        progress,
+        p,
+    )
+}
+
+/// The sections of `pack` of the kinds the registered stage `stage` declares (checksums
+/// checked), sharing its memory: a stage command's candidates for [`pack_unit`].
+pub fn pack_sections(pack: &Pack, stage: &str) -> Result<Vec<Section>> {
+    let kinds = find_or_err(stage)?.reads().kinds;
+    let mut out = Vec::new();
+    for e in pack.sections() {
+        if !kinds.contains(&e.kind.as_str()) {
+            continue;
+        }
+        if !pack.checksum_ok(e) {
+            return Err(Error::invalid_at(
+                pack.path(),
+                format!("section {:?} at byte {}", e.name, e.offset),
+                "checksum mismatch: the pack is corrupt",
+            ));
+        }
+        out.push(Section {
+            kind: e.kind.clone(),
+            name: e.name.clone(),
+            payload: pack.shared_payload(e),
+        });
+    }
+    Ok(out)
+}
+
+/// The registered per-model stage `stage` over every mesh section of `pack` (read as `input`)
+/// through [`pack_unit`], the meshes side by side: each unit's output, in the pack's order.
+pub fn pack_mesh_units(
+    stage: &str,
+    pack: &Pack,
+    input: &Path,
+    p: &Pipeline,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<Output>> {
+    use rayon::prelude::*;
+    let candidates = pack_sections(pack, stage)?;
+    let meshes: Vec<&str> = pack
+        .of_kind(crate::mesh::section::KIND)
+        .map(|e| e.name.as_str())
+        .collect();
+    meshes
+        .par_iter()
+        .map(|m| pack_unit(stage, input, &candidates, p, Some(m), None, progress))
+        .collect()
+}
+
+/// The registered stage `stage`'s sections from its units' ([`AnyStage::join`]: each unit's
+/// number of instances and sections, in unit order), for a stage command.
+pub fn join_units(
+    stage: &str,
+    parts: Vec<(usize, Vec<Section>)>,
+    p: &Pipeline,
+) -> Result<Vec<Section>> {
+    find_or_err(stage)?.join(parts, p)
+}
+
 /// Every stage, in the order of the build key (do not reorder: the key hashes this order; a
 /// new stage goes where its inputs are written before it).
 pub static REGISTRY: &[&dyn AnyStage] = &[
@@ -1299,6 +1452,62 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A pack with an `instances` section (of no instance) and a `sun` section.
+    fn instances_and_sun() -> Vec<Section> {
+        let inst = crate::ingest::instances_section::to_section(
+            "instances",
+            &crate::model::Instances::default(),
+            Vec::new(),
+        );
+        let mut b = crate::pack::SectionBuilder::new("sun", crate::sky::SUN_SECTION);
+        b.meta(&0u32);
+        vec![inst, b.finish()]
+    }
+
+    #[test]
+    fn a_stage_command_s_unit_sees_only_its_declared_kinds() {
+        let sections = instances_and_sun();
+        let input = Path::new("in.bake");
+        let p = Pipeline::default();
+        let o = pack_unit_of(&toy::TOY, input, &sections, &p, None, None, &|_| {}).unwrap();
+        // The toy declares `instances` only: its view held that one section.
+        let v = crate::pack::section::SectionView::parse(&o.sections[0].payload, 0).unwrap();
+        let meta: toy::ToyMeta = v.meta().unwrap();
+        assert_eq!(meta.sections, 1);
+        assert_eq!(meta.instances, crate::pack::hex(sections[0].payload.hash()));
+        // Asking for the undeclared `sun` section is refused, naming it.
+        let e = pack_unit_of(&toy::GREEDY, input, &sections, &p, None, None, &|_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("\"sun\"") && e.contains("does not declare"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_stage_command_refuses_a_mesh_section_not_named_after_its_model() {
+        let p = Pipeline::default();
+        for bad in ["box", "mesh:"] {
+            let e = pack_unit(
+                "lod",
+                Path::new("in.bake"),
+                &[],
+                &p,
+                Some(bad),
+                None,
+                &|_| {},
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("mesh:<model>") && e.contains("in.bake"), "{e}");
+        }
+        let e = pack_unit("nope", Path::new("in.bake"), &[], &p, None, None, &|_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no registered stage \"nope\""), "{e}");
     }
 
     #[test]

@@ -9,7 +9,7 @@
 use crate::diag::{self, Warning};
 use crate::error::{Error, Result};
 use crate::graph::cache::{self, FileDep};
-use crate::graph::stage::{self, AnyStage, Scope, Shard, TraceCell, UnitCtx, UnitInputs};
+use crate::graph::stage::{self, AnyStage, Scope, Shard};
 use crate::graph::{BAKE_VERSION, BuildOptions, Pipeline};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
@@ -94,9 +94,15 @@ impl SceneArgs {
             names: names.as_ref(),
             policy: policy.as_ref(),
         };
-        let u = UnitInputs::new(st, &scope, candidates, model, shard);
-        let trace = reads.trace.then(|| TraceCell::new(&u));
-        st.run(&UnitCtx::new(&u, &|_| {}, trace.as_ref()), &self.pipeline)
+        stage::run_unit(
+            st,
+            &scope,
+            candidates,
+            model,
+            shard,
+            &|_| {},
+            &self.pipeline,
+        )
     }
 }
 
