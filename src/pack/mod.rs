@@ -549,7 +549,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// As [`write_atomic`], the bytes written by `write` (through a buffer) instead of a slice: an
 /// output larger than memory is streamed. Returns what `write` returns; on its error the
 /// temporary file is removed and `path` is untouched.
-pub fn write_atomic_with<T>(
+pub(crate) fn write_atomic_with<T>(
     path: &Path,
     write: impl FnOnce(&mut dyn Write) -> Result<T>,
 ) -> Result<T> {

@@ -283,7 +283,7 @@ struct RowsMeta {
 
 /// Rows `shard.0` of `shard.1` of the terrain light map ([`shard_range`] over the rows), over
 /// the same packs as [`lightmap`]; joined by [`lightmap_join`].
-pub fn lightmap_rows(
+pub(crate) fn lightmap_rows(
     s: &SceneArgs,
     inputs: &[PathBuf],
     shard: (usize, usize),
