@@ -546,7 +546,7 @@ fn fixture_scene_bakes_an_atlas_for_its_objects_but_not_its_plants() {
     use bake::ingest::instances_section as instances;
     use bake::lightmap::atlas_section::{KIND, from_section, is_atlas};
     let dir = tempfile::tempdir().unwrap();
-    let pack = bake::cli::lightmap::fixture_pack(dir.path()).unwrap();
+    let pack = bake::bench::lightmap::fixture_pack(dir.path()).unwrap();
     let opts = LightmapOptions {
         samples: 16,
         sun_samples: 4,

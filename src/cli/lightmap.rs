@@ -138,9 +138,6 @@ pub struct LightmapBenchArgs {
     pub filters: String,
 }
 
-/// The fixture scene (`bake fixtures`) ingested with its HDR sky's `sky`/`sun`/`sh` sections.
-pub use crate::bench::lightmap::fixture_pack;
-
 /// `bake bench lightmap` (crate::bench::lightmap).
 pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
     // Refused before any work, as `bake lightmap` does.

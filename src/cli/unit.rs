@@ -309,6 +309,27 @@ mod tests {
         Unit::from_arg_matches_mut(&mut m)
     }
 
+    /// `bake unit`'s subcommands are the actions of the listed stages and the graph's own (moved
+    /// from tests/kinds.rs when the command line became internal).
+    #[test]
+    fn bake_unit_runs_the_actions_of_the_listed_stages() {
+        let cmd = Unit::augment_subcommands(clap::Command::new("unit"));
+        use std::collections::BTreeSet;
+        let subcommands: BTreeSet<String> = cmd
+            .get_subcommands()
+            .map(|c| c.get_name().to_string())
+            .collect();
+        let mut listed: BTreeSet<String> = crate::graph::stages::all()
+            .flat_map(|s| s.actions.iter().map(|a| a.to_string()))
+            .collect();
+        listed.extend(
+            crate::graph::stages::GRAPH_ACTIONS
+                .iter()
+                .map(|a| a.to_string()),
+        );
+        assert_eq!(subcommands, listed);
+    }
+
     #[test]
     fn every_registered_stage_but_the_source_stages_is_a_subcommand_with_its_flags() {
         let cmd = Unit::augment_subcommands(clap::Command::new("unit"));

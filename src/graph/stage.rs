@@ -18,10 +18,19 @@
 //! terrain's and the models' sections from the scene plan, then [`Phase::Source`] stages
 //! `ingest`, `material`, `terrain`, which the graph and the `terrain` and `model` actions call
 //! through the registry at fixed places), the instances and the build record; the sharding of
-//! `envmaps` (by instances) and of the terrain light map (by rows, plans only); the per-stage
-//! subcommands (`bake prt`, `bake lod`, ...), which call their stage's functions directly.
+//! `envmaps` (by instances) and of the terrain light map (by rows, plans only).
 //! `bake unit`'s subcommands of the registered stages are made from the registry
 //! (`cli::unit::StageUnit`) and run through [`crate::plan::actions::stage_unit`].
+//!
+//! One entry runs a unit outside the graph, [`run_unit`]: the plan's actions call it, and so do
+//! the per-stage subcommands through [`pack_unit`] (`bake prt` and `bake lod` per mesh,
+//! `bake material`, `bake terrain`, `bake lightmap` (the `lightmap` and `atlas` units),
+//! `bake envmaps` (one shard of every instance, then [`join_units`])). Still calling their
+//! stage's functions, because they do more than the registered unit: `bake sky` (several input
+//! files, the built-in sky's parameters, `--sh-only`), `bake cluster` (`--weights`, which the
+//! `cluster` unit has no option for), `bake bittree` (reads the pack's `instances` section; the
+//! unit reads the scene's plan), `bake svo` and `bake linespace` (also take a model file,
+//! voxelized in its own frame).
 
 use super::cache::{self, Key, KeyBuilder};
 use super::stages::{Per, StageDef};
