@@ -19,8 +19,6 @@
 
 mod ambient;
 
-pub use ambient::{mean_env, vertex_radiance};
-
 use crate::error::{Error, ParseError, Result};
 use crate::ingest::instances_section::{self as instances, InstanceRecord, InstancesMeta};
 use crate::material::section::{self as material, MaterialMeta};
@@ -113,18 +111,6 @@ pub struct ExportOptions {
     /// Normal maps as `normalTexture` (linear PNG in glTF's tangent frame) with the pack's
     /// tangents as `TANGENT`, where a material has a normal map and its model tangents.
     pub normal_maps: bool,
-}
-
-impl ExportOptions {
-    pub fn new(container: Container) -> ExportOptions {
-        ExportOptions {
-            container,
-            bake_light: false,
-            vertex_ambient: false,
-            lod: false,
-            normal_maps: false,
-        }
-    }
 }
 
 /// The output container.

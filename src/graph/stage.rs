@@ -107,6 +107,7 @@ pub struct Scope<'a> {
     pub view_name: &'a str,
     /// The scene's source, as sections record it (the first ECO file by name).
     pub source: &'a str,
+    /// The memory budget the stages check sizes against.
     pub limits: &'a Limits,
     /// The first scene file (for errors).
     pub first: &'a Path,
@@ -117,6 +118,7 @@ pub struct Scope<'a> {
     pub plan: Option<&'a ScenePlan>,
     /// The names of the scene's files and the policy models are read under (a model's ingest).
     pub names: Option<&'a SourceNames>,
+    /// The policy models are read under (a model's ingest).
     pub policy: Option<&'a crate::ingest::ReadPolicy>,
 }
 
@@ -131,9 +133,11 @@ pub struct UnitInputs<'a> {
     /// The sections in scope that the stage does not declare: (name, kind).
     undeclared: Vec<(String, String)>,
     view: Pack,
+    /// The bake's arguments.
     pub scope: &'a Scope<'a>,
     /// The model of a per-model unit: its name in the scene and its file.
     pub model: Option<(&'a str, &'a Path)>,
+    /// The shard of a sharded stage's unit.
     pub shard: Option<Shard>,
 }
 
@@ -285,7 +289,9 @@ impl TraceCell {
 
 /// What a unit's `run` is given: its inputs, a progress callback, the trace structures.
 pub struct UnitCtx<'a> {
+    /// The unit's declared inputs.
     pub inputs: &'a UnitInputs<'a>,
+    /// Reports work done (for the progress bar).
     pub progress: &'a (dyn Fn(u64) + Sync),
     trace: Option<&'a TraceCell>,
 }
@@ -298,6 +304,7 @@ impl<'a> std::ops::Deref for UnitCtx<'a> {
 }
 
 impl<'a> UnitCtx<'a> {
+    /// A context over `inputs`, with `trace` for the stages that trace.
     pub fn new(
         inputs: &'a UnitInputs<'a>,
         progress: &'a (dyn Fn(u64) + Sync),
@@ -334,6 +341,7 @@ pub struct StageKey<'u> {
 }
 
 impl<'u> StageKey<'u> {
+    /// A key begun by `k` over the unit `u`'s inputs.
     pub fn new(k: KeyBuilder, u: &'u UnitInputs<'u>) -> StageKey<'u> {
         StageKey {
             k,
@@ -342,6 +350,7 @@ impl<'u> StageKey<'u> {
         }
     }
 
+    /// Hashes the options (serialized).
     pub fn options(&mut self, o: &impl Serialize) -> &mut Self {
         self.k.options(o);
         self
@@ -362,6 +371,7 @@ impl<'u> StageKey<'u> {
         self
     }
 
+    /// The key, or an error if it skipped the declared sections.
     pub fn finish(&self) -> Result<Key> {
         if !self.hashed && !self.u.reads.kinds.is_empty() {
             return Err(Error::runtime(format!(
@@ -380,10 +390,13 @@ pub trait Stage: Sync {
     /// Its name, version, what a unit covers, the kinds it writes and its `bake unit` actions
     /// (a `static` in the impl).
     fn def(&self) -> &'static StageDef;
+    /// What its units read.
     fn reads(&self) -> Reads;
     /// Whether the pipeline turns it on.
     fn on(&self, p: &Pipeline) -> bool;
+    /// Its options in the pipeline.
     fn options<'p>(&'p self, p: &'p Pipeline) -> &'p Self::Options;
+    /// Where it runs: by default a per-model stage beside the scene's units, others once over the scene.
     fn phase(&self) -> Phase {
         match self.def().per {
             Per::Model => Phase::Model,
@@ -426,15 +439,23 @@ pub trait Stage: Sync {
 
 /// [`Stage`] without its options type: what the registry holds.
 pub trait AnyStage: Sync {
+    /// [`Stage::def`].
     fn def(&self) -> &'static StageDef;
+    /// [`Stage::reads`].
     fn reads(&self) -> Reads;
+    /// [`Stage::on`].
     fn on(&self, p: &Pipeline) -> bool;
+    /// [`Stage::phase`].
     fn phase(&self) -> Phase;
+    /// [`Stage::unit_name`].
     fn unit_name(&self, model: Option<&str>, shard: Option<&Shard>) -> String;
+    /// [`Stage::total`].
     fn total(&self, u: &UnitInputs) -> Option<u64>;
     /// The unit's key, begun by `k` (the bake version, stage, version and unit).
     fn key(&self, u: &UnitInputs, p: &Pipeline, k: KeyBuilder) -> Result<Key>;
+    /// [`Stage::run`] with the pipeline's options for the stage.
     fn run(&self, cx: &UnitCtx, p: &Pipeline) -> Result<Output>;
+    /// [`Stage::join`] with the pipeline's options for the stage.
     fn join(&self, parts: Vec<(usize, Vec<Section>)>, p: &Pipeline) -> Result<Vec<Section>>;
 }
 
