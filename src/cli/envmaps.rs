@@ -7,7 +7,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct EnvmapsArgs {
+pub(crate) struct EnvmapsArgs {
     /// A scene pack (with `sh`/`sun` sections from `bake sky` or `bake build`).
     pub input: PathBuf,
     /// Output pack (default: the input pack).
@@ -26,7 +26,7 @@ pub struct EnvmapsArgs {
     pub no_noise_estimate: bool,
 }
 
-pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
     // Refused before any work.
     let refused = |m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name()));
     args.tracer

@@ -7,7 +7,7 @@ use crate::lightmap::{LightmapMode, LightmapOptions};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct LightmapArgs {
+pub(crate) struct LightmapArgs {
     /// A scene pack (with `sh`/`sun` sections from `bake sky` or `bake build`).
     pub input: PathBuf,
     /// Output pack (default: the input pack).
@@ -37,7 +37,7 @@ pub struct LightmapArgs {
     pub tracer: crate::trace::Tracer,
 }
 
-pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
     // Refused before any work.
     let refused = |m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name()));
     args.tracer
@@ -102,7 +102,7 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct LightmapBenchArgs {
+pub(crate) struct LightmapBenchArgs {
     /// A scene pack with `sh`/`sun` sections (default: the generated fixture scene with its sky).
     pub input: Option<PathBuf>,
     /// Hemisphere samples per texel.
@@ -139,7 +139,7 @@ pub struct LightmapBenchArgs {
 }
 
 /// `bake bench lightmap` (crate::bench::lightmap).
-pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
     // Refused before any work, as `bake lightmap` does.
     a.tracer
         .available_as("lightmap.tracer")

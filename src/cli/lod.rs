@@ -7,7 +7,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct LodArgs {
+pub(crate) struct LodArgs {
     /// A pack with mesh sections (.bake).
     pub input: PathBuf,
     /// Output pack (default: the input pack itself).
@@ -38,12 +38,12 @@ pub struct LodArgs {
 
 /// `bake bench lod PACK`: the options of `bake lod`, nothing is written.
 #[derive(Debug, Clone, clap::Args)]
-pub struct LodBenchArgs {
+pub(crate) struct LodBenchArgs {
     #[command(flatten)]
     pub lod: LodArgs,
 }
 
-pub fn bench(args: &LodBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(args: &LodBenchArgs, _g: &Global) -> Result<Outcome> {
     let opts = options(&args.lod)?;
     let pack = Pack::open(&args.lod.input)?;
     Ok(crate::bench::lod::bench_lod(&pack, &opts)?.into())
@@ -71,7 +71,7 @@ fn options(a: &LodArgs) -> Result<LodOptions> {
     Ok(o)
 }
 
-pub fn run(args: &LodArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &LodArgs, _g: &Global) -> Result<Outcome> {
     let opts = options(args)?;
     let pack = Pack::open(&args.input)?;
     if pack.of_kind(crate::mesh::section::KIND).next().is_none() {

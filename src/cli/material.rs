@@ -9,7 +9,7 @@ use crate::texture::linear::TransferFunction;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct MaterialArgs {
+pub(crate) struct MaterialArgs {
     /// A pack (.bake) or a model file (.txf .3ds .obj .gltf .glb) or scene (.eco).
     pub input: PathBuf,
     /// Output pack (default: the input pack, or <input stem>.bake).
@@ -23,7 +23,7 @@ pub struct MaterialArgs {
     pub no_coverage: bool,
 }
 
-pub fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
     let (w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let opts = MaterialOptions {
         transfer: args.transfer,

@@ -79,7 +79,7 @@ fn parse_warning_id(s: &str) -> std::result::Result<String, String> {
 impl Global {
     /// The warnings `--warnings-as-errors` makes fatal: none without the flag, all with it
     /// alone, those of the given ids otherwise.
-    pub fn fatal_warnings<'a>(
+    pub(crate) fn fatal_warnings<'a>(
         &self,
         warnings: &'a [crate::diag::Warning],
     ) -> Vec<&'a crate::diag::Warning> {
@@ -95,7 +95,7 @@ impl Global {
 
 impl Outcome {
     /// The outcome of a stage that wrote a pack: its report as JSON plus `output` and `bytes`.
-    pub fn written(
+    pub(crate) fn written(
         report: &impl serde::Serialize,
         output: &std::path::Path,
         bytes: usize,
@@ -126,7 +126,7 @@ impl From<crate::bench::Report> for Outcome {
 
 impl Global {
     /// Ingest options carrying the global --allow-path and --max-memory.
-    pub fn ingest_defaults(&self) -> crate::ingest::IngestOptions {
+    pub(crate) fn ingest_defaults(&self) -> crate::ingest::IngestOptions {
         crate::ingest::IngestOptions {
             allow_paths: self.allow_paths.clone(),
             limits: self.max_memory.map_or(
@@ -138,7 +138,7 @@ impl Global {
     }
 
     /// A progress bar on stderr, hidden with `--quiet`.
-    pub fn progress(&self, len: u64, message: &str) -> indicatif::ProgressBar {
+    pub(crate) fn progress(&self, len: u64, message: &str) -> indicatif::ProgressBar {
         if self.quiet {
             return indicatif::ProgressBar::hidden();
         }

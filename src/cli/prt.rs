@@ -13,7 +13,7 @@ use crate::trace::BuildPreset;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct PrtArgs {
+pub(crate) struct PrtArgs {
     /// A pack with mesh sections (.bake), or a model or scene file (.txf .3ds .obj .gltf .glb
     /// .eco), which is ingested first.
     pub input: PathBuf,
@@ -68,7 +68,7 @@ fn open_or_ingest(input: &Path) -> Result<(Pack, Vec<String>)> {
     Ok((pack, warnings))
 }
 
-pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
     check_sampling(args.samples, args.bounces)?;
     if !(0.0..=1.0).contains(&args.translucence) {
         return Err(Error::usage("--translucence: expected 0 to 1"));
@@ -155,7 +155,7 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct RaysBenchArgs {
+pub(crate) struct RaysBenchArgs {
     /// A model file or pack (its first mesh); default: a procedural alpha-tested plant.
     pub model: Option<PathBuf>,
     /// Triangles of the procedural plant.
@@ -186,7 +186,7 @@ pub struct RaysBenchArgs {
     pub embree: bool,
 }
 
-pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
     check_sampling(a.samples, a.bounces)?;
     let (mesh, textures, source, warnings) = load_model(a.model.as_deref(), a.triangles)?;
     let mats = prt::prt_materials(&mesh, &textures, 0.3);
@@ -315,7 +315,7 @@ fn load_model(model: Option<&Path>, triangles: usize) -> Result<BenchModel> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct PrtErrorBenchArgs {
+pub(crate) struct PrtErrorBenchArgs {
     /// A model file or pack (its first mesh); default: a procedural alpha-tested plant.
     pub model: Option<PathBuf>,
     /// Triangles of the procedural plant.
@@ -358,7 +358,7 @@ pub struct PrtErrorBenchArgs {
     pub no_cache: bool,
 }
 
-pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
     use crate::bench::prt_error::{Method, PrtErrorOptions, bench_prt_error, report_text};
     for &s in &a.samples {
         check_sampling(s, a.bounces)?;

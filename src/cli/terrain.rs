@@ -8,7 +8,7 @@ use crate::pack::PackWriter;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct TerrainArgs {
+pub(crate) struct TerrainArgs {
     /// A pack (.bake), a RAW height map or an ECO scene.
     pub input: PathBuf,
     /// Output pack (default: the input pack, or <input stem>.bake).
@@ -44,7 +44,7 @@ fn open(args: &TerrainArgs) -> Result<(PackWriter, PathBuf)> {
     Ok((w, out))
 }
 
-pub fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
     let (w, output) = open(args)?;
     let bar = g.progress(1, "terrain");
     // Through the registry's `terrain` unit (the graph's and `bake unit terrain`'s).
