@@ -7,6 +7,7 @@
 //! Ids are `<stage or command>.<what>` in lower case with dashes. An id, once given, names the
 //! same condition for good: a test pins the list, so renaming one fails until the pin (and the
 //! docs) change with it.
+#![warn(missing_docs)]
 
 use serde::{Deserialize, Serialize};
 
@@ -16,10 +17,12 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Severity {
+    /// Dropped or repaired data; the command goes on.
     Warning,
 }
 
 impl Severity {
+    /// Its name in the docs and the report (`warning`).
     pub fn name(self) -> &'static str {
         match self {
             Severity::Warning => "warning",
@@ -30,7 +33,9 @@ impl Severity {
 /// One kind of diagnostic: its stable id, severity, and what it means.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Diagnostic {
+    /// The stable id, `<stage or command>.<what>`.
     pub id: &'static str,
+    /// How bad it is.
     pub severity: Severity,
     /// When it is given and what was done instead (one line, for docs/DIAGNOSTICS.md).
     pub meaning: &'static str,
@@ -44,150 +49,187 @@ const fn warning(id: &'static str, meaning: &'static str) -> Diagnostic {
     }
 }
 
+/// `ingest.eco-outside-area`.
 pub const INGEST_ECO_OUTSIDE_AREA: Diagnostic = warning(
     "ingest.eco-outside-area",
     "an ECO placement lies outside the area of interest [0,1]²; kept where it is",
 );
+/// `ingest.reader`.
 pub const INGEST_READER: Diagnostic = warning(
     "ingest.reader",
     "a model reader (TXF, 3DS, OBJ, glTF) dropped or repaired data, or a texture of the model did not read; the message names the file and what was done",
 );
+/// `material.texture-missing`.
 pub const MATERIAL_TEXTURE_MISSING: Diagnostic = warning(
     "material.texture-missing",
     "a texture the material names is not in the pack; the material renders untextured",
 );
+/// `prt.triangles-non-finite`.
 pub const PRT_TRIANGLES_NON_FINITE: Diagnostic = warning(
     "prt.triangles-non-finite",
     "triangles with non-finite positions; left out of the BVH",
 );
+/// `prt.texture-unreadable`.
 pub const PRT_TEXTURE_UNREADABLE: Diagnostic = warning(
     "prt.texture-unreadable",
     "a texture section the alpha test needs does not decode; treated as opaque",
 );
+/// `prt.texture-missing`.
 pub const PRT_TEXTURE_MISSING: Diagnostic = warning(
     "prt.texture-missing",
     "a texture was not decoded into the pack; treated as opaque and white",
 );
+/// `cluster.compression-low`.
 pub const CLUSTER_COMPRESSION_LOW: Diagnostic = warning(
     "cluster.compression-low",
     "the env-map clusters compress the maps less than 2×",
 );
+/// `bittree.not-encoded`.
 pub const BITTREE_NOT_ENCODED: Diagnostic = warning(
     "bittree.not-encoded",
     "the instances could not be encoded as a BitTree; the pack has no bittree section",
 );
+/// `terrain.none`.
 pub const TERRAIN_NONE: Diagnostic = warning(
     "terrain.none",
     "`bake terrain`: the input has no terrain section to prepare",
 );
+/// `sky.sun-clipped`.
 pub const SKY_SUN_CLIPPED: Diagnostic = warning(
     "sky.sun-clipped",
     "the sun looks clipped in the sky image; its irradiance is a lower bound",
 );
+/// `sky.radiance-clamped`.
 pub const SKY_RADIANCE_CLAMPED: Diagnostic = warning(
     "sky.radiance-clamped",
     "sky radiance above 65504 was clamped to the half-float range",
 );
+/// `cache.corrupt-entry`.
 pub const CACHE_CORRUPT_ENTRY: Diagnostic = warning(
     "cache.corrupt-entry",
     "a stage-cache entry does not read; the unit is computed again",
 );
+/// `cache.write-failed`.
 pub const CACHE_WRITE_FAILED: Diagnostic = warning(
     "cache.write-failed",
     "a unit's result could not be stored in the stage cache; the bake goes on",
 );
+/// `render.terrain-too-small`.
 pub const RENDER_TERRAIN_TOO_SMALL: Diagnostic = warning(
     "render.terrain-too-small",
     "a terrain of fewer than 2×2 samples; not drawn",
 );
+/// `render.texture-missing`.
 pub const RENDER_TEXTURE_MISSING: Diagnostic = warning(
     "render.texture-missing",
     "a texture section a mesh names is missing; drawn untextured",
 );
+/// `render.texture-undecoded`.
 pub const RENDER_TEXTURE_UNDECODED: Diagnostic = warning(
     "render.texture-undecoded",
     "a texture of a mesh was not decoded into the pack; drawn untextured",
 );
+/// `render.mesh-missing`.
 pub const RENDER_MESH_MISSING: Diagnostic = warning(
     "render.mesh-missing",
     "a model's mesh section is missing; its instances are not drawn",
 );
+/// `render.material-mismatch`.
 pub const RENDER_MATERIAL_MISMATCH: Diagnostic = warning(
     "render.material-mismatch",
     "a material section belongs to another mesh or index; shaded with Lambert",
 );
+/// `render.normal-map-missing`.
 pub const RENDER_NORMAL_MAP_MISSING: Diagnostic = warning(
     "render.normal-map-missing",
     "a normal map section is missing or has no normal array; drawn flat",
 );
+/// `render.tangents-mismatch`.
 pub const RENDER_TANGENTS_MISMATCH: Diagnostic = warning(
     "render.tangents-mismatch",
     "a tangents section does not match its mesh's vertices; tangents made up",
 );
+/// `render.sky-layout`.
 pub const RENDER_SKY_LAYOUT: Diagnostic = warning(
     "render.sky-layout",
     "a sky of a layout the preview does not read; the analytic sky is used",
 );
+/// `render.prt-mismatch`.
 pub const RENDER_PRT_MISMATCH: Diagnostic = warning(
     "render.prt-mismatch",
     "a PRT section does not match its mesh's vertices; not used",
 );
+/// `render.lightmap-without-indirect`.
 pub const RENDER_LIGHTMAP_WITHOUT_INDIRECT: Diagnostic = warning(
     "render.lightmap-without-indirect",
     "a light map without its indirect array (an older pack): the terrain is lit by the sky SH instead, an object's map counts the sun twice",
 );
+/// `render.atlas-without-uvs`.
 pub const RENDER_ATLAS_WITHOUT_UVS: Diagnostic = warning(
     "render.atlas-without-uvs",
     "an object light map without lightmap_uv; not used",
 );
+/// `render.sh-missing`.
 pub const RENDER_SH_MISSING: Diagnostic = warning(
     "render.sh-missing",
     "no sh section; the ambient light is the SH of the whole sky",
 );
+/// `export.texture-missing`.
 pub const EXPORT_TEXTURE_MISSING: Diagnostic = warning(
     "export.texture-missing",
     "a texture section is missing; exported untextured",
 );
+/// `export.material-missing`.
 pub const EXPORT_MATERIAL_MISSING: Diagnostic = warning(
     "export.material-missing",
     "a material has no material section; exported with its diffuse colour",
 );
+/// `export.terrain-too-small`.
 pub const EXPORT_TERRAIN_TOO_SMALL: Diagnostic = warning(
     "export.terrain-too-small",
     "a terrain of fewer than 2×2 samples; not exported",
 );
+/// `export.mesh-missing`.
 pub const EXPORT_MESH_MISSING: Diagnostic = warning(
     "export.mesh-missing",
     "a model's mesh section is missing; not exported",
 );
+/// `export.model-without-instances`.
 pub const EXPORT_MODEL_WITHOUT_INSTANCES: Diagnostic = warning(
     "export.model-without-instances",
     "a model without instances; its mesh is exported without a node",
 );
+/// `export.no-light-map`.
 pub const EXPORT_NO_LIGHT_MAP: Diagnostic = warning(
     "export.no-light-map",
     "`--bake-light` without a terrain light map in the pack; the terrain is exported lit",
 );
+/// `export.no-prt`.
 pub const EXPORT_NO_PRT: Diagnostic = warning(
     "export.no-prt",
     "`--vertex-ambient`: a model without a usable prt section; exported without COLOR_0",
 );
+/// `mitsuba.sun-in-sky`.
 pub const MITSUBA_SUN_IN_SKY: Diagnostic = warning(
     "mitsuba.sun-in-sky",
     "a lat-long sky that still holds its sun: the sun counts twice (run the sky stage)",
 );
+/// `svo.triangles-without-voxel`.
 pub const SVO_TRIANGLES_WITHOUT_VOXEL: Diagnostic = warning(
     "svo.triangles-without-voxel",
     "triangles outside the grid or alpha-tested away left no voxel",
 );
+/// `svo.mesh-not-closed`.
 pub const SVO_MESH_NOT_CLOSED: Diagnostic = warning(
     "svo.mesh-not-closed",
     "solid fill: columns crossed the surface an odd number of times (the mesh is not closed)",
 );
+/// `report.no-render`.
 pub const REPORT_NO_RENDER: Diagnostic = warning(
     "report.no-render",
     "`bake report` could not render the pack; the page has no picture",
 );
+/// `bench.linespace-disagrees`.
 pub const BENCH_LINESPACE_DISAGREES: Diagnostic = warning(
     "bench.linespace-disagrees",
     "`bake bench linespace`: the traversals disagree with each other or with obvhs",
@@ -242,11 +284,14 @@ pub fn find(id: &str) -> Option<&'static Diagnostic> {
 /// A warning as raised: its id (from [`DIAGNOSTICS`]), severity, place and message.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Warning {
+    /// The diagnostic's id ([`Diagnostic::id`]).
     pub id: String,
     #[serde(default = "default_severity")]
+    /// Its severity.
     pub severity: Severity,
     /// Where: a model file, a section, `terrain`, `scene`; empty where the message says it.
     pub place: String,
+    /// What happened and what was done instead.
     pub message: String,
 }
 

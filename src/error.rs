@@ -2,6 +2,7 @@
 //!
 //! Library code returns [`Error`]; `main` maps it to an exit code with [`Error::exit_code`].
 //! Every error that comes from a file names the file and the place in it (line, byte offset, chunk).
+#![warn(missing_docs)]
 
 use std::path::{Path, PathBuf};
 
@@ -32,6 +33,7 @@ pub struct ParseError {
 }
 
 impl ParseError {
+    /// A failure at `place` (free text) with `message`.
     pub fn new(place: impl Into<String>, message: impl Into<String>) -> Self {
         Self {
             place: place.into(),
@@ -51,26 +53,39 @@ impl ParseError {
 /// Every error the library returns.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
+    /// Bad arguments or options (exit code 2); the message says which and what is expected.
     #[error("{0}")]
     Usage(String),
+    /// A file could not be read or written (exit code 3).
     #[error("{}: {source}", path.display())]
     Io {
+        /// The file.
         path: PathBuf,
+        /// What the system said.
         source: std::io::Error,
     },
+    /// An input is not what its format requires (exit code 4).
     #[error("{}: {source}", path.display())]
-    Invalid { path: PathBuf, source: ParseError },
+    Invalid {
+        /// The input file (or the pack a section came from).
+        path: PathBuf,
+        /// Where in it and what is wrong.
+        source: ParseError,
+    },
+    /// Anything else that failed while running (exit code 5): no GPU, a failed bake step.
     #[error("{0}")]
     Runtime(String),
 }
 
 impl Error {
+    /// An I/O error on `path`.
     pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
         Error::Io {
             path: path.as_ref().to_path_buf(),
             source,
         }
     }
+    /// An invalid-input error in `path`.
     pub fn invalid(path: impl AsRef<Path>, source: ParseError) -> Self {
         Error::Invalid {
             path: path.as_ref().to_path_buf(),
@@ -85,9 +100,11 @@ impl Error {
     ) -> Self {
         Self::invalid(path, ParseError::new(place, message))
     }
+    /// A usage error.
     pub fn usage(message: impl Into<String>) -> Self {
         Error::Usage(message.into())
     }
+    /// A runtime error.
     pub fn runtime(message: impl Into<String>) -> Self {
         Error::Runtime(message.into())
     }
@@ -102,6 +119,7 @@ impl Error {
     }
 }
 
+/// The library's result type.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// Reads a whole file, mapping the error to [`Error::Io`] with the path.

@@ -168,7 +168,7 @@ fn insert_best(best: &mut Vec<(f32, u32)>, k: usize, cand: (f32, u32)) {
 /// Indices of `points` along a Morton (Z-order) curve over their bounding box (ties by index):
 /// queries made in this order are spatially coherent, so consecutive ones tend to find the same
 /// neighbours.
-pub fn morton_order(points: &[[f32; 3]]) -> Vec<u32> {
+pub(crate) fn morton_order(points: &[[f32; 3]]) -> Vec<u32> {
     let mut min = [f32::INFINITY; 3];
     let mut max = [f32::NEG_INFINITY; 3];
     for p in points {
@@ -206,7 +206,7 @@ pub fn morton_order(points: &[[f32; 3]]) -> Vec<u32> {
     keyed.into_iter().map(|(_, i)| i).collect()
 }
 
-pub fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
+pub(crate) fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
     let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
     d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
 }

@@ -42,18 +42,18 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 /// Region codes of the PLY attribute `region_x` (and of the harness' region images).
-pub const REGION_TERRAIN: f32 = 1.0;
-pub const REGION_OPAQUE: f32 = 2.0;
-pub const REGION_LEAVES: f32 = 3.0;
+pub(crate) const REGION_TERRAIN: f32 = 1.0;
+pub(crate) const REGION_OPAQUE: f32 = 2.0;
+pub(crate) const REGION_LEAVES: f32 = 3.0;
 
 /// Direction pairs per material in `materials.json`'s BSDF check.
-pub const BRDF_PROBES: usize = 64;
+pub(crate) const BRDF_PROBES: usize = 64;
 /// Directions in `sky_probe.json`.
-pub const SKY_PROBES: usize = 64;
+pub(crate) const SKY_PROBES: usize = 64;
 
 /// What [`export`] wrote.
 #[derive(Debug, Clone, serde::Serialize)]
-pub struct ExportSummary {
+pub(crate) struct ExportSummary {
     pub dir: std::path::PathBuf,
     pub eye: [f32; 3],
     pub target: [f32; 3],
@@ -77,7 +77,7 @@ pub struct ExportSummary {
 
 /// Options of [`export`] beyond the view.
 #[derive(Debug, Clone, Copy)]
-pub struct ExportOptions {
+pub(crate) struct ExportOptions {
     /// Rows of the envmap (its columns are twice as many, less one); 0: from the sky cube's
     /// face size (4 × face + 1, at most 2049: the horizon of a sky keeps its edge).
     pub envmap_height: u32,
@@ -102,7 +102,7 @@ impl Default for ExportOptions {
 
 /// Writes the Mitsuba scene of `pack` seen with `view_opts` (`bake render`'s camera options)
 /// into `dir` (created; files of the same names are replaced).
-pub fn export(
+pub(crate) fn export(
     pack: &Pack,
     view_opts: &RenderOptions,
     opts: &ExportOptions,
@@ -364,7 +364,7 @@ fn color_level0(mat: &MaterialData) -> Option<(u32, u32, Vec<[f32; 4]>)> {
 
 /// True for a material that is Lambertian by its source: its top layer has colour 0 (an
 /// authored colour with spec 0), its bottom layer is diffuse only, and it has no translucence.
-pub fn is_lambertian(m: &crate::material::schlick::SchlickMaterial) -> bool {
+pub(crate) fn is_lambertian(m: &crate::material::schlick::SchlickMaterial) -> bool {
     let [top, bottom] = &m.layers;
     top.color == [0.0; 3] && bottom.diffuse == 1.0 && m.translucence == 0.0
 }
@@ -607,7 +607,7 @@ fn material_bsdf(
 /// A material's parameters and `SchlickMaterial::eval` on [`BRDF_PROBES`] random direction
 /// pairs (uniform on the sphere, so both sides and translucence are probed) with a random
 /// colour-map value.
-pub fn schlick_json(s: &crate::material::schlick::SchlickMaterial) -> serde_json::Value {
+pub(crate) fn schlick_json(s: &crate::material::schlick::SchlickMaterial) -> serde_json::Value {
     let mut rng = crate::rng::Rng::new(0x6a09e667f3bcc909);
     let mut dir = || loop {
         let v = [0, 1, 2].map(|_| rng.f32() * 2.0 - 1.0);
@@ -656,7 +656,7 @@ fn sky_radiance(scene: &SceneData, d: [f64; 3]) -> [f32; 3] {
 /// Mitsuba's local envmap direction of texel (i, j) of a `w` × `h` map, in bake's world:
 /// local (sin θ sin φ, cos θ, −sin θ cos φ) with θ = πj/(h − 1), φ = 2π(i + ½)/w, turned by
 /// the emitter's `to_world` (x, y, z) → (x, −z, y).
-pub fn envmap_direction(i: u32, j: u32, w: u32, h: u32) -> [f64; 3] {
+pub(crate) fn envmap_direction(i: u32, j: u32, w: u32, h: u32) -> [f64; 3] {
     use std::f64::consts::PI;
     let theta = PI * j as f64 / (h - 1) as f64;
     let phi = 2.0 * PI * (i as f64 + 0.5) / w as f64;

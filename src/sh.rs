@@ -417,7 +417,7 @@ pub fn project_cube(cube: &CubeMap) -> ShRadiance {
 }
 
 /// [`project_cube`] with the cube's [`cube::solid_angle_table`] computed already.
-pub fn project_cube_with(cube: &CubeMap, omega: &[f64]) -> ShRadiance {
+pub(crate) fn project_cube_with(cube: &CubeMap, omega: &[f64]) -> ShRadiance {
     let n = cube.size as usize;
     let rows: Vec<_> = (0..6 * n)
         .into_par_iter()

@@ -546,13 +546,22 @@ fn fixture_scene_bakes_an_atlas_for_its_objects_but_not_its_plants() {
     use bake::ingest::instances_section as instances;
     use bake::lightmap::atlas_section::{KIND, from_section, is_atlas};
     let dir = tempfile::tempdir().unwrap();
-    let pack = bake::cli::lightmap::fixture_pack(dir.path()).unwrap();
+    let pack = bake::bench::lightmap::fixture_pack(dir.path()).unwrap();
     let opts = LightmapOptions {
         samples: 16,
         sun_samples: 4,
         ..Default::default()
     };
-    let sections = bake::lightmap::atlas_sections(&pack, &opts).unwrap();
+    // The registered `atlas` unit over the pack, as `bake lightmap` runs it.
+    let p = bake::graph::Pipeline {
+        lightmap: opts,
+        ..Default::default()
+    };
+    let candidates = bake::graph::stage::pack_sections(&pack, "atlas").unwrap();
+    let sections =
+        bake::graph::stage::pack_unit("atlas", pack.path(), &candidates, &p, None, None, &|_| {})
+            .unwrap()
+            .sections;
     let atlases: Vec<_> = sections.iter().filter(|s| s.kind == KIND).collect();
     assert_eq!(atlases.len(), sections.len());
     assert_eq!(atlases.len(), 1);

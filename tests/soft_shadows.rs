@@ -18,7 +18,7 @@ mod common;
 fn build_pack() -> Pack {
     let pack = common::plate_pack(true);
     let geo = bake::voxel::geometry::pack_geometry(&pack).unwrap();
-    let tris = bake::cli::linespace::world_triangles(&geo.mesh);
+    let tris = bake::linespace::world_triangles(&geo.mesh);
     assert!(tris.len() >= 4, "terrain and plate triangles");
     pack
 }
@@ -70,7 +70,7 @@ fn soft_shadows_have_a_penumbra_and_are_never_brighter_than_exact_shadow_rays() 
     assert_eq!((s.width, s.height), (96, 80));
     assert_eq!(s.light, light());
     let geo = bake::voxel::geometry::pack_geometry(&pack).unwrap();
-    let tris = bake::cli::linespace::world_triangles(&geo.mesh);
+    let tris = bake::linespace::world_triangles(&geo.mesh);
     let exact = ExactShadow::new(&tris);
     let (tree_meta, tree) =
         bake::linespace::section::from_section(&pack.view_named("linespace").unwrap()).unwrap();

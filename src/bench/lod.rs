@@ -1,5 +1,5 @@
-//! `bake bench lod PACK`: the `lod` stage over every mesh of a pack (in parallel, as `bake lod`
-//! runs it), wall and CPU time of the whole, the per-model simplification and impostor times
+//! `bake bench lod PACK`: the `lod` stage over every mesh of a pack (through the registry, in
+//! parallel, as `bake lod` runs it), wall and CPU time of the whole, the per-model simplification and impostor times
 //! summed over the models, and the triangles of every level.
 
 use super::{Report, time_once};
@@ -9,8 +9,18 @@ use crate::pack::Pack;
 use serde_json::json;
 
 pub fn bench_lod(pack: &Pack, opts: &LodOptions) -> Result<Report> {
-    let (t, out) = time_once(|| crate::lod::lod_pack(pack, opts));
-    let (_, reports) = out?;
+    let pipeline = crate::graph::Pipeline {
+        lod: opts.clone(),
+        ..crate::graph::Pipeline::default()
+    };
+    let (t, out) = time_once(|| {
+        crate::graph::stage::pack_mesh_units("lod", pack, pack.path(), &pipeline, &|_| {})
+    });
+    let reports = out?
+        .into_iter()
+        .map(|o| serde_json::from_value::<crate::lod::LodReport>(o.report))
+        .collect::<std::result::Result<Vec<_>, _>>()
+        .map_err(|e| crate::error::Error::runtime(format!("lod report: {e}")))?;
     let simplify: f64 = reports.iter().map(|r| r.simplify_seconds).sum();
     let impostor: f64 = reports.iter().map(|r| r.impostor_seconds).sum();
     let full: u64 = reports.iter().map(|r| r.levels[0].triangles as u64).sum();

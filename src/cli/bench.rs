@@ -5,13 +5,13 @@ use super::{Global, Outcome};
 use crate::error::{Error, Result};
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct BenchArgs {
+pub(crate) struct BenchArgs {
     #[command(subcommand)]
     pub what: BenchWhat,
 }
 
 #[derive(Debug, Clone, clap::Subcommand)]
-pub enum BenchWhat {
+pub(crate) enum BenchWhat {
     /// Ingest throughput in MB/s per input file.
     Ingest(IngestBenchArgs),
     /// Voxelization and octree build time, bytes per voxel.
@@ -48,7 +48,7 @@ pub enum BenchWhat {
 
 /// Options of [`crate::bench::ambient::bench_ambient`].
 #[derive(Debug, Clone, clap::Args)]
-pub struct AmbientBenchArgs {
+pub(crate) struct AmbientBenchArgs {
     /// Instances on a 1024 m square (random positions and rotations).
     #[arg(long, default_value_t = 200_000)]
     pub instances: usize,
@@ -58,7 +58,7 @@ pub struct AmbientBenchArgs {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct EnvmapErrorBenchArgs {
+pub(crate) struct EnvmapErrorBenchArgs {
     /// A pack with the scene (instances, meshes, terrain, sky and sun).
     #[arg(long)]
     pub pack: std::path::PathBuf,
@@ -78,7 +78,7 @@ pub struct EnvmapErrorBenchArgs {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct TerrainRaysBenchArgs {
+pub(crate) struct TerrainRaysBenchArgs {
     /// Grid size in samples (square, 1 m apart).
     #[arg(long, default_value_t = 1024)]
     pub size: u32,
@@ -88,7 +88,7 @@ pub struct TerrainRaysBenchArgs {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct IncrementalBenchArgs {
+pub(crate) struct IncrementalBenchArgs {
     /// Folder of the generated scene (made if it lacks scene.eco) and of the bench's outputs.
     #[arg(long, default_value = "target/bench-incremental")]
     pub dir: std::path::PathBuf,
@@ -104,7 +104,7 @@ pub struct IncrementalBenchArgs {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct TexturesBenchArgs {
+pub(crate) struct TexturesBenchArgs {
     /// Image files to process (default: a generated leaf texture encoded as PNG).
     pub files: Vec<std::path::PathBuf>,
     /// Size of the generated texture (square).
@@ -116,7 +116,7 @@ pub struct TexturesBenchArgs {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct TerrainBenchArgs {
+pub(crate) struct TerrainBenchArgs {
     /// Grid size in samples (square).
     #[arg(long, default_value_t = 4096)]
     pub size: u32,
@@ -126,7 +126,7 @@ pub struct TerrainBenchArgs {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct IngestBenchArgs {
+pub(crate) struct IngestBenchArgs {
     /// Model files to read (TXF, 3DS, OBJ, glTF).
     #[arg(required = true)]
     pub files: Vec<std::path::PathBuf>,
@@ -135,7 +135,7 @@ pub struct IngestBenchArgs {
     pub repeat: u32,
 }
 
-pub fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &BenchArgs, g: &Global) -> Result<Outcome> {
     match &args.what {
         BenchWhat::Ingest(a) => Ok(crate::bench::ingest::bench_ingest(&a.files, a.repeat)?.into()),
         BenchWhat::Rays(a) => super::prt::bench(a, g),

@@ -7,7 +7,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct BitTreeArgs {
+pub(crate) struct BitTreeArgs {
     /// A pack with an `instances` section, or an ECO scene.
     pub input: PathBuf,
     /// Output pack (default: the input pack itself, or <stem>.bake for an ECO file).
@@ -18,7 +18,7 @@ pub struct BitTreeArgs {
     pub children: u32,
 }
 
-pub fn run(args: &BitTreeArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &BitTreeArgs, _g: &Global) -> Result<Outcome> {
     let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let bytes = w.to_bytes()?;
     let pack = Pack::from_bytes(&bytes, &args.input.display().to_string())?;

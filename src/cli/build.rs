@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 /// How progress is shown.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
-pub enum ProgressMode {
+pub(crate) enum ProgressMode {
     /// Bars on a terminal, nothing otherwise.
     #[default]
     Auto,
@@ -18,7 +18,7 @@ pub enum ProgressMode {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct BuildArgs {
+pub(crate) struct BuildArgs {
     #[command(flatten)]
     pub scene: super::scene::SceneFlags,
     /// Output pack (default: next to the first scene as <stem>.bake).
@@ -47,9 +47,9 @@ pub struct BuildArgs {
 }
 
 /// The pipeline of `--pipeline`/`--preview`/`--set`, and the file it came from.
-pub use crate::graph::preset::resolve as resolve_pipeline;
+pub(crate) use crate::graph::preset::resolve as resolve_pipeline;
 
-pub fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &BuildArgs, g: &Global) -> Result<Outcome> {
     let (pipeline, pipeline_file) = args.scene.pipeline()?;
     let opts = BuildOptions {
         scenes: args.scene.scenes.clone(),

@@ -6,7 +6,7 @@ use crate::graph::cache::{Cache, default_dir};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct CacheArgs {
+pub(crate) struct CacheArgs {
     #[command(subcommand)]
     pub action: CacheAction,
     /// The cache folder (default: as `bake build` picks it).
@@ -15,7 +15,7 @@ pub struct CacheArgs {
 }
 
 #[derive(Debug, Clone, clap::Subcommand)]
-pub enum CacheAction {
+pub(crate) enum CacheAction {
     /// Entries, bytes and stale temporary files.
     Stats,
     /// Remove stale temporary files and the least recently used entries above a size.
@@ -27,7 +27,7 @@ pub enum CacheAction {
 }
 
 /// Parses `123`, `500K`, `20M`, `1.5G`, `2T` (powers of 1024).
-pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
+pub(crate) fn parse_size(s: &str) -> std::result::Result<u64, String> {
     let t = s.trim();
     let (num, mul) = match t.char_indices().last() {
         Some((i, c)) if c.is_ascii_alphabetic() => {
@@ -53,7 +53,7 @@ pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
     Ok((v * mul as f64) as u64)
 }
 
-pub fn run(args: &CacheArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &CacheArgs, _g: &Global) -> Result<Outcome> {
     let dir = args
         .dir
         .clone()

@@ -10,7 +10,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 /// Parses `--noise`: `none`, `auto` (estimated from the maps) or a relative level such as 0.01.
-pub fn parse_noise(s: &str) -> std::result::Result<Noise, String> {
+pub(crate) fn parse_noise(s: &str) -> std::result::Result<Noise, String> {
     match s {
         "none" => Ok(Noise::None),
         "auto" => Ok(Noise::Estimate),
@@ -24,7 +24,7 @@ pub fn parse_noise(s: &str) -> std::result::Result<Noise, String> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct ClusterArgs {
+pub(crate) struct ClusterArgs {
     /// A pack with `instances` and `envmaps` sections.
     pub input: PathBuf,
     /// Output pack (default: the input pack).
@@ -52,7 +52,7 @@ pub struct ClusterArgs {
 
 /// The byte budget and the local part (issue 20; docs/FORMAT.md, `clusters`).
 #[derive(Debug, Clone, clap::Args)]
-pub struct BudgetArgs {
+pub(crate) struct BudgetArgs {
     /// Do not Wiener-filter the local part with the `envmaps` section's noise estimate.
     #[arg(long)]
     pub no_denoise: bool,
@@ -67,7 +67,7 @@ pub struct BudgetArgs {
     pub compression: f32,
 }
 
-pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
     let (w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let pack = Pack::open(&args.input)?;
     let opts = ClusterOptions {
@@ -100,7 +100,7 @@ pub fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct ClusterBenchArgs {
+pub(crate) struct ClusterBenchArgs {
     /// Number of instances, scattered over a 1024 m × 1024 m terrain.
     #[arg(long, default_value_t = 200_000)]
     pub instances: usize,
@@ -177,7 +177,7 @@ pub struct ClusterBenchArgs {
     pub heteroscedastic: bool,
 }
 
-pub fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
     let r = if let Some(pack) = &a.cause {
         let opts = crate::bench::cluster_cause::CauseOptions {
             samples: a.samples,

@@ -7,7 +7,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct DumpArgs {
+pub(crate) struct DumpArgs {
     /// A .bake pack.
     pub file: PathBuf,
     /// Include every section's full data.
@@ -23,7 +23,7 @@ pub struct DumpArgs {
     pub png: Option<PathBuf>,
 }
 
-pub fn run(args: &DumpArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &DumpArgs, _g: &Global) -> Result<Outcome> {
     let pack = Pack::open(&args.file)?;
     let doc = dump_json(
         &pack,

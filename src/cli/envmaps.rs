@@ -7,7 +7,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct EnvmapsArgs {
+pub(crate) struct EnvmapsArgs {
     /// A scene pack (with `sh`/`sun` sections from `bake sky` or `bake build`).
     pub input: PathBuf,
     /// Output pack (default: the input pack).
@@ -26,22 +26,36 @@ pub struct EnvmapsArgs {
     pub no_noise_estimate: bool,
 }
 
-pub fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &EnvmapsArgs, _g: &Global) -> Result<Outcome> {
     // Refused before any work.
     let refused = |m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name()));
     args.tracer
         .available_as("envmaps.tracer")
         .map_err(refused)?;
     let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
-    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
-    let opts = EnvmapOptions {
-        samples: args.samples,
-        tracer: args.tracer,
-        noise_estimate: !args.no_noise_estimate,
-        ..Default::default()
+    let pipeline = crate::graph::Pipeline {
+        envmaps: EnvmapOptions {
+            samples: args.samples,
+            tracer: args.tracer,
+            noise_estimate: !args.no_noise_estimate,
+            ..Default::default()
+        },
+        ..crate::graph::Pipeline::default()
     };
     let start = std::time::Instant::now();
-    let sections = crate::envmap::envmap_sections(&pack, &opts)?;
+    // Through the registry's `envmaps` unit (the graph's and `bake unit envmaps`'s): one shard
+    // of every instance, joined into the `envmaps` section.
+    let o = crate::graph::stage::pack_unit(
+        "envmaps",
+        &args.input,
+        w.sections(),
+        &pipeline,
+        None,
+        Some(crate::graph::stage::Shard::Of(0, 1)),
+        &|_| {},
+    )?;
+    let n = o.report["instances"].as_u64().unwrap_or(0) as usize;
+    let sections = crate::graph::stage::join_units("envmaps", vec![(n, o.sections)], &pipeline)?;
     let seconds = start.elapsed().as_secs_f64();
     let n = sections.len();
     for s in sections {

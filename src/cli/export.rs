@@ -7,7 +7,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct ExportArgs {
+pub(crate) struct ExportArgs {
     /// A .bake pack.
     pub pack: PathBuf,
     /// The scene to write: `.glb` (binary glTF) or `.gltf` (JSON, the buffer embedded as a
@@ -35,7 +35,7 @@ pub struct ExportArgs {
     pub normal_maps: bool,
 }
 
-pub fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
     let ext = args
         .output
         .extension()

@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct FixturesArgs {
+pub(crate) struct FixturesArgs {
     /// Output folder (created if missing).
     #[arg(default_value = "fixtures/scene")]
     pub dir: PathBuf,
@@ -21,7 +21,7 @@ pub struct FixturesArgs {
     pub terrain: u32,
 }
 
-pub fn run(args: &FixturesArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &FixturesArgs, _g: &Global) -> Result<Outcome> {
     let names = match args.instances {
         None => crate::fixtures::write_all(&args.dir)?,
         Some(instances) => {

@@ -6,7 +6,7 @@ use crate::ingest::IngestOptions;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct IngestArgs {
+pub(crate) struct IngestArgs {
     /// A .txf .3ds .obj .gltf .glb .raw .hdr .exr or .eco file.
     pub input: PathBuf,
     /// Output pack (default: <input stem>.bake beside the input).
@@ -23,7 +23,7 @@ pub struct IngestArgs {
     pub models: Vec<PathBuf>,
 }
 
-pub fn run(args: &IngestArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &IngestArgs, g: &Global) -> Result<Outcome> {
     let opts = IngestOptions {
         size: args.size,
         scale: args.scale,

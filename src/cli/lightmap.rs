@@ -4,11 +4,10 @@
 use super::{Global, Outcome};
 use crate::error::Result;
 use crate::lightmap::{LightmapMode, LightmapOptions};
-use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct LightmapArgs {
+pub(crate) struct LightmapArgs {
     /// A scene pack (with `sh`/`sun` sections from `bake sky` or `bake build`).
     pub input: PathBuf,
     /// Output pack (default: the input pack).
@@ -38,14 +37,13 @@ pub struct LightmapArgs {
     pub tracer: crate::trace::Tracer,
 }
 
-pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
     // Refused before any work.
     let refused = |m| crate::error::Error::usage(format!("--tracer {}: {m}", args.tracer.name()));
     args.tracer
         .available_as("lightmap.tracer")
         .map_err(refused)?;
     let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
-    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
     let opts = LightmapOptions {
         resolution: args.resolution,
         samples: args.samples,
@@ -59,9 +57,26 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
         tracer: args.tracer,
         ..Default::default()
     };
+    let pipeline = crate::graph::Pipeline {
+        lightmap: opts,
+        ..crate::graph::Pipeline::default()
+    };
     let start = std::time::Instant::now();
-    let mut sections = crate::lightmap::lightmap_sections(&pack, &opts)?;
-    sections.extend(crate::lightmap::atlas_sections(&pack, &opts)?);
+    // Through the registry's `lightmap` (the terrain's) and `atlas` (the objects') units, the
+    // graph's and `bake unit`'s.
+    let mut sections = Vec::new();
+    for stage in ["lightmap", "atlas"] {
+        let o = crate::graph::stage::pack_unit(
+            stage,
+            &args.input,
+            w.sections(),
+            &pipeline,
+            None,
+            None,
+            &|_| {},
+        )?;
+        sections.extend(o.sections);
+    }
     let seconds = start.elapsed().as_secs_f64();
     let mut summaries = Vec::new();
     for s in sections {
@@ -87,7 +102,7 @@ pub fn run(args: &LightmapArgs, _g: &Global) -> Result<Outcome> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct LightmapBenchArgs {
+pub(crate) struct LightmapBenchArgs {
     /// A scene pack with `sh`/`sun` sections (default: the generated fixture scene with its sky).
     pub input: Option<PathBuf>,
     /// Hemisphere samples per texel.
@@ -124,11 +139,8 @@ pub struct LightmapBenchArgs {
     pub filters: String,
 }
 
-/// The fixture scene (`bake fixtures`) ingested with its HDR sky's `sky`/`sun`/`sh` sections.
-pub use crate::bench::lightmap::fixture_pack;
-
 /// `bake bench lightmap` (crate::bench::lightmap).
-pub fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(a: &LightmapBenchArgs, _g: &Global) -> Result<Outcome> {
     // Refused before any work, as `bake lightmap` does.
     a.tracer
         .available_as("lightmap.tracer")

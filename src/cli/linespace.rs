@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct LinespaceArgs {
+pub(crate) struct LinespaceArgs {
     /// A model (.txf .3ds .obj .gltf .glb) or a .bake pack with mesh sections or a scene.
     pub input: PathBuf,
     /// Output pack (default: the input pack itself, or <model>.bake).
@@ -30,9 +30,9 @@ pub struct LinespaceArgs {
     pub flat_cells: bool,
 }
 
-pub use crate::linespace::world_triangles;
+pub(crate) use crate::linespace::world_triangles;
 
-pub fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
     if super::svo::is_pack(&args.input) {
@@ -144,7 +144,7 @@ fn run_two_level(args: &LinespaceArgs, pack: &crate::pack::Pack) -> Result<Outco
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct LinespaceBenchArgs {
+pub(crate) struct LinespaceBenchArgs {
     /// Model or pack (default: a procedural 70,000-triangle blob on a ground quad). A pack
     /// with a `linespace-scene` section (the two-level line spaces): soft shadows over its
     /// instances against exact visibility, every refinement (`--receivers`,
@@ -187,7 +187,7 @@ pub struct LinespaceBenchArgs {
 }
 
 /// `bake bench linespace` (crate::bench::linespace): the model, if one is named, is loaded here.
-pub fn bench(a: &LinespaceBenchArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(a: &LinespaceBenchArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
     // A pack with the two-level line spaces: their accuracy over the instances.

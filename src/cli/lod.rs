@@ -7,7 +7,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct LodArgs {
+pub(crate) struct LodArgs {
     /// A pack with mesh sections (.bake).
     pub input: PathBuf,
     /// Output pack (default: the input pack itself).
@@ -38,12 +38,12 @@ pub struct LodArgs {
 
 /// `bake bench lod PACK`: the options of `bake lod`, nothing is written.
 #[derive(Debug, Clone, clap::Args)]
-pub struct LodBenchArgs {
+pub(crate) struct LodBenchArgs {
     #[command(flatten)]
     pub lod: LodArgs,
 }
 
-pub fn bench(args: &LodBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(args: &LodBenchArgs, _g: &Global) -> Result<Outcome> {
     let opts = options(&args.lod)?;
     let pack = Pack::open(&args.lod.input)?;
     Ok(crate::bench::lod::bench_lod(&pack, &opts)?.into())
@@ -71,7 +71,7 @@ fn options(a: &LodArgs) -> Result<LodOptions> {
     Ok(o)
 }
 
-pub fn run(args: &LodArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &LodArgs, _g: &Global) -> Result<Outcome> {
     let opts = options(args)?;
     let pack = Pack::open(&args.input)?;
     if pack.of_kind(crate::mesh::section::KIND).next().is_none() {
@@ -82,7 +82,21 @@ pub fn run(args: &LodArgs, _g: &Global) -> Result<Outcome> {
         ));
     }
     let t0 = std::time::Instant::now();
-    let (w, reports) = crate::lod::lod_pack(&pack, &opts)?;
+    // Every mesh through the registry's `lod` unit (the graph's and `bake unit lod`'s).
+    let pipeline = crate::graph::Pipeline {
+        lod: opts.clone(),
+        ..crate::graph::Pipeline::default()
+    };
+    let outputs =
+        crate::graph::stage::pack_mesh_units("lod", &pack, &args.input, &pipeline, &|_| {})?;
+    let mut w = crate::pack::PackWriter::from_pack(&pack);
+    let mut reports = Vec::new();
+    for o in outputs {
+        for s in o.sections {
+            w.insert(s);
+        }
+        reports.push(o.report);
+    }
     let seconds = t0.elapsed().as_secs_f64();
     let output = args.output.clone().unwrap_or_else(|| args.input.clone());
     drop(pack); // release the input's memory map before replacing the file
@@ -90,14 +104,16 @@ pub fn run(args: &LodArgs, _g: &Global) -> Result<Outcome> {
     crate::pack::write_atomic(&output, &bytes)?;
     let mut text = String::new();
     for r in &reports {
-        let tris: Vec<String> = r.levels.iter().map(|l| l.triangles.to_string()).collect();
+        let levels = r["levels"].as_array().map_or(&[][..], |l| l.as_slice());
+        let tris: Vec<String> = levels.iter().map(|l| l["triangles"].to_string()).collect();
         text.push_str(&format!(
             "{}: {} levels ({} triangles), {} cards{}\n",
-            r.section,
-            r.levels.len(),
+            r["section"].as_str().unwrap_or_default(),
+            levels.len(),
             tris.join(" / "),
-            r.cards,
-            r.impostor_error
+            r["cards"],
+            r["impostor_error"]
+                .as_f64()
                 .map_or(String::new(), |e| format!(", impostor error {e:.3}"))
         ));
     }
@@ -113,4 +129,54 @@ pub fn run(args: &LodArgs, _g: &Global) -> Result<Outcome> {
         text,
         warnings: Vec::new(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `bake lod` runs the registry's `lod` unit: its sections are the stage function's own,
+    /// called directly on the same pack (the oracle), and the rest of the pack is kept.
+    #[test]
+    fn the_command_writes_what_the_stage_function_computes() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("two.bake");
+        let mut w = crate::pack::PackWriter::new();
+        for (name, hi) in [("a", [2.0, 1.0, 1.0]), ("b", [1.0, 3.0, 2.0])] {
+            let mesh = crate::voxel::tests::box_mesh([0.0; 3], hi);
+            w.insert(crate::mesh::section::to_section(
+                &format!("mesh:{name}"),
+                name,
+                &mesh,
+                &[],
+            ));
+        }
+        w.write(&path).unwrap();
+        let args = LodArgs {
+            input: path.clone(),
+            output: Some(dir.path().join("out.bake")),
+            preset: "default".into(),
+            levels: None,
+            base_error: None,
+            ratio: None,
+            impostor: Some(false),
+            impostor_grid: None,
+            impostor_tile: None,
+        };
+        let out = run(&args, &Global::default()).unwrap();
+        assert_eq!(out.json["meshes"].as_array().unwrap().len(), 2);
+        let input = Pack::open(&path).unwrap();
+        let written = Pack::open(&dir.path().join("out.bake")).unwrap();
+        let opts = options(&args).unwrap();
+        for m in ["mesh:a", "mesh:b"] {
+            let (direct, _) = crate::lod::bake_lod(&input, m, &opts).unwrap();
+            let e = written.find(&direct.name).unwrap();
+            assert_eq!(written.payload(e), &direct.payload[..], "{m}");
+            assert_eq!(
+                written.payload(written.find(m).unwrap()),
+                input.payload(input.find(m).unwrap())
+            );
+        }
+        assert_eq!(written.sections().len(), 4);
+    }
 }

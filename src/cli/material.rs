@@ -4,13 +4,12 @@
 
 use super::{Global, Outcome};
 use crate::error::Result;
-use crate::material::{MaterialOptions, bake_materials};
-use crate::pack::Pack;
+use crate::material::MaterialOptions;
 use crate::texture::linear::TransferFunction;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct MaterialArgs {
+pub(crate) struct MaterialArgs {
     /// A pack (.bake) or a model file (.txf .3ds .obj .gltf .glb) or scene (.eco).
     pub input: PathBuf,
     /// Output pack (default: the input pack, or <input stem>.bake).
@@ -24,34 +23,47 @@ pub struct MaterialArgs {
     pub no_coverage: bool,
 }
 
-pub fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &MaterialArgs, g: &Global) -> Result<Outcome> {
     let (w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let opts = MaterialOptions {
         transfer: args.transfer,
         preserve_coverage: !args.no_coverage,
     };
     let bar = g.progress(1, "material");
-    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
-    let (sections, report) = bake_materials(&pack, &opts)?;
+    // Through the registry's `material` unit (the graph's and `bake unit model`'s), over every
+    // mesh of the pack at once.
+    let pipeline = crate::graph::Pipeline {
+        material: opts,
+        ..crate::graph::Pipeline::default()
+    };
+    let o = crate::graph::stage::pack_unit(
+        "material",
+        &args.input,
+        w.sections(),
+        &pipeline,
+        None,
+        None,
+        &|_| {},
+    )?;
     bar.finish_and_clear();
-    let bytes = super::write_pack(w, sections, &output)?;
+    let bytes = super::write_pack(w, o.sections, &output)?;
+    // The report as the stage made it, with its warnings' messages (the unit returns them apart).
+    let mut report = o.report;
+    report["warnings"] = o.warnings.iter().map(|w| w.message.clone()).collect();
     let text = format!(
         "{}: {} materials ({} leaf defaults), {} textures, {} meshes with tangents ({} vertices split)\n",
         output.display(),
-        report.materials,
-        report.leaf_defaults,
-        report.textures,
-        report.meshes,
-        report.split_vertices
+        report["materials"],
+        report["leaf_defaults"],
+        report["textures"],
+        report["meshes"],
+        report["split_vertices"]
     );
     Ok(Outcome::written(
         &report,
         &output,
         bytes.len(),
         text,
-        crate::diag::tagged(
-            &crate::diag::MATERIAL_TEXTURE_MISSING,
-            report.warnings.clone(),
-        ),
+        o.warnings,
     ))
 }

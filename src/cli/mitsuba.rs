@@ -7,7 +7,7 @@ use crate::pack::Pack;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct MitsubaArgs {
+pub(crate) struct MitsubaArgs {
     /// A .bake pack.
     pub pack: PathBuf,
     /// Output folder (scene.xml, direct.xml, geometry.xml, meshes/, textures/, sky.exr, ...).
@@ -28,7 +28,7 @@ pub struct MitsubaArgs {
     pub shapegroups: bool,
 }
 
-pub fn run(args: &MitsubaArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &MitsubaArgs, _g: &Global) -> Result<Outcome> {
     let view = args.camera.options();
     let opts = crate::mitsuba::ExportOptions {
         envmap_height: args.envmap_height,

@@ -1,40 +1,43 @@
 //! Subcommands: each file holds one command's clap arguments and its `run`, which resolves the
-//! arguments, calls the library and returns an [`Outcome`]; `main.rs` only prints it.
+//! arguments, calls the library and returns an [`Outcome`]; [`main`] (`app.rs`, the binary's
+//! whole work) parses the arguments, dispatches and prints it. Only [`main`] is public.
 
-pub mod bench;
-pub mod bittree;
-pub mod build;
-pub mod cache;
-pub mod cluster;
-pub mod dump;
-pub mod envmaps;
-pub mod export;
-pub mod fixtures;
-pub mod ingest;
-pub mod lightmap;
-pub mod linespace;
-pub mod lod;
-pub mod material;
-pub mod mitsuba;
-pub mod pipeline;
-pub mod plan;
-pub mod prt;
-pub mod render;
-pub mod report;
-pub mod scene;
-pub mod sky;
-pub mod svo;
-pub mod terrain;
-pub mod unit;
-pub mod validate;
-pub mod values;
-pub mod verify;
+mod app;
+pub(crate) mod bench;
+pub(crate) mod bittree;
+pub(crate) mod build;
+pub(crate) mod cache;
+pub(crate) mod cluster;
+pub(crate) mod dump;
+pub(crate) mod envmaps;
+pub(crate) mod export;
+pub(crate) mod fixtures;
+pub(crate) mod ingest;
+pub(crate) mod lightmap;
+pub(crate) mod linespace;
+pub(crate) mod lod;
+pub(crate) mod material;
+pub(crate) mod mitsuba;
+pub(crate) mod pipeline;
+pub(crate) mod plan;
+pub(crate) mod prt;
+pub(crate) mod render;
+pub(crate) mod report;
+pub(crate) mod scene;
+pub(crate) mod sky;
+pub(crate) mod svo;
+pub(crate) mod terrain;
+pub(crate) mod unit;
+pub(crate) mod validate;
+pub(crate) mod values;
+pub(crate) mod verify;
 
+pub use app::main;
 use serde_json::Value;
 
 /// Flags shared by every subcommand.
 #[derive(Debug, Clone, Default, clap::Args)]
-pub struct Global {
+pub(crate) struct Global {
     /// No progress bars, no summary text (errors still go to stderr).
     #[arg(long, short, global = true)]
     pub quiet: bool,
@@ -57,7 +60,7 @@ pub struct Global {
 
 /// What a command produced: JSON for `--json`, text for people, warnings for stderr.
 #[derive(Debug, Clone, Default)]
-pub struct Outcome {
+pub(crate) struct Outcome {
     pub json: Value,
     pub text: String,
     pub warnings: Vec<crate::diag::Warning>,
@@ -76,7 +79,7 @@ fn parse_warning_id(s: &str) -> std::result::Result<String, String> {
 impl Global {
     /// The warnings `--warnings-as-errors` makes fatal: none without the flag, all with it
     /// alone, those of the given ids otherwise.
-    pub fn fatal_warnings<'a>(
+    pub(crate) fn fatal_warnings<'a>(
         &self,
         warnings: &'a [crate::diag::Warning],
     ) -> Vec<&'a crate::diag::Warning> {
@@ -92,7 +95,7 @@ impl Global {
 
 impl Outcome {
     /// The outcome of a stage that wrote a pack: its report as JSON plus `output` and `bytes`.
-    pub fn written(
+    pub(crate) fn written(
         report: &impl serde::Serialize,
         output: &std::path::Path,
         bytes: usize,
@@ -123,7 +126,7 @@ impl From<crate::bench::Report> for Outcome {
 
 impl Global {
     /// Ingest options carrying the global --allow-path and --max-memory.
-    pub fn ingest_defaults(&self) -> crate::ingest::IngestOptions {
+    pub(crate) fn ingest_defaults(&self) -> crate::ingest::IngestOptions {
         crate::ingest::IngestOptions {
             allow_paths: self.allow_paths.clone(),
             limits: self.max_memory.map_or(
@@ -135,7 +138,7 @@ impl Global {
     }
 
     /// A progress bar on stderr, hidden with `--quiet`.
-    pub fn progress(&self, len: u64, message: &str) -> indicatif::ProgressBar {
+    pub(crate) fn progress(&self, len: u64, message: &str) -> indicatif::ProgressBar {
         if self.quiet {
             return indicatif::ProgressBar::hidden();
         }
@@ -153,7 +156,7 @@ impl Global {
 }
 
 /// Parses `WxH`.
-pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .ok_or_else(|| format!("{s:?} is not WxH"))?;
@@ -169,7 +172,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 /// Parses `x,y,z`.
-pub fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
+pub(crate) fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
     let v: Vec<f32> = s
         .split(',')
         .map(|c| c.trim().parse::<f32>())
@@ -181,7 +184,7 @@ pub fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
 /// The end of a stage command: adds `sections` to `w` (replacing sections of the same name) and
 /// writes the pack to `output` atomically (the previous file survives a failure); returns the
 /// bytes written.
-pub fn write_pack(
+pub(crate) fn write_pack(
     mut w: crate::pack::PackWriter,
     sections: impl IntoIterator<Item = crate::pack::Section>,
     output: &std::path::Path,
@@ -196,7 +199,7 @@ pub fn write_pack(
 
 /// The starting point of a stage command: an existing pack (kept whole, output defaults to the
 /// pack itself) or any input file ingested first (output defaults to `<stem>.bake`).
-pub fn open_or_ingest(
+pub(crate) fn open_or_ingest(
     input: &std::path::Path,
     output: Option<std::path::PathBuf>,
 ) -> crate::error::Result<(crate::pack::PackWriter, std::path::PathBuf)> {

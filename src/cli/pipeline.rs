@@ -6,13 +6,13 @@ use crate::graph::preset::{PRESETS, Pipeline};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct PipelineArgs {
+pub(crate) struct PipelineArgs {
     #[command(subcommand)]
     pub action: PipelineAction,
 }
 
 #[derive(Debug, Clone, clap::Subcommand)]
-pub enum PipelineAction {
+pub(crate) enum PipelineAction {
     /// The preset names.
     List,
     /// A preset (or a file with --set applied) as complete TOML: a starting point for your own.
@@ -28,7 +28,7 @@ pub enum PipelineAction {
     Check { file: PathBuf },
 }
 
-pub fn run(args: &PipelineArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &PipelineArgs, _g: &Global) -> Result<Outcome> {
     match &args.action {
         PipelineAction::List => Ok(Outcome {
             json: serde_json::json!({ "presets": PRESETS }),

@@ -7,7 +7,7 @@ use crate::plan::{PlanOptions, make_plan};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Emit {
+pub(crate) enum Emit {
     /// `DIR/build.ninja` (run `ninja -C DIR`).
     Ninja,
     /// A Bazel workspace in DIR (`BUILD.bazel`, `bake.bzl`, `WORKSPACE`; the inputs copied in).
@@ -15,7 +15,7 @@ pub enum Emit {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct PlanArgs {
+pub(crate) struct PlanArgs {
     #[command(flatten)]
     pub scene: super::scene::SceneFlags,
     /// The build engine.
@@ -41,7 +41,7 @@ pub struct PlanArgs {
     pub bake: Option<PathBuf>,
 }
 
-pub fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &PlanArgs, g: &Global) -> Result<Outcome> {
     if args.shards == Some(0) || args.lightmap_shards == Some(0) {
         return Err(Error::usage(
             "--shards and --lightmap-shards must be at least 1",

@@ -7,13 +7,13 @@ use crate::bench::rays::{RaysBenchOptions, bench_rays};
 use crate::error::{Error, Result};
 use crate::ingest::{IngestOptions, InputKind};
 use crate::pack::Pack;
-use crate::prt::pack::{mesh_textures, mesh_vertex_count, prt_pack};
+use crate::prt::pack::{mesh_textures, mesh_vertex_count};
 use crate::prt::transfer::{self as prt, PrtOptions};
 use crate::trace::BuildPreset;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct PrtArgs {
+pub(crate) struct PrtArgs {
     /// A pack with mesh sections (.bake), or a model or scene file (.txf .3ds .obj .gltf .glb
     /// .eco), which is ingested first.
     pub input: PathBuf,
@@ -68,7 +68,7 @@ fn open_or_ingest(input: &Path) -> Result<(Pack, Vec<String>)> {
     Ok((pack, warnings))
 }
 
-pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
     check_sampling(args.samples, args.bounces)?;
     if !(0.0..=1.0).contains(&args.translucence) {
         return Err(Error::usage("--translucence: expected 0 to 1"));
@@ -97,27 +97,51 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
         ));
     }
     let bar = g.progress(total, "prt");
-    let (w, reports, more) = prt_pack(&pack, &opts, &|n| bar.inc(n))?;
+    // Every mesh through the registry's `prt` unit (the graph's and `bake unit prt`'s).
+    let pipeline = crate::graph::Pipeline {
+        prt: opts,
+        ..crate::graph::Pipeline::default()
+    };
+    let candidates = crate::graph::stage::pack_sections(&pack, "prt")?;
+    let mut w = crate::pack::PackWriter::from_pack(&pack);
+    let mut reports = Vec::new();
+    for e in pack.of_kind(crate::mesh::section::KIND) {
+        let o = crate::graph::stage::pack_unit(
+            "prt",
+            &args.input,
+            &candidates,
+            &pipeline,
+            Some(&e.name),
+            None,
+            &|n| bar.inc(n),
+        )?;
+        for s in o.sections {
+            w.insert(s);
+        }
+        reports.push(o.report);
+        warnings.extend(o.warnings);
+    }
     bar.finish_and_clear();
-    warnings.extend(more);
     let output = match &args.output {
         Some(o) => o.clone(),
         None if is_pack => args.input.clone(),
         None => args.input.with_extension("bake"),
     };
     let bytes = w.to_bytes()?;
-    drop(pack); // release the input's memory map before replacing the file
+    drop((pack, candidates)); // release the input's memory map before replacing the file
     crate::pack::write_atomic(&output, &bytes)?;
     let mut text = String::new();
     for r in &reports {
+        let (rays, seconds) = (
+            r["rays"].as_u64().unwrap_or(0),
+            r["seconds"].as_f64().unwrap_or(0.0),
+        );
         text.push_str(&format!(
-            "{}: {} vertices, {} triangles, {} rays in {:.2} s ({:.2} M rays/s)\n",
-            r.section,
-            r.vertices,
-            r.triangles,
-            r.rays,
-            r.seconds,
-            r.rays as f64 / r.seconds.max(1e-9) / 1e6
+            "{}: {} vertices, {} triangles, {rays} rays in {seconds:.2} s ({:.2} M rays/s)\n",
+            r["section"].as_str().unwrap_or_default(),
+            r["vertices"],
+            r["triangles"],
+            rays as f64 / seconds.max(1e-9) / 1e6
         ));
     }
     text.push_str(&format!("{}: {} bytes\n", output.display(), bytes.len()));
@@ -131,7 +155,7 @@ pub fn run(args: &PrtArgs, g: &Global) -> Result<Outcome> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct RaysBenchArgs {
+pub(crate) struct RaysBenchArgs {
     /// A model file or pack (its first mesh); default: a procedural alpha-tested plant.
     pub model: Option<PathBuf>,
     /// Triangles of the procedural plant.
@@ -162,7 +186,7 @@ pub struct RaysBenchArgs {
     pub embree: bool,
 }
 
-pub fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(a: &RaysBenchArgs, _g: &Global) -> Result<Outcome> {
     check_sampling(a.samples, a.bounces)?;
     let (mesh, textures, source, warnings) = load_model(a.model.as_deref(), a.triangles)?;
     let mats = prt::prt_materials(&mesh, &textures, 0.3);
@@ -291,7 +315,7 @@ fn load_model(model: Option<&Path>, triangles: usize) -> Result<BenchModel> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct PrtErrorBenchArgs {
+pub(crate) struct PrtErrorBenchArgs {
     /// A model file or pack (its first mesh); default: a procedural alpha-tested plant.
     pub model: Option<PathBuf>,
     /// Triangles of the procedural plant.
@@ -334,7 +358,7 @@ pub struct PrtErrorBenchArgs {
     pub no_cache: bool,
 }
 
-pub fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench_error(a: &PrtErrorBenchArgs, _g: &Global) -> Result<Outcome> {
     use crate::bench::prt_error::{Method, PrtErrorOptions, bench_prt_error, report_text};
     for &s in &a.samples {
         check_sampling(s, a.bounces)?;

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 /// The view of a render: image size and camera (`bake render`, `bake mitsuba`).
 #[derive(Debug, Clone, clap::Args)]
-pub struct ViewArgs {
+pub(crate) struct ViewArgs {
     /// Image width in pixels.
     #[arg(long, default_value_t = 1280)]
     pub width: u32,
@@ -29,7 +29,7 @@ pub struct ViewArgs {
 
 impl ViewArgs {
     /// Render options with this view, the rest default.
-    pub fn options(&self) -> RenderOptions {
+    pub(crate) fn options(&self) -> RenderOptions {
         RenderOptions {
             width: self.width,
             height: self.height,
@@ -42,7 +42,7 @@ impl ViewArgs {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct RenderArgs {
+pub(crate) struct RenderArgs {
     /// A .bake pack.
     pub pack: PathBuf,
     /// Output image: PNG (tone-mapped, sRGB), or by the extension .exr the linear radiance
@@ -134,7 +134,7 @@ pub struct RenderArgs {
 
 /// `bake render --view`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum ViewMode {
+pub(crate) enum ViewMode {
     Scene,
     Svo,
 }
@@ -170,12 +170,12 @@ fn write_float_image(path: &std::path::Path, img: &crate::model::FloatImage) -> 
 }
 
 /// Threshold (8-bit steps) of the `pixels_over` fraction in the reference comparison.
-pub const REFERENCE_THRESHOLD: u8 = 24;
+pub(crate) const REFERENCE_THRESHOLD: u8 = 24;
 
 /// Silences the warning Mesa's device-select Vulkan layer prints on machines without a display,
 /// unless the user set `NODEVICE_SELECT` already. `main` calls it first thing, while the process
 /// has one thread.
-pub fn quiet_mesa_layer() {
+pub(crate) fn quiet_mesa_layer() {
     if std::env::var_os("NODEVICE_SELECT").is_none() {
         // SAFETY: called by `main` before wgpu or rayon start any thread; nothing else
         // reads or writes the environment concurrently.
@@ -183,7 +183,7 @@ pub fn quiet_mesa_layer() {
     }
 }
 
-pub fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
     let opts = RenderOptions {
         exposure: args.exposure,
         lighting: None,
@@ -444,7 +444,7 @@ fn run_svo_scene(args: &RenderArgs, v: &svo_view::SceneView) -> Result<Outcome> 
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct RenderBenchArgs {
+pub(crate) struct RenderBenchArgs {
     /// A .bake pack.
     pub pack: PathBuf,
     #[arg(long, default_value_t = 1280)]
@@ -471,7 +471,7 @@ pub struct RenderBenchArgs {
 }
 
 /// `bake bench render PACK`: see [`crate::bench::render::bench_render`].
-pub fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(args: &RenderBenchArgs, _g: &Global) -> Result<Outcome> {
     let opts = RenderOptions {
         width: args.width,
         height: args.height,

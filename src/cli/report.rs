@@ -9,7 +9,7 @@ use crate::report::html::{self, Page, RenderImage, THUMB_SIZE, Thumb};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct ReportArgs {
+pub(crate) struct ReportArgs {
     /// A .bake pack.
     pub pack: PathBuf,
     /// The page to write.
@@ -29,7 +29,7 @@ pub struct ReportArgs {
     pub max_images: usize,
 }
 
-pub fn run(args: &ReportArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &ReportArgs, _g: &Global) -> Result<Outcome> {
     use rayon::prelude::*;
     let pack = Pack::open(&args.pack)?;
     let dump = dump_json(&pack, &DumpOptions::default())?;

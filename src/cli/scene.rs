@@ -8,7 +8,7 @@ use crate::ingest::IngestOptions;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct SceneFlags {
+pub(crate) struct SceneFlags {
     /// One or more ECO files of one scene.
     #[arg(required = true)]
     pub scenes: Vec<PathBuf>,
@@ -35,12 +35,12 @@ pub struct SceneFlags {
 
 impl SceneFlags {
     /// The pipeline of `--pipeline`/`--preview`/`--set`, and the file it came from.
-    pub fn pipeline(&self) -> Result<(Pipeline, Option<PathBuf>)> {
+    pub(crate) fn pipeline(&self) -> Result<(Pipeline, Option<PathBuf>)> {
         crate::graph::preset::resolve(self.pipeline.as_deref(), self.preview, &self.set)
     }
 
     /// Ingest options: `--models`, `--color-map` and the global `--allow-path`/`--max-memory`.
-    pub fn ingest(&self, g: &Global) -> IngestOptions {
+    pub(crate) fn ingest(&self, g: &Global) -> IngestOptions {
         IngestOptions {
             model_dirs: self.models.clone(),
             color_map: self.color_map.clone(),

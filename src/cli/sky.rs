@@ -11,7 +11,7 @@ use serde_json::{Value, json};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct SkyArgs {
+pub(crate) struct SkyArgs {
     /// A lat-long (2:1) or cube-cross (4:3, 3:4) .hdr/.exr image, or six face files in the order
     /// +X −X +Y −Y +Z −Z (crosses and faces Y up). None: the built-in clear sky.
     pub inputs: Vec<PathBuf>,
@@ -71,7 +71,7 @@ fn builtin_params(a: &SkyArgs) -> Result<BuiltinSky> {
     })
 }
 
-pub fn run(args: &SkyArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &SkyArgs, g: &Global) -> Result<Outcome> {
     if args.sh_only {
         return sh_only(args, g);
     }
@@ -144,7 +144,7 @@ fn sh_only(args: &SkyArgs, _g: &Global) -> Result<Outcome> {
 }
 
 /// The `--json` document (stable keys: sun, sky, sh, cube).
-pub fn report_json(b: &SkyBake) -> Value {
+pub(crate) fn report_json(b: &SkyBake) -> Value {
     let s = &b.sun;
     json!({
         "sun": {
@@ -202,7 +202,7 @@ fn warnings(b: &SkyBake) -> Vec<crate::diag::Warning> {
 
 /// `bake bench sky`: the sky stage's timings, and its SH accuracy against the exact projection.
 #[derive(Debug, Clone, clap::Args)]
-pub struct SkyBenchArgs {
+pub(crate) struct SkyBenchArgs {
     /// A lat-long .hdr/.exr sky.
     pub input: PathBuf,
     /// Repetitions of each timed step (the median is reported).
@@ -220,7 +220,7 @@ pub struct SkyBenchArgs {
     pub profile: Option<u32>,
 }
 
-pub fn bench(a: &SkyBenchArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(a: &SkyBenchArgs, _g: &Global) -> Result<Outcome> {
     let r = match a.write_sample {
         Some((w, h)) => crate::bench::sky::write_sample(&a.input, w, h)?,
         None if a.profile.is_some() => {

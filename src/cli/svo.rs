@@ -12,7 +12,7 @@ use crate::voxel::voxelize::{VoxelizeOptions, mesh_to_voxels};
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct SvoArgs {
+pub(crate) struct SvoArgs {
     /// A model (.txf .3ds .obj .gltf .glb) or a .bake pack with mesh sections or a scene.
     pub input: PathBuf,
     /// Output pack (default: the input pack itself, or <model>.bake).
@@ -27,14 +27,14 @@ pub struct SvoArgs {
 }
 
 /// Whether a path is a pack (by extension).
-pub fn is_pack(path: &Path) -> bool {
+pub(crate) fn is_pack(path: &Path) -> bool {
     path.extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("bake"))
 }
 
 /// Reads the geometry of a model file or a pack for `stage`; missing textures become warnings.
 /// A pack's placed scene is checked against the memory budget before it is built.
-pub fn load_geometry(
+pub(crate) fn load_geometry(
     path: &Path,
     stage: SceneStage,
     limits: &Limits,
@@ -66,7 +66,7 @@ pub fn load_geometry(
 
 /// The pack an output starts from: the input pack's sections, or for a model input its mesh
 /// (so `bake linespace` and later stages can chain on the output).
-pub fn start_pack(
+pub(crate) fn start_pack(
     input: &Path,
     pack: Option<&Pack>,
     geo: &Geometry,
@@ -87,7 +87,7 @@ pub fn start_pack(
     }
 }
 
-pub fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
     if is_pack(&args.input) {
@@ -201,7 +201,7 @@ fn run_two_level(args: &SvoArgs, pack: &Pack) -> Result<Outcome> {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct SvoBenchArgs {
+pub(crate) struct SvoBenchArgs {
     /// Model or pack to voxelize (default: a procedural 70,000-triangle closed blob).
     pub model: Option<PathBuf>,
     /// Voxels along the longest axis.
@@ -213,7 +213,7 @@ pub struct SvoBenchArgs {
 }
 
 /// `bake bench svo`: voxelization + octree build, best of `repeat`.
-pub fn bench(a: &SvoBenchArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn bench(a: &SvoBenchArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
     let (geo, name) = match &a.model {

@@ -4,11 +4,11 @@
 use super::{Global, Outcome, parse_size};
 use crate::error::Result;
 use crate::ingest::IngestOptions;
-use crate::pack::{Pack, PackWriter};
+use crate::pack::PackWriter;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct TerrainArgs {
+pub(crate) struct TerrainArgs {
     /// A pack (.bake), a RAW height map or an ECO scene.
     pub input: PathBuf,
     /// Output pack (default: the input pack, or <input stem>.bake).
@@ -44,13 +44,22 @@ fn open(args: &TerrainArgs) -> Result<(PackWriter, PathBuf)> {
     Ok((w, out))
 }
 
-pub fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
     let (w, output) = open(args)?;
     let bar = g.progress(1, "terrain");
-    let pack = Pack::from_bytes(&w.to_bytes()?, &args.input.display().to_string())?;
-    let (sections, report) = crate::terrain::bake_terrain(&pack)?;
+    // Through the registry's `terrain` unit (the graph's and `bake unit terrain`'s).
+    let o = crate::graph::stage::pack_unit(
+        "terrain",
+        &args.input,
+        w.sections(),
+        &crate::graph::Pipeline::default(),
+        None,
+        None,
+        &|_| {},
+    )?;
     bar.finish_and_clear();
-    let warnings = if report.terrains == 0 {
+    let report = o.report;
+    let warnings = if report["terrains"] == 0 {
         crate::diag::tagged(
             &crate::diag::TERRAIN_NONE,
             [format!(
@@ -61,13 +70,16 @@ pub fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
     } else {
         Vec::new()
     };
-    let bytes = super::write_pack(w, sections, &output)?;
+    let bytes = super::write_pack(w, o.sections, &output)?;
     let text = format!(
         "{}: {} terrain(s), {} samples, quadtree levels {:?}\n",
         output.display(),
-        report.terrains,
-        report.samples,
-        report.quadtree_levels
+        report["terrains"],
+        report["samples"],
+        report["quadtree_levels"]
+            .as_array()
+            .map(|l| l.iter().filter_map(|v| v.as_u64()).collect::<Vec<_>>())
+            .unwrap_or_default()
     );
     Ok(Outcome::written(
         &report,

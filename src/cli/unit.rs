@@ -18,7 +18,7 @@ use std::path::PathBuf;
 
 /// The arguments of `bake SCENE.eco` that every unit shares, and the unit's pack.
 #[derive(Debug, Clone, clap::Args)]
-pub struct UnitFlags {
+pub(crate) struct UnitFlags {
     #[command(flatten)]
     pub flags: super::scene::SceneFlags,
     /// The unit's pack.
@@ -40,13 +40,13 @@ impl UnitFlags {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct UnitArgs {
+pub(crate) struct UnitArgs {
     #[command(subcommand)]
     pub unit: Unit,
 }
 
 #[derive(Debug, Clone, clap::Subcommand)]
-pub enum Unit {
+pub(crate) enum Unit {
     /// The terrain's sections and the prepared terrain.
     Terrain(UnitFlags),
     /// One model: ingest and materials; also writes the files it read (`--deps`).
@@ -82,7 +82,7 @@ pub enum Unit {
 }
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct WithPacks {
+pub(crate) struct WithPacks {
     #[command(flatten)]
     pub scene: UnitFlags,
     /// The packs the unit reads, in the graph's order (repeatable).
@@ -92,7 +92,7 @@ pub struct WithPacks {
 
 /// The unit of a registered stage: its action's name and its flags.
 #[derive(Debug, Clone)]
-pub struct StageUnit {
+pub(crate) struct StageUnit {
     pub action: String,
     pub flags: StageFlags,
 }
@@ -100,7 +100,7 @@ pub struct StageUnit {
 /// The flags of a registered stage's unit (those a stage has no use for are hidden and
 /// refused).
 #[derive(Debug, Clone, clap::Args)]
-pub struct StageFlags {
+pub(crate) struct StageFlags {
     #[command(flatten)]
     pub scene: UnitFlags,
     /// The model's name in the scene (its file name).
@@ -249,7 +249,7 @@ fn stage_unit(u: &StageUnit, g: &Global) -> Result<UnitReport> {
     }
 }
 
-pub fn run(args: &UnitArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &UnitArgs, g: &Global) -> Result<Outcome> {
     let r: UnitReport = match &args.unit {
         Unit::Terrain(f) => actions::terrain(&f.scene(g)?, &f.output)?,
         Unit::Model {
@@ -286,7 +286,7 @@ pub(crate) fn outcome(r: UnitReport) -> Outcome {
 
 /// `bake merge A.bake B.bake ... -o OUT.bake`.
 #[derive(Debug, Clone, clap::Args)]
-pub struct MergeArgs {
+pub(crate) struct MergeArgs {
     /// The packs, in the order their sections go into the output.
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
@@ -294,7 +294,7 @@ pub struct MergeArgs {
     pub output: PathBuf,
 }
 
-pub fn run_merge(args: &MergeArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run_merge(args: &MergeArgs, _g: &Global) -> Result<Outcome> {
     Ok(outcome(actions::merge(&args.inputs, &args.output)?))
 }
 
@@ -307,6 +307,27 @@ mod tests {
         let cmd = Unit::augment_subcommands(clap::Command::new("unit"));
         let mut m = cmd.try_get_matches_from(args)?;
         Unit::from_arg_matches_mut(&mut m)
+    }
+
+    /// `bake unit`'s subcommands are the actions of the listed stages and the graph's own (moved
+    /// from tests/kinds.rs when the command line became internal).
+    #[test]
+    fn bake_unit_runs_the_actions_of_the_listed_stages() {
+        let cmd = Unit::augment_subcommands(clap::Command::new("unit"));
+        use std::collections::BTreeSet;
+        let subcommands: BTreeSet<String> = cmd
+            .get_subcommands()
+            .map(|c| c.get_name().to_string())
+            .collect();
+        let mut listed: BTreeSet<String> = crate::graph::stages::all()
+            .flat_map(|s| s.actions.iter().map(|a| a.to_string()))
+            .collect();
+        listed.extend(
+            crate::graph::stages::GRAPH_ACTIONS
+                .iter()
+                .map(|a| a.to_string()),
+        );
+        assert_eq!(subcommands, listed);
     }
 
     #[test]

@@ -16,7 +16,7 @@ use serde_json::json;
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct ValidateArgs {
+pub(crate) struct ValidateArgs {
     /// A .bake pack with an `svo` and/or a `linespace` section.
     pub pack: PathBuf,
     /// Random rays through the octree.
@@ -93,7 +93,7 @@ fn validate_svo_lod(
         .collect()
 }
 
-pub fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
     let pack = Pack::open(&args.pack)?;
     let svo_entry = pack.of_kind(crate::voxel::section::KIND).next();
     let ls_entry = pack.of_kind(crate::linespace::section::KIND).next();

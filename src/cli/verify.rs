@@ -11,12 +11,12 @@ use crate::verify::{VerifyReport, first_error, verify_file};
 use std::path::PathBuf;
 
 #[derive(Debug, Clone, clap::Args)]
-pub struct VerifyArgs {
+pub(crate) struct VerifyArgs {
     /// A .bake pack.
     pub file: PathBuf,
 }
 
-pub fn run(args: &VerifyArgs, g: &Global) -> Result<Outcome> {
+pub(crate) fn run(args: &VerifyArgs, g: &Global) -> Result<Outcome> {
     let report = verify_file(&args.file)?;
     let json = report_json(&args.file, &report);
     if let Some(err) = first_error(&args.file, &report) {

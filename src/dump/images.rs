@@ -25,11 +25,17 @@ use std::collections::BTreeSet;
 /// One file of `--png`: its name in the folder, its bytes, and what it shows.
 #[derive(Debug, Clone)]
 pub struct ImageFile {
+    /// The file's name in the folder.
     pub file: String,
+    /// The section it shows.
     pub section: String,
+    /// What it shows (a texture, a face of the sky, a light map, ...).
     pub what: String,
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
+    /// The PNG file's bytes.
     pub bytes: Vec<u8>,
 }
 

@@ -3,6 +3,7 @@
 //! Each section is shown through its kind in the registry of section kinds
 //! ([`crate::kinds::KINDS`]): its summary and, with `--full`, its data; kinds without views and
 //! unknown kinds are listed with their size, checksum and arrays only.
+#![warn(missing_docs)]
 
 pub mod images;
 

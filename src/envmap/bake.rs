@@ -157,7 +157,7 @@ pub fn trace_envmaps_range(
 
 /// The maps of the instances `subset` (indices below the scene's count), in that order: a
 /// high-ray reference of some instances (`bench::cluster`).
-pub fn bake_envmaps_subset(
+pub(crate) fn bake_envmaps_subset(
     scene: &EnvmapScene,
     opts: &EnvmapOptions,
     subset: &[usize],
@@ -166,7 +166,11 @@ pub fn bake_envmaps_subset(
 }
 
 /// [`bake_envmaps_subset`] with the half differences.
-pub fn trace_envmaps_subset(scene: &EnvmapScene, opts: &EnvmapOptions, subset: &[usize]) -> Traced {
+pub(crate) fn trace_envmaps_subset(
+    scene: &EnvmapScene,
+    opts: &EnvmapOptions,
+    subset: &[usize],
+) -> Traced {
     let sky_irr = scene.sky.to_irradiance();
     let (maps, diffs): (Vec<InstanceMaps>, Vec<Option<HalfDifference>>) = subset
         .par_iter()

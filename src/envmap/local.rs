@@ -222,7 +222,7 @@ pub fn jacobi_eigen_n(a: Vec<f64>, n: usize) -> (Vec<f64>, Vec<f64>) {
 }
 
 /// [`jacobi_eigen_n`] with a given sweep limit and stopping rule (Press et al. 1992).
-pub fn jacobi_eigen_with(
+pub(crate) fn jacobi_eigen_with(
     mut a: Vec<f64>,
     n: usize,
     sweeps: usize,

@@ -201,7 +201,7 @@ pub fn cluster_and_weigh(
 /// [`cluster_and_weigh`] with the input's noise estimate (`envmaps` section): with
 /// [`ClusterOptions::denoise`] the local part is Wiener-filtered with its covariance, and the
 /// metadata states the noise.
-pub fn cluster_and_weigh_noisy(
+fn cluster_and_weigh_noisy(
     positions: &[[f32; 3]],
     values: &[f32],
     dim: usize,
@@ -324,7 +324,7 @@ pub fn apply_weights(
 }
 
 /// [`apply_weights`] from the samples' values themselves (`rows`: samples × dim).
-pub fn apply_weights_rows(
+pub(crate) fn apply_weights_rows(
     rows: &[f32],
     dim: usize,
     k: usize,
@@ -382,17 +382,6 @@ pub fn to_world_frame(
         });
 }
 
-/// The environment-map stage on a pack: an `envmaps` section for the scene's instances.
-pub fn envmap_sections(
-    pack: &crate::pack::Pack,
-    opts: &bake::EnvmapOptions,
-) -> crate::error::Result<Vec<crate::pack::Section>> {
-    let light = crate::lightmap::scene_lighting(pack)?;
-    let scene = crate::trace::pack_scene::trace_scene(pack)?;
-    let traced = instance_traced(&scene, &light, opts, 0..scene.instance_count)?;
-    Ok(vec![envmaps_section(&traced, opts)])
-}
-
 /// The maps of the instances in `range` (a shard; every instance's maps depend on its index
 /// and the scene only, so shards concatenate to the maps of the whole range).
 pub fn instance_maps(
@@ -419,7 +408,7 @@ pub(crate) fn instance_traced(
 }
 
 /// The maps of the instances `subset` of a pack's scene (in that order).
-pub fn instance_maps_subset(
+pub(crate) fn instance_maps_subset(
     scene: &crate::trace::pack_scene::TraceScene,
     light: &crate::lightmap::BakeLight,
     opts: &bake::EnvmapOptions,
@@ -431,7 +420,7 @@ pub fn instance_maps_subset(
 }
 
 /// [`instance_maps_subset`] with the half differences (the noise estimate, [`bake::Traced`]).
-pub fn instance_traced_subset(
+pub(crate) fn instance_traced_subset(
     scene: &crate::trace::pack_scene::TraceScene,
     light: &crate::lightmap::BakeLight,
     opts: &bake::EnvmapOptions,
@@ -555,7 +544,8 @@ pub fn envmaps_section(traced: &bake::Traced, opts: &bake::EnvmapOptions) -> cra
 
 /// The clustering stage on a pack with `instances` and `envmaps`: the `clusters` section, whose
 /// sample values are in the world frame (see [`to_world_frame`]).
-pub fn cluster_sections(
+#[cfg(test)]
+pub(crate) fn cluster_sections(
     pack: &crate::pack::Pack,
     opts: &ClusterOptions,
     store_weights: bool,

@@ -55,7 +55,7 @@ pub(super) struct VertexAmbient {
 }
 
 /// The mean of instance lights (SH coefficients averaged); `None` for no instance.
-pub fn mean_env(envs: &[InstanceEnv]) -> Option<InstanceEnv> {
+pub(super) fn mean_env(envs: &[InstanceEnv]) -> Option<InstanceEnv> {
     if envs.is_empty() {
         return None;
     }
@@ -77,7 +77,12 @@ pub fn mean_env(envs: &[InstanceEnv]) -> Option<InstanceEnv> {
 /// of material `material`, seen from the front, under `env`: the renderer's
 /// [`side_radiance`] (full layout) times the material's `1/albedo_folded`, mixed per eq. 4.8
 /// with its translucence ([`mix_sides`]).
-pub fn vertex_radiance(prt: &PrtData, v: usize, material: usize, env: &InstanceEnv) -> [f32; 3] {
+pub(super) fn vertex_radiance(
+    prt: &PrtData,
+    v: usize,
+    material: usize,
+    env: &InstanceEnv,
+) -> [f32; 3] {
     let k = prt.albedo_scale(material);
     let sides =
         side_radiance(prt, PrtLayout::Full, v, env).map(|s| std::array::from_fn(|c| s[c] * k[c]));

@@ -19,8 +19,6 @@
 
 mod ambient;
 
-pub use ambient::{mean_env, vertex_radiance};
-
 use crate::error::{Error, ParseError, Result};
 use crate::ingest::instances_section::{self as instances, InstanceRecord, InstancesMeta};
 use crate::material::section::{self as material, MaterialMeta};
@@ -35,14 +33,14 @@ use std::io::{Seek, Write};
 use std::path::Path;
 
 /// Cells per side of one terrain chunk (one glTF primitive each).
-pub const TERRAIN_CHUNK: u32 = 64;
+pub(crate) const TERRAIN_CHUNK: u32 = 64;
 
 /// Luminous efficacy used to turn the sun's irradiance (W/m², linear RGB) into illuminance (lux):
 /// lux = 683 lm/W × Rec. 709 luminance of the RGB irradiance.
-pub const LUX_PER_WATT: f32 = 683.0;
+pub(crate) const LUX_PER_WATT: f32 = 683.0;
 
 /// The root node's rotation, Z-up to Y-up: −90° about +X, (x, y, z) → (x, z, −y).
-pub const Z_UP_TO_Y_UP: [f32; 4] = [
+pub(crate) const Z_UP_TO_Y_UP: [f32; 4] = [
     -std::f32::consts::FRAC_1_SQRT_2,
     0.0,
     0.0,
@@ -53,26 +51,26 @@ pub const Z_UP_TO_Y_UP: [f32; 4] = [
 const TERRAIN_GREY: f32 = 0.216;
 
 /// Illuminance in lux of a sun of RGB irradiance `e` (W/m²): [`LUX_PER_WATT`] · luminance(e).
-pub fn sun_lux(e: [f32; 3]) -> f32 {
+pub(crate) fn sun_lux(e: [f32; 3]) -> f32 {
     LUX_PER_WATT * crate::color::luminance(e)
 }
 
 /// glTF metallic-roughness roughness of a Schlick layer of roughness `r` (= roughness⁴ on import,
 /// docs/MATERIALS.md): r^(1/4), clamped to [0, 1].
-pub fn gltf_roughness(r: f32) -> f32 {
+pub(crate) fn gltf_roughness(r: f32) -> f32 {
     r.max(0.0).powf(0.25).min(1.0)
 }
 
 /// The quaternion (x, y, z, w) of a rotation by `deg` degrees about +Z (counter-clockwise from
 /// above, as ECO rotations are).
-pub fn rotation_z(deg: f32) -> [f32; 4] {
+pub(crate) fn rotation_z(deg: f32) -> [f32; 4] {
     let (s, c) = (deg.to_radians() * 0.5).sin_cos();
     [0.0, 0.0, s, c]
 }
 
 /// What an export wrote.
 #[derive(Debug, Clone, Default, serde::Serialize)]
-pub struct ExportReport {
+pub(crate) struct ExportReport {
     pub meshes: usize,
     pub nodes: usize,
     pub materials: usize,
@@ -100,7 +98,7 @@ pub struct ExportReport {
 
 /// What [`export`] writes beside the container.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ExportOptions {
+pub(crate) struct ExportOptions {
     pub container: Container,
     /// Multiply the terrain's light map into its base colour, the material unlit
     /// (`KHR_materials_unlit`), so that viewers without light-map support show the baked light.
@@ -115,21 +113,9 @@ pub struct ExportOptions {
     pub normal_maps: bool,
 }
 
-impl ExportOptions {
-    pub fn new(container: Container) -> ExportOptions {
-        ExportOptions {
-            container,
-            bake_light: false,
-            vertex_ambient: false,
-            lod: false,
-            normal_maps: false,
-        }
-    }
-}
-
 /// The output container.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Container {
+pub(crate) enum Container {
     /// Binary glTF: JSON and buffer in one file.
     Glb,
     /// JSON glTF, the buffer embedded as a base64 data URI (no side files).
@@ -1210,7 +1196,7 @@ fn unit(n: [f32; 3]) -> [f32; 3] {
 /// end: a failed export leaves no output); returns what it holds. The binary buffer is streamed
 /// to disk as it is made, so memory holds one section's arrays at a time, not the file. Fails
 /// (invalid input) on a pack without any mesh section, before anything is created.
-pub fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportReport> {
+pub(crate) fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<ExportReport> {
     let container = opts.container;
     if pack.of_kind(mesh::KIND).next().is_none() {
         return Err(Error::invalid_at(

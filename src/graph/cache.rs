@@ -24,6 +24,7 @@ const ENTRY_NAME: &str = "entry:meta";
 pub struct Key(pub [u8; 32]);
 
 impl Key {
+    /// The key in lower-case hex (the entry's file name).
     pub fn hex(&self) -> String {
         hex(&self.0)
     }
@@ -34,6 +35,7 @@ impl Key {
 pub struct KeyBuilder(blake3::Hasher);
 
 impl KeyBuilder {
+    /// A key begun with the bake's version, the stage, its version and the unit.
     pub fn new(bake_version: &str, stage: &str, stage_version: u32, unit: &str) -> KeyBuilder {
         let mut k = KeyBuilder(blake3::Hasher::new());
         k.part(b"bake-stage-key");
@@ -66,6 +68,7 @@ impl KeyBuilder {
         self
     }
 
+    /// The key of the parts added.
     pub fn finish(&self) -> Key {
         Key(*self.0.finalize().as_bytes())
     }
@@ -79,9 +82,13 @@ pub use crate::report::record::FileDep;
 /// What an entry stores besides its sections.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EntryMeta {
+    /// The stage that made the entry.
     pub stage: String,
+    /// The unit (a model's name, `terrain`, `scene`, a shard).
     pub unit: String,
+    /// The stage's report for the unit.
     pub report: serde_json::Value,
+    /// The unit's warnings.
     pub warnings: Vec<Warning>,
     /// Files read beyond those in the key (textures found while reading a model).
     pub files: Vec<FileDep>,
@@ -91,13 +98,17 @@ pub struct EntryMeta {
 
 /// A cache hit: the sections (mapped from the entry file) and the entry's record.
 pub struct Entry {
+    /// The unit's sections.
     pub sections: Vec<Section>,
+    /// The entry's record.
     pub meta: EntryMeta,
 }
 
 /// What a lookup found.
 pub enum Lookup {
+    /// Found and intact.
     Hit(Entry),
+    /// Not in the cache.
     Miss,
     /// An entry exists but is damaged (it has been removed); the message says how.
     Corrupt(String),
@@ -106,8 +117,11 @@ pub enum Lookup {
 /// Entry count and size of a cache folder.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct CacheStats {
+    /// The cache folder.
     pub dir: PathBuf,
+    /// Entries.
     pub entries: u64,
+    /// Bytes of the entries.
     pub bytes: u64,
     /// Temporary files left by killed bakes.
     pub stale_temporaries: u64,
@@ -139,10 +153,12 @@ pub fn default_dir(output: &Path) -> PathBuf {
 }
 
 impl Cache {
+    /// The cache in folder `dir` (created when first stored to).
     pub fn new(dir: impl Into<PathBuf>) -> Cache {
         Cache { dir: dir.into() }
     }
 
+    /// The cache's folder.
     pub fn dir(&self) -> &Path {
         &self.dir
     }

@@ -23,6 +23,7 @@
 //! ingest keys name files relative to the scene's roots ([`SourceNames`]), cache entries record
 //! the files they read by those names, so the same scene baked from another folder, or by
 //! another spelling of its path, gives the same bytes and hits the same entries.
+#![warn(missing_docs)]
 
 pub mod cache;
 pub mod preset;
@@ -61,6 +62,7 @@ pub mod versions {
     pub const INGEST: u32 = 4;
     /// 2: Xfrog's default material gets the thesis' leaf (issue 16).
     pub const MATERIAL: u32 = 2;
+    /// 1: the terrain's four-tap heights, normal map and min/max quadtree.
     pub const TERRAIN: u32 = 1;
     /// 2: the sun's energy kept through resampling, the ring-mean replacement (issue 16).
     /// 3: resampling angles from tables shared between faces and a polynomial atan2 (≤ 1.2e-8
@@ -122,6 +124,7 @@ pub enum CacheMode {
     /// [`cache::default_dir`].
     #[default]
     Default,
+    /// This folder.
     Dir(PathBuf),
     /// Compute everything (and do not skip an up-to-date output).
     Off,
@@ -130,13 +133,19 @@ pub enum CacheMode {
 /// Options of [`build`].
 #[derive(Debug, Clone, Default)]
 pub struct BuildOptions {
+    /// The ECO scene files (the first names the scene; the others add placements).
     pub scenes: Vec<PathBuf>,
+    /// The pack to write (default: the first scene with the extension `.bake`).
     pub output: Option<PathBuf>,
+    /// An HDR sky image (`--sky`; the built-in clear sky without it).
     pub sky: Option<PathBuf>,
+    /// How inputs are read: `--models` folders, allowed paths, the memory budget.
     pub ingest: IngestOptions,
+    /// What every stage computes and with which options.
     pub pipeline: Pipeline,
     /// The pipeline file the options came from (a dependency of the output).
     pub pipeline_file: Option<PathBuf>,
+    /// Where units are cached.
     pub cache: CacheMode,
     /// Write the files read as a Makefile rule here.
     pub depfile: Option<PathBuf>,
@@ -155,19 +164,23 @@ impl BuildOptions {
 /// One stage unit's record in the report.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct StageRecord {
+    /// The stage's name.
     pub stage: String,
+    /// The unit's name (a model's, `terrain`, `scene`, a shard's instances).
     pub unit: String,
     /// "hit", "miss" or "off".
     pub cache: &'static str,
     /// Seconds from the start of the bake to the start of this unit (the timeline of
     /// `bake report`).
     pub start_seconds: f64,
+    /// Seconds the unit ran (0 for a hit).
     pub wall_seconds: f64,
     /// The process's CPU time (all threads) while the unit ran: units that run at the same
     /// time each count their overlap.
     pub cpu_seconds: f64,
     /// `cpu_seconds / wall_seconds`: how many cores were busy while the unit ran.
     pub busy_cores: f64,
+    /// The names of the sections the unit wrote.
     pub outputs: Vec<String>,
     /// The stage's own report (counts).
     pub report: Value,
@@ -176,24 +189,39 @@ pub struct StageRecord {
 /// What a build did (`--json`; docs/REPORT.md).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct BuildReport {
+    /// The report's schema name and version (docs/REPORT.md).
     pub schema: &'static str,
+    /// The pack written.
     pub output: PathBuf,
     /// The output was up to date and left as it was.
     pub up_to_date: bool,
+    /// Sections in the pack.
     pub sections: usize,
+    /// Bytes of the pack file.
     pub bytes: u64,
     /// BLAKE3 of the pack file as written (hex); `None` when the output was up to date.
     pub pack_blake3: Option<String>,
+    /// Models placed by the scene.
     pub models: usize,
+    /// Instances placed.
     pub instances: usize,
+    /// Triangles of the models (level 0).
     pub triangles: u64,
+    /// Every warning of the bake, with its id (docs/DIAGNOSTICS.md).
     pub warnings: Vec<Warning>,
+    /// Seconds of the whole bake.
     pub wall_seconds: f64,
+    /// CPU seconds of the whole bake (all threads).
     pub cpu_seconds: f64,
+    /// Peak resident memory of the process.
     pub peak_rss_bytes: u64,
+    /// The cache folder used (`None` with the cache off).
     pub cache: Option<PathBuf>,
+    /// Units served from the cache.
     pub cache_hits: usize,
+    /// Units computed.
     pub cache_misses: usize,
+    /// Every unit's record, in the order they finished.
     pub stages: Vec<StageRecord>,
     /// Every file the bake read (what `--depfile` writes).
     pub files: Vec<PathBuf>,
@@ -211,11 +239,15 @@ pub fn process_usage() -> (f64, u64) {
 }
 
 /// What a unit computed: sections, the stage's report, warnings, files read beyond its key.
-#[derive(Default)]
+#[derive(Debug, Default)]
 pub struct Output {
+    /// The unit's sections.
     pub sections: Vec<Section>,
+    /// The stage's report (counts).
     pub report: Value,
+    /// The unit's warnings.
     pub warnings: Vec<Warning>,
+    /// Files read beyond the unit's key (a model's textures).
     pub files: Vec<FileDep>,
 }
 

@@ -75,17 +75,29 @@ impl Default for Units {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Pipeline {
+    /// Which stages run.
     pub stages: Stages,
+    /// How the graph splits stages into units (the env-map shards).
     pub units: Units,
+    /// The `material` stage.
     pub material: MaterialOptions,
+    /// The `sky` stage.
     pub sky: SkyOptions,
+    /// The `prt` stage.
     pub prt: PrtOptions,
+    /// The `lod` stage.
     pub lod: LodOptions,
+    /// The `lightmap` and `atlas` stages.
     pub lightmap: LightmapOptions,
+    /// The `envmaps` stage.
     pub envmaps: EnvmapOptions,
+    /// The `cluster` stage.
     pub cluster: ClusterOptions,
+    /// The `bittree` stage.
     pub bittree: BitTreeOptions,
+    /// The `svo` stage.
     pub svo: VoxelizeOptions,
+    /// The `linespace` stage.
     pub linespace: NTreeOptions,
 }
 

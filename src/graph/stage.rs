@@ -18,10 +18,19 @@
 //! terrain's and the models' sections from the scene plan, then [`Phase::Source`] stages
 //! `ingest`, `material`, `terrain`, which the graph and the `terrain` and `model` actions call
 //! through the registry at fixed places), the instances and the build record; the sharding of
-//! `envmaps` (by instances) and of the terrain light map (by rows, plans only); the per-stage
-//! subcommands (`bake prt`, `bake lod`, ...), which call their stage's functions directly.
+//! `envmaps` (by instances) and of the terrain light map (by rows, plans only).
 //! `bake unit`'s subcommands of the registered stages are made from the registry
 //! (`cli::unit::StageUnit`) and run through [`crate::plan::actions::stage_unit`].
+//!
+//! One entry runs a unit outside the graph, [`run_unit`]: the plan's actions call it, and so do
+//! the per-stage subcommands through [`pack_unit`] (`bake prt` and `bake lod` per mesh,
+//! `bake material`, `bake terrain`, `bake lightmap` (the `lightmap` and `atlas` units),
+//! `bake envmaps` (one shard of every instance, then [`join_units`])). Still calling their
+//! stage's functions, because they do more than the registered unit: `bake sky` (several input
+//! files, the built-in sky's parameters, `--sh-only`), `bake cluster` (`--weights`, which the
+//! `cluster` unit has no option for), `bake bittree` (reads the pack's `instances` section; the
+//! unit reads the scene's plan), `bake svo` and `bake linespace` (also take a model file,
+//! voxelized in its own frame).
 
 use super::cache::{self, Key, KeyBuilder};
 use super::stages::{Per, StageDef};
@@ -98,6 +107,7 @@ pub struct Scope<'a> {
     pub view_name: &'a str,
     /// The scene's source, as sections record it (the first ECO file by name).
     pub source: &'a str,
+    /// The memory budget the stages check sizes against.
     pub limits: &'a Limits,
     /// The first scene file (for errors).
     pub first: &'a Path,
@@ -108,6 +118,7 @@ pub struct Scope<'a> {
     pub plan: Option<&'a ScenePlan>,
     /// The names of the scene's files and the policy models are read under (a model's ingest).
     pub names: Option<&'a SourceNames>,
+    /// The policy models are read under (a model's ingest).
     pub policy: Option<&'a crate::ingest::ReadPolicy>,
 }
 
@@ -122,9 +133,11 @@ pub struct UnitInputs<'a> {
     /// The sections in scope that the stage does not declare: (name, kind).
     undeclared: Vec<(String, String)>,
     view: Pack,
+    /// The bake's arguments.
     pub scope: &'a Scope<'a>,
     /// The model of a per-model unit: its name in the scene and its file.
     pub model: Option<(&'a str, &'a Path)>,
+    /// The shard of a sharded stage's unit.
     pub shard: Option<Shard>,
 }
 
@@ -276,7 +289,9 @@ impl TraceCell {
 
 /// What a unit's `run` is given: its inputs, a progress callback, the trace structures.
 pub struct UnitCtx<'a> {
+    /// The unit's declared inputs.
     pub inputs: &'a UnitInputs<'a>,
+    /// Reports work done (for the progress bar).
     pub progress: &'a (dyn Fn(u64) + Sync),
     trace: Option<&'a TraceCell>,
 }
@@ -289,6 +304,7 @@ impl<'a> std::ops::Deref for UnitCtx<'a> {
 }
 
 impl<'a> UnitCtx<'a> {
+    /// A context over `inputs`, with `trace` for the stages that trace.
     pub fn new(
         inputs: &'a UnitInputs<'a>,
         progress: &'a (dyn Fn(u64) + Sync),
@@ -325,6 +341,7 @@ pub struct StageKey<'u> {
 }
 
 impl<'u> StageKey<'u> {
+    /// A key begun by `k` over the unit `u`'s inputs.
     pub fn new(k: KeyBuilder, u: &'u UnitInputs<'u>) -> StageKey<'u> {
         StageKey {
             k,
@@ -333,6 +350,7 @@ impl<'u> StageKey<'u> {
         }
     }
 
+    /// Hashes the options (serialized).
     pub fn options(&mut self, o: &impl Serialize) -> &mut Self {
         self.k.options(o);
         self
@@ -353,6 +371,7 @@ impl<'u> StageKey<'u> {
         self
     }
 
+    /// The key, or an error if it skipped the declared sections.
     pub fn finish(&self) -> Result<Key> {
         if !self.hashed && !self.u.reads.kinds.is_empty() {
             return Err(Error::runtime(format!(
@@ -371,10 +390,13 @@ pub trait Stage: Sync {
     /// Its name, version, what a unit covers, the kinds it writes and its `bake unit` actions
     /// (a `static` in the impl).
     fn def(&self) -> &'static StageDef;
+    /// What its units read.
     fn reads(&self) -> Reads;
     /// Whether the pipeline turns it on.
     fn on(&self, p: &Pipeline) -> bool;
+    /// Its options in the pipeline.
     fn options<'p>(&'p self, p: &'p Pipeline) -> &'p Self::Options;
+    /// Where it runs: by default a per-model stage beside the scene's units, others once over the scene.
     fn phase(&self) -> Phase {
         match self.def().per {
             Per::Model => Phase::Model,
@@ -417,15 +439,23 @@ pub trait Stage: Sync {
 
 /// [`Stage`] without its options type: what the registry holds.
 pub trait AnyStage: Sync {
+    /// [`Stage::def`].
     fn def(&self) -> &'static StageDef;
+    /// [`Stage::reads`].
     fn reads(&self) -> Reads;
+    /// [`Stage::on`].
     fn on(&self, p: &Pipeline) -> bool;
+    /// [`Stage::phase`].
     fn phase(&self) -> Phase;
+    /// [`Stage::unit_name`].
     fn unit_name(&self, model: Option<&str>, shard: Option<&Shard>) -> String;
+    /// [`Stage::total`].
     fn total(&self, u: &UnitInputs) -> Option<u64>;
     /// The unit's key, begun by `k` (the bake version, stage, version and unit).
     fn key(&self, u: &UnitInputs, p: &Pipeline, k: KeyBuilder) -> Result<Key>;
+    /// [`Stage::run`] with the pipeline's options for the stage.
     fn run(&self, cx: &UnitCtx, p: &Pipeline) -> Result<Output>;
+    /// [`Stage::join`] with the pipeline's options for the stage.
     fn join(&self, parts: Vec<(usize, Vec<Section>)>, p: &Pipeline) -> Result<Vec<Section>>;
 }
 
@@ -459,6 +489,159 @@ impl<S: Stage> AnyStage for S {
     fn join(&self, parts: Vec<(usize, Vec<Section>)>, p: &Pipeline) -> Result<Vec<Section>> {
         Stage::join(self, parts, self.options(p))
     }
+}
+
+/// One unit of the registered stage `st` outside the graph: its declared inputs among
+/// `candidates` (the sections in the unit's scope), the trace structures built over them where
+/// declared, no cache. The one entry by which a stage runs besides [`super::build`]: the
+/// actions of a plan (`bake unit`, `crate::plan::actions::stage_unit`) and the per-stage
+/// subcommands (`bake prt`, `bake lod`, ...: [`pack_unit`]) call it.
+pub fn run_unit(
+    st: &dyn AnyStage,
+    scope: &Scope,
+    candidates: &[Section],
+    model: Option<(&str, &Path)>,
+    shard: Option<Shard>,
+    progress: &(dyn Fn(u64) + Sync),
+    p: &Pipeline,
+) -> Result<Output> {
+    let u = UnitInputs::new(st, scope, candidates, model, shard);
+    let trace = st.reads().trace.then(|| TraceCell::new(&u));
+    st.run(&UnitCtx::new(&u, progress, trace.as_ref()), p)
+}
+
+/// One unit of the registered stage `stage` for a stage command (`bake prt`, `bake lod`, ...),
+/// through the registry's one entry ([`run_unit`]), as `bake unit` and the
+/// graph run it: over `sections` (the command's pack; the unit reads those of its declared
+/// kinds), named after `input` (in errors, and as the scene's source the sections record), with
+/// the options of `p`. `mesh`: the mesh section (`mesh:<model>`) of a per-model unit.
+pub fn pack_unit(
+    stage: &str,
+    input: &Path,
+    sections: &[Section],
+    p: &Pipeline,
+    mesh: Option<&str>,
+    shard: Option<Shard>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Output> {
+    pack_unit_of(
+        find_or_err(stage)?,
+        input,
+        sections,
+        p,
+        mesh,
+        shard,
+        progress,
+    )
+}
+
+/// The registered stage named `stage`, or an error.
+fn find_or_err(stage: &str) -> Result<&'static dyn AnyStage> {
+    find(stage).ok_or_else(|| Error::runtime(format!("no registered stage {stage:?}")))
+}
+
+/// [`pack_unit`] of the stage `st` (a test's toy stage too).
+fn pack_unit_of(
+    st: &dyn AnyStage,
+    input: &Path,
+    sections: &[Section],
+    p: &Pipeline,
+    mesh: Option<&str>,
+    shard: Option<Shard>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Output> {
+    let model = match mesh {
+        Some(m) => Some(
+            m.strip_prefix("mesh:")
+                .filter(|n| !n.is_empty())
+                .ok_or_else(|| {
+                    Error::invalid_at(
+                        input,
+                        format!("section {m:?}"),
+                        "a mesh section's name is mesh:<model>",
+                    )
+                })?,
+        ),
+        None => None,
+    };
+    let view_name = input.display().to_string();
+    let source = crate::ingest::confine::SourceNames::first_name(input);
+    let limits = crate::ingest::limits::Limits::DEFAULT;
+    let scope = Scope {
+        view_name: &view_name,
+        source: &source,
+        limits: &limits,
+        first: input,
+        sky: None,
+        plan: None,
+        names: None,
+        policy: None,
+    };
+    run_unit(
+        st,
+        &scope,
+        sections,
+        model.map(|m| (m, input)),
+        shard,
+        progress,
+        p,
+    )
+}
+
+/// The sections of `pack` of the kinds the registered stage `stage` declares (checksums
+/// checked), sharing its memory: a stage command's candidates for [`pack_unit`].
+pub fn pack_sections(pack: &Pack, stage: &str) -> Result<Vec<Section>> {
+    let kinds = find_or_err(stage)?.reads().kinds;
+    let mut out = Vec::new();
+    for e in pack.sections() {
+        if !kinds.contains(&e.kind.as_str()) {
+            continue;
+        }
+        if !pack.checksum_ok(e) {
+            return Err(Error::invalid_at(
+                pack.path(),
+                format!("section {:?} at byte {}", e.name, e.offset),
+                "checksum mismatch: the pack is corrupt",
+            ));
+        }
+        out.push(Section {
+            kind: e.kind.clone(),
+            name: e.name.clone(),
+            payload: pack.shared_payload(e),
+        });
+    }
+    Ok(out)
+}
+
+/// The registered per-model stage `stage` over every mesh section of `pack` (read as `input`)
+/// through [`pack_unit`], the meshes side by side: each unit's output, in the pack's order.
+pub fn pack_mesh_units(
+    stage: &str,
+    pack: &Pack,
+    input: &Path,
+    p: &Pipeline,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<Output>> {
+    use rayon::prelude::*;
+    let candidates = pack_sections(pack, stage)?;
+    let meshes: Vec<&str> = pack
+        .of_kind(crate::mesh::section::KIND)
+        .map(|e| e.name.as_str())
+        .collect();
+    meshes
+        .par_iter()
+        .map(|m| pack_unit(stage, input, &candidates, p, Some(m), None, progress))
+        .collect()
+}
+
+/// The registered stage `stage`'s sections from its units' ([`AnyStage::join`]: each unit's
+/// number of instances and sections, in unit order), for a stage command.
+pub fn join_units(
+    stage: &str,
+    parts: Vec<(usize, Vec<Section>)>,
+    p: &Pipeline,
+) -> Result<Vec<Section>> {
+    find_or_err(stage)?.join(parts, p)
 }
 
 /// Every stage, in the order of the build key (do not reorder: the key hashes this order; a
@@ -1299,6 +1482,62 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A pack with an `instances` section (of no instance) and a `sun` section.
+    fn instances_and_sun() -> Vec<Section> {
+        let inst = crate::ingest::instances_section::to_section(
+            "instances",
+            &crate::model::Instances::default(),
+            Vec::new(),
+        );
+        let mut b = crate::pack::SectionBuilder::new("sun", crate::sky::SUN_SECTION);
+        b.meta(&0u32);
+        vec![inst, b.finish()]
+    }
+
+    #[test]
+    fn a_stage_command_s_unit_sees_only_its_declared_kinds() {
+        let sections = instances_and_sun();
+        let input = Path::new("in.bake");
+        let p = Pipeline::default();
+        let o = pack_unit_of(&toy::TOY, input, &sections, &p, None, None, &|_| {}).unwrap();
+        // The toy declares `instances` only: its view held that one section.
+        let v = crate::pack::section::SectionView::parse(&o.sections[0].payload, 0).unwrap();
+        let meta: toy::ToyMeta = v.meta().unwrap();
+        assert_eq!(meta.sections, 1);
+        assert_eq!(meta.instances, crate::pack::hex(sections[0].payload.hash()));
+        // Asking for the undeclared `sun` section is refused, naming it.
+        let e = pack_unit_of(&toy::GREEDY, input, &sections, &p, None, None, &|_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("\"sun\"") && e.contains("does not declare"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_stage_command_refuses_a_mesh_section_not_named_after_its_model() {
+        let p = Pipeline::default();
+        for bad in ["box", "mesh:"] {
+            let e = pack_unit(
+                "lod",
+                Path::new("in.bake"),
+                &[],
+                &p,
+                Some(bad),
+                None,
+                &|_| {},
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("mesh:<model>") && e.contains("in.bake"), "{e}");
+        }
+        let e = pack_unit("nope", Path::new("in.bake"), &[], &p, None, None, &|_| {})
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no registered stage \"nope\""), "{e}");
     }
 
     #[test]

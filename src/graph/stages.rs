@@ -34,6 +34,7 @@ pub struct StageDef {
     pub name: &'static str,
     /// Bumped when its output changes for the same inputs (the constants of [`super::versions`]).
     pub version: u32,
+    /// What one unit covers.
     pub per: Per,
     /// The section kinds its units write.
     pub writes: &'static [&'static str],

@@ -9,25 +9,40 @@ use crate::pack::section::{ArrayInfo, SectionView};
 pub enum Finding {
     /// A broken rule: check id, array, offset from the payload's start, message.
     Rule {
+        /// The rule's stable id.
         check: &'static str,
+        /// The array, when the rule is about one.
         array: Option<String>,
+        /// Offset of the first offending byte from the payload's start.
         offset: u64,
+        /// What is wrong.
         message: String,
     },
     /// `field` names section `target`, which must be of kind `kind`.
     Reference {
+        /// The metadata field that names the section.
         field: &'static str,
+        /// The section it names.
         target: String,
+        /// The kind the named section must have.
         kind: &'static str,
     },
     /// `array` has `count` entries per vertex of mesh section `mesh`.
     VertexCount {
+        /// The mesh section.
         mesh: String,
+        /// Entries per vertex.
         count: u64,
+        /// The array.
         array: &'static str,
     },
     /// A section baked for a mesh of `vertices` vertices (`lod`): stale when the mesh differs.
-    BakedFor { mesh: String, vertices: u64 },
+    BakedFor {
+        /// The mesh section.
+        mesh: String,
+        /// Its vertex count when the section was baked.
+        vertices: u64,
+    },
 }
 
 /// What a kind's check found in one section, in order.

@@ -6,6 +6,7 @@
 //! Adding a kind: write its codec beside its stage (`to_section`, `from_section`, `summary`,
 //! `data`), add one [`SectionKind`] here and its row to docs/FORMAT.md ("Section kinds"; the
 //! test `every_registered_kind_has_its_format_row` fails until you do).
+#![warn(missing_docs)]
 
 mod checks;
 
@@ -55,9 +56,11 @@ impl Naming {
 pub struct SectionKind {
     /// The kind label of the section table.
     pub kind: &'static str,
+    /// How its sections are named.
     pub naming: Naming,
     /// Every array a section of the kind may have.
     pub arrays: Schema,
+    /// Its decoder, run for its errors only.
     pub decode: DecodeFn,
     /// `bake dump`'s summary and full-data views; `None`: listed with its arrays only.
     pub views: Option<(ViewFn, ViewFn)>,

@@ -360,7 +360,7 @@ pub struct HorizonTexel<'a> {
 ///   max(L, 0) − L (zero unless the SH sky is negative there). A ray below the horizon is traced
 ///   through the whole scene. Where nothing but the terrain occludes, the sky term has no noise.
 #[allow(clippy::too_many_arguments)]
-pub fn texel_horizon_parts(
+fn texel_horizon_parts(
     bvh: &dyn SceneTracer,
     albedo: &[[f32; 3]],
     light: &BakeLight,
@@ -483,7 +483,7 @@ pub fn texel_irradiance(
 /// [`texel_irradiance`] and its direct-sun part `E_sun · max(0, n·s) · V` (what
 /// [`terrain_direct_sun`] recomputes), from one pass.
 #[allow(clippy::too_many_arguments)]
-pub fn texel_irradiance_parts(
+fn texel_irradiance_parts(
     bvh: &dyn SceneTracer,
     albedo: &[[f32; 3]],
     light: &BakeLight,
@@ -631,8 +631,9 @@ pub fn scene_lighting(pack: &crate::pack::Pack) -> crate::error::Result<BakeLigh
     Ok(BakeLight { sky, sun })
 }
 
-/// The light-map stage on a pack: a `lightmap` section for the terrain.
-pub fn lightmap_sections(
+/// (Tests.) The light-map stage on a pack: a `lightmap` section for the terrain.
+#[cfg(test)]
+pub(crate) fn lightmap_sections(
     pack: &crate::pack::Pack,
     opts: &LightmapOptions,
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
@@ -641,7 +642,8 @@ pub fn lightmap_sections(
     terrain_sections(&scene, &light, opts)
 }
 
-/// [`lightmap_sections`] with the scene and its light at hand (empty without a terrain).
+/// The terrain's `lightmap` section over the scene and its light (empty without a terrain): the
+/// registered `lightmap` unit.
 pub fn terrain_sections(
     scene: &TraceScene,
     light: &BakeLight,
@@ -766,17 +768,8 @@ pub fn terrain_direct_sun(
 }
 
 /// The light maps of the placed meshes: a `lightmap` section `lightmap:<mesh section>` (an atlas,
-/// [`atlas_section`]) for every model placed at most `max_instances` times.
-pub fn atlas_sections(
-    pack: &crate::pack::Pack,
-    opts: &LightmapOptions,
-) -> crate::error::Result<Vec<crate::pack::Section>> {
-    let light = scene_lighting(pack)?;
-    let scene = crate::trace::pack_scene::trace_scene(pack)?;
-    object_sections(pack, &scene, &light, opts)
-}
-
-/// [`atlas_sections`] with the scene and its light at hand.
+/// [`atlas_section`]) for every model placed at most `opts.max_instances` times, over the scene
+/// and its light (the registered `atlas` unit).
 pub fn object_sections(
     pack: &crate::pack::Pack,
     scene: &TraceScene,

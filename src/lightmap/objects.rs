@@ -120,7 +120,7 @@ pub fn bake_object_lightmap(
 }
 
 /// [`bake_object_lightmap`] with a given layout.
-pub fn bake_with_layout(
+fn bake_with_layout(
     bvh: &dyn SceneTracer,
     albedo: &[[f32; 3]],
     light: &BakeLight,

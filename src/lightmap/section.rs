@@ -58,7 +58,7 @@ pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
 /// bounced light only, `max(0, E − direct)`, f32×4 with A = 1), which the renderer's ambient
 /// term reads. `direct` is the direct-sun part of every texel. Both arrays are written straight
 /// into the section (a 4097² map would otherwise be held three times over).
-pub fn to_section_with_indirect(
+pub(crate) fn to_section_with_indirect(
     name: &str,
     meta: &impl Serialize,
     map: &Lightmap,

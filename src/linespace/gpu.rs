@@ -276,7 +276,7 @@ impl<'g> NTreeGpu<'g> {
 
     /// [`Self::shadow_fractions`], or with `linespaces == false` the exact N-tree traversal
     /// (every filled leaf on the way tested exactly: ray-traced visibility, same segments).
-    pub fn shadow_fractions_with(
+    pub(crate) fn shadow_fractions_with(
         &self,
         receivers: &[Receiver],
         light: &AreaLight,

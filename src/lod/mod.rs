@@ -20,10 +20,10 @@ pub use simplify::LodOptions;
 use crate::error::{Error, Result};
 use crate::model::Rgba8Image;
 use crate::pack::{Pack, Section};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// One level in the report.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LevelReport {
     pub triangles: u32,
     pub vertices: u32,
@@ -33,7 +33,7 @@ pub struct LevelReport {
 }
 
 /// What `bake lod` did for one mesh.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LodReport {
     pub mesh: String,
     pub section: String,
@@ -194,28 +194,4 @@ pub fn impostor_error(radius: f32, grid: u32, tile: u32) -> f32 {
     }
     let sin = (1.0 - cos_min.clamp(-1.0, 1.0).powi(2)).sqrt();
     radius * (sin + std::f32::consts::SQRT_2 / tile.max(1) as f32)
-}
-
-/// [`bake_lod`] for every mesh section of `pack` (in parallel, results in the pack's order):
-/// the pack's sections with the `lod` sections inserted (replacing older ones).
-pub fn lod_pack(
-    pack: &Pack,
-    opts: &LodOptions,
-) -> Result<(crate::pack::PackWriter, Vec<LodReport>)> {
-    use rayon::prelude::*;
-    let meshes: Vec<String> = pack
-        .of_kind(crate::mesh::section::KIND)
-        .map(|e| e.name.clone())
-        .collect();
-    let done: Vec<(Section, LodReport)> = meshes
-        .par_iter()
-        .map(|m| bake_lod(pack, m, opts))
-        .collect::<Result<_>>()?;
-    let mut w = crate::pack::PackWriter::from_pack(pack);
-    let mut reports = Vec::new();
-    for (s, r) in done {
-        w.insert(s);
-        reports.push(r);
-    }
-    Ok((w, reports))
 }

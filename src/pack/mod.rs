@@ -8,6 +8,7 @@
 //! Writes are atomic: the whole file goes to a temporary file in the target folder, which is
 //! renamed over the target only when complete, so a failed bake never leaves a broken pack and
 //! never destroys the previous one.
+#![warn(missing_docs)]
 
 use crate::error::{Error, ParseError, Result};
 use memmap2::Mmap;
@@ -41,7 +42,9 @@ pub const NAME_LEN: usize = 96;
 /// One encoded section, ready to be written.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Section {
+    /// The section's kind (docs/FORMAT.md, "Section kinds").
     pub kind: String,
+    /// The section's name, unique in a pack.
     pub name: String,
     /// The encoded payload (sub-header, directory, metadata, arrays).
     pub payload: Payload,
@@ -168,6 +171,7 @@ pub struct PackWriter {
 }
 
 impl PackWriter {
+    /// An empty pack.
     pub fn new() -> Self {
         Self::default()
     }
@@ -200,6 +204,7 @@ impl PackWriter {
         self.sections.retain(|s| s.kind != kind);
     }
 
+    /// The sections, in pack order.
     pub fn sections(&self) -> &[Section] {
         &self.sections
     }
@@ -549,7 +554,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// As [`write_atomic`], the bytes written by `write` (through a buffer) instead of a slice: an
 /// output larger than memory is streamed. Returns what `write` returns; on its error the
 /// temporary file is removed and `path` is untouched.
-pub fn write_atomic_with<T>(
+pub(crate) fn write_atomic_with<T>(
     path: &Path,
     write: impl FnOnce(&mut dyn Write) -> Result<T>,
 ) -> Result<T> {
@@ -610,11 +615,17 @@ pub(crate) fn get_u64(b: &[u8], at: usize) -> u64 {
 /// One entry of the section table.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SectionEntry {
+    /// The section's kind.
     pub kind: String,
+    /// The section's name.
     pub name: String,
+    /// Byte offset of the payload in the file.
     pub offset: u64,
+    /// Bytes of the payload.
     pub size: u64,
+    /// Alignment of the payload in the file.
     pub alignment: u32,
+    /// BLAKE3 of the payload.
     pub checksum: [u8; 32],
 }
 
@@ -737,12 +748,15 @@ impl Pack {
             .collect()
     }
 
+    /// The file the pack was read from (or the name it was given).
     pub fn path(&self) -> &Path {
         &self.path
     }
+    /// The container's format version.
     pub fn version(&self) -> u32 {
         self.version
     }
+    /// The section table, in pack order.
     pub fn sections(&self) -> &[SectionEntry] {
         &self.entries
     }

@@ -27,17 +27,24 @@ pub const ARRAY_ALIGN: usize = 16;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]
 pub enum ArrayFormat {
+    /// Unsigned 8-bit.
     U8 = 1,
+    /// Unsigned 16-bit.
     U16 = 2,
+    /// Unsigned 32-bit.
     U32 = 3,
+    /// Signed 32-bit.
     I32 = 4,
+    /// 32-bit float.
     F32 = 5,
     /// IEEE half floats stored as u16 bits.
     F16 = 6,
+    /// Unsigned 64-bit.
     U64 = 7,
 }
 
 impl ArrayFormat {
+    /// Bytes of one component.
     pub fn size(self) -> usize {
         match self {
             ArrayFormat::U8 => 1,
@@ -46,6 +53,7 @@ impl ArrayFormat {
             ArrayFormat::U64 => 8,
         }
     }
+    /// The format of its code in a section directory.
     pub fn from_u32(v: u32) -> Option<Self> {
         Some(match v {
             1 => ArrayFormat::U8,
@@ -58,6 +66,7 @@ impl ArrayFormat {
             _ => return None,
         })
     }
+    /// Its name in the docs and dumps (`u8`, `f32`, ...).
     pub fn name(self) -> &'static str {
         match self {
             ArrayFormat::U8 => "u8",
@@ -99,6 +108,7 @@ pub struct SectionBuilder<'a> {
 }
 
 impl<'a> SectionBuilder<'a> {
+    /// A section of kind `kind` named `name`, with no metadata or arrays yet.
     pub fn new(kind: &str, name: &str) -> Self {
         Self {
             kind: kind.to_string(),
@@ -223,14 +233,20 @@ impl<'a> SectionBuilder<'a> {
 /// Directory entry of one array.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ArrayInfo {
+    /// The array's name.
     pub name: String,
+    /// Its component format.
     pub format: ArrayFormat,
+    /// Components per element.
     pub components: u32,
+    /// Elements.
     pub count: u64,
+    /// Byte offset of its data in the payload.
     pub offset: u64,
 }
 
 impl ArrayInfo {
+    /// Bytes of its data.
     pub fn byte_len(&self) -> u64 {
         self.count * self.components as u64 * self.format.size() as u64
     }
@@ -243,6 +259,7 @@ pub struct SectionView<'a> {
     /// Absolute file offset of the section, for error messages.
     base: usize,
     meta: &'a [u8],
+    /// The arrays, in directory order.
     pub arrays: Vec<ArrayInfo>,
 }
 
@@ -330,6 +347,7 @@ impl<'a> SectionView<'a> {
         decode_meta(self.meta, self.base)
     }
 
+    /// The array named `name`'s directory entry.
     pub fn info(&self, name: &str) -> Option<&ArrayInfo> {
         self.arrays.iter().find(|a| a.name == name)
     }

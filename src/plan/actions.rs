@@ -9,7 +9,7 @@
 use crate::diag::{self, Warning};
 use crate::error::{Error, Result};
 use crate::graph::cache::{self, FileDep};
-use crate::graph::stage::{self, AnyStage, Scope, Shard, TraceCell, UnitCtx, UnitInputs};
+use crate::graph::stage::{self, AnyStage, Scope, Shard};
 use crate::graph::{BAKE_VERSION, BuildOptions, Pipeline};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
@@ -21,10 +21,15 @@ use std::path::{Path, PathBuf};
 /// What every unit knows of the scene: the arguments of `bake SCENE.eco`.
 #[derive(Debug, Clone, Default)]
 pub struct SceneArgs {
+    /// The ECO scene files.
     pub scenes: Vec<PathBuf>,
+    /// `--sky`.
     pub sky: Option<PathBuf>,
+    /// How inputs are read (models folders, allowed paths, budget).
     pub ingest: IngestOptions,
+    /// The pipeline.
     pub pipeline: Pipeline,
+    /// The pipeline file given, if any (an input of every action).
     pub pipeline_file: Option<PathBuf>,
 }
 
@@ -94,9 +99,15 @@ impl SceneArgs {
             names: names.as_ref(),
             policy: policy.as_ref(),
         };
-        let u = UnitInputs::new(st, &scope, candidates, model, shard);
-        let trace = reads.trace.then(|| TraceCell::new(&u));
-        st.run(&UnitCtx::new(&u, &|_| {}, trace.as_ref()), &self.pipeline)
+        stage::run_unit(
+            st,
+            &scope,
+            candidates,
+            model,
+            shard,
+            &|_| {},
+            &self.pipeline,
+        )
     }
 }
 
@@ -137,9 +148,13 @@ pub fn stage_of_action(action: &str) -> Result<&'static dyn AnyStage> {
 /// What a unit did: sections written and warnings raised.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct UnitReport {
+    /// The unit's name.
     pub unit: String,
+    /// The pack it wrote.
     pub output: PathBuf,
+    /// The names of the sections written, in order.
     pub sections: Vec<String>,
+    /// The warnings raised.
     pub warnings: Vec<Warning>,
 }
 
@@ -195,8 +210,11 @@ pub fn terrain(s: &SceneArgs, out: &Path) -> Result<UnitReport> {
 /// the model's triangle count, for the build record.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ModelDeps {
+    /// The model's name in the scene.
     pub model: String,
+    /// The files read, with their hashes (the model file first).
     pub files: Vec<FileDep>,
+    /// Triangles of the model.
     pub triangles: u64,
 }
 
@@ -277,7 +295,7 @@ struct RowsMeta {
 
 /// Rows `shard.0` of `shard.1` of the terrain light map ([`shard_range`] over the rows), over
 /// the same packs as [`lightmap`]; joined by [`lightmap_join`].
-pub fn lightmap_rows(
+pub(crate) fn lightmap_rows(
     s: &SceneArgs,
     inputs: &[PathBuf],
     shard: (usize, usize),

@@ -13,6 +13,7 @@
 //! each over the packs made before it that hold a kind it declares. The terrain, model,
 //! instances, record and merge actions and the shards (env maps by instances, the light map by
 //! rows) with their joins are written here by hand.
+#![warn(missing_docs)]
 
 pub mod actions;
 pub mod bazel;
@@ -28,16 +29,23 @@ use std::path::{Component, Path, PathBuf};
 /// directory).
 #[derive(Debug, Clone, Default)]
 pub struct PlanOptions {
+    /// The ECO scene files.
     pub scenes: Vec<PathBuf>,
+    /// `--sky`.
     pub sky: Option<PathBuf>,
+    /// `--models` folders.
     pub model_dirs: Vec<PathBuf>,
+    /// `--color-map`.
     pub color_map: Option<PathBuf>,
+    /// `--allow-path` folders.
     pub allow_paths: Vec<PathBuf>,
     /// `--max-memory` (bytes), passed to every action and used to resolve the scene.
     pub max_memory: Option<u64>,
     /// `--pipeline` as given (a preset name or a file).
     pub pipeline: Option<String>,
+    /// `--preview`.
     pub preview: bool,
+    /// `--set KEY=VALUE` overrides, in order.
     pub set: Vec<String>,
     /// Environment-map shards (default: the pipeline's `units.envmap_shard_instances`).
     pub shards: Option<usize>,
@@ -53,17 +61,21 @@ pub struct PlanOptions {
 pub struct Action {
     /// A short unique name (`model-003`, `envmaps-2-of-8`).
     pub id: String,
+    /// The `bake` arguments (after the program).
     pub args: Vec<String>,
+    /// The files it reads.
     pub inputs: Vec<PathBuf>,
     /// Inputs that must exist but whose contents the action does not read (the scene's model
     /// files, which resolving the scene only looks up). Part of the hermetic input set.
     pub lookups: Vec<PathBuf>,
+    /// The files it writes.
     pub outputs: Vec<PathBuf>,
 }
 
 /// The whole plan.
 #[derive(Debug, Clone)]
 pub struct Plan {
+    /// The actions (the build engine orders them by their inputs and outputs).
     pub actions: Vec<Action>,
     /// The final pack (the merge's output).
     pub output: PathBuf,

@@ -110,7 +110,7 @@ pub fn bake_prt_gpu(
 }
 
 /// [`prt::bake_prt_subset`] on the GPU: the transfer of the listed vertices, in order.
-pub fn bake_prt_gpu_subset(
+pub(crate) fn bake_prt_gpu_subset(
     gpu: &Gpu,
     bvh: &ModelBvh,
     mesh: &Mesh,

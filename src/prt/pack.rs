@@ -1,5 +1,5 @@
-//! Kind `prt`: the per-vertex transfer of one mesh section, and [`prt_pack`], which bakes it for
-//! every mesh of a pack.
+//! Kind `prt`: the per-vertex transfer of one mesh section, baked by [`prt_mesh`] (the
+//! registered `prt` stage's unit, which `bake prt` runs for every mesh of a pack).
 //!
 //! Section layout (one per mesh, named `prt:<model>`):
 //! - metadata (postcard, [`PrtMeta`]): the mesh section it belongs to, counts, sampling
@@ -20,7 +20,7 @@ use crate::error::{Error, ParseError, Result};
 use crate::model::Rgba8Image;
 use crate::pack::fit_name;
 use crate::pack::section::SectionView;
-use crate::pack::{ArrayFormat, Pack, PackWriter, Section, SectionBuilder};
+use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
@@ -157,7 +157,7 @@ pub fn data(v: &SectionView) -> Result<Value, ParseError> {
     Ok(json!({ "transfer": transfer, "gpu": gpu }))
 }
 
-/// What [`prt_pack`] did per mesh.
+/// What [`prt_mesh`] did for one mesh (the `prt` unit's report).
 #[derive(Debug, Clone, Serialize)]
 pub struct MeshPrtReport {
     pub mesh: String,
@@ -177,16 +177,17 @@ pub fn mesh_vertex_count(pack: &Pack) -> u64 {
         .sum()
 }
 
-/// Bakes a `prt` section for every mesh section of `pack` and returns the pack with them added
+/// (Tests.) Bakes a `prt` section for every mesh section of `pack` and returns the pack with them added
 /// (replacing older ones), a report per mesh and warnings (textures without a decoded section
 /// count as opaque and white). TXF meshes get `opts.default_translucence` where a material has
 /// none, other meshes 0.
-pub fn prt_pack(
+#[cfg(test)]
+pub(crate) fn prt_pack(
     pack: &Pack,
     opts: &PrtOptions,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<(PackWriter, Vec<MeshPrtReport>, Vec<Warning>)> {
-    let mut w = PackWriter::from_pack(pack);
+) -> Result<(crate::pack::PackWriter, Vec<MeshPrtReport>, Vec<Warning>)> {
+    let mut w = crate::pack::PackWriter::from_pack(pack);
     let mut reports = Vec::new();
     let mut warnings = Vec::new();
     let meshes: Vec<_> = pack.of_kind(crate::mesh::section::KIND).cloned().collect();
@@ -304,6 +305,7 @@ pub fn mesh_textures(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pack::PackWriter;
     use crate::prt::plant::procedural_plant;
 
     fn plant_pack() -> Pack {

@@ -293,7 +293,7 @@ impl PrtScene {
     }
 
     /// [`bake_prt_subset`] on this scene.
-    pub fn bake_subset(
+    pub(crate) fn bake_subset(
         &self,
         mesh: &Mesh,
         materials: &[PrtMaterial],
@@ -311,7 +311,7 @@ impl PrtScene {
 /// Bakes the transfer against a prebuilt scene of `mesh` (any [`ModelTracer`]), tracing each
 /// set of duplicate vertices once ([`weld_vertices`]). `progress` is called with the number of
 /// vertices finished since its last call.
-pub fn bake_prt_with<T: ModelTracer>(
+pub(crate) fn bake_prt_with<T: ModelTracer>(
     bvh: &T,
     mesh: &Mesh,
     materials: &[PrtMaterial],
@@ -410,7 +410,7 @@ pub fn weld_key_count(mesh: &Mesh) -> usize {
 
 /// The transfer of the listed vertices only (in that order; benchmarks trace a sample of a
 /// large model). Out-of-range indices count as skipped.
-pub fn bake_prt_subset<T: ModelTracer>(
+pub(crate) fn bake_prt_subset<T: ModelTracer>(
     bvh: &T,
     mesh: &Mesh,
     materials: &[PrtMaterial],

@@ -24,26 +24,38 @@ pub const THUMB_SIZE: u32 = 192;
 /// One thumbnail: an 8-bit PNG and what it shows.
 #[derive(Debug, Clone)]
 pub struct Thumb {
+    /// Its heading.
     pub title: String,
+    /// What it shows.
     pub caption: String,
+    /// The PNG file's bytes.
     pub png: Vec<u8>,
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
 }
 
 /// The render at the top of the page.
 #[derive(Debug, Clone)]
 pub struct RenderImage {
+    /// The PNG file's bytes.
     pub png: Vec<u8>,
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
+    /// What it shows (view, renderer).
     pub caption: String,
 }
 
 /// What the page shows.
 pub struct Page<'a> {
+    /// The pack's path as given.
     pub pack: String,
+    /// Bytes of the pack file.
     pub bytes: u64,
+    /// BLAKE3 of the pack file (hex).
     pub blake3: String,
     /// `bake dump --json`'s document of the pack.
     pub dump: &'a Value,
@@ -51,7 +63,9 @@ pub struct Page<'a> {
     pub report: Option<(&'a Value, String)>,
     /// Why something is missing (no report, a stale sidecar, images left out, no render).
     pub notes: &'a [String],
+    /// The render at the top, if made.
     pub render: Option<&'a RenderImage>,
+    /// The section thumbnails.
     pub thumbs: &'a [Thumb],
 }
 

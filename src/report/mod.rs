@@ -6,6 +6,7 @@
 //! as stale. The pack itself stays byte-identical across runs (the report holds wall times);
 //! `--embed-report` also stores the report in the pack as a `build_report` section, for users
 //! who want one file and can give up that determinism. [`html`] makes the page.
+#![warn(missing_docs)]
 
 pub mod html;
 pub mod record;
@@ -53,6 +54,7 @@ fn parse(text: &[u8]) -> std::result::Result<Value, String> {
     }
 }
 
+/// The `build_report` section's summary for `bake dump`.
 pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     let r = from_section(v)?;
     Ok(json!({
@@ -62,6 +64,7 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
     }))
 }
 
+/// The `build_report` section's data for `bake dump --full`.
 pub fn data(v: &SectionView) -> Result<Value, ParseError> {
     from_section(v)
 }
@@ -95,7 +98,9 @@ pub enum Source {
 /// A pack's build report and where it came from.
 #[derive(Debug, Clone)]
 pub struct Found {
+    /// The build report (docs/REPORT.md).
     pub report: Value,
+    /// Where it came from.
     pub source: Source,
 }
 

@@ -12,7 +12,9 @@ use std::path::PathBuf;
 /// ([`crate::ingest::confine::SourceNames`]), placed again in the roots of the bake that reads it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FileDep {
+    /// The file, placed again in the roots of the bake that reads the record.
     pub path: PathBuf,
+    /// BLAKE3 of its contents (hex); `None` where it could not be read.
     pub blake3: Option<String>,
 }
 

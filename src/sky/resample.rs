@@ -25,10 +25,10 @@ use super::cube::{self, Face, LatLongPixels};
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
 /// Texels per edge of a tile.
-pub const TILE: usize = 16;
+pub(super) const TILE: usize = 16;
 
 /// How a tile reads its source.
-pub trait TileSource: Sync {
+pub(super) trait TileSource: Sync {
     /// The sample at subsample (i, j) of `face` (i along s, j along t) and its weight (the
     /// solid-angle Jacobian 1/(1 + s² + t²)^{3/2}).
     fn sample(&self, face: Face, i: usize, j: usize) -> ([f32; 3], f64);
@@ -43,7 +43,7 @@ pub trait TileSource: Sync {
 
 /// What a tile needs besides its source.
 #[derive(Debug, Clone, Copy)]
-pub struct TileParams {
+pub(super) struct TileParams {
     /// Texels per face edge.
     pub n: usize,
     /// Subsamples per texel edge.
@@ -59,7 +59,7 @@ pub struct TileParams {
 /// One tile of `face` (rows `r0..r0 + rows`, columns `c0..c0 + cols`) into `out` (its rows, in
 /// place in the cube); `fine(face, col, row, k)` is the generic k × k mean used for refined
 /// texels.
-pub fn tile(
+pub(super) fn tile(
     p: &TileParams,
     src: &impl TileSource,
     fine: &(impl Fn(Face, usize, usize, usize) -> [f32; 3] + ?Sized),
@@ -122,7 +122,7 @@ pub fn tile(
 
 /// Every work unit's tiles, in parallel, written in place into `texels` (the cube's, face-major):
 /// `source(block)` is the unit's source (its tables).
-pub fn units<S: TileSource>(
+pub(super) fn units<S: TileSource>(
     texels: &mut [[f32; 3]],
     p: &TileParams,
     source: impl Fn((usize, usize)) -> S + Sync,
@@ -170,7 +170,7 @@ fn unit_rows(texels: &mut [[f32; 3]], n: usize) -> Vec<Vec<&mut [[f32; 3]]>> {
 
 /// [`units`] of a lat-long source into `texels`, each unit with its tables ([`LatLong::unit`]);
 /// `skip_cold`: use [`ColdRows`].
-pub fn latlong_units<I: LatLongPixels + ?Sized>(
+pub(super) fn latlong_units<I: LatLongPixels + ?Sized>(
     p: &TileParams,
     img: &I,
     grids: &LatLongGrids,
@@ -192,14 +192,14 @@ pub fn latlong_units<I: LatLongPixels + ?Sized>(
 /// tile that reads only such rows has no sample or corner above it (a bilinear sample's
 /// luminance is a convex combination of its four pixels'), so it is not refined and its corners
 /// need not be read. Most tiles of a sunny sky are such (the sun's rows are a few).
-pub struct ColdRows {
+pub(super) struct ColdRows {
     cold: Vec<bool>,
 }
 
 impl ColdRows {
     /// The rows of `img` below `hot` (with a margin of 10⁻³ for rounding: a sample's luminance
     /// exceeds the largest of its pixels' by a few ulps at most).
-    pub fn of<I: LatLongPixels + ?Sized>(img: &I, hot: f32) -> ColdRows {
+    pub(super) fn of<I: LatLongPixels + ?Sized>(img: &I, hot: f32) -> ColdRows {
         use rayon::prelude::*;
         if !(hot.is_finite() && hot > 0.0) {
             return ColdRows::none();
@@ -213,7 +213,7 @@ impl ColdRows {
     }
 
     /// No row known to be cold.
-    pub fn none() -> ColdRows {
+    pub(super) fn none() -> ColdRows {
         ColdRows { cold: Vec::new() }
     }
 
@@ -225,7 +225,7 @@ impl ColdRows {
 
 /// The six tiles of the work unit at block (row block, column block) `(br, bc)`: ±X and ±Z at
 /// (br, bc), ±Y at (bc, br) (the transposed position, where [`LatLong`] shares its tables).
-pub fn unit_tiles(n: usize, (br, bc): (usize, usize)) -> [(Face, usize, usize); 6] {
+pub(super) fn unit_tiles(n: usize, (br, bc): (usize, usize)) -> [(Face, usize, usize); 6] {
     let (r, c) = (br * TILE, bc * TILE);
     debug_assert!(r < n && c < n);
     [
@@ -239,7 +239,7 @@ pub fn unit_tiles(n: usize, (br, bc): (usize, usize)) -> [(Face, usize, usize); 
 }
 
 /// Rows and columns of the tile starting at (r0, c0).
-pub fn tile_extent(n: usize, r0: usize, c0: usize) -> (usize, usize) {
+pub(super) fn tile_extent(n: usize, r0: usize, c0: usize) -> (usize, usize) {
     (TILE.min(n - r0), TILE.min(n - c0))
 }
 
@@ -331,7 +331,7 @@ fn hot_faces(samples: &Block, cold: &ColdRows, height: u32, big_n: usize) -> [bo
 
 /// Any source, read direction by direction (`read(face, s, t)`) on the resampling grids.
 #[derive(Clone, Copy)]
-pub struct Generic<'a, R> {
+pub(super) struct Generic<'a, R> {
     pub read: &'a R,
     pub grids: &'a LatLongGrids,
 }
@@ -349,7 +349,7 @@ impl<R: Fn(Face, f64, f64) -> [f32; 3] + Sync> TileSource for Generic<'_, R> {
 }
 
 /// A lat-long source with the tables of one work unit: subsample and corner grids.
-pub struct LatLong<'a, I: ?Sized> {
+pub(super) struct LatLong<'a, I: ?Sized> {
     img: &'a I,
     /// atan(u_i) of every subsample, and of every corner.
     atan: &'a [f64],
@@ -364,7 +364,7 @@ pub struct LatLong<'a, I: ?Sized> {
 
 /// The grids shared by every work unit: coordinates (of any source) and their arctangents (of
 /// a lat-long source).
-pub struct LatLongGrids {
+pub(super) struct LatLongGrids {
     pub us: Vec<f64>,
     pub atan: Vec<f64>,
     pub corner_us: Vec<f64>,
@@ -372,7 +372,7 @@ pub struct LatLongGrids {
 }
 
 impl LatLongGrids {
-    pub fn new(n: usize, k: usize) -> LatLongGrids {
+    pub(super) fn new(n: usize, k: usize) -> LatLongGrids {
         let big = n * k;
         let us: Vec<f64> = (0..big)
             .map(|i| 2.0 * (i as f64 + 0.5) / big as f64 - 1.0)
@@ -395,7 +395,7 @@ impl LatLongGrids {
 impl<'a, I: LatLongPixels + ?Sized> LatLong<'a, I> {
     /// The tables of the unit at block (br, bc) of an n-texel face with k subsamples per texel
     /// (`corners`: also the corner grid's).
-    pub fn unit(
+    pub(super) fn unit(
         img: &'a I,
         grids: &'a LatLongGrids,
         (n, k): (usize, usize),

@@ -350,7 +350,7 @@ pub fn sky_irradiance(cube: &CubeMap) -> SkyIrradiance {
 }
 
 /// [`sky_irradiance`] with the cube's [`cube::solid_angle_table`] computed already.
-pub fn sky_irradiance_with(cube: &CubeMap, omega: &[f64]) -> SkyIrradiance {
+pub(crate) fn sky_irradiance_with(cube: &CubeMap, omega: &[f64]) -> SkyIrradiance {
     use rayon::prelude::*;
     let n = cube.size as usize;
     // Per face row (in parallel), then summed in row order: the same sums on any thread count.

@@ -130,7 +130,7 @@ pub fn trace_scene(pack: &Pack) -> Result<TraceScene> {
 }
 
 /// [`trace_scene`] with a choice of terrain tracing.
-pub fn trace_scene_with(pack: &Pack, mode: TerrainMode) -> Result<TraceScene> {
+fn trace_scene_with(pack: &Pack, mode: TerrainMode) -> Result<TraceScene> {
     let bad = |e| Error::invalid(pack.path(), e);
     let (imeta, instances) =
         crate::ingest::instances_section::from_section(&pack.view_named("instances")?)

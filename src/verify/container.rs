@@ -11,12 +11,17 @@ use crate::pack::{
 /// One section-table entry as read, with what the container checks concluded.
 #[derive(Debug, Clone)]
 pub struct Entry {
+    /// Its index in the table.
     pub index: usize,
     /// Absolute offset of the table entry.
     pub at: u64,
+    /// The section's kind.
     pub kind: String,
+    /// The section's name.
     pub name: String,
+    /// Byte offset of its payload.
     pub offset: u64,
+    /// Bytes of its payload.
     pub size: u64,
     /// Inside the file, aligned and with a matching checksum: its payload can be read.
     pub intact: bool,
@@ -25,7 +30,9 @@ pub struct Entry {
 /// The table, once the header could be trusted enough to find it.
 #[derive(Debug, Clone)]
 pub struct Table {
+    /// The container's format version.
     pub version: u32,
+    /// The table's entries.
     pub entries: Vec<Entry>,
 }
 

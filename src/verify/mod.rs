@@ -14,6 +14,7 @@
 //!
 //! A section whose checksum or structure fails is not decoded (its bytes are not what the
 //! writer wrote), so one flipped bit gives one violation, not a cascade.
+#![warn(missing_docs)]
 
 pub mod container;
 pub mod kinds;
@@ -34,6 +35,7 @@ pub struct Violation {
     pub array: Option<String>,
     /// Absolute file offset of the first byte that breaks the rule.
     pub offset: u64,
+    /// What is wrong.
     pub message: String,
 }
 
@@ -60,10 +62,12 @@ pub struct VerifyReport {
     pub sections: usize,
     /// Sections whose kind invariants were checked (checksum and structure intact).
     pub decoded: usize,
+    /// Every rule broken, in file order.
     pub violations: Vec<Violation>,
 }
 
 impl VerifyReport {
+    /// Whether no rule is broken.
     pub fn ok(&self) -> bool {
         self.violations.is_empty()
     }
@@ -72,10 +76,12 @@ impl VerifyReport {
 /// Collects violations; `base` is the absolute offset added to payload-relative offsets.
 #[derive(Debug, Default)]
 pub struct Sink {
+    /// The violations pushed.
     pub violations: Vec<Violation>,
 }
 
 impl Sink {
+    /// Records a broken rule: its id, section, array, payload-relative offset and message.
     pub fn push(
         &mut self,
         check: &'static str,

@@ -317,7 +317,7 @@ pub fn plate_pack(linespace: bool) -> bake::pack::Pack {
     if linespace {
         let first = bake::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "scene.bake").unwrap();
         let geo = bake::voxel::geometry::pack_geometry(&first).unwrap();
-        let tris = bake::cli::linespace::world_triangles(&geo.mesh);
+        let tris = bake::linespace::world_triangles(&geo.mesh);
         let opts = bake::linespace::ntree::NTreeOptions {
             n: 4,
             depth: 3,

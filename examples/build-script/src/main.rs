@@ -12,8 +12,9 @@ fn main() {
         "section count of the header and of the build report"
     );
     println!(
-        "{}: {} bytes, {sections} sections",
+        "{}: {} bytes, {sections} sections of the kinds {}",
         env!("SCENE_PACK"),
-        PACK.len()
+        PACK.len(),
+        env!("SCENE_KINDS")
     );
 }

@@ -191,7 +191,7 @@ pub(crate) struct Problem<'a> {
 impl Problem<'_> {
     /// Whether a squared error breaks the (noise-aware) bound; `wsq` is Σ w_j² of the instance's
     /// weights (the noise of the samples that reaches the reconstruction).
-    pub fn exceeds(&self, e: f64, wsq: f64) -> bool {
+    pub(crate) fn exceeds(&self, e: f64, wsq: f64) -> bool {
         let r = relative(e, self.dim, self.rms) as f64;
         r * r > (self.error as f64).powi(2) + (self.noise as f64).powi(2) * (1.0 + wsq)
     }
