@@ -323,12 +323,15 @@ pub fn bench_lightmap_error(
         let mut filtered = Vec::new();
         for &TexelFilter {
             total,
+            guided,
             radius: r,
             range: t,
         } in filters
         {
             let filt = |v: &[[f32; 3]]| {
-                if t > 0.0 {
+                if guided {
+                    crate::lightmap::filter::guided_bilateral(v, width, r, t)
+                } else if t > 0.0 {
                     crate::lightmap::filter::bilateral(v, width, r, t)
                 } else {
                     crate::lightmap::filter::box_filter(v, width, r)
@@ -363,7 +366,9 @@ pub fn bench_lightmap_error(
                 sf["p90"].as_f64().unwrap_or(0.0) * 100.0,
                 sf["max"].as_f64().unwrap_or(0.0) * 100.0,
                 sf["bias"].as_f64().unwrap_or(0.0) * 100.0,
-                if t > 0.0 {
+                if guided {
+                    format!("guided bilateral (range {t})")
+                } else if t > 0.0 {
                     format!("bilateral (range {t})")
                 } else {
                     "box".to_string()
@@ -374,7 +379,7 @@ pub fn bench_lightmap_error(
                     "the part without direct sun"
                 },
             );
-            filtered.push(serde_json::json!({"radius": r, "range": t, "whole": total, "total": tf, "without_direct_sun": sf}));
+            filtered.push(serde_json::json!({"radius": r, "range": t, "guided": guided, "whole": total, "total": tf, "without_direct_sun": sf}));
         }
         rowsj.push(serde_json::json!({"visibility": visibility, "samples": samples, "sun_samples": sun_samples,
             "horizon_lattice": lattice, "resolution": size.0, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky,
@@ -393,6 +398,9 @@ pub fn bench_lightmap_error(
 pub struct TexelFilter {
     /// The whole irradiance filtered (else the part without the direct sun).
     pub total: bool,
+    /// A bilateral whose range weights follow the values' 3×3 box
+    /// ([`crate::lightmap::filter::guided_bilateral`]).
+    pub guided: bool,
     pub radius: usize,
     /// The bilateral's relative range; 0: a box.
     pub range: f32,
@@ -415,13 +423,14 @@ pub fn parse_filters(s: &str) -> std::result::Result<Vec<TexelFilter>, String> {
                 Some(r) => r.parse().map_err(|e| format!("filter `{f}`: {e}"))?,
                 None => 0.0,
             };
-            let (total, bilateral) = match p[0] {
-                "box" => (false, false),
-                "bilateral" => (false, true),
-                "bilateral-total" => (true, true),
+            let (total, bilateral, guided) = match p[0] {
+                "box" => (false, false, false),
+                "bilateral" => (false, true, false),
+                "guided" => (false, true, true),
+                "bilateral-total" => (true, true, false),
                 k => {
                     return Err(format!(
-                        "filter `{f}`: kind `{k}` (box, bilateral, bilateral-total)"
+                        "filter `{f}`: kind `{k}` (box, bilateral, guided, bilateral-total)"
                     ));
                 }
             };
@@ -432,6 +441,7 @@ pub fn parse_filters(s: &str) -> std::result::Result<Vec<TexelFilter>, String> {
             }
             Ok(TexelFilter {
                 total,
+                guided,
                 radius,
                 range,
             })
@@ -462,7 +472,12 @@ mod tests {
             let (i, j) = (k as u32 % w, 8 + k as u32 / w);
             let (x, y) = ((i as f32 + 0.5) / w as f32, (j as f32 + 0.5) / h as f32);
             let xc = x.clamp(0.5 / cw as f32, 1.0 - 0.5 / cw as f32);
-            assert!((t[0] - f(xc, y)).abs() < 1e-4, "{i},{j}: {} vs {}", t[0], f(xc, y));
+            assert!(
+                (t[0] - f(xc, y)).abs() < 1e-4,
+                "{i},{j}: {} vs {}",
+                t[0],
+                f(xc, y)
+            );
         }
         // The same size is the identity.
         let same = super::upsample_rows(&coarse, (cw, ch), 0, (cw, ch), 0..ch);
@@ -475,26 +490,41 @@ mod tests {
         assert_eq!((e.samples, e.sun_samples, e.lattice), (32, 16, 3));
         assert_eq!(e.resolution, Some(2049));
         assert_eq!(super::Estimator::parse("rays").unwrap().resolution, None);
-        for bad in ["sky:1", "horizons:x", "horizons:1:1:1:0", "horizons:1:1:1:1:1"] {
+        for bad in [
+            "sky:1",
+            "horizons:x",
+            "horizons:1:1:1:0",
+            "horizons:1:1:1:1:1",
+        ] {
             assert!(super::Estimator::parse(bad).is_err(), "{bad}");
         }
     }
 
     #[test]
     fn filters_parse_and_refuse_bad_ones() {
-        let f = super::parse_filters("box:1, bilateral:2:0.2,bilateral-total:3:0.1").unwrap();
-        assert_eq!(f.len(), 3);
+        let f = super::parse_filters("box:1, bilateral:2:0.2,bilateral-total:3:0.1,guided:2:0.5")
+            .unwrap();
+        assert_eq!(f.len(), 4);
         assert_eq!(
             f[1],
             super::TexelFilter {
                 total: false,
+                guided: false,
                 radius: 2,
                 range: 0.2
             }
         );
         assert!(f[2].total);
+        assert!(f[3].guided && !f[3].total);
         assert!(super::parse_filters("").unwrap().is_empty());
-        for bad in ["box", "box:x", "bilateral:2", "box:1:0.2", "gauss:1"] {
+        for bad in [
+            "box",
+            "box:x",
+            "bilateral:2",
+            "box:1:0.2",
+            "gauss:1",
+            "guided:2",
+        ] {
             assert!(super::parse_filters(bad).is_err(), "{bad}");
         }
     }
