@@ -104,15 +104,39 @@ struct MaskedFragment {
     @builtin(sample_mask) mask: u32,
 };
 
-// The samples of 4 a fragment of coverage c keeps in a pixel of dither threshold d.
-fn sample_mask_of(c: f32, d: f32) -> u32 {
+// The samples of 4 a fragment keeps in a pixel of dither threshold d, c[k] the coverage at
+// sample k.
+fn sample_mask_of(c: vec4<f32>, d: f32) -> u32 {
     var mask = 0u;
     for (var k = 0u; k < 4u; k++) {
-        if (c >= sample_threshold(d, k)) {
+        if (c[k] >= sample_threshold(d, k)) {
             mask = mask | (1u << k);
         }
     }
     return mask;
+}
+
+// The standard 4× sample positions in the pixel (Vulkan's, D3D's; the CPU reference's
+// `STANDARD_4X`).
+fn sample_position(k: u32) -> vec2<f32> {
+    let p = array<vec2<f32>, 4>(
+        vec2<f32>(0.375, 0.125),
+        vec2<f32>(0.875, 0.375),
+        vec2<f32>(0.125, 0.625),
+        vec2<f32>(0.625, 0.875),
+    );
+    return p[k];
+}
+
+// The screen offset from the point a fragment's inputs were interpolated at (`frag`, its
+// position) to sample k of its pixel (k = 4: the pixel's centre): the pixel centre under
+// per-pixel shading, the sample itself where each sample is shaded.
+fn sample_offset(frag: vec2<f32>, k: u32) -> vec2<f32> {
+    var s = vec2<f32>(0.5);
+    if (k < 4u) {
+        s = sample_position(k);
+    }
+    return floor(frag) + s - frag;
 }
 
 // The 4×4 ordered-dither threshold of a pixel, (index + 0.5)/16.
