@@ -128,15 +128,23 @@ fn sample_position(k: u32) -> vec2<f32> {
     return p[k];
 }
 
-// The screen offset from the point a fragment's inputs were interpolated at (`frag`, its
-// position) to sample k of its pixel (k = 4: the pixel's centre): the pixel centre under
-// per-pixel shading, the sample itself where each sample is shaded.
-fn sample_offset(frag: vec2<f32>, k: u32) -> vec2<f32> {
+// The screen point (pixels, y down) of a clip-space position interpolated as the fragment's
+// other inputs are: where the device evaluated them (the pixel's centre under per-pixel shading;
+// per-sample shading, GL's path, keeps them there too on llvmpipe and lavapipe while the
+// fragment's position moves to the sample, so it is measured rather than assumed).
+fn screen_point(clip: vec4<f32>) -> vec2<f32> {
+    let n = clip.xy / clip.w;
+    return vec2<f32>((n.x * 0.5 + 0.5) * globals.viewport.x, (0.5 - n.y * 0.5) * globals.viewport.y);
+}
+
+// The screen offset from `at`, the point a fragment's inputs were interpolated at, to sample k
+// of the pixel `frag` lies in (k = 4: the pixel's centre).
+fn sample_offset(frag: vec2<f32>, at: vec2<f32>, k: u32) -> vec2<f32> {
     var s = vec2<f32>(0.5);
     if (k < 4u) {
         s = sample_position(k);
     }
-    return floor(frag) + s - frag;
+    return floor(frag) + s - at;
 }
 
 // The 4×4 ordered-dither threshold of a pixel, (index + 0.5)/16.

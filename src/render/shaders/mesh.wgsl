@@ -49,6 +49,8 @@ struct MeshOut {
     @location(1) normal: vec3<f32>,
     @location(2) uv: vec2<f32>,
     @location(3) tangent: vec4<f32>,
+    // The clip-space position again, interpolated as the inputs are (`screen_point`).
+    @location(4) clip: vec4<f32>,
     // The ambient term's per-vertex values (shaders/ambient.wgsl).
     @location(8) ambient_front: vec3<f32>,
     @location(9) ambient_back: vec3<f32>,
@@ -86,6 +88,7 @@ fn mesh_vertex(v: MeshIn) -> MeshOut {
     let world = vec3<f32>(c * p.x - s * p.y, s * p.x + c * p.y, p.z) + v.instance_position;
     var out: MeshOut;
     out.position = globals.view_proj * vec4<f32>(world, 1.0);
+    out.clip = out.position;
     out.world = world;
     // A uniform scale keeps normals; only the rotation applies.
     out.normal = vec3<f32>(c * v.normal.x - s * v.normal.y, s * v.normal.x + c * v.normal.y, v.normal.z);
@@ -190,8 +193,8 @@ fn far_weight(levels: f32, lambda: f32) -> f32 {
 // The far test of the card's point under sample k (k = 4: the pixel's centre): 1 where the
 // colour map's level-0 alpha (bilinear) times the opacity reaches ½ there, the uv carried from
 // the fragment's by the screen derivatives (src/render/coverage.rs, "each sample's own test").
-fn far_sample(uv: vec2<f32>, dux: vec2<f32>, duy: vec2<f32>, frag: vec2<f32>, k: u32) -> f32 {
-    let o = sample_offset(frag, k);
+fn far_sample(uv: vec2<f32>, dux: vec2<f32>, duy: vec2<f32>, frag: vec2<f32>, at: vec2<f32>, k: u32) -> f32 {
+    let o = sample_offset(frag, at, k);
     let a = textureSampleLevel(color_map, color_sampler, uv + dux * o.x + duy * o.y, 0.0).a;
     return select(0.0, 1.0, a * direct_material.mode.z >= 0.5);
 }
@@ -275,6 +278,7 @@ fn shade(in: MeshOut) -> Shaded {
     let lambda = log2(max(rho, 1e-30));
     let t = far_weight(material.alpha.x, lambda);
     let d = layer_dither(in.position.xy, in.world);
+    let at = screen_point(in.clip);
     var mask = 0xffffffffu;
     if (SAMPLE_MASK) {
         // The near ramp across the alpha edge; far away each sample's own alpha test at the
@@ -282,12 +286,12 @@ fn shade(in: MeshOut) -> Shaded {
         var near = vec4<f32>(0.0);
         var far = vec4<f32>(0.0);
         for (var k = 0u; k < 4u; k++) {
-            let o = sample_offset(in.position.xy, k);
+            let o = sample_offset(in.position.xy, at, k);
             near[k] = clamp((a + dax * o.x + day * o.y - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
         }
         if (t > 0.0) {
             for (var k = 0u; k < 4u; k++) {
-                far[k] = far_sample(uv, dux, duy, in.position.xy, k);
+                far[k] = far_sample(uv, dux, duy, in.position.xy, at, k);
             }
         }
         mask = sample_mask_of(mix(near, far, t), d);
@@ -298,7 +302,7 @@ fn shade(in: MeshOut) -> Shaded {
         let hard = select(0.0, 1.0, a >= 0.5);
         var far = hard;
         if (t > 0.0) {
-            far = far_sample(uv, dux, duy, in.position.xy, 4u);
+            far = far_sample(uv, dux, duy, in.position.xy, at, 4u);
         }
         if (mix(hard, far, t) < d) {
             discard;
