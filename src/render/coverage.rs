@@ -5,21 +5,25 @@
 //! scaling, src/texture/mips.rs) as far as a level's texel count allows; at 2×2 and 1×1 it
 //! cannot (a leaf of coverage 0.475 has a 1×1 level of alpha 0.475, which the test at 0.5
 //! discards everywhere). So where the pixel's mip level `λ` passes the 4×4 level, the fragment's
-//! coverage blends from the alpha test towards the colour map's level-0 coverage `c₀` (times the
-//! material's opacity, [`far_coverage`]): `t = clamp(min(λ, top) − (top − 2), 0, 1)` with `top`
-//! the 1×1 level (0 below three levels). Without MSAA a fragment passes where
-//! `mix(α ≥ ½, c₀, t)` reaches the pixel's 4×4 ordered-dither (Bayer) threshold `d`. Under MSAA
-//! every sample gets a threshold of its own, `d + k/4` modulo 1 for sample k, and the shader
-//! writes the sample mask itself (`@builtin(sample_mask)`, no device alpha to coverage: how a
-//! device turns a fractional alpha into samples is its own, and lavapipe keeps ⌊4α⌋ of 4, which
-//! halved a coverage of 0.45): a sample is kept where the fragment's coverage
-//! `mix(ramp, c₀, t)` reaches its threshold (`ramp` the near alpha edge, `clamp((α − ½)/fwidth(α)
-//! + ½)`). A pixel's four thresholds are a quarter apart, so a coverage of at least 7/32 keeps a
-//! sample in every pixel the card covers, and a 4×4 block keeps `round(16 c)` sixteenths of its
-//! samples: with one threshold per pixel a far card of c₀ ≈ 0.48 was drawn in only about half of
-//! the pixels its leaves fill (the ground-truth harness' leaf fraction). The CPU reference's four
-//! rays test `mix(α ≥ ½, c₀, t)` against the same thresholds ([`AlphaTest`]); `mesh.wgsl`
-//! computes the same (`far_weight`, `bayer4`, `sample_threshold`).
+//! test blends towards each sample's own test of the level-0 shape: `t = clamp(min(λ, top) −
+//! (top − 2), 0, 1)` with `top` the 1×1 level (0 below three levels), and `f_k` 1 where the
+//! colour map's level-0 alpha (bilinear) times the opacity reaches ½ at the card's point under
+//! sample `k` (the fragment's uv carried to the sample by its screen derivatives, `mesh.wgsl`
+//! `far_sample`; the CPU reference: the ray's own hit), else 0. Without MSAA a fragment passes
+//! where `mix(α ≥ ½, f, t)` (f at the pixel's centre) reaches the pixel's 4×4 ordered-dither
+//! (Bayer) threshold `d`. Under MSAA every sample gets a threshold of its own, `d + k/4` modulo 1
+//! for sample k, and the shader writes the sample mask itself (`@builtin(sample_mask)`, no device
+//! alpha to coverage: how a device turns a fractional alpha into samples is its own, and
+//! lavapipe keeps ⌊4α⌋ of 4, which halved a coverage of 0.45): a sample is kept where
+//! `mix(ramp_k, f_k, t)` reaches its threshold (`ramp_k` the near alpha edge at the sample,
+//! `clamp((α_k − ½)/w + ½)`, α carried to the sample by its derivatives). Far away a card so keeps
+//! the samples that lie on its leaves, as a path tracer's rays do: the leaves' share of every
+//! pixel, c₀ of its quad on average. Before, every sample tested the level-0 coverage c₀ itself,
+//! the same over the whole quad: a far card was drawn in every pixel it touched but under-covered
+//! those its leaves fill (0.67 of their coverage, `tests/render_far_leaves.rs`; the ground-truth
+//! harness' generated close view's leaves 0.86 of the path tracer's). The CPU reference's four
+//! rays test `mix(α ≥ ½, f, t)` against the same thresholds ([`AlphaTest`]); `mesh.wgsl`
+//! computes the same (`far_weight`, `far_sample`, `bayer4`, `sample_threshold`).
 //!
 //! The dither threshold is the pixel's shifted by a layer's offset ([`layer_dither`]): a
 //! multiple of 1/16 hashed from the fragment's distance to the eye in slabs of
@@ -65,8 +69,9 @@ pub struct AlphaTest {
 }
 
 impl AlphaTest {
-    /// Whether a hit of filtered alpha `alpha` (times the opacity) passes, for a colour map of
-    /// level-0 coverage `far` at far weight `t` (see the module note).
+    /// Whether a hit of filtered alpha `alpha` (times the opacity) passes, `far` the ray's own
+    /// far test (1 where the level-0 alpha at its hit reaches ½, else 0; any coverage in [0, 1])
+    /// at far weight `t` (see the module note).
     pub fn passes(&self, alpha: f32, far: f32, t: f32) -> bool {
         self.passes_at(alpha, far, t, None)
     }
@@ -118,21 +123,6 @@ pub fn lowbias32(mut x: u32) -> u32 {
     x ^= x >> 15;
     x = x.wrapping_mul(0x846c_a68b);
     x ^ (x >> 16)
-}
-
-/// The fraction of level-0 texels of a colour chain whose alpha times `opacity` passes ½: the
-/// coverage far leaf cards are drawn with.
-pub fn far_coverage(mips: &super::scene::ColorMips, opacity: f32) -> f32 {
-    let [w, h, ..] = mips.levels[0];
-    let n = (w as usize) * (h as usize);
-    if n == 0 {
-        return 1.0;
-    }
-    let pass = (0..h)
-        .flat_map(|j| (0..w).map(move |i| (i, j)))
-        .filter(|&(i, j)| mips.texel(0, i, j)[3] * opacity >= 0.5)
-        .count();
-    pass as f32 / n as f32
 }
 
 #[cfg(test)]

@@ -306,12 +306,17 @@ impl<'s, 'a> Reference<'s, 'a> {
             let opacity = mat.schlick.map_or(1.0, |s| s.opacity);
             let alpha = trilinear(mips, hit.uv, hit.uv_derivatives)[3] * opacity;
             let [w, h, ..] = mips.levels[0];
-            let t = super::coverage::far_weight(
-                mips.levels.len(),
-                super::coverage::mip_lambda((w, h), hit.uv_derivatives),
-            );
+            let lambda = super::coverage::mip_lambda((w, h), hit.uv_derivatives);
+            let t = super::coverage::far_weight(mips.levels.len(), lambda);
+            // Far away the ray's own alpha test at the card's point it meets (level 0).
+            let far = if t > 0.0 {
+                let a = lookup_at_level(&mips.levels, hit.uv, 0.0, |l, i, j| mips.texel(l, i, j));
+                if a[3] * opacity >= 0.5 { 1.0 } else { 0.0 }
+            } else {
+                0.0
+            };
             let distance = (Vec3A::from(hit.position) - ray.origin).length();
-            if test.passes_at(alpha, mat.far_coverage, t, Some(distance)) {
+            if test.passes_at(alpha, far, t, Some(distance)) {
                 return Some(hit);
             }
             r = Ray::new(r.origin, r.dir, hit.t * (1.0 + 1e-6) + 1e-6);
@@ -823,8 +828,20 @@ pub fn trilinear_with(
     texel: impl Fn(usize, u32, u32) -> [f32; 4],
 ) -> [f32; 4] {
     let [w, h, ..] = levels[0];
+    lookup_at_level(levels, uv, super::coverage::mip_lambda((w, h), d), texel)
+}
+
+/// The lookup of [`trilinear_with`] at level `lambda` (clamped to the chain): the two nearest
+/// levels bilinear with repeat addressing, blended by `lambda`'s fraction (a shader's
+/// `textureSampleLevel`).
+pub fn lookup_at_level(
+    levels: &[[u32; 4]],
+    uv: [f32; 2],
+    lambda: f32,
+    texel: impl Fn(usize, u32, u32) -> [f32; 4],
+) -> [f32; 4] {
     let top = (levels.len() - 1) as f32;
-    let lambda = super::coverage::mip_lambda((w, h), d).clamp(0.0, top);
+    let lambda = lambda.clamp(0.0, top);
     let l0 = lambda.floor() as usize;
     let l1 = (l0 + 1).min(levels.len() - 1);
     let f = lambda - l0 as f32;

@@ -53,9 +53,6 @@ pub struct MaterialData<'a> {
     /// The colour map's mip chain where the material stage processed it: drawn trilinear in
     /// place of `color_map` (whose alpha test the CPU reference's rays keep).
     pub color_mips: Option<ColorMips<'a>>,
-    /// Coverage far leaf cards are drawn with: the colour chain's level-0 fraction of texels
-    /// whose alpha times the opacity passes ½ ([`super::coverage`]; 1 without a chain).
-    pub far_coverage: f32,
     /// The two-layer Schlick material of the `material:<model>/<i>` section; `None`: Lambert.
     pub schlick: Option<crate::material::schlick::SchlickMaterial>,
     /// The tangent-space normal map's mip chain (`normal` array of the processed texture):
@@ -862,7 +859,6 @@ fn load_materials<'a>(
             base_color: [d[0], d[1], d[2], 1.0],
             color_map: None,
             color_mips: None,
-            far_coverage: 1.0,
             schlick: None,
             normal_map: None,
             height_mips: None,
@@ -897,9 +893,6 @@ fn load_materials<'a>(
         let (schlick, normal_map) = load_schlick(pack, section, out.len(), warnings)?;
         out.push(MaterialData {
             base_color: [d[0], d[1], d[2], 1.0],
-            far_coverage: color_mips.as_ref().map_or(1.0, |c| {
-                super::coverage::far_coverage(c, schlick.map_or(1.0, |s| s.opacity))
-            }),
             color_map,
             color_mips,
             schlick,

@@ -27,8 +27,8 @@ const _: () = assert!(size_of::<TerrainParams>() == 32);
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct MaterialParams {
     pub base_color: [f32; 4],
-    /// x: mip levels of the colour map as uploaded, y: its far coverage
-    /// (`MaterialData::far_coverage`, src/render/coverage.rs), z, w: 0.
+    /// x: mip levels of the colour map as uploaded (the far cards' weight, src/render/coverage.rs),
+    /// y, z, w: 0.
     pub alpha: [f32; 4],
 }
 const _: () = assert!(size_of::<MaterialParams>() == 32);
@@ -549,7 +549,7 @@ fn upload_model(
         };
         let params = MaterialParams {
             base_color: mat.base_color,
-            alpha: [levels as f32, mat.far_coverage, 0.0, 0.0],
+            alpha: [levels as f32, 0.0, 0.0, 0.0],
         };
         let params = up.buffer("material", bytemuck::bytes_of(&params), U::UNIFORM);
         let direct = up.buffer(

@@ -104,15 +104,47 @@ struct MaskedFragment {
     @builtin(sample_mask) mask: u32,
 };
 
-// The samples of 4 a fragment of coverage c keeps in a pixel of dither threshold d.
-fn sample_mask_of(c: f32, d: f32) -> u32 {
+// The samples of 4 a fragment keeps in a pixel of dither threshold d, c[k] the coverage at
+// sample k.
+fn sample_mask_of(c: vec4<f32>, d: f32) -> u32 {
     var mask = 0u;
     for (var k = 0u; k < 4u; k++) {
-        if (c >= sample_threshold(d, k)) {
+        if (c[k] >= sample_threshold(d, k)) {
             mask = mask | (1u << k);
         }
     }
     return mask;
+}
+
+// The standard 4× sample positions in the pixel (Vulkan's, D3D's; the CPU reference's
+// `STANDARD_4X`).
+fn sample_position(k: u32) -> vec2<f32> {
+    let p = array<vec2<f32>, 4>(
+        vec2<f32>(0.375, 0.125),
+        vec2<f32>(0.875, 0.375),
+        vec2<f32>(0.125, 0.625),
+        vec2<f32>(0.625, 0.875),
+    );
+    return p[k];
+}
+
+// The screen point (pixels, y down) of a clip-space position interpolated as the fragment's
+// other inputs are: where the device evaluated them (the pixel's centre under per-pixel shading;
+// per-sample shading, GL's path, keeps them there too on llvmpipe and lavapipe while the
+// fragment's position moves to the sample, so it is measured rather than assumed).
+fn screen_point(clip: vec4<f32>) -> vec2<f32> {
+    let n = clip.xy / clip.w;
+    return vec2<f32>((n.x * 0.5 + 0.5) * globals.viewport.x, (0.5 - n.y * 0.5) * globals.viewport.y);
+}
+
+// The screen offset from `at`, the point a fragment's inputs were interpolated at, to sample k
+// of the pixel `frag` lies in (k = 4: the pixel's centre).
+fn sample_offset(frag: vec2<f32>, at: vec2<f32>, k: u32) -> vec2<f32> {
+    var s = vec2<f32>(0.5);
+    if (k < 4u) {
+        s = sample_position(k);
+    }
+    return floor(frag) + s - at;
 }
 
 // The 4×4 ordered-dither threshold of a pixel, (index + 0.5)/16.

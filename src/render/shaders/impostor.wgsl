@@ -379,7 +379,7 @@ fn shade(in: ImpostorOut) -> Shaded {
     let d = layer_dither(in.position.xy, in.world);
     var mask = 0xffffffffu;
     if (SAMPLE_MASK) {
-        mask = sample_mask_of(texel.a, d);
+        mask = sample_mask_of(vec4<f32>(texel.a), d);
         if (mask == 0u || texel.a <= 0.0) {
             discard;
         }

@@ -49,6 +49,8 @@ struct MeshOut {
     @location(1) normal: vec3<f32>,
     @location(2) uv: vec2<f32>,
     @location(3) tangent: vec4<f32>,
+    // The clip-space position again, interpolated as the inputs are (`screen_point`).
+    @location(4) clip: vec4<f32>,
     // The ambient term's per-vertex values (shaders/ambient.wgsl).
     @location(8) ambient_front: vec3<f32>,
     @location(9) ambient_back: vec3<f32>,
@@ -86,6 +88,7 @@ fn mesh_vertex(v: MeshIn) -> MeshOut {
     let world = vec3<f32>(c * p.x - s * p.y, s * p.x + c * p.y, p.z) + v.instance_position;
     var out: MeshOut;
     out.position = globals.view_proj * vec4<f32>(world, 1.0);
+    out.clip = out.position;
     out.world = world;
     // A uniform scale keeps normals; only the rotation applies.
     out.normal = vec3<f32>(c * v.normal.x - s * v.normal.y, s * v.normal.x + c * v.normal.y, v.normal.z);
@@ -177,7 +180,7 @@ fn mesh_ambient(in: MeshOut, texel: vec3<f32>) -> vec3<f32> {
     return ambient_layered(m, v, albedo, e_seen, e_other, l_r) * ambient.scale.x;
 }
 
-// Far leaf cards (src/render/coverage.rs): the weight of the level-0 coverage at mip level
+// Far leaf cards (src/render/coverage.rs): the weight of the per-sample test at mip level
 // lambda of a chain of `levels` levels, 0 up to the 4×4 level, 1 from the 2×2 level on.
 fn far_weight(levels: f32, lambda: f32) -> f32 {
     if (levels < 3.0) {
@@ -185,6 +188,15 @@ fn far_weight(levels: f32, lambda: f32) -> f32 {
     }
     let top = levels - 1.0;
     return clamp(min(lambda, top) - (top - 2.0), 0.0, 1.0);
+}
+
+// The far test of the card's point under sample k (k = 4: the pixel's centre): 1 where the
+// colour map's level-0 alpha (bilinear) times the opacity reaches ½ there, the uv carried from
+// the fragment's by the screen derivatives (src/render/coverage.rs, "each sample's own test").
+fn far_sample(uv: vec2<f32>, dux: vec2<f32>, duy: vec2<f32>, frag: vec2<f32>, at: vec2<f32>, k: u32) -> f32 {
+    let o = sample_offset(frag, at, k);
+    let a = textureSampleLevel(color_map, color_sampler, uv + dux * o.x + duy * o.y, 0.0).a;
+    return select(0.0, 1.0, a * direct_material.mode.z >= 0.5);
 }
 
 // Parallax mapping with offset limiting (Welch 2004; seed 000 §4.7.3), where
@@ -244,10 +256,11 @@ fn shade(in: MeshOut) -> Shaded {
     // switch is a uniform).
     var texel: vec4<f32>;
     var nm: vec4<f32>;
+    let dux = dpdx(in.uv);
+    let duy = dpdy(in.uv);
+    var uv = in.uv;
     if (globals.cam_right.w != 0.0 && direct_material.mode.w != 0.0) {
-        let dux = dpdx(in.uv);
-        let duy = dpdy(in.uv);
-        let uv = parallax_uv(in, dux, duy);
+        uv = parallax_uv(in, dux, duy);
         texel = textureSampleGrad(color_map, color_sampler, uv, dux, duy);
         nm = textureSampleGrad(normal_map, color_sampler, uv, dux, duy);
     } else {
@@ -256,24 +269,42 @@ fn shade(in: MeshOut) -> Shaded {
     }
     let ts = nm.xyz * 2.0 - 1.0;
     let a = texel.a * direct_material.mode.z;
-    let w = fwidth(a);
+    let dax = dpdx(a);
+    let day = dpdy(a);
+    let w = abs(dax) + abs(day);
     // The mip level's λ from the level-0 footprint, as the CPU reference's `mip_lambda`.
     let dims = vec2<f32>(textureDimensions(color_map, 0));
-    let rho = max(length(dpdx(in.uv) * dims), length(dpdy(in.uv) * dims));
-    let t = far_weight(material.alpha.x, log2(max(rho, 1e-30)));
+    let rho = max(length(dux * dims), length(duy * dims));
+    let lambda = log2(max(rho, 1e-30));
+    let t = far_weight(material.alpha.x, lambda);
     let d = layer_dither(in.position.xy, in.world);
+    let at = screen_point(in.clip);
     var mask = 0xffffffffu;
     if (SAMPLE_MASK) {
-        // The near ramp across the alpha edge, the level-0 coverage far away; each of the four
-        // samples against its own threshold.
-        let near = clamp((a - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
-        mask = sample_mask_of(mix(near, material.alpha.y, t), d);
+        // The near ramp across the alpha edge; far away each sample's own alpha test at the
+        // card's point under it; each of the four samples against its own threshold.
+        var near = vec4<f32>(0.0);
+        var far = vec4<f32>(0.0);
+        for (var k = 0u; k < 4u; k++) {
+            let o = sample_offset(in.position.xy, at, k);
+            near[k] = clamp((a + dax * o.x + day * o.y - 0.5) / max(w, 1e-4) + 0.5, 0.0, 1.0);
+        }
+        if (t > 0.0) {
+            for (var k = 0u; k < 4u; k++) {
+                far[k] = far_sample(uv, dux, duy, in.position.xy, at, k);
+            }
+        }
+        mask = sample_mask_of(mix(near, far, t), d);
         if (mask == 0u) {
             discard;
         }
     } else {
-        let c = mix(select(0.0, 1.0, a >= 0.5), material.alpha.y, t);
-        if (c < d) {
+        let hard = select(0.0, 1.0, a >= 0.5);
+        var far = hard;
+        if (t > 0.0) {
+            far = far_sample(uv, dux, duy, in.position.xy, at, 4u);
+        }
+        if (mix(hard, far, t) < d) {
             discard;
         }
     }
