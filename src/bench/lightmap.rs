@@ -190,18 +190,30 @@ pub fn bench_lightmap_error(
     };
     let light = crate::lightmap::scene_lighting(&pack)?;
     let scene = crate::trace::pack_scene::trace_scene(&pack)?;
+    let want_noise = filters.iter().any(|f| f.noise);
     let run = |opts: &LightmapOptions,
                rows: std::ops::Range<u32>|
-     -> Result<(f64, f64, crate::lightmap::TexelRows)> {
+     -> Result<(f64, f64, crate::lightmap::TexelRows, Vec<f32>)> {
         let (t0, c0) = (
             std::time::Instant::now(),
             super::cpu_seconds().unwrap_or(0.0),
         );
-        let (e, d) =
-            crate::lightmap::bake_terrain_lightmap_rows(&scene, &light, opts, rows.clone())?
-                .ok_or_else(|| crate::error::Error::usage("the pack has no terrain".to_string()))?;
+        let none = || crate::error::Error::usage("the pack has no terrain".to_string());
+        let noise_too = want_noise
+            && opts.visibility == crate::lightmap::LightmapVisibility::Horizons
+            && opts.mode == crate::lightmap::LightmapMode::Physical;
+        let ((e, d), noise) = if noise_too {
+            crate::lightmap::bake_terrain_lightmap_rows_noise(&scene, &light, opts, rows.clone())?
+                .ok_or_else(none)?
+        } else {
+            (
+                crate::lightmap::bake_terrain_lightmap_rows(&scene, &light, opts, rows.clone())?
+                    .ok_or_else(none)?,
+                Vec::new(),
+            )
+        };
         let cpu = super::cpu_seconds().unwrap_or(0.0) - c0;
-        Ok((t0.elapsed().as_secs_f64(), cpu, (e, d)))
+        Ok((t0.elapsed().as_secs_f64(), cpu, (e, d), noise))
     };
     let ref_opts = LightmapOptions {
         samples: reference,
@@ -212,7 +224,7 @@ pub fn bench_lightmap_error(
     let full = crate::lightmap::terrain_lightmap_size(&scene, &ref_opts)
         .ok_or_else(|| crate::error::Error::usage("the pack has no terrain".to_string()))?;
     let rows = rows.start.min(full.1)..rows.end.min(full.1);
-    let (rw, rc, (re, rd)) = run(&ref_opts, rows.clone())?;
+    let (rw, rc, (re, rd), _) = run(&ref_opts, rows.clone())?;
     let mean = |v: &[[f32; 3]]| {
         v.iter()
             .map(|t| (t[0] + t[1] + t[2]) as f64 / 3.0)
@@ -282,7 +294,7 @@ pub fn bench_lightmap_error(
             let ground = rows.len() as f64 * size.1 as f64 / full.1 as f64;
             (cr.clone(), ground / cr.len().max(1) as f64)
         };
-        let (w, c, (e, d)) = run(&opts, cr.clone())?;
+        let (w, c, (e, d), noise) = run(&opts, cr.clone())?;
         let (w, c) = (w * share, c * share);
         let width = size.0 as usize;
         let up = |v: &[[f32; 3]]| {
@@ -324,12 +336,18 @@ pub fn bench_lightmap_error(
         for &TexelFilter {
             total,
             guided,
+            noise: noise_kind,
             radius: r,
             range: t,
         } in filters
         {
+            if noise_kind && noise.is_empty() {
+                continue; // the ray estimator has no noise estimate
+            }
             let filt = |v: &[[f32; 3]]| {
-                if guided {
+                if noise_kind {
+                    crate::lightmap::filter::noise_bilateral(v, &noise, width, r, t)
+                } else if guided {
                     crate::lightmap::filter::guided_bilateral(v, width, r, t)
                 } else if t > 0.0 {
                     crate::lightmap::filter::bilateral(v, width, r, t)
@@ -366,7 +384,9 @@ pub fn bench_lightmap_error(
                 sf["p90"].as_f64().unwrap_or(0.0) * 100.0,
                 sf["max"].as_f64().unwrap_or(0.0) * 100.0,
                 sf["bias"].as_f64().unwrap_or(0.0) * 100.0,
-                if guided {
+                if noise_kind {
+                    format!("noise-aware bilateral (k {t})")
+                } else if guided {
                     format!("guided bilateral (range {t})")
                 } else if t > 0.0 {
                     format!("bilateral (range {t})")
@@ -379,7 +399,7 @@ pub fn bench_lightmap_error(
                     "the part without direct sun"
                 },
             );
-            filtered.push(serde_json::json!({"radius": r, "range": t, "guided": guided, "whole": total, "total": tf, "without_direct_sun": sf}));
+            filtered.push(serde_json::json!({"radius": r, "range": t, "guided": guided, "noise": noise_kind, "whole": total, "total": tf, "without_direct_sun": sf}));
         }
         rowsj.push(serde_json::json!({"visibility": visibility, "samples": samples, "sun_samples": sun_samples,
             "horizon_lattice": lattice, "resolution": size.0, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky,
@@ -401,6 +421,9 @@ pub struct TexelFilter {
     /// A bilateral whose range weights follow the values' 3×3 box
     /// ([`crate::lightmap::filter::guided_bilateral`]).
     pub guided: bool,
+    /// A bilateral whose range follows each texel's noise estimate, `range` its k
+    /// ([`crate::lightmap::filter::noise_bilateral`]; horizon estimators only).
+    pub noise: bool,
     pub radius: usize,
     /// The bilateral's relative range; 0: a box.
     pub range: f32,
@@ -423,14 +446,15 @@ pub fn parse_filters(s: &str) -> std::result::Result<Vec<TexelFilter>, String> {
                 Some(r) => r.parse().map_err(|e| format!("filter `{f}`: {e}"))?,
                 None => 0.0,
             };
-            let (total, bilateral, guided) = match p[0] {
-                "box" => (false, false, false),
-                "bilateral" => (false, true, false),
-                "guided" => (false, true, true),
-                "bilateral-total" => (true, true, false),
+            let (total, bilateral, guided, noise) = match p[0] {
+                "box" => (false, false, false, false),
+                "bilateral" => (false, true, false, false),
+                "guided" => (false, true, true, false),
+                "noise" => (false, true, false, true),
+                "bilateral-total" => (true, true, false, false),
                 k => {
                     return Err(format!(
-                        "filter `{f}`: kind `{k}` (box, bilateral, guided, bilateral-total)"
+                        "filter `{f}`: kind `{k}` (box, bilateral, guided, noise, bilateral-total)"
                     ));
                 }
             };
@@ -442,6 +466,7 @@ pub fn parse_filters(s: &str) -> std::result::Result<Vec<TexelFilter>, String> {
             Ok(TexelFilter {
                 total,
                 guided,
+                noise,
                 radius,
                 range,
             })
@@ -502,14 +527,18 @@ mod tests {
 
     #[test]
     fn filters_parse_and_refuse_bad_ones() {
-        let f = super::parse_filters("box:1, bilateral:2:0.2,bilateral-total:3:0.1,guided:2:0.5")
-            .unwrap();
-        assert_eq!(f.len(), 4);
+        let f = super::parse_filters(
+            "box:1, bilateral:2:0.2,bilateral-total:3:0.1,guided:2:0.5,noise:2:2",
+        )
+        .unwrap();
+        assert_eq!(f.len(), 5);
+        assert!(f[4].noise && !f[4].guided);
         assert_eq!(
             f[1],
             super::TexelFilter {
                 total: false,
                 guided: false,
+                noise: false,
                 radius: 2,
                 range: 0.2
             }

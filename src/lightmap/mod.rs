@@ -297,6 +297,42 @@ fn horizon_rows(
     opts: &LightmapOptions,
     rows: std::ops::Range<u32>,
 ) -> TexelRows {
+    horizon_rows_noise(scene, bvh, light, opts, rows, false).0
+}
+
+/// The terrain light map's rows `rows` by the horizon estimator with each texel's noise
+/// estimate: the variance of its traced correction's RGB mean (see [`texel_horizon_parts`]),
+/// for the benchmark's noise-aware filter (`bake bench lightmap --filters noise:R:K`). `None`
+/// without a terrain; an error for another estimator than `physical` with `horizons`.
+pub fn bake_terrain_lightmap_rows_noise(
+    scene: &TraceScene,
+    light: &BakeLight,
+    opts: &LightmapOptions,
+    rows: std::ops::Range<u32>,
+) -> crate::error::Result<Option<(TexelRows, Vec<f32>)>> {
+    let Some((_, h)) = terrain_lightmap_size(scene, opts) else {
+        return Ok(None);
+    };
+    if opts.mode != LightmapMode::Physical || opts.visibility != LightmapVisibility::Horizons {
+        return Err(crate::error::Error::usage(
+            "a noise estimate needs the physical mode with horizons".to_string(),
+        ));
+    }
+    let bvh = scene.tracer(opts.tracer)?;
+    let rows = rows.start.min(h)..rows.end.min(h);
+    let (t, noise) = horizon_rows_noise(scene, bvh, light, opts, rows, true);
+    Ok(Some((t, noise)))
+}
+
+/// [`horizon_rows`], with the texels' noise estimates when `noise` (else an empty list).
+fn horizon_rows_noise(
+    scene: &TraceScene,
+    bvh: &dyn SceneTracer,
+    light: &BakeLight,
+    opts: &LightmapOptions,
+    rows: std::ops::Range<u32>,
+    noise: bool,
+) -> (TexelRows, Vec<f32>) {
     let t = scene.terrain.as_ref().expect("a terrain");
     let (w, h) = terrain_lightmap_size(scene, opts).expect("a terrain");
     let grid = horizon::TexelGrid::new(t, w, h);
@@ -305,12 +341,12 @@ fn horizon_rows(
     let sky_irr = light.sky.to_irradiance();
     let reach = Reach::of(scene);
     let band = band_rows(w, dirs.len());
-    let (mut texels, mut direct) = (Vec::new(), Vec::new());
+    let (mut texels, mut direct, mut variance) = (Vec::new(), Vec::new(), Vec::new());
     let mut start = rows.start;
     while start < rows.end {
         let end = (start + band).min(rows.end);
         let hz = horizon::Horizons::compute(t, &grid, &dirs, light.sun.map(|s| s.0), start..end);
-        let (e, d): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..hz.len())
+        let parts: Vec<([f32; 3], [f32; 3], f32)> = (0..hz.len())
             .into_par_iter()
             .map(|k| {
                 let (i, j) = (k as u32 % w, start + k as u32 / w);
@@ -326,12 +362,15 @@ fn horizon_rows(
                 };
                 texel_horizon_parts(bvh, &scene.albedo, light, &sky_irr, &env, p, n, texel, opts)
             })
-            .unzip();
-        texels.extend(e);
-        direct.extend(d);
+            .collect();
+        texels.extend(parts.iter().map(|p| p.0));
+        direct.extend(parts.iter().map(|p| p.1));
+        if noise {
+            variance.extend(parts.iter().map(|p| p.2));
+        }
         start = end;
     }
-    (texels, direct)
+    ((texels, direct), variance)
 }
 
 /// A texel's horizons and what [`texel_horizon_parts`] reads beside them.
@@ -370,7 +409,7 @@ fn texel_horizon_parts(
     n: Vec3A,
     texel: u64,
     opts: &LightmapOptions,
-) -> ([f32; 3], [f32; 3]) {
+) -> ([f32; 3], [f32; 3], f32) {
     let origin = p + n * 1e-3;
     let hz = env.horizons;
     let mut e = [0.0f64; 3];
@@ -406,8 +445,11 @@ fn texel_horizon_parts(
             e[c] += v[c] as f64;
         }
     }
-    // The traced correction ∫ (f − g) (n·d) dω.
+    // The traced correction ∫ (f − g) (n·d) dω, and the sums of its rays' RGB means for the
+    // variance of their mean (an estimate of the texel's noise; the rays are stratified, so it
+    // is an upper bound).
     let nsamp = opts.samples.max(1);
+    let (mut s1, mut s2) = (0.0f64, 0.0f64);
     let (tx, bx) = crate::trace::frame(n);
     let shift = cp_rotation(texel);
     for k in 0..nsamp {
@@ -439,8 +481,17 @@ fn texel_horizon_parts(
         for ch in 0..3 {
             e[ch] += (c[ch] * std::f32::consts::PI / nsamp as f32) as f64;
         }
+        let x = (c[0] + c[1] + c[2]) as f64 / 3.0 * std::f64::consts::PI;
+        s1 += x;
+        s2 += x * x;
     }
-    (e.map(|v| v as f32), direct)
+    let nf = nsamp as f64;
+    let variance = if nsamp > 1 {
+        ((s2 - s1 * s1 / nf) / (nf * (nf - 1.0))).max(0.0)
+    } else {
+        0.0
+    };
+    (e.map(|v| v as f32), direct, variance as f32)
 }
 
 /// Fraction of the sun's disc that no instance blocks (the terrain skipped): the disc points
