@@ -60,8 +60,10 @@ pub fn guided_bilateral(v: &[[f32; 3]], width: usize, r: usize, t: f32) -> Vec<[
 
 /// Bilateral filter of radius `r` whose range follows each texel's noise: neighbours weighted
 /// by exp(−Δ² / (k² (σ²_p + σ²_q))), Δ the difference of their RGB means, σ² the texels' noise
-/// variances (`variance`, the same size). Two texels that differ by their noise alone weigh
-/// about exp(−1/k²); a step well above both noises is kept, however small relative to the value.
+/// variances (`variance`, the same size) averaged over their 3×3 box first (a texel's own
+/// estimate from its few rays is itself noisy: a texel whose rays all escaped states none).
+/// Two texels that differ by their noise alone weigh about exp(−1/k²); a step well above both
+/// noises is kept, however small relative to the value.
 pub fn noise_bilateral(
     v: &[[f32; 3]],
     variance: &[f32],
@@ -72,6 +74,8 @@ pub fn noise_bilateral(
     let width = width.max(1);
     let h = v.len() / width;
     let k2 = (k as f64).powi(2);
+    let boxed: Vec<[f32; 3]> = variance.iter().map(|&s| [s; 3]).collect();
+    let variance: Vec<f32> = box_filter(&boxed, width, 1).iter().map(|s| s[0]).collect();
     let mut out = vec![[0.0f32; 3]; v.len()];
     out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
         for (x, o) in row.iter_mut().enumerate() {
