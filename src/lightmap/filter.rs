@@ -9,6 +9,39 @@ fn lum(p: [f32; 3]) -> f64 {
     (p[0] + p[1] + p[2]) as f64 / 3.0
 }
 
+/// Every texel of a map (or a strip of rows) `width` texels wide replaced by the mean of the
+/// texels in its (2r+1)² window clamped at the edges, weighted by `weight(centre, neighbour)`
+/// (their indices): the one loop of the filters below.
+fn window_mean(
+    v: &[[f32; 3]],
+    width: usize,
+    r: usize,
+    weight: impl Fn(usize, usize) -> f64 + Sync,
+) -> Vec<[f32; 3]> {
+    let width = width.max(1);
+    let h = v.len() / width;
+    let mut out = vec![[0.0f32; 3]; v.len()];
+    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            let centre = y * width + x;
+            let mut s = [0.0f64; 3];
+            let mut wsum = 0.0f64;
+            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
+                    let i = yy * width + xx;
+                    let w = weight(centre, i);
+                    for c in 0..3 {
+                        s[c] += w * v[i][c] as f64;
+                    }
+                    wsum += w;
+                }
+            }
+            *o = s.map(|q| (q / wsum) as f32);
+        }
+    });
+    out
+}
+
 /// Bilateral filter of radius `r` over a map (or a strip of rows) `width` texels wide, clamped
 /// at its edges: neighbours weighted by exp(−(Δ / (t·c))²), Δ the difference of their RGB mean
 /// from the centre texel's mean c, so a step larger than about t of the value is kept and
@@ -28,29 +61,11 @@ pub fn joint_bilateral(
     r: usize,
     t: f32,
 ) -> Vec<[f32; 3]> {
-    let width = width.max(1);
-    let h = v.len() / width;
-    let mut out = vec![[0.0f32; 3]; v.len()];
-    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let c = lum(guide[y * width + x]);
-            let scale = (t as f64 * c.abs()).max(1e-12);
-            let mut s = [0.0f64; 3];
-            let mut wsum = 0.0f64;
-            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
-                    let q = v[yy * width + xx];
-                    let w = (-((lum(guide[yy * width + xx]) - c) / scale).powi(2)).exp();
-                    for k in 0..3 {
-                        s[k] += w * q[k] as f64;
-                    }
-                    wsum += w;
-                }
-            }
-            *o = s.map(|q| (q / wsum) as f32);
-        }
-    });
-    out
+    window_mean(v, width, r, |p, q| {
+        let c = lum(guide[p]);
+        let scale = (t as f64 * c.abs()).max(1e-12);
+        (-((lum(guide[q]) - c) / scale).powi(2)).exp()
+    })
 }
 
 /// [`joint_bilateral`] guided by the values' own 3×3 box ([`box_filter`] of radius 1).
@@ -71,65 +86,26 @@ pub fn noise_bilateral(
     r: usize,
     k: f32,
 ) -> Vec<[f32; 3]> {
-    let width = width.max(1);
-    let h = v.len() / width;
     let k2 = (k as f64).powi(2);
     let boxed: Vec<[f32; 3]> = variance.iter().map(|&s| [s; 3]).collect();
     let variance: Vec<f32> = box_filter(&boxed, width, 1).iter().map(|s| s[0]).collect();
-    let mut out = vec![[0.0f32; 3]; v.len()];
-    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let (c, vc) = (lum(v[y * width + x]), variance[y * width + x] as f64);
-            let mut s = [0.0f64; 3];
-            let mut wsum = 0.0f64;
-            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
-                    let i = yy * width + xx;
-                    let q = v[i];
-                    let d = lum(q) - c;
-                    let s2 = k2 * (vc + variance[i] as f64);
-                    let w = if i == y * width + x {
-                        1.0
-                    } else if s2 > 0.0 {
-                        (-d * d / s2).exp()
-                    } else {
-                        0.0
-                    };
-                    for ch in 0..3 {
-                        s[ch] += w * q[ch] as f64;
-                    }
-                    wsum += w;
-                }
-            }
-            *o = s.map(|q| (q / wsum) as f32);
+    window_mean(v, width, r, |p, q| {
+        let d = lum(v[q]) - lum(v[p]);
+        let s2 = k2 * (variance[p] as f64 + variance[q] as f64);
+        if q == p {
+            1.0
+        } else if s2 > 0.0 {
+            (-d * d / s2).exp()
+        } else {
+            0.0
         }
-    });
-    out
+    })
 }
 
 /// Box filter of radius `r` over a strip of rows `width` texels wide (clamped at the edges:
 /// the mean of the texels inside both the box and the strip).
 pub fn box_filter(v: &[[f32; 3]], width: usize, r: usize) -> Vec<[f32; 3]> {
-    let width = width.max(1);
-    let h = v.len() / width;
-    let mut out = vec![[0.0f32; 3]; v.len()];
-    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let mut s = [0.0f64; 3];
-            let mut n = 0u32;
-            for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                for xx in x.saturating_sub(r)..(x + r + 1).min(width) {
-                    let t = v[yy * width + xx];
-                    for c in 0..3 {
-                        s[c] += t[c] as f64;
-                    }
-                    n += 1;
-                }
-            }
-            *o = s.map(|q| (q / n as f64) as f32);
-        }
-    });
-    out
+    window_mean(v, width, r, |_, _| 1.0)
 }
 
 /// The texels with their part without the direct sun (`texels − direct`) filtered by
