@@ -304,7 +304,7 @@ fn horizon_rows(
 /// estimate: the variance of its traced correction's RGB mean (see [`texel_horizon_parts`]),
 /// for the benchmark's noise-aware filter (`bake bench lightmap --filters noise:R:K`). `None`
 /// without a terrain; an error for another estimator than `physical` with `horizons`.
-pub fn bake_terrain_lightmap_rows_noise(
+pub(crate) fn bake_terrain_lightmap_rows_noise(
     scene: &TraceScene,
     light: &BakeLight,
     opts: &LightmapOptions,
@@ -346,28 +346,29 @@ fn horizon_rows_noise(
     while start < rows.end {
         let end = (start + band).min(rows.end);
         let hz = horizon::Horizons::compute(t, &grid, &dirs, light.sun.map(|s| s.0), start..end);
-        let parts: Vec<([f32; 3], [f32; 3], f32)> = (0..hz.len())
-            .into_par_iter()
-            .map(|k| {
-                let (i, j) = (k as u32 % w, start + k as u32 / w);
-                let (x, y) = grid.xy(i, j);
-                let p = Vec3A::new(x, y, t.mesh_height_at(x, y));
-                let n = Vec3A::from(height_normal(t, x, y));
-                let texel = (j * w + i) as u64;
-                let env = HorizonTexel {
-                    tables: &tables,
-                    horizons: &hz,
-                    index: k,
-                    reach,
-                };
-                texel_horizon_parts(bvh, &scene.albedo, light, &sky_irr, &env, p, n, texel, opts)
-            })
-            .collect();
-        texels.extend(parts.iter().map(|p| p.0));
-        direct.extend(parts.iter().map(|p| p.1));
-        if noise {
-            variance.extend(parts.iter().map(|p| p.2));
-        }
+        let parts = (0..hz.len()).into_par_iter().map(|k| {
+            let (i, j) = (k as u32 % w, start + k as u32 / w);
+            let (x, y) = grid.xy(i, j);
+            let p = Vec3A::new(x, y, t.mesh_height_at(x, y));
+            let n = Vec3A::from(height_normal(t, x, y));
+            let texel = (j * w + i) as u64;
+            let env = HorizonTexel {
+                tables: &tables,
+                horizons: &hz,
+                index: k,
+                reach,
+            };
+            texel_horizon_parts(bvh, &scene.albedo, light, &sky_irr, &env, p, n, texel, opts)
+        });
+        // The variances only when asked for (the bake's path keeps its two arrays).
+        let ((e, d), var): ((Vec<_>, Vec<_>), Vec<f32>) = if noise {
+            parts.map(|(e, d, v)| ((e, d), v)).unzip()
+        } else {
+            (parts.map(|(e, d, _)| (e, d)).unzip(), Vec::new())
+        };
+        texels.extend(e);
+        direct.extend(d);
+        variance.extend(var);
         start = end;
     }
     ((texels, direct), variance)
