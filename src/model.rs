@@ -262,8 +262,9 @@ fn grid_cell(
     };
     let fx = grid(x, origin[0], extent[0], w);
     let fy = grid(y, origin[1], extent[1], h);
-    let i0 = (fx.floor() as u32).min(w.saturating_sub(2));
-    let j0 = (fy.floor() as u32).min(h.saturating_sub(2));
+    // fx, fy ≥ 0 (or NaN, which both give 0): truncation is the floor, without a libm call.
+    let i0 = (fx as u32).min(w.saturating_sub(2));
+    let j0 = (fy as u32).min(h.saturating_sub(2));
     let i1 = (i0 + 1).min(w - 1);
     let j1 = (j0 + 1).min(h - 1);
     let at = |i: u32, j: u32| heights[(j * width + i) as usize];

@@ -20,6 +20,10 @@
 //! halfway between neighbouring directions); in a sector the horizon is taken as constant, its
 //! direction's. Stored as sin(elevation), rounded up to 1/32767.
 //!
+//! A band of rows is swept by walking every line that reaches it from its far end. A map
+//! baked in several bands walks each southward line once ([`BandedSweeps`]): it keeps its
+//! position and hull from one band to the next.
+//!
 //! **Sky above the horizons.** The sky's radiance is SH order 4, so `∫ L(d) (n·d) dω` over
 //! `{d in sector k, sin(elevation) > s}` is `n · V_k(s)` with `V_k(s) = ∫ L(d) d dω` a function
 //! of s alone: [`SkyTables`] holds it per sector on 2,049 values of s (dω = ds dφ; 16
@@ -125,34 +129,84 @@ impl TexelGrid {
     }
 }
 
-/// The horizon slope (tan of elevation; −∞ where nothing lies ahead) of every texel of rows
-/// `rows` in lattice direction (a, b), passed to `store(index in the rows, slope)`.
-pub fn sweep(
-    t: &Terrain,
-    g: &TexelGrid,
-    (a, b): (i32, i32),
-    rows: Range<u32>,
-    mut store: impl FnMut(usize, f32),
-) {
-    let (w, h) = (g.width as i64, g.height as i64);
-    let rows = rows.start.min(g.height)..rows.end.min(g.height);
-    if rows.is_empty() || (a, b) == (0, 0) {
-        return;
+/// The geometry of one lattice direction's sweep over a texel grid: the lattice lines, their
+/// profile step and how a line is walked (see the file comment).
+struct LineWalk<'a> {
+    t: &'a Terrain,
+    g: &'a TexelGrid,
+    a: i64,
+    b: i64,
+    w: i64,
+    h: i64,
+    dx: f32,
+    dy: f32,
+    len: f64,
+    m: i64,
+}
+
+/// Where a line's walk stands before a texel: the texel (i, jj) with jj counted northwards and
+/// its index k along the line (0: the walk has not started). The walk's other state is the
+/// upper hull of the profile points swept so far; every u and z the walk adds to it is an f32
+/// (u an f32 difference or an integer below 2²⁴), so a hull kept as f32 pairs resumes to the
+/// same slopes ([`BandedSweeps`]).
+#[derive(Debug, Clone, Copy)]
+struct LinePos {
+    i: i64,
+    jj: i64,
+    k: i64,
+}
+
+impl<'a> LineWalk<'a> {
+    fn new(t: &'a Terrain, g: &'a TexelGrid, (a, b): (i32, i32)) -> Self {
+        let step = g.step();
+        let dx = a as f32 * step[0];
+        let dy = b as f32 * step[1];
+        let m = ((dx.abs() / g.cell[0]).max(dy.abs() / g.cell[1]) * (1.0 - 1e-4))
+            .ceil()
+            .max(1.0) as i64;
+        LineWalk {
+            t,
+            g,
+            a: a as i64,
+            b: b as i64,
+            w: g.width as i64,
+            h: g.height as i64,
+            dx,
+            dy,
+            len: (dx as f64).hypot(dy as f64),
+            m,
+        }
     }
-    // Lattice rows counted northwards: jj = h − 1 − j.
-    let (jj_lo, jj_hi) = (h - rows.end as i64, h - 1 - rows.start as i64);
-    let (a, b) = (a as i64, b as i64);
-    let step = g.step();
-    let dx = a as f32 * step[0];
-    let dy = b as f32 * step[1];
-    let len = (dx as f64).hypot(dy as f64);
-    let m = ((dx.abs() / g.cell[0]).max(dy.abs() / g.cell[1]) * (1.0 - 1e-4))
-        .ceil()
-        .max(1.0) as i64;
-    let inside = |i: i64, jj: i64| (0..w).contains(&i) && (0..h).contains(&jj);
-    let mut hull: Vec<(f64, f64)> = Vec::new();
-    // Adds a profile point (u along the line in lattice steps, height z); returns its horizon.
-    let add = |hull: &mut Vec<(f64, f64)>, u: f64, z: f64| -> f32 {
+
+    #[inline]
+    fn inside(&self, i: i64, jj: i64) -> bool {
+        (0..self.w).contains(&i) && (0..self.h).contains(&jj)
+    }
+
+    /// Line ends, texels whose next texel ahead lies outside the grid, in a fixed order.
+    fn ends(&self, mut f: impl FnMut(i64, i64)) {
+        for jj in 0..self.h {
+            if !self.inside(0, jj + self.b) {
+                for i in 0..self.w {
+                    f(i, jj);
+                }
+            } else {
+                let cols = if self.a > 0 {
+                    (self.w - self.a).max(0)..self.w
+                } else {
+                    0..(-self.a).min(self.w)
+                };
+                for i in cols {
+                    f(i, jj);
+                }
+            }
+        }
+    }
+
+    /// Adds a profile point (u along the line in lattice steps, height z) to the upper hull;
+    /// returns the horizon slope it sees.
+    #[inline]
+    fn add(&self, hull: &mut Vec<(f64, f64)>, u: f64, z: f64) -> f32 {
         while hull.len() >= 2 {
             let (u1, z1) = hull[hull.len() - 1];
             let (u2, z2) = hull[hull.len() - 2];
@@ -163,23 +217,26 @@ pub fn sweep(
             }
         }
         let slope = hull.last().map_or(f32::NEG_INFINITY, |&(u1, z1)| {
-            ((z1 - z) / ((u1 - u) * len)) as f32
+            ((z1 - z) / ((u1 - u) * self.len)) as f32
         });
         hull.push((u, z));
         slope
-    };
-    let mut line = |ei: i64, ejj: i64| {
-        // Lines that never reach the rows (walking backwards) are skipped.
-        if b == 0 && !(jj_lo..=jj_hi).contains(&ejj) {
-            return;
-        }
-        hull.clear();
-        let (mut i, mut jj, mut k) = (ei, ejj, 0i64);
-        while inside(i, jj) {
-            if (b > 0 && jj < jj_lo) || (b < 0 && jj > jj_hi) {
-                break;
-            }
-            let j = (h - 1 - jj) as u32;
+    }
+
+    /// Walks a line from `pos` (with `hull`, empty at k = 0) backwards while the texel is inside
+    /// the grid and `go(pos, hull)` says so, calling `visit(i, jj, slope)` after each texel;
+    /// returns where it stopped.
+    fn walk(
+        &self,
+        hull: &mut Vec<(f64, f64)>,
+        mut pos: LinePos,
+        mut go: impl FnMut(LinePos, &[(f64, f64)]) -> bool,
+        mut visit: impl FnMut(i64, i64, f32),
+    ) -> LinePos {
+        let (g, t, m, dx, dy) = (self.g, self.t, self.m, self.dx, self.dy);
+        while self.inside(pos.i, pos.jj) && go(pos, hull) {
+            let LinePos { i, jj, k } = pos;
+            let j = (self.h - 1 - jj) as u32;
             let (x, y) = g.xy(i as u32, j);
             if k == 0 {
                 // The terrain beyond the line's last texel, up to the terrain's edge.
@@ -197,45 +254,78 @@ pub fn sweep(
                 for f in (1..=last).rev() {
                     let f = f as f32 / m as f32;
                     let z = t.mesh_height_at(x + f * dx, y + f * dy);
-                    add(&mut hull, f as f64, z as f64);
+                    self.add(hull, f as f64, z as f64);
                 }
             } else {
                 for f in (1..m).rev() {
                     let f = f as f32 / m as f32;
                     let z = t.mesh_height_at(x + f * dx, y + f * dy);
-                    add(&mut hull, (f - k as f32) as f64, z as f64);
+                    self.add(hull, (f - k as f32) as f64, z as f64);
                 }
             }
             // A point a tenth of a step ahead: the slope of the triangle under the texel.
             let f = NEAR / m as f32;
             let z = t.mesh_height_at(x + f * dx, y + f * dy);
-            add(&mut hull, (f - k as f32) as f64, z as f64);
-            let slope = add(&mut hull, -k as f64, t.mesh_height_at(x, y) as f64);
-            if (jj_lo..=jj_hi).contains(&jj) {
-                store(((j - rows.start) as i64 * w + i) as usize, slope);
-            }
-            i -= a;
-            jj -= b;
-            k += 1;
-        }
-    };
-    // Line ends: texels whose next texel ahead lies outside the grid.
-    for jj in 0..h {
-        if !inside(0, jj + b) {
-            for i in 0..w {
-                line(i, jj);
-            }
-        } else {
-            let cols = if a > 0 {
-                (w - a).max(0)..w
-            } else {
-                0..(-a).min(w)
+            self.add(hull, (f - k as f32) as f64, z as f64);
+            let slope = self.add(hull, -k as f64, t.mesh_height_at(x, y) as f64);
+            visit(i, jj, slope);
+            pos = LinePos {
+                i: i - self.a,
+                jj: jj - self.b,
+                k: k + 1,
             };
-            for i in cols {
-                line(i, jj);
-            }
         }
+        pos
     }
+
+    /// Whether a walk that has reached lattice row `jj` has left rows `jj_lo..=jj_hi` behind
+    /// (walking backwards: jj decreases for b > 0, increases for b < 0).
+    #[inline]
+    fn past(&self, jj: i64, jj_lo: i64, jj_hi: i64) -> bool {
+        (self.b > 0 && jj < jj_lo) || (self.b < 0 && jj > jj_hi)
+    }
+}
+
+/// The horizon slope (tan of elevation; −∞ where nothing lies ahead) of every texel of rows
+/// `rows` in lattice direction (a, b), passed to `store(index in the rows, slope)`.
+pub fn sweep(
+    t: &Terrain,
+    g: &TexelGrid,
+    dir: (i32, i32),
+    rows: Range<u32>,
+    mut store: impl FnMut(usize, f32),
+) {
+    let rows = rows.start.min(g.height)..rows.end.min(g.height);
+    if rows.is_empty() || dir == (0, 0) {
+        return;
+    }
+    let lw = LineWalk::new(t, g, dir);
+    // Lattice rows counted northwards: jj = h − 1 − j.
+    let (jj_lo, jj_hi) = (lw.h - rows.end as i64, lw.h - 1 - rows.start as i64);
+    let w = lw.w;
+    let mut hull: Vec<(f64, f64)> = Vec::new();
+    lw.ends(|ei, ejj| {
+        // Lines that never reach the rows (walking backwards) are skipped.
+        if lw.b == 0 && !(jj_lo..=jj_hi).contains(&ejj) {
+            return;
+        }
+        hull.clear();
+        lw.walk(
+            &mut hull,
+            LinePos {
+                i: ei,
+                jj: ejj,
+                k: 0,
+            },
+            |p, _| !lw.past(p.jj, jj_lo, jj_hi),
+            |i, jj, slope| {
+                if (jj_lo..=jj_hi).contains(&jj) {
+                    let j = (lw.h - 1 - jj) as u32;
+                    store(((j - rows.start) as i64 * w + i) as usize, slope);
+                }
+            },
+        );
+    });
 }
 
 /// sin of the elevation whose tangent is `slope`.
@@ -331,6 +421,186 @@ impl Horizons {
     #[inline]
     pub fn sin(&self, d: usize, k: usize) -> f32 {
         self.sin_q[d * self.len() + k] as f32 / Q
+    }
+}
+
+/// A line walking southwards that has left one band and not yet the next: where it stands and
+/// its hull as f32 pairs (exact, see [`LinePos`]).
+#[derive(Debug, Clone)]
+struct Live {
+    pos: LinePos,
+    hull: Vec<(f32, f32)>,
+}
+
+/// One direction's state across the bands of a [`BandedSweeps`]: the lines that walk
+/// southwards (b > 0: rows in the bands' order) still walking.
+#[derive(Debug, Default)]
+struct DirectionState {
+    live: Vec<Live>,
+}
+
+/// The horizons of consecutive bands of rows, taken in order. A band's own sweep
+/// ([`Horizons::compute`]) walks every line from its far end up to the band, so N bands of a
+/// large map walk about N/2 grids per direction. Here the lines that walk southwards (those of
+/// directions with b > 0, rows in the bands' order) are walked once: each keeps its position and
+/// upper hull from one band to the next. The others are swept per band as before, so such a
+/// map walks about 1 + N/2 grids per two directions where it walked N; the live lines hold
+/// their hulls meanwhile ([`Self::bytes`]). The horizons are the same bits as each band's own
+/// sweep (tests/horizons.rs).
+#[derive(Debug)]
+pub struct BandedSweeps {
+    bands: Vec<Range<u32>>,
+    directions: Vec<(i32, i32)>,
+    sun_lattice: Option<(i32, i32)>,
+    /// `[direction (the sun's last)]`
+    states: Vec<DirectionState>,
+    /// The next band `horizons` takes.
+    next: usize,
+}
+
+impl BandedSweeps {
+    /// The sweeps of `bands` (consecutive, increasing, non-empty) in every direction of
+    /// `directions` and, given a sun direction, towards the sun.
+    pub fn new(
+        g: &TexelGrid,
+        directions: &[(i32, i32)],
+        sun: Option<[f32; 3]>,
+        bands: Vec<Range<u32>>,
+    ) -> Self {
+        assert!(
+            bands.windows(2).all(|p| p[0].end == p[1].start)
+                && bands.iter().all(|b| b.start < b.end),
+            "consecutive non-empty bands"
+        );
+        let sun_lattice = sun.map(|s| sun_lattice(g, s));
+        let n = directions.len() + sun_lattice.is_some() as usize;
+        BandedSweeps {
+            bands,
+            directions: directions.to_vec(),
+            sun_lattice,
+            states: (0..n).map(|_| DirectionState::default()).collect(),
+            next: 0,
+        }
+    }
+
+    /// The bands' rows.
+    pub fn bands(&self) -> &[Range<u32>] {
+        &self.bands
+    }
+
+    /// Bytes held by the live lines.
+    pub fn bytes(&self) -> usize {
+        self.states
+            .iter()
+            .flat_map(|s| &s.live)
+            .map(|l| {
+                std::mem::size_of::<Live>() + l.hull.capacity() * std::mem::size_of::<(f32, f32)>()
+            })
+            .sum()
+    }
+
+    /// Band `band`'s rows in direction `dir` (a southward one: b > 0), passed to
+    /// `store(index in the rows, slope)`: the live lines resumed, the lines that start before
+    /// the band's end walked from their start, and the lines still walking kept live.
+    fn southwards(
+        t: &Terrain,
+        g: &TexelGrid,
+        dir: (i32, i32),
+        state: &mut DirectionState,
+        first: bool,
+        rows: Range<u32>,
+        mut store: impl FnMut(usize, f32),
+    ) {
+        let lw = LineWalk::new(t, g, dir);
+        let (jj_lo, jj_hi) = (lw.h - rows.end as i64, lw.h - 1 - rows.start as i64);
+        let mut hull: Vec<(f64, f64)> = Vec::new();
+        let mut live = Vec::new();
+        let mut run = |hull: &mut Vec<(f64, f64)>, pos: LinePos| {
+            let end = lw.walk(
+                hull,
+                pos,
+                |p, _| !lw.past(p.jj, jj_lo, jj_hi),
+                |i, jj, slope| {
+                    if (jj_lo..=jj_hi).contains(&jj) {
+                        let j = (lw.h - 1 - jj) as u32;
+                        store(((j - rows.start) as i64 * lw.w + i) as usize, slope);
+                    }
+                },
+            );
+            if lw.inside(end.i, end.jj) {
+                live.push(Live {
+                    pos: end,
+                    hull: hull.iter().map(|&(u, z)| (u as f32, z as f32)).collect(),
+                });
+            }
+        };
+        for l in std::mem::take(&mut state.live) {
+            hull.clear();
+            hull.extend(l.hull.iter().map(|&(u, z)| (u as f64, z as f64)));
+            run(&mut hull, l.pos);
+        }
+        // Lines starting in the band, and for the first band every line starting above it.
+        lw.ends(|ei, ejj| {
+            if ejj >= jj_lo && (first || ejj <= jj_hi) {
+                hull.clear();
+                run(
+                    &mut hull,
+                    LinePos {
+                        i: ei,
+                        jj: ejj,
+                        k: 0,
+                    },
+                );
+            }
+        });
+        state.live = live;
+    }
+
+    /// The next band's horizons (bands are taken in order), equal to
+    /// `Horizons::compute(t, g, directions, sun, rows)` of its rows.
+    pub fn horizons(&mut self, t: &Terrain, g: &TexelGrid) -> Horizons {
+        let band = self.next;
+        self.next += 1;
+        let first = band == 0;
+        let rows = self.bands[band].start.min(g.height)..self.bands[band].end.min(g.height);
+        let n = rows.len() * g.width as usize;
+        let (dir_states, sun_state) = self.states.split_at_mut(self.directions.len());
+        let band_sweep =
+            |dir: (i32, i32), state: &mut DirectionState, store: &mut dyn FnMut(usize, f32)| {
+                if dir.1 > 0 {
+                    Self::southwards(t, g, dir, state, first, rows.clone(), store);
+                } else {
+                    sweep(t, g, dir, rows.clone(), store);
+                }
+            };
+        let mut sin_q = vec![0i16; n * self.directions.len()];
+        let mut sun_slope = Vec::new();
+        rayon::join(
+            || {
+                if n > 0 {
+                    sin_q
+                        .par_chunks_mut(n)
+                        .zip(self.directions.par_iter().zip(dir_states.par_iter_mut()))
+                        .for_each(|(out, (&dir, state))| {
+                            band_sweep(dir, state, &mut |k, s| out[k] = quantize(sin_of_slope(s)))
+                        });
+                }
+            },
+            || {
+                if let (Some(dir), Some(state)) = (self.sun_lattice, sun_state.first_mut()) {
+                    sun_slope = vec![f32::NEG_INFINITY; n];
+                    band_sweep(dir, state, &mut |k, s| sun_slope[k] = s);
+                }
+            },
+        );
+        Horizons {
+            rows,
+            width: g.width,
+            directions: self.directions.clone(),
+            sin_q,
+            sun_slope,
+            sun_lattice: self.sun_lattice,
+        }
     }
 }
 

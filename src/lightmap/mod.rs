@@ -341,11 +341,21 @@ fn horizon_rows_noise(
     let sky_irr = light.sky.to_irradiance();
     let reach = Reach::of(scene);
     let band = band_rows(w, dirs.len());
+    let bands: Vec<_> = (rows.start..rows.end)
+        .step_by(band as usize)
+        .map(|s| s..(s + band).min(rows.end))
+        .collect();
+    let sun = light.sun.map(|s| s.0);
+    // More than one band: each southward line walked once, kept from one band to the next.
+    let mut banded =
+        (bands.len() > 1).then(|| horizon::BandedSweeps::new(&grid, &dirs, sun, bands.clone()));
     let (mut texels, mut direct, mut variance) = (Vec::new(), Vec::new(), Vec::new());
-    let mut start = rows.start;
-    while start < rows.end {
-        let end = (start + band).min(rows.end);
-        let hz = horizon::Horizons::compute(t, &grid, &dirs, light.sun.map(|s| s.0), start..end);
+    for band in &bands {
+        let (start, end) = (band.start, band.end);
+        let hz = match banded.as_mut() {
+            Some(banded) => banded.horizons(t, &grid),
+            None => horizon::Horizons::compute(t, &grid, &dirs, sun, start..end),
+        };
         let parts = (0..hz.len()).into_par_iter().map(|k| {
             let (i, j) = (k as u32 % w, start + k as u32 / w);
             let (x, y) = grid.xy(i, j);
@@ -369,7 +379,6 @@ fn horizon_rows_noise(
         texels.extend(e);
         direct.extend(d);
         variance.extend(var);
-        start = end;
     }
     ((texels, direct), variance)
 }
