@@ -704,6 +704,53 @@ fn threejs() -> Option<(PathBuf, PathBuf)> {
     found.then_some((dir, chromium))
 }
 
+/// scripts/threejs/check.js on `d/glb` against `d/<bake>.png`, `d/<bake>-regions.png` (or
+/// `regions.png` for `bake`) and `d/render.json` (or `<bake>.json`), writing into `d/out`: whether
+/// it passed (exit 0; an exit other than 0 or 1, a check that could not run, fails the test), its
+/// metrics and its log.
+fn three_check(
+    three: &Path,
+    chromium: &Path,
+    d: &Path,
+    glb: &str,
+    bake: &str,
+    out: &str,
+    extra: &[&str],
+) -> (bool, Value, String) {
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    let (regions, json) = if bake == "bake" {
+        ("regions.png".to_string(), "render.json".to_string())
+    } else {
+        (format!("{bake}-regions.png"), format!("{bake}.json"))
+    };
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/threejs/check.js");
+    let o = std::process::Command::new("node")
+        .arg(&script)
+        .args(["--glb", &p(glb), "--bake", &p(&format!("{bake}.png"))])
+        .args(["--regions", &p(&regions), "--render-json", &p(&json)])
+        .args(["--out", &p(out), "--timeout", "120"])
+        .args(extra)
+        .arg("--three")
+        .arg(three)
+        .arg("--chromium")
+        .arg(chromium)
+        .output()
+        .expect("run node");
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{log}");
+    assert!(
+        matches!(o.status.code(), Some(0 | 1)),
+        "three.js check of {glb} {extra:?} did not run: {log}"
+    );
+    let metrics = d.join(out).join("metrics.json");
+    let m = serde_json::from_slice(&std::fs::read(metrics).unwrap()).unwrap();
+    (o.status.success(), m, log)
+}
+
 #[test]
 fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     let Some((three, chromium)) = threejs() else {
@@ -731,37 +778,10 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     common::json(&o);
     std::fs::write(d.join("render.json"), &o.stdout).unwrap();
     // scripts/threejs/check.js on `glb` against bake's picture: its metrics, the run asserted.
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/threejs/check.js");
     let check = |glb: &str, out: &str, extra: &[&str]| -> Value {
-        let o = std::process::Command::new("node")
-            .arg(&script)
-            .args(["--glb", &p(glb), "--bake", &p("bake.png")])
-            .args([
-                "--regions",
-                &p("regions.png"),
-                "--render-json",
-                &p("render.json"),
-            ])
-            .args(["--out", &p(out), "--timeout", "120"])
-            .args(extra)
-            .arg("--three")
-            .arg(&three)
-            .arg("--chromium")
-            .arg(&chromium)
-            .output()
-            .expect("run node");
-        let log = format!(
-            "{}{}",
-            String::from_utf8_lossy(&o.stdout),
-            String::from_utf8_lossy(&o.stderr)
-        );
-        eprintln!("{log}");
-        assert!(
-            o.status.success(),
-            "three.js check of {glb} {extra:?}: {log}"
-        );
-        let metrics = d.join(out).join("metrics.json");
-        serde_json::from_slice(&std::fs::read(metrics).unwrap()).unwrap()
+        let (ok, m, log) = three_check(&three, &chromium, d, glb, "bake", out, extra);
+        assert!(ok, "three.js check of {glb} {extra:?}: {log}");
+        m
     };
     let m = check("lit.glb", "three", &[]);
     assert_eq!(m["failures"], serde_json::json!([]));
@@ -794,6 +814,191 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
             "{lod} against {stats}"
         );
     }
+}
+
+/// A model with ambient light worth seeing: a 4 × 4 m floor slab and a roof slab 1.7 m above it
+/// on four posts (the roof's underside and the floor under it are occluded, the roof's top open
+/// to the sky), every face its own grid of vertices, one material without a top layer (MTL `Ks 0`:
+/// bake's ambient term is then the diffuse eq. 4.8 alone, what COLOR_0 holds). OBJ text and MTL.
+fn shelter_obj() -> (String, String) {
+    let mut v: Vec<[f32; 3]> = Vec::new();
+    let mut f: Vec<[usize; 3]> = Vec::new();
+    let mut grid = |o: [f32; 3], u: [f32; 3], w: [f32; 3], n: usize| {
+        let base = v.len();
+        for j in 0..=n {
+            for i in 0..=n {
+                let (a, b) = (i as f32 / n as f32, j as f32 / n as f32);
+                v.push(std::array::from_fn(|k| o[k] + u[k] * a + w[k] * b));
+            }
+        }
+        for j in 0..n {
+            for i in 0..n {
+                let a = base + j * (n + 1) + i;
+                f.push([a, a + 1, a + n + 2]);
+                f.push([a, a + n + 2, a + n + 1]);
+            }
+        }
+    };
+    let mut boxed = |lo: [f32; 3], hi: [f32; 3], n: usize| {
+        let [x0, y0, z0] = lo;
+        let [x1, y1, z1] = hi;
+        let (dx, dy, dz) = (x1 - x0, y1 - y0, z1 - z0);
+        // Each face's (u × w) points out of the box.
+        grid([x0, y0, z1], [dx, 0.0, 0.0], [0.0, dy, 0.0], n);
+        grid([x0, y0, z0], [0.0, dy, 0.0], [dx, 0.0, 0.0], n);
+        grid([x0, y0, z0], [dx, 0.0, 0.0], [0.0, 0.0, dz], n);
+        grid([x0, y1, z0], [0.0, 0.0, dz], [dx, 0.0, 0.0], n);
+        grid([x0, y0, z0], [0.0, 0.0, dz], [0.0, dy, 0.0], n);
+        grid([x1, y0, z0], [0.0, dy, 0.0], [0.0, 0.0, dz], n);
+    };
+    boxed([-2.0, -2.0, 0.0], [2.0, 2.0, 0.3], 6);
+    boxed([-2.0, -2.0, 2.0], [2.0, 2.0, 2.3], 6);
+    for (sx, sy) in [(-1.0f32, -1.0f32), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
+        let (cx, cy) = (1.8 * sx, 1.8 * sy);
+        boxed([cx - 0.2, cy - 0.2, 0.3], [cx + 0.2, cy + 0.2, 2.0], 2);
+    }
+    let mut obj = String::from("mtllib shelter.mtl\nusemtl Stone\n");
+    for p in &v {
+        obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+    }
+    for t in &f {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    let mtl = "newmtl Stone\nKd 0.7 0.6 0.5\nKs 0 0 0\nKa 0 0 0\n".to_string();
+    (obj, mtl)
+}
+
+/// `--vertex-ambient`'s COLOR_0 as three.js draws it: the ambient term alone. bake draws it with
+/// `bake render --terms ambient`; three.js draws the models unlit as base colour × COLOR_0 ×
+/// `vertex_ambient_scale` (scripts/threejs/check.js `--terms ambient`), what docs/MATERIALS.md
+/// says is bake's ambient radiance, and the two pictures' model pixels are compared. The scene
+/// is the one where that holds exactly (one instance, so the mean of the instances' light is its
+/// light; a material without a top layer, whose gloss COLOR_0 leaves out; no model light map,
+/// which the renderer would prefer to the PRT): what is left is rasterization and filtering. The
+/// same export without COLOR_0 (three.js' hemisphere light, bake's own fallback without PRT)
+/// fails the bounds.
+#[test]
+fn three_js_draws_vertex_ambient_color_0_as_bake_renders_the_ambient_term() {
+    let Some((three, chromium)) = threejs() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    bake::fixtures::write_all(d).unwrap();
+    let (obj, mtl) = shelter_obj();
+    std::fs::write(d.join("shelter.obj"), obj).unwrap();
+    std::fs::write(d.join("shelter.mtl"), mtl).unwrap();
+    // The fixture's terrain, area and sky; one shelter instead of its models.
+    let eco = std::fs::read_to_string(d.join("scene.eco")).unwrap();
+    let mut text: String = eco
+        .lines()
+        .take_while(|l| !l.starts_with("<LAYER>"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    text += "<LAYER> 1\nshelter.obj 0.2806 0.7085 1.0 275.0\n";
+    std::fs::write(d.join("scene.eco"), text).unwrap();
+    let o = common::bake(&[
+        &p("scene.eco"),
+        "--sky",
+        &p("sky.hdr"),
+        "--pipeline",
+        "preview",
+        "--no-cache",
+        "--set",
+        "stages.atlas=false",
+        "-o",
+        &p("shelter.bake"),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let pack = p("shelter.bake");
+    let report = export_json(
+        &pack,
+        &p("ambient.glb"),
+        &["--vertex-ambient", "--bake-light"],
+    );
+    assert_eq!(report["vertex_ambient_models"], 1);
+    export_ok(&pack, &p("plain.glb"), &["--bake-light"]);
+    // A view from 9 m of the shelter, under its roof.
+    let (_, list) = instances_of(&Pack::open(Path::new(&pack)).unwrap());
+    assert_eq!(list.len(), 1);
+    let at = Vec3::from(list[0].position);
+    let eye = at + Vec3::new(2.8, -8.3, 1.8);
+    let target = at + Vec3::new(0.0, 0.0, 0.8);
+    let v3 = |v: Vec3| format!("{},{},{}", v.x, v.y, v.z);
+    let o = common::bake(&[
+        "render",
+        &pack,
+        "-o",
+        &p("amb.png"),
+        "--regions",
+        &p("amb-regions.png"),
+        "--width",
+        "480",
+        "--height",
+        "270",
+        "--terms",
+        "ambient",
+        "--no-lod",
+        &format!("--eye={}", v3(eye)),
+        &format!("--target={}", v3(target)),
+        "--json",
+    ]);
+    let render = common::json(&o);
+    std::fs::write(d.join("amb.json"), &o.stdout).unwrap();
+    let ambient = &render["stats"]["ambient"];
+    assert_eq!(ambient["prt_models"], 1, "{ambient}");
+    assert_eq!(ambient["lightmap_models"], 0, "{ambient}");
+
+    let terms = ["--terms", "ambient"];
+    let (ok, m, log) = three_check(&three, &chromium, d, "ambient.glb", "amb", "three", &terms);
+    assert!(ok, "{log}");
+    assert_eq!(m["failures"], serde_json::json!([]));
+    assert_eq!(m["found"]["vertex_ambient"], 1);
+    // The script's bounds, restated: the judge cannot have been loosened silently.
+    let pixels = m["models"]["pixels"].as_u64().unwrap();
+    assert!(pixels > 10_000, "{pixels} model pixels");
+    let ratio = m["models"]["ratio"].as_f64().unwrap();
+    assert!((0.97..=1.03).contains(&ratio), "models ratio {ratio}");
+    let rms = m["models_blurred_rms"].as_f64().unwrap();
+    assert!(rms <= 0.025, "models blurred RMS {rms}");
+    let tiles = m["model_tiles"].as_array().unwrap();
+    let judged: Vec<f64> = tiles
+        .iter()
+        .filter(|t| t["pixels"].as_f64().unwrap() >= 0.05 * t["area"].as_f64().unwrap())
+        .map(|t| t["ratio"].as_f64().unwrap())
+        .collect();
+    assert!(judged.len() >= 2, "{judged:?}");
+    assert!(
+        judged.iter().all(|r| (0.95..=1.05).contains(r)),
+        "{judged:?}"
+    );
+
+    // Without COLOR_0 the models take three.js' hemisphere light: outside the bounds, and not
+    // only for the missing attribute.
+    let (ok, m, log) = three_check(
+        &three,
+        &chromium,
+        d,
+        "plain.glb",
+        "amb",
+        "three-plain",
+        &terms,
+    );
+    assert!(!ok, "{log}");
+    let fails: Vec<&str> = m["failures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    assert!(
+        fails
+            .iter()
+            .any(|f| f.contains("blurred RMS") || f.contains("tile")),
+        "{fails:?}"
+    );
 }
 
 #[test]
