@@ -1024,13 +1024,23 @@ fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
     common::json(&o);
     let dump = dir.path().join("dump.json");
     std::fs::write(&dump, &o.stdout).unwrap();
+    // Every option at once: the LOD chain (MSFT_lod, which Blender does not read: its levels
+    // come in as orphan nodes), the PRT ambient as COLOR_0 and the normal maps.
+    let all = dir.path().join("all.glb");
+    let every = ["--bake-light", "--lod", "--vertex-ambient", "--normal-maps"];
+    export_ok(pack.to_str().unwrap(), all.to_str().unwrap(), &every);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/blender/import_check.py");
-    for (glb, flag) in [(&plain, None), (&lit, Some("--bake-light"))] {
+    let p = Pack::open(&pack).unwrap();
+    for (glb, flags) in [
+        (&plain, &[][..]),
+        (&lit, &["--bake-light"][..]),
+        (&all, &every[..]),
+    ] {
         let o = std::process::Command::new(&python)
             .arg(&script)
             .arg(glb)
             .arg(&dump)
-            .args(flag)
+            .args(flags)
             .output()
             .expect("run Blender's Python");
         let stdout = String::from_utf8_lossy(&o.stdout);
@@ -1048,15 +1058,55 @@ fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
         assert!(o.status.success(), "{summary}");
         assert_eq!(summary["failures"], serde_json::json!([]));
         // The counts Blender saw, against the pack itself (not only the script's reading of the dump).
-        let p = Pack::open(&pack).unwrap();
         let (meta, list) = instances_of(&p);
-        assert_eq!(summary["got"]["instances"], list.len());
-        assert_eq!(summary["got"]["meshes"], meta.models.len() + 1);
-        assert_eq!(
-            summary["got"]["materials"],
-            p.of_kind("material").count() + 1
+        let got = &summary["got"];
+        assert_eq!(got["instances"], list.len());
+        assert_eq!(got["suns"], 1);
+        if flags.is_empty() || flags == ["--bake-light"] {
+            assert_eq!(got["meshes"], meta.models.len() + 1);
+            assert_eq!(got["materials"], p.of_kind("material").count() + 1);
+            assert_eq!(got["level_meshes"], 0);
+            assert_eq!(got["color_attributes"], 0);
+            assert_eq!(got["normal_maps"], 0);
+            continue;
+        }
+        // --lod: per model, its levels past the full mesh and its skeleton, each a mesh whose
+        // objects are as many as the model's instances; one material per skeleton.
+        let (mut levels, mut level_instances, mut skeletons, mut colored) = (0, 0, 0, 0);
+        for (k, section) in meta.mesh_sections.iter().enumerate() {
+            let model = section.trim_start_matches("mesh:");
+            let placed = list.iter().filter(|r| r.model as usize == k).count();
+            let lod = bake::lod::section::read(&p, section).unwrap().unwrap().meta;
+            let n = lod.levels.len() - 1 + usize::from(lod.skeleton.is_some());
+            levels += n;
+            level_instances += n * placed;
+            skeletons += usize::from(lod.skeleton.is_some());
+            // COLOR_0 on the model's mesh and its mesh levels (the preview fixture has PRT).
+            assert!(p.view_named(&format!("prt:{model}")).is_ok());
+            colored += lod.levels.len();
+        }
+        assert!(
+            levels >= 1 && skeletons >= 1,
+            "the preview fixture has levels"
         );
-        assert_eq!(summary["got"]["suns"], 1);
+        assert_eq!(got["level_meshes"], levels);
+        assert_eq!(got["level_instances"], level_instances);
+        assert_eq!(got["meshes"], meta.models.len() + 1 + levels);
+        assert_eq!(
+            got["materials"],
+            p.of_kind("material").count() + 1 + skeletons
+        );
+        assert_eq!(got["color_attributes"], colored);
+        // --normal-maps: the materials whose section names a normal map.
+        let normal = p
+            .of_kind("material")
+            .filter(|e| {
+                let m = bake::material::section::from_section(&p.view(e).unwrap()).unwrap();
+                m.normal_map.is_some()
+            })
+            .count();
+        assert!(normal >= 1, "the preview fixture derives normal maps");
+        assert_eq!(got["normal_maps"], normal);
     }
 }
 

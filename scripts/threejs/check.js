@@ -6,10 +6,12 @@
 //
 //   node scripts/threejs/check.js --glb scene.glb --bake bake.png --regions regions.png \
 //        --render-json render.json --out DIR [--three DIR] [--chromium PATH] [--timeout S]
-//        [--hide-instances 1] [--lod-select 1]
+//        [--hide-instances 1] [--lod-select 1] [--terms ambient]
 //
 // bake.png, regions.png and render.json come from one `bake render PACK -o bake.png --regions
-// regions.png --json` (its stats give the camera, the exposure and the sky's ambient). No
+// regions.png --json` (its stats give the camera, the exposure and the sky's ambient); with
+// --terms ambient from `bake render --terms ambient` and the GLB from `bake export
+// --vertex-ambient`: the models' COLOR_0 against bake's ambient term (AMBIENT_BOUNDS). No
 // puppeteer: a local HTTP server serves the page (page.js), three.js, the GLB and the images;
 // Chromium (`--headless`, SwiftShader WebGL) posts back the numbers and the pictures.
 // Writes DIR/three.png, DIR/side-by-side.png (bake | three.js | |difference| × 4) and
@@ -39,7 +41,7 @@ const BOUNDS = {
 // left between them (docs/MATERIALS.md): COLOR_0 is one light per vertex (the mean of the
 // model's instances' light, the front side's mix, no top layer), bake's is per instance and side.
 // The bounds hold where COLOR_0 is exactly bake's ambient (tests/export.rs' shelter scene: one
-// instance, no top layer, no model light map); measured there 1.004, tiles 0.999–1.007, RMS 0.013.
+// instance, no top layer, no model light map); measured there 1.001, tiles 0.997–1.003, RMS 0.006.
 const AMBIENT_BOUNDS = {
   coverage_iou: 0.97,
   models_ratio: [0.97, 1.03], // mean linear luminance three.js / bake over model pixels
