@@ -514,6 +514,134 @@ fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin(
     assert_eq!(doc.materials().count(), 2);
 }
 
+/// `--terrain-step N`: the terrain at every N-th grid sample and the last row and column, each
+/// exported vertex a sample of the pack's grid, and the reported height error against a brute
+/// force: every grid sample's height against the exported triangle that covers it (found by
+/// barycentric tests over all triangles). Step 0 is refused and writes nothing.
+#[test]
+fn terrain_step_exports_every_nth_sample_and_reports_its_height_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (w, h) = (130u32, 70u32);
+    let raw: Vec<u8> = (0..h)
+        .flat_map(|j| (0..w).map(move |i| ((i * 7 + j * 3) % 256) as u8))
+        .collect();
+    std::fs::write(d.join("t.raw"), &raw).unwrap();
+    std::fs::write(
+        d.join("box.obj"),
+        common::box_obj([0.0, 0.0, 0.0], [1.0, 2.0, 3.0], 1),
+    )
+    .unwrap();
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    for args in [
+        vec![
+            "ingest",
+            &p("t.raw"),
+            "--size",
+            "130x70",
+            "--scale",
+            "0.05",
+            "-o",
+            &p("t.bake"),
+        ],
+        vec!["ingest", &p("box.obj"), "-o", &p("b.bake")],
+        vec!["merge", &p("t.bake"), &p("b.bake"), "-o", &p("m.bake")],
+    ] {
+        let args: Vec<&str> = args.iter().map(|s| s.as_ref()).collect();
+        let o = common::bake(&[&args[..], &["--quiet"]].concat());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let pack = Pack::open(&d.join("m.bake")).unwrap();
+    let (tm, t) =
+        bake::terrain::source_section::from_section(&pack.view_named("terrain").unwrap()).unwrap();
+    let full = export_json(&p("m.bake"), &p("full.glb"), &[]);
+    assert_eq!(full["terrain_step"], 1);
+    assert_eq!(full["terrain_max_error_m"], 0.0);
+    for step in [4u32, 7] {
+        let out = p(&format!("s{step}.glb"));
+        let report = export_json(&p("m.bake"), &out, &["--terrain-step", &step.to_string()]);
+        assert_eq!(report["terrain_step"], step);
+        let cols: BTreeSet<u32> = (0..w).filter(|i| i % step == 0 || *i == w - 1).collect();
+        let rows: BTreeSet<u32> = (0..h).filter(|j| j % step == 0 || *j == h - 1).collect();
+        let bytes = std::fs::read(&out).unwrap();
+        let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+        let blob = &buffers[0].0;
+        let terrain = doc.meshes().find(|m| m.name() == Some("terrain")).unwrap();
+        let mut samples = BTreeSet::new();
+        let mut tris: Vec<[[f32; 3]; 3]> = Vec::new();
+        for prim in terrain.primitives() {
+            let ps = floats::<3>(
+                &doc,
+                blob,
+                prim.get(&gltf::Semantic::Positions).unwrap().index(),
+            );
+            for q in &ps {
+                let i = ((q[0] - tm.origin[0]) / tm.extent[0] * (w - 1) as f32).round() as u32;
+                let j = ((q[1] - tm.origin[1]) / tm.extent[1] * (h - 1) as f32).round() as u32;
+                assert!(
+                    cols.contains(&i) && rows.contains(&j),
+                    "sample ({i}, {j}) at step {step}"
+                );
+                assert_eq!(q[2], t.heights[(j * w + i) as usize]);
+                samples.insert((i, j));
+            }
+            let reader = prim.reader(|_| Some(&blob[..]));
+            let idx: Vec<u32> = reader.read_indices().unwrap().into_u32().collect();
+            tris.extend(
+                idx.chunks(3)
+                    .map(|c| [ps[c[0] as usize], ps[c[1] as usize], ps[c[2] as usize]]),
+            );
+        }
+        assert_eq!(samples.len(), cols.len() * rows.len());
+        assert_eq!(tris.len(), 2 * (cols.len() - 1) * (rows.len() - 1));
+        // The oracle: every grid sample against the exported surface above it.
+        let dx = tm.extent[0] as f64 / (w - 1) as f64;
+        let dy = tm.extent[1] as f64 / (h - 1) as f64;
+        let mut worst = 0.0f64;
+        for j in 0..h {
+            for i in 0..w {
+                let (x, y) = (
+                    tm.origin[0] as f64 + i as f64 * dx,
+                    tm.origin[1] as f64 + j as f64 * dy,
+                );
+                let z = tris.iter().find_map(|[a, b, c]| {
+                    let f = |v: &[f32; 3]| [v[0] as f64, v[1] as f64, v[2] as f64];
+                    let (a, b, c) = (f(a), f(b), f(c));
+                    let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+                    let l1 = ((x - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (y - a[1])) / det;
+                    let l2 = ((b[0] - a[0]) * (y - a[1]) - (x - a[0]) * (b[1] - a[1])) / det;
+                    let e = 1e-9;
+                    (l1 >= -e && l2 >= -e && l1 + l2 <= 1.0 + e)
+                        .then(|| a[2] + l1 * (b[2] - a[2]) + l2 * (c[2] - a[2]))
+                });
+                let z = z.unwrap_or_else(|| panic!("sample ({i}, {j}) under no triangle"));
+                worst = worst.max((t.heights[(j * w + i) as usize] as f64 - z).abs());
+            }
+        }
+        let got = report["terrain_max_error_m"].as_f64().unwrap();
+        assert!(worst > 1.0, "the sawtooth terrain is not planar: {worst}");
+        assert!(
+            (got - worst).abs() <= 1e-4 * worst,
+            "step {step}: reported {got}, brute force {worst}"
+        );
+        let json = glb_json(&bytes);
+        let mesh = &json["meshes"][terrain.index()];
+        assert_eq!(mesh["extras"]["step"], step);
+    }
+    // Step 0: refused, nothing written.
+    let o = common::bake(&[
+        "export",
+        &p("m.bake"),
+        "-o",
+        &p("zero.glb"),
+        "--terrain-step",
+        "0",
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("terrain-step"));
+    assert!(!d.join("zero.glb").exists());
+}
+
 /// sRGB decoding of an 8-bit code.
 fn srgb_linear(c: u8) -> f32 {
     common::srgb_decode(c)
