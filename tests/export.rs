@@ -353,8 +353,51 @@ fn the_khronos_validator_finds_no_errors() {
         ambient.to_str().unwrap(),
         &["--bake-light", "--vertex-ambient", "--lod", "--normal-maps"],
     );
+    // A generated scene (`bake fixtures --instances 2000 --models 4 --terrain 129`, the preview
+    // pipeline) with every option and the terrain at every second sample.
+    let gen_dir = dir.path().join("gen");
+    let g = |f: &str| gen_dir.join(f).to_str().unwrap().to_string();
+    let o = common::bake(&[
+        "fixtures",
+        gen_dir.to_str().unwrap(),
+        "--instances",
+        "2000",
+        "--models",
+        "4",
+        "--terrain",
+        "129",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = common::bake(&[
+        &g("scene.eco"),
+        "--sky",
+        &g("sky.hdr"),
+        "--pipeline",
+        "preview",
+        "--no-cache",
+        "-o",
+        &g("g.bake"),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let generated = gen_dir.join("g.glb");
+    let report = export_json(
+        &g("g.bake"),
+        generated.to_str().unwrap(),
+        &[
+            "--bake-light",
+            "--vertex-ambient",
+            "--lod",
+            "--normal-maps",
+            "--terrain-step",
+            "2",
+        ],
+    );
+    assert_eq!(report["instances"], 2000);
+    assert_eq!(report["vertex_ambient_models"], 4);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
-    for file in [glb, gltf, lit, ambient] {
+    for file in [glb, gltf, lit, ambient, generated] {
         let o = std::process::Command::new("node")
             .arg(&script)
             .arg(&validator)
@@ -374,6 +417,7 @@ fn the_khronos_validator_finds_no_errors() {
             .filter(|m| m["severity"] == 0)
             .collect();
         assert_eq!(issues["numErrors"], 0, "{}: {errors:#?}", file.display());
+        assert_eq!(issues["numWarnings"], 0, "{}", file.display());
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         eprintln!(
             "gltf-validator on {}: {} errors, {} warnings, {} infos",

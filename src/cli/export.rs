@@ -79,7 +79,7 @@ pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         report.terrain_chunks,
         if report.terrain_step > 1 {
             format!(
-                " (every {}th sample, height error ≤ {:.3} m)",
+                " (terrain step {}, height error ≤ {:.3} m)",
                 report.terrain_step, report.terrain_max_error_m
             )
         } else {
