@@ -353,8 +353,51 @@ fn the_khronos_validator_finds_no_errors() {
         ambient.to_str().unwrap(),
         &["--bake-light", "--vertex-ambient", "--lod", "--normal-maps"],
     );
+    // A generated scene (`bake fixtures --instances 2000 --models 4 --terrain 129`, the preview
+    // pipeline) with every option and the terrain at every second sample.
+    let gen_dir = dir.path().join("gen");
+    let g = |f: &str| gen_dir.join(f).to_str().unwrap().to_string();
+    let o = common::bake(&[
+        "fixtures",
+        gen_dir.to_str().unwrap(),
+        "--instances",
+        "2000",
+        "--models",
+        "4",
+        "--terrain",
+        "129",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = common::bake(&[
+        &g("scene.eco"),
+        "--sky",
+        &g("sky.hdr"),
+        "--pipeline",
+        "preview",
+        "--no-cache",
+        "-o",
+        &g("g.bake"),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let generated = gen_dir.join("g.glb");
+    let report = export_json(
+        &g("g.bake"),
+        generated.to_str().unwrap(),
+        &[
+            "--bake-light",
+            "--vertex-ambient",
+            "--lod",
+            "--normal-maps",
+            "--terrain-step",
+            "2",
+        ],
+    );
+    assert_eq!(report["instances"], 2000);
+    assert_eq!(report["vertex_ambient_models"], 4);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
-    for file in [glb, gltf, lit, ambient] {
+    for file in [glb, gltf, lit, ambient, generated] {
         let o = std::process::Command::new("node")
             .arg(&script)
             .arg(&validator)
@@ -374,6 +417,7 @@ fn the_khronos_validator_finds_no_errors() {
             .filter(|m| m["severity"] == 0)
             .collect();
         assert_eq!(issues["numErrors"], 0, "{}: {errors:#?}", file.display());
+        assert_eq!(issues["numWarnings"], 0, "{}", file.display());
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         eprintln!(
             "gltf-validator on {}: {} errors, {} warnings, {} infos",
@@ -512,6 +556,134 @@ fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin(
     assert!(node.mesh().is_some());
     assert_eq!(node.transform().decomposed().0, [0.0; 3]);
     assert_eq!(doc.materials().count(), 2);
+}
+
+/// `--terrain-step N`: the terrain at every N-th grid sample and the last row and column, each
+/// exported vertex a sample of the pack's grid, and the reported height error against a brute
+/// force: every grid sample's height against the exported triangle that covers it (found by
+/// barycentric tests over all triangles). Step 0 is refused and writes nothing.
+#[test]
+fn terrain_step_exports_every_nth_sample_and_reports_its_height_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (w, h) = (130u32, 70u32);
+    let raw: Vec<u8> = (0..h)
+        .flat_map(|j| (0..w).map(move |i| ((i * 7 + j * 3) % 256) as u8))
+        .collect();
+    std::fs::write(d.join("t.raw"), &raw).unwrap();
+    std::fs::write(
+        d.join("box.obj"),
+        common::box_obj([0.0, 0.0, 0.0], [1.0, 2.0, 3.0], 1),
+    )
+    .unwrap();
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    for args in [
+        vec![
+            "ingest",
+            &p("t.raw"),
+            "--size",
+            "130x70",
+            "--scale",
+            "0.05",
+            "-o",
+            &p("t.bake"),
+        ],
+        vec!["ingest", &p("box.obj"), "-o", &p("b.bake")],
+        vec!["merge", &p("t.bake"), &p("b.bake"), "-o", &p("m.bake")],
+    ] {
+        let args: Vec<&str> = args.iter().map(|s| s.as_ref()).collect();
+        let o = common::bake(&[&args[..], &["--quiet"]].concat());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let pack = Pack::open(&d.join("m.bake")).unwrap();
+    let (tm, t) =
+        bake::terrain::source_section::from_section(&pack.view_named("terrain").unwrap()).unwrap();
+    let full = export_json(&p("m.bake"), &p("full.glb"), &[]);
+    assert_eq!(full["terrain_step"], 1);
+    assert_eq!(full["terrain_max_error_m"], 0.0);
+    for step in [4u32, 7] {
+        let out = p(&format!("s{step}.glb"));
+        let report = export_json(&p("m.bake"), &out, &["--terrain-step", &step.to_string()]);
+        assert_eq!(report["terrain_step"], step);
+        let cols: BTreeSet<u32> = (0..w).filter(|i| i % step == 0 || *i == w - 1).collect();
+        let rows: BTreeSet<u32> = (0..h).filter(|j| j % step == 0 || *j == h - 1).collect();
+        let bytes = std::fs::read(&out).unwrap();
+        let (doc, buffers, _) = gltf::import_slice(&bytes).unwrap();
+        let blob = &buffers[0].0;
+        let terrain = doc.meshes().find(|m| m.name() == Some("terrain")).unwrap();
+        let mut samples = BTreeSet::new();
+        let mut tris: Vec<[[f32; 3]; 3]> = Vec::new();
+        for prim in terrain.primitives() {
+            let ps = floats::<3>(
+                &doc,
+                blob,
+                prim.get(&gltf::Semantic::Positions).unwrap().index(),
+            );
+            for q in &ps {
+                let i = ((q[0] - tm.origin[0]) / tm.extent[0] * (w - 1) as f32).round() as u32;
+                let j = ((q[1] - tm.origin[1]) / tm.extent[1] * (h - 1) as f32).round() as u32;
+                assert!(
+                    cols.contains(&i) && rows.contains(&j),
+                    "sample ({i}, {j}) at step {step}"
+                );
+                assert_eq!(q[2], t.heights[(j * w + i) as usize]);
+                samples.insert((i, j));
+            }
+            let reader = prim.reader(|_| Some(&blob[..]));
+            let idx: Vec<u32> = reader.read_indices().unwrap().into_u32().collect();
+            tris.extend(
+                idx.chunks(3)
+                    .map(|c| [ps[c[0] as usize], ps[c[1] as usize], ps[c[2] as usize]]),
+            );
+        }
+        assert_eq!(samples.len(), cols.len() * rows.len());
+        assert_eq!(tris.len(), 2 * (cols.len() - 1) * (rows.len() - 1));
+        // The oracle: every grid sample against the exported surface above it.
+        let dx = tm.extent[0] as f64 / (w - 1) as f64;
+        let dy = tm.extent[1] as f64 / (h - 1) as f64;
+        let mut worst = 0.0f64;
+        for j in 0..h {
+            for i in 0..w {
+                let (x, y) = (
+                    tm.origin[0] as f64 + i as f64 * dx,
+                    tm.origin[1] as f64 + j as f64 * dy,
+                );
+                let z = tris.iter().find_map(|[a, b, c]| {
+                    let f = |v: &[f32; 3]| [v[0] as f64, v[1] as f64, v[2] as f64];
+                    let (a, b, c) = (f(a), f(b), f(c));
+                    let det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+                    let l1 = ((x - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (y - a[1])) / det;
+                    let l2 = ((b[0] - a[0]) * (y - a[1]) - (x - a[0]) * (b[1] - a[1])) / det;
+                    let e = 1e-9;
+                    (l1 >= -e && l2 >= -e && l1 + l2 <= 1.0 + e)
+                        .then(|| a[2] + l1 * (b[2] - a[2]) + l2 * (c[2] - a[2]))
+                });
+                let z = z.unwrap_or_else(|| panic!("sample ({i}, {j}) under no triangle"));
+                worst = worst.max((t.heights[(j * w + i) as usize] as f64 - z).abs());
+            }
+        }
+        let got = report["terrain_max_error_m"].as_f64().unwrap();
+        assert!(worst > 1.0, "the sawtooth terrain is not planar: {worst}");
+        assert!(
+            (got - worst).abs() <= 1e-4 * worst,
+            "step {step}: reported {got}, brute force {worst}"
+        );
+        let json = glb_json(&bytes);
+        let mesh = &json["meshes"][terrain.index()];
+        assert_eq!(mesh["extras"]["step"], step);
+    }
+    // Step 0: refused, nothing written.
+    let o = common::bake(&[
+        "export",
+        &p("m.bake"),
+        "-o",
+        &p("zero.glb"),
+        "--terrain-step",
+        "0",
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("terrain-step"));
+    assert!(!d.join("zero.glb").exists());
 }
 
 /// sRGB decoding of an 8-bit code.
@@ -704,6 +876,53 @@ fn threejs() -> Option<(PathBuf, PathBuf)> {
     found.then_some((dir, chromium))
 }
 
+/// scripts/threejs/check.js on `d/glb` against `d/<bake>.png`, `d/<bake>-regions.png` (or
+/// `regions.png` for `bake`) and `d/render.json` (or `<bake>.json`), writing into `d/out`: whether
+/// it passed (exit 0; an exit other than 0 or 1, a check that could not run, fails the test), its
+/// metrics and its log.
+fn three_check(
+    three: &Path,
+    chromium: &Path,
+    d: &Path,
+    glb: &str,
+    bake: &str,
+    out: &str,
+    extra: &[&str],
+) -> (bool, Value, String) {
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    let (regions, json) = if bake == "bake" {
+        ("regions.png".to_string(), "render.json".to_string())
+    } else {
+        (format!("{bake}-regions.png"), format!("{bake}.json"))
+    };
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/threejs/check.js");
+    let o = std::process::Command::new("node")
+        .arg(&script)
+        .args(["--glb", &p(glb), "--bake", &p(&format!("{bake}.png"))])
+        .args(["--regions", &p(&regions), "--render-json", &p(&json)])
+        .args(["--out", &p(out), "--timeout", "120"])
+        .args(extra)
+        .arg("--three")
+        .arg(three)
+        .arg("--chromium")
+        .arg(chromium)
+        .output()
+        .expect("run node");
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{log}");
+    assert!(
+        matches!(o.status.code(), Some(0 | 1)),
+        "three.js check of {glb} {extra:?} did not run: {log}"
+    );
+    let metrics = d.join(out).join("metrics.json");
+    let m = serde_json::from_slice(&std::fs::read(metrics).unwrap()).unwrap();
+    (o.status.success(), m, log)
+}
+
 #[test]
 fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     let Some((three, chromium)) = threejs() else {
@@ -731,37 +950,10 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     common::json(&o);
     std::fs::write(d.join("render.json"), &o.stdout).unwrap();
     // scripts/threejs/check.js on `glb` against bake's picture: its metrics, the run asserted.
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/threejs/check.js");
     let check = |glb: &str, out: &str, extra: &[&str]| -> Value {
-        let o = std::process::Command::new("node")
-            .arg(&script)
-            .args(["--glb", &p(glb), "--bake", &p("bake.png")])
-            .args([
-                "--regions",
-                &p("regions.png"),
-                "--render-json",
-                &p("render.json"),
-            ])
-            .args(["--out", &p(out), "--timeout", "120"])
-            .args(extra)
-            .arg("--three")
-            .arg(&three)
-            .arg("--chromium")
-            .arg(&chromium)
-            .output()
-            .expect("run node");
-        let log = format!(
-            "{}{}",
-            String::from_utf8_lossy(&o.stdout),
-            String::from_utf8_lossy(&o.stderr)
-        );
-        eprintln!("{log}");
-        assert!(
-            o.status.success(),
-            "three.js check of {glb} {extra:?}: {log}"
-        );
-        let metrics = d.join(out).join("metrics.json");
-        serde_json::from_slice(&std::fs::read(metrics).unwrap()).unwrap()
+        let (ok, m, log) = three_check(&three, &chromium, d, glb, "bake", out, extra);
+        assert!(ok, "three.js check of {glb} {extra:?}: {log}");
+        m
     };
     let m = check("lit.glb", "three", &[]);
     assert_eq!(m["failures"], serde_json::json!([]));
@@ -796,6 +988,191 @@ fn three_js_in_headless_chromium_draws_the_baked_terrain_as_bake_render_does() {
     }
 }
 
+/// A model with ambient light worth seeing: a 4 × 4 m floor slab and a roof slab 1.7 m above it
+/// on four posts (the roof's underside and the floor under it are occluded, the roof's top open
+/// to the sky), every face its own grid of vertices, one material without a top layer (MTL `Ks 0`:
+/// bake's ambient term is then the diffuse eq. 4.8 alone, what COLOR_0 holds). OBJ text and MTL.
+fn shelter_obj() -> (String, String) {
+    let mut v: Vec<[f32; 3]> = Vec::new();
+    let mut f: Vec<[usize; 3]> = Vec::new();
+    let mut grid = |o: [f32; 3], u: [f32; 3], w: [f32; 3], n: usize| {
+        let base = v.len();
+        for j in 0..=n {
+            for i in 0..=n {
+                let (a, b) = (i as f32 / n as f32, j as f32 / n as f32);
+                v.push(std::array::from_fn(|k| o[k] + u[k] * a + w[k] * b));
+            }
+        }
+        for j in 0..n {
+            for i in 0..n {
+                let a = base + j * (n + 1) + i;
+                f.push([a, a + 1, a + n + 2]);
+                f.push([a, a + n + 2, a + n + 1]);
+            }
+        }
+    };
+    let mut boxed = |lo: [f32; 3], hi: [f32; 3], n: usize| {
+        let [x0, y0, z0] = lo;
+        let [x1, y1, z1] = hi;
+        let (dx, dy, dz) = (x1 - x0, y1 - y0, z1 - z0);
+        // Each face's (u × w) points out of the box.
+        grid([x0, y0, z1], [dx, 0.0, 0.0], [0.0, dy, 0.0], n);
+        grid([x0, y0, z0], [0.0, dy, 0.0], [dx, 0.0, 0.0], n);
+        grid([x0, y0, z0], [dx, 0.0, 0.0], [0.0, 0.0, dz], n);
+        grid([x0, y1, z0], [0.0, 0.0, dz], [dx, 0.0, 0.0], n);
+        grid([x0, y0, z0], [0.0, 0.0, dz], [0.0, dy, 0.0], n);
+        grid([x1, y0, z0], [0.0, dy, 0.0], [0.0, 0.0, dz], n);
+    };
+    boxed([-2.0, -2.0, 0.0], [2.0, 2.0, 0.3], 6);
+    boxed([-2.0, -2.0, 2.0], [2.0, 2.0, 2.3], 6);
+    for (sx, sy) in [(-1.0f32, -1.0f32), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
+        let (cx, cy) = (1.8 * sx, 1.8 * sy);
+        boxed([cx - 0.2, cy - 0.2, 0.3], [cx + 0.2, cy + 0.2, 2.0], 2);
+    }
+    let mut obj = String::from("mtllib shelter.mtl\nusemtl Stone\n");
+    for p in &v {
+        obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+    }
+    for t in &f {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    let mtl = "newmtl Stone\nKd 0.7 0.6 0.5\nKs 0 0 0\nKa 0 0 0\n".to_string();
+    (obj, mtl)
+}
+
+/// `--vertex-ambient`'s COLOR_0 as three.js draws it: the ambient term alone. bake draws it with
+/// `bake render --terms ambient`; three.js draws the models unlit as base colour × COLOR_0 ×
+/// `vertex_ambient_scale` (scripts/threejs/check.js `--terms ambient`), what docs/MATERIALS.md
+/// says is bake's ambient radiance, and the two pictures' model pixels are compared. The scene
+/// is the one where that holds exactly (one instance, so the mean of the instances' light is its
+/// light; a material without a top layer, whose gloss COLOR_0 leaves out; no model light map,
+/// which the renderer would prefer to the PRT): what is left is rasterization and filtering. The
+/// same export without COLOR_0 (three.js' hemisphere light, bake's own fallback without PRT)
+/// fails the bounds.
+#[test]
+fn three_js_draws_vertex_ambient_color_0_as_bake_renders_the_ambient_term() {
+    let Some((three, chromium)) = threejs() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    bake::fixtures::write_all(d).unwrap();
+    let (obj, mtl) = shelter_obj();
+    std::fs::write(d.join("shelter.obj"), obj).unwrap();
+    std::fs::write(d.join("shelter.mtl"), mtl).unwrap();
+    // The fixture's terrain, area and sky; one shelter instead of its models.
+    let eco = std::fs::read_to_string(d.join("scene.eco")).unwrap();
+    let mut text: String = eco
+        .lines()
+        .take_while(|l| !l.starts_with("<LAYER>"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    text += "<LAYER> 1\nshelter.obj 0.2806 0.7085 1.0 275.0\n";
+    std::fs::write(d.join("scene.eco"), text).unwrap();
+    let o = common::bake(&[
+        &p("scene.eco"),
+        "--sky",
+        &p("sky.hdr"),
+        "--pipeline",
+        "preview",
+        "--no-cache",
+        "--set",
+        "stages.atlas=false",
+        "-o",
+        &p("shelter.bake"),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let pack = p("shelter.bake");
+    let report = export_json(
+        &pack,
+        &p("ambient.glb"),
+        &["--vertex-ambient", "--bake-light"],
+    );
+    assert_eq!(report["vertex_ambient_models"], 1);
+    export_ok(&pack, &p("plain.glb"), &["--bake-light"]);
+    // A view from 9 m of the shelter, under its roof.
+    let (_, list) = instances_of(&Pack::open(Path::new(&pack)).unwrap());
+    assert_eq!(list.len(), 1);
+    let at = Vec3::from(list[0].position);
+    let eye = at + Vec3::new(2.8, -8.3, 1.8);
+    let target = at + Vec3::new(0.0, 0.0, 0.8);
+    let v3 = |v: Vec3| format!("{},{},{}", v.x, v.y, v.z);
+    let o = common::bake(&[
+        "render",
+        &pack,
+        "-o",
+        &p("amb.png"),
+        "--regions",
+        &p("amb-regions.png"),
+        "--width",
+        "480",
+        "--height",
+        "270",
+        "--terms",
+        "ambient",
+        "--no-lod",
+        &format!("--eye={}", v3(eye)),
+        &format!("--target={}", v3(target)),
+        "--json",
+    ]);
+    let render = common::json(&o);
+    std::fs::write(d.join("amb.json"), &o.stdout).unwrap();
+    let ambient = &render["stats"]["ambient"];
+    assert_eq!(ambient["prt_models"], 1, "{ambient}");
+    assert_eq!(ambient["lightmap_models"], 0, "{ambient}");
+
+    let terms = ["--terms", "ambient"];
+    let (ok, m, log) = three_check(&three, &chromium, d, "ambient.glb", "amb", "three", &terms);
+    assert!(ok, "{log}");
+    assert_eq!(m["failures"], serde_json::json!([]));
+    assert_eq!(m["found"]["vertex_ambient"], 1);
+    // The script's bounds, restated: the judge cannot have been loosened silently.
+    let pixels = m["models"]["pixels"].as_u64().unwrap();
+    assert!(pixels > 10_000, "{pixels} model pixels");
+    let ratio = m["models"]["ratio"].as_f64().unwrap();
+    assert!((0.97..=1.03).contains(&ratio), "models ratio {ratio}");
+    let rms = m["models_blurred_rms"].as_f64().unwrap();
+    assert!(rms <= 0.025, "models blurred RMS {rms}");
+    let tiles = m["model_tiles"].as_array().unwrap();
+    let judged: Vec<f64> = tiles
+        .iter()
+        .filter(|t| t["pixels"].as_f64().unwrap() >= 0.05 * t["area"].as_f64().unwrap())
+        .map(|t| t["ratio"].as_f64().unwrap())
+        .collect();
+    assert!(judged.len() >= 2, "{judged:?}");
+    assert!(
+        judged.iter().all(|r| (0.95..=1.05).contains(r)),
+        "{judged:?}"
+    );
+
+    // Without COLOR_0 the models take three.js' hemisphere light: outside the bounds, and not
+    // only for the missing attribute.
+    let (ok, m, log) = three_check(
+        &three,
+        &chromium,
+        d,
+        "plain.glb",
+        "amb",
+        "three-plain",
+        &terms,
+    );
+    assert!(!ok, "{log}");
+    let fails: Vec<&str> = m["failures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    assert!(
+        fails
+            .iter()
+            .any(|f| f.contains("blurred RMS") || f.contains("tile")),
+        "{fails:?}"
+    );
+}
+
 #[test]
 fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
     // Blender's Python module in target/bpy-venv (scripts/install-bpy.sh) or BPY_PYTHON.
@@ -819,13 +1196,23 @@ fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
     common::json(&o);
     let dump = dir.path().join("dump.json");
     std::fs::write(&dump, &o.stdout).unwrap();
+    // Every option at once: the LOD chain (MSFT_lod, which Blender does not read: its levels
+    // come in as orphan nodes), the PRT ambient as COLOR_0 and the normal maps.
+    let all = dir.path().join("all.glb");
+    let every = ["--bake-light", "--lod", "--vertex-ambient", "--normal-maps"];
+    export_ok(pack.to_str().unwrap(), all.to_str().unwrap(), &every);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/blender/import_check.py");
-    for (glb, flag) in [(&plain, None), (&lit, Some("--bake-light"))] {
+    let p = Pack::open(&pack).unwrap();
+    for (glb, flags) in [
+        (&plain, &[][..]),
+        (&lit, &["--bake-light"][..]),
+        (&all, &every[..]),
+    ] {
         let o = std::process::Command::new(&python)
             .arg(&script)
             .arg(glb)
             .arg(&dump)
-            .args(flag)
+            .args(flags)
             .output()
             .expect("run Blender's Python");
         let stdout = String::from_utf8_lossy(&o.stdout);
@@ -843,15 +1230,55 @@ fn blender_imports_the_export_with_the_packs_meshes_materials_and_instances() {
         assert!(o.status.success(), "{summary}");
         assert_eq!(summary["failures"], serde_json::json!([]));
         // The counts Blender saw, against the pack itself (not only the script's reading of the dump).
-        let p = Pack::open(&pack).unwrap();
         let (meta, list) = instances_of(&p);
-        assert_eq!(summary["got"]["instances"], list.len());
-        assert_eq!(summary["got"]["meshes"], meta.models.len() + 1);
-        assert_eq!(
-            summary["got"]["materials"],
-            p.of_kind("material").count() + 1
+        let got = &summary["got"];
+        assert_eq!(got["instances"], list.len());
+        assert_eq!(got["suns"], 1);
+        if flags.is_empty() || flags == ["--bake-light"] {
+            assert_eq!(got["meshes"], meta.models.len() + 1);
+            assert_eq!(got["materials"], p.of_kind("material").count() + 1);
+            assert_eq!(got["level_meshes"], 0);
+            assert_eq!(got["color_attributes"], 0);
+            assert_eq!(got["normal_maps"], 0);
+            continue;
+        }
+        // --lod: per model, its levels past the full mesh and its skeleton, each a mesh whose
+        // objects are as many as the model's instances; one material per skeleton.
+        let (mut levels, mut level_instances, mut skeletons, mut colored) = (0, 0, 0, 0);
+        for (k, section) in meta.mesh_sections.iter().enumerate() {
+            let model = section.trim_start_matches("mesh:");
+            let placed = list.iter().filter(|r| r.model as usize == k).count();
+            let lod = bake::lod::section::read(&p, section).unwrap().unwrap().meta;
+            let n = lod.levels.len() - 1 + usize::from(lod.skeleton.is_some());
+            levels += n;
+            level_instances += n * placed;
+            skeletons += usize::from(lod.skeleton.is_some());
+            // COLOR_0 on the model's mesh and its mesh levels (the preview fixture has PRT).
+            assert!(p.view_named(&format!("prt:{model}")).is_ok());
+            colored += lod.levels.len();
+        }
+        assert!(
+            levels >= 1 && skeletons >= 1,
+            "the preview fixture has levels"
         );
-        assert_eq!(summary["got"]["suns"], 1);
+        assert_eq!(got["level_meshes"], levels);
+        assert_eq!(got["level_instances"], level_instances);
+        assert_eq!(got["meshes"], meta.models.len() + 1 + levels);
+        assert_eq!(
+            got["materials"],
+            p.of_kind("material").count() + 1 + skeletons
+        );
+        assert_eq!(got["color_attributes"], colored);
+        // --normal-maps: the materials whose section names a normal map.
+        let normal = p
+            .of_kind("material")
+            .filter(|e| {
+                let m = bake::material::section::from_section(&p.view(e).unwrap()).unwrap();
+                m.normal_map.is_some()
+            })
+            .count();
+        assert!(normal >= 1, "the preview fixture derives normal maps");
+        assert_eq!(got["normal_maps"], normal);
     }
 }
 

@@ -6,10 +6,12 @@
 //
 //   node scripts/threejs/check.js --glb scene.glb --bake bake.png --regions regions.png \
 //        --render-json render.json --out DIR [--three DIR] [--chromium PATH] [--timeout S]
-//        [--hide-instances 1] [--lod-select 1]
+//        [--hide-instances 1] [--lod-select 1] [--terms ambient]
 //
 // bake.png, regions.png and render.json come from one `bake render PACK -o bake.png --regions
-// regions.png --json` (its stats give the camera, the exposure and the sky's ambient). No
+// regions.png --json` (its stats give the camera, the exposure and the sky's ambient); with
+// --terms ambient from `bake render --terms ambient` and the GLB from `bake export
+// --vertex-ambient`: the models' COLOR_0 against bake's ambient term (AMBIENT_BOUNDS). No
 // puppeteer: a local HTTP server serves the page (page.js), three.js, the GLB and the images;
 // Chromium (`--headless`, SwiftShader WebGL) posts back the numbers and the pictures.
 // Writes DIR/three.png, DIR/side-by-side.png (bake | three.js | |difference| × 4) and
@@ -32,6 +34,19 @@ const BOUNDS = {
   // Model pixels: three.js' metallic-roughness GGX under the sun and a hemisphere light, no
   // shadows, against bake's two-layer Schlick with shadows and PRT: a sanity bound only.
   models_ratio: [0.4, 2.5],
+};
+// --terms ambient (bake.png from `bake render --terms ambient`, the GLB from `bake export
+// --vertex-ambient`): model pixels only (g + b ≥ 250/255 in the region image), the models drawn
+// unlit as base colour × COLOR_0 × vertex_ambient_scale against bake's ambient term. What is
+// left between them (docs/MATERIALS.md): COLOR_0 is one light per vertex (the mean of the
+// model's instances' light, the front side's mix, no top layer), bake's is per instance and side.
+// The bounds hold where COLOR_0 is exactly bake's ambient (tests/export.rs' shelter scene: one
+// instance, no top layer, no model light map); measured there 1.001, tiles 0.997–1.003, RMS 0.006.
+const AMBIENT_BOUNDS = {
+  coverage_iou: 0.97,
+  models_ratio: [0.97, 1.03], // mean linear luminance three.js / bake over model pixels
+  model_tile_ratio: [0.95, 1.05], // the same per tile of a 4 × 3 grid with ≥ 5 % model pixels
+  models_blurred_rms: 0.025, // RMS of 9×9-blurred sRGB values (0..1) over model pixels
 };
 const TILE_MIN = 0.05;
 
@@ -69,7 +84,10 @@ const params = {
   // --lod-select 1: per instance, the level bake's rule picks for this view (the GLB's MSFT_lod
   // nodes, `bake export --lod`) and only the instances whose sphere meets the view frustum.
   lod_select: a['lod-select'] === '1',
+  // --terms ambient: the ambient term alone, judged on the models (AMBIENT_BOUNDS).
+  terms: a.terms || 'all',
 };
+if (!['all', 'ambient'].includes(params.terms)) usage(`--terms ${params.terms}: all or ambient`);
 fs.mkdirSync(a.out, { recursive: true });
 
 const page = `<!doctype html><html><head><meta charset="utf-8">
@@ -135,6 +153,7 @@ function judge(b) {
   fs.writeFileSync(path.join(a.out, 'side-by-side.png'), Buffer.from(b.side_png, 'base64'));
   const fails = [];
   const within = (name, v, [lo, hi]) => { if (!(v >= lo && v <= hi)) fails.push(`${name} ${v} outside [${lo}, ${hi}]`); };
+  if (params.terms === 'ambient') return judgeAmbient(b, m, fails, within);
   // --hide-instances 1: the models are loaded but not drawn, so only the terrain is judged
   // (bake's terrain pixels are terrain in three.js too; the coverage and model bounds do not apply).
   if (!params.hide_instances && !(m.coverage_iou >= BOUNDS.coverage_iou)) fails.push(`coverage IoU ${m.coverage_iou} < ${BOUNDS.coverage_iou}`);
@@ -154,6 +173,29 @@ function judge(b) {
   console.log(`coverage IoU ${r(m.coverage_iou)}; terrain (${m.terrain.pixels} px) luminance ratio ${r(m.terrain.ratio)}, `
     + `blurred RMS ${r(m.terrain_blurred_rms)}; tiles ${tiles.map((t) => r(t.ratio)).join(' ')}; `
     + `models (${m.models.pixels} px) ratio ${r(m.models.ratio)}`);
+  console.log(`images in ${a.out}: three.png, side-by-side.png, metrics.json`);
+  if (fails.length) finish(1, `check.js: outside the bounds:\n  ${fails.join('\n  ')}`);
+  else finish(0);
+}
+
+// --terms ambient: the models' pixels against bake's ambient term (AMBIENT_BOUNDS).
+function judgeAmbient(b, m, fails, within) {
+  const B = AMBIENT_BOUNDS;
+  if (!(m.coverage_iou >= B.coverage_iou)) fails.push(`coverage IoU ${m.coverage_iou} < ${B.coverage_iou}`);
+  if (!(m.models.pixels > 0.02 * m.width * m.height)) fails.push(`only ${m.models.pixels} model pixels`);
+  within('models luminance ratio', m.models.ratio, B.models_ratio);
+  const tiles = m.model_tiles.filter((t) => t.pixels >= TILE_MIN * t.area);
+  for (const t of tiles) within(`model tile ${t.tile} luminance ratio`, t.ratio, B.model_tile_ratio);
+  if (!(m.models_blurred_rms <= B.models_blurred_rms)) fails.push(`models blurred RMS ${m.models_blurred_rms} > ${B.models_blurred_rms}`);
+  if (m.found.vertex_ambient < 1) fails.push('no material with COLOR_0 and a vertex_ambient_scale (export with --vertex-ambient)');
+  const report = { ...m, bounds: B, tiles_checked: tiles.length, failures: fails };
+  fs.writeFileSync(path.join(a.out, 'metrics.json'), JSON.stringify(report, null, 1));
+  const r = (x) => (x == null ? 'n/a' : x.toFixed(4));
+  console.log(`three.js r${m.three_revision} (${m.gl}), ${m.width}×${m.height}, the ambient term: ${m.found.vertex_ambient} `
+    + `materials drawn as base colour × COLOR_0 × ${m.vertex_ambient_scale}; loaded in ${m.seconds_load.toFixed(2)} s, `
+    + `drawn and read back in ${m.seconds_render_readback.toFixed(2)} s`);
+  console.log(`coverage IoU ${r(m.coverage_iou)}; models (${m.models.pixels} px) luminance ratio ${r(m.models.ratio)}, `
+    + `blurred RMS ${r(m.models_blurred_rms)}; tiles ${tiles.map((t) => r(t.ratio)).join(' ')}`);
   console.log(`images in ${a.out}: three.png, side-by-side.png, metrics.json`);
   if (fails.length) finish(1, `check.js: outside the bounds:\n  ${fails.join('\n  ')}`);
   else finish(0);

@@ -39,14 +39,35 @@ async function main() {
   await post('/progress', { stage: `GLB loaded and parsed in ${(tLoad / 1000).toFixed(2)} s` });
 
   const scene = gltf.scene;
-  const found = { sun: 0, unlit: 0, instanced: 0, instances: 0 };
+  const found = { sun: 0, unlit: 0, instanced: 0, instances: 0, vertex_ambient: 0 };
+  // --terms ambient: bake's ambient term alone (`bake render --terms ambient`). The sun is off;
+  // a model material with COLOR_0 (`bake export --vertex-ambient`) draws unlit as base colour ×
+  // COLOR_0 × the file's vertex_ambient_scale, which docs/MATERIALS.md says is bake's ambient
+  // radiance (W/m²/sr); a model without COLOR_0 keeps the hemisphere light (bake's sky fallback).
+  const ambientOnly = p.terms === 'ambient';
+  const rootExtras = (gltf.parser.json.nodes.find((n) => n.extras && n.extras.vertex_ambient_scale) || {}).extras;
+  const vaScale = rootExtras ? rootExtras.vertex_ambient_scale : null;
+  const basic = new Map();
+  const ambientMaterial = (m) => {
+    if (!basic.has(m)) {
+      basic.set(m, new THREE.MeshBasicMaterial({
+        name: m.name, color: m.color.clone().multiplyScalar(vaScale), map: m.map, vertexColors: true,
+        alphaTest: m.alphaTest, transparent: m.transparent, opacity: m.opacity, side: m.side,
+      }));
+      found.vertex_ambient += 1;
+    }
+    return basic.get(m);
+  };
   scene.traverse((o) => {
     // The sun in bake's units: its RGB irradiance (W/m², light extras), so that three.js'
     // Lambert term albedo/π·E·cos is bake's radiance.
     if (o.isDirectionalLight && o.userData.irradiance) {
       o.color.setRGB(...o.userData.irradiance);
-      o.intensity = 1;
+      o.intensity = ambientOnly ? 0 : 1;
       found.sun += 1;
+    }
+    if (ambientOnly && o.isMesh && vaScale && o.geometry.attributes.color) {
+      o.material = Array.isArray(o.material) ? o.material.map(ambientMaterial) : ambientMaterial(o.material);
     }
     if (o.isInstancedMesh) {
       found.instanced += 1;
@@ -235,38 +256,47 @@ async function main() {
   };
   const terrain = stats((k) => cls[k] === 1);
   const models = stats((k) => cls[k] === 2);
-  const tiles = [];
-  for (let ty = 0; ty < 3; ty++) for (let tx = 0; tx < 4; tx++) {
-    const x0 = Math.floor(tx * W / 4), x1 = Math.floor((tx + 1) * W / 4);
-    const y0 = Math.floor(ty * H / 3), y1 = Math.floor((ty + 1) * H / 3);
-    const s = stats((k) => { const x = k % W, y = (k / W) | 0; return cls[k] === 1 && x >= x0 && x < x1 && y >= y0 && y < y1; });
-    s.tile = [tx, ty];
-    s.area = (x1 - x0) * (y1 - y0);
-    tiles.push(s);
-  }
-  // Blurred RMS over the terrain: each image's sRGB values averaged over the terrain pixels of a
-  // (2R+1)² window (normalized convolution), the RMS difference over terrain pixels, 3 channels.
-  const R = 4;
-  const blurred = (img) => {
-    const out = new Float32Array(3 * N);
-    const sum = new Float64Array(4 * (W + 1) * (H + 1)); // integral image of (v·m, m)
-    const at = (x, y) => 4 * (y * (W + 1) + x);
-    for (let y = 0; y < H; y++) for (let x = 0; x < W; x++) {
-      const k = y * W + x, m = cls[k] === 1 ? 1 : 0, o = at(x + 1, y + 1);
-      for (let c = 0; c < 3; c++) sum[o + c] = m * img[4 * k + c] / 255 + sum[at(x, y + 1) + c] + sum[at(x + 1, y) + c] - sum[at(x, y) + c];
-      sum[o + 3] = m + sum[at(x, y + 1) + 3] + sum[at(x + 1, y) + 3] - sum[at(x, y) + 3];
+  const tilesOf = (cl) => {
+    const tiles = [];
+    for (let ty = 0; ty < 3; ty++) for (let tx = 0; tx < 4; tx++) {
+      const x0 = Math.floor(tx * W / 4), x1 = Math.floor((tx + 1) * W / 4);
+      const y0 = Math.floor(ty * H / 3), y1 = Math.floor((ty + 1) * H / 3);
+      const s = stats((k) => { const x = k % W, y = (k / W) | 0; return cls[k] === cl && x >= x0 && x < x1 && y >= y0 && y < y1; });
+      s.tile = [tx, ty];
+      s.area = (x1 - x0) * (y1 - y0);
+      tiles.push(s);
     }
-    for (let y = 0; y < H; y++) for (let x = 0; x < W; x++) {
-      const xa = Math.max(0, x - R), xb = Math.min(W, x + R + 1), ya = Math.max(0, y - R), yb = Math.min(H, y + R + 1);
-      const box = (c) => sum[at(xb, yb) + c] - sum[at(xa, yb) + c] - sum[at(xb, ya) + c] + sum[at(xa, ya) + c];
-      const m = box(3);
-      for (let c = 0; c < 3; c++) out[3 * (y * W + x) + c] = m > 0 ? box(c) / m : 0;
-    }
-    return out;
+    return tiles;
   };
-  const b3 = blurred(three), bb = blurred(bake);
-  let se = 0, ns = 0;
-  for (let k = 0; k < N; k++) if (cls[k] === 1) for (let c = 0; c < 3; c++) { const e = b3[3 * k + c] - bb[3 * k + c]; se += e * e; ns++; }
+  const tiles = tilesOf(1);
+  const modelTiles = tilesOf(2);
+  // Blurred RMS over one class (terrain 1, models 2): each image's sRGB values averaged over the
+  // class' pixels of a (2R+1)² window (normalized convolution), the RMS difference over them, 3
+  // channels.
+  const R = 4;
+  const blurredRms = (cl) => {
+    const blurred = (img) => {
+      const out = new Float32Array(3 * N);
+      const sum = new Float64Array(4 * (W + 1) * (H + 1)); // integral image of (v·m, m)
+      const at = (x, y) => 4 * (y * (W + 1) + x);
+      for (let y = 0; y < H; y++) for (let x = 0; x < W; x++) {
+        const k = y * W + x, m = cls[k] === cl ? 1 : 0, o = at(x + 1, y + 1);
+        for (let c = 0; c < 3; c++) sum[o + c] = m * img[4 * k + c] / 255 + sum[at(x, y + 1) + c] + sum[at(x + 1, y) + c] - sum[at(x, y) + c];
+        sum[o + 3] = m + sum[at(x, y + 1) + 3] + sum[at(x + 1, y) + 3] - sum[at(x, y) + 3];
+      }
+      for (let y = 0; y < H; y++) for (let x = 0; x < W; x++) {
+        const xa = Math.max(0, x - R), xb = Math.min(W, x + R + 1), ya = Math.max(0, y - R), yb = Math.min(H, y + R + 1);
+        const box = (c) => sum[at(xb, yb) + c] - sum[at(xa, yb) + c] - sum[at(xb, ya) + c] + sum[at(xa, ya) + c];
+        const m = box(3);
+        for (let c = 0; c < 3; c++) out[3 * (y * W + x) + c] = m > 0 ? box(c) / m : 0;
+      }
+      return out;
+    };
+    const b3 = blurred(three), bb = blurred(bake);
+    let se = 0, ns = 0;
+    for (let k = 0; k < N; k++) if (cls[k] === cl) for (let c = 0; c < 3; c++) { const e = b3[3 * k + c] - bb[3 * k + c]; se += e * e; ns++; }
+    return ns ? Math.sqrt(se / ns) : null;
+  };
 
   // Side by side: bake | three.js | |difference| × 4.
   const side = new OffscreenCanvas(3 * W, H);
@@ -292,8 +322,9 @@ async function main() {
       width: W, height: H, found, gl: info, three_revision: THREE.REVISION,
       seconds_load: tLoad / 1000, seconds_render: tRender / 1000, seconds_render_readback: tPixels / 1000, lod_select: p.lod_select ? lodStats : null,
       coverage_iou: union ? inter / union : null,
-      terrain, models, tiles, blur_radius: R,
-      terrain_blurred_rms: ns ? Math.sqrt(se / ns) : null,
+      terrain, models, tiles, model_tiles: modelTiles, blur_radius: R, terms: p.terms,
+      terrain_blurred_rms: blurredRms(1), models_blurred_rms: blurredRms(2),
+      vertex_ambient_scale: vaScale,
     },
     three_png: await toData(c3),
     side_png: await toData(side),

@@ -33,6 +33,12 @@ pub(crate) struct ExportArgs {
     /// with the pack's tangents as `TANGENT` (docs/MATERIALS.md).
     #[arg(long)]
     pub normal_maps: bool,
+    /// Export the terrain at every N-th grid sample (and its last row and column): N² fewer
+    /// triangles; the largest height error against the full grid is reported
+    /// (`terrain_max_error_m`; docs/MATERIALS.md). 1: every sample.
+    #[arg(long, value_name = "N", default_value_t = 1,
+          value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub terrain_step: u32,
 }
 
 pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
@@ -57,11 +63,12 @@ pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         vertex_ambient: args.vertex_ambient,
         lod: args.lod,
         normal_maps: args.normal_maps,
+        terrain_step: args.terrain_step,
     };
     // Written to a temporary file and renamed, as packs are: a failed run leaves no output.
     let report = export(&pack, opts, &args.output)?;
     let text = format!(
-        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}{}{}\n",
+        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}{}{}{}\n",
         args.output.display(),
         report.bytes,
         report.models,
@@ -70,6 +77,14 @@ pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         report.materials,
         report.textures,
         report.terrain_chunks,
+        if report.terrain_step > 1 {
+            format!(
+                " (terrain step {}, height error ≤ {:.3} m)",
+                report.terrain_step, report.terrain_max_error_m
+            )
+        } else {
+            String::new()
+        },
         report.lightmap.as_ref().map_or(String::new(), |l| format!(
             ", light map {l}{}",
             if report.bake_light {

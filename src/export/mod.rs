@@ -79,6 +79,11 @@ pub(crate) struct ExportReport {
     pub models: usize,
     pub instances: usize,
     pub terrain_chunks: usize,
+    /// `--terrain-step`: the grid step of the exported terrain (1: every sample).
+    pub terrain_step: u32,
+    /// The largest vertical distance (m) of any terrain grid sample from the exported terrain
+    /// surface: 0 at step 1, else the height error of the coarser grid (`--terrain-step`).
+    pub terrain_max_error_m: f32,
     /// The terrain's light-map section, exported as a texture on TEXCOORD_1.
     pub lightmap: Option<String>,
     /// Whether the light map was multiplied into the terrain's (unlit) base colour.
@@ -111,6 +116,8 @@ pub(crate) struct ExportOptions {
     /// Normal maps as `normalTexture` (linear PNG in glTF's tangent frame) with the pack's
     /// tangents as `TANGENT`, where a material has a normal map and its model tangents.
     pub normal_maps: bool,
+    /// The terrain at every `terrain_step`-th grid sample (and the last row and column), ≥ 1.
+    pub terrain_step: u32,
 }
 
 /// The output container.
@@ -335,6 +342,8 @@ struct Exporter<'a> {
     lod_used: bool,
     /// `--normal-maps`.
     normal_maps: bool,
+    /// `--terrain-step` (≥ 1).
+    terrain_step: u32,
     doc: Doc,
     textures: HashMap<String, Option<Exported>>,
     warnings: Vec<crate::diag::Warning>,
@@ -860,8 +869,10 @@ impl Exporter<'_> {
         node
     }
 
-    /// The terrain as one mesh of chunk primitives; returns its node and the chunk count.
-    fn terrain(&mut self, name: &str) -> Result<Option<(usize, usize)>> {
+    /// The terrain as one mesh of chunk primitives (every `terrain_step`-th grid sample); returns
+    /// its node, the chunk count and the largest height error of the step
+    /// ([`terrain_step_error`]).
+    fn terrain(&mut self, name: &str) -> Result<Option<(usize, usize, f32)>> {
         let v = self.pack.view_named(name)?;
         let bad = |e: ParseError| {
             Error::invalid_at(self.pack.path(), format!("section {name:?}"), e.to_string())
@@ -957,19 +968,22 @@ impl Exporter<'_> {
         let (w, h) = (t.width, t.height);
         let dx = t.extent[0] / (w - 1) as f32;
         let dy = t.extent[1] / (h - 1) as f32;
+        // The exported grid columns and rows: every step-th sample and the last (step 1: all).
+        let xs = step_samples(w, self.terrain_step);
+        let ys = step_samples(h, self.terrain_step);
         let mut primitives = Vec::new();
-        for cy in (0..h - 1).step_by(TERRAIN_CHUNK as usize) {
-            for cx in (0..w - 1).step_by(TERRAIN_CHUNK as usize) {
+        for cy in (0..ys.len() - 1).step_by(TERRAIN_CHUNK as usize) {
+            for cx in (0..xs.len() - 1).step_by(TERRAIN_CHUNK as usize) {
                 let (x1, y1) = (
-                    (cx + TERRAIN_CHUNK).min(w - 1),
-                    (cy + TERRAIN_CHUNK).min(h - 1),
+                    (cx + TERRAIN_CHUNK as usize).min(xs.len() - 1),
+                    (cy + TERRAIN_CHUNK as usize).min(ys.len() - 1),
                 );
-                let cols = x1 - cx + 1;
+                let cols = (x1 - cx + 1) as u32;
                 let mut pos = Vec::new();
                 let mut nrm = Vec::new();
                 let mut uv = Vec::new();
-                for j in cy..=y1 {
-                    for i in cx..=x1 {
+                for &j in &ys[cy..=y1] {
+                    for &i in &xs[cx..=x1] {
                         let k = (j * w + i) as usize;
                         pos.push([
                             t.origin[0] + i as f32 * dx,
@@ -983,8 +997,8 @@ impl Exporter<'_> {
                     }
                 }
                 let mut tris = Vec::new();
-                for j in 0..y1 - cy {
-                    for i in 0..x1 - cx {
+                for j in 0..(y1 - cy) as u32 {
+                    for i in 0..(x1 - cx) as u32 {
                         let a = j * cols + i;
                         let (b, c, d) = (a + 1, a + cols + 1, a + cols);
                         // Split along (i, j)–(i + 1, j + 1), counter-clockwise from above.
@@ -1005,25 +1019,71 @@ impl Exporter<'_> {
                 primitives.push(json!({
                     "attributes": attributes,
                     "indices": idx, "material": material, "mode": 4,
-                    "extras": {"cells": [cx, cy, x1, y1]},
+                    "extras": {"cells": [xs[cx], ys[cy], xs[x1], ys[y1]]},
                 }));
             }
         }
         let chunks = primitives.len();
+        let mut extras = json!({"section": name, "chunk_cells": TERRAIN_CHUNK});
+        let error = if self.terrain_step > 1 {
+            let e = terrain_step_error(&t.heights, w, &xs, &ys);
+            extras["step"] = json!(self.terrain_step);
+            extras["max_height_error_m"] = json!(e);
+            e
+        } else {
+            0.0
+        };
         self.doc
             .meshes
-            .push(json!({"name": "terrain", "primitives": primitives,
-            "extras": {"section": name, "chunk_cells": TERRAIN_CHUNK}}));
+            .push(json!({"name": "terrain", "primitives": primitives, "extras": extras}));
         let mesh = self.doc.meshes.len() - 1;
         self.doc.nodes.push(json!({"name": "terrain", "mesh": mesh,
             "extras": {"section": name}}));
-        Ok(Some((self.doc.nodes.len() - 1, chunks)))
+        Ok(Some((self.doc.nodes.len() - 1, chunks, error)))
     }
 }
 
 /// The terrain's light map (the first `lightmap` section whose surface is "terrain"): its total
 /// irradiance (direct sun with its visibility, sky, bounce), row 0 north, texel centres at
 /// (k + ½)/size of the extent.
+/// The grid indices `0, step, 2·step, …` below `n` and `n − 1` (every index at step 1).
+fn step_samples(n: u32, step: u32) -> Vec<u32> {
+    let mut v: Vec<u32> = (0..n).step_by(step.max(1) as usize).collect();
+    if v.last() != Some(&(n - 1)) {
+        v.push(n - 1);
+    }
+    v
+}
+
+/// The largest |height − surface| over the grid samples (`w` per row), the surface being the grid's
+/// columns `xs` and rows `ys` triangulated as exported (each cell split along its (i, j)–(i + 1,
+/// j + 1) diagonal) and interpolated linearly within each triangle.
+fn terrain_step_error(heights: &[f32], w: u32, xs: &[u32], ys: &[u32]) -> f32 {
+    let at = |i: u32, j: u32| heights[(j * w + i) as usize] as f64;
+    let mut worst = 0.0f64;
+    for c in 0..ys.len().saturating_sub(1) {
+        let (j0, j1) = (ys[c], ys[c + 1]);
+        for a in 0..xs.len().saturating_sub(1) {
+            let (i0, i1) = (xs[a], xs[a + 1]);
+            let (h00, h10, h01, h11) = (at(i0, j0), at(i1, j0), at(i0, j1), at(i1, j1));
+            for j in j0..=j1 {
+                let v = (j - j0) as f64 / (j1 - j0) as f64;
+                for i in i0..=i1 {
+                    let u = (i - i0) as f64 / (i1 - i0) as f64;
+                    // Below the diagonal (u ≥ v): triangle (00, 10, 11); above: (00, 11, 01).
+                    let s = if u >= v {
+                        h00 + u * (h10 - h00) + v * (h11 - h10)
+                    } else {
+                        h00 + v * (h01 - h00) + u * (h11 - h01)
+                    };
+                    worst = worst.max((at(i, j) - s).abs());
+                }
+            }
+        }
+    }
+    worst as f32
+}
+
 struct TerrainLight {
     section: String,
     width: u32,
@@ -1227,6 +1287,7 @@ pub(crate) fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<
         made: HashMap::new(),
         lod_used: false,
         normal_maps: opts.normal_maps,
+        terrain_step: opts.terrain_step.max(1),
         doc: Doc::new(&dir)?,
         textures: HashMap::new(),
         warnings,
@@ -1314,10 +1375,12 @@ pub(crate) fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<
         }
     }
     if let Some(e) = pack.of_kind(terrain::KIND).next()
-        && let Some((node, chunks)) = ex.terrain(&e.name.clone())?
+        && let Some((node, chunks, error)) = ex.terrain(&e.name.clone())?
     {
         children.push(node);
         report.terrain_chunks = chunks;
+        report.terrain_step = ex.terrain_step;
+        report.terrain_max_error_m = error;
     }
     let mut lights = Vec::new();
     if let Some(e) = pack.of_kind(crate::sky::section::SUN_KIND).next() {
