@@ -225,6 +225,15 @@ impl<'a> UnitInputs<'a> {
             .ok_or_else(|| Error::usage(format!("stage {}: no scene given", self.stage)))
     }
 
+    /// The scene's plan where the runner has one (declared by [`Reads::scene`]): a stage
+    /// command over a pack has none.
+    pub fn scene_if_given(&self) -> Result<Option<&'a ScenePlan>> {
+        if !self.reads.scene {
+            return Err(self.undeclared_error("the scene's plan".into()));
+        }
+        Ok(self.scope.plan)
+    }
+
     /// `--sky` (declared by [`Reads::sky`]).
     pub fn sky(&self) -> Result<Option<&'a Path>> {
         if !self.reads.sky {
@@ -524,15 +533,39 @@ pub fn pack_unit(
     shard: Option<Shard>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Output> {
-    pack_unit_of(
-        find_or_err(stage)?,
+    let limits = Limits::DEFAULT;
+    let at = CommandScope {
         input,
-        sections,
-        p,
-        mesh,
-        shard,
-        progress,
-    )
+        limits: &limits,
+        plan: None,
+    };
+    pack_unit_of(find_or_err(stage)?, &at, sections, p, mesh, shard, progress)
+}
+
+/// What a stage command gives a unit besides its sections: the input it names (in errors, and
+/// as the scene's source the sections record), the memory budget (`--max-memory`), and the
+/// scene's plan where its input is a scene (read for what no section records: the area of
+/// interest of `bittree`).
+pub struct CommandScope<'a> {
+    /// The command's input.
+    pub input: &'a Path,
+    /// The memory budget the stages check sizes against.
+    pub limits: &'a Limits,
+    /// The scene's plan, for an ECO input.
+    pub plan: Option<&'a ScenePlan>,
+}
+
+/// One unit of the registered whole-scene stage `stage` (`bake bittree`, `bake svo` and `bake
+/// linespace` on a pack) through [`run_unit`], over `sections`, as [`pack_unit`] but with the
+/// command's budget and, for a scene input, its plan.
+pub fn scene_unit(
+    stage: &str,
+    at: &CommandScope,
+    sections: &[Section],
+    p: &Pipeline,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Output> {
+    pack_unit_of(find_or_err(stage)?, at, sections, p, None, None, progress)
 }
 
 /// The registered stage named `stage`, or an error.
@@ -543,13 +576,14 @@ fn find_or_err(stage: &str) -> Result<&'static dyn AnyStage> {
 /// [`pack_unit`] of the stage `st` (a test's toy stage too).
 fn pack_unit_of(
     st: &dyn AnyStage,
-    input: &Path,
+    at: &CommandScope,
     sections: &[Section],
     p: &Pipeline,
     mesh: Option<&str>,
     shard: Option<Shard>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Output> {
+    let input = at.input;
     let model = match mesh {
         Some(m) => Some(
             m.strip_prefix("mesh:")
@@ -566,14 +600,13 @@ fn pack_unit_of(
     };
     let view_name = input.display().to_string();
     let source = crate::ingest::confine::SourceNames::first_name(input);
-    let limits = crate::ingest::limits::Limits::DEFAULT;
     let scope = Scope {
         view_name: &view_name,
         source: &source,
-        limits: &limits,
+        limits: at.limits,
         first: input,
         sky: None,
-        plan: None,
+        plan: at.plan,
         names: None,
         policy: None,
     };
@@ -1181,8 +1214,45 @@ pub fn instances_section(plan: &ScenePlan) -> Section {
     crate::ingest::instances_section::to_section("instances", &plan.scene.instances, meshes)
 }
 
-/// The BitTree of the scene's instances (`bittree`), over the scene's plan.
+/// The BitTree of the scene's instances (`bittree`): the instances of the `instances` section
+/// (the graph's, from the scene's plan; a pack's for `bake bittree`), over the area
+/// [`crate::bittree::section::area_of`] makes of them and the scene's area of interest (from
+/// the scene's plan where the unit is given one: the graph, `bake unit bittree`, `bake bittree
+/// SCENE.eco`; no section records it, so over a pack alone the instances' bounds).
 pub struct Bittree;
+impl Bittree {
+    /// The instances and the area of the unit's inputs.
+    fn instances(u: &UnitInputs) -> Result<(crate::model::Instances, crate::model::Rect)> {
+        let first = u.scope.first;
+        let e = match u
+            .of_kind(crate::ingest::instances_section::KIND)?
+            .as_slice()
+        {
+            [e] => *e,
+            [] => {
+                return Err(Error::invalid_at(
+                    first,
+                    "sections",
+                    "no `instances` section: nothing for the BitTree to encode",
+                ));
+            }
+            more => {
+                return Err(Error::invalid_at(
+                    first,
+                    "sections",
+                    format!("{} `instances` sections; a scene has one", more.len()),
+                ));
+            }
+        };
+        let v = crate::pack::section::SectionView::parse(&e.payload, 0)
+            .map_err(|err| Error::invalid(first, err))?;
+        let (_, inst) = crate::ingest::instances_section::from_section(&v)
+            .map_err(|err| Error::invalid(first, err))?;
+        let aoi = u.scene_if_given()?.map(|p| p.scene.aoi);
+        let area = crate::bittree::section::area_of(&inst, aoi);
+        Ok((inst, area))
+    }
+}
 impl Stage for Bittree {
     type Options = crate::bittree::BitTreeOptions;
     fn def(&self) -> &'static StageDef {
@@ -1197,6 +1267,7 @@ impl Stage for Bittree {
     }
     fn reads(&self) -> Reads {
         Reads {
+            kinds: &["instances"],
             scene: true,
             ..Reads::default()
         }
@@ -1207,20 +1278,17 @@ impl Stage for Bittree {
     fn options<'p>(&'p self, p: &'p Pipeline) -> &'p Self::Options {
         &p.bittree
     }
-    /// The options, the instances' area and the instances (the section the scene's plan makes).
+    /// The options, the area, then the `instances` section.
     fn key(&self, u: &UnitInputs, o: &Self::Options, k: &mut StageKey) -> Result<()> {
-        let plan = u.scene()?;
-        let area = crate::pipeline::instance_area(&plan.scene);
-        k.options(o).options(&(area.origin, area.extent));
-        k.input("instances", instances_section(plan).payload.hash());
+        let (_, area) = Self::instances(u)?;
+        k.options(o).options(&(area.origin, area.extent)).inputs();
         Ok(())
     }
     fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
-        let scene = &cx.scene()?.scene;
-        let area = crate::pipeline::instance_area(scene);
-        let report = json!({"instances": scene.instances.items.len()});
+        let (inst, area) = Self::instances(cx)?;
+        let report = json!({"instances": inst.items.len()});
         Ok(
-            match crate::bittree::section::to_section("bittree", &scene.instances, area, o) {
+            match crate::bittree::section::to_section("bittree", &inst, area, o) {
                 Ok(s) => Output {
                     report,
                     sections: vec![s],
@@ -1499,7 +1567,12 @@ mod tests {
     #[test]
     fn a_stage_command_s_unit_sees_only_its_declared_kinds() {
         let sections = instances_and_sun();
-        let input = Path::new("in.bake");
+        let limits = Limits::DEFAULT;
+        let input = &CommandScope {
+            input: Path::new("in.bake"),
+            limits: &limits,
+            plan: None,
+        };
         let p = Pipeline::default();
         let o = pack_unit_of(&toy::TOY, input, &sections, &p, None, None, &|_| {}).unwrap();
         // The toy declares `instances` only: its view held that one section.
