@@ -175,3 +175,97 @@ fn bake_bittree_refuses_a_pack_without_instances() {
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("instances") && e.contains("t.bake"), "{e}");
 }
+
+/// The section named `name` of `path` decoded and encoded again with the graph's source (the
+/// scene's first ECO file; a command records its own input): the bytes the graph's unit would
+/// have written over the same sections.
+fn as_graph_source(path: &Path, name: &str) -> Vec<u8> {
+    let pack = Pack::open(path).unwrap();
+    let e = pack.find(name).unwrap();
+    let v = pack.view(e).unwrap();
+    let source = "scene:scene.eco";
+    let s = match e.kind.as_str() {
+        "svo" => {
+            let (m, svo) = bake::voxel::section::from_section(&v).unwrap();
+            bake::voxel::section::to_section(name, source, &svo, m.solid)
+        }
+        "svo-scene" => {
+            let (m, two) = bake::voxel::instanced_section::from_section(&v).unwrap();
+            bake::voxel::instanced_section::to_section(name, source, &two, m.solid)
+        }
+        "linespace" => {
+            let (_, t) = bake::linespace::section::from_section(&v).unwrap();
+            bake::linespace::section::to_section(name, source, &t)
+        }
+        "linespace-scene" => {
+            let (_, t) = bake::linespace::instanced_section::from_section(&v).unwrap();
+            bake::linespace::instanced_section::to_section(name, source, &t)
+        }
+        k => panic!("kind {k}"),
+    };
+    s.payload.to_vec()
+}
+
+#[test]
+fn bake_svo_and_linespace_on_a_pack_give_the_graph_s_sections() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake::fixtures::write_all(d).unwrap();
+    // Flattened (the default budget) and two-level (a budget the placed scene exceeds as one
+    // mesh), for each stage.
+    let cases: [(&str, &str, &str, Option<&str>); 4] = [
+        ("svo", "svo", "svo", None),
+        ("linespace", "linespace", "linespace", None),
+        ("svo", "svo-scene", "svo-scene", Some("4M")),
+        (
+            "linespace",
+            "linespace-scene",
+            "linespace-scene",
+            Some("1M"),
+        ),
+    ];
+    for (stage, kind, name, budget) in cases {
+        let graph = {
+            let mut pipeline = Pipeline::default();
+            let s = &mut pipeline.stages;
+            (
+                s.prt, s.lod, s.lightmap, s.atlas, s.envmaps, s.cluster, s.bittree,
+            ) = (false, false, false, false, false, false, false);
+            (s.svo, s.linespace) = (stage == "svo", stage == "linespace");
+            let mut ingest = bake::ingest::IngestOptions::default();
+            if let Some(b) = budget {
+                let bytes = b.trim_end_matches('M').parse::<u64>().unwrap() << 20;
+                ingest.limits = bake::ingest::limits::Limits::with_memory(bytes);
+            }
+            let out = d.join(format!("graph-{kind}.bake"));
+            bake::graph::build(
+                &BuildOptions {
+                    scenes: vec![d.join("scene.eco")],
+                    output: Some(out.clone()),
+                    sky: Some(d.join("sky.hdr")),
+                    cache: CacheMode::Off,
+                    pipeline,
+                    ingest,
+                    ..Default::default()
+                },
+                &bake::graph::progress::Silent,
+            )
+            .unwrap();
+            out
+        };
+        let pack = Pack::open(&graph).unwrap();
+        assert_eq!(pack.find(name).map(|e| e.kind.as_str()), Some(kind));
+        drop(pack);
+        let out = d.join(format!("cmd-{kind}.bake"));
+        let mut args: Vec<&str> = Vec::new();
+        if let Some(b) = budget {
+            args.extend(["--max-memory", b]);
+        }
+        args.extend([stage, s(&graph), "-o", s(&out), "--json"]);
+        let doc = common::json(&common::bake(&args));
+        assert!(
+            as_graph_source(&out, name) == payload(&graph, name),
+            "bake {stage} ({kind}): {doc}"
+        );
+    }
+}

@@ -1346,11 +1346,34 @@ impl Stage for Svo {
     }
     fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
         let s = cx.scope;
-        let (sec, report) =
+        let (sec, report, left) =
             crate::voxel::geometry::pack_svo_section(cx.view(), o, s.limits, s.first, s.source)?;
+        let mut warnings = Vec::new();
+        if left.skipped_triangles > 0 {
+            warnings.push(Warning::new(
+                &diag::SVO_TRIANGLES_WITHOUT_VOXEL,
+                "",
+                format!(
+                    "{} triangles left no voxel (outside the grid or alpha-tested away)",
+                    left.skipped_triangles
+                ),
+            ));
+        }
+        if left.open_columns > 0 {
+            warnings.push(Warning::new(
+                &diag::SVO_MESH_NOT_CLOSED,
+                "",
+                format!(
+                    "solid fill: {} columns crossed the surface an odd number of times \
+                     (mesh not closed)",
+                    left.open_columns
+                ),
+            ));
+        }
         Ok(Output {
             report,
             sections: vec![sec],
+            warnings,
             ..Default::default()
         })
     }
@@ -1392,27 +1415,16 @@ impl Stage for Linespace {
     }
     fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
         let s = cx.scope;
-        let view = cx.view();
-        if crate::voxel::geometry::placed_size(view)?.linespace_two_level(s.limits) {
-            let (sec, report) = crate::linespace::scene::pack_linespace_section(
-                view, o, s.limits, s.first, s.source,
-            )?;
-            return Ok(Output {
-                report,
-                sections: vec![sec],
-                ..Default::default()
-            });
-        }
-        let tris = crate::voxel::geometry::pack_world_triangles(view)?;
-        let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(o.n));
-        let tree = crate::linespace::ntree::build_ntree(&tris, o, &shafts)?;
+        let (sec, report) = crate::linespace::scene::pack_linespace_section(
+            cx.view(),
+            o,
+            s.limits,
+            s.first,
+            s.source,
+        )?;
         Ok(Output {
-            report: crate::linespace::section::summary_of(&tree),
-            sections: vec![crate::linespace::section::to_section(
-                "linespace",
-                s.source,
-                &tree,
-            )],
+            report,
+            sections: vec![sec],
             ..Default::default()
         })
     }
