@@ -269,3 +269,31 @@ fn bake_svo_and_linespace_on_a_pack_give_the_graph_s_sections() {
         );
     }
 }
+
+#[test]
+fn bake_cluster_gives_the_graph_s_clusters_with_and_without_weights() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake::fixtures::write_all(d).unwrap();
+    for weights in [false, true] {
+        let name = format!("graph-{weights}.bake");
+        let graph = graph_pack(d, &name, |p| {
+            (p.stages.envmaps, p.stages.cluster) = (true, true);
+            p.cluster.weights = weights;
+        });
+        let out = d.join(format!("cmd-{weights}.bake"));
+        let mut args = vec!["cluster", s(&graph), "-o", s(&out), "--json"];
+        if weights {
+            args.push("--weights");
+        }
+        common::json(&common::bake(&args));
+        assert!(
+            payload(&out, "clusters") == payload(&graph, "clusters"),
+            "weights {weights}"
+        );
+    }
+    // The weights are stored only when asked for (a larger section).
+    let [plain, weighed] =
+        [false, true].map(|w| payload(&d.join(format!("graph-{w}.bake")), "clusters"));
+    assert!(weighed.len() > plain.len());
+}

@@ -25,12 +25,13 @@
 //! One entry runs a unit outside the graph, [`run_unit`]: the plan's actions call it, and so do
 //! the per-stage subcommands through [`pack_unit`] (`bake prt` and `bake lod` per mesh,
 //! `bake material`, `bake terrain`, `bake lightmap` (the `lightmap` and `atlas` units),
-//! `bake envmaps` (one shard of every instance, then [`join_units`])). Still calling their
-//! stage's functions, because they do more than the registered unit: `bake sky` (several input
-//! files, the built-in sky's parameters, `--sh-only`), `bake cluster` (`--weights`, which the
-//! `cluster` unit has no option for), `bake bittree` (reads the pack's `instances` section; the
-//! unit reads the scene's plan), `bake svo` and `bake linespace` (also take a model file,
-//! voxelized in its own frame).
+//! `bake envmaps` (one shard of every instance, then [`join_units`]), `bake cluster`
+//! (`--weights` is the option `cluster.weights`)) or [`scene_unit`] (whole-scene stages given
+//! the command's memory budget and, for an ECO input, the scene's plan: `bake bittree`, and
+//! `bake svo` and `bake linespace` over a pack). Still calling their stage's functions, because
+//! they do more than the registered unit: `bake sky` (several input files, the built-in sky's
+//! parameters, `--sh-only`), and `bake svo` and `bake linespace` over a model file (voxelized in
+//! its own frame, its textures read from files).
 
 use super::cache::{self, Key, KeyBuilder};
 use super::stages::{Per, StageDef};
@@ -1191,10 +1192,11 @@ impl Stage for Cluster {
         &p.cluster
     }
     fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
-        let (s, c, w) = crate::envmap::cluster_sections_warned(cx.view(), o, false)?;
+        let (s, c, w) = crate::envmap::cluster_sections_warned(cx.view(), o, o.weights)?;
         Ok(Output {
             report: json!({"clusters": c.clustering.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error(),
                 "shared_rms_error": c.clustering.rms_error(),
+                "rounds": c.clustering.rounds, "noise_relative": c.clustering.noise,
                 "local_components": c.local.as_ref().map_or(0, |l| l.components),
                 "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
             sections: s,
