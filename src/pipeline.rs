@@ -102,21 +102,6 @@ pub fn scene_to_pack(scene: &Scene, eco: &Path, names: &SourceNames) -> (PackWri
     (w, warnings)
 }
 
-/// The area the BitTree discretizes: the scene's area of interest, widened to hold every instance.
-pub fn instance_area(scene: &Scene) -> crate::model::Rect {
-    let pts: Vec<[f32; 3]> = scene.instances.items.iter().map(|i| i.position).collect();
-    let (lo, hi) = crate::model::bounds_of(&pts).unwrap_or(([0.0; 3], [1.0; 3]));
-    let a = scene.aoi;
-    let x0 = a.origin[0].min(lo[0]) - 1e-3;
-    let y0 = a.origin[1].min(lo[1]) - 1e-3;
-    let x1 = (a.origin[0] + a.extent[0]).max(hi[0]) + 1e-3;
-    let y1 = (a.origin[1] + a.extent[1]).max(hi[1]) + 1e-3;
-    crate::model::Rect {
-        origin: [x0, y0],
-        extent: [x1 - x0, y1 - y0],
-    }
-}
-
 /// `bake ingest INPUT`: one input file into a pack.
 pub fn ingest_to_pack(input: &Path, opts: &IngestOptions) -> Result<(PackWriter, Vec<String>)> {
     let mut w = PackWriter::new();

@@ -24,6 +24,29 @@ pub struct BitTreeMeta {
     pub models: Vec<String>,
 }
 
+/// The area the graph's and `bake bittree`'s BitTree discretizes: the instances' x/y bounds
+/// joined with the scene's area of interest where known (`aoi`: the ECO files' GEOREF, which no
+/// section records; a pack alone gives `None`), widened by a millimetre so the maximum lies
+/// inside. Without instances the bounds are the unit square. One formula for both: with the
+/// area of interest inside the instances' bounds, a pack alone gives the graph's area.
+pub fn area_of(inst: &Instances, aoi: Option<Rect>) -> Rect {
+    let pts: Vec<[f32; 3]> = inst.items.iter().map(|i| i.position).collect();
+    let (lo, hi) = crate::model::bounds_of(&pts).unwrap_or(([0.0; 3], [1.0; 3]));
+    let (mut x0, mut y0, mut x1, mut y1) = (lo[0], lo[1], hi[0], hi[1]);
+    if let Some(a) = aoi {
+        x0 = a.origin[0].min(x0);
+        y0 = a.origin[1].min(y0);
+        x1 = (a.origin[0] + a.extent[0]).max(x1);
+        y1 = (a.origin[1] + a.extent[1]).max(y1);
+    }
+    let pad = 1e-3;
+    let (x0, y0, x1, y1) = (x0 - pad, y0 - pad, x1 + pad, y1 + pad);
+    Rect {
+        origin: [x0, y0],
+        extent: [x1 - x0, y1 - y0],
+    }
+}
+
 /// Encodes a scene's instances. Rotation is quantized to 65536 steps per turn (0.0055°).
 pub fn to_section(
     name: &str,

@@ -1,8 +1,13 @@
-//! `bake bittree INPUT`: adds a `bittree` section encoding the instances of a scene pack (or ECO).
+//! `bake bittree INPUT`: adds a `bittree` section encoding the instances of a scene pack (or ECO),
+//! through the registry's `bittree` unit (the graph's and `bake unit bittree`'s): the instances
+//! of the `instances` section, over their bounds joined with the scene's area of interest for an
+//! ECO input (so the section equals the graph's); a pack records no area of interest, so over a
+//! pack alone the area is the instances' bounds.
 
 use super::{Global, Outcome};
 use crate::bittree::BitTreeOptions;
 use crate::error::{Error, Result};
+use crate::graph::stage::{CommandScope, pack_sections, scene_unit};
 use crate::pack::Pack;
 use std::path::PathBuf;
 
@@ -13,28 +18,54 @@ pub(crate) struct BitTreeArgs {
     /// Output pack (default: the input pack itself, or <stem>.bake for an ECO file).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
-    /// Children per level: 4, 16 or 64.
+    /// Children per level: 4, 16 or 64 (the pipeline's `bittree.children`).
     #[arg(long, default_value_t = 16)]
     pub children: u32,
 }
 
-pub(crate) fn run(args: &BitTreeArgs, _g: &Global) -> Result<Outcome> {
-    let (mut w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
+pub(crate) fn run(args: &BitTreeArgs, g: &Global) -> Result<Outcome> {
+    let (w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
+    // An ECO input: its plan, for the area of interest the graph's unit reads too.
+    let plan = if super::svo::is_pack(&args.input) {
+        None
+    } else {
+        Some(crate::ingest::eco::scene_plan(
+            std::slice::from_ref(&args.input),
+            &crate::ingest::IngestOptions::default(),
+        )?)
+    };
     let bytes = w.to_bytes()?;
     let pack = Pack::from_bytes(&bytes, &args.input.display().to_string())?;
-    let v = pack.view_named("instances")?;
-    let (_, inst) = crate::ingest::instances_section::from_section(&v)
-        .map_err(|e| Error::invalid(&args.input, e))?;
-    let area = instance_area(&inst);
-    let opts = BitTreeOptions {
-        children: args.children,
+    let pipeline = crate::graph::Pipeline {
+        bittree: BitTreeOptions {
+            children: args.children,
+            ..Default::default()
+        },
         ..Default::default()
     };
-    let section = crate::bittree::section::to_section("bittree", &inst, area, &opts)
-        .map_err(|e| Error::invalid_at(&args.input, "instances", e))?;
-    w.insert(section);
-    let out_bytes = w.to_bytes()?;
-    crate::pack::write_atomic(&output, &out_bytes)?;
+    let limits = g.ingest_defaults().limits;
+    let at = CommandScope {
+        input: &args.input,
+        limits: &limits,
+        plan: plan.as_ref(),
+    };
+    let o = scene_unit(
+        "bittree",
+        &at,
+        &pack_sections(&pack, "bittree")?,
+        &pipeline,
+        &|_| {},
+    )?;
+    // The unit records an instance set it cannot encode as a warning (the graph goes on
+    // without the section); here there is nothing else to do: an error.
+    if o.sections.is_empty() {
+        let why = o
+            .warnings
+            .first()
+            .map_or("no BitTree", |w| w.message.as_str());
+        return Err(Error::invalid_at(&args.input, "instances", why));
+    }
+    let out_bytes = super::write_pack(w, o.sections, &output)?;
     let p2 = Pack::from_bytes(&out_bytes, "out")?;
     let summary = crate::bittree::section::summary(&p2.view_named("bittree")?)
         .map_err(|e| Error::invalid(&output, e))?;
@@ -43,16 +74,4 @@ pub(crate) fn run(args: &BitTreeArgs, _g: &Global) -> Result<Outcome> {
         json: summary,
         warnings: Vec::new(),
     })
-}
-
-/// The area the BitTree discretizes: the instances' x/y bounds, widened by a millimetre so the
-/// maximum lies inside.
-fn instance_area(inst: &crate::model::Instances) -> crate::model::Rect {
-    let pts: Vec<[f32; 3]> = inst.items.iter().map(|i| i.position).collect();
-    let (lo, hi) = crate::model::bounds_of(&pts).unwrap_or(([0.0; 3], [1.0; 3]));
-    let pad = 1e-3;
-    crate::model::Rect {
-        origin: [lo[0] - pad, lo[1] - pad],
-        extent: [hi[0] - lo[0] + 2.0 * pad, hi[1] - lo[1] + 2.0 * pad],
-    }
 }

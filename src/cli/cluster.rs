@@ -70,32 +70,44 @@ pub(crate) struct BudgetArgs {
 pub(crate) fn run(args: &ClusterArgs, _g: &Global) -> Result<Outcome> {
     let (w, output) = super::open_or_ingest(&args.input, args.output.clone())?;
     let pack = Pack::open(&args.input)?;
-    let opts = ClusterOptions {
-        error: args.error,
-        k: args.k,
-        radius: args.radius,
-        noise: args.noise,
-        local: args.budget.local,
-        max_bytes: args.budget.max_bytes,
-        compression: args.budget.compression,
-        denoise: !args.budget.no_denoise,
+    let pipeline = crate::graph::Pipeline {
+        cluster: ClusterOptions {
+            error: args.error,
+            k: args.k,
+            radius: args.radius,
+            noise: args.noise,
+            local: args.budget.local,
+            max_bytes: args.budget.max_bytes,
+            compression: args.budget.compression,
+            denoise: !args.budget.no_denoise,
+            weights: args.weights,
+            ..Default::default()
+        },
         ..Default::default()
     };
+    // Through the registry's `cluster` unit (the graph's and `bake unit cluster`'s).
     let start = std::time::Instant::now();
-    let (sections, c, warning) =
-        crate::envmap::cluster_sections_warned(&pack, &opts, args.weights)?;
+    let o = crate::graph::stage::pack_unit(
+        "cluster",
+        &args.input,
+        &crate::graph::stage::pack_sections(&pack, "cluster")?,
+        &pipeline,
+        None,
+        None,
+        &|_| {},
+    )?;
     let seconds = start.elapsed().as_secs_f64();
-    let bytes = super::write_pack(w, sections, &output)?;
+    let bytes = super::write_pack(w, o.sections, &output)?;
     let out = Pack::from_bytes(&bytes, "out")?;
     let mut doc = section::clusters_summary(&out.view_named("clusters")?)
         .map_err(|e| Error::invalid(&output, e))?;
     doc["seconds"] = seconds.into();
-    doc["rounds"] = c.clustering.rounds.into();
-    doc["noise_relative"] = c.clustering.noise.into();
+    doc["rounds"] = o.report["rounds"].clone();
+    doc["noise_relative"] = o.report["noise_relative"].clone();
     Ok(Outcome {
         text: format!("{}: {}\n", output.display(), doc),
         json: doc,
-        warnings: crate::diag::tagged(&crate::diag::CLUSTER_COMPRESSION_LOW, warning),
+        warnings: o.warnings,
     })
 }
 
@@ -198,6 +210,7 @@ pub(crate) fn bench(a: &ClusterBenchArgs, _g: &Global) -> Result<Outcome> {
                 max_bytes: a.budget.max_bytes,
                 compression: a.budget.compression,
                 denoise: !a.budget.no_denoise,
+                weights: false,
             },
             synthetic: a.synthetic,
             noise_level: a.noise_level,

@@ -3,6 +3,8 @@
 use super::svo::load_geometry;
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
+use crate::graph::stage::{CommandScope, pack_sections, scene_unit};
+use crate::ingest::limits::Limits;
 use crate::linespace::ntree::{NTreeOptions, Refine, build_ntree};
 use crate::linespace::query::AreaLight;
 use crate::linespace::section;
@@ -35,24 +37,17 @@ pub(crate) use crate::linespace::world_triangles;
 pub(crate) fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
-    if super::svo::is_pack(&args.input) {
-        let pack = crate::pack::Pack::open(&args.input)?;
-        let size = crate::voxel::geometry::placed_size(&pack)?;
-        size.check(SceneStage::Linespace, &limits, &args.input)?;
-        if size.linespace_two_level(&limits) {
-            return run_two_level(args, &pack);
-        }
-    }
-    // A pack: its placed scene's triangles only (no mesh, no textures); a model: its mesh.
-    let (tris, geo, pack) = if super::svo::is_pack(&args.input) {
-        let pack = crate::pack::Pack::open(&args.input)?;
-        let tris = crate::voxel::geometry::pack_world_triangles(&pack)?;
-        (tris, Default::default(), Some(pack))
-    } else {
-        let (geo, pack) =
-            load_geometry(&args.input, SceneStage::Linespace, &limits, &mut warnings)?;
-        (world_triangles(&geo.mesh), geo, pack)
+    let opts = NTreeOptions {
+        n: args.n,
+        depth: args.depth,
+        cubic_cells: !args.flat_cells,
     };
+    if super::svo::is_pack(&args.input) {
+        return run_pack(args, opts, &limits);
+    }
+    // A model: its mesh.
+    let (geo, pack) = load_geometry(&args.input, SceneStage::Linespace, &limits, &mut warnings)?;
+    let tris = world_triangles(&geo.mesh);
     if tris.is_empty() {
         return Err(Error::invalid_at(
             &args.input,
@@ -60,11 +55,6 @@ pub(crate) fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
             "no triangles for the N-tree",
         ));
     }
-    let opts = NTreeOptions {
-        n: args.n,
-        depth: args.depth,
-        cubic_cells: !args.flat_cells,
-    };
     let start = std::time::Instant::now();
     let shafts = Arc::new(ShaftTable::build(opts.n));
     let tree = build_ntree(&tris, &opts, &shafts)?;
@@ -102,44 +92,74 @@ pub(crate) fn run(args: &LinespaceArgs, g: &Global) -> Result<Outcome> {
     })
 }
 
-/// A placed scene over the budget as one mesh: the two-level `linespace-scene` section.
-fn run_two_level(args: &LinespaceArgs, pack: &crate::pack::Pack) -> Result<Outcome> {
-    use crate::linespace::instanced_section;
-    let opts = NTreeOptions {
-        n: args.n,
-        depth: args.depth,
-        cubic_cells: !args.flat_cells,
+/// A pack: the registry's `linespace` unit (the graph's and `bake unit linespace`'s) over the
+/// pack's sections: the flattened `linespace` section of its placed scene's triangles, or the
+/// two-level `linespace-scene` where the placed scene exceeds the budget as one mesh.
+fn run_pack(args: &LinespaceArgs, opts: NTreeOptions, limits: &Limits) -> Result<Outcome> {
+    let pack = crate::pack::Pack::open(&args.input)?;
+    let pipeline = crate::graph::Pipeline {
+        linespace: opts,
+        ..Default::default()
+    };
+    let at = CommandScope {
+        input: &args.input,
+        limits,
+        plan: None,
     };
     let start = std::time::Instant::now();
-    let two = crate::linespace::scene::pack_scene_linespace(pack, &opts)?;
+    let o = scene_unit(
+        "linespace",
+        &at,
+        &pack_sections(&pack, "linespace")?,
+        &pipeline,
+        &|_| {},
+    )?;
     let seconds = start.elapsed().as_secs_f64();
     let output = args.output.clone().unwrap_or_else(|| args.input.clone());
-    let mut w = crate::pack::PackWriter::from_pack(pack);
-    let source = crate::ingest::confine::SourceNames::first_name(&args.input);
-    w.insert(instanced_section::to_section(
-        instanced_section::KIND,
-        &source,
-        &two,
-    ));
+    let two_level = o
+        .sections
+        .iter()
+        .any(|s| s.kind == crate::linespace::instanced_section::KIND);
+    let mut w = crate::pack::PackWriter::from_pack(&pack);
+    for s in o.sections {
+        w.insert(s);
+    }
     w.write(&output)?;
-    let mut json = instanced_section::summary_of(&two);
+    let mut json = o.report;
     json["output"] = serde_json::json!(output);
     json["seconds"] = serde_json::json!(seconds);
-    let text = format!(
-        "{}: linespace-scene (two-level: the placed scene exceeds --max-memory as one mesh) of \
-         {} models, {} instances ({} placed triangles), top tree depth {}, {} bytes ({:.3} s)\n",
-        output.display(),
-        json["models"],
-        json["instances"],
-        json["placed_triangles"],
-        json["top_depth"],
-        json["bytes"],
-        seconds
-    );
+    let text = if two_level {
+        format!(
+            "{}: linespace-scene (two-level: the placed scene exceeds --max-memory as one mesh) \
+             of {} models, {} instances ({} placed triangles), top tree depth {}, {} bytes \
+             ({:.3} s)\n",
+            output.display(),
+            json["models"],
+            json["instances"],
+            json["placed_triangles"],
+            json["top_depth"],
+            json["bytes"],
+            seconds
+        )
+    } else {
+        format!(
+            "{}: N-tree n = {}, depth {}: {} inner nodes, {} leaves, {} bytes (shaft table {}; \
+             the dense layout would take {}) ({:.3} s)\n",
+            output.display(),
+            json["n"],
+            json["depth"],
+            json["inner_nodes"],
+            json["leaves"],
+            json["bytes"],
+            json["shaft_table_bytes"],
+            json["dense_bytes"],
+            seconds
+        )
+    };
     Ok(Outcome {
         json,
         text,
-        warnings: Vec::new(),
+        warnings: o.warnings,
     })
 }
 

@@ -3,6 +3,7 @@
 
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
+use crate::graph::stage::{CommandScope, pack_sections, scene_unit};
 use crate::ingest::limits::Limits;
 use crate::pack::{Pack, PackWriter};
 use crate::voxel::geometry::{Geometry, SceneStage, pack_geometry, placed_size};
@@ -91,12 +92,7 @@ pub(crate) fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
     let mut warnings = Vec::new();
     let limits = g.ingest_defaults().limits;
     if is_pack(&args.input) {
-        let pack = Pack::open(&args.input)?;
-        let size = placed_size(&pack)?;
-        size.check(SceneStage::Svo, &limits, &args.input)?;
-        if size.svo_two_level(&limits) {
-            return run_two_level(args, &pack);
-        }
+        return run_pack(args, &limits);
     }
     let (geo, pack) = load_geometry(&args.input, SceneStage::Svo, &limits, &mut warnings)?;
     if geo.mesh.indices.is_empty() {
@@ -162,42 +158,83 @@ pub(crate) fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
     })
 }
 
-/// A placed scene over the budget as one mesh: the two-level `svo-scene` section.
-fn run_two_level(args: &SvoArgs, pack: &Pack) -> Result<Outcome> {
-    let opts = VoxelizeOptions {
-        solid: args.solid,
-        ..VoxelizeOptions::surface(args.resolution)
+/// A pack: the registry's `svo` unit (the graph's and `bake unit svo`'s) over the pack's
+/// sections: the flattened `svo` section, or the two-level `svo-scene` where the placed scene
+/// exceeds the budget as one mesh.
+fn run_pack(args: &SvoArgs, limits: &Limits) -> Result<Outcome> {
+    let pack = Pack::open(&args.input)?;
+    let pipeline = crate::graph::Pipeline {
+        svo: VoxelizeOptions {
+            solid: args.solid,
+            ..VoxelizeOptions::surface(args.resolution)
+        },
+        ..Default::default()
+    };
+    let at = CommandScope {
+        input: &args.input,
+        limits,
+        plan: None,
     };
     let start = std::time::Instant::now();
-    let two = crate::voxel::geometry::pack_instanced_svo(pack, &opts)?;
+    let o = scene_unit(
+        "svo",
+        &at,
+        &pack_sections(&pack, "svo")?,
+        &pipeline,
+        &|_| {},
+    )?;
     let seconds = start.elapsed().as_secs_f64();
     let output = args.output.clone().unwrap_or_else(|| args.input.clone());
-    let mut w = PackWriter::from_pack(pack);
-    let source = crate::ingest::confine::SourceNames::first_name(&args.input);
-    let kind = crate::voxel::instanced_section::KIND;
-    w.insert(crate::voxel::instanced_section::to_section(
-        kind, &source, &two, args.solid,
-    ));
+    let two_level = o
+        .sections
+        .iter()
+        .any(|s| s.kind == crate::voxel::instanced_section::KIND);
+    let mut w = PackWriter::from_pack(&pack);
+    for s in o.sections {
+        w.insert(s);
+    }
     w.write(&output)?;
-    let mut json = crate::voxel::instanced_section::summary_of(&two);
+    let mut json = o.report;
     json["output"] = serde_json::json!(output);
     json["seconds"] = serde_json::json!(seconds);
-    let text = format!(
-        "{}: svo-scene (two-level: the placed scene exceeds --max-memory as one mesh) of {} \
-         models, {} instances, scene grid {:?}, {} model voxels, {} bytes ({:.3} s)\n",
-        output.display(),
-        json["models"],
-        json["instances"],
-        two.scene_grid.dims,
-        json["model_voxels"],
-        json["bytes"],
-        seconds
-    );
+    let text = if two_level {
+        format!(
+            "{}: svo-scene (two-level: the placed scene exceeds --max-memory as one mesh) of {} \
+             models, {} instances, scene grid {}, {} model voxels, {} bytes ({:.3} s)\n",
+            output.display(),
+            json["models"],
+            json["instances"],
+            dims(&json["scene_resolution"]),
+            json["model_voxels"],
+            json["bytes"],
+            seconds
+        )
+    } else {
+        format!(
+            "{}: svo {} voxels, {} voxels, {} nodes, {:.3} B/voxel topology, {:.2} B/voxel total ({:.3} s)\n",
+            output.display(),
+            dims(&json["resolution"]),
+            json["voxels"],
+            json["nodes"],
+            json["topology_bytes_per_voxel"].as_f64().unwrap_or(0.0),
+            json["bytes_per_voxel"].as_f64().unwrap_or(0.0),
+            seconds
+        )
+    };
     Ok(Outcome {
         json,
         text,
-        warnings: Vec::new(),
+        warnings: o.warnings,
     })
+}
+
+/// A grid's dimensions as `[x, y, z]` (as `{:?}` of `[u32; 3]` prints them).
+fn dims(v: &serde_json::Value) -> String {
+    let d: Vec<u64> = v
+        .as_array()
+        .map(|a| a.iter().filter_map(|x| x.as_u64()).collect())
+        .unwrap_or_default();
+    format!("{d:?}")
 }
 
 #[derive(Debug, Clone, clap::Args)]

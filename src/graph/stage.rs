@@ -25,12 +25,13 @@
 //! One entry runs a unit outside the graph, [`run_unit`]: the plan's actions call it, and so do
 //! the per-stage subcommands through [`pack_unit`] (`bake prt` and `bake lod` per mesh,
 //! `bake material`, `bake terrain`, `bake lightmap` (the `lightmap` and `atlas` units),
-//! `bake envmaps` (one shard of every instance, then [`join_units`])). Still calling their
-//! stage's functions, because they do more than the registered unit: `bake sky` (several input
-//! files, the built-in sky's parameters, `--sh-only`), `bake cluster` (`--weights`, which the
-//! `cluster` unit has no option for), `bake bittree` (reads the pack's `instances` section; the
-//! unit reads the scene's plan), `bake svo` and `bake linespace` (also take a model file,
-//! voxelized in its own frame).
+//! `bake envmaps` (one shard of every instance, then [`join_units`]), `bake cluster`
+//! (`--weights` is the option `cluster.weights`)) or [`scene_unit`] (whole-scene stages given
+//! the command's memory budget and, for an ECO input, the scene's plan: `bake bittree`, and
+//! `bake svo` and `bake linespace` over a pack). Still calling their stage's functions, because
+//! they do more than the registered unit: `bake sky` (several input files, the built-in sky's
+//! parameters, `--sh-only`), and `bake svo` and `bake linespace` over a model file (voxelized in
+//! its own frame, its textures read from files).
 
 use super::cache::{self, Key, KeyBuilder};
 use super::stages::{Per, StageDef};
@@ -223,6 +224,15 @@ impl<'a> UnitInputs<'a> {
         self.scope
             .plan
             .ok_or_else(|| Error::usage(format!("stage {}: no scene given", self.stage)))
+    }
+
+    /// The scene's plan where the runner has one (declared by [`Reads::scene`]): a stage
+    /// command over a pack has none.
+    pub fn scene_if_given(&self) -> Result<Option<&'a ScenePlan>> {
+        if !self.reads.scene {
+            return Err(self.undeclared_error("the scene's plan".into()));
+        }
+        Ok(self.scope.plan)
     }
 
     /// `--sky` (declared by [`Reads::sky`]).
@@ -524,15 +534,39 @@ pub fn pack_unit(
     shard: Option<Shard>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Output> {
-    pack_unit_of(
-        find_or_err(stage)?,
+    let limits = Limits::DEFAULT;
+    let at = CommandScope {
         input,
-        sections,
-        p,
-        mesh,
-        shard,
-        progress,
-    )
+        limits: &limits,
+        plan: None,
+    };
+    pack_unit_of(find_or_err(stage)?, &at, sections, p, mesh, shard, progress)
+}
+
+/// What a stage command gives a unit besides its sections: the input it names (in errors, and
+/// as the scene's source the sections record), the memory budget (`--max-memory`), and the
+/// scene's plan where its input is a scene (read for what no section records: the area of
+/// interest of `bittree`).
+pub struct CommandScope<'a> {
+    /// The command's input.
+    pub input: &'a Path,
+    /// The memory budget the stages check sizes against.
+    pub limits: &'a Limits,
+    /// The scene's plan, for an ECO input.
+    pub plan: Option<&'a ScenePlan>,
+}
+
+/// One unit of the registered whole-scene stage `stage` (`bake bittree`, `bake svo` and `bake
+/// linespace` on a pack) through [`run_unit`], over `sections`, as [`pack_unit`] but with the
+/// command's budget and, for a scene input, its plan.
+pub fn scene_unit(
+    stage: &str,
+    at: &CommandScope,
+    sections: &[Section],
+    p: &Pipeline,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Output> {
+    pack_unit_of(find_or_err(stage)?, at, sections, p, None, None, progress)
 }
 
 /// The registered stage named `stage`, or an error.
@@ -543,13 +577,14 @@ fn find_or_err(stage: &str) -> Result<&'static dyn AnyStage> {
 /// [`pack_unit`] of the stage `st` (a test's toy stage too).
 fn pack_unit_of(
     st: &dyn AnyStage,
-    input: &Path,
+    at: &CommandScope,
     sections: &[Section],
     p: &Pipeline,
     mesh: Option<&str>,
     shard: Option<Shard>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Output> {
+    let input = at.input;
     let model = match mesh {
         Some(m) => Some(
             m.strip_prefix("mesh:")
@@ -566,14 +601,13 @@ fn pack_unit_of(
     };
     let view_name = input.display().to_string();
     let source = crate::ingest::confine::SourceNames::first_name(input);
-    let limits = crate::ingest::limits::Limits::DEFAULT;
     let scope = Scope {
         view_name: &view_name,
         source: &source,
-        limits: &limits,
+        limits: at.limits,
         first: input,
         sky: None,
-        plan: None,
+        plan: at.plan,
         names: None,
         policy: None,
     };
@@ -1158,10 +1192,11 @@ impl Stage for Cluster {
         &p.cluster
     }
     fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
-        let (s, c, w) = crate::envmap::cluster_sections_warned(cx.view(), o, false)?;
+        let (s, c, w) = crate::envmap::cluster_sections_warned(cx.view(), o, o.weights)?;
         Ok(Output {
             report: json!({"clusters": c.clustering.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error(),
                 "shared_rms_error": c.clustering.rms_error(),
+                "rounds": c.clustering.rounds, "noise_relative": c.clustering.noise,
                 "local_components": c.local.as_ref().map_or(0, |l| l.components),
                 "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
             sections: s,
@@ -1181,8 +1216,45 @@ pub fn instances_section(plan: &ScenePlan) -> Section {
     crate::ingest::instances_section::to_section("instances", &plan.scene.instances, meshes)
 }
 
-/// The BitTree of the scene's instances (`bittree`), over the scene's plan.
+/// The BitTree of the scene's instances (`bittree`): the instances of the `instances` section
+/// (the graph's, from the scene's plan; a pack's for `bake bittree`), over the area
+/// [`crate::bittree::section::area_of`] makes of them and the scene's area of interest (from
+/// the scene's plan where the unit is given one: the graph, `bake unit bittree`, `bake bittree
+/// SCENE.eco`; no section records it, so over a pack alone the instances' bounds).
 pub struct Bittree;
+impl Bittree {
+    /// The instances and the area of the unit's inputs.
+    fn instances(u: &UnitInputs) -> Result<(crate::model::Instances, crate::model::Rect)> {
+        let first = u.scope.first;
+        let e = match u
+            .of_kind(crate::ingest::instances_section::KIND)?
+            .as_slice()
+        {
+            [e] => *e,
+            [] => {
+                return Err(Error::invalid_at(
+                    first,
+                    "sections",
+                    "no `instances` section: nothing for the BitTree to encode",
+                ));
+            }
+            more => {
+                return Err(Error::invalid_at(
+                    first,
+                    "sections",
+                    format!("{} `instances` sections; a scene has one", more.len()),
+                ));
+            }
+        };
+        let v = crate::pack::section::SectionView::parse(&e.payload, 0)
+            .map_err(|err| Error::invalid(first, err))?;
+        let (_, inst) = crate::ingest::instances_section::from_section(&v)
+            .map_err(|err| Error::invalid(first, err))?;
+        let aoi = u.scene_if_given()?.map(|p| p.scene.aoi);
+        let area = crate::bittree::section::area_of(&inst, aoi);
+        Ok((inst, area))
+    }
+}
 impl Stage for Bittree {
     type Options = crate::bittree::BitTreeOptions;
     fn def(&self) -> &'static StageDef {
@@ -1197,6 +1269,7 @@ impl Stage for Bittree {
     }
     fn reads(&self) -> Reads {
         Reads {
+            kinds: &["instances"],
             scene: true,
             ..Reads::default()
         }
@@ -1207,20 +1280,17 @@ impl Stage for Bittree {
     fn options<'p>(&'p self, p: &'p Pipeline) -> &'p Self::Options {
         &p.bittree
     }
-    /// The options, the instances' area and the instances (the section the scene's plan makes).
+    /// The options, the area, then the `instances` section.
     fn key(&self, u: &UnitInputs, o: &Self::Options, k: &mut StageKey) -> Result<()> {
-        let plan = u.scene()?;
-        let area = crate::pipeline::instance_area(&plan.scene);
-        k.options(o).options(&(area.origin, area.extent));
-        k.input("instances", instances_section(plan).payload.hash());
+        let (_, area) = Self::instances(u)?;
+        k.options(o).options(&(area.origin, area.extent)).inputs();
         Ok(())
     }
     fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
-        let scene = &cx.scene()?.scene;
-        let area = crate::pipeline::instance_area(scene);
-        let report = json!({"instances": scene.instances.items.len()});
+        let (inst, area) = Self::instances(cx)?;
+        let report = json!({"instances": inst.items.len()});
         Ok(
-            match crate::bittree::section::to_section("bittree", &scene.instances, area, o) {
+            match crate::bittree::section::to_section("bittree", &inst, area, o) {
                 Ok(s) => Output {
                     report,
                     sections: vec![s],
@@ -1278,11 +1348,34 @@ impl Stage for Svo {
     }
     fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
         let s = cx.scope;
-        let (sec, report) =
+        let (sec, report, left) =
             crate::voxel::geometry::pack_svo_section(cx.view(), o, s.limits, s.first, s.source)?;
+        let mut warnings = Vec::new();
+        if left.skipped_triangles > 0 {
+            warnings.push(Warning::new(
+                &diag::SVO_TRIANGLES_WITHOUT_VOXEL,
+                "",
+                format!(
+                    "{} triangles left no voxel (outside the grid or alpha-tested away)",
+                    left.skipped_triangles
+                ),
+            ));
+        }
+        if left.open_columns > 0 {
+            warnings.push(Warning::new(
+                &diag::SVO_MESH_NOT_CLOSED,
+                "",
+                format!(
+                    "solid fill: {} columns crossed the surface an odd number of times \
+                     (mesh not closed)",
+                    left.open_columns
+                ),
+            ));
+        }
         Ok(Output {
             report,
             sections: vec![sec],
+            warnings,
             ..Default::default()
         })
     }
@@ -1324,27 +1417,16 @@ impl Stage for Linespace {
     }
     fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
         let s = cx.scope;
-        let view = cx.view();
-        if crate::voxel::geometry::placed_size(view)?.linespace_two_level(s.limits) {
-            let (sec, report) = crate::linespace::scene::pack_linespace_section(
-                view, o, s.limits, s.first, s.source,
-            )?;
-            return Ok(Output {
-                report,
-                sections: vec![sec],
-                ..Default::default()
-            });
-        }
-        let tris = crate::voxel::geometry::pack_world_triangles(view)?;
-        let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(o.n));
-        let tree = crate::linespace::ntree::build_ntree(&tris, o, &shafts)?;
+        let (sec, report) = crate::linespace::scene::pack_linespace_section(
+            cx.view(),
+            o,
+            s.limits,
+            s.first,
+            s.source,
+        )?;
         Ok(Output {
-            report: crate::linespace::section::summary_of(&tree),
-            sections: vec![crate::linespace::section::to_section(
-                "linespace",
-                s.source,
-                &tree,
-            )],
+            report,
+            sections: vec![sec],
             ..Default::default()
         })
     }
@@ -1499,7 +1581,12 @@ mod tests {
     #[test]
     fn a_stage_command_s_unit_sees_only_its_declared_kinds() {
         let sections = instances_and_sun();
-        let input = Path::new("in.bake");
+        let limits = Limits::DEFAULT;
+        let input = &CommandScope {
+            input: Path::new("in.bake"),
+            limits: &limits,
+            plan: None,
+        };
         let p = Pipeline::default();
         let o = pack_unit_of(&toy::TOY, input, &sections, &p, None, None, &|_| {}).unwrap();
         // The toy declares `instances` only: its view held that one section.

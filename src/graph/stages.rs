@@ -9,8 +9,9 @@
 //!
 //! Not driven by it: the scene's own units (the terrain's and models' sections from the scene
 //! plan, the instances, the build record), the sharding of `envmaps` and of the light map's
-//! rows and their join actions, and the per-stage subcommands (`bake prt`, `bake lod`, ...),
-//! which call their stage's functions directly.
+//! rows and their join actions, and the stage commands that do more than a unit (`bake sky`;
+//! `bake svo` and `bake linespace` over a model file). The other stage commands run their
+//! stage's unit ([`super::stage::pack_unit`], [`super::stage::scene_unit`]).
 
 /// What one unit of a stage covers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -34,8 +34,8 @@ pub fn pack_scene_linespace(
 }
 
 /// The linespace stage on a pack: the flattened `linespace` section where the placed scene
-/// fits the budget, else the two-level `linespace-scene` section (refused when neither fits),
-/// with the section's summary.
+/// fits the budget, else the two-level `linespace-scene` section (refused when neither fits,
+/// and when the pack has no triangle), with the section's summary.
 pub fn pack_linespace_section(
     pack: &Pack,
     opts: &crate::linespace::ntree::NTreeOptions,
@@ -52,6 +52,13 @@ pub fn pack_linespace_section(
         return Ok((sec, instanced_section::summary_of(&two)));
     }
     let tris = pack_world_triangles(pack)?;
+    if tris.is_empty() {
+        return Err(crate::error::Error::invalid_at(
+            file,
+            "geometry",
+            "no triangles for the N-tree",
+        ));
+    }
     let shafts = std::sync::Arc::new(crate::linespace::shaft::ShaftTable::build(opts.n));
     let tree = crate::linespace::ntree::build_ntree(&tris, opts, &shafts)?;
     Ok((

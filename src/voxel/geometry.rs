@@ -2,7 +2,7 @@
 //! colour maps, from a model, or from a pack (its meshes, or a whole scene: the terrain as a
 //! triangulated height field plus every instance's mesh placed on it).
 
-use crate::error::{ParseError, Result};
+use crate::error::{Error, ParseError, Result};
 use crate::ingest::limits::{Limits, human};
 use crate::model::{Instance, Material, Mesh, Rgba8Image, Terrain};
 use crate::pack::Pack;
@@ -441,16 +441,26 @@ pub fn pack_instanced_svo(
     super::instanced::InstancedSvo::build(terrain.as_ref(), &models, &inst.items, opts)
 }
 
+/// What the flattened voxelization left out (the `svo.*` warnings of `bake svo` and the graph's
+/// `svo` unit): triangles that left no voxel, and, for a solid fill, the columns that crossed
+/// the surface an odd number of times. Zero for the two-level section.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SvoLeftOut {
+    pub skipped_triangles: usize,
+    pub open_columns: usize,
+}
+
 /// The svo stage on a pack: the flattened `svo` section where the placed scene fits the
-/// budget, else the two-level `svo-scene` section (refused when neither fits), with the
-/// section's summary.
+/// budget, else the two-level `svo-scene` section (refused when neither fits, and when the
+/// pack has no triangle), with the section's summary (and the flattened scene's `triangles`)
+/// and what the voxelization left out.
 pub fn pack_svo_section(
     pack: &Pack,
     opts: &super::voxelize::VoxelizeOptions,
     limits: &Limits,
     file: &Path,
     source: &str,
-) -> Result<(crate::pack::Section, serde_json::Value)> {
+) -> Result<(crate::pack::Section, serde_json::Value, SvoLeftOut)> {
     let size = placed_size(pack)?;
     size.check(SceneStage::Svo, limits, file)?;
     if size.svo_two_level(limits) {
@@ -461,13 +471,27 @@ pub fn pack_svo_section(
             &two,
             opts.solid,
         );
-        return Ok((sec, super::instanced_section::summary_of(&two)));
+        let report = super::instanced_section::summary_of(&two);
+        return Ok((sec, report, SvoLeftOut::default()));
     }
     let geo = pack_geometry(pack)?;
+    if geo.mesh.indices.is_empty() {
+        return Err(Error::invalid_at(
+            file,
+            "geometry",
+            "no triangles to voxelize",
+        ));
+    }
     let v = super::voxelize::mesh_to_voxels(&geo.mesh, &geo.textures, opts)?;
     let svo = super::svo::voxels_to_svo(&v);
     let sec = super::section::to_section(super::section::KIND, source, &svo, opts.solid);
-    Ok((sec, super::section::summary_of(&svo)))
+    let left = SvoLeftOut {
+        skipped_triangles: v.skipped_triangles,
+        open_columns: v.open_columns,
+    };
+    let mut report = super::section::summary_of(&svo);
+    report["triangles"] = serde_json::json!(geo.mesh.indices.len());
+    Ok((sec, report, left))
 }
 
 /// [`PlacedSize`] of what [`pack_geometry`] would build from `pack`, from the sections'

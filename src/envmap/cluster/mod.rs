@@ -79,6 +79,15 @@ pub struct ClusterOptions {
     /// Wiener-filter the local part with the `envmaps` section's noise estimate, when it has
     /// one (`local::fit_denoised`; cluster stage version 4).
     pub denoise: bool,
+    /// Also store every instance's neighbours and weights in the `clusters` section (the
+    /// runtime need not solve; `bake cluster --weights`). Left out of the serialized options
+    /// when off, so that the keys and build records of pipelines without it stay as they were.
+    #[serde(skip_serializing_if = "is_false")]
+    pub weights: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 impl ClusterOptions {
@@ -93,6 +102,7 @@ impl ClusterOptions {
         max_bytes: None,
         compression: 20.0,
         denoise: true,
+        weights: false,
     };
 
     /// The byte budget for n instances of `dim` floats (None: unlimited).
