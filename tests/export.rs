@@ -264,7 +264,13 @@ fn the_sun_is_a_directional_light_in_lux() {
 #[test]
 fn gltf_with_an_embedded_buffer_reads_back_alike() {
     let dir = tempfile::tempdir().unwrap();
-    let (_, out, report) = exported(dir.path(), "gltf");
+    let pack = common::preview_fixture_pack(dir.path());
+    let out = dir.path().join("scene.gltf");
+    let report = export_json(
+        pack.to_str().unwrap(),
+        out.to_str().unwrap(),
+        &["--embed-buffer"],
+    );
     let bytes = std::fs::read(&out).unwrap();
     assert_eq!(&bytes[..1], b"{", "JSON glTF");
     // The streamed file (JSON, then the buffer base64-encoded into its data URI) is as long as
@@ -290,6 +296,86 @@ fn gltf_with_an_embedded_buffer_reads_back_alike() {
         0,
         "no side files"
     );
+}
+
+#[test]
+fn gltf_with_a_side_file_holds_the_glbs_buffer_and_replaces_it_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let (pack, glb, _) = exported(dir.path(), "glb");
+    let pack = pack.to_str().unwrap();
+    let out_dir = dir.path().join("out");
+    let gltf = out_dir.join("scene.gltf");
+    let bins = || -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(&out_dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".bin"))
+            .collect();
+        v.sort();
+        v
+    };
+    let report = export_json(pack, gltf.to_str().unwrap(), &[]);
+    let side = report["side_file"]
+        .as_str()
+        .expect("a side file")
+        .to_string();
+    assert!(
+        side.starts_with("scene-") && side.len() == "scene-".len() + 16 + ".bin".len(),
+        "{side}"
+    );
+    assert_eq!(bins(), vec![side.clone()]);
+    // The side file is the GLB's binary chunk, byte for byte, and the JSON names it.
+    let glb_bytes = std::fs::read(&glb).unwrap();
+    let chunk = gltf::Glb::from_slice(&glb_bytes).unwrap();
+    let bin = std::fs::read(out_dir.join(&side)).unwrap();
+    assert_eq!(bin.as_slice(), &chunk.bin.unwrap()[..]);
+    let text = std::fs::read(&gltf).unwrap();
+    assert_eq!(
+        report["bytes"].as_u64().unwrap(),
+        (text.len() + bin.len()) as u64
+    );
+    let json: Value = serde_json::from_slice(&text).unwrap();
+    assert_eq!(json["buffers"][0]["uri"], side.as_str());
+    assert_eq!(json["buffers"][0]["byteLength"], bin.len() as u64);
+    // The `gltf` crate resolves the side file and reads the scene as the GLB's.
+    let (doc, buffers, images) = gltf::import(&gltf).expect("gltf reads it with its side file");
+    let (gdoc, _, gimages) = gltf::import(&glb).unwrap();
+    assert_eq!(buffers[0].len(), bin.len());
+    assert_eq!(doc.meshes().count(), gdoc.meshes().count());
+    assert_eq!(doc.nodes().count(), gdoc.nodes().count());
+    assert_eq!(images.len(), gimages.len());
+    // Another scene under the same name: a new side file, the old one removed.
+    let lit = export_json(pack, gltf.to_str().unwrap(), &["--bake-light"]);
+    let side2 = lit["side_file"].as_str().unwrap().to_string();
+    assert_ne!(side2, side);
+    assert_eq!(bins(), vec![side2.clone()]);
+    // A failed export (a pack without meshes) leaves the scene and its side file as they were.
+    let (before, before_bin) = (
+        std::fs::read(&gltf).unwrap(),
+        std::fs::read(out_dir.join(&side2)).unwrap(),
+    );
+    let sky = dir.path().join("sky.bake");
+    let o = common::bake(&["sky", "-o", sky.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = common::bake(&[
+        "export",
+        sky.to_str().unwrap(),
+        "-o",
+        gltf.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(4));
+    assert_eq!(std::fs::read(&gltf).unwrap(), before);
+    assert_eq!(std::fs::read(out_dir.join(&side2)).unwrap(), before_bin);
+    assert_eq!(bins(), vec![side2]);
+    // --embed-buffer is for .gltf only.
+    let o = common::bake(&[
+        "export",
+        pack,
+        "-o",
+        glb.to_str().unwrap(),
+        "--embed-buffer",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
 }
 
 /// `bake export PACK -o OUT EXTRA... --quiet`, which must succeed.

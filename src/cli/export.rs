@@ -10,8 +10,8 @@ use std::path::PathBuf;
 pub(crate) struct ExportArgs {
     /// A .bake pack.
     pub pack: PathBuf,
-    /// The scene to write: `.glb` (binary glTF) or `.gltf` (JSON, the buffer embedded as a
-    /// data URI: no side files).
+    /// The scene to write: `.glb` (binary glTF) or `.gltf` (JSON, its buffer in a side file
+    /// `<stem>-<content hash>.bin` beside it; `--embed-buffer` embeds it instead).
     #[arg(short, long, value_name = "GLB")]
     pub output: PathBuf,
     /// Multiply the terrain's light map (direct sun with its shadows, sky, bounce) into its base
@@ -39,6 +39,10 @@ pub(crate) struct ExportArgs {
     #[arg(long, value_name = "N", default_value_t = 1,
           value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub terrain_step: u32,
+    /// `.gltf`: embed the buffer as a base64 data URI (one file, a third larger) instead of
+    /// writing it beside the `.gltf`.
+    #[arg(long)]
+    pub embed_buffer: bool,
 }
 
 pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
@@ -48,7 +52,8 @@ pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
         .map(|e| e.to_string_lossy().to_ascii_lowercase());
     let container = match ext.as_deref() {
         Some("glb") => Container::Glb,
-        Some("gltf") => Container::GltfEmbedded,
+        Some("gltf") if args.embed_buffer => Container::GltfEmbedded,
+        Some("gltf") => Container::GltfSideFile,
         _ => {
             return Err(Error::usage(format!(
                 "{}: the output must end in .glb or .gltf",
@@ -56,6 +61,12 @@ pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
             )));
         }
     };
+    if args.embed_buffer && container != Container::GltfEmbedded {
+        return Err(Error::usage(format!(
+            "{}: --embed-buffer is for .gltf output (a .glb holds its buffer)",
+            args.output.display()
+        )));
+    }
     let pack = Pack::open(&args.pack)?;
     let opts = ExportOptions {
         container,
@@ -68,8 +79,12 @@ pub(crate) fn run(args: &ExportArgs, _g: &Global) -> Result<Outcome> {
     // Written to a temporary file and renamed, as packs are: a failed run leaves no output.
     let report = export(&pack, opts, &args.output)?;
     let text = format!(
-        "{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}{}{}{}\n",
+        "{}{}: {} bytes; {} models, {} instances, {} meshes, {} materials, {} textures, {} terrain chunks{}{}{}{}{}\n",
         args.output.display(),
+        report
+            .side_file
+            .as_ref()
+            .map_or(String::new(), |f| format!(" (buffer {f})")),
         report.bytes,
         report.models,
         report.instances,

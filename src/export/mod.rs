@@ -84,6 +84,9 @@ pub(crate) struct ExportReport {
     /// The largest vertical distance (m) of any terrain grid sample from the exported terrain
     /// surface: 0 at step 1, else the height error of the coarser grid (`--terrain-step`).
     pub terrain_max_error_m: f32,
+    /// `.gltf` with a side file: the buffer's file name, beside the output (its bytes are in
+    /// `bytes`).
+    pub side_file: Option<String>,
     /// The terrain's light-map section, exported as a texture on TEXCOORD_1.
     pub lightmap: Option<String>,
     /// Whether the light map was multiplied into the terrain's (unlit) base colour.
@@ -127,6 +130,32 @@ pub(crate) enum Container {
     Glb,
     /// JSON glTF, the buffer embedded as a base64 data URI (no side files).
     GltfEmbedded,
+    /// JSON glTF and its buffer as a side file beside it, named by the output's stem and the
+    /// buffer's content ([`side_file_name`]), as gltfpack writes `.gltf`.
+    GltfSideFile,
+}
+
+/// The side file of a `.gltf` whose buffer has BLAKE3 `hash`: `<stem>-<16 hex digits>.bin`. A
+/// name per content keeps the previous scene whole until the new `.gltf` replaces it (its
+/// buffer is written first, under another name); the replaced buffer is removed afterwards.
+pub(crate) fn side_file_name(output: &Path, hash: &blake3::Hash) -> String {
+    let stem = output
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into());
+    format!("{stem}-{}.bin", &hash.to_hex()[..16])
+}
+
+/// Whether `name` is a side file [`side_file_name`] makes for `output`'s stem.
+fn is_side_file_of(output: &Path, name: &str) -> bool {
+    let stem = output
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into());
+    name.strip_prefix(&stem)
+        .and_then(|r| r.strip_prefix('-'))
+        .and_then(|r| r.strip_suffix(".bin"))
+        .is_some_and(|h| h.len() == 16 && h.bytes().all(|b| b.is_ascii_hexdigit()))
 }
 
 const ARRAY_BUFFER: u32 = 34962;
@@ -1459,8 +1488,26 @@ pub(crate) fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<
     buffer.insert("byteLength".into(), json!(bin_len));
     // The embedded buffer's data URI is streamed into the JSON text where this marker stands.
     const URI_MARK: &str = "\u{1}bake-buffer\u{1}";
-    if container == Container::GltfEmbedded {
-        buffer.insert("uri".into(), json!(URI_MARK));
+    let mut side = None;
+    match container {
+        Container::Glb => {}
+        Container::GltfEmbedded => {
+            buffer.insert("uri".into(), json!(URI_MARK));
+        }
+        Container::GltfSideFile => {
+            // The buffer first, under a name of its content: the previous scene stays whole.
+            let mut hasher = blake3::Hasher::new();
+            std::io::copy(&mut bin, &mut hasher).map_err(|e| Error::io(&dir, e))?;
+            let name = side_file_name(output, &hasher.finalize());
+            let path = dir.join(&name);
+            bin.seek(std::io::SeekFrom::Start(0))
+                .map_err(|e| Error::io(&dir, e))?;
+            crate::pack::write_atomic_with(&path, |w| {
+                std::io::copy(&mut bin, w).map_err(|e| Error::io(&path, e))
+            })?;
+            buffer.insert("uri".into(), json!(name));
+            side = Some((name, bin_len));
+        }
     }
     let mut gltf = json!({
         "asset": {"version": "2.0", "generator": format!("bake {} export", env!("CARGO_PKG_VERSION"))},
@@ -1541,7 +1588,24 @@ pub(crate) fn export(pack: &Pack, opts: ExportOptions, output: &Path) -> Result<
             let b64 = bin_len.div_ceil(3) * 4;
             Ok(text.len() - mark.len() + prefix.len() + b64 as usize + 1)
         }
+        Container::GltfSideFile => {
+            w.write_all(&text).map_err(io)?;
+            Ok(text.len())
+        }
     })?;
+    if let Some((name, len)) = side {
+        // The buffers of scenes this output replaced (same stem, another content).
+        if let Ok(entries) = std::fs::read_dir(&dir) {
+            for e in entries.flatten() {
+                let n = e.file_name().to_string_lossy().into_owned();
+                if n != name && is_side_file_of(output, &n) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+        report.side_file = Some(name);
+        report.bytes += len as usize;
+    }
     report.warnings = ex.warnings;
     Ok(report)
 }
