@@ -549,13 +549,9 @@ fn a_pack_without_meshes_is_refused_and_nothing_is_written() {
     assert_eq!(o.status.code(), Some(2));
 }
 
-#[test]
-fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin() {
-    // A 130 × 70 RAW terrain (129 × 69 cells: 3 × 2 chunks of at most 64² cells) merged with an
-    // OBJ model: no instances section, no material sections (the mesh's own material is used).
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let (w, h) = (130u32, 70u32);
+/// `d/m.bake`: a `w × h` RAW terrain (heights (7i + 3j) mod 256, scale 0.05) merged with a 1 × 2 × 3
+/// m OBJ box: no instances section, no material sections.
+fn terrain_and_box_pack(d: &Path, w: u32, h: u32) {
     let raw: Vec<u8> = (0..h)
         .flat_map(|j| (0..w).map(move |i| ((i * 7 + j * 3) % 256) as u8))
         .collect();
@@ -566,12 +562,13 @@ fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin(
     )
     .unwrap();
     let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    let size = format!("{w}x{h}");
     for args in [
         vec![
             "ingest",
             &p("t.raw"),
             "--size",
-            "130x70",
+            &size,
             "--scale",
             "0.05",
             "-o",
@@ -588,6 +585,17 @@ fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin(
             String::from_utf8_lossy(&o.stderr)
         );
     }
+}
+
+#[test]
+fn an_ingest_only_pack_exports_its_terrain_in_chunks_and_its_mesh_at_the_origin() {
+    // A 130 × 70 RAW terrain (129 × 69 cells: 3 × 2 chunks of at most 64² cells) merged with an
+    // OBJ model: no instances section, no material sections (the mesh's own material is used).
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (w, h) = (130u32, 70u32);
+    let p = |f: &str| d.join(f).to_str().unwrap().to_string();
+    terrain_and_box_pack(d, w, h);
     let report = export_json(&p("m.bake"), &p("m.glb"), &[]);
     assert_eq!(report["terrain_chunks"], 6);
     assert_eq!(report["instances"], 0);
@@ -653,34 +661,8 @@ fn terrain_step_exports_every_nth_sample_and_reports_its_height_error() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let (w, h) = (130u32, 70u32);
-    let raw: Vec<u8> = (0..h)
-        .flat_map(|j| (0..w).map(move |i| ((i * 7 + j * 3) % 256) as u8))
-        .collect();
-    std::fs::write(d.join("t.raw"), &raw).unwrap();
-    std::fs::write(
-        d.join("box.obj"),
-        common::box_obj([0.0, 0.0, 0.0], [1.0, 2.0, 3.0], 1),
-    )
-    .unwrap();
     let p = |f: &str| d.join(f).to_str().unwrap().to_string();
-    for args in [
-        vec![
-            "ingest",
-            &p("t.raw"),
-            "--size",
-            "130x70",
-            "--scale",
-            "0.05",
-            "-o",
-            &p("t.bake"),
-        ],
-        vec!["ingest", &p("box.obj"), "-o", &p("b.bake")],
-        vec!["merge", &p("t.bake"), &p("b.bake"), "-o", &p("m.bake")],
-    ] {
-        let args: Vec<&str> = args.iter().map(|s| s.as_ref()).collect();
-        let o = common::bake(&[&args[..], &["--quiet"]].concat());
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    }
+    terrain_and_box_pack(d, w, h);
     let pack = Pack::open(&d.join("m.bake")).unwrap();
     let (tm, t) =
         bake::terrain::source_section::from_section(&pack.view_named("terrain").unwrap()).unwrap();

@@ -372,40 +372,7 @@ impl Horizons {
         sun: Option<[f32; 3]>,
         rows: Range<u32>,
     ) -> Self {
-        let rows = rows.start.min(g.height)..rows.end.min(g.height);
-        let n = (rows.len() as u32 * g.width) as usize;
-        let mut sin_q = vec![0i16; n * directions.len()];
-        let sun_lattice = sun.map(|s| sun_lattice(g, s));
-        let mut sun_slope = Vec::new();
-        // The sun's sweep beside the others (one long line set: it would otherwise run alone).
-        rayon::join(
-            || {
-                if n > 0 {
-                    sin_q
-                        .par_chunks_mut(n)
-                        .zip(directions.par_iter())
-                        .for_each(|(out, &dir)| {
-                            sweep(t, g, dir, rows.clone(), |k, s| {
-                                out[k] = quantize(sin_of_slope(s))
-                            })
-                        });
-                }
-            },
-            || {
-                if let Some(dir) = sun_lattice {
-                    sun_slope = vec![f32::NEG_INFINITY; n];
-                    sweep(t, g, dir, rows.clone(), |k, s| sun_slope[k] = s);
-                }
-            },
-        );
-        Horizons {
-            rows,
-            width: g.width,
-            directions: directions.to_vec(),
-            sin_q,
-            sun_slope,
-            sun_lattice,
-        }
+        BandedSweeps::new(g, directions, sun, vec![rows]).horizons(t, g)
     }
 
     /// Texels covered.
@@ -459,7 +426,7 @@ pub struct BandedSweeps {
 }
 
 impl BandedSweeps {
-    /// The sweeps of `bands` (consecutive, increasing, non-empty) in every direction of
+    /// The sweeps of `bands` (consecutive, increasing) in every direction of
     /// `directions` and, given a sun direction, towards the sun.
     pub fn new(
         g: &TexelGrid,
@@ -468,9 +435,8 @@ impl BandedSweeps {
         bands: Vec<Range<u32>>,
     ) -> Self {
         assert!(
-            bands.windows(2).all(|p| p[0].end == p[1].start)
-                && bands.iter().all(|b| b.start < b.end),
-            "consecutive non-empty bands"
+            bands.windows(2).all(|p| p[0].end == p[1].start),
+            "consecutive bands"
         );
         let sun_lattice = sun.map(|s| sun_lattice(g, s));
         let n = directions.len() + sun_lattice.is_some() as usize;
@@ -501,16 +467,20 @@ impl BandedSweeps {
 
     /// Band `band`'s rows in direction `dir` (a southward one: b > 0), passed to
     /// `store(index in the rows, slope)`: the live lines resumed, the lines that start before
-    /// the band's end walked from their start, and the lines still walking kept live.
+    /// the band's end walked from their start (from above the band where it is the `first`),
+    /// and unless it is the `last` band the lines still walking kept live.
     fn southwards(
         t: &Terrain,
         g: &TexelGrid,
         dir: (i32, i32),
         state: &mut DirectionState,
-        first: bool,
         rows: Range<u32>,
+        (first, last): (bool, bool),
         mut store: impl FnMut(usize, f32),
     ) {
+        if rows.is_empty() {
+            return;
+        }
         let lw = LineWalk::new(t, g, dir);
         let (jj_lo, jj_hi) = (lw.h - rows.end as i64, lw.h - 1 - rows.start as i64);
         let mut hull: Vec<(f64, f64)> = Vec::new();
@@ -527,7 +497,7 @@ impl BandedSweeps {
                     }
                 },
             );
-            if lw.inside(end.i, end.jj) {
+            if !last && lw.inside(end.i, end.jj) {
                 live.push(Live {
                     pos: end,
                     hull: hull.iter().map(|&(u, z)| (u as f32, z as f32)).collect(),
@@ -561,14 +531,14 @@ impl BandedSweeps {
     pub fn horizons(&mut self, t: &Terrain, g: &TexelGrid) -> Horizons {
         let band = self.next;
         self.next += 1;
-        let first = band == 0;
+        let (first, last) = (band == 0, band + 1 == self.bands.len());
         let rows = self.bands[band].start.min(g.height)..self.bands[band].end.min(g.height);
         let n = rows.len() * g.width as usize;
         let (dir_states, sun_state) = self.states.split_at_mut(self.directions.len());
         let band_sweep =
             |dir: (i32, i32), state: &mut DirectionState, store: &mut dyn FnMut(usize, f32)| {
                 if dir.1 > 0 {
-                    Self::southwards(t, g, dir, state, first, rows.clone(), store);
+                    Self::southwards(t, g, dir, state, rows.clone(), (first, last), store);
                 } else {
                     sweep(t, g, dir, rows.clone(), store);
                 }
