@@ -412,7 +412,7 @@ struct DirectionState {
 /// directions with b > 0, rows in the bands' order) are walked once: each keeps its position and
 /// upper hull from one band to the next. The others are swept per band as before, so such a
 /// map walks about 1 + N/2 grids per two directions where it walked N; the live lines hold
-/// their hulls meanwhile ([`Self::bytes`]). The horizons are the same bits as each band's own
+/// their hulls meanwhile. The horizons are the same bits as each band's own
 /// sweep (tests/horizons.rs).
 #[derive(Debug)]
 pub struct BandedSweeps {
@@ -447,22 +447,6 @@ impl BandedSweeps {
             states: (0..n).map(|_| DirectionState::default()).collect(),
             next: 0,
         }
-    }
-
-    /// The bands' rows.
-    pub fn bands(&self) -> &[Range<u32>] {
-        &self.bands
-    }
-
-    /// Bytes held by the live lines.
-    pub fn bytes(&self) -> usize {
-        self.states
-            .iter()
-            .flat_map(|s| &s.live)
-            .map(|l| {
-                std::mem::size_of::<Live>() + l.hull.capacity() * std::mem::size_of::<(f32, f32)>()
-            })
-            .sum()
     }
 
     /// Band `band`'s rows in direction `dir` (a southward one: b > 0), passed to
