@@ -666,3 +666,127 @@ fn the_filtered_light_map_is_closer_to_the_reference_and_states_its_filter() {
         assert!(o.check().is_err(), "{range} {radius}");
     }
 }
+
+#[test]
+fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
+    // `lightmap.trace_step = 2`: the hemisphere rays only at the texels of even row and column
+    // (a quarter of them), the others taking the mean of the traced texels around them; the
+    // direct sun and the sky above the horizons per texel. Oracle: the 1,024-ray reference of
+    // the fixture's whole map (ray visibility). Bounds: the stepped map's mean within 1 % of
+    // the reference's (total and without the direct sun) and its per-texel RMS no worse than
+    // 1.1× the every-texel map's at the same ray count (four times the rays); the traced
+    // texels carry the every-texel map's own rays (equal to f32 rounding); row shards with odd
+    // ends and 1 or 2 threads give the same bits; the section states the step; other
+    // estimators refuse it.
+    use bake::lightmap::{LightmapMode, LightmapOptions, LightmapVisibility};
+    let (pack, _dir) = fixture();
+    let scene = bake::trace::pack_scene::trace_scene(&pack).unwrap();
+    let light = bake::lightmap::scene_lighting(&pack).unwrap();
+    let reference = LightmapOptions {
+        samples: 1024,
+        sun_samples: 64,
+        visibility: LightmapVisibility::Rays,
+        ..Default::default()
+    };
+    let (rm, rd) = terrain_map(&scene, &light, &reference);
+    let plain = LightmapOptions {
+        samples: 16,
+        sun_samples: 4,
+        ..Default::default()
+    };
+    let stepped = LightmapOptions {
+        trace_step: 2,
+        ..plain
+    };
+    assert!(stepped.check().is_ok());
+    let (pm, pd) = terrain_map(&scene, &light, &plain);
+    let run = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| terrain_map(&scene, &light, &stepped))
+    };
+    let ((sm, sd), two) = (run(1), run(2));
+    assert!(sm == two.0 && sd == two.1, "1 and 2 threads differ");
+    assert!(sd == pd, "the direct sun is per texel in both");
+    // Row shards, odd and even ends.
+    let mut texels = Vec::new();
+    for rows in [0..7, 7..40, 40..41, 41..65] {
+        let (t, _) = bake::lightmap::bake_terrain_lightmap_rows(&scene, &light, &stepped, rows)
+            .unwrap()
+            .unwrap();
+        texels.extend(t);
+    }
+    assert!(texels == sm, "row shards differ from the whole map");
+    // The traced texels: the every-texel map's estimate at the same texel.
+    for j in (0..65).step_by(2) {
+        for i in (0..65).step_by(2) {
+            let k = j * 65 + i;
+            for c in 0..3 {
+                let (a, b) = (sm[k][c], pm[k][c]);
+                assert!(
+                    (a - b).abs() <= 1e-5 * b.abs().max(1.0),
+                    "texel ({i}, {j}): {a} vs {b}"
+                );
+            }
+        }
+    }
+    // The every-texel map at a quarter of the rays: the same number of hemisphere rays.
+    let (qm, qd) = terrain_map(
+        &scene,
+        &light,
+        &LightmapOptions {
+            samples: 4,
+            ..plain
+        },
+    );
+    let r_ind = indirect(&rm, &rd);
+    let (p_rms, _) = rms_and_bias(&pm, &rm);
+    let (q_rms, _) = rms_and_bias(&qm, &rm);
+    let (s_rms, s_bias) = rms_and_bias(&sm, &rm);
+    let (pi_rms, _) = rms_and_bias(&indirect(&pm, &pd), &r_ind);
+    let (qi_rms, _) = rms_and_bias(&indirect(&qm, &qd), &r_ind);
+    let (si_rms, si_bias) = rms_and_bias(&indirect(&sm, &sd), &r_ind);
+    eprintln!(
+        "every texel 16 rays: rms {p_rms:.4}, indirect {pi_rms:.4}; 4 rays: {q_rms:.4}, {qi_rms:.4}; \
+         every second texel 16 rays: rms {s_rms:.4} bias {s_bias:.4}, indirect {si_rms:.4} bias {si_bias:.4}"
+    );
+    assert!(
+        s_bias.abs() <= 0.01 && si_bias.abs() <= 0.01,
+        "bias {s_bias} {si_bias}"
+    );
+    assert!(
+        s_rms < q_rms && si_rms < qi_rms,
+        "stepped {s_rms} / {si_rms} vs every texel at a quarter of the rays {q_rms} / {qi_rms}"
+    );
+    // The section states the step after the prefix every reader reads.
+    let s = bake::lightmap::terrain_sections(&scene, &light, &stepped).unwrap();
+    let mut w = bake::pack::PackWriter::new();
+    w.insert(s.into_iter().next().unwrap());
+    let p = bake::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap();
+    let v = p.view_named("lightmap:terrain").unwrap();
+    let (meta, m) = bake::lightmap::section::from_section(&v).unwrap();
+    assert_eq!((meta.width, meta.samples), (65, 16));
+    assert!(m.texels == sm);
+    let summary = bake::lightmap::section::summary(&v).unwrap();
+    assert_eq!(summary["trace_step"], 2, "{summary}");
+    assert!(summary.get("filter_range").is_none(), "{summary}");
+    // Only the horizon estimator traces a correction; a step of 3 is refused too.
+    for o in [
+        LightmapOptions {
+            visibility: LightmapVisibility::Rays,
+            ..stepped
+        },
+        LightmapOptions {
+            mode: LightmapMode::Thesis,
+            ..stepped
+        },
+        LightmapOptions {
+            trace_step: 3,
+            ..plain
+        },
+    ] {
+        assert!(o.check().is_err(), "{o:?}");
+    }
+}

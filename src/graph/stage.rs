@@ -1026,6 +1026,9 @@ impl Stage for Lightmap {
         if lm.filter_range > 0.0 && lm.filter_radius > 0 {
             o["filter"] = json!({"radius": lm.filter_radius, "range": lm.filter_range});
         }
+        if lm.trace_step > 1 {
+            o["trace_step"] = lm.trace_step.into();
+        }
         keyed_tracer(&mut o, lm.tracer);
         k.options(&o).inputs();
         Ok(())

@@ -86,6 +86,17 @@ pub struct LightmapOptions {
     pub filter_range: f32,
     /// Radius in texels of that filter (a (2r+1)² window).
     pub filter_radius: u32,
+    /// The terrain map's hemisphere rays (the horizon estimator's traced correction: the
+    /// instances and the bounce) at every texel (1, the default) or at every second texel of
+    /// every second row (2), the others taking the mean of the traced texels around them; the
+    /// direct sun and the sky above the horizons stay per texel (issue 37). Written into
+    /// settings and keys only when not 1.
+    #[serde(skip_serializing_if = "is_one")]
+    pub trace_step: u32,
+}
+
+fn is_one(v: &u32) -> bool {
+    *v == 1
 }
 
 impl LightmapOptions {
@@ -103,6 +114,7 @@ impl LightmapOptions {
         horizon_lattice: 3,
         filter_range: 0.0,
         filter_radius: 2,
+        trace_step: 1,
     };
 
     /// Options this binary cannot run (a tracer it was built without).
@@ -111,6 +123,21 @@ impl LightmapOptions {
             return Err(format!(
                 "lightmap.filter_range = {}, lightmap.filter_radius = {} (a range ≥ 0, 0 for no filter; a radius of at most 8 texels)",
                 self.filter_range, self.filter_radius
+            ));
+        }
+        if !(1..=2).contains(&self.trace_step) {
+            return Err(format!(
+                "lightmap.trace_step = {} (1: hemisphere rays at every texel; 2: at every second texel of every second row)",
+                self.trace_step
+            ));
+        }
+        if self.trace_step > 1
+            && (self.mode != LightmapMode::Physical
+                || self.visibility != LightmapVisibility::Horizons)
+        {
+            return Err(format!(
+                "lightmap.trace_step = {} needs the horizon estimator (mode \"physical\", visibility \"horizons\")",
+                self.trace_step
             ));
         }
         if !(1..=4).contains(&self.horizon_lattice) {
@@ -325,6 +352,13 @@ pub(crate) fn bake_terrain_lightmap_rows_noise(
 }
 
 /// [`horizon_rows`], with the texels' noise estimates when `noise` (else an empty list).
+///
+/// With `opts.trace_step` = 2 the traced correction (the hemisphere rays: instances and the
+/// bounce) is traced only at the texels of even row and even column (and the last row and
+/// column), each with `samples` rays, and every texel takes the mean of the 1, 2 or 4 traced
+/// texels around it (bilinear at the half-way points); the direct sun and the exact sky above
+/// the horizons stay per texel. A row range is widened by one row at an odd end so that its
+/// texels read the same traced rows as the whole map's.
 fn horizon_rows_noise(
     scene: &TraceScene,
     bvh: &dyn SceneTracer,
@@ -340,47 +374,197 @@ fn horizon_rows_noise(
     let tables = horizon::SkyTables::new(&grid, &dirs, &light.sky);
     let sky_irr = light.sky.to_irradiance();
     let reach = Reach::of(scene);
+    let coarse = (opts.trace_step > 1).then(|| TraceLattice { w, h });
+    // The rows whose horizons are swept: `rows`, and with a trace step the traced rows next to
+    // an odd first or last row.
+    let swept = match &coarse {
+        Some(c) if !rows.is_empty() => {
+            c.rows_around(rows.start).0..c.rows_around(rows.end - 1).1 + 1
+        }
+        _ => rows.clone(),
+    };
     let band = band_rows(w, dirs.len());
-    let bands: Vec<_> = (rows.start..rows.end)
+    let bands: Vec<_> = (swept.start..swept.end)
         .step_by(band as usize)
-        .map(|s| s..(s + band).min(rows.end))
+        .map(|s| s..(s + band).min(swept.end))
         .collect();
     let sun = light.sun.map(|s| s.0);
     // More than one band: each southward line walked once, kept from one band to the next.
     let mut banded =
         (bands.len() > 1).then(|| horizon::BandedSweeps::new(&grid, &dirs, sun, bands.clone()));
+    let rays = HemisphereRays {
+        bvh,
+        albedo: &scene.albedo,
+        light,
+        sky_irr: &sky_irr,
+        tables: &tables,
+        reach,
+    };
     let (mut texels, mut direct, mut variance) = (Vec::new(), Vec::new(), Vec::new());
+    // With a trace step: the traced texels' corrections and variances, by traced row.
+    let mut traced: Vec<(u32, Vec<([f32; 3], f32)>)> = Vec::new();
     for band in &bands {
         let (start, end) = (band.start, band.end);
         let hz = match banded.as_mut() {
             Some(banded) => banded.horizons(t, &grid),
             None => horizon::Horizons::compute(t, &grid, &dirs, sun, start..end),
         };
-        let parts = (0..hz.len()).into_par_iter().map(|k| {
+        let surface = |k: usize| {
             let (i, j) = (k as u32 % w, start + k as u32 / w);
             let (x, y) = grid.xy(i, j);
             let p = Vec3A::new(x, y, t.mesh_height_at(x, y));
             let n = Vec3A::from(height_normal(t, x, y));
-            let texel = (j * w + i) as u64;
             let env = HorizonTexel {
                 tables: &tables,
                 horizons: &hz,
                 index: k,
                 reach,
             };
-            texel_horizon_parts(bvh, &scene.albedo, light, &sky_irr, &env, p, n, texel, opts)
-        });
-        // The variances only when asked for (the bake's path keeps its two arrays).
-        let ((e, d), var): ((Vec<_>, Vec<_>), Vec<f32>) = if noise {
-            parts.map(|(e, d, v)| ((e, d), v)).unzip()
-        } else {
-            (parts.map(|(e, d, _)| (e, d)).unzip(), Vec::new())
+            (p, n, (j * w + i) as u64, env)
         };
-        texels.extend(e);
-        direct.extend(d);
-        variance.extend(var);
+        let Some(lattice) = &coarse else {
+            let parts = (0..hz.len()).into_par_iter().map(|k| {
+                let (p, n, texel, env) = surface(k);
+                texel_horizon_parts(bvh, &scene.albedo, light, &sky_irr, &env, p, n, texel, opts)
+            });
+            // The variances only when asked for (the bake's path keeps its two arrays).
+            let ((e, d), var): ((Vec<_>, Vec<_>), Vec<f32>) = if noise {
+                parts.map(|(e, d, v)| ((e, d), v)).unzip()
+            } else {
+                (parts.map(|(e, d, _)| (e, d)).unzip(), Vec::new())
+            };
+            texels.extend(e);
+            direct.extend(d);
+            variance.extend(var);
+            continue;
+        };
+        // The exact part of every texel of `rows` in the band; the correction of the traced
+        // texels of every swept row (f32 here: the correction is added once, below).
+        let own = start.max(rows.start)..end.min(rows.end);
+        let first = ((own.start - start) * w) as usize;
+        let exact: Vec<([f32; 3], [f32; 3])> = (first..first + (own.len() as u32 * w) as usize)
+            .into_par_iter()
+            .map(|k| {
+                let (p, n, texel, env) = surface(k);
+                let (e, d, _) = texel_horizon_exact(bvh, light, &env, p + n * 1e-3, n, texel, opts);
+                (e.map(|v| v as f32), d)
+            })
+            .collect();
+        for (e, d) in exact {
+            texels.push(e);
+            direct.push(d);
+        }
+        let columns = lattice.columns();
+        for j in (start..end).filter(|&j| TraceLattice::is_traced(j, h)) {
+            let row = columns
+                .par_iter()
+                .map(|&i| {
+                    let k = ((j - start) * w + i) as usize;
+                    let (p, n, texel, env) = surface(k);
+                    let origin = p + n * 1e-3;
+                    let s_eff = effective_horizons(&env, n);
+                    let mut c = [0.0f64; 3];
+                    let v = rays.correction(&s_eff, origin, n, texel, opts.samples, &mut c);
+                    (c.map(|x| x as f32), v)
+                })
+                .collect();
+            traced.push((j, row));
+        }
+    }
+    if let Some(lattice) = &coarse {
+        // Every texel of `rows` adds the mean of the traced corrections around it.
+        let row_of = |j: u32| {
+            let k = traced.partition_point(|(r, _)| *r < j);
+            debug_assert_eq!(traced[k].0, j, "traced row {j} swept");
+            &traced[k].1
+        };
+        let rows_vec: Vec<u32> = rows.clone().collect();
+        let corrections: Vec<Vec<([f32; 3], f32)>> = rows_vec
+            .par_iter()
+            .map(|&j| {
+                let (r0, r1) = lattice.rows_around(j);
+                let mut rs = vec![row_of(r0)];
+                if r1 != r0 {
+                    rs.push(row_of(r1));
+                }
+                (0..w)
+                    .map(|i| {
+                        let (c0, c1) = lattice.columns_around(i);
+                        let mut cs = vec![TraceLattice::index(c0)];
+                        if c1 != c0 {
+                            cs.push(TraceLattice::index(c1));
+                        }
+                        // The mean of the distinct traced texels around, and its variance.
+                        let m = (rs.len() * cs.len()) as f32;
+                        let (mut mean, mut var) = ([0.0f32; 3], 0.0f32);
+                        for r in &rs {
+                            for &c in &cs {
+                                let (x, v) = r[c];
+                                for ch in 0..3 {
+                                    mean[ch] += x[ch] / m;
+                                }
+                                var += v / (m * m);
+                            }
+                        }
+                        (mean, var)
+                    })
+                    .collect()
+            })
+            .collect();
+        for (k, (c, v)) in corrections.into_iter().flatten().enumerate() {
+            for ch in 0..3 {
+                texels[k][ch] += c[ch];
+            }
+            if noise {
+                variance.push(v);
+            }
+        }
     }
     ((texels, direct), variance)
+}
+
+/// The traced texels of a map with `lightmap.trace_step` = 2: even rows and columns and the
+/// last row and column.
+struct TraceLattice {
+    w: u32,
+    h: u32,
+}
+
+impl TraceLattice {
+    /// Whether row (or column) `j` of `n` is traced.
+    fn is_traced(j: u32, n: u32) -> bool {
+        j % 2 == 0 || j + 1 == n
+    }
+
+    /// The traced rows whose mean texel row `j` takes: itself, or its two neighbours.
+    fn rows_around(&self, j: u32) -> (u32, u32) {
+        Self::around(j, self.h)
+    }
+
+    /// The traced columns whose mean texel column `i` takes.
+    fn columns_around(&self, i: u32) -> (u32, u32) {
+        Self::around(i, self.w)
+    }
+
+    fn around(j: u32, n: u32) -> (u32, u32) {
+        if Self::is_traced(j, n) {
+            (j, j)
+        } else {
+            (j - 1, j + 1)
+        }
+    }
+
+    /// The traced columns, in order.
+    fn columns(&self) -> Vec<u32> {
+        (0..self.w)
+            .filter(|&i| Self::is_traced(i, self.w))
+            .collect()
+    }
+
+    /// A traced column's place in [`Self::traced`].
+    fn index(i: u32) -> usize {
+        (i as usize).div_ceil(2)
+    }
 }
 
 /// A texel's horizons and what [`texel_horizon_parts`] reads beside them.
@@ -421,6 +605,31 @@ fn texel_horizon_parts(
     opts: &LightmapOptions,
 ) -> ([f32; 3], [f32; 3], f32) {
     let origin = p + n * 1e-3;
+    let (mut e, direct, s_eff) = texel_horizon_exact(bvh, light, env, origin, n, texel, opts);
+    let rays = HemisphereRays {
+        bvh,
+        albedo,
+        light,
+        sky_irr,
+        tables: env.tables,
+        reach: env.reach,
+    };
+    let variance = rays.correction(&s_eff, origin, n, texel, opts.samples, &mut e);
+    (e.map(|v| v as f32), direct, variance)
+}
+
+/// The noise-free part of [`texel_horizon_parts`] at one texel (`origin` raised off the
+/// surface): the direct sun and the sky above the effective horizons, summed in f64, the direct
+/// part alone, and the effective horizons (the bounds of the traced correction).
+fn texel_horizon_exact(
+    bvh: &dyn SceneTracer,
+    light: &BakeLight,
+    env: &HorizonTexel,
+    origin: Vec3A,
+    n: Vec3A,
+    texel: u64,
+    opts: &LightmapOptions,
+) -> ([f64; 3], [f32; 3], [f32; horizon::MAX_DIRECTIONS]) {
     let hz = env.horizons;
     let mut e = [0.0f64; 3];
     let mut direct = [0.0f32; 3];
@@ -446,62 +655,97 @@ fn texel_horizon_parts(
     }
     // The exact part: the sky above the effective horizons.
     let na = n.to_array();
-    let sectors = env.tables.sectors();
-    let mut s_eff = [0.0f32; horizon::MAX_DIRECTIONS];
-    for (k, se) in s_eff.iter_mut().enumerate().take(sectors) {
-        *se = env.tables.effective(k, hz.sin(k, env.index), na);
-        let v = env.tables.integral(k, *se, na);
+    let s_eff = effective_horizons(env, n);
+    for (k, &se) in s_eff.iter().enumerate().take(env.tables.sectors()) {
+        let v = env.tables.integral(k, se, na);
         for c in 0..3 {
             e[c] += v[c] as f64;
         }
     }
-    // The traced correction ∫ (f − g) (n·d) dω, and the sums of its rays' RGB means for the
-    // variance of their mean (an estimate of the texel's noise; the rays are stratified, so it
-    // is an upper bound).
-    let nsamp = opts.samples.max(1);
-    let (mut s1, mut s2) = (0.0f64, 0.0f64);
-    let (tx, bx) = crate::trace::frame(n);
-    let shift = cp_rotation(texel);
-    for k in 0..nsamp {
-        let (u1, u2) = hammersley(k, nsamp);
-        let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
-        let r = u1.sqrt();
-        let phi = std::f32::consts::TAU * u2;
-        let local = Vec3A::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
-        let d = (tx * local.x + bx * local.y + n * local.z).normalize();
-        let sector = env
-            .tables
-            .sector_of(d.x, d.y)
-            .min(horizon::MAX_DIRECTIONS - 1);
-        let c = if d.z > s_eff[sector] {
-            let l = light.sky.eval(d.to_array());
-            match env.reach.instance_hit(bvh, origin, d) {
-                None => l.map(|v| v.max(0.0) - v),
-                Some(hit) => {
-                    let b = bounce_radiance(bvh, albedo, light, sky_irr, &hit, d);
-                    [0, 1, 2].map(|c| b[c] - l[c])
-                }
-            }
-        } else {
-            match bvh.closest_hit(&Ray::new(origin, d, 1e-4)) {
-                None => light.sky.eval(d.to_array()).map(|v| v.max(0.0)),
-                Some(hit) => bounce_radiance(bvh, albedo, light, sky_irr, &hit, d),
-            }
-        };
-        for ch in 0..3 {
-            e[ch] += (c[ch] * std::f32::consts::PI / nsamp as f32) as f64;
-        }
-        let x = (c[0] + c[1] + c[2]) as f64 / 3.0 * std::f64::consts::PI;
-        s1 += x;
-        s2 += x * x;
+    (e, direct, s_eff)
+}
+
+/// A texel's horizons per sector raised to its tangent plane ([`horizon::SkyTables::effective`]).
+fn effective_horizons(env: &HorizonTexel, n: Vec3A) -> [f32; horizon::MAX_DIRECTIONS] {
+    let na = n.to_array();
+    let mut s_eff = [0.0f32; horizon::MAX_DIRECTIONS];
+    for (k, se) in s_eff.iter_mut().enumerate().take(env.tables.sectors()) {
+        *se = env.tables.effective(k, env.horizons.sin(k, env.index), na);
     }
-    let nf = nsamp as f64;
-    let variance = if nsamp > 1 {
-        ((s2 - s1 * s1 / nf) / (nf * (nf - 1.0))).max(0.0)
-    } else {
-        0.0
-    };
-    (e.map(|v| v as f32), direct, variance as f32)
+    s_eff
+}
+
+/// What the traced correction of the horizon estimator reads ([`texel_horizon_parts`]).
+#[derive(Clone, Copy)]
+struct HemisphereRays<'a> {
+    bvh: &'a dyn SceneTracer,
+    albedo: &'a [[f32; 3]],
+    light: &'a BakeLight,
+    sky_irr: &'a ShIrradiance,
+    tables: &'a horizon::SkyTables,
+    reach: Reach,
+}
+
+impl HemisphereRays<'_> {
+    /// The traced correction ∫ (f − g) (n·d) dω at a texel with effective horizons `s_eff`,
+    /// added ray by ray into `e` (f64), by `samples` cosine-distributed rays; returns the
+    /// variance of the rays' RGB mean (an estimate of the texel's noise; the rays are
+    /// stratified, so it is an upper bound).
+    fn correction(
+        &self,
+        s_eff: &[f32; horizon::MAX_DIRECTIONS],
+        origin: Vec3A,
+        n: Vec3A,
+        texel: u64,
+        samples: u32,
+        e: &mut [f64; 3],
+    ) -> f32 {
+        let (bvh, light) = (self.bvh, self.light);
+        let nsamp = samples.max(1);
+        let (mut s1, mut s2) = (0.0f64, 0.0f64);
+        let (tx, bx) = crate::trace::frame(n);
+        let shift = cp_rotation(texel);
+        for k in 0..nsamp {
+            let (u1, u2) = hammersley(k, nsamp);
+            let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
+            let r = u1.sqrt();
+            let phi = std::f32::consts::TAU * u2;
+            let local = Vec3A::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
+            let d = (tx * local.x + bx * local.y + n * local.z).normalize();
+            let sector = self
+                .tables
+                .sector_of(d.x, d.y)
+                .min(horizon::MAX_DIRECTIONS - 1);
+            let c = if d.z > s_eff[sector] {
+                let l = light.sky.eval(d.to_array());
+                match self.reach.instance_hit(bvh, origin, d) {
+                    None => l.map(|v| v.max(0.0) - v),
+                    Some(hit) => {
+                        let b = bounce_radiance(bvh, self.albedo, light, self.sky_irr, &hit, d);
+                        [0, 1, 2].map(|c| b[c] - l[c])
+                    }
+                }
+            } else {
+                match bvh.closest_hit(&Ray::new(origin, d, 1e-4)) {
+                    None => light.sky.eval(d.to_array()).map(|v| v.max(0.0)),
+                    Some(hit) => bounce_radiance(bvh, self.albedo, light, self.sky_irr, &hit, d),
+                }
+            };
+            for ch in 0..3 {
+                e[ch] += (c[ch] * std::f32::consts::PI / nsamp as f32) as f64;
+            }
+            let x = (c[0] + c[1] + c[2]) as f64 / 3.0 * std::f64::consts::PI;
+            s1 += x;
+            s2 += x * x;
+        }
+        let nf = nsamp as f64;
+        let variance = if nsamp > 1 {
+            ((s2 - s1 * s1 / nf) / (nf * (nf - 1.0))).max(0.0)
+        } else {
+            0.0
+        };
+        variance as f32
+    }
 }
 
 /// Fraction of the sun's disc that no instance blocks (the terrain skipped): the disc points
@@ -731,8 +975,9 @@ pub(crate) fn terrain_sections_of(
         sun_samples: opts.sun_samples,
         visibility: opts.visibility,
     };
-    if opts.filter_range > 0.0 && opts.filter_radius > 0 {
-        let filtered = Lightmap {
+    let filtered = opts.filter_range > 0.0 && opts.filter_radius > 0;
+    let map = match filtered {
+        true => std::borrow::Cow::Owned(Lightmap {
             width: map.width,
             height: map.height,
             texels: filter::filter_indirect(
@@ -742,27 +987,34 @@ pub(crate) fn terrain_sections_of(
                 opts.filter_radius as usize,
                 opts.filter_range,
             ),
+        }),
+        false => std::borrow::Cow::Borrowed(map),
+    };
+    // A filter and a trace step are stated after the fields every reader reads as a prefix;
+    // the metadata of a map with neither stays as before.
+    let with_filter = |radius, range| section::TerrainLightmapMetaFiltered {
+        base: meta.clone(),
+        filter_radius: radius,
+        filter_range: range,
+    };
+    let name = "lightmap:terrain";
+    let section = if opts.trace_step > 1 {
+        let (radius, range) = match filtered {
+            true => (opts.filter_radius, opts.filter_range),
+            false => (0, 0.0),
         };
-        // The filter is stated after the fields every reader reads as a prefix; an unfiltered
-        // map's metadata stays as before.
-        let meta = section::TerrainLightmapMetaFiltered {
-            base: meta,
-            filter_radius: opts.filter_radius,
-            filter_range: opts.filter_range,
+        let meta = section::TerrainLightmapMetaStepped {
+            filtered: with_filter(radius, range),
+            trace_step: opts.trace_step,
         };
-        return vec![section::to_section_with_indirect(
-            "lightmap:terrain",
-            &meta,
-            &filtered,
-            direct,
-        )];
-    }
-    vec![section::to_section_with_indirect(
-        "lightmap:terrain",
-        &meta,
-        map,
-        direct,
-    )]
+        section::to_section_with_indirect(name, &meta, &map, direct)
+    } else if filtered {
+        let meta = with_filter(opts.filter_radius, opts.filter_range);
+        section::to_section_with_indirect(name, &meta, &map, direct)
+    } else {
+        section::to_section_with_indirect(name, &meta, &map, direct)
+    };
+    vec![section]
 }
 
 /// The direct-sun part of every texel of a terrain light map, exactly as

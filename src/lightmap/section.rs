@@ -45,6 +45,16 @@ pub struct TerrainLightmapMetaFiltered {
     pub filter_range: f32,
 }
 
+/// The terrain light map's metadata when its hemisphere rays were traced at every second texel
+/// of every second row (`lightmap.trace_step` = 2): [`TerrainLightmapMetaFiltered`]'s fields
+/// (radius and range 0 when unfiltered), then the step. Read as a prefix, it is a
+/// [`TerrainLightmapMetaFiltered`] and a [`TerrainLightmapMeta`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TerrainLightmapMetaStepped {
+    pub filtered: TerrainLightmapMetaFiltered,
+    pub trace_step: u32,
+}
+
 pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
@@ -122,9 +132,15 @@ pub fn summary(v: &SectionView) -> Result<Value, ParseError> {
           "sun_samples": m.sun_samples, "visibility": visibility, "mean_irradiance": mean});
     // A filtered terrain map states its filter after the prefix (an unfiltered one's metadata
     // ends before it and does not decode as this).
-    if let Ok(f) = v.meta::<TerrainLightmapMetaFiltered>() {
+    if let Ok(f) = v.meta::<TerrainLightmapMetaFiltered>()
+        && f.filter_radius > 0
+        && f.filter_range > 0.0
+    {
         doc["filter_radius"] = f.filter_radius.into();
         doc["filter_range"] = f.filter_range.into();
+    }
+    if let Ok(s) = v.meta::<TerrainLightmapMetaStepped>() {
+        doc["trace_step"] = s.trace_step.into();
     }
     Ok(doc)
 }
