@@ -87,7 +87,8 @@ pub fn bench_lightmap(
     })
 }
 
-/// One estimator of `bake bench lightmap --rows`: `VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES]]`.
+/// One estimator of `bake bench lightmap --rows`:
+/// `VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES[:STEP]]]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Estimator {
     pub visibility: crate::lightmap::LightmapVisibility,
@@ -96,10 +97,13 @@ pub struct Estimator {
     pub lattice: u32,
     /// Texels per side of its map (`lightmap.max_resolution`); `None`: the reference's.
     pub resolution: Option<u32>,
+    /// `lightmap.trace_step` (1: hemisphere rays at every texel).
+    pub trace_step: u32,
 }
 
 impl Estimator {
-    /// Parses `VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES]]` (defaults 64, 16, 3, full).
+    /// Parses `VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES[:STEP]]]` (defaults 64, 16, 3,
+    /// full, 1; an empty RES: full).
     pub fn parse(c: &str) -> std::result::Result<Estimator, String> {
         let f: Vec<&str> = c.trim().split(':').collect();
         let visibility = match f.first().copied() {
@@ -107,13 +111,14 @@ impl Estimator {
             Some("rays") => crate::lightmap::LightmapVisibility::Rays,
             _ => return Err(format!("--compare {c}: horizons or rays first")),
         };
-        if f.len() > 5 {
+        if f.len() > 6 {
             return Err(format!(
-                "--compare {c}: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES]]"
+                "--compare {c}: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES[:STEP]]]"
             ));
         }
         let num = |k: usize| -> std::result::Result<Option<u32>, String> {
             f.get(k)
+                .filter(|v| !v.is_empty())
                 .map(|v| v.parse().map_err(|e| format!("--compare {c}: {e}")))
                 .transpose()
         };
@@ -127,6 +132,7 @@ impl Estimator {
             sun_samples: num(2)?.unwrap_or(16),
             lattice: num(3)?.unwrap_or(3),
             resolution,
+            trace_step: num(5)?.unwrap_or(1),
         })
     }
 }
@@ -271,6 +277,7 @@ pub fn bench_lightmap_error(
         sun_samples,
         lattice,
         resolution,
+        trace_step,
     } in configs
     {
         let opts = LightmapOptions {
@@ -279,6 +286,7 @@ pub fn bench_lightmap_error(
             visibility,
             horizon_lattice: lattice,
             max_resolution: resolution,
+            trace_step,
             ..Default::default()
         };
         opts.check().map_err(crate::error::Error::usage)?;
@@ -318,8 +326,12 @@ pub fn bench_lightmap_error(
             .collect();
         let (tot, sky) = (stats(&e, &re, m_tot), stats(&ind, &r_ind, m_ind));
         text += &format!(
-            "{visibility:?}:{samples}:{sun_samples}:{lattice}:{}: {w:.2} s wall, {c:.2} CPU s; total rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %; without direct sun rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %\n",
+            "{visibility:?}:{samples}:{sun_samples}:{lattice}:{}{}: {w:.2} s wall, {c:.2} CPU s; total rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %; without direct sun rms {:.2} % p90 {:.2} % max {:.2} % bias {:.3} %\n",
             size.0,
+            match trace_step {
+                1 => String::new(),
+                s => format!(":step {s}"),
+            },
             tot["rms"].as_f64().unwrap_or(0.0) * 100.0,
             tot["p90"].as_f64().unwrap_or(0.0) * 100.0,
             tot["max"].as_f64().unwrap_or(0.0) * 100.0,
@@ -402,7 +414,7 @@ pub fn bench_lightmap_error(
             filtered.push(serde_json::json!({"radius": r, "range": t, "guided": guided, "noise": noise_kind, "whole": total, "total": tf, "without_direct_sun": sf}));
         }
         rowsj.push(serde_json::json!({"visibility": visibility, "samples": samples, "sun_samples": sun_samples,
-            "horizon_lattice": lattice, "resolution": size.0, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky,
+            "horizon_lattice": lattice, "resolution": size.0, "trace_step": trace_step, "wall_seconds": w, "cpu_seconds": c, "total": tot, "without_direct_sun": sky,
             "filtered": filtered}));
     }
     Ok(Report {

@@ -120,9 +120,10 @@ pub(crate) struct LightmapBenchArgs {
     /// CPU seconds, in this process.
     #[arg(long, value_name = "START..END")]
     pub rows: Option<String>,
-    /// Estimators to compare: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES]], comma-separated
-    /// (VISIBILITY horizons or rays; RES the map's texels per side, sampled bilinearly at the
-    /// reference's texels; default the reference's).
+    /// Estimators to compare: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES[:STEP]]],
+    /// comma-separated (VISIBILITY horizons or rays; RES the map's texels per side, sampled
+    /// bilinearly at the reference's texels, empty or absent: the reference's; STEP
+    /// `lightmap.trace_step`, 1 or 2).
     #[arg(
         long,
         default_value = "rays:64:16,horizons:64:16,horizons:32:8,horizons:16:4,horizons:16:4:2"
