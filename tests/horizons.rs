@@ -502,6 +502,7 @@ fn horizon_light_map_matches_the_ray_reference() {
         samples,
         sun_samples,
         visibility,
+        trace_step: 1,
         ..Default::default()
     };
     let (rm, rd) = terrain_map(&scene, &light, &opts(1024, 64, LightmapVisibility::Rays));
@@ -592,6 +593,7 @@ fn the_filtered_light_map_is_closer_to_the_reference_and_states_its_filter() {
     let plain = LightmapOptions {
         samples: 16,
         sun_samples: 4,
+        trace_step: 1,
         ..Default::default()
     };
     let filtered = LightmapOptions {
@@ -678,7 +680,7 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     // texels carry the every-texel map's own rays (equal to f32 rounding); row shards with odd
     // ends and 1 or 2 threads give the same bits; the section states the step; other
     // estimators refuse it.
-    use bake::lightmap::{LightmapMode, LightmapOptions, LightmapVisibility};
+    use bake::lightmap::{LightmapOptions, LightmapVisibility};
     let (pack, _dir) = fixture();
     let scene = bake::trace::pack_scene::trace_scene(&pack).unwrap();
     let light = bake::lightmap::scene_lighting(&pack).unwrap();
@@ -692,6 +694,7 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     let plain = LightmapOptions {
         samples: 16,
         sun_samples: 4,
+        trace_step: 1,
         ..Default::default()
     };
     let stepped = LightmapOptions {
@@ -772,21 +775,20 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     let summary = bake::lightmap::section::summary(&v).unwrap();
     assert_eq!(summary["trace_step"], 2, "{summary}");
     assert!(summary.get("filter_range").is_none(), "{summary}");
-    // Only the horizon estimator traces a correction; a step of 3 is refused too.
-    for o in [
-        LightmapOptions {
-            visibility: LightmapVisibility::Rays,
-            ..stepped
-        },
-        LightmapOptions {
-            mode: LightmapMode::Thesis,
-            ..stepped
-        },
-        LightmapOptions {
-            trace_step: 3,
+    // The ray estimator traces every texel whatever the step says; steps other than 1 and 2
+    // are refused.
+    let rays = |trace_step| LightmapOptions {
+        visibility: LightmapVisibility::Rays,
+        samples: 4,
+        trace_step,
+        ..plain
+    };
+    assert!(terrain_map(&scene, &light, &rays(2)) == terrain_map(&scene, &light, &rays(1)));
+    for step in [0, 3] {
+        let o = LightmapOptions {
+            trace_step: step,
             ..plain
-        },
-    ] {
+        };
         assert!(o.check().is_err(), "{o:?}");
     }
 }

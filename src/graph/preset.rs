@@ -170,7 +170,7 @@ impl Pipeline {
         }
     }
 
-    /// `pipelines/final.toml`: PRT 1,024 paths and 4 bounces, 256 light-map rays, 1,024
+    /// `pipelines/final.toml`: PRT 1,024 paths and 4 bounces, 256 light-map rays at every texel, 1,024
     /// environment-map rays, clustering at 1 %; SVO and line space on.
     pub const fn final_quality() -> Pipeline {
         let d = Pipeline::default_pipeline();
@@ -185,6 +185,7 @@ impl Pipeline {
             lightmap: LightmapOptions {
                 samples: 256,
                 sun_samples: 32,
+                trace_step: 1,
                 ..d.lightmap
             },
             envmaps: EnvmapOptions {

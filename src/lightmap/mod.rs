@@ -87,16 +87,14 @@ pub struct LightmapOptions {
     /// Radius in texels of that filter (a (2r+1)² window).
     pub filter_radius: u32,
     /// The terrain map's hemisphere rays (the horizon estimator's traced correction: the
-    /// instances and the bounce) at every texel (1, the default) or at every second texel of
-    /// every second row (2), the others taking the mean of the traced texels around them; the
-    /// direct sun and the sky above the horizons stay per texel (issue 37). Written into
-    /// settings and keys only when not 1.
-    #[serde(skip_serializing_if = "is_one")]
+    /// instances and the bounce) at every texel (1, the final preset) or at every second texel
+    /// of every second row (2, the default), a texel between taking the mean of the traced
+    /// texels around it unless they disagree beyond their noise, where it is traced itself; the
+    /// direct sun and the sky above the horizons stay per texel (issue 37; docs/PERFORMANCE.md).
+    /// The ray estimator (`visibility = "rays"`, `thesis` mode) traces every texel whatever
+    /// this says. In the unit's key only when not 1 (keys of maps traced at every texel are
+    /// those from before the option).
     pub trace_step: u32,
-}
-
-fn is_one(v: &u32) -> bool {
-    *v == 1
 }
 
 impl LightmapOptions {
@@ -114,7 +112,7 @@ impl LightmapOptions {
         horizon_lattice: 3,
         filter_range: 0.0,
         filter_radius: 2,
-        trace_step: 1,
+        trace_step: 2,
     };
 
     /// Options this binary cannot run (a tracer it was built without).
@@ -128,15 +126,6 @@ impl LightmapOptions {
         if !(1..=2).contains(&self.trace_step) {
             return Err(format!(
                 "lightmap.trace_step = {} (1: hemisphere rays at every texel; 2: at every second texel of every second row)",
-                self.trace_step
-            ));
-        }
-        if self.trace_step > 1
-            && (self.mode != LightmapMode::Physical
-                || self.visibility != LightmapVisibility::Horizons)
-        {
-            return Err(format!(
-                "lightmap.trace_step = {} needs the horizon estimator (mode \"physical\", visibility \"horizons\")",
                 self.trace_step
             ));
         }
@@ -383,7 +372,13 @@ fn horizon_rows_noise(
         }
         _ => rows.clone(),
     };
-    let band = band_rows(w, dirs.len());
+    // With a trace step each band ends on a traced row (an odd band length from an even
+    // start), so every row of a band finds the traced rows around it in the band or in the
+    // last traced row of the band before.
+    let band = match &coarse {
+        Some(_) => (band_rows(w, dirs.len()) - 1) | 1,
+        None => band_rows(w, dirs.len()),
+    };
     let bands: Vec<_> = (swept.start..swept.end)
         .step_by(band as usize)
         .map(|s| s..(s + band).min(swept.end))
@@ -438,22 +433,7 @@ fn horizon_rows_noise(
             variance.extend(var);
             continue;
         };
-        // The exact part of every texel of `rows` in the band; the correction of the traced
-        // texels of every swept row (f32 here: the correction is added once, below).
-        let own = start.max(rows.start)..end.min(rows.end);
-        let first = ((own.start - start) * w) as usize;
-        let exact: Vec<([f32; 3], [f32; 3])> = (first..first + (own.len() as u32 * w) as usize)
-            .into_par_iter()
-            .map(|k| {
-                let (p, n, texel, env) = surface(k);
-                let (e, d, _) = texel_horizon_exact(bvh, light, &env, p + n * 1e-3, n, texel, opts);
-                (e.map(|v| v as f32), d)
-            })
-            .collect();
-        for (e, d) in exact {
-            texels.push(e);
-            direct.push(d);
-        }
+        // The correction of the traced texels of the band's traced rows.
         let columns = lattice.columns();
         for j in (start..end).filter(|&j| TraceLattice::is_traced(j, h)) {
             let row = columns
@@ -461,60 +441,60 @@ fn horizon_rows_noise(
                 .map(|&i| {
                     let k = ((j - start) * w + i) as usize;
                     let (p, n, texel, env) = surface(k);
-                    let origin = p + n * 1e-3;
                     let s_eff = effective_horizons(&env, n);
                     let mut c = [0.0f64; 3];
-                    let v = rays.correction(&s_eff, origin, n, texel, opts.samples, &mut c);
+                    let v = rays.correction(&s_eff, p + n * 1e-3, n, texel, opts.samples, &mut c);
                     (c.map(|x| x as f32), v)
                 })
                 .collect();
             traced.push((j, row));
         }
-    }
-    if let Some(lattice) = &coarse {
-        // Every texel of `rows` adds the mean of the traced corrections around it.
+        // Every texel of `rows` in the band: its exact part, and the mean of the traced
+        // corrections around it, or its own where those disagree.
         let row_of = |j: u32| {
             let k = traced.partition_point(|(r, _)| *r < j);
             debug_assert_eq!(traced[k].0, j, "traced row {j} swept");
             &traced[k].1
         };
-        let rows_vec: Vec<u32> = rows.clone().collect();
-        let corrections: Vec<Vec<([f32; 3], f32)>> = rows_vec
-            .par_iter()
-            .map(|&j| {
+        let own = start.max(rows.start)..end.min(rows.end);
+        let first = ((own.start.min(end) - start) * w) as usize;
+        let done: Vec<([f32; 3], [f32; 3], f32)> = (first..first + (own.len() as u32 * w) as usize)
+            .into_par_iter()
+            .map(|k| {
+                let (i, j) = (k as u32 % w, start + k as u32 / w);
+                let (p, n, texel, env) = surface(k);
+                let origin = p + n * 1e-3;
+                let (mut e, d, s_eff) =
+                    texel_horizon_exact(bvh, light, &env, origin, n, texel, opts);
                 let (r0, r1) = lattice.rows_around(j);
-                let mut rs = vec![row_of(r0)];
-                if r1 != r0 {
-                    rs.push(row_of(r1));
+                let (c0, c1) = lattice.columns_around(i);
+                let (ia, ib) = (TraceLattice::index(c0), TraceLattice::index(c1));
+                let (a, b) = (row_of(r0), row_of(r1));
+                let mut corners = vec![a[ia]];
+                if ib != ia {
+                    corners.push(a[ib]);
                 }
-                (0..w)
-                    .map(|i| {
-                        let (c0, c1) = lattice.columns_around(i);
-                        let mut cs = vec![TraceLattice::index(c0)];
-                        if c1 != c0 {
-                            cs.push(TraceLattice::index(c1));
+                if r1 != r0 {
+                    corners.push(b[ia]);
+                    if ib != ia {
+                        corners.push(b[ib]);
+                    }
+                }
+                let var = match TraceLattice::blend(&corners, e) {
+                    Some((c, var)) => {
+                        for ch in 0..3 {
+                            e[ch] += c[ch] as f64;
                         }
-                        // The mean of the distinct traced texels around, and its variance.
-                        let m = (rs.len() * cs.len()) as f32;
-                        let (mut mean, mut var) = ([0.0f32; 3], 0.0f32);
-                        for r in &rs {
-                            for &c in &cs {
-                                let (x, v) = r[c];
-                                for ch in 0..3 {
-                                    mean[ch] += x[ch] / m;
-                                }
-                                var += v / (m * m);
-                            }
-                        }
-                        (mean, var)
-                    })
-                    .collect()
+                        var
+                    }
+                    None => rays.correction(&s_eff, origin, n, texel, opts.samples, &mut e),
+                };
+                (e.map(|v| v as f32), d, var)
             })
             .collect();
-        for (k, (c, v)) in corrections.into_iter().flatten().enumerate() {
-            for ch in 0..3 {
-                texels[k][ch] += c[ch];
-            }
+        for (e, d, v) in done {
+            texels.push(e);
+            direct.push(d);
             if noise {
                 variance.push(v);
             }
@@ -561,9 +541,32 @@ impl TraceLattice {
             .collect()
     }
 
-    /// A traced column's place in [`Self::traced`].
+    /// A traced column's place in [`Self::columns`].
     fn index(i: u32) -> usize {
         (i as usize).div_ceil(2)
+    }
+
+    /// The correction of a texel from the 1, 2 or 4 distinct traced texels around it
+    /// (`corners`: correction and variance) and the variance of that mean; `None` where they
+    /// disagree: some corner lies further from their mean than 3 standard deviations of its own
+    /// noise plus 5 % of the texel's exact part `exact` (RGB means), so the texel is traced
+    /// itself.
+    fn blend(uniq: &[([f32; 3], f32)], exact: [f64; 3]) -> Option<([f32; 3], f32)> {
+        let m = uniq.len() as f32;
+        let mut mean = [0.0f32; 3];
+        let mut var = 0.0f32;
+        for (c, v) in uniq {
+            for ch in 0..3 {
+                mean[ch] += c[ch] / m;
+            }
+            var += v / (m * m);
+        }
+        let grey = |c: [f32; 3]| (c[0] + c[1] + c[2]) / 3.0;
+        let tolerance = 0.05 * ((exact[0] + exact[1] + exact[2]) / 3.0) as f32;
+        let agree = uniq
+            .iter()
+            .all(|(c, v)| (grey(*c) - grey(mean)).abs() <= 3.0 * v.sqrt() + tolerance);
+        agree.then_some((mean, var))
     }
 }
 
