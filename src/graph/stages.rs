@@ -13,36 +13,7 @@
 //! `bake svo` and `bake linespace` over a model file). The other stage commands run their
 //! stage's unit ([`super::stage::pack_unit`], [`super::stage::scene_unit`]).
 
-/// What one unit of a stage covers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Per {
-    /// One unit per model file of the scene.
-    Model,
-    /// The scene's terrain.
-    Terrain,
-    /// The scene's sky.
-    Sky,
-    /// The whole scene (its instances, the terrain and the models together).
-    Scene,
-    /// The scene's instances in shards, joined into one section.
-    Shards,
-}
-
-/// One stage of the graph.
-#[derive(Debug, Clone, Copy)]
-pub struct StageDef {
-    /// The name of its units in the build report, the cache and `--set stages.NAME`.
-    pub name: &'static str,
-    /// Bumped when its output changes for the same inputs (the constants of [`super::versions`]).
-    pub version: u32,
-    /// What one unit covers.
-    pub per: Per,
-    /// The section kinds its units write.
-    pub writes: &'static [&'static str],
-    /// The `bake unit` subcommands that run it in a plan (a model's ingest and materials are
-    /// one action, `model`).
-    pub actions: &'static [&'static str],
-}
+pub use crate::stage::{Per, StageDef};
 
 /// Section kinds the graph writes itself, not a stage: the scene's instances, the build
 /// record, and the embedded build report (`--embed-report`).

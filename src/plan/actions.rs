@@ -407,7 +407,7 @@ pub fn envmaps_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<Uni
                 )
             })?;
         maps.extend(
-            crate::graph::shard_maps(&sections, n)
+            crate::envmap::stage::shard_maps(&sections, n)
                 .map_err(|e| Error::invalid_at(p, "envmaps-shard section", e.to_string()))?,
         );
     }
