@@ -74,6 +74,18 @@ impl Stage for Envmaps {
     fn join(&self, parts: Vec<(usize, Vec<Section>)>, o: &Self::Options) -> Result<Vec<Section>> {
         Ok(vec![join_envmaps(&parts, o)?])
     }
+    /// The maps of a shard's `envmaps-shard` section (32 a map), checked as the join reads them.
+    fn shard_size(&self, shard: &[Section]) -> Result<usize> {
+        let n = shard
+            .first()
+            .and_then(|x| crate::pack::section::SectionView::parse(&x.payload, 0).ok())
+            .and_then(|v| v.info("maps").map(|a| a.count as usize / 32))
+            .ok_or_else(|| {
+                Error::runtime("not the pack of an environment-map shard (bake unit envmaps)")
+            })?;
+        shard_maps(shard, n)?;
+        Ok(n)
+    }
 }
 
 /// The graph's shards of `n` instances: `per` instances each (one empty shard for none).

@@ -68,6 +68,8 @@ pub trait AnyStage: Sync {
     fn run(&self, cx: &UnitCtx, p: &Pipeline) -> Result<Output>;
     /// [`Stage::join`] with the pipeline's options for the stage.
     fn join(&self, parts: Vec<(usize, Vec<Section>)>, p: &Pipeline) -> Result<Vec<Section>>;
+    /// [`Stage::shard_size`].
+    fn shard_size(&self, shard: &[Section]) -> Result<usize>;
 }
 
 /// A registry line: the stage `stage` (implemented in its own folder), what turns it on, and
@@ -110,6 +112,9 @@ impl<S: Stage + 'static> AnyStage for Registered<S> {
     }
     fn join(&self, parts: Vec<(usize, Vec<Section>)>, p: &Pipeline) -> Result<Vec<Section>> {
         self.stage.join(parts, (self.options)(p))
+    }
+    fn shard_size(&self, shard: &[Section]) -> Result<usize> {
+        self.stage.shard_size(shard)
     }
 }
 

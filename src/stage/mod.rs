@@ -534,4 +534,13 @@ pub trait Stage: Sync {
     fn join(&self, parts: Vec<(usize, Vec<Section>)>, _o: &Self::Options) -> Result<Vec<Section>> {
         Ok(parts.into_iter().flat_map(|(_, s)| s).collect())
     }
+    /// A sharded stage's number of instances in one shard's sections, checked as [`Self::join`]
+    /// reads them: what a plan's join action (its second action, over the shards' packs) gives
+    /// `join` with each part. An error for a stage that is not sharded.
+    fn shard_size(&self, _shard: &[Section]) -> Result<usize> {
+        Err(Error::usage(format!(
+            "the {} stage is not sharded",
+            self.def().name
+        )))
+    }
 }
