@@ -1,6 +1,7 @@
 //! What the stage registry says of each stage besides its code: [`StageDef`] (name, version,
 //! what one of its units covers, the section kinds it writes and the `bake unit` actions that
-//! run it in a build-engine plan), one per `impl Stage` of [`super::stage`], listed by
+//! run it in a build-engine plan; defined in [`crate::stage`]), one per `impl Stage` in the
+//! stages' folders, listed by
 //! [`all`] in the order of [`super::stage::REGISTRY`] (issue 36, item 1). The build key takes
 //! the stages' names and versions from there ([`super::versions::all`]); tests hold the
 //! graph's unit records, the registry of section kinds ([`crate::kinds::KINDS`]) and `bake
@@ -8,8 +9,8 @@
 //! loop over the registry.
 //!
 //! Not driven by it: the scene's own units (the terrain's and models' sections from the scene
-//! plan, the instances, the build record), the sharding of `envmaps` and of the light map's
-//! rows and their join actions, and the stage commands that do more than a unit (`bake sky`;
+//! plan, the instances, the build record), the number of `envmaps` shards, the light map's
+//! row shards and their join (`lightmap-join`), and the stage commands that do more than a unit (`bake sky`;
 //! `bake svo` and `bake linespace` over a model file). The other stage commands run their
 //! stage's unit ([`super::stage::pack_unit`], [`super::stage::scene_unit`]).
 
