@@ -36,6 +36,7 @@ pub mod report;
 pub mod rng;
 pub mod sh;
 pub mod sky;
+pub mod stage;
 pub mod terrain;
 pub mod texture;
 pub mod trace;

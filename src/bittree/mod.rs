@@ -17,6 +17,7 @@
 //! leaf order, within half a cell of their positions like every other instance.
 
 pub mod section;
+pub mod stage;
 
 use crate::model::Rect;
 

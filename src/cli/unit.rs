@@ -6,8 +6,9 @@
 //! The registered stages' subcommands come from the stage registry
 //! ([`crate::graph::stage::REGISTRY`]): one per stage (but the source stages, which the
 //! `terrain` and `model` units run), named by its first action, taking `--name` for a per-model
-//! stage, `--in` for a stage that reads sections and `--shard` for a sharded one
-//! ([`StageUnit`]). The scene's own units, the joins and the record are written here.
+//! stage, `--in` for a stage that reads sections and `--shard` for a sharded one, and a sharded
+//! stage's join, named by its second action ([`StageUnit`]). The scene's own units, the light
+//! map's join of row shards and the record are written here.
 
 use super::{Global, Outcome};
 use crate::error::{Error, Result};
@@ -67,8 +68,6 @@ pub(crate) enum Unit {
     Instances(UnitFlags),
     /// The terrain light map from its row shards' packs (in shard order).
     LightmapJoin(WithPacks),
-    /// The `envmaps` section from the shards' packs (in shard order).
-    EnvmapsJoin(WithPacks),
     /// The `build` record over the models' records (`--deps`).
     Record {
         #[command(flatten)]
@@ -94,7 +93,16 @@ pub(crate) struct WithPacks {
 #[derive(Debug, Clone)]
 pub(crate) struct StageUnit {
     pub action: String,
-    pub flags: StageFlags,
+    pub flags: StageAction,
+}
+
+/// A registered stage's action: its unit, or a sharded stage's join (its second action).
+#[derive(Debug, Clone)]
+pub(crate) enum StageAction {
+    /// The stage's unit.
+    Unit(StageFlags),
+    /// The join of a sharded stage's shards.
+    Join(WithPacks),
 }
 
 /// The flags of a registered stage's unit (those a stage has no use for are hidden and
@@ -164,6 +172,24 @@ fn stage_command(st: &dyn AnyStage) -> clap::Command {
         .mut_arg("rows", |a| a.hide(d.name != "lightmap"))
 }
 
+/// The join subcommand of a sharded stage (its second action).
+fn join_command(st: &dyn AnyStage) -> Option<clap::Command> {
+    use clap::Args;
+    let d = st.def();
+    (d.per == Per::Shards).then(|| {
+        WithPacks::augment_args(clap::Command::new(d.actions[1])).about(format!(
+            "The `{}` stage's {} from its shards' packs (`--in`, in shard order)",
+            d.name,
+            d.writes.join(", ")
+        ))
+    })
+}
+
+/// The registered stage whose join action is `action`.
+fn join_stage(action: &str) -> Option<&'static dyn AnyStage> {
+    unit_stages().find(|s| s.def().per == Per::Shards && s.def().actions.get(1) == Some(&action))
+}
+
 impl clap::FromArgMatches for StageUnit {
     fn from_arg_matches(m: &clap::ArgMatches) -> std::result::Result<Self, clap::Error> {
         Self::from_arg_matches_mut(&mut m.clone())
@@ -173,8 +199,12 @@ impl clap::FromArgMatches for StageUnit {
         use clap::Subcommand;
         use clap::error::ErrorKind;
         match m.remove_subcommand() {
+            Some((action, mut sub)) if join_stage(&action).is_some() => Ok(StageUnit {
+                flags: StageAction::Join(WithPacks::from_arg_matches_mut(&mut sub)?),
+                action,
+            }),
             Some((action, mut sub)) if Self::has_subcommand(&action) => Ok(StageUnit {
-                flags: StageFlags::from_arg_matches_mut(&mut sub)?,
+                flags: StageAction::Unit(StageFlags::from_arg_matches_mut(&mut sub)?),
                 action,
             }),
             Some((action, _)) => Err(clap::Error::raw(
@@ -199,7 +229,13 @@ impl clap::FromArgMatches for StageUnit {
 
 impl clap::Subcommand for StageUnit {
     fn augment_subcommands(cmd: clap::Command) -> clap::Command {
-        unit_stages().fold(cmd, |c, s| c.subcommand(stage_command(s)))
+        unit_stages().fold(cmd, |c, s| {
+            let c = c.subcommand(stage_command(s));
+            match join_command(s) {
+                Some(j) => c.subcommand(j),
+                None => c,
+            }
+        })
     }
 
     fn augment_subcommands_for_update(cmd: clap::Command) -> clap::Command {
@@ -207,14 +243,21 @@ impl clap::Subcommand for StageUnit {
     }
 
     fn has_subcommand(name: &str) -> bool {
-        unit_stages().any(|s| s.def().actions.first() == Some(&name))
+        unit_stages().any(|s| s.def().actions.first() == Some(&name)) || join_stage(name).is_some()
     }
 }
 
 /// A registered stage's unit ([`actions::stage_unit`]; with `--rows`, a shard of the light
 /// map's rows).
 fn stage_unit(u: &StageUnit, g: &Global) -> Result<UnitReport> {
-    let f = &u.flags;
+    let f = match &u.flags {
+        StageAction::Unit(f) => f,
+        StageAction::Join(w) => {
+            let st = join_stage(&u.action)
+                .ok_or_else(|| Error::usage(format!("no registered stage joins {:?}", u.action)))?;
+            return actions::stage_join(st, &w.scene.scene(g)?, &w.inputs, &w.scene.output);
+        }
+    };
     let st = actions::stage_of_action(&u.action)?;
     let d = st.def();
     if f.name.is_some() && d.per != Per::Model {
@@ -261,9 +304,6 @@ pub(crate) fn run(args: &UnitArgs, g: &Global) -> Result<Outcome> {
         Unit::Instances(f) => actions::instances(&f.scene(g)?, &f.output)?,
         Unit::LightmapJoin(w) => {
             actions::lightmap_join(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?
-        }
-        Unit::EnvmapsJoin(w) => {
-            actions::envmaps_join(&w.scene.scene(g)?, &w.inputs, &w.scene.output)?
         }
         Unit::Record { scene, deps } => actions::record(&scene.scene(g)?, deps, &scene.output)?,
         Unit::Stage(u) => stage_unit(u, g)?,
@@ -364,8 +404,11 @@ mod tests {
             panic!("not a stage unit")
         };
         assert_eq!(u.action, "prt");
-        assert_eq!(u.flags.name.as_deref(), Some("a.txf"));
-        assert_eq!(u.flags.inputs, [PathBuf::from("m.bake")]);
+        let StageAction::Unit(f) = &u.flags else {
+            panic!("not a unit")
+        };
+        assert_eq!(f.name.as_deref(), Some("a.txf"));
+        assert_eq!(f.inputs, [PathBuf::from("m.bake")]);
         // A per-model unit without its model, a sharded one without its shard.
         assert!(parse(&base).is_err());
         assert!(parse(&["unit", "envmaps", "s.eco", "-o", "e.bake", "--in", "i.bake"]).is_err());
@@ -375,7 +418,41 @@ mod tests {
         .unwrap() else {
             panic!("not a stage unit")
         };
-        assert_eq!(u.flags.shard, Some((1, 3)));
+        let StageAction::Unit(f) = &u.flags else {
+            panic!("not a unit")
+        };
+        assert_eq!(f.shard, Some((1, 3)));
+        // A sharded stage's join: its second action, over the shards' packs.
+        let Unit::Stage(u) = parse(&[
+            "unit",
+            "envmaps-join",
+            "s.eco",
+            "-o",
+            "e.bake",
+            "--in",
+            "1.bake",
+            "--in",
+            "2.bake",
+        ])
+        .unwrap() else {
+            panic!("not a stage unit")
+        };
+        let StageAction::Join(w) = &u.flags else {
+            panic!("not a join")
+        };
+        assert_eq!(w.inputs, [PathBuf::from("1.bake"), PathBuf::from("2.bake")]);
+        assert!(
+            parse(&[
+                "unit",
+                "envmaps-join",
+                "s.eco",
+                "-o",
+                "e.bake",
+                "--shard",
+                "1/2"
+            ])
+            .is_err()
+        );
         // Flags the stage has no use for: refused before anything is read.
         let g = Global::default();
         for args in [

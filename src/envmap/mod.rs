@@ -5,6 +5,7 @@ pub mod interp;
 use crate::kdtree;
 pub mod local;
 pub mod section;
+pub mod stage;
 pub mod synthetic;
 
 use cluster::{ClusterOptions, Clustering};

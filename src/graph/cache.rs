@@ -9,7 +9,7 @@
 //! corrupt entry is a miss plus a warning, and is removed).
 
 use crate::error::{Error, Result};
-use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder, StreamWriter, hex};
+use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder, StreamWriter};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -19,65 +19,12 @@ pub const CACHE_LAYOUT: &str = "v1";
 const ENTRY_KIND: &str = "entry";
 const ENTRY_NAME: &str = "entry:meta";
 
-/// A unit's cache key.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct Key(pub [u8; 32]);
-
-impl Key {
-    /// The key in lower-case hex (the entry's file name).
-    pub fn hex(&self) -> String {
-        hex(&self.0)
-    }
-}
-
-/// Builds a [`Key`] from the parts the module doc lists, each length-prefixed so that no two
-/// different part lists hash alike.
-pub struct KeyBuilder(blake3::Hasher);
-
-impl KeyBuilder {
-    /// A key begun with the bake's version, the stage, its version and the unit.
-    pub fn new(bake_version: &str, stage: &str, stage_version: u32, unit: &str) -> KeyBuilder {
-        let mut k = KeyBuilder(blake3::Hasher::new());
-        k.part(b"bake-stage-key");
-        k.part(bake_version.as_bytes());
-        k.part(stage.as_bytes());
-        k.part(&stage_version.to_le_bytes());
-        k.part(unit.as_bytes());
-        k
-    }
-
-    fn part(&mut self, bytes: &[u8]) {
-        self.0.update(&(bytes.len() as u64).to_le_bytes());
-        self.0.update(bytes);
-    }
-
-    /// The options the unit reads, in canonical form (serde JSON of the option struct).
-    pub fn options(&mut self, opts: &impl Serialize) -> &mut Self {
-        let json = serde_json::to_vec(opts).expect("options serialize to JSON");
-        self.part(b"options");
-        self.part(&json);
-        self
-    }
-
-    /// One input: a name (a section name or a file's source name, never a path:
-    /// [`crate::ingest::confine::SourceNames`]) and its hash.
-    pub fn input(&mut self, name: &str, hash: &[u8; 32]) -> &mut Self {
-        self.part(b"input");
-        self.part(name.as_bytes());
-        self.part(hash);
-        self
-    }
-
-    /// The key of the parts added.
-    pub fn finish(&self) -> Key {
-        Key(*self.0.finalize().as_bytes())
-    }
-}
+pub use crate::stage::{Key, KeyBuilder};
 
 /// A warning of a stage, as a record (id, severity, place, message; `crate::diag`).
 pub use crate::diag::Warning;
 
-pub use crate::report::record::FileDep;
+pub use crate::stage::FileDep;
 
 /// What an entry stores besides its sections.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

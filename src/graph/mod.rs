@@ -36,7 +36,7 @@ use crate::error::{Error, Result};
 use crate::ingest::confine::{self, SourceNames};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
-use crate::pack::{ArrayFormat, Pack, Section, SectionBuilder, StreamWriter, hex};
+use crate::pack::{Pack, Section, StreamWriter, hex};
 pub use crate::report::record::{BUILD_KIND, check_build_section};
 pub(crate) use crate::report::record::{BuildMeta, build_section};
 use cache::{Cache, EntryMeta, FileDep, Key, KeyBuilder, Lookup, Warning};
@@ -54,61 +54,10 @@ pub const BAKE_VERSION: &str = env!("CARGO_PKG_VERSION");
 /// Version of the `--json` build report (docs/REPORT.md).
 pub const REPORT_SCHEMA: &str = "bake.build/2";
 
-/// Version constants of the stages: bump one when its output changes for the same inputs.
 pub mod versions {
-    /// 2: TXF line and point arrays kept as the mesh's skeleton (issue 14).
-    /// 3: glTF materials keep `doubleSided` (`Material::double_sided`; issue 19).
-    /// 4: sources recorded by source name (`scene:plant.txf`), not as typed (issue 36).
-    pub const INGEST: u32 = 4;
-    /// 2: Xfrog's default material gets the thesis' leaf (issue 16).
-    pub const MATERIAL: u32 = 2;
-    /// 1: the terrain's four-tap heights, normal map and min/max quadtree.
-    pub const TERRAIN: u32 = 1;
-    /// 2: the sun's energy kept through resampling, the ring-mean replacement (issue 16).
-    /// 3: resampling angles from tables shared between faces and a polynomial atan2 (≤ 1.2e-8
-    /// rad), f32 bilinear taps; irradiance summed per row (issue 19: values move in the last bits).
-    pub const SKY: u32 = 3;
-    /// 2: duplicate vertices (position, normal, material) welded, sharing one transfer (issue 19).
-    /// 3: no Russian roulette at the first hit (issue 19).
-    /// 4: `prt.sides` (default `auto`): the back side of one-sided materials is not traced
-    /// (zero transfer; issue 19).
-    /// 5: one linear albedo and translucence for every stage (`material::convert::diffuse_albedo`,
-    /// `translucence`): authored colours no longer sRGB-decoded, authored materials opaque
-    /// (issue 35).
-    pub const PRT: u32 = 5;
-    /// 1: the `lod` stage (issue 14): meshopt levels, leaf-card thinning, impostor atlas.
-    /// 2: cards keep their triangles, a level's error counts the cards it removes (issue 14).
-    /// 3: the model's skeleton (TXF line and point arrays) kept as the farthest representation.
-    /// 4: impostor and skeleton colours from the linear albedo (issue 35).
-    /// 5: the impostor normal's alpha is the surface's material index (issue 35).
-    pub const LOD: u32 = 5;
-    /// 2: texels sampled on the drawn two-triangle surface; the linear albedo; a terrain
-    /// without colour map has albedo 0.216 as drawn (issue 35).
-    /// 3: the terrain's self-occlusion by horizon sweeps, the sky above the horizons exact and
-    /// rays only for the instances and the bounce (`visibility`, issue 37).
-    pub const LIGHTMAP: u32 = 3;
-    /// 2: the linear albedo (issue 35).
-    pub const ATLAS: u32 = 2;
-    /// 2: the rays traced as two independently rotated halves, whose difference is the
-    /// section's noise estimate (`noise_covariance`, `noise_variance`; issue 20, item 2).
-    /// 3: the linear albedo and the terrain's drawn albedo (issue 35).
-    pub const ENVMAPS: u32 = 3;
-    /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
-    /// 3: a byte budget (20x by default), the per-instance local part and split fraction 1.0
-    /// (issue 20, item 2).
-    /// 4: the local part Wiener-filtered with the `envmaps` section's noise estimate by default
-    /// (`denoise`), the metadata states `input_noise_relative` (issue 20, item 2).
-    pub const CLUSTER: u32 = 4;
-    /// 2: instances within 1 mm of each other share a leaf (the `shared` array) instead of
-    /// forcing deeper levels or failing (issue 16).
-    /// 3: per-instance residuals within the leaf cell (`residual`, issue 35).
-    pub const BITTREE: u32 = 3;
-    /// 2: voxel colours from the linear albedo (issue 35).
-    /// 3: the two-level `svo-scene` section's top level carries filtered attributes (section
-    /// version 2, issue 39).
-    pub const SVO: u32 = 3;
-    /// 2: the compact section layout (issue 15).
-    pub const LINESPACE: u32 = 2;
+    //! The stages' versions: each stage's constant lives beside its implementation (its
+    //! folder's `stage.rs`, with the history of its changes) and reaches the build key through
+    //! its registry entry.
 
     /// Every stage's name and version, in registry order ([`super::stages::all`]). The whole
     /// build's key includes them, so an output written by a build whose stages had other
@@ -238,18 +187,7 @@ pub fn process_usage() -> (f64, u64) {
     (tv(u.ru_utime) + tv(u.ru_stime), u.ru_maxrss as u64 * 1024)
 }
 
-/// What a unit computed: sections, the stage's report, warnings, files read beyond its key.
-#[derive(Debug, Default)]
-pub struct Output {
-    /// The unit's sections.
-    pub sections: Vec<Section>,
-    /// The stage's report (counts).
-    pub report: Value,
-    /// The unit's warnings.
-    pub warnings: Vec<Warning>,
-    /// Files read beyond the unit's key (a model's textures).
-    pub files: Vec<FileDep>,
-}
+pub use crate::stage::Output;
 
 /// What every unit reads and nothing changes while units run: units of different threads run
 /// against it at once.
@@ -375,7 +313,8 @@ impl Ctx<'_> {
             rec.files.insert(confine::resolve(path));
         }
         self.unit(rec, st.def().name, &u.unit, key, st.total(u), |progress| {
-            st.run(&UnitCtx::new(u, progress, trace), p)
+            let shared = trace.map(|t| t as &dyn crate::stage::SharedTrace);
+            st.run(&UnitCtx::new(u, progress, shared), p)
         })
     }
 
@@ -654,20 +593,6 @@ fn file_dep(path: &Path) -> FileDep {
     }
 }
 
-/// A lighting stage's tracer in its key: absent for `cpu` (the keys, and so the cached units,
-/// of the CPU backend are those from before the option existed), named otherwise.
-fn keyed_tracer(o: &mut Value, t: crate::trace::Tracer) {
-    if t != crate::trace::Tracer::Cpu
-        && let Some(m) = o.as_object_mut()
-    {
-        m.insert("tracer".into(), t.name().into());
-    }
-}
-
-fn report_of(r: &impl Serialize) -> Value {
-    serde_json::to_value(r).unwrap_or(Value::Null)
-}
-
 /// `bake SCENE.eco`: every unit of the pipeline, cached, streamed into one pack.
 pub fn build(opts: &BuildOptions, observer: &dyn Observer) -> Result<BuildReport> {
     build_with(opts, observer, stage::REGISTRY)
@@ -778,7 +703,7 @@ pub(crate) fn build_with(
         let mut sections = crate::pipeline::terrain_sections(&scene_source, t);
         let st = stage::terrain();
         if st.on(p) {
-            let u = UnitInputs::new(st, &scope, &sections, None, None);
+            let u = stage::unit_inputs(st, &scope, &sections, None, None);
             let out = g.run_stage(st, p, &u)?;
             merge(&mut sections, out);
         }
@@ -816,11 +741,11 @@ pub(crate) fn build_with(
     for (name, path) in &plan.models {
         let model = Some((name.as_str(), path.as_path()));
         let st = stage::ingest();
-        let u = UnitInputs::new(st, &scope, &[], model, None);
+        let u = stage::unit_inputs(st, &scope, &[], model, None);
         let mut sections = g.run_stage(st, p, &u)?;
         let st = stage::material();
         if st.on(p) {
-            let u = UnitInputs::new(st, &scope, &sections, model, None);
+            let u = stage::unit_inputs(st, &scope, &sections, model, None);
             let out = g.run_stage(st, p, &u)?;
             merge(&mut sections, out);
         }
@@ -954,7 +879,7 @@ fn model_units(
     let mut sections = Vec::new();
     for st in ctx.stages.iter().copied() {
         if st.phase() == Phase::Model && st.on(p) {
-            let u = UnitInputs::new(st, scope, &j.sections, Some((j.name, j.path)), None);
+            let u = stage::unit_inputs(st, scope, &j.sections, Some((j.name, j.path)), None);
             sections.extend(ctx.run_stage(&mut rec, st, p, &u, None)?);
         }
     }
@@ -981,7 +906,7 @@ fn scene_units(g: &mut Graph, p: &Pipeline, scope: &Scope) -> Result<()> {
             lighting_units(g, p, scope, &on[i..end])?;
             i = end;
         } else {
-            let u = UnitInputs::new(on[i], scope, &g.done, None, None);
+            let u = stage::unit_inputs(on[i], scope, &g.done, None, None);
             let out = g.run_stage(on[i], p, &u)?;
             g.finish_sections(out)?;
             i += 1;
@@ -1016,7 +941,7 @@ fn lighting_units(
         };
         let mut us = Vec::with_capacity(shards.len());
         for shard in shards {
-            let u = UnitInputs::new(*st, scope, &g.done, None, shard);
+            let u = stage::unit_inputs(*st, scope, &g.done, None, shard);
             let key = ctx.stage_key(*st, p, &u)?;
             us.push((u, key));
         }
@@ -1057,61 +982,6 @@ fn lighting_units(
     g.finish_sections(first_out)?;
     g.finish_sections(rest_out)?;
     Ok(())
-}
-
-pub(crate) fn texels(sections: &[Section]) -> u64 {
-    sections
-        .iter()
-        .filter_map(|s| crate::pack::section::SectionView::parse(&s.payload, 0).ok())
-        .filter_map(|v| v.arrays.first().map(|a| a.count))
-        .sum()
-}
-
-/// Kind of the cache-only section that holds one shard's environment maps.
-const SHARD_KIND: &str = "envmaps-shard";
-
-pub(crate) fn shard_section(t: &crate::envmap::bake::Traced) -> Section {
-    let flat: Vec<[f32; 3]> = t
-        .maps
-        .iter()
-        .flat_map(|(h, s)| h.iter().chain(s.iter()).copied())
-        .collect();
-    let mut b = SectionBuilder::new(SHARD_KIND, SHARD_KIND);
-    b.array("maps", ArrayFormat::F32, 3, &flat);
-    if !t.diffs.is_empty() {
-        b.array("noise", ArrayFormat::F32, 96, &t.diffs);
-    }
-    b.finish()
-}
-
-pub(crate) fn shard_maps(sections: &[Section], n: usize) -> Result<crate::envmap::bake::Traced> {
-    let bad = || Error::runtime("environment-map shard: unexpected cache entry contents");
-    let s = sections
-        .first()
-        .filter(|s| s.kind == SHARD_KIND)
-        .ok_or_else(bad)?;
-    let v = crate::pack::section::SectionView::parse(&s.payload, 0).map_err(|_| bad())?;
-    let flat: &[[f32; 3]] = v.array("maps").map_err(|_| bad())?;
-    if flat.len() != n * 32 {
-        return Err(bad());
-    }
-    let maps = flat
-        .chunks_exact(32)
-        .map(|c| {
-            (
-                std::array::from_fn(|i| c[i]),
-                std::array::from_fn(|i| c[16 + i]),
-            )
-        })
-        .collect();
-    let diffs: Vec<[f32; 96]> = match v.info("noise") {
-        Some(_) => v.array_vec("noise").map_err(|_| bad())?,
-        None => Vec::new(),
-    };
-    if !diffs.is_empty() && diffs.len() != n {
-        return Err(bad());
-    }
-    Ok(crate::envmap::bake::Traced { maps, diffs })
 }
 
 /// Reads one model and its textures into `texture:<model>/...` and `mesh:<model>` sections,

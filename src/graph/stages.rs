@@ -1,6 +1,7 @@
 //! What the stage registry says of each stage besides its code: [`StageDef`] (name, version,
 //! what one of its units covers, the section kinds it writes and the `bake unit` actions that
-//! run it in a build-engine plan), one per `impl Stage` of [`super::stage`], listed by
+//! run it in a build-engine plan; defined in [`crate::stage`]), one per `impl Stage` in the
+//! stages' folders, listed by
 //! [`all`] in the order of [`super::stage::REGISTRY`] (issue 36, item 1). The build key takes
 //! the stages' names and versions from there ([`super::versions::all`]); tests hold the
 //! graph's unit records, the registry of section kinds ([`crate::kinds::KINDS`]) and `bake
@@ -8,41 +9,12 @@
 //! loop over the registry.
 //!
 //! Not driven by it: the scene's own units (the terrain's and models' sections from the scene
-//! plan, the instances, the build record), the sharding of `envmaps` and of the light map's
-//! rows and their join actions, and the stage commands that do more than a unit (`bake sky`;
+//! plan, the instances, the build record), the number of `envmaps` shards, the light map's
+//! row shards and their join (`lightmap-join`), and the stage commands that do more than a unit (`bake sky`;
 //! `bake svo` and `bake linespace` over a model file). The other stage commands run their
 //! stage's unit ([`super::stage::pack_unit`], [`super::stage::scene_unit`]).
 
-/// What one unit of a stage covers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Per {
-    /// One unit per model file of the scene.
-    Model,
-    /// The scene's terrain.
-    Terrain,
-    /// The scene's sky.
-    Sky,
-    /// The whole scene (its instances, the terrain and the models together).
-    Scene,
-    /// The scene's instances in shards, joined into one section.
-    Shards,
-}
-
-/// One stage of the graph.
-#[derive(Debug, Clone, Copy)]
-pub struct StageDef {
-    /// The name of its units in the build report, the cache and `--set stages.NAME`.
-    pub name: &'static str,
-    /// Bumped when its output changes for the same inputs (the constants of [`super::versions`]).
-    pub version: u32,
-    /// What one unit covers.
-    pub per: Per,
-    /// The section kinds its units write.
-    pub writes: &'static [&'static str],
-    /// The `bake unit` subcommands that run it in a plan (a model's ingest and materials are
-    /// one action, `model`).
-    pub actions: &'static [&'static str],
-}
+pub use crate::stage::{Per, StageDef};
 
 /// Section kinds the graph writes itself, not a stage: the scene's instances, the build
 /// record, and the embedded build report (`--embed-report`).

@@ -32,6 +32,7 @@ pub mod filter;
 pub mod horizon;
 pub mod objects;
 pub mod section;
+pub mod stage;
 
 use crate::sh::{ShIrradiance, ShRadiance};
 use crate::trace::pack_scene::TraceScene;

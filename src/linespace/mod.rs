@@ -17,6 +17,7 @@ pub mod query;
 pub mod scene;
 pub mod section;
 pub mod shaft;
+pub mod stage;
 
 /// World-space triangles of a mesh ([`crate::model::Mesh::triangle_positions`]).
 pub fn world_triangles(m: &crate::model::Mesh) -> Vec<[[f32; 3]; 3]> {

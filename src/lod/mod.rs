@@ -12,6 +12,7 @@ pub mod octa;
 pub mod section;
 pub mod select;
 pub mod simplify;
+pub mod stage;
 #[cfg(test)]
 mod tests;
 

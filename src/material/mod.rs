@@ -10,6 +10,7 @@
 pub mod convert;
 pub mod schlick;
 pub mod section;
+pub mod stage;
 
 use crate::error::{Error, ParseError, Result};
 use crate::mesh::section::MeshMeta;

@@ -12,6 +12,12 @@ pub fn mesh_section_name(model: &str) -> String {
     format!("mesh:{model}")
 }
 
+/// The mesh section's name of a per-model stage unit (`mesh:<model>`, fitted to a name's
+/// length).
+pub fn unit_mesh_name(u: &crate::stage::UnitInputs) -> Result<String> {
+    Ok(crate::pack::fit_name(mesh_section_name(u.model_name()?)))
+}
+
 pub const KIND: &str = "mesh";
 
 /// Metadata of a mesh section.

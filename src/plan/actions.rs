@@ -390,29 +390,26 @@ pub fn parse_shard(text: &str) -> std::result::Result<(usize, usize), String> {
     Ok((i - 1, n))
 }
 
-/// The `envmaps` section from the shards' packs, in shard order.
-pub fn envmaps_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<UnitReport> {
-    let mut maps = crate::envmap::bake::Traced::default();
+/// A sharded stage's join (its second action): its sections from the shards' packs, in shard
+/// order, through [`AnyStage::join`] as the graph joins its shards (each part's size from
+/// [`AnyStage::shard_size`]).
+pub fn stage_join(
+    st: &dyn AnyStage,
+    s: &SceneArgs,
+    shards: &[PathBuf],
+    out: &Path,
+) -> Result<UnitReport> {
+    let d = st.def();
+    let mut parts = Vec::new();
     for p in shards {
         let sections = read_packs(std::slice::from_ref(p))?;
-        let n = sections
-            .first()
-            .and_then(|x| crate::pack::section::SectionView::parse(&x.payload, 0).ok())
-            .and_then(|v| v.info("maps").map(|a| a.count as usize / 32))
-            .ok_or_else(|| {
-                Error::invalid_at(
-                    p,
-                    "envmaps-shard section",
-                    "not the pack of an environment-map shard (bake unit envmaps)",
-                )
-            })?;
-        maps.extend(
-            crate::graph::shard_maps(&sections, n)
-                .map_err(|e| Error::invalid_at(p, "envmaps-shard section", e.to_string()))?,
-        );
+        let n = st.shard_size(&sections).map_err(|e| {
+            Error::invalid_at(p, format!("{}-shard section", d.name), e.to_string())
+        })?;
+        parts.push((n, sections));
     }
-    let sec = crate::envmap::envmaps_section(&maps, &s.pipeline.envmaps);
-    finish("envmaps", out, vec![sec], Vec::new())
+    let sections = st.join(parts, &s.pipeline)?;
+    finish(d.name, out, sections, Vec::new())
 }
 
 /// The files a whole bake reads, as [`crate::graph::build`] records them: the scene's ECO,

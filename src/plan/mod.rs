@@ -659,6 +659,22 @@ mod registry_tests {
             &merge.inputs[n - 2..],
             [PathBuf::from("toy.bake"), "record.bake".into()]
         );
+        // Both build engines' files carry its action: Ninja's `build` edge and Bazel's rule.
+        let ninja = ninja::build_ninja(&plan, Path::new("bake"));
+        assert!(
+            ninja.contains("build toy.bake: bake instances.bake")
+                && ninja.contains("args = unit toy ")
+                && ninja.contains("--in instances.bake -o toy.bake\n  desc = toy\n"),
+            "{ninja}"
+        );
+        let bazel = bazel::build_bazel(&plan);
+        assert!(
+            bazel.contains("name = \"toy\",")
+                && bazel.contains("outs = [\"toy.bake\"]")
+                && bazel.contains("args = [\"unit\", \"toy\", ")
+                && bazel.contains("\"--in\", \"@IN:instances.bake\", \"-o\", \"@OUT:toy.bake\"]"),
+            "{bazel}"
+        );
         // Without the toy, the plan is the registry's (the same actions less the toy's).
         let plain = plan_in(&popts, &build).unwrap();
         let ids = |p: &Plan| -> Vec<String> {

@@ -10,4 +10,5 @@ pub mod filter;
 pub mod gpu;
 pub mod pack;
 pub mod plant;
+pub mod stage;
 pub mod transfer;

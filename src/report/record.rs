@@ -4,19 +4,8 @@
 
 use crate::pack::{Section, SectionBuilder};
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
 
-/// A file a unit read, with its content hash (`None`: it was looked for and did not exist,
-/// so that its appearing later invalidates the entry). In memory `path` is the real path; in a
-/// cache entry and the `build` record it is the file's source name
-/// ([`crate::ingest::confine::SourceNames`]), placed again in the roots of the bake that reads it.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct FileDep {
-    /// The file, placed again in the roots of the bake that reads the record.
-    pub path: PathBuf,
-    /// BLAKE3 of its contents (hex); `None` where it could not be read.
-    pub blake3: Option<String>,
-}
+pub use crate::stage::FileDep;
 
 /// Kind and name of the section recording the build.
 pub const BUILD_KIND: &str = "build";

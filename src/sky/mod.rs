@@ -29,6 +29,7 @@ pub use crate::cube;
 mod resample;
 pub mod section;
 pub mod source_section;
+pub mod stage;
 pub mod sun;
 
 use crate::error::{Error, ParseError, Result};

@@ -6,6 +6,7 @@ pub mod prepare;
 pub mod quadtree;
 pub mod section;
 pub mod source_section;
+pub mod stage;
 
 pub use prepare::{PreparedTerrain, prepare_terrain};
 pub use quadtree::MinMaxQuadtree;

@@ -230,6 +230,16 @@ impl SceneTracer for SceneBvh {
     }
 }
 
+/// A lighting stage's tracer in its key: absent for `cpu` (the keys, and so the cached units,
+/// of the CPU backend are those from before the option existed), named otherwise.
+pub fn keyed_tracer(o: &mut serde_json::Value, t: Tracer) {
+    if t != Tracer::Cpu
+        && let Some(m) = o.as_object_mut()
+    {
+        m.insert("tracer".into(), t.name().into());
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

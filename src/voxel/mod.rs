@@ -17,6 +17,7 @@ pub mod lod_gpu;
 pub mod lod_trace;
 pub mod packed;
 pub mod section;
+pub mod stage;
 pub mod svo;
 pub mod traverse;
 pub mod voxelize;

@@ -1,0 +1,193 @@
+//! The `envmaps` stage (the instances' environment maps, in shards of instances joined into one
+//! section) and the `cluster` stage (their clustering). Their registry lines are in
+//! `crate::graph::stage::REGISTRY`.
+
+use crate::diag;
+use crate::error::{Error, Result};
+use crate::lightmap::stage::Traced;
+use crate::pack::{ArrayFormat, Section, SectionBuilder};
+use crate::stage::{
+    LIGHTING, Output, Per, Reads, Shard, Stage, StageDef, StageKey, UnitCtx, UnitInputs, report_of,
+};
+use serde_json::json;
+use std::ops::Range;
+
+/// 2: the rays traced as two independently rotated halves, whose difference is the
+/// section's noise estimate (`noise_covariance`, `noise_variance`; issue 20, item 2).
+/// 3: the linear albedo and the terrain's drawn albedo (issue 35).
+pub const ENVMAPS_VERSION: u32 = 3;
+/// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
+/// 3: a byte budget (20x by default), the per-instance local part and split fraction 1.0
+/// (issue 20, item 2).
+/// 4: the local part Wiener-filtered with the `envmaps` section's noise estimate by default
+/// (`denoise`), the metadata states `input_noise_relative` (issue 20, item 2).
+pub const CLUSTER_VERSION: u32 = 4;
+
+/// The instances' environment maps (`envmaps`), in shards of instances: each unit writes a
+/// cache-only `envmaps-shard` section, joined into `envmaps` ([`join_envmaps`]).
+pub struct Envmaps;
+impl Stage for Envmaps {
+    type Options = crate::envmap::bake::EnvmapOptions;
+    fn def(&self) -> &'static StageDef {
+        static DEF: StageDef = StageDef {
+            name: "envmaps",
+            version: ENVMAPS_VERSION,
+            per: Per::Shards,
+            writes: &["envmaps"],
+            actions: &["envmaps", "envmaps-join"],
+        };
+        &DEF
+    }
+    fn reads(&self) -> Reads {
+        LIGHTING
+    }
+    fn total(&self, u: &UnitInputs) -> Option<u64> {
+        match &u.shard {
+            Some(Shard::Range(r)) => Some(r.len() as u64),
+            _ => None,
+        }
+    }
+    /// The options without the tracer, then the tracer only when not `cpu`.
+    fn key(&self, _: &UnitInputs, e: &Self::Options, k: &mut StageKey) -> Result<()> {
+        let mut o = report_of(e);
+        if let Some(m) = o.as_object_mut() {
+            m.remove("tracer");
+        }
+        crate::trace::keyed_tracer(&mut o, e.tracer);
+        k.options(&o).inputs();
+        Ok(())
+    }
+    fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
+        let (ts, light) = cx.traced::<Traced>()?;
+        let shard = cx
+            .shard
+            .as_ref()
+            .ok_or_else(|| Error::usage("envmaps: a unit covers one shard of instances"))?;
+        let range = shard.range(ts.instances.items.len());
+        let m = crate::envmap::instance_traced(ts, light, o, range)?;
+        Ok(Output {
+            report: json!({"instances": m.maps.len(), "rays": m.maps.len() as u64 * o.samples as u64}),
+            sections: vec![shard_section(&m)],
+            ..Default::default()
+        })
+    }
+    fn join(&self, parts: Vec<(usize, Vec<Section>)>, o: &Self::Options) -> Result<Vec<Section>> {
+        Ok(vec![join_envmaps(&parts, o)?])
+    }
+    /// The maps of a shard's `envmaps-shard` section (32 a map), checked as the join reads them.
+    fn shard_size(&self, shard: &[Section]) -> Result<usize> {
+        let n = shard
+            .first()
+            .and_then(|x| crate::pack::section::SectionView::parse(&x.payload, 0).ok())
+            .and_then(|v| v.info("maps").map(|a| a.count as usize / 32))
+            .ok_or_else(|| {
+                Error::runtime("not the pack of an environment-map shard (bake unit envmaps)")
+            })?;
+        shard_maps(shard, n)?;
+        Ok(n)
+    }
+}
+
+/// The graph's shards of `n` instances: `per` instances each (one empty shard for none).
+pub fn envmap_shards(n: usize, per: usize) -> Vec<Range<usize>> {
+    let per = per.max(1);
+    (0..n.max(1))
+        .step_by(per)
+        .map(|start| start..(start + per).min(n))
+        .collect()
+}
+
+/// The `envmaps` section from its shards' sections, in shard order (each with its number of
+/// instances).
+pub fn join_envmaps(
+    shards: &[(usize, Vec<Section>)],
+    o: &crate::envmap::bake::EnvmapOptions,
+) -> Result<Section> {
+    let mut maps = crate::envmap::bake::Traced::default();
+    for (n, s) in shards {
+        maps.extend(shard_maps(s, *n)?);
+    }
+    Ok(crate::envmap::envmaps_section(&maps, o))
+}
+
+/// The instances' clustering (`cluster`) over their environment maps.
+pub struct Cluster;
+impl Stage for Cluster {
+    type Options = crate::envmap::cluster::ClusterOptions;
+    fn def(&self) -> &'static StageDef {
+        static DEF: StageDef = StageDef {
+            name: "cluster",
+            version: CLUSTER_VERSION,
+            per: Per::Scene,
+            writes: &["clusters"],
+            actions: &["cluster"],
+        };
+        &DEF
+    }
+    fn reads(&self) -> Reads {
+        Reads {
+            kinds: &["instances", "envmaps"],
+            ..Reads::default()
+        }
+    }
+    fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
+        let (s, c, w) = crate::envmap::cluster_sections_warned(cx.view(), o, o.weights)?;
+        Ok(Output {
+            report: json!({"clusters": c.clustering.samples.len(), "rms_error": c.rms_error(), "max_error": c.max_error(),
+                "shared_rms_error": c.clustering.rms_error(),
+                "rounds": c.clustering.rounds, "noise_relative": c.clustering.noise,
+                "local_components": c.local.as_ref().map_or(0, |l| l.components),
+                "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
+            sections: s,
+            warnings: diag::tagged(&diag::CLUSTER_COMPRESSION_LOW, w),
+            ..Default::default()
+        })
+    }
+}
+
+/// Kind of the cache-only section that holds one shard's environment maps.
+const SHARD_KIND: &str = "envmaps-shard";
+
+pub(crate) fn shard_section(t: &super::bake::Traced) -> Section {
+    let flat: Vec<[f32; 3]> = t
+        .maps
+        .iter()
+        .flat_map(|(h, s)| h.iter().chain(s.iter()).copied())
+        .collect();
+    let mut b = SectionBuilder::new(SHARD_KIND, SHARD_KIND);
+    b.array("maps", ArrayFormat::F32, 3, &flat);
+    if !t.diffs.is_empty() {
+        b.array("noise", ArrayFormat::F32, 96, &t.diffs);
+    }
+    b.finish()
+}
+
+pub(crate) fn shard_maps(sections: &[Section], n: usize) -> Result<super::bake::Traced> {
+    let bad = || Error::runtime("environment-map shard: unexpected cache entry contents");
+    let s = sections
+        .first()
+        .filter(|s| s.kind == SHARD_KIND)
+        .ok_or_else(bad)?;
+    let v = crate::pack::section::SectionView::parse(&s.payload, 0).map_err(|_| bad())?;
+    let flat: &[[f32; 3]] = v.array("maps").map_err(|_| bad())?;
+    if flat.len() != n * 32 {
+        return Err(bad());
+    }
+    let maps = flat
+        .chunks_exact(32)
+        .map(|c| {
+            (
+                std::array::from_fn(|i| c[i]),
+                std::array::from_fn(|i| c[16 + i]),
+            )
+        })
+        .collect();
+    let diffs: Vec<[f32; 96]> = match v.info("noise") {
+        Some(_) => v.array_vec("noise").map_err(|_| bad())?,
+        None => Vec::new(),
+    };
+    if !diffs.is_empty() && diffs.len() != n {
+        return Err(bad());
+    }
+    Ok(crate::envmap::bake::Traced { maps, diffs })
+}

@@ -1,0 +1,43 @@
+//! The `lod` stage: a model's levels of detail, one unit per model (its registry line is in
+//! `crate::graph::stage::REGISTRY`).
+
+use crate::error::Result;
+use crate::stage::{MODEL_SURFACE, Output, Per, Reads, Stage, StageDef, UnitCtx, report_of};
+
+/// 1: the `lod` stage (issue 14): meshopt levels, leaf-card thinning, impostor atlas.
+/// 2: cards keep their triangles, a level's error counts the cards it removes (issue 14).
+/// 3: the model's skeleton (TXF line and point arrays) kept as the farthest representation.
+/// 4: impostor and skeleton colours from the linear albedo (issue 35).
+/// 5: the impostor normal's alpha is the surface's material index (issue 35).
+pub const VERSION: u32 = 5;
+
+/// A model's levels of detail (`lod`).
+pub struct Lod;
+impl Stage for Lod {
+    type Options = crate::lod::LodOptions;
+    fn def(&self) -> &'static StageDef {
+        static DEF: StageDef = StageDef {
+            name: "lod",
+            version: VERSION,
+            per: Per::Model,
+            writes: &["lod"],
+            actions: &["lod"],
+        };
+        &DEF
+    }
+    fn reads(&self) -> Reads {
+        Reads {
+            kinds: MODEL_SURFACE,
+            ..Reads::default()
+        }
+    }
+    fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
+        let (s, r) =
+            crate::lod::bake_lod(cx.view(), &crate::mesh::section::unit_mesh_name(cx)?, o)?;
+        Ok(Output {
+            sections: vec![s],
+            report: report_of(&r),
+            ..Default::default()
+        })
+    }
+}

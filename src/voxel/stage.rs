@@ -1,0 +1,78 @@
+//! The `svo` stage: the sparse voxel octree of the placed scene (its registry line is in
+//! `crate::graph::stage::REGISTRY`).
+
+use crate::diag;
+use crate::error::Result;
+use crate::stage::{
+    GEOMETRY, Output, Per, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning,
+};
+
+/// 2: voxel colours from the linear albedo (issue 35).
+/// 3: the two-level `svo-scene` section's top level carries filtered attributes (section
+/// version 2, issue 39).
+pub const VERSION: u32 = 3;
+
+/// The sparse voxel octree of the placed scene (`svo`): the flattened `svo` where the placed
+/// scene fits the memory budget, else the two-level `svo-scene` (one octree per model).
+pub struct Svo;
+impl Stage for Svo {
+    type Options = crate::voxel::voxelize::VoxelizeOptions;
+    fn def(&self) -> &'static StageDef {
+        static DEF: StageDef = StageDef {
+            name: "svo",
+            version: VERSION,
+            per: Per::Scene,
+            writes: &["svo", "svo-scene"],
+            actions: &["svo"],
+        };
+        &DEF
+    }
+    fn reads(&self) -> Reads {
+        Reads {
+            kinds: GEOMETRY,
+            ..Reads::default()
+        }
+    }
+    /// The options and the scene's source (the section records it), the sections, and the
+    /// two-level choice (only when two-level, so the flattened units' keys are as before).
+    fn key(&self, u: &UnitInputs, o: &Self::Options, k: &mut StageKey) -> Result<()> {
+        k.options(o).options(&u.scope.source).inputs();
+        if crate::voxel::geometry::placed_size(u.view())?.svo_two_level(u.scope.limits) {
+            k.options(&"two-level");
+        }
+        Ok(())
+    }
+    fn run(&self, cx: &UnitCtx, o: &Self::Options) -> Result<Output> {
+        let s = cx.scope;
+        let (sec, report, left) =
+            crate::voxel::geometry::pack_svo_section(cx.view(), o, s.limits, s.first, s.source)?;
+        let mut warnings = Vec::new();
+        if left.skipped_triangles > 0 {
+            warnings.push(Warning::new(
+                &diag::SVO_TRIANGLES_WITHOUT_VOXEL,
+                "",
+                format!(
+                    "{} triangles left no voxel (outside the grid or alpha-tested away)",
+                    left.skipped_triangles
+                ),
+            ));
+        }
+        if left.open_columns > 0 {
+            warnings.push(Warning::new(
+                &diag::SVO_MESH_NOT_CLOSED,
+                "",
+                format!(
+                    "solid fill: {} columns crossed the surface an odd number of times \
+                     (mesh not closed)",
+                    left.open_columns
+                ),
+            ));
+        }
+        Ok(Output {
+            report,
+            sections: vec![sec],
+            warnings,
+            ..Default::default()
+        })
+    }
+}
