@@ -460,6 +460,66 @@ fn the_cli_writes_the_reference_and_reports_the_difference() {
     }
 }
 
+/// `bake render -o GPU.exr --reference CPU.exr` writes the CPU reference's linear radiance too
+/// (what the ground-truth harness compares with the path tracer): on a flat terrain of one
+/// colour under the sun both are the same uniform radiance (albedo · E · cos θ / π), pixel by
+/// pixel, without a tone map in between.
+#[test]
+fn the_cli_writes_the_reference_as_linear_exr() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = dir.path().join("flat.bake");
+    let pack = flat_terrain_pack([120, 140, 90]);
+    std::fs::write(&pack_path, PackWriter::from_pack(&pack).to_bytes().unwrap()).unwrap();
+    let (gpu, cpu) = (dir.path().join("gpu.exr"), dir.path().join("cpu.exr"));
+    let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let (pack_arg, gpu_arg, cpu_arg) = (path(&pack_path), path(&gpu), path(&cpu));
+    bake(&[
+        "render",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--eye",
+        "0,-30,12",
+        "--target",
+        "0,0,2",
+        "--terms",
+        "direct",
+        &pack_arg,
+        "-o",
+        &gpu_arg,
+        "--reference",
+        &cpu_arg,
+    ]);
+    let read = |p: &std::path::Path| {
+        let img = exr::prelude::read_first_rgba_layer_from_file(
+            p,
+            |res, _| vec![[0.0f32; 3]; res.width() * res.height()],
+            |px: &mut Vec<[f32; 3]>, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                px[pos.y() * 64 + pos.x()] = [r, g, b];
+            },
+        )
+        .unwrap();
+        img.layer_data.channel_data.pixels
+    };
+    let (g, c) = (read(&gpu), read(&cpu));
+    assert_eq!((g.len(), c.len()), (64 * 48, 64 * 48));
+    // The lower half looks down at the terrain (well inside its 100 m): one radiance.
+    let want = c[40 * 64 + 32];
+    assert!(want.iter().all(|&v| v > 0.01 && v.is_finite()), "{want:?}");
+    for y in 30..48 {
+        for x in 0..64 {
+            let (a, b) = (g[y * 64 + x], c[y * 64 + x]);
+            for k in 0..3 {
+                assert!(
+                    (b[k] - want[k]).abs() <= 1e-4 * want[k] && (a[k] - b[k]).abs() <= 0.01 * b[k],
+                    "pixel ({x}, {y}): GPU {a:?}, CPU {b:?}, want {want:?}"
+                );
+            }
+        }
+    }
+}
+
 /// 4× MSAA with alpha to coverage on the leaf cards against the supersampled oracle: the CPU
 /// reference averaging four rays per pixel at the standard sample positions. The multisampled
 /// image is closer to it than one sample per pixel is, and within the fixture's bounds.
