@@ -311,6 +311,21 @@ fn fs_shadow(in: ImpostorOut) -> @builtin(frag_depth) f32 {
     return clamp(p.z / p.w, 0.0, 1.0);
 }
 
+// The image axes (right, up) and the direction w of tile `tile` in the world, for an instance
+// turned by `rot` (cos, sin) about +Z, as `impostor_vertex` places the tile's quad.
+fn tile_axes(tile: vec2<u32>, rot: vec2<f32>) -> mat3x3<f32> {
+    let w_m = octa_tile_direction(tile.x, tile.y, impostor.grid_tile.x);
+    let right_m = view_right(w_m);
+    let up_m = cross(w_m, right_m);
+    let c = rot.x;
+    let s = rot.y;
+    return mat3x3<f32>(
+        vec3<f32>(c * right_m.x - s * right_m.y, s * right_m.x + c * right_m.y, right_m.z),
+        vec3<f32>(c * up_m.x - s * up_m.y, s * up_m.x + c * up_m.y, up_m.z),
+        vec3<f32>(c * w_m.x - s * w_m.y, s * w_m.x + c * w_m.y, w_m.z),
+    );
+}
+
 // Whether the model itself lets the sun reach `surface` (world), from the atlas' view nearest
 // the sun: the surface point projected into that tile's image, and its depth along the tile's
 // direction against the first surface the tile saw there, with the tolerance `tol` (metres) of
@@ -318,14 +333,10 @@ fn fs_shadow(in: ImpostorOut) -> @builtin(frag_depth) f32 {
 // (by the same tolerance), which loses the crown's shadow on its trunk and inner leaves; this
 // puts it back.
 fn impostor_self_visibility(in: ImpostorOut, surface: vec3<f32>, sun_tile: vec2<u32>, tol: f32) -> f32 {
-    let w_m = octa_tile_direction(sun_tile.x, sun_tile.y, impostor.grid_tile.x);
-    let right_m = view_right(w_m);
-    let up_m = cross(w_m, right_m);
-    let c = in.rot.x;
-    let s = in.rot.y;
-    let w = vec3<f32>(c * w_m.x - s * w_m.y, s * w_m.x + c * w_m.y, w_m.z);
-    let right = vec3<f32>(c * right_m.x - s * right_m.y, s * right_m.x + c * right_m.y, right_m.z);
-    let up = vec3<f32>(c * up_m.x - s * up_m.y, s * up_m.x + c * up_m.y, up_m.z);
+    let axes = tile_axes(sun_tile, in.rot);
+    let right = axes[0];
+    let up = axes[1];
+    let w = axes[2];
     let q = surface - in.centre;
     let st = vec2<f32>(dot(q, right), dot(q, up)) / in.radius;
     if (abs(st.x) >= 1.0 || abs(st.y) >= 1.0) {
@@ -353,13 +364,9 @@ fn block_self_visibility(in: ImpostorOut, px: vec2<i32>, level: i32, surface: ve
     if (level <= 0) {
         return impostor_self_visibility(in, surface, sun_tile, step);
     }
-    let w_m = octa_tile_direction(in.tile.x, in.tile.y, impostor.grid_tile.x);
-    let right_m = view_right(w_m);
-    let up_m = cross(w_m, right_m);
-    let c = in.rot.x;
-    let s = in.rot.y;
-    let right = vec3<f32>(c * right_m.x - s * right_m.y, s * right_m.x + c * right_m.y, right_m.z);
-    let up = vec3<f32>(c * up_m.x - s * up_m.y, s * up_m.x + c * up_m.y, up_m.z);
+    let axes = tile_axes(in.tile, in.rot);
+    let right = axes[0];
+    let up = axes[1];
     let tile = f32(impostor.grid_tile.y);
     let side = 1u << u32(level);
     let n = min(side, 4u);
