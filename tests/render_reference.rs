@@ -421,18 +421,16 @@ fn the_shader_evaluates_the_schlick_brdf_like_the_rust_code() {
     }
 }
 
-/// `bake render --reference OUT.png --json` writes both images and reports their difference.
-#[test]
-fn the_cli_writes_the_reference_and_reports_the_difference() {
-    let dir = tempfile::tempdir().unwrap();
-    let pack_path = dir.path().join("flat.bake");
-    let pack = flat_terrain_pack([120, 140, 90]);
-    let bytes = PackWriter::from_pack(&pack).to_bytes().unwrap();
-    std::fs::write(&pack_path, bytes).unwrap();
-    let (gpu, cpu) = (dir.path().join("gpu.png"), dir.path().join("cpu.png"));
+/// `bake --json render PACK -o GPU --reference CPU` of a 64×48 view of the flat terrain's
+/// direct term; its JSON result.
+fn render_with_reference(
+    pack: &std::path::Path,
+    gpu: &std::path::Path,
+    cpu: &std::path::Path,
+) -> serde_json::Value {
     let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
-    let (pack_arg, gpu_arg, cpu_arg) = (path(&pack_path), path(&gpu), path(&cpu));
-    let doc = json(&bake(&[
+    let (pack_arg, gpu_arg, cpu_arg) = (path(pack), path(gpu), path(cpu));
+    json(&bake(&[
         "--json",
         "render",
         "--width",
@@ -450,7 +448,19 @@ fn the_cli_writes_the_reference_and_reports_the_difference() {
         &gpu_arg,
         "--reference",
         &cpu_arg,
-    ]));
+    ]))
+}
+
+/// `bake render --reference OUT.png --json` writes both images and reports their difference.
+#[test]
+fn the_cli_writes_the_reference_and_reports_the_difference() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = dir.path().join("flat.bake");
+    let pack = flat_terrain_pack([120, 140, 90]);
+    let bytes = PackWriter::from_pack(&pack).to_bytes().unwrap();
+    std::fs::write(&pack_path, bytes).unwrap();
+    let (gpu, cpu) = (dir.path().join("gpu.png"), dir.path().join("cpu.png"));
+    let doc = render_with_reference(&pack_path, &gpu, &cpu);
     let r = &doc["reference"];
     assert!(r["mad"].as_f64().unwrap() < 1.0, "{doc}");
     assert_eq!(r["threshold"], 24);
@@ -471,26 +481,7 @@ fn the_cli_writes_the_reference_as_linear_exr() {
     let pack = flat_terrain_pack([120, 140, 90]);
     std::fs::write(&pack_path, PackWriter::from_pack(&pack).to_bytes().unwrap()).unwrap();
     let (gpu, cpu) = (dir.path().join("gpu.exr"), dir.path().join("cpu.exr"));
-    let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
-    let (pack_arg, gpu_arg, cpu_arg) = (path(&pack_path), path(&gpu), path(&cpu));
-    bake(&[
-        "render",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--eye",
-        "0,-30,12",
-        "--target",
-        "0,0,2",
-        "--terms",
-        "direct",
-        &pack_arg,
-        "-o",
-        &gpu_arg,
-        "--reference",
-        &cpu_arg,
-    ]);
+    render_with_reference(&pack_path, &gpu, &cpu);
     let read = |p: &std::path::Path| {
         let img = exr::prelude::read_first_rgba_layer_from_file(
             p,
