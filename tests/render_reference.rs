@@ -421,18 +421,16 @@ fn the_shader_evaluates_the_schlick_brdf_like_the_rust_code() {
     }
 }
 
-/// `bake render --reference OUT.png --json` writes both images and reports their difference.
-#[test]
-fn the_cli_writes_the_reference_and_reports_the_difference() {
-    let dir = tempfile::tempdir().unwrap();
-    let pack_path = dir.path().join("flat.bake");
-    let pack = flat_terrain_pack([120, 140, 90]);
-    let bytes = PackWriter::from_pack(&pack).to_bytes().unwrap();
-    std::fs::write(&pack_path, bytes).unwrap();
-    let (gpu, cpu) = (dir.path().join("gpu.png"), dir.path().join("cpu.png"));
+/// `bake --json render PACK -o GPU --reference CPU` of a 64×48 view of the flat terrain's
+/// direct term; its JSON result.
+fn render_with_reference(
+    pack: &std::path::Path,
+    gpu: &std::path::Path,
+    cpu: &std::path::Path,
+) -> serde_json::Value {
     let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
-    let (pack_arg, gpu_arg, cpu_arg) = (path(&pack_path), path(&gpu), path(&cpu));
-    let doc = json(&bake(&[
+    let (pack_arg, gpu_arg, cpu_arg) = (path(pack), path(gpu), path(cpu));
+    json(&bake(&[
         "--json",
         "render",
         "--width",
@@ -450,13 +448,66 @@ fn the_cli_writes_the_reference_and_reports_the_difference() {
         &gpu_arg,
         "--reference",
         &cpu_arg,
-    ]));
+    ]))
+}
+
+/// `bake render --reference OUT.png --json` writes both images and reports their difference.
+#[test]
+fn the_cli_writes_the_reference_and_reports_the_difference() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = dir.path().join("flat.bake");
+    let pack = flat_terrain_pack([120, 140, 90]);
+    let bytes = PackWriter::from_pack(&pack).to_bytes().unwrap();
+    std::fs::write(&pack_path, bytes).unwrap();
+    let (gpu, cpu) = (dir.path().join("gpu.png"), dir.path().join("cpu.png"));
+    let doc = render_with_reference(&pack_path, &gpu, &cpu);
     let r = &doc["reference"];
     assert!(r["mad"].as_f64().unwrap() < 1.0, "{doc}");
     assert_eq!(r["threshold"], 24);
     for p in [&gpu, &cpu] {
         let img = image::open(p).unwrap();
         assert_eq!((img.width(), img.height()), (64, 48));
+    }
+}
+
+/// `bake render -o GPU.exr --reference CPU.exr` writes the CPU reference's linear radiance too
+/// (what the ground-truth harness compares with the path tracer): on a flat terrain of one
+/// colour under the sun both are the same uniform radiance (albedo · E · cos θ / π), pixel by
+/// pixel, without a tone map in between.
+#[test]
+fn the_cli_writes_the_reference_as_linear_exr() {
+    let dir = tempfile::tempdir().unwrap();
+    let pack_path = dir.path().join("flat.bake");
+    let pack = flat_terrain_pack([120, 140, 90]);
+    std::fs::write(&pack_path, PackWriter::from_pack(&pack).to_bytes().unwrap()).unwrap();
+    let (gpu, cpu) = (dir.path().join("gpu.exr"), dir.path().join("cpu.exr"));
+    render_with_reference(&pack_path, &gpu, &cpu);
+    let read = |p: &std::path::Path| {
+        let img = exr::prelude::read_first_rgba_layer_from_file(
+            p,
+            |res, _| vec![[0.0f32; 3]; res.width() * res.height()],
+            |px: &mut Vec<[f32; 3]>, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                px[pos.y() * 64 + pos.x()] = [r, g, b];
+            },
+        )
+        .unwrap();
+        img.layer_data.channel_data.pixels
+    };
+    let (g, c) = (read(&gpu), read(&cpu));
+    assert_eq!((g.len(), c.len()), (64 * 48, 64 * 48));
+    // The lower half looks down at the terrain (well inside its 100 m): one radiance.
+    let want = c[40 * 64 + 32];
+    assert!(want.iter().all(|&v| v > 0.01 && v.is_finite()), "{want:?}");
+    for y in 30..48 {
+        for x in 0..64 {
+            let (a, b) = (g[y * 64 + x], c[y * 64 + x]);
+            for k in 0..3 {
+                assert!(
+                    (b[k] - want[k]).abs() <= 1e-4 * want[k] && (a[k] - b[k]).abs() <= 0.01 * b[k],
+                    "pixel ({x}, {y}): GPU {a:?}, CPU {b:?}, want {want:?}"
+                );
+            }
+        }
     }
 }
 

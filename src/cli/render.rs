@@ -89,7 +89,8 @@ pub(crate) struct RenderArgs {
     #[arg(long, value_enum, default_value_t = Terms::All)]
     pub terms: Terms,
     /// Also render the view on the CPU (ray-cast reference, src/render/reference.rs) into this
-    /// PNG; the JSON result adds the difference between the two images.
+    /// PNG, or by the extension .exr its linear radiance of --terms; the JSON result adds the
+    /// difference between the two tone-mapped images.
     #[arg(long)]
     pub reference: Option<PathBuf>,
     /// LOD pixel threshold τ: each instance draws the coarsest level of its model's `lod`
@@ -245,7 +246,16 @@ pub(crate) fn run(args: &RenderArgs, _g: &Global) -> Result<Outcome> {
     });
     if let Some(path) = &args.reference {
         let r = crate::render::reference::render_reference(&pack, &opts)?;
-        crate::pack::write_atomic(path, &encode_png(&r.image)?)?;
+        if is_exr(path) {
+            let img = crate::model::FloatImage {
+                width: opts.width,
+                height: opts.height,
+                pixels: r.radiance.clone(),
+            };
+            write_float_image(path, &img)?;
+        } else {
+            crate::pack::write_atomic(path, &encode_png(&r.image)?)?;
+        }
         let d =
             crate::render::reference::image_difference(&out.image, &r.image, REFERENCE_THRESHOLD)
                 .ok_or_else(|| crate::error::Error::runtime("reference image has another size"))?;

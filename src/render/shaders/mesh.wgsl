@@ -319,10 +319,14 @@ fn shade(in: MeshOut) -> Shaded {
     return Shaded(vec4<f32>(l, 1.0), mask);
 }
 
-// The shadow pass: depth only, with the same alpha test.
+// The shadow pass: depth only, with the alpha test at level 0 at the texel's centre (one sample
+// per shadow-map texel, as the CPU reference's shadow rays and each far sample of the camera
+// pass test theirs). At the mip level of the map's footprint a small far card's coarse alpha
+// (its 2×2 level is ½ everywhere) passed over the whole card: crowns cast solid shadows, and the
+// generated close view's leaves read 0.925 of the path tracer's direct term (docs/VALIDATION.md).
 @fragment
 fn fs_shadow(in: MeshOut) {
-    let texel = textureSample(color_map, color_sampler, in.uv);
+    let texel = textureSampleLevel(color_map, color_sampler, in.uv, 0.0);
     if (texel.a * direct_material.mode.z < 0.5) {
         discard;
     }
