@@ -456,6 +456,28 @@ fn fixture() -> (bake::pack::Pack, tempfile::TempDir) {
     (pack, dir)
 }
 
+/// The fixture scene, its light, and its terrain map at the reference's 1,024 hemisphere and
+/// 64 sun rays (ray visibility): irradiance and direct part.
+#[allow(clippy::type_complexity)]
+fn fixture_with_reference() -> (
+    tempfile::TempDir,
+    bake::trace::pack_scene::TraceScene,
+    bake::lightmap::BakeLight,
+    (Vec<[f32; 3]>, Vec<[f32; 3]>),
+) {
+    let (pack, dir) = fixture();
+    let scene = bake::trace::pack_scene::trace_scene(&pack).unwrap();
+    let light = bake::lightmap::scene_lighting(&pack).unwrap();
+    let reference = bake::lightmap::LightmapOptions {
+        samples: 1024,
+        sun_samples: 64,
+        visibility: bake::lightmap::LightmapVisibility::Rays,
+        ..Default::default()
+    };
+    let maps = terrain_map(&scene, &light, &reference);
+    (dir, scene, light, maps)
+}
+
 fn terrain_map(
     scene: &bake::trace::pack_scene::TraceScene,
     light: &bake::lightmap::BakeLight,
@@ -579,17 +601,8 @@ fn the_filtered_light_map_is_closer_to_the_reference_and_states_its_filter() {
     // per-texel RMS lower by a measured factor, its mean within 1 % of the reference's (the
     // filter's bias). The stage's section holds exactly the filtered texels, states the filter
     // after the prefix every reader reads, and does not depend on the thread count.
-    use bake::lightmap::{LightmapOptions, LightmapVisibility};
-    let (pack, _dir) = fixture();
-    let scene = bake::trace::pack_scene::trace_scene(&pack).unwrap();
-    let light = bake::lightmap::scene_lighting(&pack).unwrap();
-    let reference = LightmapOptions {
-        samples: 1024,
-        sun_samples: 64,
-        visibility: LightmapVisibility::Rays,
-        ..Default::default()
-    };
-    let (rm, rd) = terrain_map(&scene, &light, &reference);
+    use bake::lightmap::LightmapOptions;
+    let (_dir, scene, light, (rm, rd)) = fixture_with_reference();
     let plain = LightmapOptions {
         samples: 16,
         sun_samples: 4,
@@ -681,16 +694,7 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     // ends and 1 or 2 threads give the same bits; the section states the step; other
     // estimators refuse it.
     use bake::lightmap::{LightmapOptions, LightmapVisibility};
-    let (pack, _dir) = fixture();
-    let scene = bake::trace::pack_scene::trace_scene(&pack).unwrap();
-    let light = bake::lightmap::scene_lighting(&pack).unwrap();
-    let reference = LightmapOptions {
-        samples: 1024,
-        sun_samples: 64,
-        visibility: LightmapVisibility::Rays,
-        ..Default::default()
-    };
-    let (rm, rd) = terrain_map(&scene, &light, &reference);
+    let (_dir, scene, light, (rm, rd)) = fixture_with_reference();
     let plain = LightmapOptions {
         samples: 16,
         sun_samples: 4,

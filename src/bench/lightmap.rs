@@ -527,11 +527,14 @@ mod tests {
         assert_eq!((e.samples, e.sun_samples, e.lattice), (32, 16, 3));
         assert_eq!(e.resolution, Some(2049));
         assert_eq!(super::Estimator::parse("rays").unwrap().resolution, None);
+        let e = super::Estimator::parse("horizons:64:16:3::2").unwrap();
+        assert_eq!((e.resolution, e.trace_step), (None, 2));
+        assert_eq!(super::Estimator::parse("rays").unwrap().trace_step, 1);
         for bad in [
             "sky:1",
             "horizons:x",
             "horizons:1:1:1:0",
-            "horizons:1:1:1:1:1",
+            "horizons:1:1:1:1:1:1",
         ] {
             assert!(super::Estimator::parse(bad).is_err(), "{bad}");
         }

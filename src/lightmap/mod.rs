@@ -373,17 +373,11 @@ fn horizon_rows_noise(
         }
         _ => rows.clone(),
     };
-    // With a trace step each band ends on a traced row (an odd band length from an even
-    // start), so every row of a band finds the traced rows around it in the band or in the
-    // last traced row of the band before.
-    let band = match &coarse {
-        Some(_) => (band_rows(w, dirs.len()) - 1) | 1,
-        None => band_rows(w, dirs.len()),
-    };
-    let bands: Vec<_> = (swept.start..swept.end)
-        .step_by(band as usize)
-        .map(|s| s..(s + band).min(swept.end))
-        .collect();
+    let bands = bands_of(
+        swept,
+        band_rows(w, dirs.len()),
+        coarse.is_some().then_some(h),
+    );
     let sun = light.sun.map(|s| s.0);
     // More than one band: each southward line walked once, kept from one band to the next.
     let mut banded =
@@ -502,6 +496,31 @@ fn horizon_rows_noise(
         }
     }
     ((texels, direct), variance)
+}
+
+/// The bands of at most `band` rows that tile `rows`. With a trace step (`traced_of`: the
+/// map's height) every band but the last ends on a traced row (one row shorter where it would
+/// not), so every row of a band finds the traced rows around it in the band or in the last
+/// traced row of the band before (the last band ends on the range's end, a traced row).
+fn bands_of(
+    rows: std::ops::Range<u32>,
+    band: u32,
+    traced_of: Option<u32>,
+) -> Vec<std::ops::Range<u32>> {
+    let mut bands = Vec::new();
+    let mut s = rows.start;
+    while s < rows.end {
+        let mut e = (s + band.max(2)).min(rows.end);
+        if let Some(h) = traced_of
+            && e < rows.end
+            && !TraceLattice::is_traced(e - 1, h)
+        {
+            e -= 1;
+        }
+        bands.push(s..e);
+        s = e;
+    }
+    bands
 }
 
 /// The traced texels of a map with `lightmap.trace_step` = 2: even rows and columns and the
@@ -710,12 +729,7 @@ impl HemisphereRays<'_> {
         let (tx, bx) = crate::trace::frame(n);
         let shift = cp_rotation(texel);
         for k in 0..nsamp {
-            let (u1, u2) = hammersley(k, nsamp);
-            let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
-            let r = u1.sqrt();
-            let phi = std::f32::consts::TAU * u2;
-            let local = Vec3A::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
-            let d = (tx * local.x + bx * local.y + n * local.z).normalize();
+            let d = cosine_direction(k, nsamp, shift, (tx, bx, n));
             let sector = self
                 .tables
                 .sector_of(d.x, d.y)
@@ -750,6 +764,22 @@ impl HemisphereRays<'_> {
         };
         variance as f32
     }
+}
+
+/// Ray k of `n` cosine-distributed hemisphere rays about the frame (tx, bx, normal): the
+/// Hammersley point shifted by the texel's rotation `shift` (Cranley–Patterson).
+fn cosine_direction(
+    k: u32,
+    n: u32,
+    shift: (f32, f32),
+    (tx, bx, nz): (Vec3A, Vec3A, Vec3A),
+) -> Vec3A {
+    let (u1, u2) = hammersley(k, n);
+    let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
+    let r = u1.sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    let local = Vec3A::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
+    (tx * local.x + bx * local.y + nz * local.z).normalize()
 }
 
 /// Fraction of the sun's disc that no instance blocks (the terrain skipped): the disc points
@@ -829,12 +859,7 @@ fn texel_irradiance_parts(
         cp_rotation(texel)
     };
     for k in 0..nsamp {
-        let (u1, u2) = hammersley(k, nsamp);
-        let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
-        let r = u1.sqrt();
-        let phi = std::f32::consts::TAU * u2;
-        let local = Vec3A::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
-        let d = (tx * local.x + bx * local.y + n * local.z).normalize();
+        let d = cosine_direction(k, nsamp, shift, (tx, bx, n));
         let l = if thesis {
             light.sky.eval(d.to_array())
         } else {
@@ -1137,4 +1162,36 @@ pub fn object_sections(
         ));
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod stepped_tests {
+    #[test]
+    fn stepped_bands_tile_the_rows_and_end_on_traced_rows() {
+        for (rows, band, h) in [
+            (0..4097, 511, 4097),
+            (0..4097, 512, 4097),
+            (7..300, 16, 301),
+            (1..64, 17, 64),
+            (0..65, 512, 65),
+        ] {
+            for traced in [None, Some(h)] {
+                let bands = super::bands_of(rows.clone(), band, traced);
+                assert_eq!(bands.first().unwrap().start, rows.start);
+                assert_eq!(bands.last().unwrap().end, rows.end);
+                for w in bands.windows(2) {
+                    assert_eq!(w[0].end, w[1].start);
+                }
+                for b in &bands[..bands.len() - 1] {
+                    assert!(!b.is_empty() && b.len() as u32 <= band, "{b:?}");
+                    if traced.is_some() {
+                        assert!(
+                            super::TraceLattice::is_traced(b.end - 1, h),
+                            "{b:?} of {rows:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 }
