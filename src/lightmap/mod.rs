@@ -364,7 +364,7 @@ fn horizon_rows_noise(
     let tables = horizon::SkyTables::new(&grid, &dirs, &light.sky);
     let sky_irr = light.sky.to_irradiance();
     let reach = Reach::of(scene);
-    let coarse = (opts.trace_step > 1).then(|| TraceLattice { w, h });
+    let coarse = (opts.trace_step > 1).then_some(TraceLattice { w, h });
     // The rows whose horizons are swept: `rows`, and with a trace step the traced rows next to
     // an odd first or last row.
     let swept = match &coarse {
@@ -392,7 +392,7 @@ fn horizon_rows_noise(
     };
     let (mut texels, mut direct, mut variance) = (Vec::new(), Vec::new(), Vec::new());
     // With a trace step: the traced texels' corrections and variances, by traced row.
-    let mut traced: Vec<(u32, Vec<([f32; 3], f32)>)> = Vec::new();
+    let mut traced: Vec<(u32, Vec<TracedTexel>)> = Vec::new();
     for band in &bands {
         let (start, end) = (band.start, band.end);
         let hz = match banded.as_mut() {
@@ -523,6 +523,9 @@ fn bands_of(
     bands
 }
 
+/// A traced texel's correction (RGB) and the variance of its rays' mean.
+type TracedTexel = ([f32; 3], f32);
+
 /// The traced texels of a map with `lightmap.trace_step` = 2: even rows and columns and the
 /// last row and column.
 struct TraceLattice {
@@ -533,7 +536,7 @@ struct TraceLattice {
 impl TraceLattice {
     /// Whether row (or column) `j` of `n` is traced.
     fn is_traced(j: u32, n: u32) -> bool {
-        j % 2 == 0 || j + 1 == n
+        j.is_multiple_of(2) || j + 1 == n
     }
 
     /// The traced rows whose mean texel row `j` takes: itself, or its two neighbours.
