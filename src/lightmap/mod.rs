@@ -391,10 +391,15 @@ fn horizon_rows_noise(
         reach,
     };
     let (mut texels, mut direct, mut variance) = (Vec::new(), Vec::new(), Vec::new());
-    // With a trace step: the traced texels' corrections and variances, by traced row.
+    // With a trace step: the traced texels' corrections and variances, by traced row (the
+    // band's and the last one before it).
     let mut traced: Vec<(u32, Vec<TracedTexel>)> = Vec::new();
     for band in &bands {
         let (start, end) = (band.start, band.end);
+        // Only the last traced row of the bands before is read again (by an odd first row).
+        if traced.len() > 1 {
+            traced.drain(..traced.len() - 1);
+        }
         let hz = match banded.as_mut() {
             Some(banded) => banded.horizons(t, &grid),
             None => horizon::Horizons::compute(t, &grid, &dirs, sun, start..end),
@@ -415,7 +420,7 @@ fn horizon_rows_noise(
         let Some(lattice) = &coarse else {
             let parts = (0..hz.len()).into_par_iter().map(|k| {
                 let (p, n, texel, env) = surface(k);
-                texel_horizon_parts(bvh, &scene.albedo, light, &sky_irr, &env, p, n, texel, opts)
+                texel_horizon_parts(&rays, &env, p, n, texel, opts)
             });
             // The variances only when asked for (the bake's path keeps its two arrays).
             let ((e, d), var): ((Vec<_>, Vec<_>), Vec<f32>) = if noise {
@@ -618,12 +623,8 @@ pub struct HorizonTexel<'a> {
 ///   to the horizons' discretization in azimuth); where none blocks it f − g is
 ///   max(L, 0) − L (zero unless the SH sky is negative there). A ray below the horizon is traced
 ///   through the whole scene. Where nothing but the terrain occludes, the sky term has no noise.
-#[allow(clippy::too_many_arguments)]
 fn texel_horizon_parts(
-    bvh: &dyn SceneTracer,
-    albedo: &[[f32; 3]],
-    light: &BakeLight,
-    sky_irr: &ShIrradiance,
+    rays: &HemisphereRays,
     env: &HorizonTexel,
     p: Vec3A,
     n: Vec3A,
@@ -631,15 +632,8 @@ fn texel_horizon_parts(
     opts: &LightmapOptions,
 ) -> ([f32; 3], [f32; 3], f32) {
     let origin = p + n * 1e-3;
-    let (mut e, direct, s_eff) = texel_horizon_exact(bvh, light, env, origin, n, texel, opts);
-    let rays = HemisphereRays {
-        bvh,
-        albedo,
-        light,
-        sky_irr,
-        tables: env.tables,
-        reach: env.reach,
-    };
+    let (mut e, direct, s_eff) =
+        texel_horizon_exact(rays.bvh, rays.light, env, origin, n, texel, opts);
     let variance = rays.correction(&s_eff, origin, n, texel, opts.samples, &mut e);
     (e.map(|v| v as f32), direct, variance)
 }
