@@ -2,8 +2,9 @@
 # Coverage-guided fuzzing of every reader and the pack container (docs/FUZZING.md), with
 # cargo-fuzz on the stable toolchain (RUSTC_BOOTSTRAP=1 lets it use the nightly-only flags).
 #
-#   scripts/fuzz.sh build                    build every target
+#   scripts/fuzz.sh build                    build every target (release)
 #   scripts/fuzz.sh smoke [SECONDS]          each target SECONDS (default 5) on its seed corpus; CI
+#                                            (built in fuzz/Cargo.toml's dev profile: opt-level 1)
 #   scripts/fuzz.sh campaign SECONDS [T...]  each target (or the named ones) SECONDS, one after the
 #                                            other at nice $FUZZ_NICE (default 19); corpus grows in
 #                                            $FUZZ_WORK/<target>;
@@ -22,13 +23,22 @@ FLAGS=(-s none -a)
 # Keep in step with the limits of issue 13: 2 GiB of RSS, 10 s per input.
 LIBFUZZER=(-rss_limit_mb=2048 -timeout=10 -print_final_stats=1)
 
+# PROFILE=dev (smoke) builds with `--dev`: seconds on the seeds need no release build, which
+# took most of the fuzz step's time in CI; campaigns (and `build`) use release.
+PROFILE=release
+
 build() {
-  cargo fuzz build "${FLAGS[@]}"
+  if [ "$PROFILE" = dev ]; then
+    cargo fuzz build "${FLAGS[@]}" --dev
+  else
+    cargo fuzz build "${FLAGS[@]}"
+  fi
 }
 
 bin() {
-  local dir=${CARGO_TARGET_DIR:-fuzz/target}
-  echo "$dir/x86_64-unknown-linux-gnu/release/$1"
+  local dir=${CARGO_TARGET_DIR:-fuzz/target} sub=release
+  [ "$PROFILE" = dev ] && sub=debug
+  echo "$dir/x86_64-unknown-linux-gnu/$sub/$1"
 }
 
 # run TARGET SECONDS: fuzz TARGET from its seeds; grows $FUZZ_WORK/TARGET, never the seeds.
@@ -54,6 +64,7 @@ run() {
 case "${1:-}" in
   build) build ;;
   smoke)
+    PROFILE=dev
     build
     secs=${2:-5}
     status=0
