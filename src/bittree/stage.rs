@@ -3,7 +3,9 @@
 
 use crate::diag;
 use crate::error::{Error, Result};
-use crate::stage::{Output, Per, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning};
+use crate::stage::{
+    Output, Per, Preset, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning,
+};
 use serde_json::json;
 
 /// 2: instances within 1 mm of each other share a leaf (the `shared` array) instead of
@@ -52,6 +54,9 @@ impl Bittree {
 }
 impl Stage for Bittree {
     type Options = crate::bittree::BitTreeOptions;
+    fn options_in(&self, _: Preset) -> Self::Options {
+        crate::bittree::BitTreeOptions::DEFAULT
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "bittree",

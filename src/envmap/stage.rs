@@ -7,7 +7,8 @@ use crate::error::{Error, Result};
 use crate::lightmap::stage::Traced;
 use crate::pack::{ArrayFormat, Section, SectionBuilder};
 use crate::stage::{
-    LIGHTING, Output, Per, Reads, Shard, Stage, StageDef, StageKey, UnitCtx, UnitInputs, report_of,
+    LIGHTING, Output, Per, Preset, Reads, Shard, Stage, StageDef, StageKey, UnitCtx, UnitInputs,
+    report_of,
 };
 use serde_json::json;
 use std::ops::Range;
@@ -28,6 +29,22 @@ pub const CLUSTER_VERSION: u32 = 4;
 pub struct Envmaps;
 impl Stage for Envmaps {
     type Options = crate::envmap::bake::EnvmapOptions;
+    /// 64 rays in the preview, 1,024 in the final pipeline.
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        use crate::envmap::bake::EnvmapOptions;
+        let d = EnvmapOptions::DEFAULT;
+        match preset {
+            Preset::Default => d,
+            Preset::Preview | Preset::Ci => EnvmapOptions { samples: 64, ..d },
+            Preset::Final => EnvmapOptions { samples: 1024, ..d },
+        }
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        &["sky"]
+    }
+    fn check(&self, o: &Self::Options) -> std::result::Result<(), String> {
+        o.check()
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "envmaps",
@@ -114,6 +131,20 @@ pub fn join_envmaps(
 pub struct Cluster;
 impl Stage for Cluster {
     type Options = crate::envmap::cluster::ClusterOptions;
+    /// Clustering at 1 % in the final pipeline.
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        use crate::envmap::cluster::ClusterOptions;
+        match preset {
+            Preset::Final => ClusterOptions {
+                error: 0.01,
+                ..ClusterOptions::DEFAULT
+            },
+            _ => ClusterOptions::DEFAULT,
+        }
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        &["envmaps"]
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "cluster",

@@ -12,62 +12,12 @@ mod checks;
 
 use crate::error::ParseError;
 use crate::pack::section::{ArrayFormat, SectionView};
-use serde_json::Value;
 
-pub use checks::{Finding, Findings};
+pub use crate::stage::kind::{
+    CheckFn, DecodeFn, Finding, Findings, Naming, Schema, SectionKind, ViewFn,
+};
 
 use ArrayFormat::{F16, F32, U8, U16, U32, U64};
-
-/// A `bake dump` view of a section: its summary or its full data, as JSON.
-pub type ViewFn = fn(&SectionView) -> Result<Value, ParseError>;
-/// A kind's decoder run for its errors only (lengths against counts, structure).
-pub type DecodeFn = fn(&SectionView) -> Result<(), ParseError>;
-/// A kind's invariants beyond its decoder, on a section the decoder accepted.
-pub type CheckFn = fn(&SectionView, &mut Findings);
-/// Arrays a kind may have: name, scalar format(s), components. Decoders say which are required.
-pub type Schema = &'static [(&'static str, &'static [ArrayFormat], u32)];
-
-/// How a kind's sections are named (docs/FORMAT.md, the "name" column).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Naming {
-    /// The kind itself: `terrain`, `sky`, `instances`.
-    Kind,
-    /// `<kind>:<something>`, the something not empty: `mesh:plant.txf`.
-    Qualified,
-    /// Starts with `<kind>:`: `lightmap:terrain`, `lightmap:<mesh section>`.
-    Prefixed,
-}
-
-impl Naming {
-    /// Whether `name` is a valid name of a section of `kind`.
-    pub fn accepts(self, kind: &str, name: &str) -> bool {
-        match self {
-            Naming::Kind => name == kind,
-            Naming::Qualified => name
-                .strip_prefix(kind)
-                .is_some_and(|r| r.len() > 1 && r.starts_with(':')),
-            Naming::Prefixed => name.strip_prefix(kind).is_some_and(|r| r.starts_with(':')),
-        }
-    }
-}
-
-/// One kind of section: everything `dump` and `verify` know of it.
-#[derive(Debug, Clone, Copy)]
-pub struct SectionKind {
-    /// The kind label of the section table.
-    pub kind: &'static str,
-    /// How its sections are named.
-    pub naming: Naming,
-    /// Every array a section of the kind may have.
-    pub arrays: Schema,
-    /// Its decoder, run for its errors only.
-    pub decode: DecodeFn,
-    /// `bake dump`'s summary and full-data views; `None`: listed with its arrays only.
-    pub views: Option<(ViewFn, ViewFn)>,
-    /// Invariants past the decoder (unit vectors, reserved fields, references to other
-    /// sections); `None`: the decoder says it all.
-    pub check: Option<CheckFn>,
-}
 
 /// The kind of `kind`, or `None` for a kind this bake does not know.
 pub fn find(kind: &str) -> Option<&'static SectionKind> {

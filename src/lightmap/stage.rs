@@ -5,7 +5,7 @@
 use crate::error::Result;
 use crate::pack::{Pack, Section};
 use crate::stage::{
-    LIGHTING, Output, Per, Reads, Shard, SharedTrace, Stage, StageDef, StageKey, UnitCtx,
+    LIGHTING, Output, Per, Preset, Reads, Shard, SharedTrace, Stage, StageDef, StageKey, UnitCtx,
     UnitInputs,
 };
 use serde_json::json;
@@ -64,6 +64,36 @@ impl SharedTrace for TraceCell {
 pub struct Lightmap;
 impl Stage for Lightmap {
     type Options = crate::lightmap::LightmapOptions;
+    /// The preview: 16 rays with 4 sun rays, at most 1025² texels, 16 horizon directions. The
+    /// final pipeline: 256 rays with 32 sun rays at every texel.
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        use crate::lightmap::LightmapOptions;
+        let d = LightmapOptions::DEFAULT;
+        match preset {
+            Preset::Default => d,
+            Preset::Preview | Preset::Ci => LightmapOptions {
+                max_resolution: Some(1025),
+                samples: 16,
+                sun_samples: 4,
+                // 16 horizon directions: the sweeps cost a third of 32's (1.3 against 4.5 CPU s
+                // at 1025²), the error is the instances' (docs/PERFORMANCE.md, issue 37).
+                horizon_lattice: 2,
+                ..d
+            },
+            Preset::Final => LightmapOptions {
+                samples: 256,
+                sun_samples: 32,
+                trace_step: 1,
+                ..d
+            },
+        }
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        &["sky"]
+    }
+    fn check(&self, o: &Self::Options) -> std::result::Result<(), String> {
+        o.check()
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "lightmap",
@@ -106,6 +136,13 @@ impl Stage for Lightmap {
 pub struct Atlas;
 impl Stage for Atlas {
     type Options = crate::lightmap::LightmapOptions;
+    /// The light map's options (the registry's line gives it the `lightmap` table).
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        Lightmap.options_in(preset)
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        &["sky"]
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "atlas",

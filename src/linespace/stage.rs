@@ -2,7 +2,9 @@
 //! in `crate::graph::stage::REGISTRY`).
 
 use crate::error::Result;
-use crate::stage::{GEOMETRY, Output, Per, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs};
+use crate::stage::{
+    GEOMETRY, Output, Per, Preset, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs,
+};
 
 /// 2: the compact section layout (issue 15).
 pub const VERSION: u32 = 2;
@@ -12,6 +14,13 @@ pub const VERSION: u32 = 2;
 pub struct Linespace;
 impl Stage for Linespace {
     type Options = crate::linespace::ntree::NTreeOptions;
+    /// On in the final pipeline only (the whole placed scene: large scenes make it large).
+    fn on_in(&self, preset: Preset) -> bool {
+        preset == Preset::Final
+    }
+    fn options_in(&self, _: Preset) -> Self::Options {
+        crate::linespace::ntree::NTreeOptions::thesis()
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "linespace",

@@ -2,7 +2,9 @@
 //! `crate::graph::stage::REGISTRY`).
 
 use crate::error::Result;
-use crate::stage::{MODEL_SURFACE, Output, Per, Reads, Stage, StageDef, UnitCtx, report_of};
+use crate::stage::{
+    MODEL_SURFACE, Output, Per, Preset, Reads, Stage, StageDef, UnitCtx, report_of,
+};
 
 /// 1: the `lod` stage (issue 14): meshopt levels, leaf-card thinning, impostor atlas.
 /// 2: cards keep their triangles, a level's error counts the cards it removes (issue 14).
@@ -15,6 +17,17 @@ pub const VERSION: u32 = 5;
 pub struct Lod;
 impl Stage for Lod {
     type Options = crate::lod::LodOptions;
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        use crate::lod::LodOptions;
+        match preset {
+            Preset::Default => LodOptions::DEFAULT,
+            Preset::Preview | Preset::Ci => LodOptions::preview(),
+            Preset::Final => LodOptions::final_quality(),
+        }
+    }
+    fn check(&self, o: &Self::Options) -> std::result::Result<(), String> {
+        o.check()
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "lod",

@@ -3,7 +3,7 @@
 
 use crate::diag;
 use crate::error::Result;
-use crate::stage::{Output, Per, Phase, Reads, Stage, StageDef, UnitCtx, report_of};
+use crate::stage::{Output, Per, Phase, Preset, Reads, Stage, StageDef, UnitCtx, report_of};
 
 /// 2: Xfrog's default material gets the thesis' leaf (issue 16).
 pub const VERSION: u32 = 2;
@@ -12,6 +12,9 @@ pub const VERSION: u32 = 2;
 pub struct Material;
 impl Stage for Material {
     type Options = crate::material::MaterialOptions;
+    fn options_in(&self, _: Preset) -> Self::Options {
+        crate::material::MaterialOptions::DEFAULT
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "material",

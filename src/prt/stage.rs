@@ -3,7 +3,7 @@
 
 use crate::error::Result;
 use crate::stage::{
-    MODEL_SURFACE, Output, Per, Reads, Stage, StageDef, UnitCtx, UnitInputs, report_of,
+    MODEL_SURFACE, Output, Per, Preset, Reads, Stage, StageDef, UnitCtx, UnitInputs, report_of,
 };
 
 /// 2: duplicate vertices (position, normal, material) welded, sharing one transfer (issue 19).
@@ -19,6 +19,18 @@ pub const VERSION: u32 = 5;
 pub struct Prt;
 impl Stage for Prt {
     type Options = crate::prt::transfer::PrtOptions;
+    /// PRT 64 paths in the preview, 1,024 paths and 4 bounces in the final pipeline.
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        use crate::prt::transfer::PrtOptions;
+        match preset {
+            Preset::Default => PrtOptions::standard(),
+            Preset::Preview | Preset::Ci => PrtOptions::preview(),
+            Preset::Final => PrtOptions::final_quality(),
+        }
+    }
+    fn check(&self, o: &Self::Options) -> std::result::Result<(), String> {
+        o.check()
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "prt",

@@ -2,7 +2,7 @@
 //! registry line is in `crate::graph::stage::REGISTRY`).
 
 use crate::error::Result;
-use crate::stage::{Output, Per, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs};
+use crate::stage::{Output, Per, Preset, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs};
 use serde_json::json;
 
 /// 2: the sun's energy kept through resampling, the ring-mean replacement (issue 16).
@@ -14,6 +14,9 @@ pub const VERSION: u32 = 3;
 pub struct Sky;
 impl Stage for Sky {
     type Options = crate::sky::SkyOptions;
+    fn options_in(&self, _: Preset) -> Self::Options {
+        crate::sky::SkyOptions::DEFAULT
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "sky",

@@ -3,7 +3,7 @@
 
 use crate::error::Result;
 use crate::stage::{
-    Output, Per, Phase, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, report_of,
+    Output, Per, Phase, Preset, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, report_of,
 };
 
 /// 1: the terrain's four-tap heights, normal map and min/max quadtree.
@@ -13,6 +13,7 @@ pub const VERSION: u32 = 1;
 pub struct Terrain;
 impl Stage for Terrain {
     type Options = ();
+    fn options_in(&self, _: Preset) {}
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "terrain",

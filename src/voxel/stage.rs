@@ -4,7 +4,7 @@
 use crate::diag;
 use crate::error::Result;
 use crate::stage::{
-    GEOMETRY, Output, Per, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning,
+    GEOMETRY, Output, Per, Preset, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning,
 };
 
 /// 2: voxel colours from the linear albedo (issue 35).
@@ -17,6 +17,13 @@ pub const VERSION: u32 = 3;
 pub struct Svo;
 impl Stage for Svo {
     type Options = crate::voxel::voxelize::VoxelizeOptions;
+    /// On in the final pipeline only (the whole placed scene: large scenes make it large).
+    fn on_in(&self, preset: Preset) -> bool {
+        preset == Preset::Final
+    }
+    fn options_in(&self, _: Preset) -> Self::Options {
+        crate::voxel::voxelize::VoxelizeOptions::surface(256)
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "svo",
