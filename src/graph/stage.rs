@@ -224,8 +224,8 @@ fn find_or_err(stage: &str) -> Result<&'static dyn AnyStage> {
     find(stage).ok_or_else(|| Error::runtime(format!("no registered stage {stage:?}")))
 }
 
-/// [`pack_unit`] of the stage `st` (a test's toy stage too).
-fn pack_unit_of(
+/// [`pack_unit`] of the stage `st` (a test's toy stage too; `bake stage`).
+pub(crate) fn pack_unit_of(
     st: &dyn AnyStage,
     at: &CommandScope,
     sections: &[Section],
@@ -422,6 +422,20 @@ registry! {
     bittree: crate::bittree::stage::Bittree [switch, options];
     svo: crate::voxel::stage::Svo [switch, options];
     linespace: crate::linespace::stage::Linespace [switch, options];
+}
+
+/// Every diagnostic: those no stage gives ([`crate::diag::DIAGNOSTICS`]), then each registered
+/// stage's ([`Stage::diagnostics`], declared in its folder), in registry order: the order of
+/// docs/DIAGNOSTICS.md.
+pub fn diagnostics() -> impl Iterator<Item = &'static crate::diag::Diagnostic> {
+    crate::diag::DIAGNOSTICS
+        .iter()
+        .chain(REGISTRY.iter().flat_map(|s| s.diagnostics().iter()))
+}
+
+/// The diagnostic of `id` (central or a stage's), or `None` for an id bake does not have.
+pub fn find_diagnostic(id: &str) -> Option<&'static crate::diag::Diagnostic> {
+    diagnostics().find(|d| d.id == id)
 }
 
 /// The registered stage named `name`.

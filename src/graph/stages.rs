@@ -46,7 +46,7 @@ mod tests {
                 assert!(crate::kinds::find(k).is_some(), "{}: kind {k:?}", s.name);
             }
         }
-        for k in crate::kinds::KINDS {
+        for k in crate::kinds::all() {
             let written =
                 all().any(|s| s.writes.contains(&k.kind)) || GRAPH_WRITES.contains(&k.kind);
             assert!(written, "no stage writes kind {:?}", k.kind);
