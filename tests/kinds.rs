@@ -1,4 +1,4 @@
-//! The registry of section kinds (`bake::kinds::KINDS`) against a real bake: the fixture scene
+//! The registry of section kinds (`bake::kinds::all`: the central list and each stage's) against a real bake: the fixture scene
 //! through the graph with every stage on (svo and line space too, small) and its build report
 //! embedded. Every section's kind is registered, `bake dump` shows it through the registry's
 //! views, `bake verify` passes it, and the bake writes every registered kind. The graph's units

@@ -19,6 +19,12 @@ fn graph_pack(dir: &Path, name: &str, on: impl FnOnce(&mut Pipeline)) -> PathBuf
         (false, false, false, false, false, false);
     (s.bittree, s.svo, s.linespace) = (false, false, false);
     on(&mut pipeline);
+    graph_bake(dir, name, pipeline)
+}
+
+/// The scene `dir/scene.eco` (with `dir/sky.hdr`) baked by the graph with `pipeline` into
+/// `dir/<name>`, no cache.
+fn graph_bake(dir: &Path, name: &str, pipeline: Pipeline) -> PathBuf {
     let out = dir.join(name);
     bake::graph::build(
         &BuildOptions {
@@ -307,29 +313,11 @@ fn bake_stage_runs_any_registered_stage_as_the_graph_does() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     bake::fixtures::write_all(d).unwrap();
-    let bake_with = |name: &str, off: bool| {
-        let mut pipeline = Pipeline::preview();
-        let s = &mut pipeline.stages;
-        if off {
-            (s.prt, s.lod, s.envmaps, s.cluster) = (false, false, false, false);
-        }
-        let out = d.join(name);
-        bake::graph::build(
-            &BuildOptions {
-                scenes: vec![d.join("scene.eco")],
-                output: Some(out.clone()),
-                sky: Some(d.join("sky.hdr")),
-                cache: CacheMode::Off,
-                pipeline,
-                ..Default::default()
-            },
-            &bake::graph::progress::Silent,
-        )
-        .unwrap();
-        out
-    };
-    let full = bake_with("full.bake", false);
-    let base = bake_with("base.bake", true);
+    let full = graph_bake(d, "full.bake", Pipeline::preview());
+    let mut without = Pipeline::preview();
+    let st = &mut without.stages;
+    (st.prt, st.lod, st.envmaps, st.cluster) = (false, false, false, false);
+    let base = graph_bake(d, "base.bake", without);
     let sections_of = |path: &Path, kind: &str| -> Vec<(String, Vec<u8>)> {
         let pack = Pack::open(path).unwrap();
         pack.of_kind(kind)

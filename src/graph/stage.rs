@@ -1,9 +1,14 @@
-//! The stage registry, [`REGISTRY`] (issue 36, item 1): one line per stage, naming the stage's
-//! [`Stage`] implementation in its own folder (`src/<module>/stage.rs`, through the interface
-//! of [`crate::stage`]), where its options lie in the [`Pipeline`] and what turns it on
-//! ([`Registered`]). Everything else the graph, the plans, `bake unit` and the stage commands
-//! need of a stage comes from that line: its name, version (the build key), units, the kinds
-//! it reads and writes, its `bake unit` actions.
+//! The stage registry, [`REGISTRY`] (issue 36, item 1): one line per stage in the `registry!`
+//! invocation, naming the stage's [`Stage`] implementation in its own folder
+//! (`src/<module>/stage.rs`, through the interface of [`crate::stage`]) and what of the
+//! pipeline it has (a switch, its own options table, another stage's table). The macro writes
+//! [`REGISTRY`] ([`Registered`] lines), the pipeline's [`Stages`] and [`Pipeline`] structs and
+//! the presets ([`Pipeline::of_preset`]) from those lines and what each stage declares in its
+//! folder (its options type, `on_in`, `options_in`). Everything else the graph, the plans,
+//! `bake unit`, `bake stage` and the stage commands need of a stage comes from that line: its
+//! name, version (the build key), units, the kinds it reads and writes, its `bake unit`
+//! actions, its options' check and the stages it needs ([`Pipeline::check`]), the section
+//! kinds it defines (`crate::kinds::all`) and its warnings ([`diagnostics`]).
 //!
 //! The same [`Stage::run`] serves both runners: the graph ([`super::build`], which keeps the
 //! sections in memory, caches the units and runs independent ones side by side) and the
