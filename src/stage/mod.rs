@@ -10,10 +10,17 @@
 //! them. A unit's key hashes every declared section ([`StageKey::finish`] refuses a key that
 //! skipped them), so the key covers what the unit reads by construction.
 //!
+//! A stage also declares, in its folder, what the rest of the bake needs of it besides its
+//! units: its options type and its switch and options in each [`Preset`] ([`Stage::on_in`],
+//! [`Stage::options_in`]), the stages it needs and its options' check, the section kinds it
+//! defines ([`Stage::kinds`], [`SectionKind`] rows) and the warnings it gives
+//! ([`Stage::diagnostics`]).
+//!
 //! This module lies below the stages' modules (docs/ARCHITECTURE.md, "Layers"), so a stage's
 //! folder can implement it without importing the orchestration layer. It therefore knows no
-//! pipeline: the registry's line of a stage (`crate::graph::stage::REGISTRY`) says where the
-//! stage's options lie in the pipeline and what turns it on. The runners (the graph, `bake
+//! pipeline: the registry's line of a stage (`crate::graph::stage::REGISTRY`, written by the
+//! `registry!` macro there) makes the pipeline's switch and table of the stage from what it
+//! declares. The runners (the graph, `bake
 //! unit`, the stage commands) and the registry are in `crate::graph::stage`.
 
 #![warn(missing_docs)]
