@@ -1,4 +1,5 @@
-//! Diagnostics: every warning bake gives, listed once in [`DIAGNOSTICS`] with its stable id, its
+//! Diagnostics: every warning bake gives, listed once (in [`DIAGNOSTICS`], or beside the stage
+//! that gives it, `Stage::diagnostics`; `crate::graph::stage::diagnostics` walks both) with its stable id, its
 //! severity and what it means (the model: KTX's `tools/ktx/validation_messages.h`). A warning
 //! as raised is a [`Warning`] record: that id, the place (a model, a section, the scene) and the
 //! message. `--warnings-as-errors` takes ids from this table; the build report carries them
@@ -41,12 +42,19 @@ pub struct Diagnostic {
     pub meaning: &'static str,
 }
 
-const fn warning(id: &'static str, meaning: &'static str) -> Diagnostic {
-    Diagnostic {
-        id,
-        severity: Severity::Warning,
-        meaning,
+impl Diagnostic {
+    /// A warning's row: its id and meaning.
+    pub const fn warning(id: &'static str, meaning: &'static str) -> Diagnostic {
+        Diagnostic {
+            id,
+            severity: Severity::Warning,
+            meaning,
+        }
     }
+}
+
+const fn warning(id: &'static str, meaning: &'static str) -> Diagnostic {
+    Diagnostic::warning(id, meaning)
 }
 
 /// `ingest.eco-outside-area`.
@@ -58,51 +66,6 @@ pub const INGEST_ECO_OUTSIDE_AREA: Diagnostic = warning(
 pub const INGEST_READER: Diagnostic = warning(
     "ingest.reader",
     "a model reader (TXF, 3DS, OBJ, glTF) dropped or repaired data, or a texture of the model did not read; the message names the file and what was done",
-);
-/// `material.texture-missing`.
-pub const MATERIAL_TEXTURE_MISSING: Diagnostic = warning(
-    "material.texture-missing",
-    "a texture the material names is not in the pack; the material renders untextured",
-);
-/// `prt.triangles-non-finite`.
-pub const PRT_TRIANGLES_NON_FINITE: Diagnostic = warning(
-    "prt.triangles-non-finite",
-    "triangles with non-finite positions; left out of the BVH",
-);
-/// `prt.texture-unreadable`.
-pub const PRT_TEXTURE_UNREADABLE: Diagnostic = warning(
-    "prt.texture-unreadable",
-    "a texture section the alpha test needs does not decode; treated as opaque",
-);
-/// `prt.texture-missing`.
-pub const PRT_TEXTURE_MISSING: Diagnostic = warning(
-    "prt.texture-missing",
-    "a texture was not decoded into the pack; treated as opaque and white",
-);
-/// `cluster.compression-low`.
-pub const CLUSTER_COMPRESSION_LOW: Diagnostic = warning(
-    "cluster.compression-low",
-    "the env-map clusters compress the maps less than 2×",
-);
-/// `bittree.not-encoded`.
-pub const BITTREE_NOT_ENCODED: Diagnostic = warning(
-    "bittree.not-encoded",
-    "the instances could not be encoded as a BitTree; the pack has no bittree section",
-);
-/// `terrain.none`.
-pub const TERRAIN_NONE: Diagnostic = warning(
-    "terrain.none",
-    "`bake terrain`: the input has no terrain section to prepare",
-);
-/// `sky.sun-clipped`.
-pub const SKY_SUN_CLIPPED: Diagnostic = warning(
-    "sky.sun-clipped",
-    "the sun looks clipped in the sky image; its irradiance is a lower bound",
-);
-/// `sky.radiance-clamped`.
-pub const SKY_RADIANCE_CLAMPED: Diagnostic = warning(
-    "sky.radiance-clamped",
-    "sky radiance above 65504 was clamped to the half-float range",
 );
 /// `cache.corrupt-entry`.
 pub const CACHE_CORRUPT_ENTRY: Diagnostic = warning(
@@ -214,16 +177,6 @@ pub const MITSUBA_SUN_IN_SKY: Diagnostic = warning(
     "mitsuba.sun-in-sky",
     "a lat-long sky that still holds its sun: the sun counts twice (run the sky stage)",
 );
-/// `svo.triangles-without-voxel`.
-pub const SVO_TRIANGLES_WITHOUT_VOXEL: Diagnostic = warning(
-    "svo.triangles-without-voxel",
-    "triangles outside the grid or alpha-tested away left no voxel",
-);
-/// `svo.mesh-not-closed`.
-pub const SVO_MESH_NOT_CLOSED: Diagnostic = warning(
-    "svo.mesh-not-closed",
-    "solid fill: columns crossed the surface an odd number of times (the mesh is not closed)",
-);
 /// `report.no-render`.
 pub const REPORT_NO_RENDER: Diagnostic = warning(
     "report.no-render",
@@ -235,19 +188,12 @@ pub const BENCH_LINESPACE_DISAGREES: Diagnostic = warning(
     "`bake bench linespace`: the traversals disagree with each other or with obvhs",
 );
 
-/// Every diagnostic, grouped by stage or command, in the order of docs/DIAGNOSTICS.md.
+/// The diagnostics no stage gives (the readers, the cache, the commands), grouped by command;
+/// each stage lists its own beside it (`Stage::diagnostics`), and
+/// `crate::graph::stage::diagnostics` walks both in the order of docs/DIAGNOSTICS.md.
 pub const DIAGNOSTICS: &[Diagnostic] = &[
     INGEST_ECO_OUTSIDE_AREA,
     INGEST_READER,
-    MATERIAL_TEXTURE_MISSING,
-    PRT_TRIANGLES_NON_FINITE,
-    PRT_TEXTURE_UNREADABLE,
-    PRT_TEXTURE_MISSING,
-    CLUSTER_COMPRESSION_LOW,
-    BITTREE_NOT_ENCODED,
-    TERRAIN_NONE,
-    SKY_SUN_CLIPPED,
-    SKY_RADIANCE_CLAMPED,
     CACHE_CORRUPT_ENTRY,
     CACHE_WRITE_FAILED,
     RENDER_TERRAIN_TOO_SMALL,
@@ -270,16 +216,9 @@ pub const DIAGNOSTICS: &[Diagnostic] = &[
     EXPORT_NO_LIGHT_MAP,
     EXPORT_NO_PRT,
     MITSUBA_SUN_IN_SKY,
-    SVO_TRIANGLES_WITHOUT_VOXEL,
-    SVO_MESH_NOT_CLOSED,
     REPORT_NO_RENDER,
     BENCH_LINESPACE_DISAGREES,
 ];
-
-/// The diagnostic of `id`, or `None` for an id bake does not have.
-pub fn find(id: &str) -> Option<&'static Diagnostic> {
-    DIAGNOSTICS.iter().find(|d| d.id == id)
-}
 
 /// A warning as raised: its id (from [`DIAGNOSTICS`]), severity, place and message.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -324,10 +263,11 @@ pub fn tagged(d: &Diagnostic, messages: impl IntoIterator<Item = String>) -> Vec
         .collect()
 }
 
-/// docs/DIAGNOSTICS.md's table of [`DIAGNOSTICS`], as the test compares it.
-pub fn markdown_table() -> String {
+/// docs/DIAGNOSTICS.md's table of `diagnostics` (every diagnostic:
+/// `crate::graph::stage::diagnostics`), as the test compares it.
+pub fn markdown_table<'a>(diagnostics: impl IntoIterator<Item = &'a Diagnostic>) -> String {
     let mut s = String::from("| id | severity | meaning |\n|---|---|---|\n");
-    for d in DIAGNOSTICS {
+    for d in diagnostics {
         s += &format!("| `{}` | {} | {} |\n", d.id, d.severity.name(), d.meaning);
     }
     s
@@ -337,21 +277,17 @@ pub fn markdown_table() -> String {
 mod tests {
     use super::*;
 
+    /// Every diagnostic, the central ones and the stages' (through the registry).
+    fn all() -> Vec<&'static Diagnostic> {
+        crate::graph::stage::diagnostics().collect()
+    }
+
     /// The ids as given. A changed, removed or reordered id fails here: ids are a contract
     /// (scripts match them, `--warnings-as-errors` takes them); change this list only with
     /// docs/DIAGNOSTICS.md and a note why.
     const PINNED: &[&str] = &[
         "ingest.eco-outside-area",
         "ingest.reader",
-        "material.texture-missing",
-        "prt.triangles-non-finite",
-        "prt.texture-unreadable",
-        "prt.texture-missing",
-        "cluster.compression-low",
-        "bittree.not-encoded",
-        "terrain.none",
-        "sky.sun-clipped",
-        "sky.radiance-clamped",
         "cache.corrupt-entry",
         "cache.write-failed",
         "render.terrain-too-small",
@@ -374,22 +310,33 @@ mod tests {
         "export.no-light-map",
         "export.no-prt",
         "mitsuba.sun-in-sky",
-        "svo.triangles-without-voxel",
-        "svo.mesh-not-closed",
         "report.no-render",
         "bench.linespace-disagrees",
+        // The stages' own, in registry order (declared in their folders).
+        "material.texture-missing",
+        "terrain.none",
+        "sky.sun-clipped",
+        "sky.radiance-clamped",
+        "prt.triangles-non-finite",
+        "prt.texture-unreadable",
+        "prt.texture-missing",
+        "cluster.compression-low",
+        "bittree.not-encoded",
+        "svo.triangles-without-voxel",
+        "svo.mesh-not-closed",
     ];
 
     #[test]
     fn ids_are_pinned() {
-        let ids: Vec<&str> = DIAGNOSTICS.iter().map(|d| d.id).collect();
+        let ids: Vec<&str> = all().iter().map(|d| d.id).collect();
         assert_eq!(ids, PINNED);
     }
 
     #[test]
     fn ids_are_unique_and_well_formed() {
-        for (i, d) in DIAGNOSTICS.iter().enumerate() {
-            assert!(DIAGNOSTICS[..i].iter().all(|o| o.id != d.id), "{}", d.id);
+        let all = all();
+        for (i, d) in all.iter().enumerate() {
+            assert!(all[..i].iter().all(|o| o.id != d.id), "{}", d.id);
             let (stage, what) = d.id.split_once('.').expect("<stage>.<what>");
             let ok = |s: &str| {
                 !s.is_empty()
@@ -404,14 +351,14 @@ mod tests {
     #[test]
     fn docs_list_equals_the_table() {
         let doc = include_str!("../docs/DIAGNOSTICS.md");
-        let table = markdown_table();
+        let table = markdown_table(all());
         assert!(
             doc.contains(&table),
             "docs/DIAGNOSTICS.md does not hold the table of diag::DIAGNOSTICS; paste:\n{table}"
         );
         // Nothing listed there that the table lacks (a removed id left in the docs).
         let rows = doc.lines().filter(|l| l.starts_with("| `")).count();
-        assert_eq!(rows, DIAGNOSTICS.len());
+        assert_eq!(rows, all().len());
     }
 
     #[test]

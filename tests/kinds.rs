@@ -1,4 +1,4 @@
-//! The registry of section kinds (`bake::kinds::KINDS`) against a real bake: the fixture scene
+//! The registry of section kinds (`bake::kinds::all`: the central list and each stage's) against a real bake: the fixture scene
 //! through the graph with every stage on (svo and line space too, small) and its build report
 //! embedded. Every section's kind is registered, `bake dump` shows it through the registry's
 //! views, `bake verify` passes it, and the bake writes every registered kind. The graph's units
@@ -8,7 +8,7 @@
 mod common;
 
 use bake::graph::stages::all;
-use bake::kinds::{KINDS, find};
+use bake::kinds::find;
 use std::collections::BTreeSet;
 
 /// The fixture scene, preview pipeline plus small svo and line-space stages, the build report
@@ -77,8 +77,7 @@ fn every_kind_of_a_real_bake_is_registered_dumped_and_verified() {
     for path in [path, two] {
         check_pack(&path, &mut seen);
     }
-    let missing: Vec<_> = KINDS
-        .iter()
+    let missing: Vec<_> = bake::kinds::all()
         .map(|k| k.kind)
         .filter(|k| !seen.contains(k))
         .collect();

@@ -29,50 +29,61 @@ fn library_part(src: &str) -> &str {
     src.find("#[cfg(test)]").map_or(src, |i| &src[..i])
 }
 
-/// One registry line: the stage's module (`None`: the graph's own `ingest`) and type.
+/// One registry line: its name, the stage's module (`None`: the graph's own `ingest`), type, and
+/// what of the pipeline it has (`always`, `switch`, `switch, options`, `switch, options = x`).
 #[derive(Debug)]
 struct Line {
+    name: String,
     module: Option<String>,
     ty: String,
+    what: String,
 }
 
+/// The lines of the `registry! { ... }` invocation of `src/graph/stage.rs`.
 fn registry(src: &str) -> Vec<Line> {
-    let start = src
-        .find("pub static REGISTRY: &[&dyn AnyStage] = &[")
-        .expect("the registry");
-    let body = &src[start..];
-    let end = body.find("\n];").expect("the registry's end");
+    let start = src.find("\nregistry! {\n").expect("the registry");
+    let body = &src[start + "\nregistry! {\n".len()..];
+    let end = body.find("\n}\n").expect("the registry's end");
     body[..end]
         .lines()
-        .skip(1)
         .map(|l| {
             let l = l.trim();
-            assert!(
-                l.starts_with("&Registered { stage: ") && l.ends_with("},"),
-                "a registry entry is one line: {l:?}"
-            );
-            let path = l["&Registered { stage: ".len()..]
-                .split(',')
-                .next()
-                .unwrap()
-                .trim();
-            match path.strip_prefix("crate::") {
+            let form = format!("a registry entry is one line `name: path [what];`: {l:?}");
+            let (name, rest) = l.split_once(": ").expect(&form);
+            let (path, what) = rest.split_once(" [").expect(&form);
+            let what = what.strip_suffix("];").expect(&form);
+            let (module, ty) = match path.strip_prefix("crate::") {
                 Some(rest) => {
                     let parts: Vec<&str> = rest.split("::").collect();
                     assert_eq!(parts.len(), 3, "crate::<module>::stage::<Type>: {path}");
                     assert_eq!(parts[1], "stage", "{path}");
-                    Line {
-                        module: Some(parts[0].to_string()),
-                        ty: parts[2].to_string(),
-                    }
+                    (Some(parts[0].to_string()), parts[2].to_string())
                 }
-                None => Line {
-                    module: None,
-                    ty: path.to_string(),
-                },
+                None => (None, path.to_string()),
+            };
+            Line {
+                name: name.to_string(),
+                module,
+                ty,
+                what: what.to_string(),
             }
         })
         .collect()
+}
+
+/// The library part of a file under `src/`.
+fn source(root: &Path, rel: &str) -> String {
+    let s = std::fs::read_to_string(root.join(rel)).unwrap_or_else(|e| panic!("{rel}: {e}"));
+    library_part(&s).to_string()
+}
+
+/// The `impl Stage for <ty>` block of `src`.
+fn impl_block<'a>(src: &'a str, ty: &str, file: &str) -> &'a str {
+    let at = src
+        .find(&format!("impl Stage for {ty} {{"))
+        .unwrap_or_else(|| panic!("{file}: no `impl Stage for {ty}`"));
+    let body = &src[at..];
+    &body[..body.find("\n}\n").expect("the impl's end")]
 }
 
 #[test]
@@ -110,6 +121,7 @@ fn every_stage_lives_in_its_own_folder_and_is_named_by_one_registry_line() {
         let body = &body[..body.find("\n}\n").expect("the impl's end")];
         for part in [
             "fn def(",
+            "fn options_in(",
             "static DEF: StageDef",
             "version:",
             "fn reads(",
@@ -127,6 +139,7 @@ fn every_stage_lives_in_its_own_folder_and_is_named_by_one_registry_line() {
             .nth(1)
             .and_then(|s| s.split('"').next())
             .expect("the stage's name");
+        assert_eq!(name, l.name, "{}: the registry line's name", file.display());
         names.push(name.to_string());
         // The version is a constant of the folder, not of the graph.
         let version = body
@@ -150,6 +163,7 @@ fn every_stage_lives_in_its_own_folder_and_is_named_by_one_registry_line() {
             }
             let n = library_part(s).matches(&path).count();
             let allowed = usize::from(f.ends_with("src/graph/stage.rs"));
+            // (The registry's line names it once.)
             assert_eq!(n, allowed, "{} names {path} {n} times", f.display());
         }
     }
@@ -217,4 +231,133 @@ fn the_registry_gives_the_build_key_its_names_and_versions() {
         .map(|s| (s.def().name, s.def().version))
         .collect();
     assert_eq!(got, from_registry);
+}
+
+/// The part of issue 36's rule that a stage's options, kinds and warnings are declared in its
+/// own folder: its `impl Stage` names its options type and its presets' values (`options_in`);
+/// the pipeline's structs, presets and checks (`src/graph/preset.rs`, `src/graph/mod.rs`,
+/// `src/graph/stage.rs` outside the registry's lines) name no stage's options type; the central
+/// lists of section kinds (`src/kinds/`) and of warnings (`diag::DIAGNOSTICS`) hold no stage's
+/// rows. (At run time the registry carries them: `kinds::all`, `graph::stage::diagnostics`.)
+#[test]
+fn a_stage_s_options_kinds_and_warnings_are_declared_in_its_folder() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let graph_stage = source(root, "src/graph/stage.rs");
+    let lines = registry(&graph_stage);
+    // The registry's lines themselves are the one place outside the folder.
+    let block_start = graph_stage.find("\nregistry! {\n").unwrap();
+    let block_end = block_start + graph_stage[block_start..].find("\n}\n").unwrap();
+    let graph_stage_rest = format!(
+        "{}{}",
+        &graph_stage[..block_start],
+        &graph_stage[block_end..]
+    );
+    let central: Vec<(&str, String)> = vec![
+        ("src/graph/stage.rs", graph_stage_rest),
+        ("src/graph/preset.rs", source(root, "src/graph/preset.rs")),
+        ("src/graph/mod.rs", source(root, "src/graph/mod.rs")),
+        ("src/graph/stages.rs", source(root, "src/graph/stages.rs")),
+        ("src/kinds/mod.rs", source(root, "src/kinds/mod.rs")),
+        ("src/kinds/checks.rs", source(root, "src/kinds/checks.rs")),
+        ("src/diag.rs", source(root, "src/diag.rs")),
+    ];
+    let mut checked = 0;
+    for l in &lines {
+        let Some(module) = &l.module else { continue };
+        let file = format!("src/{module}/stage.rs");
+        let src = source(root, &file);
+        let body = impl_block(&src, &l.ty, &file);
+        let opt = body
+            .split("type Options = ")
+            .nth(1)
+            .and_then(|s| s.split(';').next())
+            .unwrap_or_else(|| panic!("{file}: {} names no options type", l.ty))
+            .trim();
+        match l.what.as_str() {
+            "switch, options" => {
+                assert_ne!(opt, "()", "{file}: {} has a table but no options", l.ty);
+                let ty = opt.rsplit("::").next().unwrap();
+                for (f, text) in &central {
+                    assert!(
+                        !text.contains(ty),
+                        "{f} names {ty}, the options of stage {}: a stage's options are \
+                         declared in its folder (its `impl Stage`) and reach the pipeline \
+                         through its registry line",
+                        l.name
+                    );
+                }
+                checked += 1;
+            }
+            "switch" | "always" => assert_eq!(opt, "()", "{file}: {}", l.ty),
+            shared => {
+                let other = shared
+                    .strip_prefix("switch, options = ")
+                    .unwrap_or_else(|| panic!("{}: unknown registry form {shared:?}", l.name));
+                let o = lines
+                    .iter()
+                    .find(|o| o.name == other)
+                    .expect("its table's stage");
+                assert_eq!(
+                    o.what, "switch, options",
+                    "{}: {other} has no table",
+                    l.name
+                );
+            }
+        }
+        // The central kind lists name no module of a registered stage: its kinds are its own.
+        for f in ["src/kinds/mod.rs", "src/kinds/checks.rs"] {
+            let text = &central.iter().find(|c| c.0 == f).unwrap().1;
+            assert!(
+                !text.contains(&format!("crate::{module}::")),
+                "{f} names crate::{module}::, the folder of stage {}: its section kinds are \
+                 declared in {file} (`Stage::kinds`)",
+                l.name
+            );
+        }
+    }
+    assert!(checked >= 9, "{checked} stages with options");
+
+    // At run time: each registered stage's kinds and warnings come from its registry line, and
+    // the central lists hold none of a stage's.
+    let stages: Vec<&str> = bake::graph::stage::REGISTRY
+        .iter()
+        .filter(|s| s.def().name != "ingest")
+        .map(|s| s.def().name)
+        .collect();
+    for d in bake::diag::DIAGNOSTICS {
+        let prefix = d.id.split('.').next().unwrap();
+        assert!(
+            !stages.contains(&prefix),
+            "diag::DIAGNOSTICS lists {}: a stage's warnings are declared in its folder \
+             (`Stage::diagnostics`)",
+            d.id
+        );
+    }
+    for s in bake::graph::stage::REGISTRY {
+        for d in s.diagnostics() {
+            assert!(
+                d.id.starts_with(&format!("{}.", s.def().name)),
+                "stage {} declares {}",
+                s.def().name,
+                d.id
+            );
+        }
+        for k in s.kinds() {
+            assert!(
+                s.def().writes.contains(&k.kind),
+                "stage {} declares kind {} but does not write it",
+                s.def().name,
+                k.kind
+            );
+        }
+    }
+    for k in bake::kinds::KINDS {
+        assert!(
+            !bake::graph::stage::REGISTRY
+                .iter()
+                .any(|s| s.kinds().iter().any(|o| o.kind == k.kind)),
+            "{} is both central and a stage's",
+            k.kind
+        );
+    }
 }

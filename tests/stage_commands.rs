@@ -19,6 +19,12 @@ fn graph_pack(dir: &Path, name: &str, on: impl FnOnce(&mut Pipeline)) -> PathBuf
         (false, false, false, false, false, false);
     (s.bittree, s.svo, s.linespace) = (false, false, false);
     on(&mut pipeline);
+    graph_bake(dir, name, pipeline)
+}
+
+/// The scene `dir/scene.eco` (with `dir/sky.hdr`) baked by the graph with `pipeline` into
+/// `dir/<name>`, no cache.
+fn graph_bake(dir: &Path, name: &str, pipeline: Pipeline) -> PathBuf {
     let out = dir.join(name);
     bake::graph::build(
         &BuildOptions {
@@ -296,4 +302,102 @@ fn bake_cluster_gives_the_graph_s_clusters_with_and_without_weights() {
     let [plain, weighed] =
         [false, true].map(|w| payload(&d.join(format!("graph-{w}.bake")), "clusters"));
     assert!(weighed.len() > plain.len());
+}
+
+/// `bake stage NAME PACK` (issue 36: the command made from the registry) runs any registered
+/// stage's units with the pipeline's options. Oracle: the graph's own bake of the same
+/// pipeline with the stage on. A pack baked by the graph with `prt`, `lod`, `envmaps` and
+/// `cluster` off gets each of them by `bake stage`, and each section equals the full bake's.
+#[test]
+fn bake_stage_runs_any_registered_stage_as_the_graph_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake::fixtures::write_all(d).unwrap();
+    let full = graph_bake(d, "full.bake", Pipeline::preview());
+    let mut without = Pipeline::preview();
+    let st = &mut without.stages;
+    (st.prt, st.lod, st.envmaps, st.cluster) = (false, false, false, false);
+    let base = graph_bake(d, "base.bake", without);
+    let sections_of = |path: &Path, kind: &str| -> Vec<(String, Vec<u8>)> {
+        let pack = Pack::open(path).unwrap();
+        pack.of_kind(kind)
+            .map(|e| (e.name.clone(), pack.payload(e).to_vec()))
+            .collect()
+    };
+    // prt and lod per mesh, envmaps as one shard joined, cluster over the env maps' pack.
+    let mut input = base.clone();
+    for (stage, kind, units) in [
+        ("prt", "prt", None),
+        ("lod", "lod", None),
+        ("envmaps", "envmaps", Some(1)),
+        ("cluster", "clusters", Some(1)),
+    ] {
+        let out = d.join(format!("stage-{stage}.bake"));
+        let doc = common::json(&common::bake(&[
+            "stage",
+            stage,
+            s(&input),
+            "-o",
+            s(&out),
+            "--pipeline",
+            "preview",
+            "--json",
+        ]));
+        let want = sections_of(&full, kind);
+        assert!(!want.is_empty(), "{kind}");
+        assert!(sections_of(&out, kind) == want, "bake stage {stage}: {doc}");
+        let n = doc["units"].as_array().unwrap().len();
+        match units {
+            Some(u) => assert_eq!(n, u, "{doc}"),
+            None => assert_eq!(n, want.len(), "one unit per mesh: {doc}"),
+        }
+        assert_eq!(doc["stage"], stage);
+        input = out;
+    }
+    // `--set` reaches the stage's options: other samples, other transfer.
+    let out = d.join("stage-prt-64.bake");
+    common::json(&common::bake(&[
+        "stage",
+        "prt",
+        s(&base),
+        "-o",
+        s(&out),
+        "--pipeline",
+        "preview",
+        "--set",
+        "prt.samples=16",
+        "--json",
+    ]));
+    assert!(sections_of(&out, "prt") != sections_of(&full, "prt"));
+
+    // `--list` names every registered stage; an unknown stage, an unknown option and the
+    // ingest stage (which reads a model file) are usage errors (exit 2) naming what is wrong.
+    let doc = common::json(&common::bake(&["stage", "--list", "--json"]));
+    let names: Vec<&str> = doc["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["name"].as_str().unwrap())
+        .collect();
+    let registry: Vec<&str> = bake::graph::stage::REGISTRY
+        .iter()
+        .map(|s| s.def().name)
+        .collect();
+    assert_eq!(names, registry);
+    for (args, needle) in [
+        (
+            vec!["stage", "nope", s(&base)],
+            "no registered stage \"nope\"",
+        ),
+        (
+            vec!["stage", "prt", s(&base), "--set", "prt.sampels=3"],
+            "sampels",
+        ),
+        (vec!["stage", "ingest", s(&base)], "bake ingest"),
+    ] {
+        let o = common::bake(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}");
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(e.contains(needle), "{args:?}: {e}");
+    }
 }

@@ -1,9 +1,13 @@
 //! The `bittree` stage: the BitTree of the scene's instances (its registry line is in
 //! `crate::graph::stage::REGISTRY`).
 
-use crate::diag;
+use crate::diag::Diagnostic;
 use crate::error::{Error, Result};
-use crate::stage::{Output, Per, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning};
+use crate::pack::section::ArrayFormat::{F32, U8, U16, U32};
+use crate::stage::kind::{Naming, SectionKind};
+use crate::stage::{
+    Output, Per, Preset, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning,
+};
 use serde_json::json;
 
 /// 2: instances within 1 mm of each other share a leaf (the `shared` array) instead of
@@ -52,6 +56,15 @@ impl Bittree {
 }
 impl Stage for Bittree {
     type Options = crate::bittree::BitTreeOptions;
+    fn diagnostics(&self) -> &'static [Diagnostic] {
+        DIAGNOSTICS
+    }
+    fn kinds(&self) -> &'static [SectionKind] {
+        KINDS
+    }
+    fn options_in(&self, _: Preset) -> Self::Options {
+        crate::bittree::BitTreeOptions::DEFAULT
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "bittree",
@@ -88,7 +101,7 @@ impl Stage for Bittree {
                 Err(e) => Output {
                     report,
                     warnings: vec![Warning::new(
-                        &diag::BITTREE_NOT_ENCODED,
+                        &BITTREE_NOT_ENCODED,
                         "",
                         format!("no BitTree: {e}"),
                     )],
@@ -98,3 +111,34 @@ impl Stage for Bittree {
         )
     }
 }
+
+/// The section kinds the `bittree` stage defines (docs/FORMAT.md): what `bake dump` and `bake
+/// verify` know of them, reached through the stage's registry line.
+const KINDS: &[SectionKind] = &[SectionKind {
+    kind: crate::bittree::section::KIND,
+    naming: Naming::Kind,
+    arrays: &[
+        ("bits", &[U8], 1),
+        ("scale", &[F32], 1),
+        ("rotation", &[U16], 1),
+        ("model", &[U16], 1),
+        ("layer", &[U16], 1),
+        ("residual", &[U16], 2),
+        ("shared", &[U32], 1),
+    ],
+    decode: |v| crate::bittree::section::from_section(v).map(drop),
+    views: Some((
+        crate::bittree::section::summary,
+        crate::bittree::section::data,
+    )),
+    check: None,
+}];
+
+/// `bittree.not-encoded`.
+pub const BITTREE_NOT_ENCODED: Diagnostic = Diagnostic::warning(
+    "bittree.not-encoded",
+    "the instances could not be encoded as a BitTree; the pack has no bittree section",
+);
+
+/// The warnings the `bittree` stage gives (docs/DIAGNOSTICS.md), reached through its registry line.
+const DIAGNOSTICS: &[Diagnostic] = &[BITTREE_NOT_ENCODED];

@@ -70,6 +70,8 @@ enum Command {
     Validate(cli::validate::ValidateArgs),
     /// Check a pack against docs/FORMAT.md: container, checksums, every section's invariants.
     Verify(cli::verify::VerifyArgs),
+    /// Run any registered stage over a pack with a pipeline's options (`--list` names them).
+    Stage(cli::stage::StageArgs),
     /// One unit of the stage graph as a build-engine action (what `bake plan` writes).
     Unit(cli::unit::UnitArgs),
     /// Join packs into one (the union of sections; a name with two payloads is an error).
@@ -105,6 +107,7 @@ fn run(cli: &Cli) -> Result<Outcome, Error> {
         Command::Linespace(a) => cli::linespace::run(a, g),
         Command::Validate(a) => cli::validate::run(a, g),
         Command::Verify(a) => cli::verify::run(a, g),
+        Command::Stage(a) => cli::stage::run(a, g),
         Command::Unit(a) => cli::unit::run(a, g),
         Command::Merge(a) => cli::unit::run_merge(a, g),
         Command::Plan(a) => cli::plan::run(a, g),

@@ -25,6 +25,7 @@ pub(crate) mod render;
 pub(crate) mod report;
 pub(crate) mod scene;
 pub(crate) mod sky;
+pub(crate) mod stage;
 pub(crate) mod svo;
 pub(crate) mod terrain;
 pub(crate) mod unit;
@@ -66,9 +67,9 @@ pub(crate) struct Outcome {
     pub warnings: Vec<crate::diag::Warning>,
 }
 
-/// A warning id of `diag::DIAGNOSTICS` (`--warnings-as-errors=ID`).
+/// A warning id of `graph::stage::diagnostics` (`--warnings-as-errors=ID`).
 fn parse_warning_id(s: &str) -> std::result::Result<String, String> {
-    match crate::diag::find(s) {
+    match crate::graph::stage::find_diagnostic(s) {
         Some(d) => Ok(d.id.to_string()),
         None => Err(format!(
             "no warning has the id {s:?} (docs/DIAGNOSTICS.md lists them)"

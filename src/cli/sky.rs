@@ -181,7 +181,7 @@ fn warnings(b: &SkyBake) -> Vec<crate::diag::Warning> {
     let mut w = Vec::new();
     if b.sun.clipped {
         w.push(crate::diag::Warning::new(
-            &crate::diag::SKY_SUN_CLIPPED,
+            &crate::sky::stage::SKY_SUN_CLIPPED,
             "",
             format!(
                 "the sun looks clipped ({} texels at the maximum): its irradiance is a lower bound",
@@ -192,7 +192,7 @@ fn warnings(b: &SkyBake) -> Vec<crate::diag::Warning> {
     let big = b.cube.texels.iter().flatten().any(|v| v.abs() > 65504.0);
     if big {
         w.push(crate::diag::Warning::new(
-            &crate::diag::SKY_RADIANCE_CLAMPED,
+            &crate::sky::stage::SKY_RADIANCE_CLAMPED,
             "",
             "sky radiance above 65504 was clamped to the half-float range",
         ));

@@ -113,7 +113,7 @@ pub(crate) fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
     let mut own = Vec::new();
     if voxels.skipped_triangles > 0 {
         own.push(crate::diag::Warning::new(
-            &crate::diag::SVO_TRIANGLES_WITHOUT_VOXEL,
+            &crate::voxel::stage::SVO_TRIANGLES_WITHOUT_VOXEL,
             "",
             format!(
                 "{} triangles left no voxel (outside the grid or alpha-tested away)",
@@ -122,7 +122,7 @@ pub(crate) fn run(args: &SvoArgs, g: &Global) -> Result<Outcome> {
         ));
     }
     if voxels.open_columns > 0 {
-        own.push(crate::diag::Warning::new(&crate::diag::SVO_MESH_NOT_CLOSED, "", format!(
+        own.push(crate::diag::Warning::new(&crate::voxel::stage::SVO_MESH_NOT_CLOSED, "", format!(
             "solid fill: {} columns crossed the surface an odd number of times (mesh not closed)",
             voxels.open_columns
         )));

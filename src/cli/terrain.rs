@@ -61,7 +61,7 @@ pub(crate) fn run(args: &TerrainArgs, g: &Global) -> Result<Outcome> {
     let report = o.report;
     let warnings = if report["terrains"] == 0 {
         crate::diag::tagged(
-            &crate::diag::TERRAIN_NONE,
+            &crate::terrain::stage::TERRAIN_NONE,
             [format!(
                 "{}: no terrain section to prepare",
                 args.input.display()

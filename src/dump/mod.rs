@@ -1,7 +1,7 @@
 //! `bake dump`: what a pack holds, as text for people or JSON for scripts.
 //!
 //! Each section is shown through its kind in the registry of section kinds
-//! ([`crate::kinds::KINDS`]): its summary and, with `--full`, its data; kinds without views and
+//! ([`crate::kinds::all`]: the central kinds and each registered stage's): its summary and, with `--full`, its data; kinds without views and
 //! unknown kinds are listed with their size, checksum and arrays only.
 #![warn(missing_docs)]
 

@@ -3,11 +3,17 @@
 //! `crate::graph::stage::REGISTRY`.
 
 use crate::diag;
+use crate::diag::Diagnostic;
+use crate::error::ParseError;
 use crate::error::{Error, Result};
 use crate::lightmap::stage::Traced;
+use crate::pack::section::ArrayFormat::{F32, U8, U32};
+use crate::pack::section::SectionView;
 use crate::pack::{ArrayFormat, Section, SectionBuilder};
+use crate::stage::kind::{Naming, SectionKind};
 use crate::stage::{
-    LIGHTING, Output, Per, Reads, Shard, Stage, StageDef, StageKey, UnitCtx, UnitInputs, report_of,
+    LIGHTING, Output, Per, Preset, Reads, Shard, Stage, StageDef, StageKey, UnitCtx, UnitInputs,
+    report_of,
 };
 use serde_json::json;
 use std::ops::Range;
@@ -28,6 +34,25 @@ pub const CLUSTER_VERSION: u32 = 4;
 pub struct Envmaps;
 impl Stage for Envmaps {
     type Options = crate::envmap::bake::EnvmapOptions;
+    fn kinds(&self) -> &'static [SectionKind] {
+        ENVMAPS_KINDS
+    }
+    /// 64 rays in the preview, 1,024 in the final pipeline.
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        use crate::envmap::bake::EnvmapOptions;
+        let d = EnvmapOptions::DEFAULT;
+        match preset {
+            Preset::Default => d,
+            Preset::Preview | Preset::Ci => EnvmapOptions { samples: 64, ..d },
+            Preset::Final => EnvmapOptions { samples: 1024, ..d },
+        }
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        &["sky"]
+    }
+    fn check(&self, o: &Self::Options) -> std::result::Result<(), String> {
+        o.check()
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "envmaps",
@@ -114,6 +139,26 @@ pub fn join_envmaps(
 pub struct Cluster;
 impl Stage for Cluster {
     type Options = crate::envmap::cluster::ClusterOptions;
+    fn diagnostics(&self) -> &'static [Diagnostic] {
+        CLUSTER_DIAGNOSTICS
+    }
+    fn kinds(&self) -> &'static [SectionKind] {
+        CLUSTER_KINDS
+    }
+    /// Clustering at 1 % in the final pipeline.
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        use crate::envmap::cluster::ClusterOptions;
+        match preset {
+            Preset::Final => ClusterOptions {
+                error: 0.01,
+                ..ClusterOptions::DEFAULT
+            },
+            _ => ClusterOptions::DEFAULT,
+        }
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        &["envmaps"]
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "cluster",
@@ -139,7 +184,7 @@ impl Stage for Cluster {
                 "local_components": c.local.as_ref().map_or(0, |l| l.components),
                 "compression": crate::envmap::compression(&c, crate::envmap::section::DIM)}),
             sections: s,
-            warnings: diag::tagged(&diag::CLUSTER_COMPRESSION_LOW, w),
+            warnings: diag::tagged(&CLUSTER_COMPRESSION_LOW, w),
             ..Default::default()
         })
     }
@@ -191,3 +236,60 @@ pub(crate) fn shard_maps(sections: &[Section], n: usize) -> Result<super::bake::
     }
     Ok(crate::envmap::bake::Traced { maps, diffs })
 }
+
+/// The section kinds the `envmaps` stage defines (docs/FORMAT.md): what `bake dump` and `bake
+/// verify` know of them, reached through the stage's registry line.
+const ENVMAPS_KINDS: &[SectionKind] = &[SectionKind {
+    kind: crate::envmap::section::ENVMAPS_KIND,
+    naming: Naming::Kind,
+    arrays: &[
+        ("sky", &[F32], 48),
+        ("sun", &[F32], 48),
+        ("noise_covariance", &[F32], 96),
+        ("noise_variance", &[F32], 1),
+    ],
+    decode: decode_envmaps,
+    views: Some((
+        crate::envmap::section::envmaps_summary,
+        crate::envmap::section::envmaps_data,
+    )),
+    check: None,
+}];
+
+/// The maps, then their noise arrays against the metadata.
+fn decode_envmaps(v: &SectionView) -> Result<(), ParseError> {
+    let (m, _, _) = crate::envmap::section::envmaps_from_section(v)?;
+    crate::envmap::section::envmaps_noise_from_section(v, &m).map(drop)
+}
+
+/// The section kinds the `cluster` stage defines (docs/FORMAT.md): what `bake dump` and `bake
+/// verify` know of them, reached through the stage's registry line.
+const CLUSTER_KINDS: &[SectionKind] = &[SectionKind {
+    kind: crate::envmap::section::CLUSTERS_KIND,
+    naming: Naming::Kind,
+    arrays: &[
+        ("sample_positions", &[F32], 3),
+        ("sample_values", &[F32], 1),
+        ("sample_instance", &[U32], 1),
+        ("local_basis", &[F32], 1),
+        ("local_scale", &[F32], 1),
+        ("local_coeffs", &[U8], 1),
+        ("neighbours", &[U32], 1),
+        ("weights", &[F32], 1),
+    ],
+    decode: |v| crate::envmap::section::clusters_summary(v).map(drop),
+    views: Some((
+        crate::envmap::section::clusters_summary,
+        crate::envmap::section::clusters_data,
+    )),
+    check: None,
+}];
+
+/// `cluster.compression-low`.
+pub const CLUSTER_COMPRESSION_LOW: Diagnostic = Diagnostic::warning(
+    "cluster.compression-low",
+    "the env-map clusters compress the maps less than 2×",
+);
+
+/// The warnings the `cluster` stage gives (docs/DIAGNOSTICS.md), reached through its registry line.
+const CLUSTER_DIAGNOSTICS: &[Diagnostic] = &[CLUSTER_COMPRESSION_LOW];

@@ -3,53 +3,17 @@
 //! A file is the TOML form of [`Pipeline`]: a `[stages]` table of switches and one table per
 //! stage holding that stage's option struct. Unknown keys and wrong types are errors that name
 //! the file, the line and the key; a key left out takes the default pipeline's value. The
-//! presets are `const fn`s here; `pipelines/{default,preview,final,ci}.toml` spell them out and a
-//! test keeps the two equal.
+//! structs are written by the stage registry (`graph::stage::REGISTRY`): each stage declares its
+//! options type and its switch and options in each preset in its own folder (`Stage::on_in`,
+//! `Stage::options_in`); `pipelines/{default,preview,final,ci}.toml` spell the presets out and
+//! a test keeps the two equal.
 
-use crate::bittree::BitTreeOptions;
-use crate::envmap::bake::EnvmapOptions;
-use crate::envmap::cluster::ClusterOptions;
 use crate::error::{Error, Result};
-use crate::lightmap::LightmapOptions;
-use crate::linespace::ntree::NTreeOptions;
-use crate::lod::LodOptions;
-use crate::material::MaterialOptions;
-use crate::prt::transfer::PrtOptions;
-use crate::sky::SkyOptions;
-use crate::voxel::voxelize::VoxelizeOptions;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// Which stages run. Ingest always runs; the others may be switched off (a stage whose input
-/// is switched off is an error, see [`Pipeline::check`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Stages {
-    /// Materials to two-layer Schlick, texture mips, tangents (per model).
-    pub material: bool,
-    /// Four-tap heights, normal map, min/max quadtree (per terrain).
-    pub terrain: bool,
-    /// Cube map, sun, SH of the sky (the built-in clear sky without `--sky`).
-    pub sky: bool,
-    /// Per-vertex PRT transfer (per model).
-    pub prt: bool,
-    /// Levels of detail and the impostor atlas (per model).
-    pub lod: bool,
-    /// The terrain light map (per scene).
-    pub lightmap: bool,
-    /// Atlas light maps of rarely placed models (per scene).
-    pub atlas: bool,
-    /// Per-instance SH environment maps (per scene, in shards of instances).
-    pub envmaps: bool,
-    /// Clustering and multiquadric interpolation of the environment maps (per scene).
-    pub cluster: bool,
-    /// Implicit instance positions (per scene).
-    pub bittree: bool,
-    /// Sparse voxel octree of the whole scene's geometry (per scene; optional).
-    pub svo: bool,
-    /// N-tree with line spaces for soft shadows (per scene; optional).
-    pub linespace: bool,
-}
+pub use super::stage::{Pipeline, Stages};
+pub use crate::stage::Preset;
 
 impl Default for Stages {
     fn default() -> Self {
@@ -71,34 +35,17 @@ impl Default for Units {
     }
 }
 
-/// A whole bake: the stages and their options.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Pipeline {
-    /// Which stages run.
-    pub stages: Stages,
-    /// How the graph splits stages into units (the env-map shards).
-    pub units: Units,
-    /// The `material` stage.
-    pub material: MaterialOptions,
-    /// The `sky` stage.
-    pub sky: SkyOptions,
-    /// The `prt` stage.
-    pub prt: PrtOptions,
-    /// The `lod` stage.
-    pub lod: LodOptions,
-    /// The `lightmap` and `atlas` stages.
-    pub lightmap: LightmapOptions,
-    /// The `envmaps` stage.
-    pub envmaps: EnvmapOptions,
-    /// The `cluster` stage.
-    pub cluster: ClusterOptions,
-    /// The `bittree` stage.
-    pub bittree: BitTreeOptions,
-    /// The `svo` stage.
-    pub svo: VoxelizeOptions,
-    /// The `linespace` stage.
-    pub linespace: NTreeOptions,
+impl Units {
+    /// The preset's units: 25,000 instances per env-map shard, 64 in `ci` (so that the cache
+    /// is exercised unit by unit).
+    pub fn of_preset(preset: Preset) -> Units {
+        Units {
+            envmap_shard_instances: match preset {
+                Preset::Ci => 64,
+                _ => 25_000,
+            },
+        }
+    }
 }
 
 impl Default for Pipeline {
@@ -113,115 +60,34 @@ pub const PRESETS: [&str; 4] = ["default", "preview", "final", "ci"];
 impl Pipeline {
     /// `pipelines/default.toml`: every lighting stage at the stages' default quality; SVO and
     /// line space off.
-    pub const fn default_pipeline() -> Pipeline {
-        Pipeline {
-            stages: Stages {
-                material: true,
-                terrain: true,
-                sky: true,
-                prt: true,
-                lod: true,
-                lightmap: true,
-                atlas: true,
-                envmaps: true,
-                cluster: true,
-                bittree: true,
-                svo: false,
-                linespace: false,
-            },
-            units: Units {
-                envmap_shard_instances: 25_000,
-            },
-            material: MaterialOptions::DEFAULT,
-            sky: SkyOptions::DEFAULT,
-            prt: PrtOptions::standard(),
-            lod: LodOptions::DEFAULT,
-            lightmap: LightmapOptions::DEFAULT,
-            envmaps: EnvmapOptions::DEFAULT,
-            cluster: ClusterOptions::DEFAULT,
-            bittree: BitTreeOptions::DEFAULT,
-            svo: VoxelizeOptions::surface(256),
-            linespace: NTreeOptions::thesis(),
-        }
+    pub fn default_pipeline() -> Pipeline {
+        Pipeline::of_preset(Preset::Default)
     }
 
-    /// `pipelines/preview.toml` (`--preview`): quick, noisy lighting (PRT 64 paths, 64
-    /// environment-map rays, 16 light-map rays with 4 sun rays, the terrain's light map at most
-    /// 1025² texels).
-    pub const fn preview() -> Pipeline {
-        let d = Pipeline::default_pipeline();
-        Pipeline {
-            prt: PrtOptions::preview(),
-            lod: LodOptions::preview(),
-            lightmap: LightmapOptions {
-                max_resolution: Some(1025),
-                samples: 16,
-                sun_samples: 4,
-                // 16 horizon directions: the sweeps cost a third of 32's (1.3 against 4.5 CPU s
-                // at 1025²), the error is the instances' (docs/PERFORMANCE.md, issue 37).
-                horizon_lattice: 2,
-                ..d.lightmap
-            },
-            envmaps: EnvmapOptions {
-                samples: 64,
-                ..d.envmaps
-            },
-            ..d
-        }
+    /// `pipelines/preview.toml` (`--preview`): quick, noisy lighting (each stage's preview
+    /// options: PRT 64 paths, 64 environment-map rays, 16 light-map rays with 4 sun rays, the
+    /// terrain's light map at most 1025² texels).
+    pub fn preview() -> Pipeline {
+        Pipeline::of_preset(Preset::Preview)
     }
 
-    /// `pipelines/final.toml`: PRT 1,024 paths and 4 bounces, 256 light-map rays at every texel, 1,024
-    /// environment-map rays, clustering at 1 %; SVO and line space on.
-    pub const fn final_quality() -> Pipeline {
-        let d = Pipeline::default_pipeline();
-        Pipeline {
-            stages: Stages {
-                svo: true,
-                linespace: true,
-                ..d.stages
-            },
-            prt: PrtOptions::final_quality(),
-            lod: LodOptions::final_quality(),
-            lightmap: LightmapOptions {
-                samples: 256,
-                sun_samples: 32,
-                trace_step: 1,
-                ..d.lightmap
-            },
-            envmaps: EnvmapOptions {
-                samples: 1024,
-                ..d.envmaps
-            },
-            cluster: ClusterOptions {
-                error: 0.01,
-                ..d.cluster
-            },
-            ..d
-        }
+    /// `pipelines/final.toml`: each stage's final options (PRT 1,024 paths and 4 bounces, 256
+    /// light-map rays at every texel, 1,024 environment-map rays, clustering at 1 %); SVO and
+    /// line space on.
+    pub fn final_quality() -> Pipeline {
+        Pipeline::of_preset(Preset::Final)
     }
 
     /// `pipelines/ci.toml`: the preview's quality with the stages a CI job checks each commit
     /// (all but the optional SVO and line space), the env maps in small shards so that the
     /// cache is exercised unit by unit.
-    pub const fn ci() -> Pipeline {
-        let p = Pipeline::preview();
-        Pipeline {
-            units: Units {
-                envmap_shard_instances: 64,
-            },
-            ..p
-        }
+    pub fn ci() -> Pipeline {
+        Pipeline::of_preset(Preset::Ci)
     }
 
     /// A preset by name.
     pub fn preset(name: &str) -> Option<Pipeline> {
-        Some(match name {
-            "default" => Pipeline::default_pipeline(),
-            "preview" => Pipeline::preview(),
-            "final" => Pipeline::final_quality(),
-            "ci" => Pipeline::ci(),
-            _ => return None,
-        })
+        Preset::named(name).map(Pipeline::of_preset)
     }
 
     /// Reads a pipeline file; errors name the file, the line and the key.
@@ -286,26 +152,37 @@ impl Pipeline {
         Ok(())
     }
 
-    /// Every stage's inputs are switched on.
+    /// Every stage's inputs are switched on (each stage's [`Stage::needs`](crate::stage::Stage::needs)),
+    /// then every stage's options pass its check, in registry order.
     pub fn check(&self) -> std::result::Result<(), String> {
-        let s = &self.stages;
-        let needs = [
-            (s.lightmap, "lightmap", s.sky, "sky"),
-            (s.atlas, "atlas", s.sky, "sky"),
-            (s.envmaps, "envmaps", s.sky, "sky"),
-            (s.cluster, "cluster", s.envmaps, "envmaps"),
-        ];
-        for (on, stage, input, what) in needs {
-            if on && !input {
-                return Err(format!(
-                    "stage {stage} is on but reads the output of {what}, which is off"
-                ));
+        self.check_in(super::stage::REGISTRY)
+    }
+
+    /// [`Pipeline::check`] over the registry `registry` (a test's toy registry too).
+    pub(crate) fn check_in(
+        &self,
+        registry: &[&dyn super::stage::AnyStage],
+    ) -> std::result::Result<(), String> {
+        for st in registry {
+            if !st.on(self) {
+                continue;
+            }
+            for what in st.needs() {
+                let input_on = registry
+                    .iter()
+                    .find(|s| s.def().name == *what)
+                    .is_some_and(|s| s.on(self));
+                if !input_on {
+                    return Err(format!(
+                        "stage {} is on but reads the output of {what}, which is off",
+                        st.def().name
+                    ));
+                }
             }
         }
-        self.lod.check()?;
-        self.prt.check()?;
-        self.lightmap.check()?;
-        self.envmaps.check()?;
+        for st in registry {
+            st.check(self)?;
+        }
         if self.units.envmap_shard_instances == 0 {
             return Err("units.envmap_shard_instances must be at least 1".into());
         }
@@ -371,6 +248,8 @@ pub fn resolve(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lightmap::LightmapOptions;
+    use crate::prt::transfer::PrtOptions;
 
     /// `prt.tracer` is spelled out, enters the PRT stage's key through its options, and a
     /// backend the binary lacks is refused (never a silent fallback).
@@ -446,14 +325,75 @@ mod tests {
         for name in PRESETS {
             let file = Pipeline::load(&repo_file(name)).unwrap();
             let code = Pipeline::preset(name).unwrap();
+            // The tables that differ, as the registry's preset spells them (a new stage's
+            // table missing from the file shows here: paste it from `bake pipeline show`).
+            let (f, c) = (
+                toml::Value::try_from(&file).unwrap(),
+                toml::Value::try_from(&code).unwrap(),
+            );
+            let differ: Vec<String> = c
+                .as_table()
+                .unwrap()
+                .iter()
+                .filter(|(k, v)| f.get(k.as_str()) != Some(v))
+                .map(|(k, v)| format!("[{k}]\n{}", toml::to_string(v).unwrap_or_default()))
+                .collect();
             assert_eq!(
-                file, code,
-                "pipelines/{name}.toml differs from Pipeline::preset({name:?})"
+                file,
+                code,
+                "pipelines/{name}.toml differs from the registry's preset {name:?} \
+                 (`bake pipeline show {name}`) in:\n{}",
+                differ.join("\n")
             );
         }
         assert_ne!(Pipeline::preview(), Pipeline::default_pipeline());
         assert_ne!(Pipeline::final_quality(), Pipeline::default_pipeline());
         assert!(Pipeline::final_quality().stages.svo && !Pipeline::default_pipeline().stages.svo);
+    }
+
+    #[test]
+    fn the_presets_are_the_registry_s() {
+        let names: Vec<&str> = Preset::ALL.iter().map(|p| p.name()).collect();
+        assert_eq!(names, PRESETS);
+        // The values the presets had before they moved beside the stages (issue 36).
+        let f = Pipeline::final_quality();
+        assert_eq!((f.prt.samples, f.prt.bounces), (1024, 4));
+        assert_eq!(
+            (
+                f.lightmap.samples,
+                f.lightmap.sun_samples,
+                f.lightmap.trace_step
+            ),
+            (256, 32, 1)
+        );
+        assert_eq!((f.envmaps.samples, f.cluster.error), (1024, 0.01));
+        assert!(f.stages.svo && f.stages.linespace);
+        let v = Pipeline::preview();
+        assert_eq!(v.prt, PrtOptions::preview());
+        assert_eq!(
+            (
+                v.lightmap.max_resolution,
+                v.lightmap.samples,
+                v.lightmap.sun_samples,
+                v.lightmap.horizon_lattice
+            ),
+            (Some(1025), 16, 4, 2)
+        );
+        assert_eq!(v.envmaps.samples, 64);
+        assert!(!v.stages.svo && !v.stages.linespace);
+        let c = Pipeline::ci();
+        assert_eq!(c.units.envmap_shard_instances, 64);
+        assert_eq!(
+            Pipeline {
+                units: v.units,
+                ..c
+            },
+            v
+        );
+        assert_eq!(
+            Pipeline::default_pipeline().units.envmap_shard_instances,
+            25_000
+        );
     }
 
     #[test]

@@ -1,9 +1,14 @@
-//! The stage registry, [`REGISTRY`] (issue 36, item 1): one line per stage, naming the stage's
-//! [`Stage`] implementation in its own folder (`src/<module>/stage.rs`, through the interface
-//! of [`crate::stage`]), where its options lie in the [`Pipeline`] and what turns it on
-//! ([`Registered`]). Everything else the graph, the plans, `bake unit` and the stage commands
-//! need of a stage comes from that line: its name, version (the build key), units, the kinds
-//! it reads and writes, its `bake unit` actions.
+//! The stage registry, [`REGISTRY`] (issue 36, item 1): one line per stage in the `registry!`
+//! invocation, naming the stage's [`Stage`] implementation in its own folder
+//! (`src/<module>/stage.rs`, through the interface of [`crate::stage`]) and what of the
+//! pipeline it has (a switch, its own options table, another stage's table). The macro writes
+//! [`REGISTRY`] ([`Registered`] lines), the pipeline's [`Stages`] and [`Pipeline`] structs and
+//! the presets ([`Pipeline::of_preset`]) from those lines and what each stage declares in its
+//! folder (its options type, `on_in`, `options_in`). Everything else the graph, the plans,
+//! `bake unit`, `bake stage` and the stage commands need of a stage comes from that line: its
+//! name, version (the build key), units, the kinds it reads and writes, its `bake unit`
+//! actions, its options' check and the stages it needs ([`Pipeline::check`]), the section
+//! kinds it defines (`crate::kinds::all`) and its warnings ([`diagnostics`]).
 //!
 //! The same [`Stage::run`] serves both runners: the graph ([`super::build`], which keeps the
 //! sections in memory, caches the units and runs independent ones side by side) and the
@@ -32,7 +37,6 @@
 //! parameters, `--sh-only`), and `bake svo` and `bake linespace` over a model file (voxelized in
 //! its own frame, its textures read from files).
 
-use super::Pipeline;
 use super::cache::{self, Key, KeyBuilder};
 use super::stages::{Per, StageDef};
 use crate::error::{Error, Result};
@@ -45,7 +49,8 @@ use std::path::Path;
 pub use crate::envmap::stage::{envmap_shards, join_envmaps};
 pub use crate::lightmap::stage::{TraceCell, Traced};
 pub use crate::stage::{
-    GEOMETRY, Output, Phase, Reads, Scope, Shard, Stage, StageKey, TRACED, UnitCtx, UnitInputs,
+    GEOMETRY, Output, Phase, Preset, Reads, Scope, Shard, Stage, StageKey, TRACED, UnitCtx,
+    UnitInputs,
 };
 
 /// [`Stage`] without its options type: what the registry holds.
@@ -70,6 +75,14 @@ pub trait AnyStage: Sync {
     fn join(&self, parts: Vec<(usize, Vec<Section>)>, p: &Pipeline) -> Result<Vec<Section>>;
     /// [`Stage::shard_size`].
     fn shard_size(&self, shard: &[Section]) -> Result<usize>;
+    /// [`Stage::needs`].
+    fn needs(&self) -> &'static [&'static str];
+    /// [`Stage::check`] of the pipeline's options for the stage.
+    fn check(&self, p: &Pipeline) -> std::result::Result<(), String>;
+    /// [`Stage::kinds`].
+    fn kinds(&self) -> &'static [crate::stage::SectionKind];
+    /// [`Stage::diagnostics`].
+    fn diagnostics(&self) -> &'static [crate::diag::Diagnostic];
 }
 
 /// A registry line: the stage `stage` (implemented in its own folder), what turns it on, and
@@ -115,6 +128,18 @@ impl<S: Stage + 'static> AnyStage for Registered<S> {
     }
     fn shard_size(&self, shard: &[Section]) -> Result<usize> {
         self.stage.shard_size(shard)
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        self.stage.needs()
+    }
+    fn check(&self, p: &Pipeline) -> std::result::Result<(), String> {
+        self.stage.check((self.options)(p))
+    }
+    fn kinds(&self) -> &'static [crate::stage::SectionKind] {
+        self.stage.kinds()
+    }
+    fn diagnostics(&self) -> &'static [crate::diag::Diagnostic] {
+        self.stage.diagnostics()
     }
 }
 
@@ -204,8 +229,8 @@ fn find_or_err(stage: &str) -> Result<&'static dyn AnyStage> {
     find(stage).ok_or_else(|| Error::runtime(format!("no registered stage {stage:?}")))
 }
 
-/// [`pack_unit`] of the stage `st` (a test's toy stage too).
-fn pack_unit_of(
+/// [`pack_unit`] of the stage `st` (a test's toy stage too; `bake stage`).
+pub(crate) fn pack_unit_of(
     st: &dyn AnyStage,
     at: &CommandScope,
     sections: &[Section],
@@ -308,27 +333,115 @@ pub fn join_units(
     find_or_err(stage)?.join(parts, p)
 }
 
-/// Every stage, one line each, in the order of the build key (do not reorder: the key hashes
-/// this order; a new stage goes where its inputs are written before it). A line names the
-/// stage's implementation in its own folder, what turns it on and where its options lie in the
-/// pipeline: adding a stage is its folder's `stage.rs` and one line here (docs/ARCHITECTURE.md,
-/// "Adding a stage"; `tests/registry.rs` checks it).
-#[rustfmt::skip]
-pub static REGISTRY: &[&dyn AnyStage] = &[
-    &Registered { stage: Ingest, on: |_| true, options: |_| &() },
-    &Registered { stage: crate::material::stage::Material, on: |p| p.stages.material, options: |p| &p.material },
-    &Registered { stage: crate::terrain::stage::Terrain, on: |p| p.stages.terrain, options: |_| &() },
-    &Registered { stage: crate::sky::stage::Sky, on: |p| p.stages.sky, options: |p| &p.sky },
-    &Registered { stage: crate::prt::stage::Prt, on: |p| p.stages.prt, options: |p| &p.prt },
-    &Registered { stage: crate::lod::stage::Lod, on: |p| p.stages.lod, options: |p| &p.lod },
-    &Registered { stage: crate::lightmap::stage::Lightmap, on: |p| p.stages.lightmap, options: |p| &p.lightmap },
-    &Registered { stage: crate::lightmap::stage::Atlas, on: |p| p.stages.atlas, options: |p| &p.lightmap },
-    &Registered { stage: crate::envmap::stage::Envmaps, on: |p| p.stages.envmaps, options: |p| &p.envmaps },
-    &Registered { stage: crate::envmap::stage::Cluster, on: |p| p.stages.cluster, options: |p| &p.cluster },
-    &Registered { stage: crate::bittree::stage::Bittree, on: |p| p.stages.bittree, options: |p| &p.bittree },
-    &Registered { stage: crate::voxel::stage::Svo, on: |p| p.stages.svo, options: |p| &p.svo },
-    &Registered { stage: crate::linespace::stage::Linespace, on: |p| p.stages.linespace, options: |p| &p.linespace },
-];
+/// Writes the registry from its lines: [`REGISTRY`], and the pipeline's structs that the
+/// lines imply (its `[stages]` switches, [`Stages`], and one options table per stage that has
+/// its own, [`Pipeline`]; both in registry order, which is their serde order and therefore the
+/// build key's and `pipelines/*.toml`'s) with their presets ([`Pipeline::of_preset`], from each
+/// stage's [`Stage::on_in`] and [`Stage::options_in`]). A line is `name: path::To::Stage
+/// [what]`, `what` one of `always` (no switch, no options), `switch` (a switch, no options),
+/// `switch, options` (a switch and its own `[name]` table) or `switch, options = other` (a
+/// switch, and the table of the stage `other`).
+macro_rules! registry {
+    ($($name:ident : $stage:path [$($what:tt)*];)*) => {
+        registry!(@acc [] [] []; $($name : $stage [$($what)*];)*);
+    };
+    (@acc [$($sw:tt)*] [$($opt:tt)*] [$($line:tt)*]; $name:ident : $stage:path [always]; $($rest:tt)*) => {
+        registry!(@acc [$($sw)*] [$($opt)*]
+            [$($line)* &Registered { stage: $stage, on: |_| true, options: |_| &() },]; $($rest)*);
+    };
+    (@acc [$($sw:tt)*] [$($opt:tt)*] [$($line:tt)*]; $name:ident : $stage:path [switch]; $($rest:tt)*) => {
+        registry!(@acc [$($sw)* ($name, $stage)] [$($opt)*]
+            [$($line)* &Registered { stage: $stage, on: |p| p.stages.$name, options: |_| &() },]; $($rest)*);
+    };
+    (@acc [$($sw:tt)*] [$($opt:tt)*] [$($line:tt)*]; $name:ident : $stage:path [switch, options]; $($rest:tt)*) => {
+        registry!(@acc [$($sw)* ($name, $stage)] [$($opt)* ($name, $stage)]
+            [$($line)* &Registered { stage: $stage, on: |p| p.stages.$name, options: |p| &p.$name },]; $($rest)*);
+    };
+    (@acc [$($sw:tt)*] [$($opt:tt)*] [$($line:tt)*]; $name:ident : $stage:path [switch, options = $other:ident]; $($rest:tt)*) => {
+        registry!(@acc [$($sw)* ($name, $stage)] [$($opt)*]
+            [$($line)* &Registered { stage: $stage, on: |p| p.stages.$name, options: |p| &p.$other },]; $($rest)*);
+    };
+    (@acc [$(($sw:ident, $sw_stage:path))*] [$(($opt:ident, $opt_stage:path))*] [$($line:tt)*];) => {
+        /// Which stages run, one switch per registered stage that has one (`[stages]`; ingest
+        /// always runs). A stage whose input is switched off is an error ([`Pipeline::check`]).
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+        #[serde(default, deny_unknown_fields)]
+        pub struct Stages {
+            $(
+                #[doc = concat!("Runs the `", stringify!($sw), "` stage.")]
+                pub $sw: bool,
+            )*
+        }
+
+        /// A whole bake: the stages' switches, the graph's units and each stage's options (its
+        /// table, declared by its [`Stage::Options`]). Its serde form is `pipelines/*.toml`'s and
+        /// the build key's.
+        #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+        #[serde(default, deny_unknown_fields)]
+        pub struct Pipeline {
+            /// Which stages run.
+            pub stages: Stages,
+            /// How the graph splits stages into units (the env-map shards).
+            pub units: super::preset::Units,
+            $(
+                #[doc = concat!("The `", stringify!($opt), "` stage's options.")]
+                pub $opt: <$opt_stage as Stage>::Options,
+            )*
+        }
+
+        impl Pipeline {
+            /// The preset `preset`: each stage's switch and options as the stage declares them
+            /// ([`Stage::on_in`], [`Stage::options_in`]), the graph's units as
+            /// [`super::preset::Units::of_preset`] gives them.
+            pub fn of_preset(preset: Preset) -> Pipeline {
+                Pipeline {
+                    stages: Stages {
+                        $($sw: Stage::on_in(&$sw_stage, preset),)*
+                    },
+                    units: super::preset::Units::of_preset(preset),
+                    $($opt: Stage::options_in(&$opt_stage, preset),)*
+                }
+            }
+        }
+
+        /// Every stage, one line each, in the order of the build key (do not reorder: the key
+        /// hashes this order; a new stage goes where its inputs are written before it). A line
+        /// names the stage's implementation in its own folder and what of the pipeline it has
+        /// ([`registry!`]): adding a stage is its folder's `stage.rs` and one line here
+        /// (docs/ARCHITECTURE.md, "Adding a stage"; `tests/registry.rs` checks it).
+        pub static REGISTRY: &[&dyn AnyStage] = &[$($line)*];
+    };
+}
+
+registry! {
+    ingest: Ingest [always];
+    material: crate::material::stage::Material [switch, options];
+    terrain: crate::terrain::stage::Terrain [switch];
+    sky: crate::sky::stage::Sky [switch, options];
+    prt: crate::prt::stage::Prt [switch, options];
+    lod: crate::lod::stage::Lod [switch, options];
+    lightmap: crate::lightmap::stage::Lightmap [switch, options];
+    atlas: crate::lightmap::stage::Atlas [switch, options = lightmap];
+    envmaps: crate::envmap::stage::Envmaps [switch, options];
+    cluster: crate::envmap::stage::Cluster [switch, options];
+    bittree: crate::bittree::stage::Bittree [switch, options];
+    svo: crate::voxel::stage::Svo [switch, options];
+    linespace: crate::linespace::stage::Linespace [switch, options];
+}
+
+/// Every diagnostic: those no stage gives ([`crate::diag::DIAGNOSTICS`]), then each registered
+/// stage's ([`Stage::diagnostics`], declared in its folder), in registry order: the order of
+/// docs/DIAGNOSTICS.md.
+pub fn diagnostics() -> impl Iterator<Item = &'static crate::diag::Diagnostic> {
+    crate::diag::DIAGNOSTICS
+        .iter()
+        .chain(REGISTRY.iter().flat_map(|s| s.diagnostics().iter()))
+}
+
+/// The diagnostic of `id` (central or a stage's), or `None` for an id bake does not have.
+pub fn find_diagnostic(id: &str) -> Option<&'static crate::diag::Diagnostic> {
+    diagnostics().find(|d| d.id == id)
+}
 
 /// The registered stage named `name`.
 pub fn find(name: &str) -> Option<&'static dyn AnyStage> {
@@ -359,6 +472,7 @@ pub const INGEST_VERSION: u32 = 4;
 pub struct Ingest;
 impl Stage for Ingest {
     type Options = ();
+    fn options_in(&self, _: Preset) {}
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "ingest",
@@ -462,6 +576,9 @@ pub(crate) mod toy {
 
     impl Stage for Toy {
         type Options = u32;
+        fn options_in(&self, _: Preset) -> u32 {
+            OPTION
+        }
         fn def(&self) -> &'static StageDef {
             &DEF
         }

@@ -4,7 +4,7 @@
 //! stages' folders, listed by
 //! [`all`] in the order of [`super::stage::REGISTRY`] (issue 36, item 1). The build key takes
 //! the stages' names and versions from there ([`super::versions::all`]); tests hold the
-//! graph's unit records, the registry of section kinds ([`crate::kinds::KINDS`]) and `bake
+//! graph's unit records, the registry of section kinds ([`crate::kinds::all`]) and `bake
 //! unit`'s subcommands to it. `graph::build`, `plan::plan_in` and `bake unit`'s stage actions
 //! loop over the registry.
 //!
@@ -46,7 +46,7 @@ mod tests {
                 assert!(crate::kinds::find(k).is_some(), "{}: kind {k:?}", s.name);
             }
         }
-        for k in crate::kinds::KINDS {
+        for k in crate::kinds::all() {
             let written =
                 all().any(|s| s.writes.contains(&k.kind)) || GRAPH_WRITES.contains(&k.kind);
             assert!(written, "no stage writes kind {:?}", k.kind);

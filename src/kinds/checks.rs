@@ -2,92 +2,8 @@
 //! references to other sections (which `bake verify` resolves against the whole table). A check
 //! sees one section; it records [`Finding`]s in order, offsets relative to the payload's start.
 
-use crate::pack::section::{ArrayInfo, SectionView};
-
-/// One thing a kind's check found, or asks `verify` to look up in the other sections.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Finding {
-    /// A broken rule: check id, array, offset from the payload's start, message.
-    Rule {
-        /// The rule's stable id.
-        check: &'static str,
-        /// The array, when the rule is about one.
-        array: Option<String>,
-        /// Offset of the first offending byte from the payload's start.
-        offset: u64,
-        /// What is wrong.
-        message: String,
-    },
-    /// `field` names section `target`, which must be of kind `kind`.
-    Reference {
-        /// The metadata field that names the section.
-        field: &'static str,
-        /// The section it names.
-        target: String,
-        /// The kind the named section must have.
-        kind: &'static str,
-    },
-    /// `array` has `count` entries per vertex of mesh section `mesh`.
-    VertexCount {
-        /// The mesh section.
-        mesh: String,
-        /// Entries per vertex.
-        count: u64,
-        /// The array.
-        array: &'static str,
-    },
-    /// A section baked for a mesh of `vertices` vertices (`lod`): stale when the mesh differs.
-    BakedFor {
-        /// The mesh section.
-        mesh: String,
-        /// Its vertex count when the section was baked.
-        vertices: u64,
-    },
-}
-
-/// What a kind's check found in one section, in order.
-#[derive(Debug, Default)]
-pub struct Findings(pub Vec<Finding>);
-
-impl Findings {
-    fn rule(&mut self, check: &'static str, array: Option<&str>, offset: u64, message: String) {
-        self.0.push(Finding::Rule {
-            check,
-            array: array.map(str::to_string),
-            offset,
-            message,
-        });
-    }
-
-    fn reference(&mut self, field: &'static str, target: &str, kind: &'static str) {
-        self.0.push(Finding::Reference {
-            field,
-            target: target.to_string(),
-            kind,
-        });
-    }
-
-    /// Lengths within 1e-3 of 1 (normals are stored normalised).
-    fn unit_vectors(&mut self, a: &ArrayInfo, vs: impl Iterator<Item = [f32; 3]>) {
-        let bad = vs.enumerate().find(|(_, n)| {
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            (len - 1.0).abs() > 1e-3
-        });
-        if let Some((k, n)) = bad {
-            let msg = format!("vector {k} {n:?} is not of unit length (tolerance 1e-3)");
-            self.rule("vector.unit", Some(&a.name), at(a, k as u64), msg);
-        }
-    }
-}
-
-/// Offset of element `k` of an array from the payload's start.
-fn at(a: &ArrayInfo, k: u64) -> u64 {
-    a.offset + k * a.components as u64 * a.format.size() as u64
-}
-
-fn f32s<const N: usize>(v: &SectionView, name: &str) -> Option<(ArrayInfo, Vec<[f32; N]>)> {
-    Some((v.info(name)?.clone(), v.array_vec(name).ok()?))
-}
+use crate::pack::section::SectionView;
+use crate::stage::kind::{Findings, at, f32s};
 
 pub(super) fn mesh(v: &SectionView, f: &mut Findings) {
     let Ok((meta, _)) = crate::mesh::section::from_section(v) else {
@@ -107,15 +23,6 @@ pub(super) fn mesh(v: &SectionView, f: &mut Findings) {
             let msg = format!("material {k}'s map index is past the {n} textures");
             f.rule("mesh.texture_index", None, 0, msg);
         }
-    }
-}
-
-pub(super) fn terrain(v: &SectionView, f: &mut Findings) {
-    let Ok(meta) = v.meta::<crate::terrain::source_section::TerrainMeta>() else {
-        return;
-    };
-    if let Some(s) = &meta.color_section {
-        f.reference("color_section", s, "texture");
     }
 }
 
@@ -146,64 +53,5 @@ pub(super) fn instances(v: &SectionView, f: &mut Findings) {
             at(a, k as u64) + 28,
             msg,
         );
-    }
-}
-
-pub(super) fn material(v: &SectionView, f: &mut Findings) {
-    let Ok(meta) = crate::material::section::from_section(v) else {
-        return;
-    };
-    f.reference("mesh_section", &meta.mesh_section, "mesh");
-    for m in [&meta.color_map, &meta.normal_map].into_iter().flatten() {
-        f.reference("color_map/normal_map", m, "texture");
-    }
-}
-
-pub(super) fn tangents(v: &SectionView, f: &mut Findings) {
-    let Ok((meta, t)) = crate::mesh::tangents::from_section(v) else {
-        return;
-    };
-    f.reference("mesh_section", &meta.mesh_section, "mesh");
-    if let Some(a) = v.info("tangents") {
-        f.unit_vectors(a, t.iter().map(|t| [t[0], t[1], t[2]]));
-    }
-    f.0.push(Finding::VertexCount {
-        mesh: meta.mesh_section.clone(),
-        count: t.len() as u64,
-        array: "tangents",
-    });
-}
-
-pub(super) fn prt(v: &SectionView, f: &mut Findings) {
-    let Ok(meta) = v.meta::<crate::prt::pack::PrtMeta>() else {
-        return;
-    };
-    f.reference("mesh", &meta.mesh, "mesh");
-    f.0.push(Finding::VertexCount {
-        mesh: meta.mesh.clone(),
-        count: meta.vertices as u64,
-        array: "transfer",
-    });
-}
-
-pub(super) fn lod(v: &SectionView, f: &mut Findings) {
-    let Ok(meta) = v.meta::<crate::lod::section::LodMeta>() else {
-        return;
-    };
-    f.reference("mesh_section", &meta.mesh_section, "mesh");
-    f.0.push(Finding::BakedFor {
-        mesh: meta.mesh_section.clone(),
-        vertices: meta.mesh_vertices as u64,
-    });
-}
-
-pub(super) fn lightmap(v: &SectionView, f: &mut Findings) {
-    let Ok(meta) = v.meta::<crate::lightmap::section::LightmapMeta>() else {
-        return;
-    };
-    if meta.surface != "terrain" {
-        f.reference("surface", &meta.surface, "mesh");
-    } else {
-        f.reference("surface", "terrain", "terrain");
     }
 }

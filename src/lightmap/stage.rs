@@ -2,10 +2,14 @@
 //! in atlases), and the trace structures every lighting unit of a bake shares ([`TraceCell`]).
 //! Their registry lines are in `crate::graph::stage::REGISTRY`.
 
+use crate::error::ParseError;
 use crate::error::Result;
+use crate::pack::section::ArrayFormat::{F32, U8, U32};
+use crate::pack::section::SectionView;
 use crate::pack::{Pack, Section};
+use crate::stage::kind::{Findings, Naming, SectionKind};
 use crate::stage::{
-    LIGHTING, Output, Per, Reads, Shard, SharedTrace, Stage, StageDef, StageKey, UnitCtx,
+    LIGHTING, Output, Per, Preset, Reads, Shard, SharedTrace, Stage, StageDef, StageKey, UnitCtx,
     UnitInputs,
 };
 use serde_json::json;
@@ -64,6 +68,39 @@ impl SharedTrace for TraceCell {
 pub struct Lightmap;
 impl Stage for Lightmap {
     type Options = crate::lightmap::LightmapOptions;
+    fn kinds(&self) -> &'static [SectionKind] {
+        KINDS
+    }
+    /// The preview: 16 rays with 4 sun rays, at most 1025² texels, 16 horizon directions. The
+    /// final pipeline: 256 rays with 32 sun rays at every texel.
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        use crate::lightmap::LightmapOptions;
+        let d = LightmapOptions::DEFAULT;
+        match preset {
+            Preset::Default => d,
+            Preset::Preview | Preset::Ci => LightmapOptions {
+                max_resolution: Some(1025),
+                samples: 16,
+                sun_samples: 4,
+                // 16 horizon directions: the sweeps cost a third of 32's (1.3 against 4.5 CPU s
+                // at 1025²), the error is the instances' (docs/PERFORMANCE.md, issue 37).
+                horizon_lattice: 2,
+                ..d
+            },
+            Preset::Final => LightmapOptions {
+                samples: 256,
+                sun_samples: 32,
+                trace_step: 1,
+                ..d
+            },
+        }
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        &["sky"]
+    }
+    fn check(&self, o: &Self::Options) -> std::result::Result<(), String> {
+        o.check()
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "lightmap",
@@ -106,6 +143,13 @@ impl Stage for Lightmap {
 pub struct Atlas;
 impl Stage for Atlas {
     type Options = crate::lightmap::LightmapOptions;
+    /// The light map's options (the registry's line gives it the `lightmap` table).
+    fn options_in(&self, preset: Preset) -> Self::Options {
+        Lightmap.options_in(preset)
+    }
+    fn needs(&self) -> &'static [&'static str] {
+        &["sky"]
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "atlas",
@@ -146,4 +190,49 @@ fn texels(sections: &[Section]) -> u64 {
         .filter_map(|s| crate::pack::section::SectionView::parse(&s.payload, 0).ok())
         .filter_map(|v| v.arrays.first().map(|a| a.count))
         .sum()
+}
+
+/// The section kinds the `lightmap` stage defines (docs/FORMAT.md): what `bake dump` and `bake
+/// verify` know of them, reached through the stage's registry line.
+const KINDS: &[SectionKind] = &[SectionKind {
+    kind: crate::lightmap::section::KIND,
+    naming: Naming::Prefixed,
+    arrays: &[
+        ("irradiance", &[F32], 4),
+        ("indirect", &[F32], 4),
+        ("coverage", &[U8], 1),
+        ("tiles", &[F32], 4),
+        ("atlas_uv", &[F32], 2),
+        ("vertex_source", &[U32], 1),
+        ("indices", &[U32], 3),
+        ("triangle_chart", &[U32], 1),
+        ("charts", &[U32], 4),
+        ("lightmap_uv", &[F32], 2),
+    ],
+    decode: decode_lightmap,
+    views: Some((
+        crate::lightmap::section::summary,
+        crate::lightmap::section::data,
+    )),
+    check: Some(check_lightmap),
+}];
+
+/// The terrain's light map, or an object atlas (told apart by its `vertex_source` array).
+fn decode_lightmap(v: &SectionView) -> Result<(), ParseError> {
+    if v.info("vertex_source").is_some() {
+        crate::lightmap::atlas_section::from_section(v).map(drop)
+    } else {
+        crate::lightmap::section::from_section(v).map(drop)
+    }
+}
+
+fn check_lightmap(v: &SectionView, f: &mut Findings) {
+    let Ok(meta) = v.meta::<crate::lightmap::section::LightmapMeta>() else {
+        return;
+    };
+    if meta.surface != "terrain" {
+        f.reference("surface", &meta.surface, "mesh");
+    } else {
+        f.reference("surface", "terrain", "terrain");
+    }
 }

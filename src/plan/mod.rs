@@ -593,7 +593,7 @@ mod registry_tests {
     }
 
     #[test]
-    fn a_registered_toy_stage_runs_in_the_graph_the_plan_and_as_a_unit() {
+    fn a_registered_toy_stage_runs_in_the_graph_the_plan_as_a_unit_and_as_a_command() {
         let (dir, mut opts) = fixture();
         let registry = toy::with(&toy::TOY);
         let cache = dir.path().join("cache");
@@ -699,6 +699,41 @@ mod registry_tests {
         let unit = Pack::open(&up).unwrap();
         let unit_toy = unit.payload(unit.find("toy").unwrap()).to_vec();
         assert_eq!(unit_toy, graph_toy);
+
+        // The command line: `bake stage toy PACK` (made from the registry, as `bake stage
+        // --list` shows it) over the graph's pack, which holds far more than the toy declares:
+        // the graph's bytes again.
+        let g = crate::cli::Global {
+            quiet: true,
+            ..Default::default()
+        };
+        let args = |stage: Option<&str>, list: bool| crate::cli::stage::StageArgs {
+            stage: stage.map(str::to_string),
+            input: Some(out.clone()),
+            output: Some(dir.path().join("cli-toy.bake")),
+            pipeline: None,
+            set: Vec::new(),
+            list,
+        };
+        let listed = crate::cli::stage::run_in(&registry, &args(None, true), &g).unwrap();
+        assert!(
+            listed.text.lines().any(|l| l.starts_with("toy ")),
+            "{}",
+            listed.text
+        );
+        let plain = crate::cli::stage::run(&args(None, true), &g).unwrap();
+        assert!(!plain.text.contains("toy "), "{}", plain.text);
+        let o = crate::cli::stage::run_in(&registry, &args(Some("toy"), false), &g).unwrap();
+        assert_eq!(o.json["sections"], serde_json::json!(["toy"]));
+        assert_eq!(o.json["units"], serde_json::json!(["scene"]));
+        let cli = Pack::open(&dir.path().join("cli-toy.bake")).unwrap();
+        let cli_toy = cli.payload(cli.find("toy").unwrap()).to_vec();
+        assert_eq!(cli_toy, graph_toy);
+        // Without the toy registered, the command does not know it.
+        let e = crate::cli::stage::run(&args(Some("toy"), false), &g)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no registered stage \"toy\""), "{e}");
     }
 
     /// The fixture's scene as `bake unit` arguments.

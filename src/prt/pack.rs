@@ -15,7 +15,7 @@ use super::transfer::{
     self as prt, COEFFS, GPU_VEC4_PER_SIDE, PER_VERTEX, PrtMaterial, PrtOptions, SETS, SIDES,
     Transfer,
 };
-use crate::diag::{self, Warning};
+use crate::diag::Warning;
 use crate::error::{Error, ParseError, Result};
 use crate::model::Rgba8Image;
 use crate::pack::fit_name;
@@ -226,7 +226,7 @@ pub fn prt_mesh(
     let scene = prt::PrtScene::build(&mesh, &masks, &o)?;
     if scene.skipped_triangles() > 0 {
         warnings.push(Warning::new(
-            &diag::PRT_TRIANGLES_NON_FINITE,
+            &super::stage::PRT_TRIANGLES_NON_FINITE,
             "",
             format!(
                 "{}: {} triangles with non-finite positions left out of the BVH",
@@ -279,7 +279,7 @@ pub fn mesh_textures(
                 Some(Ok((_, img))) => Some(img),
                 Some(Err(err)) => {
                     warnings.push(Warning::new(
-                        &diag::PRT_TEXTURE_UNREADABLE,
+                        &super::stage::PRT_TEXTURE_UNREADABLE,
                         "",
                         format!("{mesh_section}: texture {:?}: {err}", t.name),
                     ));
@@ -287,7 +287,7 @@ pub fn mesh_textures(
                 }
                 None => {
                     warnings.push(Warning::new(
-                        &diag::PRT_TEXTURE_MISSING,
+                        &super::stage::PRT_TEXTURE_MISSING,
                         "",
                         format!(
                             "{mesh_section}: texture {:?} was not decoded into the pack; \
@@ -432,6 +432,6 @@ mod tests {
         let (_, _, warnings) = prt_pack(&pack, &opts, &|_| {}).unwrap();
         assert_eq!(warnings.len(), 1);
         assert!(warnings[0].message.contains("leaf.png"));
-        assert_eq!(warnings[0].id, crate::diag::PRT_TEXTURE_MISSING.id);
+        assert_eq!(warnings[0].id, crate::prt::stage::PRT_TEXTURE_MISSING.id);
     }
 }

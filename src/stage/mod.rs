@@ -10,13 +10,22 @@
 //! them. A unit's key hashes every declared section ([`StageKey::finish`] refuses a key that
 //! skipped them), so the key covers what the unit reads by construction.
 //!
+//! A stage also declares, in its folder, what the rest of the bake needs of it besides its
+//! units: its options type and its switch and options in each [`Preset`] ([`Stage::on_in`],
+//! [`Stage::options_in`]), the stages it needs and its options' check, the section kinds it
+//! defines ([`Stage::kinds`], [`SectionKind`] rows) and the warnings it gives
+//! ([`Stage::diagnostics`]).
+//!
 //! This module lies below the stages' modules (docs/ARCHITECTURE.md, "Layers"), so a stage's
 //! folder can implement it without importing the orchestration layer. It therefore knows no
-//! pipeline: the registry's line of a stage (`crate::graph::stage::REGISTRY`) says where the
-//! stage's options lie in the pipeline and what turns it on. The runners (the graph, `bake
+//! pipeline: the registry's line of a stage (`crate::graph::stage::REGISTRY`, written by the
+//! `registry!` macro there) makes the pipeline's switch and table of the stage from what it
+//! declares. The runners (the graph, `bake
 //! unit`, the stage commands) and the registry are in `crate::graph::stage`.
 
 #![warn(missing_docs)]
+
+pub mod kind;
 
 use crate::error::{Error, Result};
 use crate::ingest::confine::SourceNames;
@@ -29,6 +38,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 pub use crate::diag::Warning;
+pub use kind::SectionKind;
 
 /// A file a unit read, with its content hash (`None`: it was looked for and did not exist,
 /// so that its appearing later invalidates the entry). In memory `path` is the real path; in a
@@ -485,11 +495,78 @@ impl<'u> StageKey<'u> {
     }
 }
 
+/// The pipeline presets (`pipelines/*.toml`, `--pipeline NAME`), in the order `bake pipeline
+/// list` shows them. Each stage says its switch and options in each ([`Stage::on_in`],
+/// [`Stage::options_in`]); the graph's own settings (the env-map shards) are central.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Preset {
+    /// `default`: every lighting stage at its default quality.
+    Default,
+    /// `preview` (`--preview`): quick, noisy lighting.
+    Preview,
+    /// `final`: converged lighting, the optional stages on.
+    Final,
+    /// `ci`: the preview's quality (a stage gives it the preview's options), small shards.
+    Ci,
+}
+
+impl Preset {
+    /// Every preset, in `bake pipeline list`'s order.
+    pub const ALL: [Preset; 4] = [Preset::Default, Preset::Preview, Preset::Final, Preset::Ci];
+
+    /// Its name (`--pipeline NAME`, `pipelines/NAME.toml`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Preset::Default => "default",
+            Preset::Preview => "preview",
+            Preset::Final => "final",
+            Preset::Ci => "ci",
+        }
+    }
+
+    /// The preset named `name`.
+    pub fn named(name: &str) -> Option<Preset> {
+        Preset::ALL.into_iter().find(|p| p.name() == name)
+    }
+}
+
 /// One stage: what it reads, its options, its key and its computation.
 pub trait Stage: Sync {
-    /// The part of the pipeline the stage reads (the registry's line says where it lies in
-    /// the pipeline, and what turns the stage on).
-    type Options: Serialize + Sync + 'static;
+    /// The stage's options: its table of the pipeline (`[<name>]` in `pipelines/*.toml`, its
+    /// serde form hashed into every unit's key). `()` for a stage without options.
+    type Options: Serialize
+        + serde::de::DeserializeOwned
+        + Clone
+        + PartialEq
+        + std::fmt::Debug
+        + Send
+        + Sync
+        + 'static;
+    /// Whether the preset turns the stage on (by default: in every preset).
+    fn on_in(&self, _preset: Preset) -> bool {
+        true
+    }
+    /// The stage's options in the preset (`pipelines/<preset>.toml` spells them out).
+    fn options_in(&self, preset: Preset) -> Self::Options;
+    /// The stages whose output it reads that must be on when it is (by name; the pipeline
+    /// refuses a switch that breaks this).
+    fn needs(&self) -> &'static [&'static str] {
+        &[]
+    }
+    /// Checks its options beyond their types (the pipeline's parse and `--set` refuse them
+    /// with this message).
+    fn check(&self, _o: &Self::Options) -> std::result::Result<(), String> {
+        Ok(())
+    }
+    /// The section kinds this stage defines (docs/FORMAT.md; `bake dump` and `bake verify`
+    /// walk them through the registry). A kind written by several stages is defined by one.
+    fn kinds(&self) -> &'static [SectionKind] {
+        &[]
+    }
+    /// The warnings this stage gives, with their stable ids (docs/DIAGNOSTICS.md).
+    fn diagnostics(&self) -> &'static [crate::diag::Diagnostic] {
+        &[]
+    }
     /// Its name, version, what a unit covers, the kinds it writes and its `bake unit` actions
     /// (a `static` in the impl).
     fn def(&self) -> &'static StageDef;

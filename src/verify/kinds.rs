@@ -1,5 +1,5 @@
 //! Section-kind invariants for `bake verify`, walking the registry of section kinds
-//! ([`crate::kinds::KINDS`]): each section's name against its kind's naming rule, its arrays
+//! ([`crate::kinds::all`]: the central kinds and each registered stage's): each section's name against its kind's naming rule, its arrays
 //! against the kind's schema, the kind's decoder (which checks lengths against counts and the
 //! structure of BitTrees, octrees and N-trees), finite floats, then the kind's own check (unit
 //! vectors, index ranges, reserved fields) and the references it names, resolved here against

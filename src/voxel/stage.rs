@@ -1,10 +1,13 @@
 //! The `svo` stage: the sparse voxel octree of the placed scene (its registry line is in
 //! `crate::graph::stage::REGISTRY`).
 
-use crate::diag;
+use crate::pack::section::ArrayFormat::{U8, U32};
+use crate::stage::kind::{Naming, SectionKind};
+
+use crate::diag::Diagnostic;
 use crate::error::Result;
 use crate::stage::{
-    GEOMETRY, Output, Per, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning,
+    GEOMETRY, Output, Per, Preset, Reads, Stage, StageDef, StageKey, UnitCtx, UnitInputs, Warning,
 };
 
 /// 2: voxel colours from the linear albedo (issue 35).
@@ -17,6 +20,19 @@ pub const VERSION: u32 = 3;
 pub struct Svo;
 impl Stage for Svo {
     type Options = crate::voxel::voxelize::VoxelizeOptions;
+    fn diagnostics(&self) -> &'static [Diagnostic] {
+        DIAGNOSTICS
+    }
+    fn kinds(&self) -> &'static [SectionKind] {
+        KINDS
+    }
+    /// On in the final pipeline only (the whole placed scene: large scenes make it large).
+    fn on_in(&self, preset: Preset) -> bool {
+        preset == Preset::Final
+    }
+    fn options_in(&self, _: Preset) -> Self::Options {
+        crate::voxel::voxelize::VoxelizeOptions::surface(256)
+    }
     fn def(&self) -> &'static StageDef {
         static DEF: StageDef = StageDef {
             name: "svo",
@@ -49,7 +65,7 @@ impl Stage for Svo {
         let mut warnings = Vec::new();
         if left.skipped_triangles > 0 {
             warnings.push(Warning::new(
-                &diag::SVO_TRIANGLES_WITHOUT_VOXEL,
+                &SVO_TRIANGLES_WITHOUT_VOXEL,
                 "",
                 format!(
                     "{} triangles left no voxel (outside the grid or alpha-tested away)",
@@ -59,7 +75,7 @@ impl Stage for Svo {
         }
         if left.open_columns > 0 {
             warnings.push(Warning::new(
-                &diag::SVO_MESH_NOT_CLOSED,
+                &SVO_MESH_NOT_CLOSED,
                 "",
                 format!(
                     "solid fill: {} columns crossed the surface an odd number of times \
@@ -76,3 +92,61 @@ impl Stage for Svo {
         })
     }
 }
+
+/// The section kinds the `svo` stage defines (docs/FORMAT.md): what `bake dump` and `bake
+/// verify` know of them, reached through the stage's registry line.
+const KINDS: &[SectionKind] = &[
+    SectionKind {
+        kind: crate::voxel::section::KIND,
+        naming: Naming::Kind,
+        arrays: &[
+            ("nodes", &[U32], 4),
+            ("leaves", &[U8], 1),
+            ("voxel_colors", &[U32], 1),
+            ("node_colors", &[U32], 1),
+            ("voxel_normals", &[U32], 1),
+            ("node_normals", &[U32], 1),
+        ],
+        decode: |v| crate::voxel::section::from_section(v).map(drop),
+        views: Some((crate::voxel::section::summary, crate::voxel::section::data)),
+        check: None,
+    },
+    SectionKind {
+        kind: crate::voxel::instanced_section::KIND,
+        naming: Naming::Kind,
+        arrays: &[
+            ("nodes", &[U32], 4),
+            ("leaves", &[U8], 1),
+            ("voxel_colors", &[U32], 1),
+            ("voxel_normals", &[U32], 1),
+            ("node_colors", &[U32], 1),
+            ("node_normals", &[U32], 1),
+            ("instances", &[U32], 8),
+            ("cell_start", &[U32], 1),
+            ("cell_instances", &[U32], 1),
+            ("top_nodes", &[U32], 4),
+            ("top_colors", &[U32], 1),
+            ("top_normals", &[U32], 1),
+        ],
+        decode: |v| crate::voxel::instanced_section::from_section(v).map(drop),
+        views: Some((
+            crate::voxel::instanced_section::summary,
+            crate::voxel::instanced_section::data,
+        )),
+        check: None,
+    },
+];
+
+/// `svo.triangles-without-voxel`.
+pub const SVO_TRIANGLES_WITHOUT_VOXEL: Diagnostic = Diagnostic::warning(
+    "svo.triangles-without-voxel",
+    "triangles outside the grid or alpha-tested away left no voxel",
+);
+/// `svo.mesh-not-closed`.
+pub const SVO_MESH_NOT_CLOSED: Diagnostic = Diagnostic::warning(
+    "svo.mesh-not-closed",
+    "solid fill: columns crossed the surface an odd number of times (the mesh is not closed)",
+);
+
+/// The warnings the `svo` stage gives (docs/DIAGNOSTICS.md), reached through its registry line.
+const DIAGNOSTICS: &[Diagnostic] = &[SVO_TRIANGLES_WITHOUT_VOXEL, SVO_MESH_NOT_CLOSED];
