@@ -711,16 +711,28 @@ impl SkyTables {
     /// sin(elevation) `s`, raised to the highest point of the tangent plane over the sector.
     #[inline]
     pub fn effective(&self, k: usize, s: f32, n: [f32; 3]) -> f32 {
+        self.effective_at(k, s, n, Self::downhill(n))
+    }
+
+    /// The azimuth in which the tangent plane of unit normal `n` is highest, −(n_x, n_y)
+    /// (`None` for a level plane): what [`Self::effective_at`] takes, the same for every sector.
+    #[inline]
+    pub fn downhill(n: [f32; 3]) -> Option<f64> {
+        (n[0].hypot(n[1]) > 0.0).then(|| (-n[1] as f64).atan2(-n[0] as f64))
+    }
+
+    /// [`Self::effective`] with the normal's [`Self::downhill`] azimuth computed once for all
+    /// sectors (the same value, so the same bits).
+    #[inline]
+    pub fn effective_at(&self, k: usize, s: f32, n: [f32; 3], downhill: Option<f64>) -> f32 {
         let nz = n[2].max(1e-6);
         let tan_at = |(c, sn): (f32, f32)| -(n[0] * c + n[1] * sn) / nz;
         let mut t = tan_at(self.lo_cs[k]).max(tan_at(self.hi_cs[k]));
         // The tangent plane is highest in the azimuth of −(n_x, n_y).
-        let r = n[0].hypot(n[1]);
-        if r > 0.0 {
-            let p = wrap_from((-n[1] as f64).atan2(-n[0] as f64), self.lo[k]);
-            if p < self.hi[k] {
-                t = t.max(r / nz);
-            }
+        if let Some(a) = downhill
+            && wrap_from(a, self.lo[k]) < self.hi[k]
+        {
+            t = t.max(n[0].hypot(n[1]) / nz);
         }
         s.max(sin_of_slope(t))
     }

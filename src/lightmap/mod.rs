@@ -688,9 +688,12 @@ fn texel_horizon_exact(
 /// A texel's horizons per sector raised to its tangent plane ([`horizon::SkyTables::effective`]).
 fn effective_horizons(env: &HorizonTexel, n: Vec3A) -> [f32; horizon::MAX_DIRECTIONS] {
     let na = n.to_array();
+    let downhill = horizon::SkyTables::downhill(na);
     let mut s_eff = [0.0f32; horizon::MAX_DIRECTIONS];
     for (k, se) in s_eff.iter_mut().enumerate().take(env.tables.sectors()) {
-        *se = env.tables.effective(k, env.horizons.sin(k, env.index), na);
+        *se = env
+            .tables
+            .effective_at(k, env.horizons.sin(k, env.index), na, downhill);
     }
     s_eff
 }
