@@ -16,7 +16,10 @@
 //! is traced once (over the whole ray) by [`super::traverse::trace_svo`] on the ray moved into
 //! its voxel units (same `t`); the terrain is traced once. The nearest hit wins, ties to the
 //! lower instance number (the terrain is number `instances − 1`, last); the walk stops once the
-//! best hit lies before the current cell's exit.
+//! best hit lies before the current cell's exit. The LOD walk ([`InstancedSvo::trace_lod`])
+//! applies one rule from the top cells down: a top cell, a sub-cell, or inside an instance a
+//! node of its model whose world side is at most `cone · t` where the ray enters it (and which
+//! covers enough) answers with its filtered attributes.
 
 use super::Grid;
 use super::geometry::Geometry;
@@ -159,8 +162,8 @@ pub const SUB: u32 = 4;
 /// aggregate of the placed model voxels whose centres fall in it, and per occupied sub-cell of
 /// its 4³ subdivision the same over the sub-cell. Premultiplied RGBA8 colours whose α is the
 /// coverage min(1, Σ (s·v_m)³·α_voxel / volume), octahedral world normals (the coverage- and
-/// volume-weighted sum of the voxels' turned normals). The terrain is not aggregated: its own
-/// octree keeps its filtered parents.
+/// volume-weighted sum of the voxels' turned normals). The terrain's voxels are aggregated as
+/// an instance at the identity (the top grid spans its box), so a far view sees the ground.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TopAggregates {
     /// Per top cell: (mask low, mask high, first sub-cell, 0); bit s of the mask: sub-cell at

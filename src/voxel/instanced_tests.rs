@@ -709,11 +709,14 @@ fn oracle_top_ray(s: &InstancedSvo, o: [f32; 3], d: [f32; 3]) -> VoxelRay {
     }
 }
 
+/// An occupied inner cell: (level, minimum corner in voxels, side in voxels, the stored filtered
+/// colour, its index into `node_colors`).
+pub(crate) type InnerCell = (u32, [u32; 3], u32, u32, u32);
+
 /// Every occupied inner cell of an octree, found from its voxels (probing each coordinate of
-/// the grid), not by a walk: (level, minimum corner in voxels, side in voxels, the stored
-/// filtered colour, its index). The stored values are looked up by descending the cell's
-/// Morton key.
-pub(crate) fn inner_cells(svo: &Svo) -> Vec<(u32, [u32; 3], u32, u32, u32)> {
+/// the grid), not by a walk. The stored values are looked up by descending the cell's Morton
+/// key.
+pub(crate) fn inner_cells(svo: &Svo) -> Vec<InnerCell> {
     let l = svo.levels;
     let mut keys = std::collections::BTreeSet::new();
     let g = svo.grid;
@@ -757,7 +760,7 @@ pub(crate) fn inner_cells(svo: &Svo) -> Vec<(u32, [u32; 3], u32, u32, u32)> {
 /// later than the first voxel, else that voxel (the voxel walk, tested against the triangles).
 pub(crate) fn brute_force_instance(
     s: &InstancedSvo,
-    cells: &[(u32, [u32; 3], u32, u32, u32)],
+    cells: &[InnerCell],
     i: usize,
     o: [f32; 3],
     d: [f32; 3],
@@ -805,7 +808,7 @@ pub(crate) fn brute_force_instance(
 /// answer of all instances and the terrain, each by [`brute_force_instance`].
 fn brute_force_lod(
     s: &InstancedSvo,
-    cells: &[Vec<(u32, [u32; 3], u32, u32, u32)>],
+    cells: &[Vec<InnerCell>],
     o: [f32; 3],
     d: [f32; 3],
     cone: f32,
