@@ -1127,3 +1127,96 @@ fn twice_the_scale_from_twice_the_distance_stops_on_the_same_node() {
     }
     assert!(nodes > 300, "{nodes} node stops of {compared}");
 }
+
+/// A version 2 section (the same arrays, the terrain not in the aggregates) is refused with a
+/// message that names its version and says to rebuild.
+#[test]
+fn a_version_2_section_is_refused_with_a_message_to_rebuild() {
+    use super::super::instanced_section::{from_section, to_section};
+    let s = test_scene(32);
+    let now = to_section("svo-scene", "scene:x.eco", &s, false);
+    let view = crate::pack::section::SectionView::parse(&now.payload, 0).unwrap();
+    let (meta, _) = from_section(&view).unwrap();
+    // The section written again with the metadata's version set to `version`.
+    let with_version = |version: u32| {
+        let mut m = meta.clone();
+        m.version = version;
+        let mut b = crate::pack::SectionBuilder::new("svo-scene", "svo-scene");
+        b.meta(&m);
+        let nodes: Vec<[u32; 4]> = view.array_vec("nodes").unwrap();
+        let leaves: &[u8] = view.array("leaves").unwrap();
+        let instances: Vec<[u32; 8]> = view.array_vec("instances").unwrap();
+        let top_nodes: Vec<[u32; 4]> = view.array_vec("top_nodes").unwrap();
+        let u32s = |name: &str| -> Vec<u32> { view.array_vec(name).unwrap() };
+        let u = crate::pack::ArrayFormat::U32;
+        b.array("nodes", u, 4, &nodes)
+            .array("leaves", crate::pack::ArrayFormat::U8, 1, leaves);
+        for name in [
+            "voxel_colors",
+            "voxel_normals",
+            "node_colors",
+            "node_normals",
+        ] {
+            b.array(name, u, 1, &u32s(name));
+        }
+        b.array("instances", u, 8, &instances);
+        for name in ["cell_start", "cell_instances"] {
+            b.array(name, u, 1, &u32s(name));
+        }
+        b.array("top_nodes", u, 4, &top_nodes);
+        for name in ["top_colors", "top_normals"] {
+            b.array(name, u, 1, &u32s(name));
+        }
+        b.finish()
+    };
+    let ok = with_version(3);
+    let v = crate::pack::section::SectionView::parse(&ok.payload, 0).unwrap();
+    assert_eq!(
+        from_section(&v).unwrap().1,
+        s,
+        "the copy at version 3 is read back"
+    );
+    let sec = with_version(2);
+    let v = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
+    let e = from_section(&v).unwrap_err().to_string();
+    assert!(e.contains("version 2") && e.contains("rebuild"), "{e}");
+}
+
+/// The terrain alone (no instances): its voxels fill the top level's aggregates, so a wide cone
+/// stops on the ground's aggregate; the aggregate's coverage-weighted colour is the terrain
+/// voxels' mean (brute force) and cone 0 still reaches the terrain's voxels.
+#[test]
+fn a_far_view_of_bare_terrain_stops_on_the_grounds_aggregate() {
+    let t = wavy_terrain();
+    let s = InstancedSvo::build(Some(&t), &[], &[], &VoxelizeOptions::surface(64)).unwrap();
+    assert_eq!((s.grid_instances(), s.terrain), (0, true));
+    let sums = brute_force_sums(&s);
+    assert!(!sums.is_empty());
+    let a = &s.aggregates;
+    let occupied: usize = (0..s.top.cells())
+        .map(|c| a.mask(c).count_ones() as usize)
+        .sum();
+    assert_eq!(
+        occupied,
+        sums.len(),
+        "every sub-cell holding a terrain voxel centre"
+    );
+    let g = s.scene_grid;
+    let hi = g.to_world(g.dims.map(|d| d as f32));
+    let centre = [0, 1, 2].map(|k| 0.5 * (g.origin[k] + hi[k]));
+    // Straight down from far above the middle.
+    let o = [centre[0] + 0.1, centre[1] + 0.2, hi[2] + 200.0];
+    let d = [0.0, 0.0, -1.0];
+    let far = s.trace_lod(o, d, [0.0, f32::INFINITY], 1.0);
+    let Some(SceneHit::Aggregate(h)) = far else {
+        panic!("{far:?}")
+    };
+    assert!(crate::voxel::lod_trace::can_stop(a.colors[h.attr as usize]));
+    match s.trace_lod(o, d, [0.0, f32::INFINITY], 0.0) {
+        Some(SceneHit::Voxel(v)) => {
+            assert_eq!(v.instance, 0);
+            assert!(v.t >= h.t, "{v:?} before {h:?}");
+        }
+        other => panic!("{other:?}"),
+    }
+}
