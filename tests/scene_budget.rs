@@ -229,18 +229,33 @@ fn over_the_flattened_budget_the_svo_stage_writes_the_two_level_svo() {
     );
     assert_eq!(r["reference"]["rays_disagree"], 0, "{r}");
     assert_eq!(r["reference"]["mad"], 0.0, "{r}");
-    // The validation's LOD batch stops on the top level's aggregates, GPU = CPU.
+    // The validation's LOD batch stops on the top level's aggregates and on the models' nodes
+    // inside instances, GPU = CPU.
     assert!(
         v["svo_scene"]["lod"]["aggregate_hits"].as_u64().unwrap() > 30,
         "{v}"
     );
-    // With a wide cone the view reads the aggregates (top cells or sub-cells), GPU = CPU; with
-    // cone 0 only voxels.
-    for (scale, aggregates) in [("40", true), ("0", false)] {
+    assert!(
+        v["svo_scene"]["lod"]["node_hits"].as_u64().unwrap() > 0,
+        "{v}"
+    );
+    // With a wide cone the view reads the aggregates (top cells or sub-cells), with a middle
+    // one the models' nodes as well, GPU = CPU; with cone 0 only voxels.
+    for (scale, aggregates, nodes) in [
+        ("40", Some(true), None),
+        ("4", None, Some(true)),
+        ("0", Some(false), Some(false)),
+    ] {
         let r = svo_view(&["--svo-lod-scale", scale]);
         let on_aggregates = r["svo_scene"]["cell_hits"].as_u64().unwrap()
             + r["svo_scene"]["sub_cell_hits"].as_u64().unwrap();
-        assert_eq!(on_aggregates > 20, aggregates, "scale {scale}: {r}");
+        let on_nodes = r["svo_scene"]["node_hits"].as_u64().unwrap();
+        if let Some(a) = aggregates {
+            assert_eq!(on_aggregates > 20, a, "scale {scale}: {r}");
+        }
+        if let Some(n) = nodes {
+            assert_eq!(on_nodes > 20, n, "scale {scale}: {r}");
+        }
         assert_eq!(r["reference"]["rays_disagree"], 0, "{r}");
     }
 

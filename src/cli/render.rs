@@ -388,15 +388,22 @@ fn run_svo_scene(args: &RenderArgs, v: &svo_view::SceneView) -> Result<Outcome> 
         hits.iter()
             .filter(|h| match (h, level) {
                 (Some(SceneHit::Voxel(_)), None) => true,
+                (Some(SceneHit::Node(_)), Some(2)) => true,
                 (Some(SceneHit::Aggregate(a)), Some(l)) => a.level == l,
                 _ => false,
             })
             .count()
     };
     let (voxel_hits, cell_hits, sub_hits) = (count(None), count(Some(0)), count(Some(1)));
-    let hit_count = voxel_hits + cell_hits + sub_hits;
+    let node_hits = count(Some(2));
+    let terrain = v.scene.terrain.then(|| v.scene.grid_instances() as u32);
+    let terrain_node_hits = hits
+        .iter()
+        .filter(|h| matches!(h, Some(SceneHit::Node(n)) if Some(n.instance) == terrain))
+        .count();
+    let hit_count = voxel_hits + cell_hits + sub_hits + node_hits;
     let mut text = format!(
-        "{}: svo-scene view (two-level) {}×{} on {}, lod scale {}, {} of {} pixels hit ({} on top cells, {} on sub-cells, {} on voxels), {:.3} s\n",
+        "{}: svo-scene view (two-level) {}×{} on {}, lod scale {}, {} of {} pixels hit ({} on top cells, {} on sub-cells, {} on model nodes of which {} the terrain's, {} on voxels), {:.3} s\n",
         args.output.display(),
         v.size.0,
         v.size.1,
@@ -406,6 +413,8 @@ fn run_svo_scene(args: &RenderArgs, v: &svo_view::SceneView) -> Result<Outcome> 
         v.rays.len(),
         cell_hits,
         sub_hits,
+        node_hits,
+        terrain_node_hits,
         voxel_hits,
         seconds
     );
@@ -416,7 +425,8 @@ fn run_svo_scene(args: &RenderArgs, v: &svo_view::SceneView) -> Result<Outcome> 
         "svo_scene": {
             "width": v.size.0, "height": v.size.1, "hits": hit_count, "show": v.show,
             "lod_scale": args.svo_lod_scale, "cone": v.cone,
-            "cell_hits": cell_hits, "sub_cell_hits": sub_hits, "voxel_hits": voxel_hits,
+            "cell_hits": cell_hits, "sub_cell_hits": sub_hits, "node_hits": node_hits,
+            "terrain_node_hits": terrain_node_hits, "voxel_hits": voxel_hits,
         },
     });
     if let Some(path) = &args.reference {

@@ -152,11 +152,12 @@ pub(crate) fn run(args: &ValidateArgs, _g: &Global) -> Result<Outcome> {
             a.rays, a.hits, a.instance_hits, a.voxel_mismatches, a.t_mismatches, a.max_t_error
         );
         text += &format!(
-            "svo-scene lod (cone {:.4}): {} rays, {} hits ({} on top-level aggregates), {} disagree (at most {} of the rays may)\n",
+            "svo-scene lod (cone {:.4}): {} rays, {} hits ({} on top-level aggregates, {} on model nodes), {} disagree (at most {} of the rays may)\n",
             a.lod.cone,
             a.lod.rays,
             a.lod.hits,
             a.lod.aggregate_hits,
+            a.lod.node_hits,
             a.lod.mismatches,
             crate::voxel::lod_gpu::LOD_MISMATCH_FRACTION
         );

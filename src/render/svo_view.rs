@@ -316,10 +316,13 @@ pub fn render_svo(scene: &SvoScene, backend: super::BackendChoice) -> Result<Svo
 /// metres per metre: the rays' directions are unit vectors) on the GPU
 /// (`voxel::instanced_gpu`) or the CPU (`InstancedSvo::trace_lod`): a top cell or sub-cell no
 /// wider than the footprint where the ray enters it ends the walk on its filtered aggregate,
-/// nearer ones descend into their instances' voxels. Shaded as [`shade`] shades a cell: an
-/// aggregate's colour un-premultiplied and its world normal; a voxel's colour and its normal
-/// turned by the instance's rotation; `level` shows 0 for a top cell, 1 for a sub-cell and the
-/// model's voxel level (its octree's `levels`, at least 2) for a voxel.
+/// nearer ones descend into their instances' octrees, where the same rule stops on a model's
+/// filtered node (its side × |scale| × the model's voxel side against the footprint) or reaches
+/// a voxel. Shaded as [`shade`] shades a cell: an aggregate's or node's colour
+/// un-premultiplied and its world normal (a node's turned by the instance's rotation); a
+/// voxel's colour and its turned normal; `level` shows 0 for a top cell, 1 for a sub-cell, a
+/// model node's level in its octree (at least 2) and the model's voxel level (its octree's
+/// `levels`, at least 2) for a voxel.
 pub struct SceneView {
     pub scene: crate::voxel::instanced::InstancedSvo,
     pub camera: Camera,
@@ -400,6 +403,22 @@ pub fn scene_cell(v: &SceneView, hit: &SceneHit) -> Option<LodHit> {
                 t: hit.t,
                 color: pack_rgba8([c[0] * c[3], c[1] * c[3], c[2] * c[3], c[3]]),
                 normal: pack_normal(n),
+                attr: 0,
+            })
+        }
+        SceneHit::Node(hit) => {
+            let (_, n) = v.scene.node_attributes(hit)?;
+            let model = v.scene.instances[hit.instance as usize].model as usize;
+            let svo = &v.scene.models[model].svo;
+            Some(LodHit {
+                // Below the voxels' level by the node's height above them, at least 2 (0 and 1
+                // are the top level's).
+                level: hit.level.max(2),
+                cell: hit.cell,
+                t: hit.t,
+                color: svo.node_colors[hit.attr as usize],
+                normal: pack_normal(n),
+                attr: hit.attr,
             })
         }
         SceneHit::Aggregate(a) => Some(LodHit {
@@ -408,6 +427,7 @@ pub fn scene_cell(v: &SceneView, hit: &SceneHit) -> Option<LodHit> {
             t: a.t,
             color: v.scene.aggregates.colors[a.attr as usize],
             normal: v.scene.aggregates.normals[a.attr as usize],
+            attr: a.attr,
         }),
     }
 }
@@ -443,6 +463,7 @@ mod tests {
             t: 1.0,
             color: crate::voxel::svo::pack_rgba8(color),
             normal: crate::voxel::svo::pack_normal(normal),
+            attr: 0,
         }
     }
 

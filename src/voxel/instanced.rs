@@ -16,7 +16,10 @@
 //! is traced once (over the whole ray) by [`super::traverse::trace_svo`] on the ray moved into
 //! its voxel units (same `t`); the terrain is traced once. The nearest hit wins, ties to the
 //! lower instance number (the terrain is number `instances − 1`, last); the walk stops once the
-//! best hit lies before the current cell's exit.
+//! best hit lies before the current cell's exit. The LOD walk ([`InstancedSvo::trace_lod`])
+//! applies one rule from the top cells down: a top cell, a sub-cell, or inside an instance a
+//! node of its model whose world side is at most `cone · t` where the ray enters it (and which
+//! covers enough) answers with its filtered attributes.
 
 use super::Grid;
 use super::geometry::Geometry;
@@ -159,8 +162,8 @@ pub const SUB: u32 = 4;
 /// aggregate of the placed model voxels whose centres fall in it, and per occupied sub-cell of
 /// its 4³ subdivision the same over the sub-cell. Premultiplied RGBA8 colours whose α is the
 /// coverage min(1, Σ (s·v_m)³·α_voxel / volume), octahedral world normals (the coverage- and
-/// volume-weighted sum of the voxels' turned normals). The terrain is not aggregated: its own
-/// octree keeps its filtered parents.
+/// volume-weighted sum of the voxels' turned normals). The terrain's voxels are aggregated as
+/// an instance at the identity (the top grid spans its box), so a far view sees the ground.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TopAggregates {
     /// Per top cell: (mask low, mask high, first sub-cell, 0); bit s of the mask: sub-cell at
@@ -198,10 +201,29 @@ pub struct AggregateHit {
     pub t: f32,
 }
 
+/// A walk's stop on an inner node (or brick) of an instance's model octree: its filtered
+/// attributes, the model's `node_colors` / `node_normals`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NodeHit {
+    /// Instance number (the terrain's is the last).
+    pub instance: u32,
+    /// Level in the model's octree (0 the root, below its `levels`: a voxel is a
+    /// [`SceneHit::Voxel`]).
+    pub level: u32,
+    /// The cell's minimum corner in the model's voxels.
+    pub cell: [u32; 3],
+    /// Index into the model's `node_colors` / `node_normals`.
+    pub attr: u32,
+    /// World ray parameter where the walk enters the cell.
+    pub t: f32,
+}
+
 /// What the LOD walk ([`InstancedSvo::trace_lod`]) ends on.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SceneHit {
     Voxel(InstanceHit),
+    /// A model's filtered node inside an instance (or the terrain).
+    Node(NodeHit),
     Aggregate(AggregateHit),
 }
 
@@ -209,7 +231,17 @@ impl SceneHit {
     pub fn t(&self) -> f32 {
         match self {
             SceneHit::Voxel(h) => h.t,
+            SceneHit::Node(h) => h.t,
             SceneHit::Aggregate(a) => a.t,
+        }
+    }
+
+    /// The instance of a voxel or node hit.
+    pub fn instance(&self) -> Option<u32> {
+        match self {
+            SceneHit::Voxel(h) => Some(h.instance),
+            SceneHit::Node(h) => Some(h.instance),
+            SceneHit::Aggregate(_) => None,
         }
     }
 }
@@ -371,7 +403,12 @@ impl InstancedSvo {
             .iter()
             .map(|r| instance_box(r, &out_models[r.model as usize].svo.grid))
             .collect();
-        let (top, cell_start, cell_instances) = top_grid(&boxes);
+        // The top grid covers the terrain too: its voxels are in the aggregates.
+        let terrain_box = has_terrain.then(|| {
+            let r = &refs[grid_instances];
+            instance_box(r, &out_models[r.model as usize].svo.grid)
+        });
+        let (top, cell_start, cell_instances) = top_grid(&boxes, terrain_box);
         let mut s = InstancedSvo {
             scene_grid,
             models: out_models,
@@ -419,6 +456,46 @@ impl InstancedSvo {
             instance: i as u32,
             voxel: h.voxel,
             t: h.t,
+        })
+    }
+
+    /// World side of one voxel of instance `i` (|scale| × its model's voxel side): the `unit`
+    /// of its octree's LOD rule.
+    pub fn voxel_side(&self, i: usize) -> f32 {
+        let r = &self.instances[i];
+        r.scale.abs() * self.models[r.model as usize].svo.grid.voxel_size[0]
+    }
+
+    /// The LOD walk of instance `i`'s model ([`super::lod_trace::trace_lod_scaled`]) on the
+    /// world ray: a node whose world side (its side × [`Self::voxel_side`]) is at most
+    /// `cone · t` where the ray enters it, and whose coverage can stop, ends the walk on its
+    /// filtered attributes; else the first voxel. Cone 0: [`Self::trace_instance`].
+    pub fn trace_instance_lod(
+        &self,
+        i: usize,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t: [f32; 2],
+        cone: f32,
+    ) -> Option<SceneHit> {
+        let r = self.ray_in(i, origin, dir, t);
+        let svo = &self.models[self.instances[i].model as usize].svo;
+        let h = super::lod_trace::trace_lod_scaled(svo, &r, cone, self.voxel_side(i))?;
+        let instance = i as u32;
+        Some(if h.level >= svo.levels {
+            SceneHit::Voxel(InstanceHit {
+                instance,
+                voxel: h.cell,
+                t: h.t,
+            })
+        } else {
+            SceneHit::Node(NodeHit {
+                instance,
+                level: h.level,
+                cell: h.cell,
+                attr: h.attr,
+                t: h.t,
+            })
         })
     }
 
@@ -508,21 +585,22 @@ impl InstancedSvo {
         t: [f32; 2],
         cone: f32,
     ) -> Option<SceneHit> {
-        let mut best: Option<InstanceHit> = None;
-        let better = |h: InstanceHit, b: &Option<InstanceHit>| match b {
+        let mut best: Option<SceneHit> = None;
+        let better = |h: &SceneHit, b: &Option<SceneHit>| match b {
             None => true,
-            Some(b) => h.t < b.t || (h.t == b.t && h.instance < b.instance),
+            Some(b) => h.t() < b.t() || (h.t() == b.t() && h.instance() < b.instance()),
         };
         if self.terrain {
-            best = self.trace_instance(self.instances.len() - 1, origin, dir, t);
+            best = self.trace_instance_lod(self.instances.len() - 1, origin, dir, t, cone);
         }
         let top = &self.top;
         let r = self.top_ray(origin, dir, t);
         let dims = top.dims.map(|d| d as f32);
         let (t0, t1) = box_interval(&r, [0.0; 3], dims);
         let (t0, t1) = (t0.max(t[0]), t1.min(t[1]));
-        if t0 > t1 || self.cell_instances.is_empty() {
-            return best.map(SceneHit::Voxel);
+        // Without instances only the aggregates (the terrain's) can stop a walk with a cone.
+        if t0 > t1 || (self.cell_instances.is_empty() && cone <= 0.0) {
+            return best;
         }
         let n = top.dims.map(|d| d as i64);
         let mut dda = Dda::new(&r, [0.0; 3], 1.0, n, t0);
@@ -544,28 +622,39 @@ impl InstancedSvo {
                     continue;
                 }
                 tested.push(i);
-                let cap = best.map_or(t[1], |b| b.t);
+                let cap = best.map_or(t[1], |b| b.t());
                 let cap = stop.map_or(cap, |s| cap.min(s.t));
-                if let Some(h) = self.trace_instance(i as usize, origin, dir, [t[0], cap])
-                    && better(h, &best)
+                if let Some(h) = self.trace_instance_lod(i as usize, origin, dir, [t[0], cap], cone)
+                    && better(&h, &best)
                 {
                     best = Some(h);
                 }
             }
             if let Some(s) = stop {
                 return Some(match best {
-                    Some(b) if b.t <= s.t => SceneHit::Voxel(b),
+                    Some(b) if b.t() <= s.t => b,
                     _ => SceneHit::Aggregate(s),
                 });
             }
-            if best.is_some_and(|b| b.t < exit) || exit > t1 {
-                return best.map(SceneHit::Voxel);
+            if best.is_some_and(|b| b.t() < exit) || exit > t1 {
+                return best;
             }
             let k = n.iter().copied().max().unwrap_or(1);
             if !dda.advance(k) || (0..3).any(|a| dda.c[a] >= n[a]) {
-                return best.map(SceneHit::Voxel);
+                return best;
             }
         }
+    }
+
+    /// Colour (linear RGBA, straight alpha: rgb/α, the coverage) and world normal (turned by
+    /// the instance's rotation) of a model node.
+    pub fn node_attributes(&self, h: &NodeHit) -> Option<([f32; 4], [f32; 3])> {
+        let r = &self.instances[h.instance as usize];
+        let svo = &self.models[r.model as usize].svo;
+        let i = h.attr as usize;
+        let c = super::svo::unpack_rgba8(*svo.node_colors.get(i)?);
+        let n = r.dir_to_world(super::svo::unpack_normal(*svo.node_normals.get(i)?));
+        Some((super::lod_trace::straight(c), n))
     }
 
     /// Colour (linear RGBA, straight alpha: rgb/α, the coverage) and world normal of an
@@ -717,21 +806,33 @@ struct ModelVoxel {
 
 fn model_voxels(svo: &Svo) -> Vec<ModelVoxel> {
     let mut out = Vec::with_capacity(svo.voxel_colors.len());
-    for b in svo.leaf_bricks() {
+    brick_voxels(svo, &svo.leaf_bricks(), 0, &mut out);
+    out
+}
+
+/// The voxels of `bricks` (consecutive leaf bricks of `svo` in Morton order, the first voxel's
+/// attribute index `first`), appended to `out`.
+fn brick_voxels(
+    svo: &Svo,
+    bricks: &[super::voxelize::Brick],
+    first: usize,
+    out: &mut Vec<ModelVoxel>,
+) {
+    let mut i = first;
+    for b in bricks {
         let mut m = b.mask;
         while m != 0 {
             let s = m.trailing_zeros() as u64;
             let v = super::morton_decode(b.key << 6 | s);
-            let i = out.len();
             out.push(ModelVoxel {
                 centre: svo.grid.to_world(v.map(|x| x as f32 + 0.5)),
                 color: super::svo::unpack_rgba8(svo.voxel_colors[i]),
                 normal: super::svo::unpack_normal(svo.voxel_normals[i]),
             });
+            i += 1;
             m &= m - 1;
         }
     }
-    out
 }
 
 /// The top cell and sub-cell slot holding world point `p` (clamped into the grid).
@@ -773,41 +874,101 @@ pub fn aggregate_of(a: &[f64; 7], vol: f64) -> (u32, u32) {
 /// Instances summed per task: the sums' grouping, so the bytes do not depend on the threads.
 const AGGREGATE_CHUNK: usize = 256;
 
+/// Terrain bricks summed per task (the same reason).
+const TERRAIN_AGGREGATE_BRICKS: usize = 1 << 14;
+
+/// Appends the (region key, sums) of the voxels `voxels` of a model placed by `r`, whose voxels
+/// are cubes of side `side` (the model's voxel side).
+fn bin_voxels(
+    s: &InstancedSvo,
+    r: &InstanceRef,
+    side: f32,
+    voxels: &[ModelVoxel],
+    raw: &mut Vec<(u64, Sums)>,
+) {
+    let w = (r.scale.abs() as f64 * side as f64).powi(3);
+    for v in voxels {
+        let (c, sl) = region_of(&s.top, r.to_world(v.centre));
+        let n = r.dir_to_world(v.normal);
+        let wa = w * v.color[3] as f64;
+        raw.push((
+            (c as u64) << 6 | sl as u64,
+            [
+                wa,
+                w * v.color[0] as f64,
+                w * v.color[1] as f64,
+                w * v.color[2] as f64,
+                wa * n[0] as f64,
+                wa * n[1] as f64,
+                wa * n[2] as f64,
+            ],
+        ));
+    }
+}
+
 /// The top level's filtered attributes of a built scene (see [`TopAggregates`]). Every gridded
-/// instance's voxels are placed (centre p + R_z(θ)·(s·x)), binned by centre, summed in f64 in a
-/// fixed order (instances in chunks of [`AGGREGATE_CHUNK`], each in instance and Morton order,
-/// the chunks' sums added in chunk order), then quantized.
+/// instance's voxels are placed (centre p + R_z(θ)·(s·x)) and the terrain's voxels taken as they
+/// are (its identity placement), binned by centre, summed in f64 in a fixed order (instances in
+/// chunks of [`AGGREGATE_CHUNK`], each in instance and Morton order, then the terrain's bricks
+/// in chunks of [`TERRAIN_AGGREGATE_BRICKS`] in Morton order; the chunks' sums added in chunk
+/// order), then quantized.
 pub fn top_aggregates(s: &InstancedSvo) -> TopAggregates {
-    let voxels: Vec<Vec<ModelVoxel>> = s.models.iter().map(|m| model_voxels(&m.svo)).collect();
     let gridded = &s.instances[..s.grid_instances()];
-    let chunks: Vec<Vec<(u64, Sums)>> = gridded
+    let terrain_model = s
+        .terrain
+        .then(|| s.instances[s.grid_instances()].model as usize);
+    let voxels: Vec<Vec<ModelVoxel>> = s
+        .models
+        .iter()
+        .enumerate()
+        .map(|(m, model)| {
+            if Some(m) == terrain_model {
+                Vec::new()
+            } else {
+                model_voxels(&model.svo)
+            }
+        })
+        .collect();
+    let mut chunks: Vec<Vec<(u64, Sums)>> = gridded
         .par_chunks(AGGREGATE_CHUNK)
         .map(|chunk| {
             let mut raw: Vec<(u64, Sums)> = Vec::new();
             for r in chunk {
-                let g = &s.models[r.model as usize].svo.grid;
-                let w = (r.scale.abs() as f64 * g.voxel_size[0] as f64).powi(3);
-                for v in &voxels[r.model as usize] {
-                    let (c, sl) = region_of(&s.top, r.to_world(v.centre));
-                    let n = r.dir_to_world(v.normal);
-                    let wa = w * v.color[3] as f64;
-                    raw.push((
-                        (c as u64) << 6 | sl as u64,
-                        [
-                            wa,
-                            w * v.color[0] as f64,
-                            w * v.color[1] as f64,
-                            w * v.color[2] as f64,
-                            wa * n[0] as f64,
-                            wa * n[1] as f64,
-                            wa * n[2] as f64,
-                        ],
-                    ));
-                }
+                let side = s.models[r.model as usize].svo.grid.voxel_size[0];
+                bin_voxels(s, r, side, &voxels[r.model as usize], &mut raw);
             }
             collapse(raw)
         })
         .collect();
+    if let Some(m) = terrain_model {
+        let svo = &s.models[m].svo;
+        let r = s.instances[s.grid_instances()];
+        let bricks = svo.leaf_bricks();
+        // The attribute index of each chunk's first voxel.
+        let firsts: Vec<usize> = bricks
+            .chunks(TERRAIN_AGGREGATE_BRICKS)
+            .scan(0usize, |at, c| {
+                let first = *at;
+                *at += c
+                    .iter()
+                    .map(|b| b.mask.count_ones() as usize)
+                    .sum::<usize>();
+                Some(first)
+            })
+            .collect();
+        let terrain: Vec<Vec<(u64, Sums)>> = bricks
+            .par_chunks(TERRAIN_AGGREGATE_BRICKS)
+            .zip(firsts)
+            .map(|(c, first)| {
+                let mut v = Vec::new();
+                brick_voxels(svo, c, first, &mut v);
+                let mut raw = Vec::with_capacity(v.len());
+                bin_voxels(s, &r, svo.grid.voxel_size[0], &v, &mut raw);
+                collapse(raw)
+            })
+            .collect();
+        chunks.extend(terrain);
+    }
     let merged = collapse(chunks.into_iter().flatten().collect());
     let cells = s.top.cells();
     let mut nodes = vec![[0u32; 4]; cells];
@@ -874,10 +1035,14 @@ pub fn instance_box(r: &InstanceRef, g: &Grid) -> ([f32; 3], [f32; 3]) {
     (b.0.map(|x| x - pad), b.1.map(|x| x + pad))
 }
 
-/// The top grid over instance boxes: about two instances per cell over the boxes' union,
-/// cubic cells, at most 256 per axis; CSR lists in instance order.
-pub fn top_grid(boxes: &[([f32; 3], [f32; 3])]) -> (TopGrid, Vec<u32>, Vec<u32>) {
-    let Some(first) = boxes.first() else {
+/// The top grid over instance boxes: about two instances per cell over the union of the boxes
+/// and `also` (the terrain's box), cubic cells, at most 256 per axis; CSR lists in instance
+/// order.
+pub fn top_grid(
+    boxes: &[([f32; 3], [f32; 3])],
+    also: Option<([f32; 3], [f32; 3])>,
+) -> (TopGrid, Vec<u32>, Vec<u32>) {
+    let Some(first) = also.as_ref().or(boxes.first()) else {
         let top = TopGrid {
             origin: [0.0; 3],
             cell: 1.0,
@@ -885,7 +1050,7 @@ pub fn top_grid(boxes: &[([f32; 3], [f32; 3])]) -> (TopGrid, Vec<u32>, Vec<u32>)
         };
         return (top, vec![0, 0], Vec::new());
     };
-    let (lo, hi) = boxes[1..].iter().fold(*first, |a, &b| union(a, b));
+    let (lo, hi) = boxes.iter().fold(*first, |a, &b| union(a, b));
     let ext = [0, 1, 2].map(|k| (hi[k] - lo[k]).max(1e-6));
     let longest = ext.iter().cloned().fold(0.0f32, f32::max);
     // Cells of a side that gives about n/2 cells over the boxes' union (volume / side³).

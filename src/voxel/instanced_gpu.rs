@@ -6,7 +6,7 @@
 
 use super::compute::{self, Kernel};
 use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, SVO_WALK_WGSL, t_off};
-use super::instanced::{AggregateHit, InstanceHit, InstancedSvo, SceneHit};
+use super::instanced::{AggregateHit, InstanceHit, InstancedSvo, NodeHit, SceneHit};
 use crate::error::{Error, Result};
 use crate::gpu::Gpu;
 use crate::rng::Rng;
@@ -28,8 +28,11 @@ struct Params {
     cone: f32,
     node_base: u32,
     color_base: u32,
-    pad: u32,
+    brick_base: u32,
+    attr_base: u32,
+    pad: [u32; 3],
 }
+const _: () = assert!(size_of::<Params>() == 80);
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
@@ -41,7 +44,9 @@ struct GpuModel {
     dims: [u32; 3],
     first_node: u32,
     first_leaf: u32,
-    pad: [u32; 3],
+    first_attr: u32,
+    node_count: u32,
+    pad: u32,
 }
 const _: () = assert!(size_of::<GpuModel>() == 64);
 
@@ -68,6 +73,9 @@ pub fn trace_gpu(
     let mut nodes = Vec::new();
     let mut leaves = Vec::new();
     let mut models = Vec::new();
+    // Per global node: its first brick (local to its model) on a last inner level, else 0;
+    // per global filtered attribute: its colour.
+    let (mut brick_first, mut node_colors) = (Vec::new(), Vec::new());
     for m in &s.models {
         let (n, l) = super::packed::pack_leaves(&m.svo);
         let g = m.svo.grid;
@@ -79,10 +87,14 @@ pub fn trace_gpu(
             dims: g.dims,
             first_node: nodes.len() as u32,
             first_leaf: leaves.len() as u32,
-            pad: [0; 3],
+            first_attr: node_colors.len() as u32,
+            node_count: m.svo.nodes.len() as u32,
+            pad: 0,
         });
         nodes.extend(n);
         leaves.extend(l);
+        brick_first.extend(super::lod_gpu::brick_first(&m.svo));
+        node_colors.extend(&m.svo.node_colors);
     }
     // The shader reads bytes from u32 words.
     while leaves.len() % 4 != 0 {
@@ -94,6 +106,10 @@ pub fn trace_gpu(
     cells.extend(s.aggregates.nodes.iter().flatten());
     let color_base = cells.len() as u32;
     cells.extend(&s.aggregates.colors);
+    let brick_base = cells.len() as u32;
+    cells.extend(&brick_first);
+    let attr_base = cells.len() as u32;
+    cells.extend(&node_colors);
     let count =
         u32::try_from(rays.len()).map_err(|_| Error::runtime("svo-scene trace: too many rays"))?;
     let (grid, stride) = compute::grid_for(count);
@@ -109,7 +125,9 @@ pub fn trace_gpu(
         cone,
         node_base,
         color_base,
-        pad: 0,
+        brick_base,
+        attr_base,
+        pad: [0; 3],
     };
     let big = |t: f32| {
         if t.is_finite() {
@@ -158,11 +176,24 @@ pub fn trace_gpu(
                 attr: w[1],
                 t: f32::from_bits(w[4]),
             })),
-            _ => Some(SceneHit::Voxel(InstanceHit {
-                instance: w[0],
-                voxel: [w[1], w[2], w[3]],
-                t: f32::from_bits(w[4]),
-            })),
+            i => {
+                let levels = s.models[s.instances[i as usize].model as usize].svo.levels;
+                Some(if w[5] >= levels {
+                    SceneHit::Voxel(InstanceHit {
+                        instance: i,
+                        voxel: [w[1], w[2], w[3]],
+                        t: f32::from_bits(w[4]),
+                    })
+                } else {
+                    SceneHit::Node(NodeHit {
+                        instance: i,
+                        level: w[5],
+                        cell: [w[1], w[2], w[3]],
+                        attr: w[6],
+                        t: f32::from_bits(w[4]),
+                    })
+                })
+            }
         })
         .collect())
 }
@@ -224,6 +255,9 @@ pub struct LodSceneAgreement {
     pub hits: usize,
     /// Of the agreeing hits, those on aggregates (top cells and sub-cells).
     pub aggregate_hits: usize,
+    /// Of the agreeing hits, those on the models' filtered nodes inside instances (or the
+    /// terrain).
+    pub node_hits: usize,
     /// Rays whose answers differ (another voxel or region, only one hits, or t off).
     pub mismatches: usize,
     pub examples: Vec<usize>,
@@ -257,6 +291,10 @@ pub fn same_scene_hit(g: &Option<SceneHit>, c: &Option<SceneHit>) -> bool {
         (Some(SceneHit::Voxel(g)), Some(SceneHit::Voxel(c))) => {
             g.instance == c.instance && g.voxel == c.voxel && !t_off(g.t, c.t)
         }
+        (Some(SceneHit::Node(g)), Some(SceneHit::Node(c))) => {
+            (g.instance, g.level, g.cell, g.attr) == (c.instance, c.level, c.cell, c.attr)
+                && !t_off(g.t, c.t)
+        }
         (Some(SceneHit::Aggregate(g)), Some(SceneHit::Aggregate(c))) => {
             g.attr == c.attr && g.level == c.level && !t_off(g.t, c.t)
         }
@@ -288,8 +326,10 @@ pub fn validate_instanced(
     for (i, (g, c)) in on_gpu.iter().zip(&on_cpu).enumerate() {
         let g = match g {
             Some(SceneHit::Voxel(h)) => Some(*h),
-            Some(SceneHit::Aggregate(_)) => {
-                return Err(Error::runtime("svo-scene: an aggregate hit with cone 0"));
+            Some(SceneHit::Aggregate(_) | SceneHit::Node(_)) => {
+                return Err(Error::runtime(
+                    "svo-scene: an aggregate or model node hit with cone 0",
+                ));
             }
             None => None,
         };
@@ -332,6 +372,7 @@ pub fn validate_instanced(
         } else if let Some(h) = c {
             a.lod.hits += 1;
             a.lod.aggregate_hits += matches!(h, SceneHit::Aggregate(_)) as usize;
+            a.lod.node_hits += matches!(h, SceneHit::Node(_)) as usize;
         }
     }
     Ok(a)
@@ -343,23 +384,16 @@ mod tests {
     use crate::gpu::{BackendChoice, init_gpu};
 
     #[test]
-    fn the_shader_has_the_cpu_coverage_floor() {
-        let line = format!(
-            "const MIN_STOP_ALPHA: u32 = {}u;",
-            crate::voxel::lod_trace::MIN_STOP_ALPHA
-        );
-        assert!(SCENE_WGSL.contains(&line), "svo_scene.wgsl: {line}");
-    }
-
-    #[test]
     fn gpu_two_level_traversal_equals_cpu() {
         let gpu = init_gpu(BackendChoice::Auto).expect("a wgpu adapter (lavapipe in CI)");
         let s = super::super::instanced::tests::test_scene(64);
         let a = validate_instanced(&gpu, &s, 4000, 17).unwrap();
         assert!(a.hits > 1000 && a.instance_hits > 200, "{a:?}");
         assert!(a.agrees(), "{a:?}");
-        // The LOD batch stops on aggregates of both levels, and agrees on every ray here.
+        // The LOD batch stops on aggregates of both levels and on the models' nodes inside
+        // instances, and agrees on every ray here.
         assert!(a.lod.aggregate_hits > 200, "{:?}", a.lod);
+        assert!(a.lod.node_hits > 100, "{:?}", a.lod);
         assert_eq!(a.lod.mismatches, 0, "{:?}", a.lod);
     }
 }

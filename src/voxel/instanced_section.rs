@@ -14,9 +14,10 @@ use serde_json::{Value, json};
 pub const KIND: &str = "svo-scene";
 
 /// The section's layout version: 2 added the top level's filtered attributes (`top_nodes`,
-/// `top_colors`, `top_normals`); version 1 sections (metadata ending at `solid`) are refused
-/// with a message to rebuild.
-pub const VERSION: u32 = 2;
+/// `top_colors`, `top_normals`); 3 put the terrain's voxels into them (the top grid covers the
+/// terrain's box; the arrays are laid out as in 2). Older sections (version 1: metadata ending
+/// at `solid`) are refused with a message to rebuild.
+pub const VERSION: u32 = 3;
 
 /// One model's octree inside the section's arrays.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -144,7 +145,8 @@ pub fn from_section(v: &SectionView) -> Result<(SvoSceneMeta, InstancedSvo), Par
     };
     if meta.version != VERSION {
         return Err(err(format!(
-            "svo-scene section version {}, this bake reads version {VERSION}",
+            "svo-scene section version {} (this bake reads version {VERSION}: the terrain in the \
+             top level's aggregates); rebuild it with this bake (`bake svo`)",
             meta.version
         )));
     }

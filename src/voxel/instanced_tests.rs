@@ -518,12 +518,12 @@ fn oracle_region(top: &TopGrid, p: [f32; 3]) -> (usize, u32) {
     (cell, s)
 }
 
-/// Brute force: every gridded instance's every voxel (found by probing each coordinate of its
-/// model's grid), placed, binned by centre; sums of volume·α, volume·rgb (premultiplied) and
-/// volume·α·normal (turned) per (cell, slot).
+/// Brute force: every instance's and the terrain's every voxel (found by probing each
+/// coordinate of its model's grid), placed, binned by centre; sums of volume·α, volume·rgb
+/// (premultiplied) and volume·α·normal (turned) per (cell, slot).
 fn brute_force_sums(s: &InstancedSvo) -> std::collections::BTreeMap<(usize, u32), [f64; 7]> {
     let mut out = std::collections::BTreeMap::new();
-    for r in &s.instances[..s.grid_instances()] {
+    for r in &s.instances {
         let svo = &s.models[r.model as usize].svo;
         let g = svo.grid;
         let vol = (r.scale as f64 * g.voxel_size[0] as f64).powi(3);
@@ -709,14 +709,120 @@ fn oracle_top_ray(s: &InstancedSvo, o: [f32; 3], d: [f32; 3]) -> VoxelRay {
     }
 }
 
+/// An occupied inner cell: (level, minimum corner in voxels, side in voxels, the stored filtered
+/// colour, its index into `node_colors`).
+pub(crate) type InnerCell = (u32, [u32; 3], u32, u32, u32);
+
+/// Every occupied inner cell of an octree, found from its voxels (probing each coordinate of
+/// the grid), not by a walk. The stored values are looked up by descending the cell's Morton
+/// key.
+pub(crate) fn inner_cells(svo: &Svo) -> Vec<InnerCell> {
+    let l = svo.levels;
+    let mut keys = std::collections::BTreeSet::new();
+    let g = svo.grid;
+    for z in 0..g.dims[2] {
+        for y in 0..g.dims[1] {
+            for x in 0..g.dims[0] {
+                if svo.voxel_index([x, y, z]).is_some() {
+                    for level in 0..l {
+                        let side = 4u32.pow(l - level);
+                        keys.insert((level, [x, y, z].map(|v| v / side * side)));
+                    }
+                }
+            }
+        }
+    }
+    keys.into_iter()
+        .map(|(level, corner)| {
+            let key = crate::voxel::morton_encode(corner);
+            let mut attr = 0usize;
+            let mut node = 0usize;
+            for k in 0..level as usize {
+                let slot = ((key >> (6 * (l as usize - 1 - k))) & 63) as u32;
+                let child = svo.child(&svo.nodes[node], slot) as usize;
+                attr = if k + 1 == svo.inner_levels() {
+                    svo.nodes.len() + child
+                } else {
+                    child
+                };
+                node = child;
+            }
+            let side = 4u32.pow(l - level);
+            (level, corner, side, svo.node_colors[attr], attr as u32)
+        })
+        .collect()
+}
+
+/// The rule inside instance `i`, by brute force: of every occupied inner cell of its model the
+/// ray crosses (slab tests in the instance's voxel units, the entry clamped to the grid's),
+/// those whose world side (side × |scale| × the model's voxel side) is at most cone·t at the
+/// entry and whose coverage can stop; the nearest (the coarser on a tie) if it is entered no
+/// later than the first voxel, else that voxel (the voxel walk, tested against the triangles).
+pub(crate) fn brute_force_instance(
+    s: &InstancedSvo,
+    cells: &[InnerCell],
+    i: usize,
+    o: [f32; 3],
+    d: [f32; 3],
+    cone: f32,
+) -> Option<SceneHit> {
+    let voxel = s.trace_instance(i, o, d, [0.0, f32::INFINITY]);
+    let r = s.ray_in(i, o, d, [0.0, f32::INFINITY]);
+    let inst = &s.instances[i];
+    let svo = &s.models[inst.model as usize].svo;
+    let unit = inst.scale.abs() * svo.grid.voxel_size[0];
+    let (g0, g1) = box_interval(&r, [0.0; 3], svo.grid.dims.map(|x| x as f32));
+    let (t0, t1) = (g0.max(0.0), g1);
+    let mut node: Option<NodeHit> = None;
+    if t0 <= t1 && cone > 0.0 {
+        for &(level, corner, side, color, attr) in cells {
+            let lo = corner.map(|c| c as f32);
+            let (e, x) = box_interval(&r, lo, lo.map(|v| v + side as f32));
+            let tc = e.max(t0);
+            let crossed = tc < x.min(t1) || (level == 0 && tc <= t1);
+            if crossed
+                && side as f32 * unit <= cone * tc
+                && crate::voxel::lod_trace::can_stop(color)
+                && node.is_none_or(|n| tc < n.t || (tc == n.t && level < n.level))
+            {
+                node = Some(NodeHit {
+                    instance: i as u32,
+                    level,
+                    cell: corner,
+                    attr,
+                    t: tc,
+                });
+            }
+        }
+    }
+    match (node, voxel) {
+        (Some(n), Some(v)) if n.t > v.t => Some(SceneHit::Voxel(v)),
+        (Some(n), _) => Some(SceneHit::Node(n)),
+        (None, v) => v.map(SceneHit::Voxel),
+    }
+}
+
 /// The cut-off rule applied by brute force: every cell of the grid and every occupied sub-cell
 /// the ray crosses (slab tests, no DDA), the nearest whose side is at most cone·t at its entry
 /// and whose aggregate can stop (a sub-cell only where its cell does not); against the nearest
-/// voxel of all instances and the terrain, each traced on its own.
-fn brute_force_lod(s: &InstancedSvo, o: [f32; 3], d: [f32; 3], cone: f32) -> Option<SceneHit> {
+/// answer of all instances and the terrain, each by [`brute_force_instance`].
+fn brute_force_lod(
+    s: &InstancedSvo,
+    cells: &[Vec<InnerCell>],
+    o: [f32; 3],
+    d: [f32; 3],
+    cone: f32,
+) -> Option<SceneHit> {
     let want = (0..s.instances.len())
-        .filter_map(|i| s.trace_instance(i, o, d, [0.0, f32::INFINITY]))
-        .min_by(|a, b| a.t.total_cmp(&b.t).then(a.instance.cmp(&b.instance)));
+        .filter_map(|i| {
+            let m = s.instances[i].model as usize;
+            brute_force_instance(s, &cells[m], i, o, d, cone)
+        })
+        .min_by(|a, b| {
+            a.t()
+                .total_cmp(&b.t())
+                .then(a.instance().cmp(&b.instance()))
+        });
     let r = oracle_top_ray(s, o, d);
     let (g0, g1) = box_interval(&r, [0.0; 3], s.top.dims.map(|x| x as f32));
     let (t0, t1) = (g0.max(0.0), g1);
@@ -726,7 +832,7 @@ fn brute_force_lod(s: &InstancedSvo, o: [f32; 3], d: [f32; 3], cone: f32) -> Opt
             agg = Some(h);
         }
     };
-    if t0 <= t1 && !s.cell_instances.is_empty() {
+    if t0 <= t1 && (!s.cell_instances.is_empty() || cone > 0.0) {
         let a = &s.aggregates;
         for z in 0..s.top.dims[2] {
             for y in 0..s.top.dims[1] {
@@ -775,9 +881,9 @@ fn brute_force_lod(s: &InstancedSvo, o: [f32; 3], d: [f32; 3], cone: f32) -> Opt
         }
     }
     match (want, agg) {
-        (Some(w), Some(a)) if a.t < w.t => Some(SceneHit::Aggregate(a)),
+        (Some(w), Some(a)) if a.t < w.t() => Some(SceneHit::Aggregate(a)),
         (None, Some(a)) => Some(SceneHit::Aggregate(a)),
-        (w, _) => w.map(SceneHit::Voxel),
+        (w, _) => w,
     }
 }
 
@@ -787,32 +893,41 @@ fn the_lod_walk_is_the_cut_off_rule_applied_by_brute_force() {
     let g = s.scene_grid;
     let (lo, hi) = (g.origin, g.to_world(g.dims.map(|d| d as f32)));
     let base = crate::voxel::instanced_gpu::lod_cone(&s);
+    let model_cells: Vec<_> = s.models.iter().map(|m| inner_cells(&m.svo)).collect();
     let mut rng = Rng::new(21);
     let rays = rays(&mut rng, lo, hi, 1500);
-    for scale in [0.0, 0.5, 1.0, 4.0] {
+    for scale in [0.0, 0.1, 0.2, 0.3, 0.5, 1.0, 4.0] {
         let cone = base * scale;
         let (mut cells, mut subs, mut voxels) = (0, 0, 0);
+        let (mut nodes, mut terrain_nodes) = (0, 0);
         for &(o, d) in &rays {
             let got = s.trace_lod(o, d, [0.0, f32::INFINITY], cone);
-            let want = brute_force_lod(&s, o, d, cone);
+            let want = brute_force_lod(&s, &model_cells, o, d, cone);
             assert_eq!(got, want, "cone {cone}, ray {o:?} {d:?}");
             match got {
                 Some(SceneHit::Aggregate(a)) if a.level == 0 => cells += 1,
                 Some(SceneHit::Aggregate(_)) => subs += 1,
+                Some(SceneHit::Node(n)) if n.instance as usize == s.grid_instances() => {
+                    terrain_nodes += 1
+                }
+                Some(SceneHit::Node(_)) => nodes += 1,
                 Some(SceneHit::Voxel(_)) => voxels += 1,
                 None => {}
             }
         }
-        if scale == 0.0 {
-            assert_eq!(cells + subs, 0, "cone 0 is the voxel walk");
-        } else {
-            assert!(
-                subs > 30 && voxels > 30,
-                "cone ×{scale}: {cells} cells, {subs} sub-cells, {voxels} voxels"
-            );
-        }
-        if scale == 4.0 {
-            assert!(cells > 30, "wide cones stop on whole cells: {cells}");
+        let what = format!(
+            "cone ×{scale}: {cells} cells, {subs} sub-cells, {nodes} instance nodes, \
+             {terrain_nodes} terrain nodes, {voxels} voxels"
+        );
+        // Every kind of answer occurs: the voxels near, the models' nodes (instances and the
+        // terrain) farther, the aggregates far.
+        match scale {
+            0.0 => assert_eq!(cells + subs + nodes + terrain_nodes, 0, "{what}"),
+            0.1 => assert!(nodes > 300 && voxels > 300, "{what}"),
+            0.2 => assert!(nodes > 300 && terrain_nodes > 100 && subs > 0, "{what}"),
+            0.5 => assert!(subs > 300 && nodes > 30 && terrain_nodes > 30, "{what}"),
+            4.0 => assert!(cells > 300 && nodes > 0, "{what}"),
+            _ => {}
         }
     }
 }
@@ -905,4 +1020,203 @@ fn a_version_1_section_is_refused_with_a_message_to_rebuild() {
     let v = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
     let e = from_section(&v).unwrap_err().to_string();
     assert!(e.contains("version 1") && e.contains("rebuild"), "{e}");
+}
+
+/// Rotated, scaled and mirrored instances of one model: inside each, the walk is the rule
+/// applied by brute force (bit-equal) for cones from the voxels to the root; a node's normal is
+/// the stored one turned by the instance's rotation (against R_z(θ) in f64).
+#[test]
+fn the_cut_off_inside_rotated_scaled_instances_is_the_rule_applied_by_brute_force() {
+    let model = geo(procedural_blob(24, 12));
+    let placements = [(0.37, 0.0), (1.0, 37.0), (2.5, -120.0), (-1.3, 75.0)];
+    let instances: Vec<Instance> = placements
+        .iter()
+        .enumerate()
+        .map(|(k, &(s, deg))| Instance::new(0, [6.0 * k as f32, 0.0, 0.0], s, deg))
+        .collect();
+    let s = InstancedSvo::build(
+        None,
+        &named(std::slice::from_ref(&model)),
+        &instances,
+        &VoxelizeOptions::surface(96),
+    )
+    .unwrap();
+    let cells = inner_cells(&s.models[0].svo);
+    let svo = &s.models[0].svo;
+    let mut rng = Rng::new(5);
+    let mut per_level = vec![0usize; svo.levels as usize + 1];
+    for (i, &(_, deg)) in placements.iter().enumerate() {
+        let (lo, hi) = instance_box(&s.instances[i], &svo.grid);
+        let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt();
+        for (o, d) in rays(&mut rng, lo, hi, 400) {
+            // From a sixth of a voxel to the whole model per unit of distance.
+            for cone in [0.0, 0.002, 0.01, 0.03, 0.1, 0.3, 1.0].map(|c| c * diag / 4.0) {
+                let got = s.trace_instance_lod(i, o, d, [0.0, f32::INFINITY], cone);
+                let want = brute_force_instance(&s, &cells, i, o, d, cone);
+                assert_eq!(got, want, "instance {i}, cone {cone}, ray {o:?} {d:?}");
+                match got {
+                    Some(SceneHit::Node(n)) => {
+                        per_level[n.level as usize] += 1;
+                        let (_, world) = s.node_attributes(&n).unwrap();
+                        let m = crate::voxel::svo::unpack_normal(svo.node_normals[n.attr as usize]);
+                        let (sn, cs) = (deg as f64).to_radians().sin_cos();
+                        let want = [
+                            cs * m[0] as f64 - sn * m[1] as f64,
+                            sn * m[0] as f64 + cs * m[1] as f64,
+                            m[2] as f64,
+                        ];
+                        for k in 0..3 {
+                            assert!(
+                                (world[k] as f64 - want[k]).abs() < 1e-5,
+                                "{world:?} {want:?}"
+                            );
+                        }
+                    }
+                    Some(SceneHit::Voxel(_)) => per_level[svo.levels as usize] += 1,
+                    _ => {}
+                }
+            }
+        }
+    }
+    // Voxels, bricks and the levels above them all answer some rays.
+    let l = svo.levels as usize;
+    assert!(
+        per_level[l] > 300 && per_level[l - 1] > 100 && per_level[l - 2] > 30,
+        "{per_level:?}"
+    );
+}
+
+/// The rule is scale-free: an instance twice as large seen from twice as far (a power of two,
+/// exact in f32) stops on the same node at twice the t.
+#[test]
+fn twice_the_scale_from_twice_the_distance_stops_on_the_same_node() {
+    let model = geo(procedural_blob(24, 12));
+    let instances = [Instance::new(0, [0.0; 3], 2.0, 0.0)];
+    let mut s = InstancedSvo::build(
+        None,
+        &named(std::slice::from_ref(&model)),
+        &instances,
+        &VoxelizeOptions::surface(64),
+    )
+    .unwrap();
+    let svo = s.models[0].svo.clone();
+    let (lo, hi) = instance_box(&s.instances[0], &svo.grid);
+    let mut rng = Rng::new(8);
+    let (mut nodes, mut compared) = (0, 0);
+    for (o, d) in rays(&mut rng, lo, hi, 600) {
+        for cone in [0.003f32, 0.01, 0.03, 0.1] {
+            s.instances[0].scale = 1.0;
+            let one = s.trace_instance_lod(0, o, d, [0.0, f32::INFINITY], cone);
+            s.instances[0].scale = 2.0;
+            let two = s.trace_instance_lod(0, o.map(|x| 2.0 * x), d, [0.0, f32::INFINITY], cone);
+            match (one, two) {
+                (Some(SceneHit::Node(a)), Some(SceneHit::Node(b))) => {
+                    assert_eq!((a.level, a.cell, a.attr), (b.level, b.cell, b.attr));
+                    assert_eq!(2.0 * a.t, b.t);
+                    nodes += 1;
+                }
+                (Some(SceneHit::Voxel(a)), Some(SceneHit::Voxel(b))) => {
+                    assert_eq!(a.voxel, b.voxel);
+                    assert_eq!(2.0 * a.t, b.t);
+                }
+                (None, None) => {}
+                (a, b) => panic!("scale 1: {a:?}, scale 2: {b:?}"),
+            }
+            compared += 1;
+        }
+    }
+    assert!(nodes > 300, "{nodes} node stops of {compared}");
+}
+
+/// A version 2 section (the same arrays, the terrain not in the aggregates) is refused with a
+/// message that names its version and says to rebuild.
+#[test]
+fn a_version_2_section_is_refused_with_a_message_to_rebuild() {
+    use super::super::instanced_section::{from_section, to_section};
+    let s = test_scene(32);
+    let now = to_section("svo-scene", "scene:x.eco", &s, false);
+    let view = crate::pack::section::SectionView::parse(&now.payload, 0).unwrap();
+    let (meta, _) = from_section(&view).unwrap();
+    // The section written again with the metadata's version set to `version`.
+    let with_version = |version: u32| {
+        let mut m = meta.clone();
+        m.version = version;
+        let mut b = crate::pack::SectionBuilder::new("svo-scene", "svo-scene");
+        b.meta(&m);
+        let nodes: Vec<[u32; 4]> = view.array_vec("nodes").unwrap();
+        let leaves: &[u8] = view.array("leaves").unwrap();
+        let instances: Vec<[u32; 8]> = view.array_vec("instances").unwrap();
+        let top_nodes: Vec<[u32; 4]> = view.array_vec("top_nodes").unwrap();
+        let u32s = |name: &str| -> Vec<u32> { view.array_vec(name).unwrap() };
+        let u = crate::pack::ArrayFormat::U32;
+        b.array("nodes", u, 4, &nodes)
+            .array("leaves", crate::pack::ArrayFormat::U8, 1, leaves);
+        for name in [
+            "voxel_colors",
+            "voxel_normals",
+            "node_colors",
+            "node_normals",
+        ] {
+            b.array(name, u, 1, &u32s(name));
+        }
+        b.array("instances", u, 8, &instances);
+        for name in ["cell_start", "cell_instances"] {
+            b.array(name, u, 1, &u32s(name));
+        }
+        b.array("top_nodes", u, 4, &top_nodes);
+        for name in ["top_colors", "top_normals"] {
+            b.array(name, u, 1, &u32s(name));
+        }
+        b.finish()
+    };
+    let ok = with_version(3);
+    let v = crate::pack::section::SectionView::parse(&ok.payload, 0).unwrap();
+    assert_eq!(
+        from_section(&v).unwrap().1,
+        s,
+        "the copy at version 3 is read back"
+    );
+    let sec = with_version(2);
+    let v = crate::pack::section::SectionView::parse(&sec.payload, 0).unwrap();
+    let e = from_section(&v).unwrap_err().to_string();
+    assert!(e.contains("version 2") && e.contains("rebuild"), "{e}");
+}
+
+/// The terrain alone (no instances): its voxels fill the top level's aggregates, so a wide cone
+/// stops on the ground's aggregate; the aggregate's coverage-weighted colour is the terrain
+/// voxels' mean (brute force) and cone 0 still reaches the terrain's voxels.
+#[test]
+fn a_far_view_of_bare_terrain_stops_on_the_grounds_aggregate() {
+    let t = wavy_terrain();
+    let s = InstancedSvo::build(Some(&t), &[], &[], &VoxelizeOptions::surface(64)).unwrap();
+    assert_eq!((s.grid_instances(), s.terrain), (0, true));
+    let sums = brute_force_sums(&s);
+    assert!(!sums.is_empty());
+    let a = &s.aggregates;
+    let occupied: usize = (0..s.top.cells())
+        .map(|c| a.mask(c).count_ones() as usize)
+        .sum();
+    assert_eq!(
+        occupied,
+        sums.len(),
+        "every sub-cell holding a terrain voxel centre"
+    );
+    let g = s.scene_grid;
+    let hi = g.to_world(g.dims.map(|d| d as f32));
+    let centre = [0, 1, 2].map(|k| 0.5 * (g.origin[k] + hi[k]));
+    // Straight down from far above the middle.
+    let o = [centre[0] + 0.1, centre[1] + 0.2, hi[2] + 200.0];
+    let d = [0.0, 0.0, -1.0];
+    let far = s.trace_lod(o, d, [0.0, f32::INFINITY], 1.0);
+    let Some(SceneHit::Aggregate(h)) = far else {
+        panic!("{far:?}")
+    };
+    assert!(crate::voxel::lod_trace::can_stop(a.colors[h.attr as usize]));
+    match s.trace_lod(o, d, [0.0, f32::INFINITY], 0.0) {
+        Some(SceneHit::Voxel(v)) => {
+            assert_eq!(v.instance, 0);
+            assert!(v.t >= h.t, "{v:?} before {h:?}");
+        }
+        other => panic!("{other:?}"),
+    }
 }

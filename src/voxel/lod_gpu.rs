@@ -5,7 +5,7 @@
 //! brick). [`compare_lod_hits`] measures its agreement with the CPU on the same rays.
 
 use super::compute::{self, Kernel};
-use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, t_off};
+use super::gpu::{DDA_WGSL, GpuRay, SVO_COMMON_WGSL, SVO_WALK_WGSL, t_off};
 use super::lod_trace::LodHit;
 use super::svo::Svo;
 use super::traverse::VoxelRay;
@@ -41,6 +41,18 @@ pub struct SvoLodGpu<'g> {
     node_count: u32,
 }
 
+/// Per inner node of `svo`: on the last inner level the index of its first brick (the packed
+/// node holds a byte offset into `leaves` instead), elsewhere 0.
+pub(crate) fn brick_first(svo: &Svo) -> Vec<u32> {
+    let last = svo.inner_levels().saturating_sub(1);
+    (0..svo.nodes.len())
+        .map(|i| {
+            let on_last = svo.level_start.get(last).is_some_and(|&s| i as u32 >= s);
+            if on_last { svo.nodes[i].first_child } else { 0 }
+        })
+        .collect()
+}
+
 /// (colour, normal) pairs of two parallel arrays.
 fn interleave(colors: &[u32], normals: &[u32]) -> Vec<[u32; 2]> {
     colors.iter().zip(normals).map(|(&c, &n)| [c, n]).collect()
@@ -55,13 +67,7 @@ impl<'g> SvoLodGpu<'g> {
             )));
         }
         let (nodes, leaves) = super::packed::pack_leaves(svo);
-        let last = svo.inner_levels().saturating_sub(1);
-        let brick_first: Vec<u32> = (0..svo.nodes.len())
-            .map(|i| {
-                let on_last = svo.level_start.get(last).is_some_and(|&s| i as u32 >= s);
-                if on_last { svo.nodes[i].first_child } else { 0 }
-            })
-            .collect();
+        let brick_first = brick_first(svo);
         let node_attrs = interleave(&svo.node_colors, &svo.node_normals);
         let voxel_attrs = interleave(&svo.voxel_colors, &svo.voxel_normals);
         let buffers = [
@@ -79,7 +85,7 @@ impl<'g> SvoLodGpu<'g> {
                 bytemuck::cast_slice(&voxel_attrs),
             )?,
         ];
-        let parts = [DDA_WGSL, SVO_COMMON_WGSL, LOD_WGSL];
+        let parts = [DDA_WGSL, SVO_COMMON_WGSL, SVO_WALK_WGSL, LOD_WGSL];
         Ok(SvoLodGpu {
             gpu,
             kernel: Kernel::new(gpu, "svo lod trace", &parts, "main", 6)?,
@@ -135,6 +141,7 @@ impl<'g> SvoLodGpu<'g> {
                     color: w[2],
                     normal: w[3],
                     cell: [w[4], w[5], w[6]],
+                    attr: w[7],
                 })
             })
             .collect())
@@ -178,7 +185,8 @@ pub struct LodAgreement {
     /// Rays both hit but at another level or in another cell (a cell-edge or level-boundary
     /// tie: the DDA's entry t rounded differently).
     pub cell_mismatches: usize,
-    /// Same cell, but the colour or normal differ (none are expected: both read the same words).
+    /// Same cell, but the colour, normal or attribute index differ (none are expected: both
+    /// read the same words).
     pub attribute_mismatches: usize,
     /// Same cell with |t_gpu − t_cpu| > T_TOLERANCE·max(1, |t|).
     pub t_mismatches: usize,
@@ -213,7 +221,7 @@ pub fn compare_lod_hits(gpu: &[Option<LodHit>], cpu: &[Option<LodHit>]) -> LodAg
                 a.hits += 1;
                 a.max_t_error = a.max_t_error.max((g.t - c.t).abs());
                 let t_bad = t_off(g.t, c.t);
-                let attr_off = (g.color, g.normal) != (c.color, c.normal);
+                let attr_off = (g.color, g.normal, g.attr) != (c.color, c.normal, c.attr);
                 a.t_mismatches += usize::from(t_bad);
                 a.attribute_mismatches += usize::from(attr_off);
                 t_bad || attr_off
@@ -281,7 +289,10 @@ mod tests {
             "const MIN_STOP_ALPHA: u32 = {}u;",
             crate::voxel::lod_trace::MIN_STOP_ALPHA
         );
-        assert!(LOD_WGSL.contains(&line), "svo_lod.wgsl lacks {line:?}");
+        assert!(
+            SVO_WALK_WGSL.contains(&line),
+            "svo_walk.wgsl lacks {line:?}"
+        );
     }
 
     #[test]
@@ -293,6 +304,7 @@ mod tests {
                 t,
                 color,
                 normal: 0,
+                attr: 0,
             })
         };
         let cpu = [

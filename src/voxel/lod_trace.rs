@@ -18,8 +18,15 @@
 //! 1/a, and a sparse coarse cell (a plane fills 1/64 of a 64³ node: a = 4; the root of a
 //! landscape often rounds to a = 0) has none worth showing; such cells are descended.
 //!
-//! The hit's t is where the traversal enters the stopping cell: the later of the cell's own
-//! entry, the grid's and `t_min` (for a voxel, [`voxel_entry_t`] as in `trace_svo`).
+//! The t of the rule, and the hit's t, is where the ray enters the cell: the later of the cell's
+//! own slab entry ([`box_interval`] of its box) and of the grid's entry clamped to `t_min` (for
+//! a voxel, [`voxel_entry_t`] as in `trace_svo`). The descent itself follows the DDA as
+//! `trace_svo` does, so cone 0 visits exactly its cells.
+//!
+//! Under a scale ([`trace_lod_scaled`], the instanced SVO's models): `unit` is the world side of
+//! one voxel (the instance's |scale| × the model's voxel side) and t a world distance; a cell
+//! stops the walk when `side · unit ≤ cone · t`, one rule for the flattened SVO (unit 1, t and
+//! the cone in voxels) and the instances' octrees (t and the cone in metres).
 //!
 //! Alpha: a stopping cell is opaque. Its stored alpha is its coverage (the fraction of its
 //! volume occupied), but the ray ends there whatever the coverage, and [`LodHit::straight_color`]
@@ -45,6 +52,9 @@ pub struct LodHit {
     pub color: u32,
     /// The stored octahedral normal.
     pub normal: u32,
+    /// Where they are stored: an index into `node_colors` (level < L: the inner nodes, then the
+    /// bricks) or, for a voxel (level L), into `voxel_colors`.
+    pub attr: u32,
 }
 
 impl LodHit {
@@ -83,6 +93,12 @@ pub fn cell_side(levels: u32, level: u32) -> f32 {
 
 /// The first occupied cell along `r` at the level the cone picks (see the module documentation).
 pub fn trace_lod(svo: &Svo, r: &VoxelRay, cone: f32) -> Option<LodHit> {
+    trace_lod_scaled(svo, r, cone, 1.0)
+}
+
+/// [`trace_lod`] where a cell of side s voxels is `s · unit` wide for the rule `s · unit ≤ cone
+/// · t` (see the module documentation): an instance's octree walked with world t and cone.
+pub fn trace_lod_scaled(svo: &Svo, r: &VoxelRay, cone: f32, unit: f32) -> Option<LodHit> {
     if svo.nodes.is_empty() {
         return None;
     }
@@ -92,10 +108,16 @@ pub fn trace_lod(svo: &Svo, r: &VoxelRay, cone: f32) -> Option<LodHit> {
     if t0 > t1 {
         return None;
     }
-    if side <= cone * t0 && can_stop(svo.node_colors[0]) {
+    if side * unit <= cone * t0 && can_stop(svo.node_colors[0]) {
         return Some(cell_hit(svo, 0, 0, [0.0; 3], t0));
     }
-    let walk = Walk { svo, r, cone };
+    let walk = Walk {
+        svo,
+        r,
+        cone,
+        unit,
+        t0,
+    };
     walk.node(0, 0, [0.0; 3], side, t0, t1)
 }
 
@@ -107,6 +129,7 @@ fn cell_hit(svo: &Svo, level: u32, attr: usize, base: [f32; 3], t: f32) -> LodHi
         t,
         color: svo.node_colors[attr],
         normal: svo.node_normals[attr],
+        attr: attr as u32,
     }
 }
 
@@ -114,6 +137,10 @@ struct Walk<'a> {
     svo: &'a Svo,
     r: &'a VoxelRay,
     cone: f32,
+    /// World side of one voxel (1 for the flattened SVO).
+    unit: f32,
+    /// The grid's entry, clamped to `t_min`.
+    t0: f32,
 }
 
 impl Walk<'_> {
@@ -141,8 +168,15 @@ impl Walk<'_> {
                 let child = svo.child(&n, s) as usize;
                 let cbase = [0, 1, 2].map(|k| base[k] + dda.c[k] as f32 * cell);
                 let attr = if last { svo.nodes.len() + child } else { child };
-                let hit = if cell <= self.cone * t && can_stop(svo.node_colors[attr]) {
-                    Some(cell_hit(svo, level + 1, attr, cbase, t))
+                let stop = (self.cone > 0.0).then(|| {
+                    let hi = cbase.map(|b| b + cell);
+                    box_interval(self.r, cbase, hi).0.max(self.t0)
+                });
+                let hit = if let Some(tc) = stop
+                    && cell * self.unit <= self.cone * tc
+                    && can_stop(svo.node_colors[attr])
+                {
+                    Some(cell_hit(svo, level + 1, attr, cbase, tc))
                 } else if last {
                     self.brick(&n, child, cbase, t, exit)
                 } else {
@@ -189,6 +223,7 @@ impl Walk<'_> {
                         t: voxel_entry_t(self.r, v),
                         color: svo.voxel_colors[i],
                         normal: svo.voxel_normals[i],
+                        attr: i as u32,
                     });
                 }
             }

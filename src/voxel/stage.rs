@@ -13,7 +13,8 @@ use crate::stage::{
 /// 2: voxel colours from the linear albedo (issue 35).
 /// 3: the two-level `svo-scene` section's top level carries filtered attributes (section
 /// version 2, issue 39).
-pub const VERSION: u32 = 3;
+/// 4: the terrain's voxels in the top level's aggregates (section version 3, issue 39).
+pub const VERSION: u32 = 4;
 
 /// The sparse voxel octree of the placed scene (`svo`): the flattened `svo` where the placed
 /// scene fits the memory budget, else the two-level `svo-scene` (one octree per model).

@@ -1,13 +1,15 @@
 // First hit of a batch of world rays in the two-level SVO (the `svo-scene` section's arrays bound
 // as they are; src/voxel/instanced.rs): the terrain's octree, then a DDA over the top grid whose
-// cells list instances; each instance's octree is traced on the ray moved into its voxel units,
+// cells list instances; each instance's octree is walked on the ray moved into its voxel units,
 // operation for operation as InstancedSvo::trace_lod (an instance listed in several cells is
-// traced again, with the same answer, where the CPU remembers it). With a cone > 0 a top cell or
-// sub-cell no wider than cone·t where the walk enters it, whose aggregate covers enough, ends the
-// walk (InstancedSvo::region_stop). Output per ray: two vec4<u32>: (instance, i, j, k) and
-// (bits of t, 0, 0, 0); instance all ones on a miss; on an aggregate (AGG, attribute, level, 0).
-// Each model's octree is walked by svo_walk.wgsl. Prepended: dda.wgsl, svo_common.wgsl and
-// svo_walk.wgsl.
+// traced again, with the same answer, where the CPU remembers it). One LOD rule from the top
+// cells down: with a cone > 0 a top cell or sub-cell no wider than cone·t where the walk enters
+// it, whose aggregate covers enough, ends the walk (InstancedSvo::region_stop); inside an
+// instance (and the terrain) svo_walk.wgsl stops on the model's node whose side × |scale| ×
+// the model's voxel side is at most cone·t. Output per ray: two vec4<u32>: (instance, cell x,
+// y, z) and (bits of t, level in the model's octree, attribute index local to the model, 0);
+// instance all ones on a miss; on an aggregate (AGG, attribute, level, 0) and (bits of t, 0, 0,
+// 0). Prepended: dda.wgsl, svo_common.wgsl and svo_walk.wgsl.
 
 struct Params {
     top_origin: vec3<f32>,
@@ -24,7 +26,13 @@ struct Params {
     // Index in `cells` of top_nodes (4 words per cell) and of top_colors.
     node_base: u32,
     color_base: u32,
-    pad: u32,
+    // Index in `cells` of the models' brick_first (per global node) and of their filtered
+    // colours (per global attribute).
+    brick_base: u32,
+    attr_base: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 struct Model {
@@ -35,9 +43,9 @@ struct Model {
     dims: vec3<u32>,
     first_node: u32,
     first_leaf: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
+    first_attr: u32,
+    node_count: u32,
+    pad: u32,
 }
 
 struct Inst {
@@ -60,17 +68,20 @@ struct GpuRay {
 @group(0) @binding(2) var<storage, read> leaves: array<u32>;
 @group(0) @binding(3) var<storage, read> models: array<Model>;
 @group(0) @binding(4) var<storage, read> insts: array<Inst>;
-// cell_start (cells + 1), cell_instances, top_nodes (4 per cell), top_colors.
+// cell_start (cells + 1), cell_instances, top_nodes (4 per cell), top_colors, the models'
+// brick_first, the models' filtered colours (node_colors).
 @group(0) @binding(5) var<storage, read> cells: array<u32>;
 @group(0) @binding(6) var<storage, read> rays: array<GpuRay>;
 @group(0) @binding(7) var<storage, read_write> hits: array<vec4<u32>>;
 
 const AGG: u32 = 0xfffffffeu;
-// lod_trace::MIN_STOP_ALPHA.
-const MIN_STOP_ALPHA: u32 = 16u;
 
-fn can_stop(c: u32) -> bool {
-    return (c >> 24u) >= MIN_STOP_ALPHA;
+fn walk_node_color(i: u32) -> u32 {
+    return cells[params.attr_base + i];
+}
+
+fn walk_brick_first(n: u32) -> u32 {
+    return cells[params.brick_base + n];
 }
 
 // InstancedSvo::region_stop: (attribute, level, bits of t, 1) of the region of top cell `c`
@@ -106,8 +117,9 @@ fn region_stop(o: vec3<f32>, d: vec3<f32>, c: u32, cc: vec3<f32>, tc: f32, exit:
     return vec4<u32>(0u);
 }
 
-// InstancedSvo::ray_in + trace_instance: (voxel, t bits) or MISS.
-fn trace_instance(i: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> vec4<u32> {
+// InstancedSvo::ray_in + trace_instance_lod: the walk of instance i's model on the ray in its
+// voxel units, a voxel measuring |scale| × the model's voxel side.
+fn trace_instance(i: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> WalkHit {
     let inst = insts[i];
     let m = models[inst.model];
     let c = inst.cs.x;
@@ -120,15 +132,16 @@ fn trace_instance(i: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> vec4<
     r.dir = dm / (inst.scale * m.voxel_size);
     r.t_min = t0;
     r.t_max = t1;
-    return svo_walk(r, m.dims, m.side, m.inner_levels, m.first_node, m.first_leaf);
+    let tree = WalkTree(m.dims, m.side, m.inner_levels, m.first_node, m.first_leaf, m.first_attr, m.node_count);
+    return svo_walk(r, tree, params.cone, abs(inst.scale) * m.voxel_size.x, false);
 }
 
 fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
     var best_i = 0xffffffffu;
-    var best = MISS;
+    var best = walk_miss();
     if (params.terrain == 1u) {
         let h = trace_instance(params.instances - 1u, w.origin, w.dir, w.t_min, w.t_max);
-        if (h.x != 0xffffffffu) {
+        if (h.level != 0xffffffffu) {
             best = h;
             best_i = params.instances - 1u;
         }
@@ -140,7 +153,7 @@ fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
     let iv = box_interval(o, d, vec3<f32>(0.0), vec3<f32>(params.top_dims));
     let t0 = max(iv.x, w.t_min);
     let t1 = min(iv.y, w.t_max);
-    if (t0 <= t1 && cells[params.list_base - 1u] > 0u) {
+    if (t0 <= t1 && (cells[params.list_base - 1u] > 0u || params.cone > 0.0)) {
         var dda = dda_new(o, d, vec3<f32>(0.0), 1.0, n, t0);
         let k = max(max(n.x, n.y), n.z);
         loop {
@@ -156,23 +169,21 @@ fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
                 let i = cells[params.list_base + e];
                 var cap = w.t_max;
                 if (best_i != 0xffffffffu) {
-                    cap = bitcast<f32>(best.w);
+                    cap = best.t;
                 }
                 if (stop.w == 1u) {
                     cap = min(cap, bitcast<f32>(stop.z));
                 }
                 let h = trace_instance(i, w.origin, w.dir, w.t_min, cap);
-                if (h.x != 0xffffffffu) {
-                    let ht = bitcast<f32>(h.w);
-                    let bt = bitcast<f32>(best.w);
-                    if (best_i == 0xffffffffu || ht < bt || (ht == bt && i < best_i)) {
+                if (h.level != 0xffffffffu) {
+                    if (best_i == 0xffffffffu || h.t < best.t || (h.t == best.t && i < best_i)) {
                         best = h;
                         best_i = i;
                     }
                 }
             }
             if (stop.w == 1u) {
-                if (best_i == 0xffffffffu || bitcast<f32>(best.w) > bitcast<f32>(stop.z)) {
+                if (best_i == 0xffffffffu || best.t > bitcast<f32>(stop.z)) {
                     var agg: array<vec4<u32>, 2>;
                     agg[0] = vec4<u32>(AGG, stop.x, stop.y, 0u);
                     agg[1] = vec4<u32>(stop.z, 0u, 0u, 0u);
@@ -181,7 +192,7 @@ fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
                 break;
             }
             let exit = dda_exit(dda);
-            if ((best_i != 0xffffffffu && bitcast<f32>(best.w) < exit) || exit > t1) {
+            if ((best_i != 0xffffffffu && best.t < exit) || exit > t1) {
                 break;
             }
             if (!dda_advance(&dda, k) || dda.c.x >= n.x || dda.c.y >= n.y || dda.c.z >= n.z) {
@@ -190,8 +201,12 @@ fn trace_scene(w: GpuRay) -> array<vec4<u32>, 2> {
         }
     }
     var out: array<vec4<u32>, 2>;
-    out[0] = vec4<u32>(best_i, best.x, best.y, best.z);
-    out[1] = vec4<u32>(best.w, 0u, 0u, 0u);
+    out[0] = vec4<u32>(best_i, best.cell);
+    out[1] = vec4<u32>(bitcast<u32>(best.t), best.level, best.attr, 0u);
+    if (best_i == 0xffffffffu) {
+        out[0] = vec4<u32>(0xffffffffu);
+        out[1] = vec4<u32>(0u);
+    }
     return out;
 }
 

@@ -30,12 +30,26 @@ struct GpuRay {
 @group(0) @binding(3) var<storage, read> rays: array<GpuRay>;
 @group(0) @binding(4) var<storage, read_write> hits: array<vec4<u32>>;
 
-// traverse::trace_svo on the section's one tree (svo_walk.wgsl).
+// No filtered attributes are bound: the walk with cone 0 never reads them.
+fn walk_node_color(i: u32) -> u32 {
+    return 0u;
+}
+
+fn walk_brick_first(n: u32) -> u32 {
+    return 0u;
+}
+
+// traverse::trace_svo on the section's one tree (svo_walk.wgsl with cone 0).
 fn trace(r: GpuRay) -> vec4<u32> {
     if (params.node_count == 0u) {
         return MISS;
     }
-    return svo_walk(r, params.dims, params.side, params.inner_levels, 0u, 0u);
+    let tree = WalkTree(params.dims, params.side, params.inner_levels, 0u, 0u, 0u, params.node_count);
+    let h = svo_walk(r, tree, 0.0, 1.0, false);
+    if (h.level == 0xffffffffu) {
+        return MISS;
+    }
+    return vec4<u32>(h.cell, bitcast<u32>(h.t));
 }
 
 @compute @workgroup_size(64)
