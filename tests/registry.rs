@@ -222,7 +222,7 @@ fn the_registry_gives_the_build_key_its_names_and_versions() {
             ("envmaps", 3),
             ("cluster", 4),
             ("bittree", 3),
-            ("svo", 3),
+            ("svo", 4),
             ("linespace", 2)
         ]
     );
