@@ -489,6 +489,27 @@ fn terrain_map(
     (m.texels, d)
 }
 
+/// `f` on a rayon pool of `threads` threads.
+fn on_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
+}
+
+/// The light-map stage's terrain section for `opts`, alone in an in-memory pack.
+fn terrain_section_pack(
+    scene: &bake::trace::pack_scene::TraceScene,
+    light: &bake::lightmap::BakeLight,
+    opts: &bake::lightmap::LightmapOptions,
+) -> bake::pack::Pack {
+    let s = bake::lightmap::terrain_sections(scene, light, opts).unwrap();
+    let mut w = bake::pack::PackWriter::new();
+    w.insert(s.into_iter().next().unwrap());
+    bake::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap()
+}
+
 /// RMS over texels and channels of (a − b), and mean of a − b, relative to the mean of b.
 fn rms_and_bias(a: &[[f32; 3]], b: &[[f32; 3]]) -> (f64, f64) {
     let n = (a.len() * 3) as f64;
@@ -562,13 +583,7 @@ fn horizon_light_map_is_the_same_on_one_and_two_threads_and_in_row_shards() {
         visibility: LightmapVisibility::Horizons,
         ..Default::default()
     };
-    let run = |threads| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| terrain_map(&scene, &light, &opts))
-    };
+    let run = |threads| on_threads(threads, || terrain_map(&scene, &light, &opts));
     let (one, two) = (run(1), run(2));
     assert!(one == two, "1 and 2 threads differ");
     let mut texels = Vec::new();
@@ -616,22 +631,9 @@ fn the_filtered_light_map_is_closer_to_the_reference_and_states_its_filter() {
     };
     assert!(filtered.check().is_ok());
     let (pm, pd) = terrain_map(&scene, &light, &plain);
-    let section = |o: &LightmapOptions| {
-        let s = bake::lightmap::terrain_sections(&scene, &light, o).unwrap();
-        let mut w = bake::pack::PackWriter::new();
-        w.insert(s.into_iter().next().unwrap());
-        bake::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap()
-    };
-    let fp = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .unwrap()
-        .install(|| section(&filtered));
-    let fp2 = rayon::ThreadPoolBuilder::new()
-        .num_threads(2)
-        .build()
-        .unwrap()
-        .install(|| section(&filtered));
+    let section = |o: &LightmapOptions| terrain_section_pack(&scene, &light, o);
+    let fp = on_threads(1, || section(&filtered));
+    let fp2 = on_threads(2, || section(&filtered));
     let v = fp.view_named("lightmap:terrain").unwrap();
     let (meta, fm) = bake::lightmap::section::from_section(&v).unwrap();
     assert_eq!((meta.width, meta.samples), (65, 16));
@@ -707,13 +709,7 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     };
     assert!(stepped.check().is_ok());
     let (pm, pd) = terrain_map(&scene, &light, &plain);
-    let run = |threads| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| terrain_map(&scene, &light, &stepped))
-    };
+    let run = |threads| on_threads(threads, || terrain_map(&scene, &light, &stepped));
     let ((sm, sd), two) = (run(1), run(2));
     assert!(sm == two.0 && sd == two.1, "1 and 2 threads differ");
     assert!(sd == pd, "the direct sun is per texel in both");
@@ -768,10 +764,7 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
         "stepped {s_rms} / {si_rms} vs every texel at a quarter of the rays {q_rms} / {qi_rms}"
     );
     // The section states the step after the prefix every reader reads.
-    let s = bake::lightmap::terrain_sections(&scene, &light, &stepped).unwrap();
-    let mut w = bake::pack::PackWriter::new();
-    w.insert(s.into_iter().next().unwrap());
-    let p = bake::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "mem").unwrap();
+    let p = terrain_section_pack(&scene, &light, &stepped);
     let v = p.view_named("lightmap:terrain").unwrap();
     let (meta, m) = bake::lightmap::section::from_section(&v).unwrap();
     assert_eq!((meta.width, meta.samples), (65, 16));
