@@ -41,10 +41,6 @@ WORKERS=${BAKE_BOT_WORKERS:-2}
 T0=$(date +%s)
 # shellcheck source=scripts/bazel-tools.sh
 . "$REPO/scripts/bazel-tools.sh"
-# BuildGrid's scheduler talks to PostgreSQL through psycopg2 (its LISTEN/NOTIFY code imports it).
-if ! "$PY" -c 'import psycopg2' 2>/dev/null; then
-  "$TOOLS/venv/bin/pip" install --quiet psycopg2-binary==2.9.13
-fi
 
 PG_BIN=${BAKE_PG_BIN:-}
 if [ -z "$PG_BIN" ]; then
