@@ -58,11 +58,33 @@ impl InstanceTransform {
 
     /// A world ray in model space, with the same `t` range.
     pub fn ray_to_local(&self, r: &Ray) -> Ray {
-        let inv = self.rotation().transpose();
-        let s = 1.0 / self.scale;
+        ToLocal::of(self).ray(r)
+    }
+}
+
+/// The inverse of an [`InstanceTransform`], computed once: a scene's rays visit each instance
+/// many times, and the rotation's sine and cosine were a visible part of the light map's
+/// profile. Maps rays to exactly the bits [`InstanceTransform::ray_to_local`] gives.
+#[derive(Debug, Clone, Copy)]
+struct ToLocal {
+    inv_rotation: Mat3A,
+    translation: Vec3A,
+    inv_scale: f32,
+}
+
+impl ToLocal {
+    fn of(t: &InstanceTransform) -> Self {
+        ToLocal {
+            inv_rotation: t.rotation().transpose(),
+            translation: Vec3A::from(t.translation),
+            inv_scale: 1.0 / t.scale,
+        }
+    }
+
+    fn ray(&self, r: &Ray) -> Ray {
         Ray {
-            origin: inv * (r.origin - Vec3A::from(self.translation)) * s,
-            dir: inv * r.dir * s,
+            origin: self.inv_rotation * (r.origin - self.translation) * self.inv_scale,
+            dir: self.inv_rotation * r.dir * self.inv_scale,
             tmin: r.tmin,
             tmax: r.tmax,
         }
@@ -81,6 +103,8 @@ pub struct SceneHit {
 pub struct SceneBvh {
     models: Vec<Arc<ModelBvh>>,
     instances: Vec<InstanceTransform>,
+    /// Each instance's inverse transform (world rays into its model).
+    to_local: Vec<ToLocal>,
     tlas: Option<CwBvh>,
     terrain: Option<Arc<Heightfield>>,
 }
@@ -116,6 +140,7 @@ impl SceneBvh {
             )
         });
         Ok(SceneBvh {
+            to_local: instances.iter().map(ToLocal::of).collect(),
             models,
             instances,
             tlas,
@@ -175,7 +200,7 @@ impl SceneBvh {
             let inst = &self.instances[k as usize];
             let local = Ray {
                 tmax: r.tmax,
-                ..inst.ray_to_local(ray)
+                ..self.to_local[k as usize].ray(ray)
             };
             match self.models[inst.model as usize].closest_hit(&local) {
                 Some(h) if h.t < r.tmax => {
@@ -200,8 +225,9 @@ impl SceneBvh {
             return false;
         };
         !tlas.ray_traverse_miss(ray.to_obvhs(), |_, slot| {
-            let inst = &self.instances[tlas.primitive_indices[slot] as usize];
-            let blocked = self.models[inst.model as usize].any_hit(&inst.ray_to_local(ray));
+            let k = tlas.primitive_indices[slot] as usize;
+            let model = &self.models[self.instances[k].model as usize];
+            let blocked = model.any_hit(&self.to_local[k].ray(ray));
             if blocked { ray.tmin } else { f32::INFINITY }
         })
     }
@@ -225,8 +251,8 @@ impl SceneBvh {
             if Some(k) == skip {
                 return f32::INFINITY;
             }
-            let inst = &self.instances[k as usize];
-            let blocked = self.models[inst.model as usize].any_hit(&inst.ray_to_local(ray));
+            let model = &self.models[self.instances[k as usize].model as usize];
+            let blocked = model.any_hit(&self.to_local[k as usize].ray(ray));
             if blocked { ray.tmin } else { f32::INFINITY }
         })
     }
