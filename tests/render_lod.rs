@@ -726,6 +726,32 @@ fn mask(img: &bake::model::Rgba8Image, bg: &bake::model::Rgba8Image) -> Vec<bool
         .collect()
 }
 
+/// The fixture's 3DS bench alone (no terrain), through the material stage: its two-layer
+/// materials (wood top, metal legs).
+fn one_bench(dir: &std::path::Path) -> (OnePlant, Pack) {
+    let (base, name, meta, inst) = impostor_sections(dir);
+    let one = OnePlant::of_model(base, name, meta, &inst, false, "object.3ds");
+    let plain = one.pack(&dir.join("plain.bake"), None);
+    let (materials, _) = bake::material::bake_materials(&plain, &Default::default()).unwrap();
+    let mut wr = bake::pack::PackWriter::from_pack(&plain);
+    for s in materials {
+        wr.insert(s);
+    }
+    let pack = Pack::from_bytes(&wr.to_bytes().unwrap(), "one.bake").unwrap();
+    (one, pack)
+}
+
+/// The model of a scene's only instance.
+fn the_one_model<'a>(
+    scene: &'a bake::render::scene::SceneData<'a>,
+) -> &'a bake::render::scene::ModelData<'a> {
+    scene
+        .models
+        .iter()
+        .find(|m| m.instances.len() == 1)
+        .unwrap()
+}
+
 /// The impostor's picture lies where the model does, from a view between tiles: the fixture's
 /// 3DS bench (elongated, so a turned picture shows), seen from high above (75°) at an azimuth
 /// between the tiles' (the nearest tile's direction 11° away from the view and 45° apart in
@@ -746,22 +772,9 @@ fn mask(img: &bake::model::Rgba8Image, bg: &bake::model::Rgba8Image) -> Vec<bool
 fn an_impostor_seen_between_tiles_covers_the_models_pixels() {
     use glam::Vec3;
     let dir = tempfile::tempdir().unwrap();
-    let (base, name, meta, inst) = impostor_sections(dir.path());
-    let one = OnePlant::of_model(base, name, meta, &inst, false, "object.3ds");
-    let plain = one.pack(&dir.path().join("plain.bake"), None);
-    // Through the material stage: the bench's two-layer materials (wood top, metal legs).
-    let (materials, _) = bake::material::bake_materials(&plain, &Default::default()).unwrap();
-    let mut wr = bake::pack::PackWriter::from_pack(&plain);
-    for s in materials {
-        wr.insert(s);
-    }
-    let pack = Pack::from_bytes(&wr.to_bytes().unwrap(), "one.bake").unwrap();
+    let (one, pack) = one_bench(dir.path());
     let scene = bake::render::scene::load_scene(&pack).unwrap();
-    let m = scene
-        .models
-        .iter()
-        .find(|m| m.instances.len() == 1)
-        .unwrap();
+    let m = the_one_model(&scene);
     let lod = m.lod.as_ref().unwrap();
     let imp = lod.impostor.as_ref().expect("the bench has an impostor");
     let r = &m.instances[0];
@@ -1099,21 +1112,9 @@ fn a_far_plant_drawn_as_impostor_shadows_itself_like_full_detail() {
 fn a_small_far_impostor_covers_the_pixels_its_mesh_covers() {
     use glam::Vec3;
     let dir = tempfile::tempdir().unwrap();
-    let (base, name, meta, inst) = impostor_sections(dir.path());
-    let one = OnePlant::of_model(base, name, meta, &inst, false, "object.3ds");
-    let plain = one.pack(&dir.path().join("plain.bake"), None);
-    let (materials, _) = bake::material::bake_materials(&plain, &Default::default()).unwrap();
-    let mut wr = bake::pack::PackWriter::from_pack(&plain);
-    for s in materials {
-        wr.insert(s);
-    }
-    let pack = Pack::from_bytes(&wr.to_bytes().unwrap(), "one.bake").unwrap();
+    let (_, pack) = one_bench(dir.path());
     let scene = bake::render::scene::load_scene(&pack).unwrap();
-    let m = scene
-        .models
-        .iter()
-        .find(|m| m.instances.len() == 1)
-        .unwrap();
+    let m = the_one_model(&scene);
     assert!(
         m.lod.as_ref().and_then(|l| l.impostor.as_ref()).is_some(),
         "the bench has an impostor"
