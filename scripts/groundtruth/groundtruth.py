@@ -15,6 +15,8 @@ For each scene of scenes.toml (a pack built from its inputs) and each of its vie
      mean ratio bake/reference of the luminance, and the relative RMS difference after a 5×5 box
      blur of both; the fraction of the reference's leaf coverage that bake draws; side-by-side
      images (bake | reference | error) as PNG;
+     and, from a twin reference with another seed, the reference's own Monte Carlo noise
+     beside each figure (the ratio's standard error, the RMS its noise alone adds);
   5. every figure is checked against bounds.toml: the issue's goal, or for a figure listed there
      as open, a regression guard around its measured value.
 
@@ -22,7 +24,7 @@ Also `conventions`: Mitsuba's directional and envmap emitters as the exporter wr
 a plane (albedo/π · E · cos θ under the sun alone, albedo · L under a uniform sky).
 
 Usage: scripts/groundtruth/run.sh [ci|conventions] [--bench] [--out DIR] [--bake BIN]
-                                    [--only SCENE] [--write-bounds]
+                                    [--only SCENE] [--write-bounds] [--no-noise]
 """
 
 import argparse
@@ -356,13 +358,13 @@ def reference_regions(scene, width, height, n=4):
     return np.stack([(np.abs(r - code) < 0.5).mean(axis=2) for code in REGION_CODE.values()], axis=2)
 
 
-def render_reference(mdir, spp, seed=0):
+def render_reference(mdir, spp, seed=0, regions=True):
     out = {}
     t0 = time.time()
     for name, xml in (("all", "scene.xml"), ("direct", "direct.xml")):
         scene = mi.load_file(str(mdir / xml), spp=spp)
         out[name] = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
-        if name == "all":
+        if name == "all" and regions:
             out["regions"] = reference_regions(
                 scene, out[name].shape[1], out[name].shape[0]
             )
@@ -375,8 +377,10 @@ def render_reference(mdir, spp, seed=0):
 # metrics
 
 
-def metrics(bake, ref, bake_regions):
-    """Figures per region and term, and the leaf fraction."""
+def metrics(bake, ref, bake_regions, twin=None):
+    """Figures per region and term, and the leaf fraction. `twin`: a second reference of the
+    same scene with another seed; each figure then gets the reference's own Monte Carlo noise
+    (`rms_noise`, `ratio_noise`, below)."""
     cov = ref["regions"]
     masks = {r: cov[..., c] >= 0.5 for c, r in enumerate(("terrain", "opaque", "leaves"))}
     masks["sky"] = cov.sum(axis=2) <= 0.5
@@ -405,6 +409,17 @@ def metrics(bake, ref, bake_regions):
                 "ratio": float(b[m].mean() / mean_r) if mean_r > 0 else float("nan"),
                 "rms": float(np.sqrt(np.mean((bb[m] - rb[m]) ** 2)) / max(float(rb[m].mean()), 1e-12)),
             }
+            if twin is not None:
+                # The reference's own noise, from its difference to the twin (independent
+                # pixels, the same spp): per pixel var ≈ (r − r₂)²/2. rms_noise is the RMS the
+                # reference's noise alone adds after the blur (relative, as `rms`; the measured
+                # rms² ≈ bake's own error² + rms_noise²); ratio_noise is the standard error of
+                # the region's mean ratio.
+                dr = r - luminance(twin[term])
+                noise_rms = np.sqrt(np.mean(box5(dr)[m] ** 2) / 2.0)
+                fig["rms_noise"] = float(noise_rms / max(float(rb[m].mean()), 1e-12))
+                se = np.sqrt(np.sum(dr[m] ** 2) / 2.0) / n
+                fig["ratio_noise"] = float(fig["ratio"] * se / mean_r) if mean_r > 0 else float("nan")
             out["regions"][region][term] = fig
     # The reference's leaf pixels (leaves cover at least half) where bake draws a leaf (at
     # least one of its samples); the coverage-weighted overlap beside it, for information
@@ -545,7 +560,7 @@ def view_args(view, width, height):
     return a
 
 
-def run_view(bake, pack, scene_name, view, settings, out):
+def run_view(bake, pack, scene_name, view, settings, out, noise=True):
     vdir = out / scene_name / view["name"]
     mdir = vdir / "mitsuba"
     vdir.mkdir(parents=True, exist_ok=True)
@@ -563,13 +578,17 @@ def run_view(bake, pack, scene_name, view, settings, out):
     checks = check_export(mdir)
     ref = render_reference(mdir, settings["spp"])
     timing["reference"] = ref["seconds"]
+    # Its twin with another seed: the reference's own noise beside each figure.
+    twin = render_reference(mdir, settings["spp"], seed=1, regions=False) if noise else None
+    if twin is not None:
+        timing["reference_twin"] = twin["seconds"]
     for t in ("all", "direct", "ambient"):
         mi.Bitmap(ref[t].astype(np.float32)).write(str(vdir / f"reference_{t}.exr"))
         side_by_side(vdir / f"side_{t}.png", bake_img[t], ref[t])
     reg = lambda c: (np.clip(c, 0, 1) * 255 + 0.5).astype(np.uint8)
     gap = np.full((h, 2, 3), 255, np.uint8)
     write_png(vdir / "regions.png", np.concatenate([reg(bake_regions), gap, reg(ref["regions"])], axis=1))
-    m = metrics(bake_img, ref, bake_regions)
+    m = metrics(bake_img, ref, bake_regions, twin)
     return {"export": json.loads(exp), "checks": checks, "metrics": m, "seconds": timing}
 
 
@@ -595,6 +614,10 @@ def table(results):
                     f = terms.get(term)
                     if f is None or "ratio" not in f:
                         cells += ["–", "–"]
+                    elif "rms_noise" in f:
+                        # The reference's own noise beside each figure: ± the ratio's standard
+                        # error, (the RMS its noise alone adds).
+                        cells += [f"{f['ratio']:.3f} ±{f['ratio_noise']:.3f}", f"{f['rms']:.3f} ({f['rms_noise']:.3f})"]
                     else:
                         cells += [f"{f['ratio']:.3f}", f"{f['rms']:.3f}"]
                 lines.append(f"| {region} | {m['pixels'][region]} | " + " | ".join(cells) + " |")
@@ -610,6 +633,8 @@ def main():
     ap.add_argument("--bounds", default=str(HERE / "bounds.toml"))
     ap.add_argument("--bench", action="store_true", help="the larger views of scenes.toml [bench]")
     ap.add_argument("--only", action="append", help="scene names to run (default: all)")
+    ap.add_argument("--no-noise", action="store_true",
+                    help="skip the reference's twin (another seed) that measures its own noise")
     ap.add_argument("--write-bounds", action="store_true",
                     help="print the open guards of the figures that miss their goals now (TOML)")
     args = ap.parse_args()
@@ -637,7 +662,7 @@ def main():
         results[sc["name"]] = {}
         for view in sc["view"]:
             t = time.time()
-            res = run_view(bake, pack, sc["name"], view, settings, out)
+            res = run_view(bake, pack, sc["name"], view, settings, out, noise=not args.no_noise)
             results[sc["name"]][view["name"]] = res
             c = res["checks"]
             print(f"  {view['name']}: {time.time() - t:.1f} s (reference {res['seconds']['reference']:.1f} s);"

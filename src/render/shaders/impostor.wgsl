@@ -67,6 +67,8 @@ struct ImpostorOut {
     @location(12) @interpolate(flat) env6: vec4<f32>,
     // the impostor's centre in the world (its depths are measured from it)
     @location(13) @interpolate(flat) centre: vec3<f32>,
+    // The clip-space position again, interpolated as the inputs are (`screen_point`).
+    @location(14) clip: vec4<f32>,
 };
 
 // The tile of unit direction w (z < 0 clamped to the horizon), as octa.rs `tile_of`.
@@ -256,6 +258,7 @@ fn impostor_vertex(v: ImpostorIn, w_world: vec3<f32>) -> ImpostorOut {
     let world = centre + (right * st.x + up * st.y) * radius;
     var out: ImpostorOut;
     out.position = globals.view_proj * vec4<f32>(world, 1.0);
+    out.clip = out.position;
     out.world = world;
     out.st = st;
     out.tile = tile;
@@ -422,15 +425,57 @@ fn fs_main_per_sample(in: ImpostorOut, @builtin(sample_index) k: u32) -> @locati
 }
 
 fn shade(in: ImpostorOut) -> Shaded {
-    // The atlas at the footprint's level: its texel's coverage against the samples'
-    // thresholds (as far leaf cards: the view's coverage over the pixel rather than the one
-    // texel at its centre), its mean colour, normal and depth for the light.
-    let level = atlas_level(dpdx(in.st), dpdy(in.st));
-    let px = atlas_texel(in) >> vec2<u32>(u32(level));
-    let texel = textureLoad(atlas_color, px, level);
+    // A model with alpha-tested materials: the atlas at the footprint's level, its texel's
+    // coverage against the samples' thresholds (as far leaf cards: the view's coverage over the
+    // pixel rather than the one texel at its centre), its mean colour, normal and depth for
+    // the light. A solid model: each sample's own level-0 texel (below).
+    let dsx = dpdx(in.st);
+    let dsy = dpdy(in.st);
+    var level = atlas_level(dsx, dsy);
+    var px = atlas_texel(in) >> vec2<u32>(u32(level));
+    var texel = textureLoad(atlas_color, px, level);
     let d = layer_dither(in.position.xy, in.world);
     var mask = 0xffffffffu;
-    if (SAMPLE_MASK) {
+    if (impostor.grid_tile.w == 0u) {
+        // A model without alpha-tested materials (a solid silhouette) is drawn as MSAA draws its
+        // mesh: each sample keeps the model where the level-0 texel under it holds a surface,
+        // and the pixel is shaded once, with the level-0 texel under its centre (or under its
+        // first kept sample where the centre misses, as centroid sampling would). The block's
+        // coverage at the footprint's level against the samples' thresholds spread a thin
+        // post's or a wall's edge over samples wherever it lay in the pixel and let the ground
+        // through the pixels the model covers (spec0's far houses and posts: 0.857 of the path
+        // tracer's ambient term; docs/VALIDATION.md). Shading with the block instead of the
+        // texel: tests/render_lod.rs `a_small_far_impostor_covers_the_pixels_its_mesh_covers`.
+        let at = screen_point(in.clip);
+        let centre = atlas_texel_at(in, in.st + dsx * (floor(in.position.x) + 0.5 - at.x) + dsy * (floor(in.position.y) + 0.5 - at.y));
+        let centre_texel = textureLoad(atlas_color, centre, 0);
+        var shade_at = centre;
+        var hit = centre_texel.a >= 0.5;
+        var c = vec4<f32>(0.0);
+        if (SAMPLE_MASK) {
+            for (var k = 0u; k < 4u; k++) {
+                let o = sample_offset(in.position.xy, at, k);
+                let sk = in.st + dsx * o.x + dsy * o.y;
+                if (abs(sk.x) <= 1.0 && abs(sk.y) <= 1.0) {
+                    let t = atlas_texel_at(in, sk);
+                    if (textureLoad(atlas_color, t, 0).a >= 0.5) {
+                        c[k] = 1.0;
+                        if (!hit) {
+                            hit = true;
+                            shade_at = t;
+                        }
+                    }
+                }
+            }
+            mask = sample_mask_of(c, d);
+        }
+        if (!hit) {
+            discard;
+        }
+        level = 0;
+        px = shade_at;
+        texel = textureLoad(atlas_color, px, 0);
+    } else if (SAMPLE_MASK) {
         mask = sample_mask_of(vec4<f32>(texel.a), d);
         if (mask == 0u || texel.a <= 0.0) {
             discard;
