@@ -609,6 +609,44 @@ fn horizon_light_map_is_the_same_on_one_and_two_threads_and_in_row_shards() {
 }
 
 #[test]
+fn the_stage_section_written_band_by_band_holds_the_whole_maps_texels() {
+    // The light-map stage writes the horizon estimator's texels straight into its section's
+    // `irradiance` and `indirect` arrays (issue 37: the map is not held beside them). Their
+    // contents must be the texels of the map baked whole, bit for bit: irradiance as RGBA with
+    // A = 1, indirect max(0, E − direct); at every texel (step 1) and at every second (step 2).
+    use bake::lightmap::{LightmapOptions, LightmapVisibility};
+    let (pack, _dir) = fixture();
+    let scene = bake::trace::pack_scene::trace_scene(&pack).unwrap();
+    let light = bake::lightmap::scene_lighting(&pack).unwrap();
+    for step in [1, 2] {
+        let opts = LightmapOptions {
+            samples: 8,
+            sun_samples: 2,
+            visibility: LightmapVisibility::Horizons,
+            trace_step: step,
+            ..Default::default()
+        };
+        let (texels, direct) = terrain_map(&scene, &light, &opts);
+        let section = terrain_section_pack(&scene, &light, &opts);
+        let v = section.view_named("lightmap:terrain").unwrap();
+        let irradiance: Vec<[f32; 4]> = v.array_vec("irradiance").unwrap();
+        let indirect: Vec<[f32; 4]> = v.array_vec("indirect").unwrap();
+        assert_eq!(irradiance.len(), 65 * 65);
+        assert_eq!(indirect.len(), 65 * 65);
+        let mut lit = 0;
+        for (k, (e, d)) in texels.iter().zip(&direct).enumerate() {
+            let want_e = [e[0], e[1], e[2], 1.0];
+            let want_i = [0, 1, 2, 3].map(|c| if c == 3 { 1.0 } else { (e[c] - d[c]).max(0.0) });
+            assert_eq!(irradiance[k].map(f32::to_bits), want_e.map(f32::to_bits), "texel {k}");
+            assert_eq!(indirect[k].map(f32::to_bits), want_i.map(f32::to_bits), "texel {k}");
+            lit += (d[0] > 0.0) as usize;
+        }
+        // Not a map of zeros: the fixture's sun lights most texels.
+        assert!(lit > 65 * 65 / 2, "step {step}: {lit} texels lit by the sun");
+    }
+}
+
+#[test]
 fn the_filtered_light_map_is_closer_to_the_reference_and_states_its_filter() {
     // The fixture scene's whole terrain map at 16 hemisphere and 4 sun rays with
     // `lightmap.filter_range = 0.3` (the part without the direct sun bilateral-filtered, 5 × 5)

@@ -357,6 +357,33 @@ fn horizon_rows_noise(
     rows: std::ops::Range<u32>,
     noise: bool,
 ) -> (TexelRows, Vec<f32>) {
+    let (mut texels, mut direct, mut variance) = (Vec::new(), Vec::new(), Vec::new());
+    horizon_rows_into(scene, bvh, light, opts, rows, &mut |band| {
+        for (e, d, v) in band {
+            texels.push(e);
+            direct.push(d);
+            if noise {
+                variance.push(v);
+            }
+        }
+    });
+    ((texels, direct), variance)
+}
+
+/// One band's texels from [`horizon_rows_into`], in row-major order: (irradiance, its direct-sun
+/// part, the variance of its traced correction).
+type BandTexels = Vec<([f32; 3], [f32; 3], f32)>;
+
+/// The horizon estimator of [`horizon_rows_noise`], handing each band's texels to `sink` as it
+/// is done (bands in row order), so that a whole map need not be held beside its section.
+fn horizon_rows_into(
+    scene: &TraceScene,
+    bvh: &dyn SceneTracer,
+    light: &BakeLight,
+    opts: &LightmapOptions,
+    rows: std::ops::Range<u32>,
+    sink: &mut dyn FnMut(BandTexels),
+) {
     let t = scene.terrain.as_ref().expect("a terrain");
     let (w, h) = terrain_lightmap_size(scene, opts).expect("a terrain");
     let grid = horizon::TexelGrid::new(t, w, h);
@@ -390,7 +417,6 @@ fn horizon_rows_noise(
         tables: &tables,
         reach,
     };
-    let (mut texels, mut direct, mut variance) = (Vec::new(), Vec::new(), Vec::new());
     // With a trace step: the traced texels' corrections and variances, by traced row (the
     // band's and the last one before it).
     let mut traced: Vec<(u32, Vec<TracedTexel>)> = Vec::new();
@@ -418,19 +444,13 @@ fn horizon_rows_noise(
             (p, n, (j * w + i) as u64, env)
         };
         let Some(lattice) = &coarse else {
-            let parts = (0..hz.len()).into_par_iter().map(|k| {
-                let (p, n, texel, env) = surface(k);
-                texel_horizon_parts(&rays, &env, p, n, texel, opts)
-            });
-            // The variances only when asked for (the bake's path keeps its two arrays).
-            let ((e, d), var): ((Vec<_>, Vec<_>), Vec<f32>) = if noise {
-                parts.map(|(e, d, v)| ((e, d), v)).unzip()
-            } else {
-                (parts.map(|(e, d, _)| (e, d)).unzip(), Vec::new())
-            };
-            texels.extend(e);
-            direct.extend(d);
-            variance.extend(var);
+            sink((0..hz.len())
+                .into_par_iter()
+                .map(|k| {
+                    let (p, n, texel, env) = surface(k);
+                    texel_horizon_parts(&rays, &env, p, n, texel, opts)
+                })
+                .collect());
             continue;
         };
         // The correction of the traced texels of the band's traced rows.
@@ -458,7 +478,7 @@ fn horizon_rows_noise(
         };
         let own = start.max(rows.start)..end.min(rows.end);
         let first = ((own.start.min(end) - start) * w) as usize;
-        let done: Vec<([f32; 3], [f32; 3], f32)> = (first..first + (own.len() as u32 * w) as usize)
+        let done: BandTexels = (first..first + (own.len() as u32 * w) as usize)
             .into_par_iter()
             .map(|k| {
                 let (i, j) = (k as u32 % w, start + k as u32 / w);
@@ -492,15 +512,8 @@ fn horizon_rows_noise(
                 (e.map(|v| v as f32), d, var)
             })
             .collect();
-        for (e, d, v) in done {
-            texels.push(e);
-            direct.push(d);
-            if noise {
-                variance.push(v);
-            }
-        }
+        sink(done);
     }
-    ((texels, direct), variance)
 }
 
 /// The bands of at most `band` rows that tile `rows`. With a trace step (`traced_of`: the
@@ -978,15 +991,43 @@ pub(crate) fn lightmap_sections(
 
 /// The terrain's `lightmap` section over the scene and its light (empty without a terrain): the
 /// registered `lightmap` unit.
+///
+/// The horizon estimator without a filter (the default) writes each band's texels straight into
+/// the section's two arrays, so the map is never held beside them: at 4097² that spares
+/// 16.8 M × 24 bytes (403 MB) of the process's peak (issue 37). The bytes are those of
+/// [`terrain_sections_of`] over [`bake_terrain_lightmap_parts`].
 pub fn terrain_sections(
     scene: &TraceScene,
     light: &BakeLight,
     opts: &LightmapOptions,
 ) -> crate::error::Result<Vec<crate::pack::Section>> {
+    let streamed = opts.mode == LightmapMode::Physical
+        && opts.visibility == LightmapVisibility::Horizons
+        && !filters(opts);
+    if streamed && let Some((w, h)) = terrain_lightmap_size(scene, opts) {
+        let bvh = scene.tracer(opts.tracer)?;
+        let section = terrain_section_filled(w, h, opts, |irradiance, indirect| {
+            let mut at = 0;
+            horizon_rows_into(scene, bvh, light, opts, 0..h, &mut |band| {
+                let len = band.len();
+                for (k, (e, d, _)) in band.into_iter().enumerate() {
+                    irradiance[at + k] = section::rgba(e);
+                    indirect[at + k] = section::rgba(section::indirect_of(e, d));
+                }
+                at += len;
+            });
+        });
+        return Ok(vec![section]);
+    }
     let Some((map, direct)) = bake_terrain_lightmap_parts(scene, light, opts)? else {
         return Ok(Vec::new());
     };
     Ok(terrain_sections_of(&map, &direct, opts))
+}
+
+/// Whether the options filter the map's part without the direct sun.
+fn filters(opts: &LightmapOptions) -> bool {
+    opts.filter_range > 0.0 && opts.filter_radius > 0
 }
 
 /// The terrain light map's section from its texels and their direct-sun part.
@@ -995,17 +1036,7 @@ pub(crate) fn terrain_sections_of(
     direct: &[[f32; 3]],
     opts: &LightmapOptions,
 ) -> Vec<crate::pack::Section> {
-    let meta = section::TerrainLightmapMeta {
-        surface: "terrain".into(),
-        width: map.width,
-        height: map.height,
-        mode: opts.mode,
-        samples: opts.samples,
-        sun_samples: opts.sun_samples,
-        visibility: opts.visibility,
-    };
-    let filtered = opts.filter_range > 0.0 && opts.filter_radius > 0;
-    let map = match filtered {
+    let map = match filters(opts) {
         true => std::borrow::Cow::Owned(Lightmap {
             width: map.width,
             height: map.height,
@@ -1019,6 +1050,39 @@ pub(crate) fn terrain_sections_of(
         }),
         false => std::borrow::Cow::Borrowed(map),
     };
+    assert_eq!(map.texels.len(), direct.len(), "one direct part per texel");
+    vec![terrain_section_filled(
+        map.width,
+        map.height,
+        opts,
+        |irradiance, indirect| {
+            for (k, (&e, &d)) in map.texels.iter().zip(direct).enumerate() {
+                irradiance[k] = section::rgba(e);
+                indirect[k] = section::rgba(section::indirect_of(e, d));
+            }
+        },
+    )]
+}
+
+/// The terrain light map's section of `w × h` texels, its metadata from `opts`, whose
+/// `irradiance` and `indirect` arrays (RGBA, A = 1) `fill` writes in place.
+fn terrain_section_filled(
+    w: u32,
+    h: u32,
+    opts: &LightmapOptions,
+    fill: impl FnOnce(&mut [[f32; 4]], &mut [[f32; 4]]),
+) -> crate::pack::Section {
+    let meta = section::TerrainLightmapMeta {
+        surface: "terrain".into(),
+        width: w,
+        height: h,
+        mode: opts.mode,
+        samples: opts.samples,
+        sun_samples: opts.sun_samples,
+        visibility: opts.visibility,
+    };
+    let filtered = filters(opts);
+    let n = w as usize * h as usize;
     // A filter and a trace step are stated after the fields every reader reads as a prefix;
     // the metadata of a map with neither stays as before.
     let with_filter = |radius, range| section::TerrainLightmapMetaFiltered {
@@ -1027,7 +1091,7 @@ pub(crate) fn terrain_sections_of(
         filter_range: range,
     };
     let name = "lightmap:terrain";
-    let section = if opts.trace_step > 1 {
+    if opts.trace_step > 1 {
         let (radius, range) = match filtered {
             true => (opts.filter_radius, opts.filter_range),
             false => (0, 0.0),
@@ -1036,14 +1100,13 @@ pub(crate) fn terrain_sections_of(
             filtered: with_filter(radius, range),
             trace_step: opts.trace_step,
         };
-        section::to_section_with_indirect(name, &meta, &map, direct)
+        section::to_section_filled(name, &meta, n, fill)
     } else if filtered {
         let meta = with_filter(opts.filter_radius, opts.filter_range);
-        section::to_section_with_indirect(name, &meta, &map, direct)
+        section::to_section_filled(name, &meta, n, fill)
     } else {
-        section::to_section_with_indirect(name, &meta, &map, direct)
-    };
-    vec![section]
+        section::to_section_filled(name, &meta, n, fill)
+    }
 }
 
 /// The direct-sun part of every texel of a terrain light map, exactly as

@@ -65,31 +65,40 @@ pub fn to_section(name: &str, meta: &LightmapMeta, map: &Lightmap) -> Section {
 }
 
 /// As [`to_section`], plus the `indirect` array: the irradiance without the direct sun (sky and
-/// bounced light only, `max(0, E − direct)`, f32×4 with A = 1), which the renderer's ambient
-/// term reads. `direct` is the direct-sun part of every texel. Both arrays are written straight
-/// into the section (a 4097² map would otherwise be held three times over).
-pub(crate) fn to_section_with_indirect(
+/// bounced light only, `max(0, E − direct)` ([`indirect_of`]), f32×4 with A = 1), which the
+/// renderer's ambient term reads. A section of `n` texels whose two arrays `fill` writes in
+/// place, side by side ([`SectionBuilder::array_deferred`]): a map baked band by band goes
+/// straight into them, and a map held whole is not held a second time.
+pub(crate) fn to_section_filled(
     name: &str,
     meta: &impl Serialize,
-    map: &Lightmap,
-    direct: &[[f32; 3]],
+    n: usize,
+    fill: impl FnOnce(&mut [[f32; 4]], &mut [[f32; 4]]),
 ) -> Section {
-    assert_eq!(map.texels.len(), direct.len(), "one direct part per texel");
-    let n = map.texels.len();
     let mut b = SectionBuilder::new(KIND, name);
     b.meta(meta)
-        .array_fill("irradiance", ArrayFormat::F32, 4, n, |out| {
-            rgba_into(out, map.texels.iter().copied())
-        })
-        .array_fill("indirect", ArrayFormat::F32, 4, n, |out| {
-            let indirect = map
-                .texels
-                .iter()
-                .zip(direct)
-                .map(|(e, d)| std::array::from_fn(|c| (e[c] - d[c]).max(0.0)));
-            rgba_into(out, indirect)
-        });
-    b.finish()
+        .array_deferred::<[f32; 4]>("irradiance", ArrayFormat::F32, 4, n)
+        .array_deferred::<[f32; 4]>("indirect", ArrayFormat::F32, 4, n);
+    b.finish_with(|mut arrays| {
+        let indirect = arrays.pop().expect("two deferred arrays");
+        let irradiance = arrays.pop().expect("two deferred arrays");
+        fill(
+            bytemuck::cast_slice_mut(irradiance),
+            bytemuck::cast_slice_mut(indirect),
+        )
+    })
+}
+
+/// A texel as RGBA with A = 1.
+#[inline]
+pub(crate) fn rgba(t: [f32; 3]) -> [f32; 4] {
+    [t[0], t[1], t[2], 1.0]
+}
+
+/// The irradiance without the direct sun, `max(0, E − direct)` per channel.
+#[inline]
+pub(crate) fn indirect_of(e: [f32; 3], d: [f32; 3]) -> [f32; 3] {
+    std::array::from_fn(|c| (e[c] - d[c]).max(0.0))
 }
 
 /// Writes RGB texels as RGBA with A = 1.

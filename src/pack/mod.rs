@@ -1029,6 +1029,41 @@ mod tests {
     }
 
     #[test]
+    fn deferred_arrays_filled_side_by_side_encode_as_the_copied_arrays() {
+        let a: Vec<[f32; 4]> = (0..37).map(|k| [k as f32, 0.5, -(k as f32), 1.0]).collect();
+        let b: Vec<u32> = (0..11).map(|k| k * 7 + 1).collect();
+        let mut copied = SectionBuilder::new("mesh", "m");
+        copied
+            .meta(&7u32)
+            .array("a", ArrayFormat::F32, 4, &a)
+            .array("tail", ArrayFormat::U8, 1, &[1u8, 2, 3])
+            .array("b", ArrayFormat::U32, 1, &b);
+        let mut deferred = SectionBuilder::new("mesh", "m");
+        deferred
+            .meta(&7u32)
+            .array_deferred::<[f32; 4]>("a", ArrayFormat::F32, 4, a.len())
+            .array("tail", ArrayFormat::U8, 1, &[1u8, 2, 3])
+            .array_deferred::<u32>("b", ArrayFormat::U32, 1, b.len());
+        let d = deferred.finish_with(|slices| {
+            assert_eq!(slices.len(), 2);
+            let mut it = slices.into_iter();
+            let (sa, sb) = (it.next().unwrap(), it.next().unwrap());
+            assert_eq!((sa.len(), sb.len()), (37 * 16, 11 * 4));
+            assert!(sa.iter().chain(sb.iter()).all(|&x| x == 0), "zeroed");
+            // Both slices written in one pass, interleaved.
+            let (sa, sb): (&mut [[f32; 4]], &mut [u32]) =
+                (bytemuck::cast_slice_mut(sa), bytemuck::cast_slice_mut(sb));
+            for k in 0..37 {
+                sa[k] = a[k];
+                if k < 11 {
+                    sb[k] = b[k];
+                }
+            }
+        });
+        assert_eq!(&copied.finish().payload[..], &d.payload[..]);
+    }
+
+    #[test]
     fn round_trip_in_memory_and_on_disk() {
         let bytes = sample().to_bytes().unwrap();
         let dir = tempfile::tempdir().unwrap();

@@ -85,6 +85,8 @@ impl ArrayFormat {
 enum PendingBytes<'a> {
     Copied(Vec<u8>),
     Fill(Filler<'a>),
+    /// Filled together with the other deferred arrays by [`SectionBuilder::finish_with`].
+    Deferred,
 }
 
 /// Writes an array's bytes into its place in the payload.
@@ -165,6 +167,20 @@ impl<'a> SectionBuilder<'a> {
         )
     }
 
+    /// Adds an array of `count` elements of `T` left for [`SectionBuilder::finish_with`] to fill
+    /// in place, together with the section's other deferred arrays (zeroed and 16-byte aligned):
+    /// for arrays computed side by side and too large to be held beside their encoding (the
+    /// terrain light map's `irradiance` and `indirect`). Panics as [`SectionBuilder::array`] does.
+    pub fn array_deferred<T: bytemuck::Pod>(
+        &mut self,
+        name: &str,
+        format: ArrayFormat,
+        components: u32,
+        count: usize,
+    ) -> &mut Self {
+        self.push::<T>(name, format, components, count, PendingBytes::Deferred)
+    }
+
     fn push<T>(
         &mut self,
         name: &str,
@@ -193,8 +209,15 @@ impl<'a> SectionBuilder<'a> {
         self
     }
 
-    /// Encodes the section.
+    /// Encodes the section (deferred arrays, if any, stay zero).
     pub fn finish(self) -> Section {
+        self.finish_with(|_| {})
+    }
+
+    /// Encodes the section, then lets `fill` write the deferred arrays
+    /// ([`SectionBuilder::array_deferred`]) in place: it gets their byte slices in the order
+    /// they were added.
+    pub fn finish_with(self, fill: impl FnOnce(Vec<&mut [u8]>)) -> Section {
         let dir_end = SUB_HEADER + self.arrays.len() * DIR_ENTRY;
         let meta_offset = dir_end;
         let mut cursor = meta_offset + self.meta.len();
@@ -209,6 +232,7 @@ impl<'a> SectionBuilder<'a> {
         put_u32(out, 0, meta_offset as u32);
         put_u32(out, 4, self.meta.len() as u32);
         put_u32(out, 8, self.arrays.len() as u32);
+        let mut deferred = Vec::new();
         for (k, (a, &off)) in self.arrays.into_iter().zip(&offsets).enumerate() {
             let d = SUB_HEADER + k * DIR_ENTRY;
             out[d..d + a.name.len()].copy_from_slice(a.name.as_bytes());
@@ -219,9 +243,22 @@ impl<'a> SectionBuilder<'a> {
             match a.bytes {
                 PendingBytes::Copied(b) => out[off..off + a.len].copy_from_slice(&b),
                 PendingBytes::Fill(f) => f(&mut out[off..off + a.len]),
+                PendingBytes::Deferred => deferred.push((off, a.len)),
             }
         }
         out[meta_offset..meta_offset + self.meta.len()].copy_from_slice(&self.meta);
+        // The deferred arrays' slices, split off in ascending order (their offsets increase).
+        let mut slices = Vec::with_capacity(deferred.len());
+        let mut rest: &mut [u8] = out;
+        let mut at = 0;
+        for (off, len) in deferred {
+            let (_, tail) = std::mem::take(&mut rest).split_at_mut(off - at);
+            let (mine, tail) = tail.split_at_mut(len);
+            slices.push(mine);
+            rest = tail;
+            at = off + len;
+        }
+        fill(slices);
         Section {
             kind: self.kind,
             name: self.name,
