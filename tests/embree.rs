@@ -399,8 +399,8 @@ mod scene {
             let r = Ray::new(o, d, 1e-4);
             n += 1;
             let (a, b) = (
-                cpu.closest_hit_excluding(&r, skip),
-                emb.closest_hit_excluding(&r, skip),
+                cpu.closest_hit_excluding(&r, skip.as_slice()),
+                emb.closest_hit_excluding(&r, skip.as_slice()),
             );
             match (a, b) {
                 (Some(a), Some(b)) => {

@@ -1,6 +1,10 @@
 //! Per-instance environment maps (seed 000, 4.6.3): for every instance, SH order 4 RGB of the
 //! light arriving at the instance from the sky without the sun (C_H) and from the sun (C_S), with
-//! the terrain and the other instances occluding and reflecting; the instance itself is ignored.
+//! the terrain and the other instances occluding and reflecting; the instance itself is ignored,
+//! and so is every instance that encloses the probe ([`crate::trace::SceneBvh::enclosing`]: a
+//! probe inside another instance, such as a post inside a house or two houses overlapping,
+//! would otherwise see only that instance's inside; its hit points' sun rays ignore it too, so
+//! the probe sees the scene without it; docs/CONVENTIONS.md, "Environment-map probes").
 //!
 //! Estimator (instead of the thesis' photon map): from a probe point at the instance (its position
 //! raised by half its model's height × scale), `samples` directions on a spherical Fibonacci set
@@ -38,6 +42,7 @@
 //! Unbiased for that light model; it converges to the brute-force answer as samples grow.
 
 use crate::sh::{self, ShIrradiance, ShRadiance};
+pub use crate::trace::fibonacci_direction;
 use crate::trace::{Ray, SceneTracer, Tracer};
 use glam::Vec3A;
 use rayon::prelude::*;
@@ -199,6 +204,12 @@ fn bake_one(
     let w = 4.0 * std::f64::consts::PI / n as f64;
     let base = opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
     let cv = opts.sky_control_variate;
+    // The instances the probe's rays ignore: the instance itself, then those that enclose the
+    // probe (docs/CONVENTIONS.md, "Environment-map probes"), which the hit points' sun rays
+    // ignore too: the probe sees the scene without them.
+    let skip: Vec<u32> = std::iter::once(i as u32)
+        .chain(scene.bvh.enclosing(p, i as u32))
+        .collect();
     // One rotated set of `m` points, each ray weighted `w`; sums in the world frame. With the
     // control variate a ray adds (f − L)(d)·y(d)·w to C_H: zero where it escapes (unless the
     // SH sky is negative there), the hit's radiance minus the sky it hides where it is blocked.
@@ -208,7 +219,7 @@ fn bake_one(
         let mut cs = [[0.0f64; 3]; 16];
         for k in 0..m {
             let d = rot * fibonacci_direction(k, m);
-            let (mut lh, ls) = radiance_along(scene, sky_irr, i as u32, p, d);
+            let (mut lh, ls) = radiance_along(scene, sky_irr, &skip, p, d);
             if cv {
                 let l = scene.sky.eval(d.to_array());
                 lh = [0, 1, 2].map(|c| lh[c] - l[c]);
@@ -261,16 +272,17 @@ fn bake_one(
     ((h.coeffs, s.coeffs), diff)
 }
 
-/// Radiance from direction d at p: (sky part, sun part).
+/// Radiance from direction d at p: (sky part, sun part). `skip`: the probe's own instance, then
+/// the instances enclosing it; the hit points' sun rays ignore the latter.
 fn radiance_along(
     scene: &EnvmapScene,
     sky_irr: &ShIrradiance,
-    skip: u32,
+    skip: &[u32],
     p: Vec3A,
     d: Vec3A,
 ) -> ([f32; 3], [f32; 3]) {
     let ray = Ray::new(p, d, 1e-4);
-    match scene.bvh.closest_hit_excluding(&ray, Some(skip)) {
+    match scene.bvh.closest_hit_excluding(&ray, skip) {
         None => (scene.sky.eval(d.to_array()).map(|v| v.max(0.0)), [0.0; 3]),
         Some(h) => {
             let surf = scene.bvh.surface(&h);
@@ -285,7 +297,7 @@ fn radiance_along(
                 Some(sun) => {
                     let s = Vec3A::from(sun.direction);
                     let cos = n.dot(s);
-                    if cos > 0.0 && !blocked(scene.bvh, u32::MAX, surf.position + n * 1e-3, s) {
+                    if cos > 0.0 && !blocked(scene.bvh, &skip[1..], surf.position + n * 1e-3, s) {
                         [0, 1, 2].map(|k| rho[k] / std::f32::consts::PI * sun.irradiance[k] * cos)
                     } else {
                         [0.0; 3]
@@ -298,17 +310,8 @@ fn radiance_along(
     }
 }
 
-fn blocked(bvh: &dyn SceneTracer, skip: u32, p: Vec3A, d: Vec3A) -> bool {
-    bvh.any_hit_excluding(&Ray::new(p, d, 1e-4), Some(skip))
-}
-
-/// Point k of an N-point spherical Fibonacci set (uniform area, low discrepancy).
-pub fn fibonacci_direction(k: u32, n: u32) -> Vec3A {
-    let golden = 0.618_033_988_749_894_9f64;
-    let z = 1.0 - (2.0 * k as f64 + 1.0) / n as f64;
-    let r = (1.0 - z * z).max(0.0).sqrt();
-    let phi = 2.0 * std::f64::consts::PI * ((k as f64 * golden).fract());
-    Vec3A::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32)
+fn blocked(bvh: &dyn SceneTracer, skip: &[u32], p: Vec3A, d: Vec3A) -> bool {
+    bvh.any_hit_excluding(&Ray::new(p, d, 1e-4), skip)
 }
 
 /// A uniformly random rotation from a seed (Shoemake's quaternion method).
