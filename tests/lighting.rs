@@ -9,7 +9,7 @@ use glam::Vec3A;
 use std::f32::consts::PI;
 
 mod common;
-use common::{lens_area, linear_sky, place, scene_bvh};
+use common::{closed_box, lens_area, linear_sky, place, scene_bvh};
 
 fn mesh(positions: Vec<[f32; 3]>, indices: Vec<[u32; 3]>) -> Mesh {
     let n = positions.len();
@@ -511,38 +511,6 @@ fn the_sky_control_variate_is_unbiased_and_lowers_the_variance() {
     let ratio = v_pl.iter().sum::<f64>() / v_cv.iter().sum::<f64>();
     eprintln!("variance plain / control variate: {ratio:.2}");
     assert!(ratio > 1.0, "variance ratio {ratio}");
-}
-
-/// A closed box from `lo` to `hi` (twelve outward-wound triangles, outward vertex normals).
-fn closed_box(lo: [f32; 3], hi: [f32; 3]) -> Mesh {
-    let mut m = mesh(Vec::new(), Vec::new());
-    for axis in 0..3 {
-        for positive in [false, true] {
-            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-            let mut n = [0.0f32; 3];
-            n[axis] = if positive { 1.0 } else { -1.0 };
-            let base = m.positions.len() as u32;
-            for (a, b) in [(false, false), (true, false), (true, true), (false, true)] {
-                let mut p = [0.0f32; 3];
-                p[axis] = if positive { hi[axis] } else { lo[axis] };
-                p[u] = if a { hi[u] } else { lo[u] };
-                p[v] = if b { hi[v] } else { lo[v] };
-                m.positions.push(p);
-                m.normals.push(n);
-                m.uvs.push([0.0, 0.0]);
-            }
-            let tris = if positive {
-                [[0, 1, 2], [0, 2, 3]]
-            } else {
-                [[0, 2, 1], [0, 3, 2]]
-            };
-            for t in tris {
-                m.indices.push(t.map(|k| base + k));
-                m.triangle_materials.push(0);
-            }
-        }
-    }
-    m
 }
 
 /// The two scenes of `a_probe_inside_another_instance_sees_the_scene_without_it`: two 3 m posts
