@@ -412,8 +412,14 @@ mod scene {
             match (a, b) {
                 (Some(a), Some(b)) => {
                     hits += 1;
-                    assert!(!skip.contains(&b.instance), "the skipped instances are ignored");
-                    assert!(!skip.contains(&a.instance), "the skipped instances are ignored");
+                    assert!(
+                        !skip.contains(&b.instance),
+                        "the skipped instances are ignored"
+                    );
+                    assert!(
+                        !skip.contains(&a.instance),
+                        "the skipped instances are ignored"
+                    );
                     if a.instance == terrain && b.instance == terrain {
                         // The same intersector on the same world ray: the same hit.
                         assert_eq!(a.hit, b.hit);
@@ -639,7 +645,13 @@ mod scene {
             assert!(d < 1e-4, "post {k}: {d}");
         }
         let d = rel_rms(&e[0], &b[0]);
-        assert!(d < 1e-4, "post 0 on embree against the scene without the house: {d}");
-        assert!(rel_rms(&e[1], &b[1]) > 1e-2, "post 1 beside the house keeps it");
+        assert!(
+            d < 1e-4,
+            "post 0 on embree against the scene without the house: {d}"
+        );
+        assert!(
+            rel_rms(&e[1], &b[1]) > 1e-2,
+            "post 1 beside the house keeps it"
+        );
     }
 }

@@ -585,3 +585,60 @@ fn a_probe_inside_another_instance_sees_the_scene_without_it() {
         "post 1 beside the house: {h_with} vs {h_without}"
     );
 }
+
+#[test]
+fn a_probe_ignores_the_instances_standing_inside_its_own_instance() {
+    // The other way round: a house's probe (1.25 m up, inside the house) ignores the post that
+    // stands inside the house (the post's probe is enclosed by the house): the house's maps
+    // must be those traced in the scene without the post. Oracle: that scene (the house is
+    // instance 0 in both, so the same rays). A post standing beside the house still counts.
+    let post = closed_box([-0.15, -0.15, 0.0], [0.15, 0.15, 3.0]);
+    let hut = closed_box([-1.5, -1.0, 0.0], [1.5, 1.0, 2.5]);
+    let opts = EnvmapOptions {
+        samples: 1024,
+        seed: 12,
+        ..EnvmapOptions::DEFAULT
+    };
+    let maps = |posts: &[[f32; 3]]| {
+        let mut inst = vec![place(1, [0.0; 3], 20.0)];
+        inst.extend(posts.iter().map(|&t| at(0, t)));
+        inst.push(at(2, [0.0; 3]));
+        let n = inst.len() - 1;
+        let mut albedo = vec![[0.1, 0.08, 0.06]; n];
+        albedo[0] = [0.6, 0.5, 0.4];
+        albedo.push([0.3; 3]);
+        let bvh = scene(vec![post.clone(), hut.clone(), flat_terrain(400.0)], inst);
+        let sc = EnvmapScene {
+            bvh: &bvh,
+            count: n,
+            probe_height: vec![1.25; n],
+            albedo,
+            sky: linear_sky(1.0, 0.5),
+            sun: sun(),
+        };
+        bake_envmaps(&sc, &opts)[0]
+    };
+    let flat = |m: ([[f32; 3]; 16], [[f32; 3]; 16])| -> Vec<f32> {
+        m.0.iter().chain(m.1.iter()).flatten().copied().collect()
+    };
+    let bare = flat(maps(&[]));
+    let inside = flat(maps(&[[0.8, 0.3, 0.0]]));
+    let beside = flat(maps(&[[2.3, 0.0, 0.0]]));
+    let diff = |a: &[f32]| {
+        a.iter()
+            .zip(&bare)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let scale = bare.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(
+        diff(&inside) <= 1e-5 * scale,
+        "a post inside the house: {} of {scale}",
+        diff(&inside)
+    );
+    assert!(
+        diff(&beside) > 0.02 * scale,
+        "a post beside the house: {} of {scale}",
+        diff(&beside)
+    );
+}

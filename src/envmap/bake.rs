@@ -3,8 +3,10 @@
 //! the terrain and the other instances occluding and reflecting; the instance itself is ignored,
 //! and so is every instance that encloses the probe ([`crate::trace::SceneBvh::enclosing`]: a
 //! probe inside another instance, such as a post inside a house or two houses overlapping,
-//! would otherwise see only that instance's inside; its hit points' sun rays ignore it too, so
-//! the probe sees the scene without it; docs/CONVENTIONS.md, "Environment-map probes").
+//! would otherwise see only that instance's inside) and every instance whose probe the instance
+//! encloses (the post inside the house, hidden from the house's outside by its walls); the hit
+//! points' sun rays ignore them too, so the probe sees the scene without them
+//! (docs/CONVENTIONS.md, "Environment-map probes").
 //!
 //! Estimator (instead of the thesis' photon map): from a probe point at the instance (its position
 //! raised by half its model's height × scale), `samples` directions on a spherical Fibonacci set
@@ -177,9 +179,10 @@ pub(crate) fn trace_envmaps_subset(
     subset: &[usize],
 ) -> Traced {
     let sky_irr = scene.sky.to_irradiance();
+    let inside = enclosed_instances(scene);
     let (maps, diffs): (Vec<InstanceMaps>, Vec<Option<HalfDifference>>) = subset
         .par_iter()
-        .map(|&i| bake_one(scene, &sky_irr, i, opts))
+        .map(|&i| bake_one(scene, &sky_irr, i, &inside[i], opts))
         .unzip();
     Traced {
         maps,
@@ -192,10 +195,41 @@ pub fn traces_halves(opts: &EnvmapOptions) -> bool {
     opts.noise_estimate && opts.samples >= 2
 }
 
+/// The probe of instance `i`, world space.
+fn probe(scene: &EnvmapScene, i: usize) -> Vec3A {
+    Vec3A::from(scene.bvh.instances()[i].translation) + Vec3A::Z * scene.probe_height[i]
+}
+
+/// Per instance with a map, the instances whose probe it encloses (the inverse of
+/// [`crate::trace::SceneTracer::enclosing`] over every probe), ascending.
+fn enclosed_instances(scene: &EnvmapScene) -> Vec<Vec<u32>> {
+    let pairs: Vec<(u32, u32)> = (0..scene.count)
+        .into_par_iter()
+        .flat_map_iter(|j| {
+            scene
+                .bvh
+                .enclosing(probe(scene, j), j as u32)
+                .into_iter()
+                .map(move |k| (k, j as u32))
+        })
+        .collect();
+    let mut inside = vec![Vec::new(); scene.count];
+    for (k, j) in pairs {
+        if let Some(v) = inside.get_mut(k as usize) {
+            v.push(j);
+        }
+    }
+    for v in &mut inside {
+        v.sort_unstable();
+    }
+    inside
+}
+
 fn bake_one(
     scene: &EnvmapScene,
     sky_irr: &ShIrradiance,
     i: usize,
+    inside: &[u32],
     opts: &EnvmapOptions,
 ) -> (InstanceMaps, Option<HalfDifference>) {
     let inst = scene.bvh.instances()[i];
@@ -205,11 +239,16 @@ fn bake_one(
     let base = opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
     let cv = opts.sky_control_variate;
     // The instances the probe's rays ignore: the instance itself, then those that enclose the
-    // probe (docs/CONVENTIONS.md, "Environment-map probes"), which the hit points' sun rays
-    // ignore too: the probe sees the scene without them.
-    let skip: Vec<u32> = std::iter::once(i as u32)
+    // probe and those whose probe the instance encloses (docs/CONVENTIONS.md, "Environment-map
+    // probes"), which the hit points' sun rays ignore too: the probe sees the scene without them.
+    let mut skip: Vec<u32> = std::iter::once(i as u32)
         .chain(scene.bvh.enclosing(p, i as u32))
         .collect();
+    for &j in inside {
+        if !skip.contains(&j) {
+            skip.push(j);
+        }
+    }
     // One rotated set of `m` points, each ray weighted `w`; sums in the world frame. With the
     // control variate a ray adds (f − L)(d)·y(d)·w to C_H: zero where it escapes (unless the
     // SH sky is negative there), the hit's radiance minus the sky it hides where it is blocked.
