@@ -179,10 +179,11 @@ pub(crate) fn trace_envmaps_subset(
     subset: &[usize],
 ) -> Traced {
     let sky_irr = scene.sky.to_irradiance();
-    let inside = enclosed_instances(scene);
+    let inside = enclosed_instances(scene, subset);
     let (maps, diffs): (Vec<InstanceMaps>, Vec<Option<HalfDifference>>) = subset
         .par_iter()
-        .map(|&i| bake_one(scene, &sky_irr, i, &inside[i], opts))
+        .zip(&inside)
+        .map(|(&i, inside)| bake_one(scene, &sky_irr, i, inside, opts))
         .unzip();
     Traced {
         maps,
@@ -200,29 +201,37 @@ fn probe(scene: &EnvmapScene, i: usize) -> Vec3A {
     Vec3A::from(scene.bvh.instances()[i].translation) + Vec3A::Z * scene.probe_height[i]
 }
 
-/// Per instance with a map, the instances whose probe it encloses (the inverse of
-/// [`crate::trace::SceneTracer::enclosing`] over every probe), ascending.
-fn enclosed_instances(scene: &EnvmapScene) -> Vec<Vec<u32>> {
-    let pairs: Vec<(u32, u32)> = (0..scene.count)
-        .into_par_iter()
-        .flat_map_iter(|j| {
-            scene
-                .bvh
-                .enclosing(probe(scene, j), j as u32)
-                .into_iter()
-                .map(move |k| (k, j as u32))
-        })
+/// Per instance of `subset` (in its order), the instances with a map whose probe it encloses
+/// (the inverse of [`crate::trace::SceneTracer::enclosing`]), ascending: the probes in the
+/// instance's world box, found in the probes sorted by x, each tested by
+/// [`crate::trace::SceneTracer::instance_encloses`] (so `k` encloses `j`'s probe here exactly
+/// when `k` is in `enclosing(probe j, j)`). A unit's cost follows its own instances, not the
+/// scene's.
+fn enclosed_instances(scene: &EnvmapScene, subset: &[usize]) -> Vec<Vec<u32>> {
+    let mut by_x: Vec<(f32, u32)> = (0..scene.count)
+        .map(|j| (probe(scene, j).x, j as u32))
         .collect();
-    let mut inside = vec![Vec::new(); scene.count];
-    for (k, j) in pairs {
-        if let Some(v) = inside.get_mut(k as usize) {
-            v.push(j);
-        }
-    }
-    for v in &mut inside {
-        v.sort_unstable();
-    }
-    inside
+    by_x.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    subset
+        .par_iter()
+        .map(|&k| {
+            let (lo, hi) = scene.bvh.instance_bounds(k as u32);
+            let start = by_x.partition_point(|&(x, _)| x < lo.x);
+            let end = by_x.partition_point(|&(x, _)| x <= hi.x);
+            let mut inside: Vec<u32> = by_x[start..end.max(start)]
+                .iter()
+                .map(|&(_, j)| j)
+                .filter(|&j| {
+                    j as usize != k
+                        && scene
+                            .bvh
+                            .instance_encloses(k as u32, probe(scene, j as usize))
+                })
+                .collect();
+            inside.sort_unstable();
+            inside
+        })
+        .collect()
 }
 
 fn bake_one(
@@ -233,7 +242,7 @@ fn bake_one(
     opts: &EnvmapOptions,
 ) -> (InstanceMaps, Option<HalfDifference>) {
     let inst = scene.bvh.instances()[i];
-    let p = Vec3A::from(inst.translation) + Vec3A::Z * scene.probe_height[i];
+    let p = probe(scene, i);
     let n = opts.samples.max(1);
     let w = 4.0 * std::f64::consts::PI / n as f64;
     let base = opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);

@@ -775,6 +775,14 @@ impl SceneTracer for EmbreeSceneBvh {
         self.cpu.enclosing(p, own)
     }
 
+    fn instance_encloses(&self, k: u32, p: Vec3A) -> bool {
+        self.cpu.instance_encloses(k, p)
+    }
+
+    fn instance_bounds(&self, k: u32) -> (Vec3A, Vec3A) {
+        self.cpu.instance_bounds(k)
+    }
+
     fn surface(&self, hit: &SceneHit) -> SurfacePoint {
         surface_of(
             &self.cpu_models,

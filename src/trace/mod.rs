@@ -216,6 +216,11 @@ pub trait SceneTracer: Sync + Send {
     /// ([`SceneBvh::enclosing`]'s rule, decided on the CPU BVH by every backend, so that all
     /// skip the same instances).
     fn enclosing(&self, p: Vec3A, own: u32) -> Vec<u32>;
+    /// Whether model instance `k` encloses `p` ([`SceneBvh::instance_encloses`]; the CPU
+    /// scene's answer on every backend).
+    fn instance_encloses(&self, k: u32, p: Vec3A) -> bool;
+    /// The world box of model instance `k` as (min, max) ([`SceneBvh::instance_bounds`]).
+    fn instance_bounds(&self, k: u32) -> (Vec3A, Vec3A);
     /// The hit's surface in world space.
     fn surface(&self, hit: &SceneHit) -> SurfacePoint;
 }
@@ -242,6 +247,12 @@ impl SceneTracer for SceneBvh {
     }
     fn enclosing(&self, p: Vec3A, own: u32) -> Vec<u32> {
         SceneBvh::enclosing(self, p, own)
+    }
+    fn instance_encloses(&self, k: u32, p: Vec3A) -> bool {
+        SceneBvh::instance_encloses(self, k, p)
+    }
+    fn instance_bounds(&self, k: u32) -> (Vec3A, Vec3A) {
+        SceneBvh::instance_bounds(self, k)
     }
     #[inline]
     fn surface(&self, hit: &SceneHit) -> SurfacePoint {

@@ -320,6 +320,23 @@ impl SceneBvh {
             .collect()
     }
 
+    /// Whether model instance `k` encloses `p` by the rule of [`Self::enclosing`] (its world
+    /// box holds `p`, then the test rays): `k` is in `enclosing(p, j)` for any `j != k` exactly
+    /// when this holds.
+    pub fn instance_encloses(&self, k: u32, p: Vec3A) -> bool {
+        let q = Ray::new(p, Vec3A::Z, 0.0).to_obvhs().origin;
+        self.boxes
+            .get(k as usize)
+            .is_some_and(|b| b.contains_point(q))
+            && self.encloses(k, p)
+    }
+
+    /// The world box of model instance `k` (the top level's, padded), as (min, max).
+    pub fn instance_bounds(&self, k: u32) -> (Vec3A, Vec3A) {
+        let b = &self.boxes[k as usize];
+        (Vec3A::from(b.min.to_array()), Vec3A::from(b.max.to_array()))
+    }
+
     /// Whether instance `k` encloses `p` by the test rays of [`Self::enclosing`].
     fn encloses(&self, k: u32, p: Vec3A) -> bool {
         let (back, front) = self.faces_seen(k, p);
@@ -819,6 +836,19 @@ mod tests {
         }
         assert_eq!(s.enclosing(p(40.0, 0.0, 1.0), 99), vec![5]);
         assert!(s.enclosing(p(40.0, 0.0, 1.0), 5).is_empty());
+        // One instance at a time (the env maps' inverse relation) answers as the whole query.
+        let mut rng = Rng::hashed(41);
+        for _ in 0..400 {
+            let q = p(
+                rng.f32() * 56.0 - 3.0,
+                rng.f32() * 4.0 - 2.0,
+                rng.f32() * 3.0,
+            );
+            let all = s.enclosing(q, 99);
+            for k in 0..s.instances().len() as u32 {
+                assert_eq!(s.instance_encloses(k, q), all.contains(&k), "{k} {q}");
+            }
+        }
     }
 
     /// The top level's point query against a loop over every instance's world box.
