@@ -9,7 +9,7 @@ use glam::Vec3A;
 use std::f32::consts::PI;
 
 mod common;
-use common::{lens_area, linear_sky, place, scene_bvh};
+use common::{closed_box, lens_area, linear_sky, place, scene_bvh};
 
 fn mesh(positions: Vec<[f32; 3]>, indices: Vec<[u32; 3]>) -> Mesh {
     let n = positions.len();
@@ -511,4 +511,134 @@ fn the_sky_control_variate_is_unbiased_and_lowers_the_variance() {
     let ratio = v_pl.iter().sum::<f64>() / v_cv.iter().sum::<f64>();
     eprintln!("variance plain / control variate: {ratio:.2}");
     assert!(ratio > 1.0, "variance ratio {ratio}");
+}
+
+/// The two scenes of `a_probe_inside_another_instance_sees_the_scene_without_it`: two 3 m posts
+/// (instances 0 and 1) on a flat ground, and with `house` a dark closed 3 × 2 × 2.5 m box around the
+/// first post (its probe, 1.5 m up, inside) and 0.7 m from the second (its probe outside).
+fn posts_and_house(house: bool) -> (SceneBvh, Vec<[f32; 3]>) {
+    let post = closed_box([-0.15, -0.15, 0.0], [0.15, 0.15, 3.0]);
+    let hut = closed_box([-1.5, -1.0, 0.0], [1.5, 1.0, 2.5]);
+    let mut inst = vec![at(0, [0.0, 0.0, 0.0]), at(0, [2.5, 0.0, 0.0])];
+    let mut albedo = vec![[0.5, 0.4, 0.3]; 2];
+    if house {
+        inst.push(place(1, [0.3, 0.2, 0.0], 10.0));
+        albedo.push([0.1, 0.08, 0.06]);
+    }
+    inst.push(at(2, [0.0, 0.0, 0.0]));
+    albedo.push([0.3; 3]);
+    (scene(vec![post, hut, flat_terrain(400.0)], inst), albedo)
+}
+
+#[test]
+fn a_probe_inside_another_instance_sees_the_scene_without_it() {
+    // Oracle: the same scene without the enclosing house. The probe's rays ignore the house
+    // that encloses it (trace::SceneBvh::enclosing), and so do its hit points' sun rays, so
+    // post 0's maps must be those traced without the house (the same rays: the seeds follow
+    // the instance number). Post 1 stands beside the house: its maps keep the house.
+    let opts = EnvmapOptions {
+        samples: 1024,
+        seed: 11,
+        ..EnvmapOptions::DEFAULT
+    };
+    let maps = |house| {
+        let (bvh, albedo) = posts_and_house(house);
+        let sc = EnvmapScene {
+            bvh: &bvh,
+            count: 2,
+            probe_height: vec![1.5; 2],
+            albedo,
+            sky: linear_sky(1.0, 0.5),
+            sun: sun(),
+        };
+        assert_eq!(
+            bvh.enclosing(Vec3A::new(0.0, 0.0, 1.5), 0),
+            if house { vec![2] } else { vec![] }
+        );
+        assert!(bvh.enclosing(Vec3A::new(2.5, 0.0, 1.5), 1).is_empty());
+        bake_envmaps(&sc, &opts)
+    };
+    let (with, without) = (maps(true), maps(false));
+    let flat = |m: &([[f32; 3]; 16], [[f32; 3]; 16])| -> Vec<f32> {
+        m.0.iter().chain(m.1.iter()).flatten().copied().collect()
+    };
+    let diff = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let (a0, b0) = (flat(&with[0]), flat(&without[0]));
+    let scale = b0.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(
+        diff(&a0, &b0) <= 1e-5 * scale,
+        "post 0 inside the house: {} of {scale}\n{a0:?}\n{b0:?}",
+        diff(&a0, &b0)
+    );
+    // The sun's bounce off the ground reaches the probe: C_S is not empty.
+    assert!(without[0].1[0][0] > 0.05 * without[0].0[0][0]);
+    // Beside the house the house still occludes: its sky light C_H (band 0) falls by more than
+    // a tenth, far beyond the noise (the same rays traced with and without it).
+    let (h_with, h_without) = (with[1].0[0][0], without[1].0[0][0]);
+    assert!(
+        h_with < 0.9 * h_without,
+        "post 1 beside the house: {h_with} vs {h_without}"
+    );
+}
+
+#[test]
+fn a_probe_ignores_the_instances_standing_inside_its_own_instance() {
+    // The other way round: a house's probe (1.25 m up, inside the house) ignores the post that
+    // stands inside the house (the post's probe is enclosed by the house): the house's maps
+    // must be those traced in the scene without the post. Oracle: that scene (the house is
+    // instance 0 in both, so the same rays). A post standing beside the house still counts.
+    let post = closed_box([-0.15, -0.15, 0.0], [0.15, 0.15, 3.0]);
+    let hut = closed_box([-1.5, -1.0, 0.0], [1.5, 1.0, 2.5]);
+    let opts = EnvmapOptions {
+        samples: 1024,
+        seed: 12,
+        ..EnvmapOptions::DEFAULT
+    };
+    let maps = |posts: &[[f32; 3]]| {
+        let mut inst = vec![place(1, [0.0; 3], 20.0)];
+        inst.extend(posts.iter().map(|&t| at(0, t)));
+        inst.push(at(2, [0.0; 3]));
+        let n = inst.len() - 1;
+        let mut albedo = vec![[0.1, 0.08, 0.06]; n];
+        albedo[0] = [0.6, 0.5, 0.4];
+        albedo.push([0.3; 3]);
+        let bvh = scene(vec![post.clone(), hut.clone(), flat_terrain(400.0)], inst);
+        let sc = EnvmapScene {
+            bvh: &bvh,
+            count: n,
+            probe_height: vec![1.25; n],
+            albedo,
+            sky: linear_sky(1.0, 0.5),
+            sun: sun(),
+        };
+        bake_envmaps(&sc, &opts)[0]
+    };
+    let flat = |m: ([[f32; 3]; 16], [[f32; 3]; 16])| -> Vec<f32> {
+        m.0.iter().chain(m.1.iter()).flatten().copied().collect()
+    };
+    let bare = flat(maps(&[]));
+    let inside = flat(maps(&[[0.8, 0.3, 0.0]]));
+    let beside = flat(maps(&[[2.3, 0.0, 0.0]]));
+    let diff = |a: &[f32]| {
+        a.iter()
+            .zip(&bare)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let scale = bare.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(
+        diff(&inside) <= 1e-5 * scale,
+        "a post inside the house: {} of {scale}",
+        diff(&inside)
+    );
+    assert!(
+        diff(&beside) > 0.02 * scale,
+        "a post beside the house: {} of {scale}",
+        diff(&beside)
+    );
 }

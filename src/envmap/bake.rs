@@ -1,6 +1,12 @@
 //! Per-instance environment maps (seed 000, 4.6.3): for every instance, SH order 4 RGB of the
 //! light arriving at the instance from the sky without the sun (C_H) and from the sun (C_S), with
-//! the terrain and the other instances occluding and reflecting; the instance itself is ignored.
+//! the terrain and the other instances occluding and reflecting; the instance itself is ignored,
+//! and so is every instance that encloses the probe ([`crate::trace::SceneBvh::enclosing`]: a
+//! probe inside another instance, such as a post inside a house or two houses overlapping,
+//! would otherwise see only that instance's inside) and every instance whose probe the instance
+//! encloses (the post inside the house, hidden from the house's outside by its walls); the hit
+//! points' sun rays ignore them too, so the probe sees the scene without them
+//! (docs/CONVENTIONS.md, "Environment-map probes").
 //!
 //! Estimator (instead of the thesis' photon map): from a probe point at the instance (its position
 //! raised by half its model's height × scale), `samples` directions on a spherical Fibonacci set
@@ -38,6 +44,7 @@
 //! Unbiased for that light model; it converges to the brute-force answer as samples grow.
 
 use crate::sh::{self, ShIrradiance, ShRadiance};
+pub use crate::trace::fibonacci_direction;
 use crate::trace::{Ray, SceneTracer, Tracer};
 use glam::Vec3A;
 use rayon::prelude::*;
@@ -172,9 +179,11 @@ pub(crate) fn trace_envmaps_subset(
     subset: &[usize],
 ) -> Traced {
     let sky_irr = scene.sky.to_irradiance();
+    let inside = enclosed_instances(scene, subset);
     let (maps, diffs): (Vec<InstanceMaps>, Vec<Option<HalfDifference>>) = subset
         .par_iter()
-        .map(|&i| bake_one(scene, &sky_irr, i, opts))
+        .zip(&inside)
+        .map(|(&i, inside)| bake_one(scene, &sky_irr, i, inside, opts))
         .unzip();
     Traced {
         maps,
@@ -187,18 +196,68 @@ pub fn traces_halves(opts: &EnvmapOptions) -> bool {
     opts.noise_estimate && opts.samples >= 2
 }
 
+/// The probe of instance `i`, world space.
+fn probe(scene: &EnvmapScene, i: usize) -> Vec3A {
+    Vec3A::from(scene.bvh.instances()[i].translation) + Vec3A::Z * scene.probe_height[i]
+}
+
+/// Per instance of `subset` (in its order), the instances with a map whose probe it encloses
+/// (the inverse of [`crate::trace::SceneTracer::enclosing`]), ascending: the probes in the
+/// instance's world box, found in the probes sorted by x, each tested by
+/// [`crate::trace::SceneTracer::instance_encloses`] (so `k` encloses `j`'s probe here exactly
+/// when `k` is in `enclosing(probe j, j)`). A unit's cost follows its own instances, not the
+/// scene's.
+fn enclosed_instances(scene: &EnvmapScene, subset: &[usize]) -> Vec<Vec<u32>> {
+    let mut by_x: Vec<(f32, u32)> = (0..scene.count)
+        .map(|j| (probe(scene, j).x, j as u32))
+        .collect();
+    by_x.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    subset
+        .par_iter()
+        .map(|&k| {
+            let (lo, hi) = scene.bvh.instance_bounds(k as u32);
+            let start = by_x.partition_point(|&(x, _)| x < lo.x);
+            let end = by_x.partition_point(|&(x, _)| x <= hi.x);
+            let mut inside: Vec<u32> = by_x[start..end.max(start)]
+                .iter()
+                .map(|&(_, j)| j)
+                .filter(|&j| {
+                    j as usize != k
+                        && scene
+                            .bvh
+                            .instance_encloses(k as u32, probe(scene, j as usize))
+                })
+                .collect();
+            inside.sort_unstable();
+            inside
+        })
+        .collect()
+}
+
 fn bake_one(
     scene: &EnvmapScene,
     sky_irr: &ShIrradiance,
     i: usize,
+    inside: &[u32],
     opts: &EnvmapOptions,
 ) -> (InstanceMaps, Option<HalfDifference>) {
     let inst = scene.bvh.instances()[i];
-    let p = Vec3A::from(inst.translation) + Vec3A::Z * scene.probe_height[i];
+    let p = probe(scene, i);
     let n = opts.samples.max(1);
     let w = 4.0 * std::f64::consts::PI / n as f64;
     let base = opts.seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
     let cv = opts.sky_control_variate;
+    // The instances the probe's rays ignore: the instance itself, then those that enclose the
+    // probe and those whose probe the instance encloses (docs/CONVENTIONS.md, "Environment-map
+    // probes"), which the hit points' sun rays ignore too: the probe sees the scene without them.
+    let mut skip: Vec<u32> = std::iter::once(i as u32)
+        .chain(scene.bvh.enclosing(p, i as u32))
+        .collect();
+    for &j in inside {
+        if !skip.contains(&j) {
+            skip.push(j);
+        }
+    }
     // One rotated set of `m` points, each ray weighted `w`; sums in the world frame. With the
     // control variate a ray adds (f − L)(d)·y(d)·w to C_H: zero where it escapes (unless the
     // SH sky is negative there), the hit's radiance minus the sky it hides where it is blocked.
@@ -208,7 +267,7 @@ fn bake_one(
         let mut cs = [[0.0f64; 3]; 16];
         for k in 0..m {
             let d = rot * fibonacci_direction(k, m);
-            let (mut lh, ls) = radiance_along(scene, sky_irr, i as u32, p, d);
+            let (mut lh, ls) = radiance_along(scene, sky_irr, &skip, p, d);
             if cv {
                 let l = scene.sky.eval(d.to_array());
                 lh = [0, 1, 2].map(|c| lh[c] - l[c]);
@@ -261,16 +320,17 @@ fn bake_one(
     ((h.coeffs, s.coeffs), diff)
 }
 
-/// Radiance from direction d at p: (sky part, sun part).
+/// Radiance from direction d at p: (sky part, sun part). `skip`: the probe's own instance, then
+/// the instances enclosing it; the hit points' sun rays ignore the latter.
 fn radiance_along(
     scene: &EnvmapScene,
     sky_irr: &ShIrradiance,
-    skip: u32,
+    skip: &[u32],
     p: Vec3A,
     d: Vec3A,
 ) -> ([f32; 3], [f32; 3]) {
     let ray = Ray::new(p, d, 1e-4);
-    match scene.bvh.closest_hit_excluding(&ray, Some(skip)) {
+    match scene.bvh.closest_hit_excluding(&ray, skip) {
         None => (scene.sky.eval(d.to_array()).map(|v| v.max(0.0)), [0.0; 3]),
         Some(h) => {
             let surf = scene.bvh.surface(&h);
@@ -285,7 +345,7 @@ fn radiance_along(
                 Some(sun) => {
                     let s = Vec3A::from(sun.direction);
                     let cos = n.dot(s);
-                    if cos > 0.0 && !blocked(scene.bvh, u32::MAX, surf.position + n * 1e-3, s) {
+                    if cos > 0.0 && !blocked(scene.bvh, &skip[1..], surf.position + n * 1e-3, s) {
                         [0, 1, 2].map(|k| rho[k] / std::f32::consts::PI * sun.irradiance[k] * cos)
                     } else {
                         [0.0; 3]
@@ -298,17 +358,8 @@ fn radiance_along(
     }
 }
 
-fn blocked(bvh: &dyn SceneTracer, skip: u32, p: Vec3A, d: Vec3A) -> bool {
-    bvh.any_hit_excluding(&Ray::new(p, d, 1e-4), Some(skip))
-}
-
-/// Point k of an N-point spherical Fibonacci set (uniform area, low discrepancy).
-pub fn fibonacci_direction(k: u32, n: u32) -> Vec3A {
-    let golden = 0.618_033_988_749_894_9f64;
-    let z = 1.0 - (2.0 * k as f64 + 1.0) / n as f64;
-    let r = (1.0 - z * z).max(0.0).sqrt();
-    let phi = 2.0 * std::f64::consts::PI * ((k as f64 * golden).fract());
-    Vec3A::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32)
+fn blocked(bvh: &dyn SceneTracer, skip: &[u32], p: Vec3A, d: Vec3A) -> bool {
+    bvh.any_hit_excluding(&Ray::new(p, d, 1e-4), skip)
 }
 
 /// A uniformly random rotation from a seed (Shoemake's quaternion method).

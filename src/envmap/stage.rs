@@ -21,7 +21,9 @@ use std::ops::Range;
 /// 2: the rays traced as two independently rotated halves, whose difference is the
 /// section's noise estimate (`noise_covariance`, `noise_variance`; issue 20, item 2).
 /// 3: the linear albedo and the terrain's drawn albedo (issue 35).
-pub const ENVMAPS_VERSION: u32 = 3;
+/// 4: a probe's rays ignore the instances that enclose the probe (`trace::SceneBvh::enclosing`)
+/// and those whose probe the instance encloses (issue 35).
+pub const ENVMAPS_VERSION: u32 = 4;
 /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
 /// 3: a byte budget (20x by default), the per-instance local part and split fraction 1.0
 /// (issue 20, item 2).

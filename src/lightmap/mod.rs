@@ -295,14 +295,14 @@ impl Reach {
         o: Vec3A,
         d: Vec3A,
     ) -> Option<crate::trace::SceneHit> {
-        bvh.closest_hit_excluding(&self.instance_ray(o, d)?, Some(self.terrain))
+        bvh.closest_hit_excluding(&self.instance_ray(o, d)?, &[self.terrain])
     }
 
     /// Whether [`Self::instance_hit`] finds a hit, stopping at the first one found (the same
     /// ray and bounds: the sun's disc rays need no closest hit).
     fn instance_blocked(&self, bvh: &dyn SceneTracer, o: Vec3A, d: Vec3A) -> bool {
         self.instance_ray(o, d)
-            .is_some_and(|ray| bvh.any_hit_excluding(&ray, Some(self.terrain)))
+            .is_some_and(|ray| bvh.any_hit_excluding(&ray, &[self.terrain]))
     }
 }
 

@@ -486,6 +486,13 @@ impl ModelBvh {
         (mesh, masks)
     }
 
+    /// Whether material `m` is alpha-tested (its mask has transparent texels).
+    pub fn alpha_tested(&self, m: u32) -> bool {
+        self.material_mask
+            .get(m as usize)
+            .is_some_and(|&k| k != NO_MASK)
+    }
+
     /// The first BVH slot of triangle `t` (`u32::MAX`: not in the BVH).
     pub fn slot_of(&self, t: u32) -> u32 {
         self.first_slot.get(t as usize).copied().unwrap_or(NO_SLOT)

@@ -12,8 +12,9 @@
 //! instance (`RTC_GEOMETRY_TYPE_INSTANCE`, geometry ID = instance number) per placed model, and
 //! the terrain as user geometry (geometry ID = `instances.len()`) whose callbacks call the
 //! [`Heightfield`]'s own intersector, so terrain hits are those of [`super::SceneBvh`]. The
-//! ignored instance of `closest_hit_excluding` travels in an extended intersect context and is
-//! rejected by the filter function (its triangles are still traversed).
+//! ignored instances of `closest_hit_excluding` travel in an extended intersect context and are
+//! rejected by the filter function (their triangles are still traversed); `enclosing` is
+//! decided on the CPU scene, so both backends ignore the same instances.
 
 use super::scene::surface_of;
 use super::{
@@ -62,25 +63,37 @@ struct IntersectContext {
     inst_id: [c_uint; 1],
 }
 
-/// [`IntersectContext`] extended with the instance to ignore (Embree passes the context pointer
+/// [`IntersectContext`] extended with the instances to ignore (Embree passes the context pointer
 /// through to the filter and user-geometry callbacks unchanged).
 #[repr(C)]
 struct Context {
     base: IntersectContext,
-    /// Instance (geometry ID in the top-level scene) whose hits are rejected; `INVALID_ID`: none.
-    skip: c_uint,
+    /// Instances (geometry IDs in the top-level scene) whose hits are rejected: `skip_len`
+    /// entries at `skip`, a slice that outlives the query the context is made for.
+    skip: *const c_uint,
+    skip_len: usize,
 }
 
 impl Context {
-    fn new(skip: Option<u32>) -> Self {
+    /// A context for one query; `skip` must stay alive until the query returns (every query
+    /// here builds its context from a borrowed slice and drops it before returning).
+    fn new(skip: &[u32]) -> Self {
         Context {
             base: IntersectContext {
                 flags: 0,
                 filter: None,
                 inst_id: [INVALID_ID],
             },
-            skip: skip.unwrap_or(INVALID_ID),
+            skip: skip.as_ptr(),
+            skip_len: skip.len(),
         }
+    }
+
+    /// Whether hits of instance `inst` are rejected.
+    fn skips(&self, inst: u32) -> bool {
+        // SAFETY: `skip` and `skip_len` come from a slice alive for the query (see `new`).
+        self.skip_len > 0
+            && unsafe { std::slice::from_raw_parts(self.skip, self.skip_len) }.contains(&inst)
     }
 }
 
@@ -254,7 +267,7 @@ unsafe extern "C" fn alpha_filter(args: *const FilterArgs) {
     let hit = a.hit as *const f32;
     // SAFETY: every query of this module passes a `Context` (see EmbreeSceneBvh and
     // EmbreeScene's queries), which starts with the plain context.
-    let skip = unsafe { (*(a.context as *const Context)).skip };
+    let ctx = unsafe { &*(a.context as *const Context) };
     for i in 0..a.n as usize {
         // SAFETY: valid has n entries.
         if unsafe { *a.valid.add(i) } == 0 {
@@ -263,7 +276,7 @@ unsafe extern "C" fn alpha_filter(args: *const FilterArgs) {
         let n = a.n as usize;
         // SAFETY: instID[0] is field 7 of the SOA hit block (rtcore_ray.h, RTCHitN).
         let inst = unsafe { *(hit.add(7 * n + i) as *const u32) };
-        if skip != INVALID_ID && inst == skip {
+        if ctx.skips(inst) {
             // SAFETY: valid has n entries; 0 rejects the candidate.
             unsafe { *a.valid.add(i) = 0 };
             continue;
@@ -404,7 +417,7 @@ impl EmbreeScene {
     /// Whether an alpha-tested hit lies on the ray segment (rtcOccluded1, stops at the first).
     pub fn any_hit(&self, ray: &Ray) -> bool {
         let mut r = RayOnly::of(ray);
-        let mut ctx = Context::new(None);
+        let mut ctx = Context::new(&[]);
         // SAFETY: the scene is committed and alive; ctx and r are valid, r 16-byte aligned.
         unsafe { rtcOccluded1(self.scene, &mut ctx.base, &mut r) };
         // Embree sets tfar to -inf when the ray is occluded.
@@ -414,7 +427,7 @@ impl EmbreeScene {
     /// Closest alpha-tested hit (`slot` is the triangle index; Embree has no slots).
     pub fn closest_hit(&self, ray: &Ray) -> Option<Hit> {
         let mut rh = RayHit::of(ray);
-        let mut ctx = Context::new(None);
+        let mut ctx = Context::new(&[]);
         // SAFETY: the scene is committed and alive; ctx and rh are valid, rh 16-byte aligned.
         unsafe { rtcIntersect1(self.scene, &mut ctx.base, &mut rh) };
         (rh.geom_id != INVALID_ID).then_some(Hit {
@@ -547,7 +560,7 @@ unsafe extern "C" fn terrain_intersect(args: *const IntersectArgs) {
             &*(a.context as *const Context),
         )
     };
-    if ctx.skip == d.instance {
+    if ctx.skips(d.instance) {
         return;
     }
     let n = a.n as usize;
@@ -619,6 +632,9 @@ pub struct EmbreeSceneBvh {
     models: Vec<EmbreeScene>,
     cpu_models: Vec<Arc<ModelBvh>>,
     instances: Vec<InstanceTransform>,
+    /// The CPU scene it was built from: [`SceneTracer::enclosing`] is decided there, so both
+    /// backends skip the same instances.
+    cpu: SceneBvh,
     /// The terrain's user data, alive as long as `top`.
     terrain: Option<Box<TerrainData>>,
     _device: Arc<Device>,
@@ -700,6 +716,7 @@ impl EmbreeSceneBvh {
             models,
             cpu_models,
             instances,
+            cpu: scene.clone(),
             terrain,
             _device: device,
         })
@@ -716,7 +733,7 @@ impl SceneTracer for EmbreeSceneBvh {
         &self.instances
     }
 
-    fn closest_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit> {
+    fn closest_hit_excluding(&self, ray: &Ray, skip: &[u32]) -> Option<SceneHit> {
         let mut rh = RayHit::of(ray);
         let mut ctx = Context::new(skip);
         // SAFETY: the scene is committed and alive; ctx and rh are valid, rh 16-byte aligned;
@@ -748,10 +765,22 @@ impl SceneTracer for EmbreeSceneBvh {
 
     fn any_hit(&self, ray: &Ray) -> bool {
         let mut r = RayOnly::of(ray);
-        let mut ctx = Context::new(None);
+        let mut ctx = Context::new(&[]);
         // SAFETY: as in closest_hit_excluding.
         unsafe { rtcOccluded1(self.top, &mut ctx.base, &mut r) };
         r.tfar == f32::NEG_INFINITY
+    }
+
+    fn enclosing(&self, p: Vec3A, own: u32) -> Vec<u32> {
+        self.cpu.enclosing(p, own)
+    }
+
+    fn instance_encloses(&self, k: u32, p: Vec3A) -> bool {
+        self.cpu.instance_encloses(k, p)
+    }
+
+    fn instance_bounds(&self, k: u32) -> (Vec3A, Vec3A) {
+        self.cpu.instance_bounds(k)
     }
 
     fn surface(&self, hit: &SceneHit) -> SurfacePoint {

@@ -95,6 +95,15 @@ pub fn cosine_hemisphere(n: Vec3A, u1: f32, u2: f32) -> Vec3A {
     t * (r * c) + b * (r * s) + n * z
 }
 
+/// Point k of an N-point spherical Fibonacci set (uniform area, low discrepancy).
+pub fn fibonacci_direction(k: u32, n: u32) -> Vec3A {
+    let golden = 0.618_033_988_749_894_9f64;
+    let z = 1.0 - (2.0 * k as f64 + 1.0) / n as f64;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = 2.0 * std::f64::consts::PI * ((k as f64 * golden).fract());
+    Vec3A::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32)
+}
+
 pub use crate::rng::{Rng, mix64};
 
 /// What a path tracer over one model needs of its ray-tracing backend: the closest hit and
@@ -179,27 +188,39 @@ impl Tracer {
 }
 
 /// What the light-map and environment-map stages need of a two-level scene (instances of models
-/// plus the terrain as the last instance): the closest hit with one instance ignored, an any-hit
-/// query, both alpha-tested, and the world-space surface at a hit. Implemented by [`SceneBvh`]
+/// plus the terrain as the last instance): the closest hit with some instances ignored, an
+/// any-hit query, both alpha-tested, the world-space surface at a hit, and the instances that
+/// enclose a point. Implemented by [`SceneBvh`]
 /// (obvhs instances and the heightfield quadtree) and, with the cargo feature `embree`, by
 /// `embree::EmbreeSceneBvh` (Embree instances of one Embree scene per model, the heightfield as
 /// user geometry); the stages' estimators take `&dyn SceneTracer`, so one sampler drives both.
 pub trait SceneTracer: Sync + Send {
     /// The model instances (the terrain, if any, is instance number `instances().len()`).
     fn instances(&self) -> &[InstanceTransform];
-    /// The closest opaque hit over all instances but `skip` (`t` is the world ray's).
-    fn closest_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit>;
+    /// The closest opaque hit over all instances but those in `skip` (`t` is the world ray's;
+    /// `skip` is short: a linear search).
+    fn closest_hit_excluding(&self, ray: &Ray, skip: &[u32]) -> Option<SceneHit>;
     /// The closest opaque hit over all instances.
     fn closest_hit(&self, ray: &Ray) -> Option<SceneHit> {
-        self.closest_hit_excluding(ray, None)
+        self.closest_hit_excluding(ray, &[])
     }
     /// Whether any instance blocks the ray segment.
     fn any_hit(&self, ray: &Ray) -> bool;
-    /// Whether any instance but `skip` blocks the ray segment: `closest_hit_excluding(ray,
-    /// skip).is_some()`, where a backend may stop at the first hit it finds.
-    fn any_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> bool {
+    /// Whether any instance but those in `skip` blocks the ray segment:
+    /// `closest_hit_excluding(ray, skip).is_some()`, where a backend may stop at the first hit
+    /// it finds.
+    fn any_hit_excluding(&self, ray: &Ray, skip: &[u32]) -> bool {
         self.closest_hit_excluding(ray, skip).is_some()
     }
+    /// The model instances other than `own` that enclose the point `p`
+    /// ([`SceneBvh::enclosing`]'s rule, decided on the CPU BVH by every backend, so that all
+    /// skip the same instances).
+    fn enclosing(&self, p: Vec3A, own: u32) -> Vec<u32>;
+    /// Whether model instance `k` encloses `p` ([`SceneBvh::instance_encloses`]; the CPU
+    /// scene's answer on every backend).
+    fn instance_encloses(&self, k: u32, p: Vec3A) -> bool;
+    /// The world box of model instance `k` as (min, max) ([`SceneBvh::instance_bounds`]).
+    fn instance_bounds(&self, k: u32) -> (Vec3A, Vec3A);
     /// The hit's surface in world space.
     fn surface(&self, hit: &SceneHit) -> SurfacePoint;
 }
@@ -209,7 +230,7 @@ impl SceneTracer for SceneBvh {
         SceneBvh::instances(self)
     }
     #[inline]
-    fn closest_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit> {
+    fn closest_hit_excluding(&self, ray: &Ray, skip: &[u32]) -> Option<SceneHit> {
         SceneBvh::closest_hit_excluding(self, ray, skip)
     }
     #[inline]
@@ -221,8 +242,17 @@ impl SceneTracer for SceneBvh {
         SceneBvh::any_hit(self, ray)
     }
     #[inline]
-    fn any_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> bool {
+    fn any_hit_excluding(&self, ray: &Ray, skip: &[u32]) -> bool {
         SceneBvh::any_hit_excluding(self, ray, skip)
+    }
+    fn enclosing(&self, p: Vec3A, own: u32) -> Vec<u32> {
+        SceneBvh::enclosing(self, p, own)
+    }
+    fn instance_encloses(&self, k: u32, p: Vec3A) -> bool {
+        SceneBvh::instance_encloses(self, k, p)
+    }
+    fn instance_bounds(&self, k: u32) -> (Vec3A, Vec3A) {
+        SceneBvh::instance_bounds(self, k)
     }
     #[inline]
     fn surface(&self, hit: &SceneHit) -> SurfacePoint {

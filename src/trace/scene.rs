@@ -21,6 +21,9 @@ use obvhs::cwbvh::CwBvh;
 use rayon::prelude::*;
 use std::sync::Arc;
 
+/// Test rays per candidate of [`SceneBvh::enclosing`].
+pub const ENCLOSURE_RAYS: u32 = 64;
+
 /// Where an instance puts its model.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InstanceTransform {
@@ -105,6 +108,8 @@ pub struct SceneBvh {
     instances: Vec<InstanceTransform>,
     /// Each instance's inverse transform (world rays into its model).
     to_local: Vec<ToLocal>,
+    /// Each instance's world box ([`world_box`], padded), as the top level holds it.
+    boxes: Vec<obvhs::aabb::Aabb>,
     tlas: Option<CwBvh>,
     terrain: Option<Arc<Heightfield>>,
 }
@@ -143,6 +148,7 @@ impl SceneBvh {
             to_local: instances.iter().map(ToLocal::of).collect(),
             models,
             instances,
+            boxes,
             tlas,
             terrain: None,
         })
@@ -166,9 +172,9 @@ impl SceneBvh {
     }
 
     /// The terrain's closest hit unless it is skipped.
-    fn terrain_hit(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit> {
+    fn terrain_hit(&self, ray: &Ray, skip: &[u32]) -> Option<SceneHit> {
         let instance = self.terrain_instance()?;
-        if skip == Some(instance) {
+        if skip.contains(&instance) {
             return None;
         }
         let hit = self.terrain.as_ref()?.closest_hit(ray)?;
@@ -177,12 +183,13 @@ impl SceneBvh {
 
     /// The closest opaque hit over all instances.
     pub fn closest_hit(&self, ray: &Ray) -> Option<SceneHit> {
-        self.closest_hit_excluding(ray, None)
+        self.closest_hit_excluding(ray, &[])
     }
 
-    /// The closest opaque hit over all instances but `skip` (tracing from an instance into the
-    /// rest of the scene: the environment-map stage ignores the instance itself).
-    pub fn closest_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> Option<SceneHit> {
+    /// The closest opaque hit over all instances but those in `skip` (tracing from an instance
+    /// into the rest of the scene: the environment-map stage ignores the instance itself and
+    /// the instances that enclose its probe; the light map ignores the terrain).
+    pub fn closest_hit_excluding(&self, ray: &Ray, skip: &[u32]) -> Option<SceneHit> {
         let mut best = self.terrain_hit(ray, skip);
         let Some(tlas) = self.tlas.as_ref() else {
             return best;
@@ -194,7 +201,7 @@ impl SceneBvh {
         let mut hit = obvhs::ray::RayHit::none();
         tlas.ray_traverse(bounded.to_obvhs(), &mut hit, |r, slot| {
             let k = tlas.primitive_indices[slot];
-            if Some(k) == skip {
+            if skip.contains(&k) {
                 return f32::INFINITY;
             }
             let inst = &self.instances[k as usize];
@@ -232,13 +239,11 @@ impl SceneBvh {
         })
     }
 
-    /// Whether any instance but `skip` blocks the ray segment (the terrain is the instance
-    /// after the models'): the answer of [`Self::closest_hit_excluding`], stopping at the first
-    /// hit found (the light map's sun rays among the instances; issue 37).
-    pub fn any_hit_excluding(&self, ray: &Ray, skip: Option<u32>) -> bool {
-        let terrain = self.terrain_instance();
-        if terrain.is_some()
-            && terrain != skip
+    /// Whether any instance but those in `skip` blocks the ray segment (the terrain is the
+    /// instance after the models'): the answer of [`Self::closest_hit_excluding`], stopping at
+    /// the first hit found (the light map's sun rays among the instances; issue 37).
+    pub fn any_hit_excluding(&self, ray: &Ray, skip: &[u32]) -> bool {
+        if self.terrain_instance().is_some_and(|t| !skip.contains(&t))
             && self.terrain.as_ref().is_some_and(|t| t.any_hit(ray))
         {
             return true;
@@ -248,7 +253,7 @@ impl SceneBvh {
         };
         !tlas.ray_traverse_miss(ray.to_obvhs(), |_, slot| {
             let k = tlas.primitive_indices[slot];
-            if Some(k) == skip {
+            if skip.contains(&k) {
                 return f32::INFINITY;
             }
             let model = &self.models[self.instances[k as usize].model as usize];
@@ -257,9 +262,118 @@ impl SceneBvh {
         })
     }
 
+    /// The model instances whose world box (the top level's, padded by a relative 1e-5)
+    /// contains `p`, in ascending order: the candidates of [`Self::enclosing`].
+    pub fn instances_containing(&self, p: Vec3A) -> Vec<u32> {
+        let Some(tlas) = self.tlas.as_ref() else {
+            return Vec::new();
+        };
+        // The top level's leaves along a 2 m segment through `p` (obvhs' traversal has no point
+        // query this crate can call: its macro needs obvhs' glam version), each checked exactly.
+        let d = Vec3A::ONE.normalize();
+        let segment = Ray {
+            tmax: 2.0,
+            ..Ray::new(p - d, d, 0.0)
+        };
+        let q = Ray::new(p, d, 0.0).to_obvhs().origin;
+        let mut out = Vec::new();
+        tlas.ray_traverse_anyhit(segment.to_obvhs(), |_, slot| {
+            let k = tlas.primitive_indices[slot];
+            if self.boxes[k as usize].contains_point(q) {
+                out.push(k);
+            }
+        });
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// The closest opaque hit of instance `k` alone (a model instance, not the terrain).
+    pub fn instance_hit(&self, ray: &Ray, k: u32) -> Option<SceneHit> {
+        let inst = self.instances.get(k as usize)?;
+        let local = self.to_local[k as usize].ray(ray);
+        let hit = self.models[inst.model as usize].closest_hit(&local)?;
+        Some(SceneHit { instance: k, hit })
+    }
+
+    /// The model instances other than `own` that enclose the point `p`, in ascending order:
+    /// those whose world box contains `p` and for which, of the [`ENCLOSURE_RAYS`] test rays
+    /// from `p` (a fixed spherical Fibonacci set) traced against that instance alone with its
+    /// alpha test, those whose first hit is a back face outnumber those whose first hit is a
+    /// front face by at least half the rays. A face's side is its winding's (the geometric
+    /// normal), turned to the interpolated vertex normal's side where the two disagree, as path
+    /// tracers orient it; a back face points away from `p` (n·d > 0). A hit on an alpha-tested
+    /// material (a leaf card: see-through foliage shelters, it never encloses) counts as a
+    /// front face whichever way it faces: foliage normals are often bent outwards or up, which
+    /// would make a canopy look like a closed shell from inside.
+    ///
+    /// Inside a closed mesh every ray meets a back face first (difference 1); inside a house
+    /// open at the bottom most do (0.69 low in it, 0.88 at mid-height); under a shed's roof
+    /// (a roof on two walls) 0.42, beside or under a mesh none; among opaque cards wound either
+    /// way back and front about cancel. It is a ray estimate of the generalized winding number,
+    /// robust to open and two-sided geometry. The environment maps' probes ignore these
+    /// instances (docs/CONVENTIONS.md, "Environment-map probes").
+    pub fn enclosing(&self, p: Vec3A, own: u32) -> Vec<u32> {
+        self.instances_containing(p)
+            .into_iter()
+            .filter(|&k| k != own && self.encloses(k, p))
+            .collect()
+    }
+
+    /// Whether model instance `k` encloses `p` by the rule of [`Self::enclosing`] (its world
+    /// box holds `p`, then the test rays): `k` is in `enclosing(p, j)` for any `j != k` exactly
+    /// when this holds.
+    pub fn instance_encloses(&self, k: u32, p: Vec3A) -> bool {
+        let q = Ray::new(p, Vec3A::Z, 0.0).to_obvhs().origin;
+        self.boxes
+            .get(k as usize)
+            .is_some_and(|b| b.contains_point(q))
+            && self.encloses(k, p)
+    }
+
+    /// The world box of model instance `k` (the top level's, padded), as (min, max).
+    pub fn instance_bounds(&self, k: u32) -> (Vec3A, Vec3A) {
+        let b = &self.boxes[k as usize];
+        (Vec3A::from(b.min.to_array()), Vec3A::from(b.max.to_array()))
+    }
+
+    /// Whether instance `k` encloses `p` by the test rays of [`Self::enclosing`].
+    fn encloses(&self, k: u32, p: Vec3A) -> bool {
+        let (back, front) = self.faces_seen(k, p);
+        2 * (back as i64 - front as i64) >= ENCLOSURE_RAYS as i64
+    }
+
+    /// How many of the test rays of [`Self::enclosing`] from `p` first meet a back face of
+    /// instance `k`, and how many a front face.
+    fn faces_seen(&self, k: u32, p: Vec3A) -> (u32, u32) {
+        let (mut back, mut front) = (0, 0);
+        for j in 0..ENCLOSURE_RAYS {
+            let d = crate::trace::fibonacci_direction(j, ENCLOSURE_RAYS);
+            if let Some(h) = self.instance_hit(&Ray::new(p, d, 0.0), k) {
+                let surf = self.surface(&h);
+                let model = &self.models[self.instances[k as usize].model as usize];
+                // The triangle's side by its winding, turned to the interpolated vertex
+                // normal's side where the two disagree (as path tracers orient it); an
+                // alpha-tested card is a front face whichever way it faces.
+                let n = surf.geometric_normal;
+                let n = if n.dot(surf.shading_normal) < 0.0 {
+                    -n
+                } else {
+                    n
+                };
+                if n.dot(d) > 0.0 && !model.alpha_tested(surf.material) {
+                    back += 1;
+                } else {
+                    front += 1;
+                }
+            }
+        }
+        (back, front)
+    }
+
     /// Reference: every instance in turn, without the top level.
     pub fn brute_force_closest_hit(&self, ray: &Ray) -> Option<SceneHit> {
-        let mut best: Option<SceneHit> = self.terrain_hit(ray, None);
+        let mut best: Option<SceneHit> = self.terrain_hit(ray, &[]);
         for (k, inst) in self.instances.iter().enumerate() {
             let local = Ray {
                 tmax: best.map_or(ray.tmax, |b| b.hit.t),
@@ -503,7 +617,7 @@ mod tests {
                 terrain_hits += (a.instance == 30) as u32;
             }
             // Skipping the terrain leaves the instances only.
-            let skipped = with_hf.closest_hit_excluding(&r, Some(30));
+            let skipped = with_hf.closest_hit_excluding(&r, &[30]);
             assert_eq!(skipped.map(|h| h.hit.t), s.closest_hit(&r).map(|h| h.hit.t));
         }
         assert!(terrain_hits > 500, "{terrain_hits}");
@@ -554,9 +668,13 @@ mod tests {
                         .is_some();
                 }
             }
-            assert_eq!(with_hf.any_hit_excluding(&r, skip), want, "{r:?} {skip:?}");
             assert_eq!(
-                with_hf.closest_hit_excluding(&r, skip).is_some(),
+                with_hf.any_hit_excluding(&r, skip.as_slice()),
+                want,
+                "{r:?} {skip:?}"
+            );
+            assert_eq!(
+                with_hf.closest_hit_excluding(&r, skip.as_slice()).is_some(),
                 want,
                 "{r:?} {skip:?}"
             );
@@ -567,6 +685,198 @@ mod tests {
             }
         }
         assert!(blocked > 300 && open > 300, "{blocked} {open}");
+    }
+
+    /// An axis-aligned box from `lo` to `hi` with outward-wound faces and outward vertex
+    /// normals, four vertices a face; `faces` picks them: −z, +z, −y, +y, −x, +x.
+    fn box_faces(lo: [f32; 3], hi: [f32; 3], faces: [bool; 6]) -> Mesh {
+        let mut m = Mesh {
+            materials: vec![Material::default()],
+            ..Mesh::default()
+        };
+        for (f, keep) in faces.into_iter().enumerate() {
+            if !keep {
+                continue;
+            }
+            let (axis, positive) = ([2, 2, 1, 1, 0, 0][f], f % 2 == 1);
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            let mut n = [0.0f32; 3];
+            n[axis] = if positive { 1.0 } else { -1.0 };
+            let corner = |a: bool, b: bool| {
+                let mut p = [0.0f32; 3];
+                p[axis] = if positive { hi[axis] } else { lo[axis] };
+                p[u] = if a { hi[u] } else { lo[u] };
+                p[v] = if b { hi[v] } else { lo[v] };
+                p
+            };
+            let base = m.positions.len() as u32;
+            // (u, v, n) is right-handed: counter-clockwise about +n seen from outside.
+            let quad = [(false, false), (true, false), (true, true), (false, true)];
+            for (a, b) in quad {
+                m.positions.push(corner(a, b));
+                m.normals.push(n);
+                m.uvs.push([0.0, 0.0]);
+            }
+            let tris = if positive {
+                [[0, 1, 2], [0, 2, 3]]
+            } else {
+                [[0, 2, 1], [0, 3, 2]]
+            };
+            for t in tris {
+                m.indices.push(t.map(|k| base + k));
+                m.triangle_materials.push(0);
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn box_faces_are_wound_outwards() {
+        let m = box_faces([-1.0; 3], [1.0; 3], [true; 6]);
+        for t in &m.indices {
+            let [a, b, c] = t.map(|k| Vec3A::from(m.positions[k as usize]));
+            let n = (b - a).cross(c - a).normalize();
+            assert!((n - Vec3A::from(m.normals[t[0] as usize])).length() < 1e-6);
+            assert!(n.dot((a + b + c) / 3.0) > 0.0, "outward");
+        }
+    }
+
+    /// The instances around a point, by the rule of [`SceneBvh::enclosing`], against what each
+    /// model is: a closed house, a house open at the bottom, a shed (a roof on two walls, open
+    /// on two sides), a canopy of two-sided cards (random triangles, each wound either way).
+    #[test]
+    fn enclosing_finds_the_instances_around_a_point_and_no_others() {
+        let house = box_faces([-1.5, -1.0, 0.0], [1.5, 1.0, 2.5], [true; 6]);
+        let open = box_faces(
+            [-1.5, -1.0, 0.0],
+            [1.5, 1.0, 2.5],
+            [false, true, true, true, true, true],
+        );
+        let shed = box_faces(
+            [-1.5, -1.0, 0.0],
+            [1.5, 1.0, 2.5],
+            [false, true, true, false, true, false],
+        );
+        // Opaque cards wound either way, each with its own normal.
+        let mut canopy = blob(3, 400);
+        for (k, t) in canopy.indices.iter_mut().enumerate() {
+            if k % 2 == 0 {
+                t.swap(1, 2);
+            }
+            let [a, b, c] = t.map(|i| Vec3A::from(canopy.positions[i as usize]));
+            let n = (b - a).cross(c - a).normalize_or(Vec3A::Z).to_array();
+            for i in *t {
+                canopy.normals[i as usize] = n;
+            }
+        }
+        // Alpha-tested leaf cards whose normals all point up (as foliage often has them).
+        let mut leaves = blob(3, 400);
+        for (uv, q) in leaves.uvs.iter_mut().zip(&leaves.positions) {
+            *uv = [q[0] * 7.0, q[1] * 7.0 + q[2] * 3.0];
+        }
+        let mut checker = crate::model::Rgba8Image {
+            width: 2,
+            height: 2,
+            pixels: vec![[255; 4]; 4],
+        };
+        checker.pixels[1][3] = 0;
+        let leaf_mask = [Some(crate::trace::AlphaMask::from_rgba8(&checker))];
+        let build = |m: &Mesh, masks: &[Option<crate::trace::AlphaMask>]| {
+            Arc::new(ModelBvh::build(m, masks, BuildPreset::Fast).unwrap())
+        };
+        let models = vec![
+            build(&house, &[]),
+            build(&open, &[]),
+            build(&shed, &[]),
+            build(&canopy, &[]),
+            build(&leaves, &leaf_mask),
+        ];
+        let at = |model, t: [f32; 3], r| InstanceTransform {
+            model,
+            translation: t,
+            scale: 1.0,
+            rotation_deg: r,
+        };
+        let s = SceneBvh::build(
+            models,
+            vec![
+                at(0, [0.0, 0.0, 0.0], 30.0),  // 0: closed house
+                at(0, [0.5, 0.3, 0.0], 200.0), // 1: a second house overlapping it
+                at(1, [10.0, 0.0, 0.0], 0.0),  // 2: open at the bottom
+                at(2, [20.0, 0.0, 0.0], 0.0),  // 3: shed
+                at(3, [30.0, 0.0, 0.0], 0.0),  // 4: canopy (spans x ±0.5, y ±0.5, z 0..2.3)
+                at(0, [40.0, 0.0, 0.0], 0.0),  // 5: a house alone
+                at(4, [50.0, 0.0, 0.0], 0.0),  // 6: leaf cards facing up
+            ],
+        )
+        .unwrap();
+        let p = |x, y, z| Vec3A::new(x, y, z);
+        // Every ray from inside a closed house meets its back faces.
+        assert_eq!(s.faces_seen(0, p(0.2, 0.1, 1.25)), (ENCLOSURE_RAYS, 0));
+        // Inside both overlapping houses: each encloses the other's probe, not its own.
+        assert_eq!(s.enclosing(p(0.2, 0.1, 1.25), 0), vec![1]);
+        assert_eq!(s.enclosing(p(0.2, 0.1, 1.25), 1), vec![0]);
+        assert_eq!(s.enclosing(p(0.2, 0.1, 1.25), 99), vec![0, 1]);
+        // A post's probe (1.5 m up) inside the house open at the bottom, low and high.
+        assert_eq!(s.enclosing(p(10.8, 0.5, 1.5), 99), vec![2]);
+        assert_eq!(s.enclosing(p(9.0, -0.5, 0.3), 99), vec![2]);
+        // Inside the shed's box, under its roof, but open to two sides: not enclosed.
+        assert_eq!(s.instances_containing(p(20.5, 0.0, 1.0)), vec![3]);
+        assert!(s.enclosing(p(20.5, 0.0, 1.0), 99).is_empty());
+        // Among the canopies' cards: not enclosed.
+        for z in [0.5, 1.0, 1.5] {
+            for (k, x) in [(4, 30.3), (6, 50.3)] {
+                assert_eq!(s.instances_containing(p(x, 0.3, z)), vec![k]);
+                assert!(s.enclosing(p(x, 0.3, z), 99).is_empty(), "{k} {z}");
+            }
+        }
+        // Beside, above and under the lone house: not enclosed.
+        for q in [p(41.6, 0.0, 1.0), p(40.0, 0.0, 2.6), p(40.0, 0.0, -0.1)] {
+            assert!(s.enclosing(q, 99).is_empty(), "{q}");
+        }
+        assert_eq!(s.enclosing(p(40.0, 0.0, 1.0), 99), vec![5]);
+        assert!(s.enclosing(p(40.0, 0.0, 1.0), 5).is_empty());
+        // One instance at a time (the env maps' inverse relation) answers as the whole query.
+        let mut rng = Rng::hashed(41);
+        for _ in 0..400 {
+            let q = p(
+                rng.f32() * 56.0 - 3.0,
+                rng.f32() * 4.0 - 2.0,
+                rng.f32() * 3.0,
+            );
+            let all = s.enclosing(q, 99);
+            for k in 0..s.instances().len() as u32 {
+                assert_eq!(s.instance_encloses(k, q), all.contains(&k), "{k} {q}");
+            }
+        }
+    }
+
+    /// The top level's point query against a loop over every instance's world box.
+    #[test]
+    fn instances_containing_equals_a_loop_over_the_boxes() {
+        let (s, _) = scene();
+        let mut rng = Rng::hashed(31);
+        let mut found = 0;
+        for _ in 0..3000 {
+            let q = Vec3A::new(
+                rng.f32() * 12.0 - 1.0,
+                rng.f32() * 12.0 - 1.0,
+                rng.f32() * 5.0 - 0.5,
+            );
+            let want: Vec<u32> = (0..s.instances().len() as u32)
+                .filter(|&k| {
+                    let b = world_box(
+                        &s.models[s.instances[k as usize].model as usize],
+                        &s.instances[k as usize],
+                    );
+                    let (lo, hi) = (Vec3A::from(b.min.to_array()), Vec3A::from(b.max.to_array()));
+                    q.cmpge(lo).all() && q.cmple(hi).all()
+                })
+                .collect();
+            assert_eq!(s.instances_containing(q), want, "{q}");
+            found += want.len();
+        }
+        assert!(found > 500, "{found}");
     }
 
     #[test]
