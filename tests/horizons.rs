@@ -637,12 +637,23 @@ fn the_stage_section_written_band_by_band_holds_the_whole_maps_texels() {
         for (k, (e, d)) in texels.iter().zip(&direct).enumerate() {
             let want_e = [e[0], e[1], e[2], 1.0];
             let want_i = [0, 1, 2, 3].map(|c| if c == 3 { 1.0 } else { (e[c] - d[c]).max(0.0) });
-            assert_eq!(irradiance[k].map(f32::to_bits), want_e.map(f32::to_bits), "texel {k}");
-            assert_eq!(indirect[k].map(f32::to_bits), want_i.map(f32::to_bits), "texel {k}");
+            assert_eq!(
+                irradiance[k].map(f32::to_bits),
+                want_e.map(f32::to_bits),
+                "texel {k}"
+            );
+            assert_eq!(
+                indirect[k].map(f32::to_bits),
+                want_i.map(f32::to_bits),
+                "texel {k}"
+            );
             lit += (d[0] > 0.0) as usize;
         }
         // Not a map of zeros: the fixture's sun lights most texels.
-        assert!(lit > 65 * 65 / 2, "step {step}: {lit} texels lit by the sun");
+        assert!(
+            lit > 65 * 65 / 2,
+            "step {step}: {lit} texels lit by the sun"
+        );
     }
 }
 

@@ -444,13 +444,15 @@ fn horizon_rows_into(
             (p, n, (j * w + i) as u64, env)
         };
         let Some(lattice) = &coarse else {
-            sink((0..hz.len())
-                .into_par_iter()
-                .map(|k| {
-                    let (p, n, texel, env) = surface(k);
-                    texel_horizon_parts(&rays, &env, p, n, texel, opts)
-                })
-                .collect());
+            sink(
+                (0..hz.len())
+                    .into_par_iter()
+                    .map(|k| {
+                        let (p, n, texel, env) = surface(k);
+                        texel_horizon_parts(&rays, &env, p, n, texel, opts)
+                    })
+                    .collect(),
+            );
             continue;
         };
         // The correction of the traced texels of the band's traced rows.
