@@ -995,9 +995,10 @@ pub(crate) fn lightmap_sections(
 /// registered `lightmap` unit.
 ///
 /// The horizon estimator without a filter (the default) writes each band's texels straight into
-/// the section's two arrays, so the map is never held beside them: at 4097² that spares
-/// 16.8 M × 24 bytes (403 MB) of the process's peak (issue 37). The bytes are those of
-/// [`terrain_sections_of`] over [`bake_terrain_lightmap_parts`].
+/// the section's two arrays, so the map (16.8 M × 24 bytes, 403 MB at 4097²) is never held
+/// beside them: the default bake's peak at 200,000 instances fell from 2.51 to 2.27 GB (issue 37,
+/// docs/PERFORMANCE.md). The bytes are those of [`terrain_sections_of`] over
+/// [`bake_terrain_lightmap_parts`].
 pub fn terrain_sections(
     scene: &TraceScene,
     light: &BakeLight,
