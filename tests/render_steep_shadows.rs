@@ -1,17 +1,19 @@
 //! A steep surface keeps the shadow of an occluder just above it (issue 35: the generated over
 //! view's trunks read 1.089 of the path tracer's direct term; docs/VALIDATION.md). A wall 8 m
-//! wide and 4 m high with an awning 0.5 m deep along its top stands on a terrain 800 m wide,
-//! under one shadow map over the whole scene (texels of about 0.2 m), the sun 80° off the
-//! wall's normal and 44° high: the awning's shadow covers the wall's upper half, its occluding
-//! edge 0 to 2.9 m from the wall along the sun. The view sees only the wall. The oracle is the
-//! CPU reference renderer's exact shadow rays over the same pixels (the negative control: the
-//! same image without shadows).
+//! wide and 4 m high with an awning 0.5 m deep along its top stands on a terrain 200 m wide,
+//! under one shadow map over the whole scene (texels of 6 cm), the sun 80° off the wall's
+//! normal and 44° high: the awning's shadow covers the wall's upper half, its occluding edge 0
+//! to 2.9 m from the wall along the sun. The view sees only the wall. The oracle is the CPU
+//! reference renderer's exact shadow rays over the same pixels (the negative control: the same
+//! image without shadows).
 //!
 //! Before the fix the PCF compared every tap against the lookup point's depth less a
-//! slope-scaled bias of (1 + 2 tan θ) texels, 12.3 texels (2.5 m) here, so the awning's shadow
-//! lay mostly beyond its reach: the GPU's wall read 1.72 of the reference's direct radiance
-//! (lavapipe). Each texel is now compared against the receiver's own plane at the texel's
-//! centre (receiver-plane depth), with a bias of one texel: 1.00.
+//! slope-scaled bias of (1 + 2 tan θ) texels, 12.3 texels (0.74 m) here, so the awning's shadow
+//! was lost where the awning lay within that reach: the wall's top 0.5 m, in full shadow, read
+//! 0.42 of its unshadowed radiance, and the whole wall 1.189 of the reference's (lavapipe).
+//! Each texel is now compared against the receiver's own plane at the texel's centre
+//! (receiver-plane depth) with a bias of one texel: 0.018 and 1.074 (the rest is the PCF's
+//! penumbra, stretched 5.8× on the grazing wall), the same on lavapipe and GL.
 
 use bake::model::{Instance, Instances, Material, Mesh, Terrain};
 use bake::pack::{Pack, PackWriter};
@@ -52,7 +54,8 @@ fn wall_and_awning() -> Mesh {
         let b = m.positions.len() as u32;
         m.positions.extend(p);
         m.normals.extend([n; 4]);
-        m.uvs.extend([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]);
+        m.uvs
+            .extend([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]);
         m.indices.extend([[b, b + 1, b + 2], [b, b + 2, b + 3]]);
         m.triangle_materials.extend([0, 0]);
     }
