@@ -1,6 +1,9 @@
 //! The sun's shadow maps: cascaded orthographic depth views along the sun direction, rendered
-//! with the alpha test, read with 3×3 percentage-closer filtering (each tap a bilinear 2×2
-//! comparison) in shaders/direct.wgsl.
+//! with the alpha test, read with 3×3 percentage-closer filtering (each tap a bilinear 2×2, so
+//! 4×4 texels with the taps' weights summed) in shaders/direct.wgsl, each texel compared on its
+//! own against the receiver's plane at the texel's centre (receiver-plane depth) less the depth
+//! bias: a slope-scaled bias in its place let the occluders just above a steep receiver through
+//! (docs/VALIDATION.md, issue 35).
 //!
 //! Cascades (the default, [`DEFAULT_CASCADES`]): the camera's view depth from its near plane to
 //! the farthest corner of the scene's bounds is cut into slices by the practical split scheme
@@ -42,7 +45,8 @@ pub const SPLIT_LAMBDA: f32 = 0.9;
 pub const SPLIT_NEAR_FRACTION: f32 = 1e-3;
 /// Offset of the looked-up point along the normal (towards the sun), in shadow-map texels.
 pub const NORMAL_OFFSET_TEXELS: f32 = 0.5;
-/// Depth bias, in shadow-map texels (world metres = this × texel size).
+/// Depth bias, in shadow-map texels (world metres = this × texel size), below the receiver's
+/// plane at each texel's centre.
 pub const DEPTH_BIAS_TEXELS: f32 = 1.0;
 
 /// What shaders/direct.wgsl reads (group 2, binding 0): repr(C), Pod, 352 bytes.

@@ -150,9 +150,16 @@ fn shadow_cascade(world: vec3<f32>) -> i32 {
     return i;
 }
 
-// The fraction of the sun seen at `world` (1 without a shadow map). The point is pushed along
-// the normal towards the sun's side before the lookup, and compared with a small depth bias,
-// both in texels of the receiver's cascade.
+// The fraction of the sun seen at `world` (1 without a shadow map). The point is pushed half a
+// texel along the normal towards the sun's side, and the 3×3 PCF's texels (each tap a bilinear
+// 2×2, so 4×4 texels with the taps' weights summed) are compared one by one against the
+// receiver's own plane at each texel's centre (receiver-plane depth, Isidoro 2006), less a
+// depth bias of one texel of the receiver's cascade. A single reference depth for the whole
+// filter needed a slope-scaled bias of 2 tan θ texels (up to 17) to keep a plane tilted by θ
+// from the light out of its own shadow, and that bias let every occluder that near through:
+// a trunk's sides, steep to the sun, were lit under the leaves just above them (the generated
+// over view's trunks 1.09 of the path tracer's direct term), while a lit leaf's filter still
+// reached neighbouring leaves beside it (docs/VALIDATION.md).
 fn sun_visibility(world: vec3<f32>, n: vec3<f32>) -> f32 {
     // `--soft-shadows`: the line-space visibility replaces the shadow map.
     if (globals.sun_direction.w > 0.5) {
@@ -163,24 +170,55 @@ fn sun_visibility(world: vec3<f32>, n: vec3<f32>) -> f32 {
     }
     let k = shadow_cascade(world);
     let cp = shadow.cascade[k];
+    let m = shadow.light_view_proj[k];
     let cos_s = dot(n, normalize(globals.sun_direction.xyz));
     let side = select(-1.0, 1.0, cos_s >= 0.0);
     let p = world + n * (side * cp.y);
-    let c = shadow.light_view_proj[k] * vec4<f32>(p, 1.0);
-    let uv = vec2<f32>(c.x * 0.5 + 0.5, 0.5 - c.y * 0.5);
-    // Slope-scaled: across the filter's reach (2 texels) a surface tilted by θ from the light
-    // changes depth by 2 tan θ texels.
-    let a = max(abs(cos_s), 1e-3);
-    let tan_s = min(sqrt(max(1.0 - a * a, 0.0)) / a, 8.0);
-    let depth = c.z - cp.z * (1.0 + 2.0 * tan_s);
+    let c = m * vec4<f32>(p, 1.0);
+    let size = f32(textureDimensions(shadow_map).x);
+    // The lookup point in texel units (texel centres at whole numbers).
+    let f = vec2<f32>(c.x * 0.5 + 0.5, 0.5 - c.y * 0.5) * size - 0.5;
+    let g = receiver_plane_gradient(m, n, size, cp.z);
+    let base = floor(f);
+    let fr = f - base;
+    let wx = array<f32, 4>(1.0 - fr.x, 1.0, 1.0, fr.x);
+    let wy = array<f32, 4>(1.0 - fr.y, 1.0, 1.0, fr.y);
+    // Each texel's own comparison: the bilinear comparison at its centre (weight 1 there;
+    // `textureLoad` of a depth texture has no GLSL form), clamped to the map's edge.
     var sum = 0.0;
-    for (var dy = -1; dy <= 1; dy = dy + 1) {
-        for (var dx = -1; dx <= 1; dx = dx + 1) {
-            let o = vec2<f32>(f32(dx), f32(dy)) * cp.x;
-            sum = sum + textureSampleCompareLevel(shadow_map, shadow_sampler, uv + o, k, depth);
+    for (var j = 0; j < 4; j = j + 1) {
+        for (var i = 0; i < 4; i = i + 1) {
+            let t = base + vec2<f32>(f32(i - 1), f32(j - 1));
+            let reference = c.z + dot(g, t - f) - cp.z;
+            let lit = textureSampleCompareLevel(shadow_map, shadow_sampler, (t + 0.5) / size, k, reference);
+            sum = sum + wx[i] * wy[j] * lit;
         }
     }
     return sum / 9.0;
+}
+
+// The light depth's change per shadow-map texel (x right, y down) across the plane of unit
+// normal `n` under the light view `m`, at most 8 depth-bias units (`bias`: one texel's depth)
+// per texel: a plane nearly along the light.
+fn receiver_plane_gradient(m: mat4x4<f32>, n: vec3<f32>, size: f32, bias: f32) -> vec2<f32> {
+    let t1 = any_tangent(n);
+    let t2 = cross(n, t1);
+    let a1 = (m * vec4<f32>(t1, 0.0)).xyz;
+    let a2 = (m * vec4<f32>(t2, 0.0)).xyz;
+    // Along t1 and t2: texels moved (x, y) and depth.
+    let u1 = vec2<f32>(a1.x, -a1.y) * (0.5 * size);
+    let u2 = vec2<f32>(a2.x, -a2.y) * (0.5 * size);
+    let det = u1.x * u2.y - u2.x * u1.y;
+    let cap = 8.0 * bias;
+    if (abs(det) < 1e-12) {
+        return vec2<f32>(0.0);
+    }
+    let g = vec2<f32>(a1.z * u2.y - a2.z * u1.y, a2.z * u1.x - a1.z * u2.x) / det;
+    let l = length(g);
+    if (l > cap) {
+        return g * (cap / l);
+    }
+    return g;
 }
 
 // The sun's unit direction and irradiance; zero irradiance when there is no sun.
