@@ -371,35 +371,23 @@ fn far_cards_cast_the_shadow_of_their_level_0_coverage() {
     // The shadow of a card at height z falls at y = z + 2 (light along (0, 1, −1)).
     let (cx, cy) = (c[0], c[2] + 2.0);
     let opts = RenderOptions {
-        width: 96,
-        height: 72,
-        eye: Some([cx, cy, 40.0]),
-        target: Some([cx, cy + 0.01, -2.0]),
-        fov_y_deg: 24.0,
         exposure: Some(EXPOSURE),
-        lighting: Some(Lighting {
-            sun_direction: glam::Vec3::new(0.0, -1.0, 1.0).normalize().to_array(),
-            sun_irradiance: [1.0; 3],
-            ambient: [0.0; 3],
-            sun_solid_angle: 0.0,
-        }),
-        terms: bake::render::Terms::Direct,
-        shadow_cascades: 1,
-        linear: true,
-        ..RenderOptions::default()
+        ..common::sun_only_view(
+            [cx, cy, 40.0],
+            [cx, cy + 0.01, -2.0],
+            24.0,
+            glam::Vec3::new(0.0, -1.0, 1.0).normalize().to_array(),
+        )
     };
-    let gpu = render_pack(&pack, &opts).unwrap();
-    let texel = gpu.stats.shadow_texel_near_m.unwrap();
+    let shots = common::against_exact_shadows(&pack, &opts);
+    let texel = shots.texel_m;
     assert!(texel > 0.3, "the map's texel {texel} m");
-    let mean = |px: &[[f32; 3]]| px.iter().map(|p| p[1] as f64).sum::<f64>() / px.len() as f64;
-    let g = mean(&gpu.linear.unwrap().pixels);
-    let scene = bake::render::scene::load_scene(&pack).unwrap();
-    let view = bake::render::resolve_view(&pack, &scene, &opts);
-    let mut r = bake::render::reference::Reference::build(&scene).unwrap();
-    let size = (opts.width, opts.height);
-    let cpu = mean(&r.radiance_image_sampled(&view, size, opts.terms, 4));
-    r.shadows = false;
-    let lit = mean(&r.radiance_image_sampled(&view, size, opts.terms, 4));
+    let mean = common::mean_green;
+    let (g, cpu, lit) = (
+        mean(&shots.gpu),
+        mean(&shots.exact),
+        mean(&shots.unshadowed),
+    );
     eprintln!("ground: GPU {g:.4}, CPU reference {cpu:.4}, unshadowed {lit:.4}; texel {texel} m");
     assert!(
         cpu < 0.85 * lit,

@@ -15,9 +15,10 @@
 //! (receiver-plane depth) with a bias of one texel: 0.018 and 1.074 (the rest is the PCF's
 //! penumbra, stretched 5.8× on the grazing wall), the same on lavapipe and GL.
 
-use bake::model::{Instance, Instances, Material, Mesh, Terrain};
-use bake::pack::{Pack, PackWriter};
-use bake::render::{Lighting, RenderOptions, render_pack};
+mod common;
+
+use bake::model::{Material, Mesh};
+use bake::pack::Pack;
 
 /// The wall (x ∈ [−4, 4], y = 0, z ∈ [0, 4], facing −y) and the awning along its top
 /// (x ∈ [−4, 8], y ∈ [−0.5, 0], z = 4, facing up).
@@ -63,41 +64,13 @@ fn wall_and_awning() -> Mesh {
 }
 
 fn pack() -> Pack {
-    let mut w = PackWriter::new();
-    let extent = 200.0;
-    let t = Terrain {
-        width: 9,
-        height: 9,
-        heights: vec![0.0; 81],
-        origin: [-extent / 2.0, -extent / 2.0],
-        extent: [extent, extent],
-        color: None,
-    };
-    w.insert(bake::terrain::source_section::to_section(
-        "terrain", "test", &t, None,
-    ));
-    let name = bake::mesh::section::mesh_section_name("wall");
-    w.insert(bake::mesh::section::to_section(
-        &name,
-        "test",
+    let w = common::one_model_on_flat_terrain(
+        "wall",
         &wall_and_awning(),
-        &[],
-    ));
-    let inst = Instances {
-        models: vec!["wall".into()],
-        items: vec![Instance {
-            model: 0,
-            position: [0.0, 0.0, 0.0],
-            scale: 1.0,
-            rotation_deg: 0.0,
-            layer: 0,
-        }],
-    };
-    w.insert(bake::ingest::instances_section::to_section(
-        "instances",
-        &inst,
-        vec![name],
-    ));
+        [0.0; 3],
+        [-100.0, -100.0],
+        200.0,
+    );
     Pack::from_bytes(&w.to_bytes().unwrap(), "steep.bake").unwrap()
 }
 
@@ -106,41 +79,20 @@ fn a_steep_wall_keeps_the_shadow_of_the_awning_just_above_it() {
     let pack = pack();
     // 80° off the wall's normal (0, −1, 0), 44° high, along +x.
     let sun = glam::Vec3::new(0.69, -0.174, 0.70).normalize();
-    let opts = RenderOptions {
-        width: 96,
-        height: 72,
-        eye: Some([0.0, -12.0, 2.0]),
-        target: Some([0.0, 0.0, 2.0]),
-        fov_y_deg: 16.0,
-        lighting: Some(Lighting {
-            sun_direction: sun.to_array(),
-            sun_irradiance: [1.0; 3],
-            ambient: [0.0; 3],
-            sun_solid_angle: 0.0,
-        }),
-        terms: bake::render::Terms::Direct,
-        shadow_cascades: 1,
-        linear: true,
-        ..RenderOptions::default()
-    };
-    let gpu = render_pack(&pack, &opts).unwrap();
-    let texel = gpu.stats.shadow_texel_near_m.unwrap();
+    let opts = common::sun_only_view([0.0, -12.0, 2.0], [0.0, 0.0, 2.0], 16.0, sun.to_array());
+    let shots = common::against_exact_shadows(&pack, &opts);
+    let texel = shots.texel_m;
     assert!(texel > 0.05, "the map's texel {texel} m");
-    let mean = |px: &[[f32; 3]]| px.iter().map(|p| p[1] as f64).sum::<f64>() / px.len() as f64;
-    let gl = gpu.linear.unwrap();
-    let g = mean(&gl.pixels);
-    let scene = bake::render::scene::load_scene(&pack).unwrap();
-    let view = bake::render::resolve_view(&pack, &scene, &opts);
-    let mut r = bake::render::reference::Reference::build(&scene).unwrap();
-    let size = (opts.width, opts.height);
-    let ci = r.radiance_image_sampled(&view, size, opts.terms, 4);
-    let cpu = mean(&ci);
-    r.shadows = false;
-    let lit = mean(&r.radiance_image_sampled(&view, size, opts.terms, 4));
+    let mean = common::mean_green;
+    let (g, cpu, lit) = (
+        mean(&shots.gpu),
+        mean(&shots.exact),
+        mean(&shots.unshadowed),
+    );
     // The rows of the wall's top 0.5 m (the image spans 3.4 m of it in 72 rows), where the
     // awning lies within 0.7 m of the wall along the sun: in full shadow.
     let top = 10 * opts.width as usize;
-    let (g_top, cpu_top) = (mean(&gl.pixels[..top]), mean(&ci[..top]));
+    let (g_top, cpu_top) = (mean(&shots.gpu[..top]), mean(&shots.exact[..top]));
     eprintln!(
         "wall: GPU {g:.5}, CPU reference {cpu:.5}, unshadowed {lit:.5}; its top 0.5 m: GPU \
          {g_top:.5}, CPU {cpu_top:.5}; texel {texel} m"

@@ -277,33 +277,34 @@ pub fn plate() -> bake::model::Mesh {
     }
 }
 
-/// Flat terrain over [0, 20]² at z = 0, the plate at (10, 10, 3) casting a shadow, and (with
-/// `linespace`) the N-tree of both for the soft shadows.
-pub fn plate_pack(linespace: bool) -> bake::pack::Pack {
+/// A flat 9×9 terrain at z = 0 over `origin` to `origin + extent` and one instance of `mesh`
+/// (model `name`) at `position`, unrotated, at scale 1.
+pub fn one_model_on_flat_terrain(
+    name: &str,
+    mesh: &bake::model::Mesh,
+    position: [f32; 3],
+    origin: [f32; 2],
+    extent: f32,
+) -> bake::pack::PackWriter {
     let mut w = bake::pack::PackWriter::new();
     let t = bake::model::Terrain {
         width: 9,
         height: 9,
         heights: vec![0.0; 81],
-        origin: [0.0, 0.0],
-        extent: [20.0, 20.0],
+        origin,
+        extent: [extent, extent],
         color: None,
     };
     w.insert(bake::terrain::source_section::to_section(
         "terrain", "test", &t, None,
     ));
-    let name = bake::mesh::section::mesh_section_name("plate");
-    w.insert(bake::mesh::section::to_section(
-        &name,
-        "test",
-        &plate(),
-        &[],
-    ));
+    let section = bake::mesh::section::mesh_section_name(name);
+    w.insert(bake::mesh::section::to_section(&section, "test", mesh, &[]));
     let inst = bake::model::Instances {
-        models: vec!["plate".into()],
+        models: vec![name.into()],
         items: vec![bake::model::Instance {
             model: 0,
-            position: [10.0, 10.0, 3.0],
+            position,
             scale: 1.0,
             rotation_deg: 0.0,
             layer: 0,
@@ -312,8 +313,78 @@ pub fn plate_pack(linespace: bool) -> bake::pack::Pack {
     w.insert(bake::ingest::instances_section::to_section(
         "instances",
         &inst,
-        vec![name],
+        vec![section],
     ));
+    w
+}
+
+/// The mean of linear pixels' green channel.
+pub fn mean_green(px: &[[f32; 3]]) -> f64 {
+    px.iter().map(|p| p[1] as f64).sum::<f64>() / px.len() as f64
+}
+
+/// A 96×72 view of the sun's direct term alone (white sun, no sky, one shadow cascade), in linear
+/// radiance: what `against_exact_shadows` compares.
+pub fn sun_only_view(
+    eye: [f32; 3],
+    target: [f32; 3],
+    fov_y_deg: f32,
+    sun_direction: [f32; 3],
+) -> bake::render::RenderOptions {
+    bake::render::RenderOptions {
+        width: 96,
+        height: 72,
+        eye: Some(eye),
+        target: Some(target),
+        fov_y_deg,
+        lighting: Some(bake::render::Lighting {
+            sun_direction,
+            sun_irradiance: [1.0; 3],
+            ambient: [0.0; 3],
+            sun_solid_angle: 0.0,
+        }),
+        terms: bake::render::Terms::Direct,
+        shadow_cascades: 1,
+        linear: true,
+        ..bake::render::RenderOptions::default()
+    }
+}
+
+/// One view drawn by the GPU (`opts.linear` must be set) and by the CPU reference renderer (4
+/// samples per pixel) with and without its exact shadow rays: the oracle of the shadow maps.
+pub struct AgainstExactShadows {
+    pub gpu: Vec<[f32; 3]>,
+    pub exact: Vec<[f32; 3]>,
+    pub unshadowed: Vec<[f32; 3]>,
+    /// The nearest cascade's texel in metres.
+    pub texel_m: f32,
+}
+
+pub fn against_exact_shadows(
+    pack: &bake::pack::Pack,
+    opts: &bake::render::RenderOptions,
+) -> AgainstExactShadows {
+    let gpu = bake::render::render_pack(pack, opts).unwrap();
+    let texel_m = gpu.stats.shadow_texel_near_m.unwrap();
+    let scene = bake::render::scene::load_scene(pack).unwrap();
+    let view = bake::render::resolve_view(pack, &scene, opts);
+    let mut r = bake::render::reference::Reference::build(&scene).unwrap();
+    let size = (opts.width, opts.height);
+    let exact = r.radiance_image_sampled(&view, size, opts.terms, 4);
+    r.shadows = false;
+    let unshadowed = r.radiance_image_sampled(&view, size, opts.terms, 4);
+    AgainstExactShadows {
+        gpu: gpu.linear.unwrap().pixels,
+        exact,
+        unshadowed,
+        texel_m,
+    }
+}
+
+/// Flat terrain over [0, 20]² at z = 0, the plate at (10, 10, 3) casting a shadow, and (with
+/// `linespace`) the N-tree of both for the soft shadows.
+pub fn plate_pack(linespace: bool) -> bake::pack::Pack {
+    let mut w = one_model_on_flat_terrain("plate", &plate(), [10.0, 10.0, 3.0], [0.0, 0.0], 20.0);
     if linespace {
         let first = bake::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "scene.bake").unwrap();
         let geo = bake::voxel::geometry::pack_geometry(&first).unwrap();
