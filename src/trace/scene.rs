@@ -687,52 +687,9 @@ mod tests {
         assert!(blocked > 300 && open > 300, "{blocked} {open}");
     }
 
-    /// An axis-aligned box from `lo` to `hi` with outward-wound faces and outward vertex
-    /// normals, four vertices a face; `faces` picks them: −z, +z, −y, +y, −x, +x.
-    fn box_faces(lo: [f32; 3], hi: [f32; 3], faces: [bool; 6]) -> Mesh {
-        let mut m = Mesh {
-            materials: vec![Material::default()],
-            ..Mesh::default()
-        };
-        for (f, keep) in faces.into_iter().enumerate() {
-            if !keep {
-                continue;
-            }
-            let (axis, positive) = ([2, 2, 1, 1, 0, 0][f], f % 2 == 1);
-            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-            let mut n = [0.0f32; 3];
-            n[axis] = if positive { 1.0 } else { -1.0 };
-            let corner = |a: bool, b: bool| {
-                let mut p = [0.0f32; 3];
-                p[axis] = if positive { hi[axis] } else { lo[axis] };
-                p[u] = if a { hi[u] } else { lo[u] };
-                p[v] = if b { hi[v] } else { lo[v] };
-                p
-            };
-            let base = m.positions.len() as u32;
-            // (u, v, n) is right-handed: counter-clockwise about +n seen from outside.
-            let quad = [(false, false), (true, false), (true, true), (false, true)];
-            for (a, b) in quad {
-                m.positions.push(corner(a, b));
-                m.normals.push(n);
-                m.uvs.push([0.0, 0.0]);
-            }
-            let tris = if positive {
-                [[0, 1, 2], [0, 2, 3]]
-            } else {
-                [[0, 2, 1], [0, 3, 2]]
-            };
-            for t in tris {
-                m.indices.push(t.map(|k| base + k));
-                m.triangle_materials.push(0);
-            }
-        }
-        m
-    }
-
     #[test]
     fn box_faces_are_wound_outwards() {
-        let m = box_faces([-1.0; 3], [1.0; 3], [true; 6]);
+        let m = crate::fixtures::box_faces([-1.0; 3], [1.0; 3], [true; 6]);
         for t in &m.indices {
             let [a, b, c] = t.map(|k| Vec3A::from(m.positions[k as usize]));
             let n = (b - a).cross(c - a).normalize();
@@ -746,13 +703,13 @@ mod tests {
     /// on two sides), a canopy of two-sided cards (random triangles, each wound either way).
     #[test]
     fn enclosing_finds_the_instances_around_a_point_and_no_others() {
-        let house = box_faces([-1.5, -1.0, 0.0], [1.5, 1.0, 2.5], [true; 6]);
-        let open = box_faces(
+        let house = crate::fixtures::box_faces([-1.5, -1.0, 0.0], [1.5, 1.0, 2.5], [true; 6]);
+        let open = crate::fixtures::box_faces(
             [-1.5, -1.0, 0.0],
             [1.5, 1.0, 2.5],
             [false, true, true, true, true, true],
         );
-        let shed = box_faces(
+        let shed = crate::fixtures::box_faces(
             [-1.5, -1.0, 0.0],
             [1.5, 1.0, 2.5],
             [false, true, true, false, true, false],

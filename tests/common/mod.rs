@@ -411,35 +411,5 @@ pub fn plate_pack(linespace: bool) -> bake::pack::Pack {
 
 /// A closed box from `lo` to `hi` (twelve outward-wound triangles, outward vertex normals).
 pub fn closed_box(lo: [f32; 3], hi: [f32; 3]) -> bake::model::Mesh {
-    let mut m = bake::model::Mesh {
-        materials: vec![bake::model::Material::default()],
-        ..Default::default()
-    };
-    for axis in 0..3 {
-        for positive in [false, true] {
-            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-            let mut n = [0.0f32; 3];
-            n[axis] = if positive { 1.0 } else { -1.0 };
-            let base = m.positions.len() as u32;
-            for (a, b) in [(false, false), (true, false), (true, true), (false, true)] {
-                let mut p = [0.0f32; 3];
-                p[axis] = if positive { hi[axis] } else { lo[axis] };
-                p[u] = if a { hi[u] } else { lo[u] };
-                p[v] = if b { hi[v] } else { lo[v] };
-                m.positions.push(p);
-                m.normals.push(n);
-                m.uvs.push([0.0, 0.0]);
-            }
-            let tris = if positive {
-                [[0, 1, 2], [0, 2, 3]]
-            } else {
-                [[0, 2, 1], [0, 3, 2]]
-            };
-            for t in tris {
-                m.indices.push(t.map(|k| base + k));
-                m.triangle_materials.push(0);
-            }
-        }
-    }
-    m
+    bake::fixtures::box_faces(lo, hi, [true; 6])
 }
