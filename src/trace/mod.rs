@@ -6,6 +6,7 @@
 //! Every query here is pure and single-threaded; batch helpers run queries over rayon and
 //! collect in input order, so results never depend on the thread count.
 
+pub mod beam;
 pub mod bvh;
 #[cfg(feature = "embree")]
 pub mod embree;
@@ -14,6 +15,7 @@ pub mod materials;
 pub mod pack_scene;
 pub mod scene;
 
+pub use beam::SunBeam;
 pub use bvh::{AlphaMask, BuildPreset, ModelBvh, SurfacePoint};
 #[cfg(feature = "embree")]
 pub use embree::EmbreeSceneBvh;
