@@ -260,8 +260,14 @@ impl<'a> SunBeam<'a> {
             // points differ from these by rounding only).
             let t0 = (r.tmin as f64).max((self.z[0] - o[2]) / d[2]);
             let t1 = (r.tmax as f64).min((self.z[1] - o[2]) / d[2]);
+            if !(t0.is_finite() && t1.is_finite()) {
+                // An infinite tmin or a tmax of −∞: no segment to bound.
+                blocked[i] = self.scene.any_hit_excluding(r, &skip);
+                continue;
+            }
             let slack = 1e-6 * t0.abs().max(t1.abs()) + 1e-9;
-            if !(t0 <= t1 + slack) {
+            if t0 > t1 + slack {
+                // The segment ends below the lowest box or starts above the highest.
                 continue;
             }
             open[i] = true;
@@ -334,8 +340,9 @@ fn segment_meets_box(r: &Ray, e: &Entry) -> bool {
         t0 = t0.max(ta);
         t1 = t1.min(tb);
     }
+    // NaN (an infinite bound times a zero offset) reads as meeting the box: conservative.
     let slack = 1e-6 * t0.abs().max(t1.abs()) + 1e-9;
-    t0 <= t1 + slack
+    t0.partial_cmp(&(t1 + slack)) != Some(std::cmp::Ordering::Greater)
 }
 
 /// The uniform grid of a [`SunBeam`].
