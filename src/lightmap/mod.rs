@@ -836,10 +836,12 @@ fn instance_sun_visibility(
     let disc = Disc::new(s, samples, texel);
     let n = samples.max(1);
     let mut visible = 0;
-    let mut rays = [Ray::new(p, s, 0.0); 64];
-    let mut blocked = [false; 64];
-    for start in (0..n).step_by(64) {
-        let end = (start + 64).min(n);
+    // In chunks of 16 (the default count): a small stack array to fill per texel.
+    const CHUNK: u32 = 16;
+    let mut rays = [Ray::new(p, s, 0.0); CHUNK as usize];
+    let mut blocked = [false; CHUNK as usize];
+    for start in (0..n).step_by(CHUNK as usize) {
+        let end = (start + CHUNK).min(n);
         let mut traced = 0;
         for k in start..end {
             match reach.instance_ray(p, disc.direction(k)) {

@@ -42,6 +42,43 @@ struct Entry {
     hi: [f64; 3],
 }
 
+/// An instance as a grid cell lists it: its projected rectangle rounded outwards to f32 and
+/// the top of its box (rounded up), beside its number, so that a query reads the cell's list
+/// alone until an instance's rectangle overlaps its own.
+#[derive(Debug, Clone, Copy)]
+struct Item {
+    rect: [f32; 4],
+    top: f32,
+    instance: u32,
+}
+
+/// The f32 at or below `x`.
+fn down(x: f64) -> f32 {
+    let f = x as f32;
+    if f as f64 > x { f.next_down() } else { f }
+}
+
+/// The f32 at or above `x`.
+fn up(x: f64) -> f32 {
+    let f = x as f32;
+    if (f as f64) < x { f.next_up() } else { f }
+}
+
+/// A rectangle rounded outwards to f32.
+fn outwards(r: &[f64; 4]) -> [f32; 4] {
+    [down(r[0]), down(r[1]), up(r[2]), up(r[3])]
+}
+
+/// A ray of a query as the box tests read it: origin, inverse direction (∞ for a zero
+/// component, tested apart), its `t` range.
+#[derive(Debug, Clone, Copy, Default)]
+struct Segment {
+    o: [f64; 3],
+    d: [f64; 3],
+    inv: [f64; 3],
+    t: [f64; 2],
+}
+
 /// The model instances of a [`SceneBvh`] binned by their boxes' shadows along one direction:
 /// any-hit queries of rays near that direction among the instances only (see the module's text).
 #[derive(Debug)]
@@ -58,7 +95,7 @@ pub struct SunBeam<'a> {
     cells: [usize; 2],
     /// Cell c's instances are `items[starts[c]..starts[c + 1]]`, ascending.
     starts: Vec<u32>,
-    items: Vec<u32>,
+    items: Vec<Item>,
 }
 
 /// The padding of a coordinate of magnitude `m`: beyond f32 rounding of every value the query
@@ -164,7 +201,7 @@ impl<'a> SunBeam<'a> {
             let listed: usize = entries
                 .iter()
                 .map(|e| {
-                    let ([x0, y0], [x1, y1]) = grid.span(&e.rect);
+                    let ([x0, y0], [x1, y1]) = grid.span(&outwards(&e.rect));
                     (x1 - x0 + 1) * (y1 - y0 + 1)
                 })
                 .sum();
@@ -180,7 +217,7 @@ impl<'a> SunBeam<'a> {
         };
         let mut starts = vec![0u32; cells[0] * cells[1] + 1];
         for e in &entries {
-            let ([x0, y0], [x1, y1]) = grid.span(&e.rect);
+            let ([x0, y0], [x1, y1]) = grid.span(&outwards(&e.rect));
             for y in y0..=y1 {
                 for x in x0..=x1 {
                     starts[y * cells[0] + x + 1] += 1;
@@ -191,13 +228,23 @@ impl<'a> SunBeam<'a> {
             starts[c] += starts[c - 1];
         }
         let mut fill = starts.clone();
-        let mut items = vec![0u32; *starts.last().unwrap_or(&0) as usize];
+        let blank = Item {
+            rect: [0.0; 4],
+            top: 0.0,
+            instance: 0,
+        };
+        let mut items = vec![blank; *starts.last().unwrap_or(&0) as usize];
         for (k, e) in entries.iter().enumerate() {
-            let ([x0, y0], [x1, y1]) = grid.span(&e.rect);
+            let item = Item {
+                rect: outwards(&e.rect),
+                top: up(e.hi[2]),
+                instance: k as u32,
+            };
+            let ([x0, y0], [x1, y1]) = grid.span(&item.rect);
             for y in y0..=y1 {
                 for x in x0..=x1 {
                     let c = y * cells[0] + x;
-                    items[fill[c] as usize] = k as u32;
+                    items[fill[c] as usize] = item;
                     fill[c] += 1;
                 }
             }
@@ -245,8 +292,9 @@ impl<'a> SunBeam<'a> {
             f64::NEG_INFINITY,
         ];
         let mut zmin = f64::INFINITY;
-        // Which rays the candidates must decide.
+        // Which rays the candidates must decide, and those rays for the box tests.
         let mut open = [false; CHUNK];
+        let mut segments = [Segment::default(); CHUNK];
         for (i, r) in rays.iter().enumerate() {
             blocked[i] = false;
             let ok = r.origin.is_finite() && r.dir.is_finite() && !r.tmin.is_nan();
@@ -271,6 +319,12 @@ impl<'a> SunBeam<'a> {
                 continue;
             }
             open[i] = true;
+            segments[i] = Segment {
+                o,
+                d,
+                inv: d.map(|v| 1.0 / v),
+                t: [r.tmin as f64, r.tmax as f64],
+            };
             let p = [o[0] - self.shear[0] * o[2], o[1] - self.shear[1] * o[2]];
             let v = [d[0] - self.shear[0] * d[2], d[1] - self.shear[1] * d[2]];
             for t in [t0, t1] {
@@ -284,29 +338,27 @@ impl<'a> SunBeam<'a> {
         }
         let m = q.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let e = pad(m);
-        let q = [q[0] - e, q[1] - e, q[2] + e, q[3] + e];
-        let zmin = zmin - pad(zmin);
+        let q = outwards(&[q[0] - e, q[1] - e, q[2] + e, q[3] + e]);
+        let zmin = down(zmin - pad(zmin));
         let grid = self.grid();
         let ([x0, y0], [x1, y1]) = grid.span(&q);
         let mut left = open[..rays.len()].iter().filter(|&&o| o).count();
         for y in y0..=y1 {
             for x in x0..=x1 {
                 let c = y * self.cells[0] + x;
-                for &k in &self.items[self.starts[c] as usize..self.starts[c + 1] as usize] {
-                    let e = &self.entries[k as usize];
-                    let r = e.rect;
-                    if r[0] > q[2] || r[2] < q[0] || r[1] > q[3] || r[3] < q[1] || e.hi[2] < zmin {
+                for item in &self.items[self.starts[c] as usize..self.starts[c + 1] as usize] {
+                    let r = item.rect;
+                    if r[0] > q[2] || r[2] < q[0] || r[1] > q[3] || r[3] < q[1] || item.top < zmin {
                         continue;
                     }
                     // Each overlapping instance once: in the cell of the overlap's low corner.
-                    if grid.at([r[0].max(q[0]), r[1].max(q[1])]) != [x, y] {
+                    if grid.at([r[0].max(q[0]) as f64, r[1].max(q[1]) as f64]) != [x, y] {
                         continue;
                     }
+                    let k = item.instance;
+                    let e = &self.entries[k as usize];
                     for (i, ray) in rays.iter().enumerate() {
-                        if open[i]
-                            && segment_meets_box(ray, e)
-                            && self.scene.instance_any_hit(k, ray)
-                        {
+                        if open[i] && segments[i].meets(e) && self.scene.instance_any_hit(k, ray) {
                             open[i] = false;
                             blocked[i] = true;
                             left -= 1;
@@ -321,28 +373,29 @@ impl<'a> SunBeam<'a> {
     }
 }
 
-/// Whether the ray's segment meets the (padded) box, in f64 and conservatively: a direction
-/// component of zero tests the origin's coordinate against the slab.
-fn segment_meets_box(r: &Ray, e: &Entry) -> bool {
-    let o = r.origin.to_array();
-    let d = r.dir.to_array();
-    let (mut t0, mut t1) = (r.tmin as f64, r.tmax as f64);
-    for a in 0..3 {
-        let (o, d) = (o[a] as f64, d[a] as f64);
-        if d == 0.0 {
-            if o < e.lo[a] || o > e.hi[a] {
-                return false;
+impl Segment {
+    /// Whether the segment meets the (padded) box, in f64 and conservatively: a direction
+    /// component of zero tests the origin's coordinate against the slab.
+    #[inline]
+    fn meets(&self, e: &Entry) -> bool {
+        let [mut t0, mut t1] = self.t;
+        for a in 0..3 {
+            let o = self.o[a];
+            if self.d[a] == 0.0 {
+                if o < e.lo[a] || o > e.hi[a] {
+                    return false;
+                }
+                continue;
             }
-            continue;
+            let (ta, tb) = ((e.lo[a] - o) * self.inv[a], (e.hi[a] - o) * self.inv[a]);
+            let (ta, tb) = if ta <= tb { (ta, tb) } else { (tb, ta) };
+            t0 = t0.max(ta);
+            t1 = t1.min(tb);
         }
-        let (ta, tb) = ((e.lo[a] - o) / d, (e.hi[a] - o) / d);
-        let (ta, tb) = if ta <= tb { (ta, tb) } else { (tb, ta) };
-        t0 = t0.max(ta);
-        t1 = t1.min(tb);
+        // NaN (an infinite bound times a zero offset) reads as meeting the box: conservative.
+        let slack = 1e-6 * t0.abs().max(t1.abs()) + 1e-9;
+        t0.partial_cmp(&(t1 + slack)) != Some(std::cmp::Ordering::Greater)
     }
-    // NaN (an infinite bound times a zero offset) reads as meeting the box: conservative.
-    let slack = 1e-6 * t0.abs().max(t1.abs()) + 1e-9;
-    t0.partial_cmp(&(t1 + slack)) != Some(std::cmp::Ordering::Greater)
 }
 
 /// The uniform grid of a [`SunBeam`].
@@ -366,7 +419,8 @@ impl Grid {
     }
 
     /// The cells of a rectangle (x0, y0, x1, y1): its low and high corners' cells.
-    fn span(&self, r: &[f64; 4]) -> ([usize; 2], [usize; 2]) {
+    fn span(&self, r: &[f32; 4]) -> ([usize; 2], [usize; 2]) {
+        let r = r.map(f64::from);
         (self.at([r[0], r[1]]), self.at([r[2], r[3]]))
     }
 }
