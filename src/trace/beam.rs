@@ -428,9 +428,9 @@ impl Grid {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::{Material, Mesh, Rgba8Image};
+    use crate::model::{Material, Mesh};
     use crate::trace::scene::InstanceTransform;
-    use crate::trace::{AlphaMask, BuildPreset, ModelBvh, Rng};
+    use crate::trace::{BuildPreset, ModelBvh, Rng};
     use std::sync::Arc;
 
     /// A mesh of random triangles in the box [-0.5, 0.5]² × [0, 2] (some big, some small).
@@ -458,26 +458,12 @@ mod tests {
         m
     }
 
-    /// A checkerboard alpha mask (half of every leaf card is see-through).
-    fn checker() -> AlphaMask {
-        let mut img = Rgba8Image {
-            width: 8,
-            height: 8,
-            pixels: vec![[200; 4]; 64],
-        };
-        for (i, p) in img.pixels.iter_mut().enumerate() {
-            if (i % 8 + i / 8) % 2 == 1 {
-                p[3] = 0;
-            }
-        }
-        AlphaMask::from_rgba8(&img)
-    }
-
     /// 600 instances of three models (one alpha-tested), rotated, scaled 0.3–3×, on a 60 m
     /// square at heights 0–4 m (boxes overlap).
     fn scene() -> SceneBvh {
         let meshes = [blob(1, 40), blob(2, 120), blob(3, 80)];
-        let mask = checker();
+        // Half of every card of model 2 see-through.
+        let mask = crate::trace::bvh::tests::checker();
         let models = meshes
             .iter()
             .enumerate()
