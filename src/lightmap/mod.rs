@@ -36,7 +36,7 @@ pub mod stage;
 
 use crate::sh::{ShIrradiance, ShRadiance};
 use crate::trace::pack_scene::TraceScene;
-use crate::trace::{Ray, SceneTracer, Tracer};
+use crate::trace::{Ray, SceneTracer, SunBeam, Tracer};
 use glam::Vec3A;
 use rayon::prelude::*;
 
@@ -314,7 +314,7 @@ fn horizon_rows(
     opts: &LightmapOptions,
     rows: std::ops::Range<u32>,
 ) -> TexelRows {
-    horizon_rows_noise(scene, bvh, light, opts, rows, false).0
+    horizon_rows_noise(scene, bvh, light, opts, rows, false, true).0
 }
 
 /// The terrain light map's rows `rows` by the horizon estimator with each texel's noise
@@ -337,7 +337,7 @@ pub(crate) fn bake_terrain_lightmap_rows_noise(
     }
     let bvh = scene.tracer(opts.tracer)?;
     let rows = rows.start.min(h)..rows.end.min(h);
-    let (t, noise) = horizon_rows_noise(scene, bvh, light, opts, rows, true);
+    let (t, noise) = horizon_rows_noise(scene, bvh, light, opts, rows, true, true);
     Ok(Some((t, noise)))
 }
 
@@ -356,9 +356,10 @@ fn horizon_rows_noise(
     opts: &LightmapOptions,
     rows: std::ops::Range<u32>,
     noise: bool,
+    beam: bool,
 ) -> (TexelRows, Vec<f32>) {
     let (mut texels, mut direct, mut variance) = (Vec::new(), Vec::new(), Vec::new());
-    horizon_rows_into(scene, bvh, light, opts, rows, &mut |band| {
+    horizon_rows_into(scene, bvh, light, opts, rows, beam, &mut |band| {
         for (e, d, v) in band {
             texels.push(e);
             direct.push(d);
@@ -375,13 +376,17 @@ fn horizon_rows_noise(
 type BandTexels = Vec<([f32; 3], [f32; 3], f32)>;
 
 /// The horizon estimator of [`horizon_rows_noise`], handing each band's texels to `sink` as it
-/// is done (bands in row order), so that a whole map need not be held beside its section.
+/// is done (bands in row order), so that a whole map need not be held beside its section. With
+/// `beam` the CPU tracer's sun-disc rays go through a [`SunBeam`] (the same answers; without:
+/// through the top level, the path before it, kept for the test that compares the two).
+#[allow(clippy::too_many_arguments)]
 fn horizon_rows_into(
     scene: &TraceScene,
     bvh: &dyn SceneTracer,
     light: &BakeLight,
     opts: &LightmapOptions,
     rows: std::ops::Range<u32>,
+    beam: bool,
     sink: &mut dyn FnMut(BandTexels),
 ) {
     let t = scene.terrain.as_ref().expect("a terrain");
@@ -391,6 +396,11 @@ fn horizon_rows_into(
     let tables = horizon::SkyTables::new(&grid, &dirs, &light.sky);
     let sky_irr = light.sky.to_irradiance();
     let reach = Reach::of(scene);
+    let sun_beam = if beam {
+        sun_beam(scene, light, opts.tracer)
+    } else {
+        None
+    };
     let coarse = (opts.trace_step > 1).then_some(TraceLattice { w, h });
     // The rows whose horizons are swept: `rows`, and with a trace step the traced rows next to
     // an odd first or last row.
@@ -440,6 +450,7 @@ fn horizon_rows_into(
                 horizons: &hz,
                 index: k,
                 reach,
+                sun_beam: sun_beam.as_ref(),
             };
             (p, n, (j * w + i) as u64, env)
         };
@@ -620,6 +631,9 @@ pub struct HorizonTexel<'a> {
     /// The texel's index within the horizons' rows.
     pub index: usize,
     pub reach: Reach,
+    /// The instances binned along the sun ([`SunBeam`]): the sun-disc rays' any-hit queries
+    /// without the top level (the same answers); `None`: through the tracer's top level.
+    pub sun_beam: Option<&'a SunBeam<'a>>,
 }
 
 /// The light map's estimator with the terrain's self-occlusion from horizons (`physical` mode,
@@ -679,8 +693,15 @@ fn texel_horizon_exact(
                 .unwrap_or(f32::NEG_INFINITY);
             let mut vis = horizon::sun_fraction(slope, s);
             if vis > 0.0 && env.reach.top.is_some() {
-                vis *=
-                    instance_sun_visibility(bvh, &env.reach, origin, sv, opts.sun_samples, texel);
+                vis *= instance_sun_visibility(
+                    bvh,
+                    &env.reach,
+                    env.sun_beam,
+                    origin,
+                    sv,
+                    opts.sun_samples,
+                    texel,
+                );
             }
             direct = irr.map(|e| e * cos * vis);
             for k in 0..3 {
@@ -798,16 +819,54 @@ fn cosine_direction(
 }
 
 /// Fraction of the sun's disc that no instance blocks (the terrain skipped): the disc points
-/// of [`sun_visibility`], traced up to the top of the instances.
+/// of [`sun_visibility`], traced up to the top of the instances, through `beam` where there is
+/// one (the same answers as the tracer's top level, without it).
 fn instance_sun_visibility(
     bvh: &dyn SceneTracer,
     reach: &Reach,
+    beam: Option<&SunBeam>,
     p: Vec3A,
     s: Vec3A,
     samples: u32,
     texel: u64,
 ) -> f32 {
-    disc_visibility(s, samples, texel, |d| !reach.instance_blocked(bvh, p, d))
+    let Some(beam) = beam else {
+        return disc_visibility(s, samples, texel, |d| !reach.instance_blocked(bvh, p, d));
+    };
+    let disc = Disc::new(s, samples, texel);
+    let n = samples.max(1);
+    let mut visible = 0;
+    // In chunks of 16 (the default count): a small stack array to fill per texel.
+    const CHUNK: u32 = 16;
+    let mut rays = [Ray::new(p, s, 0.0); CHUNK as usize];
+    let mut blocked = [false; CHUNK as usize];
+    for start in (0..n).step_by(CHUNK as usize) {
+        let end = (start + CHUNK).min(n);
+        let mut traced = 0;
+        for k in start..end {
+            match reach.instance_ray(p, disc.direction(k)) {
+                Some(r) => {
+                    rays[traced] = r;
+                    traced += 1;
+                }
+                // No instances: nothing blocks.
+                None => visible += 1,
+            }
+        }
+        beam.any_hits(&rays[..traced], &mut blocked[..traced]);
+        visible += blocked[..traced].iter().filter(|&&b| !b).count();
+    }
+    visible as f32 / n as f32
+}
+
+/// The beam of the scene's instances along the sun for the CPU tracer's sun-disc rays
+/// ([`instance_sun_visibility`]); `None` on another tracer, without a sun or instances, or for
+/// a sun too low for one ([`SunBeam::new`]).
+fn sun_beam<'a>(scene: &'a TraceScene, light: &BakeLight, tracer: Tracer) -> Option<SunBeam<'a>> {
+    if tracer != Tracer::Cpu {
+        return None;
+    }
+    SunBeam::new(&scene.bvh, Vec3A::from(light.sun?.0))
 }
 
 /// Normal of the bilinear height field at (x, y) by central differences over one grid step.
@@ -930,21 +989,42 @@ pub fn sun_visibility(bvh: &dyn SceneTracer, p: Vec3A, s: Vec3A, samples: u32, t
 /// whose direction `open` says is unblocked.
 fn disc_visibility(s: Vec3A, samples: u32, texel: u64, open: impl Fn(Vec3A) -> bool) -> f32 {
     let n = samples.max(1);
-    let (tx, bx) = crate::trace::frame(s);
-    let shift = cp_rotation(texel ^ 0x5u64 << 60);
-    let mut visible = 0;
-    for k in 0..n {
-        let (u1, u2) = hammersley(k, n);
-        let (u1, u2) = ((u1 + shift.0).fract(), (u2 + shift.1).fract());
+    let disc = Disc::new(s, samples, texel);
+    let visible = (0..n).filter(|&k| open(disc.direction(k))).count();
+    visible as f32 / n as f32
+}
+
+/// The `samples` stratified points on the sun's disc around `s` of one texel
+/// ([`disc_visibility`]).
+struct Disc {
+    s: Vec3A,
+    tx: Vec3A,
+    bx: Vec3A,
+    shift: (f32, f32),
+    n: u32,
+}
+
+impl Disc {
+    fn new(s: Vec3A, samples: u32, texel: u64) -> Disc {
+        let (tx, bx) = crate::trace::frame(s);
+        Disc {
+            s,
+            tx,
+            bx,
+            shift: cp_rotation(texel ^ 0x5u64 << 60),
+            n: samples.max(1),
+        }
+    }
+
+    /// Direction k of the disc's points.
+    fn direction(&self, k: u32) -> Vec3A {
+        let (u1, u2) = hammersley(k, self.n);
+        let (u1, u2) = ((u1 + self.shift.0).fract(), (u2 + self.shift.1).fract());
         // Uniform on the disc of angular radius SUN_RADIUS (small-angle: a flat disc).
         let r = SUN_RADIUS * u1.sqrt();
         let phi = std::f32::consts::TAU * u2;
-        let d = (s + tx * (r * phi.cos()) + bx * (r * phi.sin())).normalize();
-        if open(d) {
-            visible += 1;
-        }
+        (self.s + self.tx * (r * phi.cos()) + self.bx * (r * phi.sin())).normalize()
     }
-    visible as f32 / n as f32
 }
 
 /// Point k of the N-point Hammersley set in [0, 1)².
@@ -1011,7 +1091,7 @@ pub fn terrain_sections(
         let bvh = scene.tracer(opts.tracer)?;
         let section = terrain_section_filled(w, h, opts, |irradiance, indirect| {
             let mut at = 0;
-            horizon_rows_into(scene, bvh, light, opts, 0..h, &mut |band| {
+            horizon_rows_into(scene, bvh, light, opts, 0..h, true, &mut |band| {
                 let len = band.len();
                 for (k, (e, d, _)) in band.into_iter().enumerate() {
                     irradiance[at + k] = section::rgba(e);
@@ -1138,6 +1218,7 @@ pub fn terrain_direct_sun(
         Vec::new()
     };
     let reach = Reach::of(scene);
+    let beam = sun_beam(scene, light, Tracer::Cpu);
     let sv = Vec3A::from(s);
     (0..w * h)
         .into_par_iter()
@@ -1158,6 +1239,7 @@ pub fn terrain_direct_sun(
                         v *= instance_sun_visibility(
                             &scene.bvh,
                             &reach,
+                            beam.as_ref(),
                             o,
                             sv,
                             meta.sun_samples,
@@ -1258,6 +1340,111 @@ mod stepped_tests {
                     }
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod beam_tests {
+    use super::*;
+
+    /// A generated scene (`bake fixtures --instances 3000 --models 3 --terrain 129`: alpha-leaved
+    /// trees on rolling hills, the fixture's sky and sun at 40°) ingested with its sky.
+    fn generated() -> (TraceScene, BakeLight) {
+        let dir = tempfile::tempdir().unwrap();
+        let p = crate::fixtures::large::LargeScene {
+            instances: 3000,
+            models: 3,
+            terrain: 129,
+        };
+        for (name, bytes) in crate::fixtures::large::large_files(&p) {
+            std::fs::write(dir.path().join(name), bytes).unwrap();
+        }
+        let (mut w, _) = crate::pipeline::ingest_to_pack(
+            &dir.path().join("scene.eco"),
+            &crate::ingest::IngestOptions::default(),
+        )
+        .unwrap();
+        let sky = crate::ingest::skyimage::load(&dir.path().join("sky.hdr")).unwrap();
+        for s in crate::sky::scene_sky_sections(
+            Some(&sky),
+            &Default::default(),
+            &crate::sky::SkyOptions::default(),
+        )
+        .unwrap()
+        {
+            w.insert(s);
+        }
+        let pack = crate::pack::Pack::from_bytes(&w.to_bytes().unwrap(), "generated").unwrap();
+        let scene = crate::trace::pack_scene::trace_scene(&pack).unwrap();
+        let light = scene_lighting(&pack).unwrap();
+        (scene, light)
+    }
+
+    fn bits(v: &[[f32; 3]]) -> Vec<[u32; 3]> {
+        v.iter().map(|t| t.map(f32::to_bits)).collect()
+    }
+
+    #[test]
+    fn sun_beam_light_map_is_bit_identical_to_the_top_level_path() {
+        let (scene, light) = generated();
+        let (s, _) = light.sun.expect("the fixture sky has a sun");
+        let sv = Vec3A::from(s);
+        let beam = sun_beam(&scene, &light, Tracer::Cpu).expect("a beam");
+        let reach = Reach::of(&scene);
+        let t = scene.terrain.as_ref().unwrap();
+        // Texel by texel: the disc's visibility through the beam and through the top level,
+        // over a 257² grid of points raised off the terrain (the light map's ray origins).
+        let (mut partial, mut dark) = (0, 0);
+        let n = 257u32;
+        for k in 0..n * n {
+            let (i, j) = (k % n, k / n);
+            let x = t.origin[0] + (i as f32 + 0.5) / n as f32 * t.extent[0];
+            let y = t.origin[1] + (j as f32 + 0.5) / n as f32 * t.extent[1];
+            let nrm = Vec3A::from(height_normal(t, x, y));
+            let o = Vec3A::new(x, y, t.mesh_height_at(x, y)) + nrm * 1e-3;
+            let new = instance_sun_visibility(&scene.bvh, &reach, Some(&beam), o, sv, 16, k as u64);
+            let old = instance_sun_visibility(&scene.bvh, &reach, None, o, sv, 16, k as u64);
+            assert_eq!(
+                new.to_bits(),
+                old.to_bits(),
+                "texel {k}: {new} against {old}"
+            );
+            partial += (new > 0.0 && new < 1.0) as u32;
+            dark += (new == 0.0) as u32;
+        }
+        // Not a vacuous agreement: trees shadow many texels, some only in part.
+        assert!(
+            partial > 500 && dark > 5000,
+            "{partial} partial, {dark} dark"
+        );
+        // The whole map (at every texel and with a trace step), and the direct-sun part the
+        // renderer recomputes, bit for bit against the top level's.
+        for trace_step in [1, 2] {
+            let opts = LightmapOptions {
+                samples: 4,
+                trace_step,
+                ..Default::default()
+            };
+            let (w, h) = terrain_lightmap_size(&scene, &opts).unwrap();
+            let (new, new_direct) = bake_terrain_lightmap_rows(&scene, &light, &opts, 0..h)
+                .unwrap()
+                .unwrap();
+            let ((old, old_direct), _) =
+                horizon_rows_noise(&scene, &scene.bvh, &light, &opts, 0..h, false, false);
+            assert_eq!(bits(&new), bits(&old), "trace_step {trace_step}");
+            assert_eq!(bits(&new_direct), bits(&old_direct));
+            let meta = section::LightmapMeta {
+                surface: "terrain".to_string(),
+                width: w,
+                height: h,
+                mode: LightmapMode::Physical,
+                samples: opts.samples,
+                sun_samples: opts.sun_samples,
+            };
+            let recomputed =
+                terrain_direct_sun(&scene, &light, &meta, LightmapVisibility::Horizons);
+            assert_eq!(bits(&recomputed), bits(&old_direct));
         }
     }
 }

@@ -855,7 +855,7 @@ pub(crate) fn intersect(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::model::Material;
     use crate::trace::Rng;
@@ -893,7 +893,7 @@ mod tests {
     }
 
     /// A checkerboard mask: alpha 255 and 0 alternating over 8×8 texels.
-    fn checker() -> AlphaMask {
+    pub(crate) fn checker() -> AlphaMask {
         let mut img = Rgba8Image {
             width: 8,
             height: 8,

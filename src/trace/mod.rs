@@ -1,11 +1,13 @@
 //! Ray tracing: per-model BVHs with alpha-tested triangles ([`bvh`]), the terrain traced through
 //! its min/max quadtree ([`heightfield`]), a two-level scene of instanced models on the terrain
-//! ([`scene`]), that scene built from a pack ([`pack_scene`]), the surfaces the tracer sees
-//! ([`materials`]), and the shared ray, hit and sampling types.
+//! ([`scene`]), that scene built from a pack ([`pack_scene`]), rays near the sun among its
+//! instances without the top level ([`beam`]), the surfaces the tracer sees ([`materials`]),
+//! and the shared ray, hit and sampling types.
 //!
 //! Every query here is pure and single-threaded; batch helpers run queries over rayon and
 //! collect in input order, so results never depend on the thread count.
 
+pub mod beam;
 pub mod bvh;
 #[cfg(feature = "embree")]
 pub mod embree;
@@ -14,6 +16,7 @@ pub mod materials;
 pub mod pack_scene;
 pub mod scene;
 
+pub use beam::SunBeam;
 pub use bvh::{AlphaMask, BuildPreset, ModelBvh, SurfacePoint};
 #[cfg(feature = "embree")]
 pub use embree::EmbreeSceneBvh;

@@ -288,6 +288,14 @@ impl SceneBvh {
         out
     }
 
+    /// Whether instance `k`'s model alone blocks the ray segment (alpha-tested; `k` a model
+    /// instance): the test [`Self::any_hit_excluding`] makes of each instance its top level
+    /// reaches, for [`super::beam::SunBeam`].
+    pub(crate) fn instance_any_hit(&self, k: u32, ray: &Ray) -> bool {
+        let model = &self.models[self.instances[k as usize].model as usize];
+        model.any_hit(&self.to_local[k as usize].ray(ray))
+    }
+
     /// The closest opaque hit of instance `k` alone (a model instance, not the terrain).
     pub fn instance_hit(&self, ray: &Ray, k: u32) -> Option<SceneHit> {
         let inst = self.instances.get(k as usize)?;
