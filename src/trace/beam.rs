@@ -64,6 +64,29 @@ fn up(x: f64) -> f32 {
     if (f as f64) < x { f.next_up() } else { f }
 }
 
+/// The empty rectangle (x0, y0, x1, y1) that [`grow`] widens.
+const EMPTY: [f64; 4] = [
+    f64::INFINITY,
+    f64::INFINITY,
+    f64::NEG_INFINITY,
+    f64::NEG_INFINITY,
+];
+
+/// Rectangle `r` widened to hold point `q`.
+fn grow(r: [f64; 4], q: [f64; 2]) -> [f64; 4] {
+    [
+        r[0].min(q[0]),
+        r[1].min(q[1]),
+        r[2].max(q[0]),
+        r[3].max(q[1]),
+    ]
+}
+
+/// Point `p` projected along the beam's axis onto z = 0 (`shear` = (s.x / s.z, s.y / s.z)).
+fn project(shear: [f64; 2], p: [f64; 3]) -> [f64; 2] {
+    [p[0] - shear[0] * p[2], p[1] - shear[1] * p[2]]
+}
+
 /// A rectangle rounded outwards to f32.
 fn outwards(r: &[f64; 4]) -> [f32; 4] {
     [down(r[0]), down(r[1]), up(r[2]), up(r[3])]
@@ -122,25 +145,14 @@ impl<'a> SunBeam<'a> {
                 let lo = lo.map(|v| v - pad(m));
                 let hi = hi.map(|v| v + pad(m));
                 z = [z[0].min(lo[2]), z[1].max(hi[2])];
-                let mut rect = [
-                    f64::INFINITY,
-                    f64::INFINITY,
-                    f64::NEG_INFINITY,
-                    f64::NEG_INFINITY,
-                ];
+                let mut rect = EMPTY;
                 for c in 0..8 {
                     let p = [
                         if c & 1 != 0 { hi[0] } else { lo[0] },
                         if c & 2 != 0 { hi[1] } else { lo[1] },
                         if c & 4 != 0 { hi[2] } else { lo[2] },
                     ];
-                    let q = [p[0] - shear[0] * p[2], p[1] - shear[1] * p[2]];
-                    rect = [
-                        rect[0].min(q[0]),
-                        rect[1].min(q[1]),
-                        rect[2].max(q[0]),
-                        rect[3].max(q[1]),
-                    ];
+                    rect = grow(rect, project(shear, p));
                 }
                 let m = rect.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                 let e = pad(m);
@@ -165,21 +177,11 @@ impl<'a> SunBeam<'a> {
         // The grid over the rectangles: cells about the rectangles' mean size (geometric mean
         // of the sides), at least a quarter of the area per instance, grown while the cells
         // would list the instances more than 32 times over.
-        let mut bound = [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ];
+        let mut bound = EMPTY;
         let mut side = 0.0f64;
         for e in &entries {
             let r = e.rect;
-            bound = [
-                bound[0].min(r[0]),
-                bound[1].min(r[1]),
-                bound[2].max(r[2]),
-                bound[3].max(r[3]),
-            ];
+            bound = grow(grow(bound, [r[0], r[1]]), [r[2], r[3]]);
             side += ((r[2] - r[0]) * (r[3] - r[1])).sqrt();
         }
         let (wx, wy) = (bound[2] - bound[0], bound[3] - bound[1]);
@@ -285,12 +287,7 @@ impl<'a> SunBeam<'a> {
     fn any_hits_chunk(&self, rays: &[Ray], blocked: &mut [bool]) {
         let skip = [self.scene.instances().len() as u32];
         // The rectangle that holds every ray's projected segment within the instances' heights.
-        let mut q = [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ];
+        let mut q = EMPTY;
         let mut zmin = f64::INFINITY;
         // Which rays the candidates must decide, and those rays for the box tests.
         let mut open = [false; CHUNK];
@@ -325,11 +322,10 @@ impl<'a> SunBeam<'a> {
                 inv: d.map(|v| 1.0 / v),
                 t: [r.tmin as f64, r.tmax as f64],
             };
-            let p = [o[0] - self.shear[0] * o[2], o[1] - self.shear[1] * o[2]];
-            let v = [d[0] - self.shear[0] * d[2], d[1] - self.shear[1] * d[2]];
+            let p = project(self.shear, o);
+            let v = project(self.shear, d);
             for t in [t0, t1] {
-                let (x, y) = (p[0] + t * v[0], p[1] + t * v[1]);
-                q = [q[0].min(x), q[1].min(y), q[2].max(x), q[3].max(y)];
+                q = grow(q, [p[0] + t * v[0], p[1] + t * v[1]]);
             }
             zmin = zmin.min(o[2] + t0 * d[2]);
         }
