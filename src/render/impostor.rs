@@ -9,9 +9,13 @@
 //!   the tile's own, `right = normalize(Z × w)`, `up = w × right` of the tile's centre direction
 //!   `w` (octa.rs `view_axes`, the axes `lod::impostor::texel_ray` cast the texels along), turned
 //!   into the world by R_z(θ), so the picture is the tile's orthographic view, neither turned nor
-//!   moved. (Until issue 35's second session the quad faced the eye with axes from the eye's
+//!   moved; then drawn turned by the smallest rotation that takes `w` to the direction `v`
+//!   towards the eye (about `w × v`, no twist about the view axis), so it faces the eye at its
+//!   own size. (Until issue 35's second session the quad faced the eye with axes from the eye's
 //!   direction `v`: the picture turned by the azimuth between `v` and `w`, up to tens of degrees
-//!   near the zenith, and a far bench was drawn rotated and about a metre off.)
+//!   near the zenith, and a far bench was drawn rotated and about a metre off. Until its
+//!   eleventh the quad lay in the tile's plane itself, foreshortened by cos e, e the angle
+//!   between `v` and `w`: a round model's silhouette lost that share of its pixels.)
 //! - **Tile:** the nearest view, no blend: `v` is taken into the instance's model frame (undo the
 //!   rotation about +Z; the lower hemisphere clamps to the horizon) and the tile whose centre
 //!   direction has the largest dot product with it is drawn ([`nearest_tile`]: the cell that
@@ -39,8 +43,10 @@
 //!   one hook): a quad facing the sun with the view nearest the sun's direction in the model
 //!   frame, alpha-tested, each fragment at the depth of the surface point its depth texel gives
 //!   (so the plant shadows itself roughly as its mesh would).
-//! - **Depth:** the quad's plane (through the centre) is written; instance scale is taken by its
-//!   size (a mirroring negative scale is not mirrored).
+//! - **Depth:** each fragment writes the depth of the surface point its depth texel gives (the
+//!   tile-plane point moved by the depth along `w`), not the quad's plane through the centre,
+//!   under which a model's front and base lay below the ground beside it; instance scale is
+//!   taken by its size (a mirroring negative scale is not mirrored).
 
 use super::draw::{CAMERA_PASS, DrawCounts, FrameInstances};
 use super::pipelines;

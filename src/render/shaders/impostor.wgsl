@@ -1,6 +1,6 @@
 // Impostors (src/render/impostor.rs): one quad per instance (6 vertices, no vertex arrays; the
-// InstanceRecord in slot 0) in the image plane of the hemi-octahedral view of the model's atlas
-// nearest the eye, textured with that view (src/lod/octa.rs; `nearest_tile` in impostor.rs is the CPU twin of `tile_of`
+// InstanceRecord in slot 0): the image plane of the hemi-octahedral view of the model's atlas
+// nearest the eye, turned to face the eye, textured with that view (src/lod/octa.rs; `nearest_tile` in impostor.rs is the CPU twin of `tile_of`
 // below: keep the two in step). Alpha test at 0.5 like mesh.wgsl, the atlas normal rotated to the
 // world lit by the sun (Lambert on the atlas albedo) with the shadow-map lookup of direct.wgsl at
 // the surface point the depth atlas gives, and the ambient of the instance's environment maps
@@ -255,9 +255,18 @@ fn impostor_vertex(v: ImpostorIn, w_world: vec3<f32>) -> ImpostorOut {
         vec2<f32>(-1.0, -1.0), vec2<f32>(1.0, 1.0), vec2<f32>(-1.0, 1.0),
     );
     let st = corners[v.vertex_index % 6u];
+    // `world`: the point of the tile's image plane at (s, t), where the atlas' texel rays start
+    // (the fragment's surface point is it moved by the depth along the tile's direction).
     let world = centre + (right * st.x + up * st.y) * radius;
+    // Drawn facing the viewer: the tile's plane turned by the smallest rotation that takes the
+    // tile's direction w_t to w_world (about w_t × w_world, no twist about the view axis), so
+    // the picture keeps its size and orientation. Drawn in the tile's plane itself, it was
+    // foreshortened by cos e (e the angle between the two, up to about 15° between tiles): a
+    // round model's silhouette lost that share of its pixels to the ground behind it (spec0's
+    // far houses: 768 of the meshes' 783 pixels at 160×90, docs/VALIDATION.md).
+    let drawn = centre + turn_towards(w_t, w_world, world - centre);
     var out: ImpostorOut;
-    out.position = globals.view_proj * vec4<f32>(world, 1.0);
+    out.position = globals.view_proj * vec4<f32>(drawn, 1.0);
     out.clip = out.position;
     out.world = world;
     out.st = st;
@@ -267,6 +276,17 @@ fn impostor_vertex(v: ImpostorIn, w_world: vec3<f32>) -> ImpostorOut {
     out.radius = radius;
     out.centre = centre;
     return out;
+}
+
+// x turned by the smallest rotation that takes unit vector a to unit vector b (Rodrigues, about
+// a × b); x itself where the two are (nearly) opposite.
+fn turn_towards(a: vec3<f32>, b: vec3<f32>, x: vec3<f32>) -> vec3<f32> {
+    let k = cross(a, b);
+    let c = dot(a, b);
+    if (c <= -0.999) {
+        return x;
+    }
+    return x * c + cross(k, x) + k * (dot(k, x) / (1.0 + c));
 }
 
 // The atlas texel of a quad fragment: texel (c, r) of its tile, as lod/impostor.rs
@@ -408,23 +428,51 @@ fn block_irradiance(in: ImpostorOut, n: vec3<f32>, spread: f32) -> vec3<f32> {
     return mix(0.5 * (e + back), e, spread);
 }
 
+// The camera pass' fragment: colour, the samples kept, and the depth of the surface point the
+// depth atlas gives (not the quad's plane through the centre: a house's front and base lie
+// in front of it, and there the quad's point is below the ground beside the house, which hid
+// the impostor's lower edge: docs/VALIDATION.md).
+struct ImpostorFragment {
+    @location(0) color: vec4<f32>,
+    @builtin(sample_mask) mask: u32,
+    @builtin(frag_depth) depth: f32,
+};
+
+struct ImpostorFragmentPerSample {
+    @location(0) color: vec4<f32>,
+    @builtin(frag_depth) depth: f32,
+};
+
+// A shaded impostor fragment and its depth.
+struct ImpostorShaded {
+    color: vec4<f32>,
+    mask: u32,
+    depth: f32,
+};
+
 @fragment
-fn fs_main(in: ImpostorOut) -> MaskedFragment {
+fn fs_main(in: ImpostorOut) -> ImpostorFragment {
     let f = shade(in);
-    return MaskedFragment(f.color, f.mask);
+    return ImpostorFragment(f.color, f.mask, f.depth);
 }
 
 // Where the backend cannot write the sample mask (GL; mesh.wgsl `fs_main_per_sample`).
 @fragment
-fn fs_main_per_sample(in: ImpostorOut, @builtin(sample_index) k: u32) -> @location(0) vec4<f32> {
+fn fs_main_per_sample(in: ImpostorOut, @builtin(sample_index) k: u32) -> ImpostorFragmentPerSample {
     let f = shade(in);
     if (((f.mask >> k) & 1u) == 0u) {
         discard;
     }
-    return f.color;
+    return ImpostorFragmentPerSample(f.color, f.depth);
 }
 
-fn shade(in: ImpostorOut) -> Shaded {
+// The window depth of world point `x` in the camera pass.
+fn impostor_depth(x: vec3<f32>) -> f32 {
+    let p = globals.view_proj * vec4<f32>(x, 1.0);
+    return clamp(p.z / p.w, 0.0, 1.0);
+}
+
+fn shade(in: ImpostorOut) -> ImpostorShaded {
     // A model with alpha-tested materials: the atlas at the footprint's level, its texel's
     // coverage against the samples' thresholds (as far leaf cards: the view's coverage over the
     // pixel rather than the one texel at its centre), its mean colour, normal and depth for
@@ -485,6 +533,10 @@ fn shade(in: ImpostorOut) -> Shaded {
     }
     let nt = textureLoad(atlas_normal, px, level);
     let k = u32(round(nt.a * 255.0));
+    // The surface point: depth code d = 255 (δ + r)/(2r), δ = (centre − x)·w.
+    let delta = atlas_delta_at(in, px, level);
+    let surface = in.world - in.view_dir * delta;
+    let depth = impostor_depth(surface);
     if (region_pass()) {
         // The texel's material names its region (a trunk is opaque, its crown leaves), as the
         // meshes' pass counts them; the model's flag where the atlas names no material.
@@ -492,7 +544,7 @@ fn shade(in: ImpostorOut) -> Shaded {
         if (k < impostor_materials.count.x) {
             leaves = impostor_materials.m[k].record[5].w != 0.0;
         }
-        return Shaded(vec4<f32>(model_region(leaves), 1.0), mask);
+        return ImpostorShaded(vec4<f32>(model_region(leaves), 1.0), mask, depth);
     }
     let nm = nt.xyz * 2.0 - 1.0;
     // Past level 0 the normal is the block's mean, shorter where its normals spread.
@@ -500,9 +552,6 @@ fn shade(in: ImpostorOut) -> Shaded {
     let c = in.rot.x;
     let s = in.rot.y;
     let n_world = vec3<f32>(c * nm.x - s * nm.y, s * nm.x + c * nm.y, nm.z);
-    // The surface point: depth code d = 255 (δ + r)/(2r), δ = (centre − x)·w.
-    let delta = atlas_delta_at(in, px, level);
-    let surface = in.world - in.view_dir * delta;
     let n = facing_normal(n_world, surface);
     let albedo = texel.rgb;
     // The shadow map holds the impostor itself, drawn in the tile nearest the sun; this
@@ -536,9 +585,9 @@ fn shade(in: ImpostorOut) -> Shaded {
         let e_other = max(block_irradiance(in, -n, spread), vec3<f32>(0.0)) / PI;
         let l_r = impostor_env(in, 2.0 * dot(n, wo) * n - wo, false);
         let amb = ambient_layered(m, dot(n, wo), albedo, e_seen, e_other, l_r) * ambient.scale.x;
-        return Shaded(vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0), mask);
+        return ImpostorShaded(vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0), mask, depth);
     }
     let direct = direct_lambert(albedo, n, lit_at) * self_vis;
     let amb = albedo * max(block_irradiance(in, n, spread), vec3<f32>(0.0)) / PI * ambient.scale.x;
-    return Shaded(vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0), mask);
+    return ImpostorShaded(vec4<f32>(direct * globals.viewport.z + amb * globals.viewport.w, 1.0), mask, depth);
 }
