@@ -5,7 +5,8 @@
 //! probe inside another instance, such as a post inside a house or two houses overlapping,
 //! would otherwise see only that instance's inside) and every instance whose probe the instance
 //! encloses (the post inside the house, hidden from the house's outside by its walls); the hit
-//! points' sun rays ignore them too, so the probe sees the scene without them
+//! points' sun rays ignore them too, so the probe sees the scene without them; where the
+//! instance encloses its own probe, a hit inside its box is lit as if it were absent
 //! (docs/CONVENTIONS.md, "Environment-map probes").
 //!
 //! Estimator (instead of the thesis' photon map): from a probe point at the instance (its position
@@ -258,6 +259,14 @@ fn bake_one(
             skip.push(j);
         }
     }
+    // An instance that encloses its own probe (a house, not a tree) hides what lies inside its
+    // box from its outer surfaces: the probe's view of it stands in for the ground around the
+    // instance, so a hit point there is lit as if the instance were absent (its own shadow on
+    // the ground outside the box stays). docs/CONVENTIONS.md, "Environment-map probes".
+    let shell = scene
+        .bvh
+        .instance_encloses(i as u32, p)
+        .then(|| scene.bvh.instance_bounds(i as u32));
     // One rotated set of `m` points, each ray weighted `w`; sums in the world frame. With the
     // control variate a ray adds (f − L)(d)·y(d)·w to C_H: zero where it escapes (unless the
     // SH sky is negative there), the hit's radiance minus the sky it hides where it is blocked.
@@ -267,7 +276,7 @@ fn bake_one(
         let mut cs = [[0.0f64; 3]; 16];
         for k in 0..m {
             let d = rot * fibonacci_direction(k, m);
-            let (mut lh, ls) = radiance_along(scene, sky_irr, &skip, p, d);
+            let (mut lh, ls) = radiance_along(scene, sky_irr, &skip, shell, p, d);
             if cv {
                 let l = scene.sky.eval(d.to_array());
                 lh = [0, 1, 2].map(|c| lh[c] - l[c]);
@@ -321,11 +330,13 @@ fn bake_one(
 }
 
 /// Radiance from direction d at p: (sky part, sun part). `skip`: the probe's own instance, then
-/// the instances enclosing it; the hit points' sun rays ignore the latter.
+/// the instances enclosing it; the hit points' sun rays ignore the latter, and the own instance
+/// too where the hit lies in `shell` (the own instance's box, where it encloses its probe).
 fn radiance_along(
     scene: &EnvmapScene,
     sky_irr: &ShIrradiance,
     skip: &[u32],
+    shell: Option<(Vec3A, Vec3A)>,
     p: Vec3A,
     d: Vec3A,
 ) -> ([f32; 3], [f32; 3]) {
@@ -345,7 +356,11 @@ fn radiance_along(
                 Some(sun) => {
                     let s = Vec3A::from(sun.direction);
                     let cos = n.dot(s);
-                    if cos > 0.0 && !blocked(scene.bvh, &skip[1..], surf.position + n * 1e-3, s) {
+                    let x = surf.position;
+                    let inside =
+                        shell.is_some_and(|(lo, hi)| x.cmpge(lo).all() && x.cmple(hi).all());
+                    let ignored = if inside { skip } else { &skip[1..] };
+                    if cos > 0.0 && !blocked(scene.bvh, ignored, x + n * 1e-3, s) {
                         [0, 1, 2].map(|k| rho[k] / std::f32::consts::PI * sun.irradiance[k] * cos)
                     } else {
                         [0.0; 3]

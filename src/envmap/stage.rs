@@ -23,7 +23,9 @@ use std::ops::Range;
 /// 3: the linear albedo and the terrain's drawn albedo (issue 35).
 /// 4: a probe's rays ignore the instances that enclose the probe (`trace::SceneBvh::enclosing`)
 /// and those whose probe the instance encloses (issue 35).
-pub const ENVMAPS_VERSION: u32 = 4;
+/// 5: where an instance encloses its own probe, the hit points inside its box are lit as if it
+/// were absent (docs/CONVENTIONS.md, "Environment-map probes"; issue 35).
+pub const ENVMAPS_VERSION: u32 = 5;
 /// 2: the report carries `compression`, and a warning when it is below 2x (issue 20).
 /// 3: a byte budget (20x by default), the per-instance local part and split fraction 1.0
 /// (issue 20, item 2).
