@@ -181,10 +181,12 @@ pub(crate) fn trace_envmaps_subset(
 ) -> Traced {
     let sky_irr = scene.sky.to_irradiance();
     let inside = enclosed_instances(scene, subset);
+    let shells = own_shells(scene, subset);
     let (maps, diffs): (Vec<InstanceMaps>, Vec<Option<HalfDifference>>) = subset
         .par_iter()
         .zip(&inside)
-        .map(|(&i, inside)| bake_one(scene, &sky_irr, i, inside, opts))
+        .zip(&shells)
+        .map(|((&i, inside), &shell)| bake_one(scene, &sky_irr, i, inside, shell, opts))
         .unzip();
     Traced {
         maps,
@@ -200,6 +202,47 @@ pub fn traces_halves(opts: &EnvmapOptions) -> bool {
 /// The probe of instance `i`, world space.
 fn probe(scene: &EnvmapScene, i: usize) -> Vec3A {
     Vec3A::from(scene.bvh.instances()[i].translation) + Vec3A::Z * scene.probe_height[i]
+}
+
+/// Per instance of `subset` (in its order), whether its model encloses its own footprint, so
+/// that nothing inside its box is seen from its outside (a house, a closed rock; not a tree,
+/// whose crown never encloses and whose trunk is narrow): the model's first instance in the
+/// scene (with a map) encloses ([`crate::trace::SceneTracer::instance_encloses`]) each of the
+/// four points at ±20 % of its world box's extent from the box's centre in x and y, 1 % of its
+/// height above its bottom. Decided once per model (4 × 64 rays), so the answer is the same in
+/// every unit, and the points keep inside a square footprint turned by any angle.
+fn own_shells(scene: &EnvmapScene, subset: &[usize]) -> Vec<bool> {
+    let instances = scene.bvh.instances();
+    let mut first: std::collections::BTreeMap<u32, usize> = std::collections::BTreeMap::new();
+    for &i in subset {
+        first.entry(instances[i].model).or_insert(usize::MAX);
+    }
+    for (k, inst) in instances.iter().enumerate().take(scene.count) {
+        if let Some(f) = first.get_mut(&inst.model) {
+            *f = (*f).min(k);
+        }
+    }
+    let encloses: std::collections::BTreeMap<u32, bool> = first
+        .into_iter()
+        .map(|(m, k)| (m, encloses_footprint(scene.bvh, k as u32)))
+        .collect();
+    subset
+        .iter()
+        .map(|&i| encloses[&instances[i].model])
+        .collect()
+}
+
+/// Whether instance `k` encloses the four footprint points of [`own_shells`].
+fn encloses_footprint(bvh: &dyn SceneTracer, k: u32) -> bool {
+    let (lo, hi) = bvh.instance_bounds(k);
+    let (c, e) = ((lo + hi) * 0.5, hi - lo);
+    let z = lo.z + 0.01 * e.z;
+    [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)]
+        .iter()
+        .all(|&(sx, sy)| {
+            let p = Vec3A::new(c.x + sx * 0.2 * e.x, c.y + sy * 0.2 * e.y, z);
+            bvh.instance_encloses(k, p)
+        })
 }
 
 /// Per instance of `subset` (in its order), the instances with a map whose probe it encloses
@@ -240,6 +283,7 @@ fn bake_one(
     sky_irr: &ShIrradiance,
     i: usize,
     inside: &[u32],
+    own_shell: bool,
     opts: &EnvmapOptions,
 ) -> (InstanceMaps, Option<HalfDifference>) {
     let inst = scene.bvh.instances()[i];
@@ -259,14 +303,12 @@ fn bake_one(
             skip.push(j);
         }
     }
-    // An instance that encloses its own probe (a house, not a tree) hides what lies inside its
-    // box from its outer surfaces: the probe's view of it stands in for the ground around the
-    // instance, so a hit point there is lit as if the instance were absent (its own shadow on
-    // the ground outside the box stays). docs/CONVENTIONS.md, "Environment-map probes".
-    let shell = scene
-        .bvh
-        .instance_encloses(i as u32, p)
-        .then(|| scene.bvh.instance_bounds(i as u32));
+    // An instance whose model encloses its footprint (a house, not a tree: `own_shells`) hides
+    // what lies inside its box from its outer surfaces: the probe's view of it stands in for the
+    // ground around the instance, so a hit point there is lit as if the instance were absent
+    // (its own shadow on the ground outside the box stays). docs/CONVENTIONS.md,
+    // "Environment-map probes".
+    let shell = own_shell.then(|| scene.bvh.instance_bounds(i as u32));
     // One rotated set of `m` points, each ray weighted `w`; sums in the world frame. With the
     // control variate a ray adds (f − L)(d)·y(d)·w to C_H: zero where it escapes (unless the
     // SH sky is negative there), the hit's radiance minus the sky it hides where it is blocked.
