@@ -119,6 +119,10 @@ pub struct SunBeam<'a> {
     /// Cell c's instances are `items[starts[c]..starts[c + 1]]`, ascending.
     starts: Vec<u32>,
     items: Vec<Item>,
+    /// Whether a candidate's rays go through one packet walk of its model
+    /// ([`SceneBvh::instance_any_hits`]) or one walk each; the same answers. TEMPORARY
+    /// benchmark switch: `BAKE_BENCH_PER_RAY_SUN` set gives one walk per ray.
+    packet: bool,
 }
 
 /// The padding of a coordinate of magnitude `m`: beyond f32 rounding of every value the query
@@ -261,6 +265,7 @@ impl<'a> SunBeam<'a> {
             cells,
             starts,
             items,
+            packet: std::env::var_os("BAKE_BENCH_PER_RAY_SUN").is_none(),
         })
     }
 
@@ -339,6 +344,10 @@ impl<'a> SunBeam<'a> {
         let grid = self.grid();
         let ([x0, y0], [x1, y1]) = grid.span(&q);
         let mut left = open[..rays.len()].iter().filter(|&&o| o).count();
+        // A candidate's rays: the picked rays, their places in `rays`, their answers.
+        let mut picked = [rays[0]; CHUNK];
+        let mut which = [0usize; CHUNK];
+        let mut hit = [false; CHUNK];
         for y in y0..=y1 {
             for x in x0..=x1 {
                 let c = y * self.cells[0] + x;
@@ -353,11 +362,36 @@ impl<'a> SunBeam<'a> {
                     }
                     let k = item.instance;
                     let e = &self.entries[k as usize];
-                    for (i, ray) in rays.iter().enumerate() {
-                        if open[i] && segments[i].meets(e) && self.scene.instance_any_hit(k, ray) {
-                            open[i] = false;
-                            blocked[i] = true;
-                            left -= 1;
+                    if !self.packet {
+                        for (i, ray) in rays.iter().enumerate() {
+                            if open[i]
+                                && segments[i].meets(e)
+                                && self.scene.instance_any_hit(k, ray)
+                            {
+                                open[i] = false;
+                                blocked[i] = true;
+                                left -= 1;
+                            }
+                        }
+                    } else {
+                        // The open rays that meet the instance's box, traced as one packet.
+                        let mut m = 0;
+                        for (i, ray) in rays.iter().enumerate() {
+                            if open[i] && segments[i].meets(e) {
+                                (picked[m], which[m]) = (*ray, i);
+                                m += 1;
+                            }
+                        }
+                        if m == 0 {
+                            continue;
+                        }
+                        self.scene.instance_any_hits(k, &picked[..m], &mut hit[..m]);
+                        for (&i, &h) in which[..m].iter().zip(&hit[..m]) {
+                            if h {
+                                open[i] = false;
+                                blocked[i] = true;
+                                left -= 1;
+                            }
                         }
                     }
                     if left == 0 {
