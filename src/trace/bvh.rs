@@ -469,6 +469,10 @@ impl ModelBvh {
             *o = r.to_obvhs();
         }
         let oct = octant_inv4(rays[0].dir);
+        // TEMPORARY benchmark switch: `BAKE_BENCH_OBVHS_NODE_TEST` set tests each node with
+        // obvhs' own `intersect_ray` per ray (the same bits, decoded per ray).
+        static PLAIN: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        let plain = *PLAIN.get_or_init(|| std::env::var_os("BAKE_BENCH_OBVHS_NODE_TEST").is_some());
         let mut open: u32 = if n == PACKET {
             u32::MAX
         } else {
@@ -485,14 +489,17 @@ impl ModelBvh {
                 continue;
             }
             let node = &bvh.nodes[index as usize];
-            let boxes = NodeBoxes::new(node, oct);
+            let boxes = (!plain).then(|| NodeBoxes::new(node, oct));
             // Per inner child bit (hit-mask bits 24..32) and per primitive bit (0..24): the
             // rays whose own test reached it.
             let mut child_rays = [0u32; 8];
             let mut prim_rays = [0u32; 24];
             let (mut children, mut prims) = (0u32, 0u32);
             for i in Bits(reached) {
-                let h = boxes.hits(node, &obvhs_rays[i as usize], oct);
+                let h = match &boxes {
+                    Some(b) => b.hits(node, &obvhs_rays[i as usize], oct),
+                    None => node.intersect_ray(&obvhs_rays[i as usize], oct),
+                };
                 for j in Bits(h >> 24) {
                     child_rays[j as usize] |= 1 << i;
                 }
@@ -1347,7 +1354,7 @@ pub(crate) mod tests {
                 for node in &bvh.nodes {
                     for oct in 0..8u32 {
                         let oct = oct * 0x0101_0101;
-                        let boxes = NodeBoxes::new(node, oct);
+                        let boxes = (!plain).then(|| NodeBoxes::new(node, oct));
                         for r in &rays {
                             let r = r.to_obvhs();
                             let want = node.intersect_ray(&r, oct);
