@@ -479,7 +479,7 @@ impl ModelBvh {
             (1u32 << n) - 1
         };
         // (node, the rays that reached it); the root is reached by every ray.
-        let mut stack: Vec<(u32, u32)> = Vec::with_capacity(64);
+        let mut stack = PacketStack::default();
         stack.push((0, open));
         // The triangle tested last and the rays that tested it (all missed it).
         let (mut last, mut last_rays) = (NO_SLOT, 0u32);
@@ -872,6 +872,45 @@ impl NodeBoxes {
         }
         #[cfg(not(target_arch = "x86_64"))]
         node.intersect_ray(ray, oct_inv4)
+    }
+}
+
+/// The packet walk's stack of (node, rays): 64 entries in place (no allocation per walk), then
+/// a vector, so that it has no bound.
+struct PacketStack {
+    inline: [(u32, u32); 64],
+    len: usize,
+    spill: Vec<(u32, u32)>,
+}
+
+impl Default for PacketStack {
+    fn default() -> Self {
+        PacketStack {
+            inline: [(0, 0); 64],
+            len: 0,
+            spill: Vec::new(),
+        }
+    }
+}
+
+impl PacketStack {
+    #[inline]
+    fn push(&mut self, v: (u32, u32)) {
+        if self.len < self.inline.len() {
+            self.inline[self.len] = v;
+            self.len += 1;
+        } else {
+            self.spill.push(v);
+        }
+    }
+
+    /// The last entry pushed (the spill holds only entries pushed after the full array's).
+    #[inline]
+    fn pop(&mut self) -> Option<(u32, u32)> {
+        self.spill.pop().or_else(|| {
+            self.len = self.len.checked_sub(1)?;
+            Some(self.inline[self.len])
+        })
     }
 }
 
@@ -1327,6 +1366,26 @@ pub(crate) mod tests {
             counts[2] += (h > 0 && h < rays.len()) as usize;
         }
         counts
+    }
+
+    #[test]
+    fn packet_stack_is_last_in_first_out_past_its_array() {
+        let mut s = PacketStack::default();
+        let mut model = Vec::new();
+        let mut rng = Rng::hashed(3);
+        for k in 0..2000u32 {
+            if rng.f32() < 0.6 {
+                s.push((k, !k));
+                model.push((k, !k));
+            } else {
+                assert_eq!(s.pop(), model.pop());
+            }
+        }
+        assert!(model.len() > 64, "{}", model.len());
+        while let Some(v) = model.pop() {
+            assert_eq!(s.pop(), Some(v));
+        }
+        assert_eq!(s.pop(), None);
     }
 
     #[test]
