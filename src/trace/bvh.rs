@@ -1413,7 +1413,7 @@ pub(crate) mod tests {
                 for node in &bvh.nodes {
                     for oct in 0..8u32 {
                         let oct = oct * 0x0101_0101;
-                        let boxes = (!plain).then(|| NodeBoxes::new(node, oct));
+                        let boxes = NodeBoxes::new(node, oct);
                         for r in &rays {
                             let r = r.to_obvhs();
                             let want = node.intersect_ray(&r, oct);
