@@ -12,7 +12,11 @@
 //! instance whose box a ray's segment can touch is among them. Where there is none, every ray is
 //! open with no traversal at all; else each ray is tested against those candidates' boxes and,
 //! where it meets one, against that instance's model BVH (alpha-tested), exactly as
-//! [`SceneBvh::any_hit_excluding`] tests an instance its top level reaches.
+//! [`SceneBvh::any_hit_excluding`] tests an instance its top level reaches: the rays that meet
+//! one candidate's box in one packet walk of its model's BVH
+//! (`SceneBvh::instance_any_hits`, [`super::bvh::ModelBvh::any_hits_packet`]: the same
+//! answer per ray as that ray's own walk, for the 16 near-parallel rays of a texel one pass
+//! over the nodes they share).
 //!
 //! The answers are the same as the top level's: both are "some instance's model is hit by the
 //! ray mapped into it", the one model query decides each instance, and each path skips only
@@ -119,10 +123,6 @@ pub struct SunBeam<'a> {
     /// Cell c's instances are `items[starts[c]..starts[c + 1]]`, ascending.
     starts: Vec<u32>,
     items: Vec<Item>,
-    /// Whether a candidate's rays go through one packet walk of its model
-    /// ([`SceneBvh::instance_any_hits`]) or one walk each; the same answers. TEMPORARY
-    /// benchmark switch: `BAKE_BENCH_PER_RAY_SUN` set gives one walk per ray.
-    packet: bool,
 }
 
 /// The padding of a coordinate of magnitude `m`: beyond f32 rounding of every value the query
@@ -265,7 +265,6 @@ impl<'a> SunBeam<'a> {
             cells,
             starts,
             items,
-            packet: std::env::var_os("BAKE_BENCH_PER_RAY_SUN").is_none(),
         })
     }
 
@@ -362,36 +361,23 @@ impl<'a> SunBeam<'a> {
                     }
                     let k = item.instance;
                     let e = &self.entries[k as usize];
-                    if !self.packet {
-                        for (i, ray) in rays.iter().enumerate() {
-                            if open[i]
-                                && segments[i].meets(e)
-                                && self.scene.instance_any_hit(k, ray)
-                            {
-                                open[i] = false;
-                                blocked[i] = true;
-                                left -= 1;
-                            }
+                    // The open rays that meet the instance's box, traced as one packet.
+                    let mut m = 0;
+                    for (i, ray) in rays.iter().enumerate() {
+                        if open[i] && segments[i].meets(e) {
+                            (picked[m], which[m]) = (*ray, i);
+                            m += 1;
                         }
-                    } else {
-                        // The open rays that meet the instance's box, traced as one packet.
-                        let mut m = 0;
-                        for (i, ray) in rays.iter().enumerate() {
-                            if open[i] && segments[i].meets(e) {
-                                (picked[m], which[m]) = (*ray, i);
-                                m += 1;
-                            }
-                        }
-                        if m == 0 {
-                            continue;
-                        }
-                        self.scene.instance_any_hits(k, &picked[..m], &mut hit[..m]);
-                        for (&i, &h) in which[..m].iter().zip(&hit[..m]) {
-                            if h {
-                                open[i] = false;
-                                blocked[i] = true;
-                                left -= 1;
-                            }
+                    }
+                    if m == 0 {
+                        continue;
+                    }
+                    self.scene.instance_any_hits(k, &picked[..m], &mut hit[..m]);
+                    for (&i, &h) in which[..m].iter().zip(&hit[..m]) {
+                        if h {
+                            open[i] = false;
+                            blocked[i] = true;
+                            left -= 1;
                         }
                     }
                     if left == 0 {

@@ -423,7 +423,7 @@ impl ModelBvh {
     ///
     /// The walk carries, per node, the mask of the open rays that reached it. At a node every
     /// such ray makes its own child test, `CwBvhNode::intersect_ray` on the very obvhs ray
-    /// `any_hit` traverses with ([`Ray::to_obvhs`]); a child is entered with the rays whose test
+    /// `any_hit` traverses with (`Ray::to_obvhs`); a child is entered with the rays whose test
     /// reached it and a leaf's primitive is tested for those rays alone, with the test
     /// `any_hit`'s callback makes (the slot's triangle and alpha test up to the ray's `tmax`, a
     /// hit when its `t < tmax`). So each ray tests exactly the primitives its own traversal
@@ -469,10 +469,6 @@ impl ModelBvh {
             *o = r.to_obvhs();
         }
         let oct = octant_inv4(rays[0].dir);
-        // TEMPORARY benchmark switch: `BAKE_BENCH_OBVHS_NODE_TEST` set tests each node with
-        // obvhs' own `intersect_ray` per ray (the same bits, decoded per ray).
-        static PLAIN: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        let plain = *PLAIN.get_or_init(|| std::env::var_os("BAKE_BENCH_OBVHS_NODE_TEST").is_some());
         let mut open: u32 = if n == PACKET {
             u32::MAX
         } else {
@@ -489,17 +485,14 @@ impl ModelBvh {
                 continue;
             }
             let node = &bvh.nodes[index as usize];
-            let boxes = (!plain).then(|| NodeBoxes::new(node, oct));
+            let boxes = NodeBoxes::new(node, oct);
             // Per inner child bit (hit-mask bits 24..32) and per primitive bit (0..24): the
             // rays whose own test reached it.
             let mut child_rays = [0u32; 8];
             let mut prim_rays = [0u32; 24];
             let (mut children, mut prims) = (0u32, 0u32);
             for i in Bits(reached) {
-                let h = match &boxes {
-                    Some(b) => b.hits(node, &obvhs_rays[i as usize], oct),
-                    None => node.intersect_ray(&obvhs_rays[i as usize], oct),
-                };
+                let h = boxes.hits(node, &obvhs_rays[i as usize], oct);
                 for j in Bits(h >> 24) {
                     child_rays[j as usize] |= 1 << i;
                 }

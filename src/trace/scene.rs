@@ -290,15 +290,18 @@ impl SceneBvh {
 
     /// Whether instance `k`'s model alone blocks the ray segment (alpha-tested; `k` a model
     /// instance): the test [`Self::any_hit_excluding`] makes of each instance its top level
-    /// reaches, for [`super::beam::SunBeam`].
+    /// reaches; the beam's tests' brute force.
+    #[cfg(test)]
     pub(crate) fn instance_any_hit(&self, k: u32, ray: &Ray) -> bool {
         let model = &self.models[self.instances[k as usize].model as usize];
         model.any_hit(&self.to_local[k as usize].ray(ray))
     }
 
-    /// [`Self::instance_any_hit`] of every ray (`blocked[i]` for `rays[i]`), the rays mapped
-    /// into the model as that call maps them and answered by one packet walk of its BVH
-    /// ([`ModelBvh::any_hits_packet`]): the same booleans.
+    /// Whether instance `k`'s model alone blocks each ray segment (`blocked[i]` for `rays[i]`;
+    /// alpha-tested; `k` a model instance), for [`super::beam::SunBeam`]: the test
+    /// [`Self::any_hit_excluding`] makes of each instance its top level reaches, the rays
+    /// mapped into the model as it maps them, answered by one packet walk of the model's BVH
+    /// ([`ModelBvh::any_hits_packet`], the same booleans as `ModelBvh::any_hit` per ray).
     ///
     /// Panics if the two slices' lengths differ.
     pub(crate) fn instance_any_hits(&self, k: u32, rays: &[Ray], blocked: &mut [bool]) {
