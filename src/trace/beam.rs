@@ -12,7 +12,11 @@
 //! instance whose box a ray's segment can touch is among them. Where there is none, every ray is
 //! open with no traversal at all; else each ray is tested against those candidates' boxes and,
 //! where it meets one, against that instance's model BVH (alpha-tested), exactly as
-//! [`SceneBvh::any_hit_excluding`] tests an instance its top level reaches.
+//! [`SceneBvh::any_hit_excluding`] tests an instance its top level reaches: the rays that meet
+//! one candidate's box in one packet walk of its model's BVH
+//! (`SceneBvh::instance_any_hits`, [`super::bvh::ModelBvh::any_hits_packet`]: the same
+//! answer per ray as that ray's own walk, for the 16 near-parallel rays of a texel one pass
+//! over the nodes they share).
 //!
 //! The answers are the same as the top level's: both are "some instance's model is hit by the
 //! ray mapped into it", the one model query decides each instance, and each path skips only
@@ -339,6 +343,10 @@ impl<'a> SunBeam<'a> {
         let grid = self.grid();
         let ([x0, y0], [x1, y1]) = grid.span(&q);
         let mut left = open[..rays.len()].iter().filter(|&&o| o).count();
+        // A candidate's rays: the picked rays, their places in `rays`, their answers.
+        let mut picked = [rays[0]; CHUNK];
+        let mut which = [0usize; CHUNK];
+        let mut hit = [false; CHUNK];
         for y in y0..=y1 {
             for x in x0..=x1 {
                 let c = y * self.cells[0] + x;
@@ -353,8 +361,20 @@ impl<'a> SunBeam<'a> {
                     }
                     let k = item.instance;
                     let e = &self.entries[k as usize];
+                    // The open rays that meet the instance's box, traced as one packet.
+                    let mut m = 0;
                     for (i, ray) in rays.iter().enumerate() {
-                        if open[i] && segments[i].meets(e) && self.scene.instance_any_hit(k, ray) {
+                        if open[i] && segments[i].meets(e) {
+                            (picked[m], which[m]) = (*ray, i);
+                            m += 1;
+                        }
+                    }
+                    if m == 0 {
+                        continue;
+                    }
+                    self.scene.instance_any_hits(k, &picked[..m], &mut hit[..m]);
+                    for (&i, &h) in which[..m].iter().zip(&hit[..m]) {
+                        if h {
                             open[i] = false;
                             blocked[i] = true;
                             left -= 1;

@@ -415,6 +415,127 @@ impl ModelBvh {
         })
     }
 
+    /// [`ModelBvh::any_hit`] of every ray at once, by one walk of the BVH per [`PACKET`] rays:
+    /// `blocked[i] == self.any_hit(&rays[i])`, bit for bit (for every input, the alpha test,
+    /// `tmin`, `tmax` and obvhs' node `EPSILON` included). Meant for rays that visit the same
+    /// nodes (the sun-disc rays of one texel, [`super::beam::SunBeam`]); any rays are answered
+    /// right.
+    ///
+    /// The walk carries, per node, the mask of the open rays that reached it. At a node every
+    /// such ray makes its own child test, `CwBvhNode::intersect_ray` on the very obvhs ray
+    /// `any_hit` traverses with (`Ray::to_obvhs`); a child is entered with the rays whose test
+    /// reached it and a leaf's primitive is tested for those rays alone, with the test
+    /// `any_hit`'s callback makes (the slot's triangle and alpha test up to the ray's `tmax`, a
+    /// hit when its `t < tmax`). So each ray tests exactly the primitives its own traversal
+    /// reaches, and `any_hit` is "some reached primitive is hit" (its traversal never shortens
+    /// the ray, it only stops at the first hit). A ray retires at its first hit and is carried
+    /// no further; the walk ends when every ray is retired or no node is left.
+    ///
+    /// One octant code (`oct_inv4`) serves all rays, even of different direction octants: in
+    /// obvhs' CWBVH8 it only permutes the inner children's bit positions in a node's hit mask
+    /// (the byte `24 + (slot ^ oct)`) and the decoding undoes that permutation with the same
+    /// code; whether a child box is hit depends on the ray's own direction (its slab signs) and
+    /// not on the code; leaf children's primitive bits do not involve it. The code only orders
+    /// the walk (nearest child first for the rays of that octant), which an any-hit answer does
+    /// not depend on. Both walks assume obvhs' bound on the BVH's depth (below its traversal
+    /// stack of 32, which `CwBvh::validate` asserts); the packet's own stack has no bound.
+    ///
+    /// `any_hit` skips a primitive whose triangle is the one it tested last (a triangle in
+    /// several boxes of the alpha-aware build); that is an optimisation only (the retest would
+    /// give the same miss: a hit would have ended the walk), and the walk here skips the same
+    /// way per ray, for the rays that tested that triangle just before.
+    ///
+    /// Panics if the two slices' lengths differ.
+    pub fn any_hits_packet(&self, rays: &[Ray], blocked: &mut [bool]) {
+        assert_eq!(rays.len(), blocked.len(), "one answer per ray");
+        for (rays, blocked) in rays.chunks(PACKET).zip(blocked.chunks_mut(PACKET)) {
+            self.packet_walk(rays, blocked);
+        }
+    }
+
+    /// One walk of [`ModelBvh::any_hits_packet`] for at most [`PACKET`] rays.
+    fn packet_walk(&self, rays: &[Ray], blocked: &mut [bool]) {
+        blocked.fill(false);
+        let Some(bvh) = self.bvh.as_ref() else {
+            return;
+        };
+        let n = rays.len();
+        if n == 0 || bvh.nodes.is_empty() {
+            return;
+        }
+        debug_assert!(n <= PACKET);
+        let mut obvhs_rays = [rays[0].to_obvhs(); PACKET];
+        for (o, r) in obvhs_rays.iter_mut().zip(rays) {
+            *o = r.to_obvhs();
+        }
+        let oct = octant_inv4(rays[0].dir);
+        let mut open: u32 = if n == PACKET {
+            u32::MAX
+        } else {
+            (1u32 << n) - 1
+        };
+        // (node, the rays that reached it); the root is reached by every ray.
+        let mut stack = PacketStack::default();
+        stack.push((0, open));
+        // The triangle tested last and the rays that tested it (all missed it).
+        let (mut last, mut last_rays) = (NO_SLOT, 0u32);
+        while let Some((index, reached)) = stack.pop() {
+            let reached = reached & open;
+            if reached == 0 {
+                continue;
+            }
+            let node = &bvh.nodes[index as usize];
+            let boxes = NodeBoxes::new(node, oct);
+            // Per inner child bit (hit-mask bits 24..32) and per primitive bit (0..24): the
+            // rays whose own test reached it.
+            let mut child_rays = [0u32; 8];
+            let mut prim_rays = [0u32; 24];
+            let (mut children, mut prims) = (0u32, 0u32);
+            for i in Bits(reached) {
+                let h = boxes.hits(node, &obvhs_rays[i as usize], oct);
+                for j in Bits(h >> 24) {
+                    child_rays[j as usize] |= 1 << i;
+                }
+                for j in Bits(h & 0x00ff_ffff) {
+                    prim_rays[j as usize] |= 1 << i;
+                }
+                children |= h >> 24;
+                prims |= h & 0x00ff_ffff;
+            }
+            // The node's primitives first, as obvhs' walk tests them before the children.
+            for j in Bits(prims) {
+                let slot = (node.primitive_base_idx + j) as usize;
+                let tri = self.slot_info[slot].triangle;
+                let mut test = prim_rays[j as usize] & open;
+                if tri == last {
+                    test &= !last_rays;
+                    last_rays |= test;
+                } else {
+                    (last, last_rays) = (tri, test);
+                }
+                for i in Bits(test) {
+                    let r = &rays[i as usize];
+                    let t = self
+                        .hit_slot(slot, r, r.tmax)
+                        .map_or(f32::INFINITY, |h| h.t);
+                    if t < r.tmax {
+                        blocked[i as usize] = true;
+                        open &= !(1 << i);
+                    }
+                }
+                if open == 0 {
+                    return;
+                }
+            }
+            // The children, the highest hit-mask bit on top (obvhs' order for this octant).
+            for j in Bits(children) {
+                let slot_index = j ^ (oct & 0xff);
+                let relative = (node.imask as u32 & !(u32::MAX << slot_index)).count_ones();
+                stack.push((node.child_base_idx + relative, child_rays[j as usize]));
+            }
+        }
+    }
+
     /// Reference closest hit: every triangle of the mesh, in order, with the same triangle and
     /// alpha test, independent of the BVH and of which triangles its build kept.
     pub fn brute_force_closest_hit(&self, ray: &Ray) -> Option<Hit> {
@@ -613,6 +734,192 @@ impl ModelBvh {
                 v2: (p.v0 + p.e2).to_array().into(),
             })
             .collect()
+    }
+}
+
+/// The most rays one walk of [`ModelBvh::any_hits_packet`] carries (a bit each in a `u32`).
+pub const PACKET: usize = 32;
+
+/// obvhs' octant code of a direction (`ray_get_octant_inv4`, private there): per byte, 4 if
+/// x ≥ 0, plus 2 if y ≥ 0, plus 1 if z ≥ 0 (NaN counts as ≥ 0).
+#[inline]
+fn octant_inv4(d: Vec3A) -> u32 {
+    (if d.x < 0.0 { 0 } else { 0x0404_0404 })
+        | (if d.y < 0.0 { 0 } else { 0x0202_0202 })
+        | (if d.z < 0.0 { 0 } else { 0x0101_0101 })
+}
+
+/// A CWBVH8 node's child boxes decoded once for all rays of a packet: the hit mask
+/// `CwBvhNode::intersect_ray(ray, oct_inv4)` returns, for one ray after another, without
+/// decoding the node's quantized planes (`u8` → `f32`, obvhs' costliest step) per ray.
+///
+/// On x86-64 (SSE2) [`NodeBoxes::hits`] is obvhs' `intersect_ray_simd` with the decoding hoisted
+/// out: the same `f32` planes (a `u8` converts exactly), the same per-ray operations in the same
+/// order and the same intrinsics (`mul`, then `add`, no FMA; `max`/`min` with the same operand
+/// order, so NaN picks the same lane; `EPSILON` and `tmax` clamps; `cmple`), then each hit
+/// child's `child_bits << bit_index` OR-ed in: the same `u32`, bit for bit, which
+/// `node_boxes_equal_obvhs_node_test` checks against obvhs itself. Elsewhere it calls obvhs.
+struct NodeBoxes {
+    /// Per axis, the children's low and high planes in node units, children 0–3 and 4–7.
+    #[cfg(target_arch = "x86_64")]
+    lo: [[std::arch::x86_64::__m128; 2]; 3],
+    #[cfg(target_arch = "x86_64")]
+    hi: [[std::arch::x86_64::__m128; 2]; 3],
+    /// Per child, the bits a hit sets in the mask (0 for an empty slot).
+    #[cfg(target_arch = "x86_64")]
+    bits: [u32; 8],
+}
+
+impl NodeBoxes {
+    /// obvhs' EPSILON (`cwbvh::node`, private there): the node test's lowest `t`.
+    #[cfg(target_arch = "x86_64")]
+    const EPSILON: f32 = 0.0001;
+
+    #[inline]
+    #[cfg_attr(not(target_arch = "x86_64"), allow(unused_variables))]
+    fn new(node: &obvhs::cwbvh::node::CwBvhNode, oct_inv4: u32) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::_mm_set_ps;
+            // SAFETY: SSE2 is part of every x86-64 target.
+            let q = |v: &[u8; 8], i: usize| unsafe {
+                _mm_set_ps(
+                    v[i * 4 + 3] as f32,
+                    v[i * 4 + 2] as f32,
+                    v[i * 4 + 1] as f32,
+                    v[i * 4] as f32,
+                )
+            };
+            let two = |v: &[u8; 8]| [q(v, 0), q(v, 1)];
+            let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+            let byte = |x: u64, b: usize| ((x >> (b * 8)) as u32) & 0xff;
+            NodeBoxes {
+                lo: [
+                    two(&node.child_min_x),
+                    two(&node.child_min_y),
+                    two(&node.child_min_z),
+                ],
+                hi: [
+                    two(&node.child_max_x),
+                    two(&node.child_max_y),
+                    two(&node.child_max_z),
+                ],
+                bits: std::array::from_fn(|c| byte(child_bits8, c) << byte(bit_index8, c)),
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        NodeBoxes {}
+    }
+
+    /// `node.intersect_ray(ray, oct_inv4)` (`self` decoded from `node` with that code).
+    #[inline]
+    fn hits(
+        &self,
+        node: &obvhs::cwbvh::node::CwBvhNode,
+        ray: &obvhs::ray::Ray,
+        oct_inv4: u32,
+    ) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::*;
+            let _ = oct_inv4;
+            // obvhs' `extent * inv_direction` and `(p − origin) * inv_direction`, lane by
+            // lane (IEEE operations: the same bits as its vector ones).
+            let (e, inv, o) = (node.compute_extent(), ray.inv_direction, ray.origin);
+            let dir_inv = [e.x * inv.x, e.y * inv.y, e.z * inv.z];
+            let origin = [
+                (node.p.x - o.x) * inv.x,
+                (node.p.y - o.y) * inv.y,
+                (node.p.z - o.z) * inv.z,
+            ];
+            let neg = [ray.direction.x, ray.direction.y, ray.direction.z].map(|d| d < 0.0);
+            let mut hit = 0u32;
+            // SAFETY: SSE2 is part of every x86-64 target.
+            unsafe {
+                let dir_inv = dir_inv.map(|v| _mm_set1_ps(v));
+                let origin = origin.map(|v| _mm_set1_ps(v));
+                for i in 0..2 {
+                    let t = |a: usize| {
+                        let (near, far) = if neg[a] {
+                            (self.hi[a][i], self.lo[a][i])
+                        } else {
+                            (self.lo[a][i], self.hi[a][i])
+                        };
+                        (
+                            _mm_add_ps(_mm_mul_ps(near, dir_inv[a]), origin[a]),
+                            _mm_add_ps(_mm_mul_ps(far, dir_inv[a]), origin[a]),
+                        )
+                    };
+                    let ((tmin_x, tmax_x), (tmin_y, tmax_y), (tmin_z, tmax_z)) = (t(0), t(1), t(2));
+                    let tmin = _mm_max_ps(tmin_x, _mm_max_ps(tmin_y, tmin_z));
+                    let tmax = _mm_min_ps(tmax_x, _mm_min_ps(tmax_y, tmax_z));
+                    let tmin = _mm_max_ps(tmin, _mm_set1_ps(Self::EPSILON));
+                    let tmax = _mm_min_ps(tmax, _mm_set1_ps(ray.tmax));
+                    let mask = _mm_movemask_ps(_mm_cmple_ps(tmin, tmax)) as u32;
+                    for j in Bits(mask) {
+                        hit |= self.bits[i * 4 + j as usize];
+                    }
+                }
+            }
+            hit
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        node.intersect_ray(ray, oct_inv4)
+    }
+}
+
+/// The packet walk's stack of (node, rays): 64 entries in place (no allocation per walk), then
+/// a vector, so that it has no bound.
+struct PacketStack {
+    inline: [(u32, u32); 64],
+    len: usize,
+    spill: Vec<(u32, u32)>,
+}
+
+impl Default for PacketStack {
+    fn default() -> Self {
+        PacketStack {
+            inline: [(0, 0); 64],
+            len: 0,
+            spill: Vec::new(),
+        }
+    }
+}
+
+impl PacketStack {
+    #[inline]
+    fn push(&mut self, v: (u32, u32)) {
+        if self.len < self.inline.len() {
+            self.inline[self.len] = v;
+            self.len += 1;
+        } else {
+            self.spill.push(v);
+        }
+    }
+
+    /// The last entry pushed (the spill holds only entries pushed after the full array's).
+    #[inline]
+    fn pop(&mut self) -> Option<(u32, u32)> {
+        self.spill.pop().or_else(|| {
+            self.len = self.len.checked_sub(1)?;
+            Some(self.inline[self.len])
+        })
+    }
+}
+
+/// The set bits of a `u32`, lowest first.
+struct Bits(u32);
+
+impl Iterator for Bits {
+    type Item = u32;
+
+    #[inline]
+    fn next(&mut self) -> Option<u32> {
+        (self.0 != 0).then(|| {
+            let j = self.0.trailing_zeros();
+            self.0 &= self.0 - 1;
+            j
+        })
     }
 }
 
@@ -972,6 +1279,195 @@ pub(crate) mod tests {
         assert_eq!(bvh.closest_hits(&rays), single);
         let any: Vec<_> = rays.iter().map(|r| bvh.any_hit(r)).collect();
         assert_eq!(bvh.any_hits(&rays), any);
+    }
+
+    /// A packet of 1..=`max` rays from one origin: within the sun's disc (0.00465 rad) of one
+    /// direction, or of any directions (mixed octants); now and then a direction with a zero
+    /// component; `tmin` 0 or small, `tmax` infinite, finite or just short of the box.
+    fn packet(rng: &mut Rng, lo: Vec3A, hi: Vec3A, max: usize) -> Vec<Ray> {
+        let size = hi - lo;
+        let u = Vec3A::new(rng.f32(), rng.f32(), rng.f32());
+        let mut o = match rng.f32() {
+            // Inside the mesh's box.
+            x if x < 0.35 => lo + size * u,
+            // Outside it, around it.
+            x if x < 0.7 => lo - size * 0.5 + size * 2.0 * u,
+            // On a face of the box (rays along the face graze it).
+            _ => lo + size * u,
+        };
+        let face = (rng.f32() * 3.0) as usize % 3;
+        let on_face = rng.f32() < 0.3;
+        if on_face {
+            o[face] = if rng.f32() < 0.5 { lo[face] } else { hi[face] };
+        }
+        let axis = Vec3A::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5);
+        let mut axis = axis.normalize_or(Vec3A::Z);
+        if on_face {
+            // Along the face: no component across it.
+            axis[face] = 0.0;
+            axis = axis.normalize_or(Vec3A::X);
+        }
+        let parallel = rng.f32() < 0.6;
+        let n = 1 + (rng.f32() * max as f32) as usize % max;
+        (0..n)
+            .map(|j| {
+                let d = if j % 5 == 2 {
+                    axis
+                } else if parallel {
+                    let (t, b) = crate::trace::frame(axis);
+                    let r = 0.00465 * rng.f32().sqrt();
+                    let phi = std::f32::consts::TAU * rng.f32();
+                    (axis + t * (r * phi.cos()) + b * (r * phi.sin())).normalize()
+                } else {
+                    Vec3A::new(rng.f32() - 0.5, rng.f32() - 0.5, rng.f32() - 0.5)
+                        .normalize_or(Vec3A::Y)
+                };
+                let tmin = [0.0, 1e-4, 1e-3][j % 3];
+                let tmax = match (j / 3) % 3 {
+                    0 => f32::INFINITY,
+                    1 => size.length() * (0.05 + rng.f32()),
+                    _ => size.length() * 3.0,
+                };
+                Ray {
+                    tmin,
+                    tmax,
+                    ..Ray::new(o, d, 0.0)
+                }
+            })
+            .collect()
+    }
+
+    /// Every ray of `packets` random packets through [`ModelBvh::any_hits_packet`] against
+    /// `any_hit` and brute force; returns (hits, rays, packets with both answers).
+    fn check_packets(bvh: &ModelBvh, seed: u64, packets: usize, max: usize) -> [usize; 3] {
+        let (mut lo, mut hi) = bvh.bounds();
+        let pad = (hi - lo) * 0.01;
+        (lo, hi) = (lo - pad, hi + pad);
+        let mut rng = Rng::hashed(seed);
+        let mut counts = [0; 3];
+        for _ in 0..packets {
+            let rays = packet(&mut rng, lo, hi, max);
+            let mut got = vec![true; rays.len()];
+            bvh.any_hits_packet(&rays, &mut got);
+            for (r, &g) in rays.iter().zip(&got) {
+                assert_eq!(g, bvh.any_hit(r), "any_hit: {r:?}");
+                assert_eq!(g, bvh.brute_force_closest_hit(r).is_some(), "brute: {r:?}");
+            }
+            let h = got.iter().filter(|&&g| g).count();
+            counts[0] += h;
+            counts[1] += rays.len();
+            counts[2] += (h > 0 && h < rays.len()) as usize;
+        }
+        counts
+    }
+
+    #[test]
+    fn packet_stack_is_last_in_first_out_past_its_array() {
+        let mut s = PacketStack::default();
+        let mut model = Vec::new();
+        let mut rng = Rng::hashed(3);
+        for k in 0..2000u32 {
+            if rng.f32() < 0.6 {
+                s.push((k, !k));
+                model.push((k, !k));
+            } else {
+                assert_eq!(s.pop(), model.pop());
+            }
+        }
+        assert!(model.len() > 64, "{}", model.len());
+        while let Some(v) = model.pop() {
+            assert_eq!(s.pop(), Some(v));
+        }
+        assert_eq!(s.pop(), None);
+    }
+
+    #[test]
+    fn node_boxes_equal_obvhs_node_test() {
+        // Every node of two BVHs against rays of every kind (from inside and outside, zero
+        // direction components, short, infinite and negative tmax) under every octant code:
+        // the hoisted decoding gives obvhs' own hit mask, bit for bit.
+        let (plant, tex) = crate::prt::plant::procedural_plant(1500, 7);
+        let masks = vec![Some(AlphaMask::from_rgba8(&tex)), None];
+        let models = [
+            ModelBvh::build(&plant, &masks, BuildPreset::VeryFast).unwrap(),
+            ModelBvh::build(&random_mesh(200, 3), &[], BuildPreset::Slow).unwrap(),
+        ];
+        let mut rng = Rng::hashed(5);
+        let (mut nonzero, mut tests) = (0, 0);
+        for m in &models {
+            let bvh = m.bvh.as_ref().unwrap();
+            let (lo, hi) = m.bounds();
+            for _ in 0..100 {
+                let mut rays = packet(&mut rng, lo, hi, 8);
+                rays.push(Ray {
+                    tmax: -1.0,
+                    ..rays[0]
+                });
+                for node in &bvh.nodes {
+                    for oct in 0..8u32 {
+                        let oct = oct * 0x0101_0101;
+                        let boxes = NodeBoxes::new(node, oct);
+                        for r in &rays {
+                            let r = r.to_obvhs();
+                            let want = node.intersect_ray(&r, oct);
+                            assert_eq!(boxes.hits(node, &r, oct), want, "{r:?} {node:?}");
+                            nonzero += (want != 0) as usize;
+                            tests += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            nonzero > tests / 100 && nonzero < tests,
+            "{nonzero} of {tests}"
+        );
+    }
+
+    #[test]
+    fn packet_any_hit_equals_any_hit_and_brute_force() {
+        // Random triangles, opaque and alpha-tested (checker), and the procedural plant's
+        // leaf cards with its own texture, whole and split into boxes (depth 2: a triangle
+        // in several leaves, the repeat-triangle skip at work).
+        let mesh = random_mesh(300, 21);
+        let (plant, tex) = crate::prt::plant::procedural_plant(1500, 6);
+        let plant_masks = vec![Some(AlphaMask::from_rgba8(&tex)), None];
+        let cases = [
+            (
+                "opaque",
+                ModelBvh::build(&mesh, &[], BuildPreset::default()),
+            ),
+            (
+                "checker",
+                ModelBvh::build(&mesh, &[Some(checker())], BuildPreset::Fast),
+            ),
+            (
+                "plant",
+                ModelBvh::build(&plant, &plant_masks, BuildPreset::VeryFast),
+            ),
+            (
+                "plant split",
+                ModelBvh::build_split(&plant, &plant_masks, BuildPreset::VeryFast, 2),
+            ),
+        ];
+        for (k, (name, bvh)) in cases.into_iter().enumerate() {
+            let bvh = bvh.unwrap();
+            let [hits, rays, mixed] = check_packets(&bvh, 40 + k as u64, 1500, 16);
+            // Both answers, and packets that split, occur often: a walk that answered all
+            // rays alike, or none, would fail.
+            assert!(
+                hits > rays / 20 && hits < rays * 9 / 10 && mixed > 100,
+                "{name}: {hits} hits of {rays} rays, {mixed} mixed packets"
+            );
+            // More rays than one walk carries: the packets run in chunks.
+            let [_, rays, _] = check_packets(&bvh, 50 + k as u64, 40, 70);
+            assert!(rays > 40 * 20, "{rays}");
+        }
+        // No BVH at all: every ray open.
+        let empty = ModelBvh::build(&Mesh::default(), &[], BuildPreset::default()).unwrap();
+        let mut got = [true; 3];
+        empty.any_hits_packet(&[Ray::new(Vec3A::ZERO, Vec3A::Z, 0.0); 3], &mut got);
+        assert_eq!(got, [false; 3]);
     }
 
     #[test]

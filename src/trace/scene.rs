@@ -12,7 +12,7 @@
 //! the inverse transform and its direction is *not* renormalized, so the ray parameter `t` is the
 //! same in both spaces and hits of different instances compare directly.
 
-use super::bvh::{ModelBvh, SurfacePoint};
+use super::bvh::{ModelBvh, PACKET, SurfacePoint};
 use super::heightfield::Heightfield;
 use super::{Hit, Ray};
 use crate::error::{Error, Result};
@@ -290,10 +290,31 @@ impl SceneBvh {
 
     /// Whether instance `k`'s model alone blocks the ray segment (alpha-tested; `k` a model
     /// instance): the test [`Self::any_hit_excluding`] makes of each instance its top level
-    /// reaches, for [`super::beam::SunBeam`].
+    /// reaches; the beam's tests' brute force.
+    #[cfg(test)]
     pub(crate) fn instance_any_hit(&self, k: u32, ray: &Ray) -> bool {
         let model = &self.models[self.instances[k as usize].model as usize];
         model.any_hit(&self.to_local[k as usize].ray(ray))
+    }
+
+    /// Whether instance `k`'s model alone blocks each ray segment (`blocked[i]` for `rays[i]`;
+    /// alpha-tested; `k` a model instance), for [`super::beam::SunBeam`]: the test
+    /// [`Self::any_hit_excluding`] makes of each instance its top level reaches, the rays
+    /// mapped into the model as it maps them, answered by one packet walk of the model's BVH
+    /// ([`ModelBvh::any_hits_packet`], the same booleans as `ModelBvh::any_hit` per ray).
+    ///
+    /// Panics if the two slices' lengths differ.
+    pub(crate) fn instance_any_hits(&self, k: u32, rays: &[Ray], blocked: &mut [bool]) {
+        assert_eq!(rays.len(), blocked.len(), "one answer per ray");
+        let model = &self.models[self.instances[k as usize].model as usize];
+        let to_local = &self.to_local[k as usize];
+        for (rays, blocked) in rays.chunks(PACKET).zip(blocked.chunks_mut(PACKET)) {
+            let mut local = [Ray::new(Vec3A::ZERO, Vec3A::Z, 0.0); PACKET];
+            for (l, r) in local.iter_mut().zip(rays) {
+                *l = to_local.ray(r);
+            }
+            model.any_hits_packet(&local[..rays.len()], blocked);
+        }
     }
 
     /// The closest opaque hit of instance `k` alone (a model instance, not the terrain).
