@@ -219,7 +219,7 @@ fn the_registry_gives_the_build_key_its_names_and_versions() {
             ("lod", 5),
             ("lightmap", 3),
             ("atlas", 2),
-            ("envmaps", 4),
+            ("envmaps", 5),
             ("cluster", 4),
             ("bittree", 3),
             ("svo", 4),

@@ -6,8 +6,8 @@
 //! would otherwise see only that instance's inside) and every instance whose probe the instance
 //! encloses (the post inside the house, hidden from the house's outside by its walls); the hit
 //! points' sun rays ignore them too, so the probe sees the scene without them; where the
-//! instance encloses its own probe, a hit inside its box is lit as if it were absent
-//! (docs/CONVENTIONS.md, "Environment-map probes").
+//! instance's model encloses its own footprint (a house), a hit inside the instance's box is lit
+//! as if the instance were absent (docs/CONVENTIONS.md, "Environment-map probes").
 //!
 //! Estimator (instead of the thesis' photon map): from a probe point at the instance (its position
 //! raised by half its model's height × scale), `samples` directions on a spherical Fibonacci set
@@ -373,7 +373,8 @@ fn bake_one(
 
 /// Radiance from direction d at p: (sky part, sun part). `skip`: the probe's own instance, then
 /// the instances enclosing it; the hit points' sun rays ignore the latter, and the own instance
-/// too where the hit lies in `shell` (the own instance's box, where it encloses its probe).
+/// too where the hit lies in `shell` (the own instance's box, where its model encloses its
+/// footprint: [`own_shells`]).
 fn radiance_along(
     scene: &EnvmapScene,
     sky_irr: &ShIrradiance,
