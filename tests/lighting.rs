@@ -643,6 +643,23 @@ fn a_probe_ignores_the_instances_standing_inside_its_own_instance() {
     );
 }
 
+/// The irradiance the first instance's maps (C_H + C_S, 4,096 rays, `seed`) give a normal.
+fn probe_irradiance(sc: &EnvmapScene, seed: u64) -> bake::sh::ShIrradiance {
+    let opts = EnvmapOptions {
+        samples: 4096,
+        seed,
+        ..EnvmapOptions::DEFAULT
+    };
+    let (ch, cs) = bake_envmaps(sc, &opts)[0];
+    let mut sum = ShRadiance::default();
+    for c in 0..16 {
+        for k in 0..3 {
+            sum.coeffs[c][k] = ch[c][k] + cs[c][k];
+        }
+    }
+    sum.to_irradiance()
+}
+
 /// Irradiance at `x` (normal `n`) by brute force: `n_rays` cosine-distributed rays through the
 /// whole scene, each bringing the sun-free sky where it escapes and, where it hits, the one
 /// bounce the environment maps model (ρ/π times the sky's unoccluded irradiance plus the sun
@@ -712,22 +729,7 @@ fn a_house_probe_lights_its_walls_like_the_ground_in_front_of_them() {
         sun: sun(),
     };
     assert!(bvh.instance_encloses(0, Vec3A::new(0.0, 0.0, 1.25)));
-    let maps = bake_envmaps(
-        &sc,
-        &EnvmapOptions {
-            samples: 4096,
-            seed: 5,
-            ..EnvmapOptions::DEFAULT
-        },
-    );
-    let (ch, cs) = maps[0];
-    let mut sum = ShRadiance::default();
-    for c in 0..16 {
-        for k in 0..3 {
-            sum.coeffs[c][k] = ch[c][k] + cs[c][k];
-        }
-    }
-    let e_map = sum.to_irradiance();
+    let e_map = probe_irradiance(&sc, 5);
     let walls = [
         (Vec3A::new(1.5, 0.0, 1.25), Vec3A::X),
         (Vec3A::new(-1.5, 0.0, 1.25), -Vec3A::X),
@@ -767,17 +769,11 @@ fn a_parasol_probe_keeps_the_shadow_under_its_roof() {
     // maps would see sunlit ground under the roof and read far above it. Measured (2026-12-07):
     // 1.014 of brute force; 1.291 with the house's rule applied to the parasol too.
     let mut parasol = closed_box([-0.15, -0.15, 0.0], [0.15, 0.15, 3.0]);
-    let roof = disc(2.0, 32);
-    let off = parasol.positions.len() as u32;
-    parasol
-        .positions
-        .extend(roof.positions.iter().map(|p| [p[0], p[1], p[2] + 3.0]));
-    parasol.normals.extend(&roof.normals);
-    parasol.uvs.extend(&roof.uvs);
-    parasol
-        .indices
-        .extend(roof.indices.iter().map(|t| t.map(|i| i + off)));
-    parasol.triangle_materials.extend(&roof.triangle_materials);
+    let mut roof = disc(2.0, 32);
+    for p in &mut roof.positions {
+        p[2] += 3.0;
+    }
+    parasol.append(roof);
     let bvh = scene(
         vec![parasol, flat_terrain(400.0)],
         vec![at(0, [0.0; 3]), at(1, [0.0; 3])],
@@ -798,22 +794,7 @@ fn a_parasol_probe_keeps_the_shadow_under_its_roof() {
         bvh.instance_encloses(0, Vec3A::new(0.0, 0.0, 1.5)),
         "the probe is in the post"
     );
-    let maps = bake_envmaps(
-        &sc,
-        &EnvmapOptions {
-            samples: 4096,
-            seed: 6,
-            ..EnvmapOptions::DEFAULT
-        },
-    );
-    let (ch, cs) = maps[0];
-    let mut sum = ShRadiance::default();
-    for c in 0..16 {
-        for k in 0..3 {
-            sum.coeffs[c][k] = ch[c][k] + cs[c][k];
-        }
-    }
-    let e_map = sum.to_irradiance();
+    let e_map = probe_irradiance(&sc, 6);
     let (mut m, mut o) = (0.0, 0.0);
     for n in [Vec3A::X, -Vec3A::X, Vec3A::Y, -Vec3A::Y] {
         let x = Vec3A::new(0.0, 0.0, 1.5) + n * (0.15 + 1e-3);
