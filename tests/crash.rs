@@ -264,3 +264,26 @@ fn a_killed_first_bake_leaves_no_output_at_all() {
     assert!(temporaries(d).is_empty());
     assert_valid(&out, "the bake after the kill");
 }
+
+#[test]
+fn an_up_to_date_run_removes_the_temporary_of_a_bake_killed_while_writing_its_report() {
+    // A bake killed after its pack's rename, while it wrote `PACK.report.json` through a
+    // temporary file, leaves that file; the next run finds the pack up to date and writes
+    // nothing, but must still remove it (the kill test above met this once in five runs).
+    let dir = scene();
+    let d = dir.path();
+    let out_dir = d.join("out");
+    let out = out_dir.join("scene.bake");
+    let cache = d.join("cache");
+    run(bake(d, &out, Some(&cache), &[]));
+    let left = out_dir.join(format!("{TMP_PREFIX}killed"));
+    std::fs::write(&left, b"half a report").unwrap();
+    let report = run(bake(d, &out, Some(&cache), &[]));
+    assert_eq!(report["up_to_date"], true, "{report}");
+    assert!(
+        temporaries(&out_dir).is_empty(),
+        "{:?}",
+        temporaries(&out_dir)
+    );
+    assert_valid(&out, "the up-to-date pack");
+}

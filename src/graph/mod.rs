@@ -36,7 +36,7 @@ use crate::error::{Error, Result};
 use crate::ingest::confine::{self, SourceNames};
 use crate::ingest::{self, IngestOptions};
 use crate::pack::fit_name;
-use crate::pack::{Pack, Section, StreamWriter, hex};
+use crate::pack::{Pack, Section, Spool, StreamWriter, hex};
 pub use crate::report::record::{BUILD_KIND, check_build_section};
 pub(crate) use crate::report::record::{BuildMeta, build_section};
 use cache::{Cache, EntryMeta, FileDep, Key, KeyBuilder, Lookup, Warning};
@@ -640,6 +640,10 @@ pub(crate) fn build_with(
     if opts.cache != CacheMode::Off
         && let Some(r) = up_to_date(opts, &output, &version)
     {
+        // A bake killed after its pack's rename (while it wrote the report beside the pack)
+        // left its temporary file there: removed here, as each writer removes them when it
+        // starts.
+        crate::pack::remove_stale_temporaries(&crate::pack::parent_dir(&output));
         if let Some(d) = &opts.depfile {
             write_depfile(d, &output, &r.files)?;
         }
@@ -787,14 +791,26 @@ pub(crate) fn build_with(
         places,
         slot: slot.clone(),
     });
+    // The per-model units' sections wait for the scene's units (the light map, last of all at
+    // the theses' scale) before they go into the output: meanwhile they wait on disk beside
+    // it ([`Spool`]; docs/PERFORMANCE.md, "The default's peak at 200,000 instances"), not in
+    // memory. Dropped after the output holds them.
+    let mut spool = Spool::beside(&output)?;
     let ctxr = g.ctx;
     let scope_r = &scope;
+    let spool_r = &mut spool;
     let ((), scene_done) = rayon::join(
         || {
             // Up to the first failure (the scene's units then stop at their next section).
             let mut r: ModelResults = Vec::with_capacity(jobs.len());
             for j in &jobs {
-                let one = model_units(ctxr, scope_r, p, j);
+                let one = model_units(ctxr, scope_r, p, j).and_then(|(sections, rec)| {
+                    let sections = sections
+                        .into_iter()
+                        .map(|s| spool_r.park(s))
+                        .collect::<Result<Vec<_>>>()?;
+                    Ok((sections, rec))
+                });
                 let failed = one.is_err();
                 r.push(one);
                 if failed {
@@ -824,6 +840,7 @@ pub(crate) fn build_with(
     }
     scene_done?;
     g.flush()?;
+    drop(spool);
     // The record of this build: its key and every file read (by name).
     let files: Vec<PathBuf> = g.rec.files.iter().cloned().collect();
     let deps: Vec<FileDep> = files.iter().map(|f| file_dep(f)).collect();

@@ -95,6 +95,11 @@ impl Payload {
         }
     }
 
+    /// Whether the bytes are mapped from a file (not held in memory).
+    pub fn is_mapped(&self) -> bool {
+        matches!(*self.data, PayloadData::Mapped(..))
+    }
+
     /// The BLAKE3 hash of the bytes.
     pub fn hash(&self) -> &[u8; 32] {
         &self.hash
@@ -385,33 +390,7 @@ impl StreamWriter {
     /// memory (the owned copy can then be dropped).
     pub fn push_mapped(&mut self, s: Section) -> Result<Section> {
         let off = self.push_at(&s)? as usize;
-        let len = s.payload.len();
-        if len == 0 {
-            return Ok(s);
-        }
-        let path = self.tmp.path().to_path_buf();
-        let page = page_size();
-        let start = off / page * page;
-        // SAFETY: the mapped range is never written again (sections are appended after it and
-        // the table after the last one), and the file is only renamed, never truncated.
-        let map = unsafe {
-            memmap2::MmapOptions::new()
-                .offset(start as u64)
-                .len(off - start + len)
-                .map(self.tmp.as_file())
-        }
-        .map_err(|e| Error::io(&path, e))?;
-        let payload = Payload::mapped(
-            std::sync::Arc::new(map),
-            off - start,
-            len,
-            *s.payload.hash(),
-        );
-        Ok(Section {
-            kind: s.kind,
-            name: s.name,
-            payload,
-        })
+        map_back(self.tmp.as_file(), self.tmp.path(), off, s)
     }
 
     /// Names of the sections written so far.
@@ -525,12 +504,87 @@ pub fn remove_stale_temporaries(dir: &Path) -> usize {
     removed
 }
 
+/// `s` with its payload mapped from `file`, where it was written at `off`.
+fn map_back(file: &std::fs::File, path: &Path, off: usize, s: Section) -> Result<Section> {
+    let len = s.payload.len();
+    if len == 0 {
+        return Ok(s);
+    }
+    let page = page_size();
+    let start = off / page * page;
+    // SAFETY: the mapped range is never written again (sections are appended after it and
+    // the table after the last one), and the file is only renamed, never truncated.
+    let map = unsafe {
+        memmap2::MmapOptions::new()
+            .offset(start as u64)
+            .len(off - start + len)
+            .map(file)
+    }
+    .map_err(|e| Error::io(path, e))?;
+    let payload = Payload::mapped(
+        std::sync::Arc::new(map),
+        off - start,
+        len,
+        *s.payload.hash(),
+    );
+    Ok(Section {
+        kind: s.kind,
+        name: s.name,
+        payload,
+    })
+}
+
+/// Sections parked on disk until they can go into a pack: an anonymous temporary file in a
+/// folder (it has no name, so the system removes it when the process ends, killed or not),
+/// each payload written once and mapped back, so that a bake does not hold sections in memory
+/// that wait for others (the per-model units' sections wait for the light map). A parked
+/// section's pages are read from the file when it is read, and leave the process when the
+/// section is dropped.
+pub struct Spool {
+    file: std::fs::File,
+    dir: PathBuf,
+    cursor: u64,
+}
+
+impl Spool {
+    /// An empty spool in folder `dir` (which exists).
+    pub fn create(dir: &Path) -> Result<Spool> {
+        let file = tempfile::tempfile_in(dir).map_err(|e| Error::io(dir, e))?;
+        Ok(Spool {
+            file,
+            dir: dir.to_path_buf(),
+            cursor: 0,
+        })
+    }
+
+    /// The spool of the pack `target` will be: in its folder, on the same disk.
+    pub fn beside(target: &Path) -> Result<Spool> {
+        Spool::create(&parent_dir(target))
+    }
+
+    /// `s` written to the spool and mapped back (its bytes, name and hash unchanged); a section
+    /// mapped from a file already is returned as it is.
+    pub fn park(&mut self, s: Section) -> Result<Section> {
+        use std::io::{Seek, SeekFrom};
+        if s.payload.is_mapped() {
+            return Ok(s);
+        }
+        let off = align_up(self.cursor as usize, SECTION_ALIGN) as u64;
+        let io = |e| Error::io(&self.dir, e);
+        self.file.seek(SeekFrom::Start(off)).map_err(io)?;
+        self.file.write_all(&s.payload).map_err(io)?;
+        self.cursor = off + s.payload.len() as u64;
+        map_back(&self.file, &self.dir, off as usize, s)
+    }
+}
+
 fn page_size() -> usize {
     // Every platform bake runs on maps at 4 KiB or a multiple of it; 64 KiB covers them all.
     65536
 }
 
-fn parent_dir(path: &Path) -> PathBuf {
+/// The folder `path` lies in (`.` for a bare file name).
+pub(crate) fn parent_dir(path: &Path) -> PathBuf {
     match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
@@ -1147,6 +1201,44 @@ mod tests {
                 proptest::prop_assert_eq!(view.payload(e), pack.payload(pack.find(&e.name).unwrap()));
             }
         }
+    }
+
+    #[test]
+    fn parked_sections_keep_their_bytes_and_leave_no_file_behind() {
+        // Parked in a spool, then streamed into a pack: the same pack as the in-memory
+        // encoding, every parked payload read from the spool's file, and the folder holds the
+        // pack alone (the spool's file has no name).
+        let w = sample();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.bake");
+        let mut out = StreamWriter::create(&path).unwrap();
+        let mut spool = Spool::beside(&path).unwrap();
+        let parked: Vec<Section> = w
+            .sections()
+            .iter()
+            .map(|s| spool.park(s.clone()).unwrap())
+            .collect();
+        for (p, s) in parked.iter().zip(w.sections()) {
+            assert!(p.payload.is_mapped() && !s.payload.is_mapped());
+            assert_eq!(
+                (&p.kind, &p.name, &p.payload),
+                (&s.kind, &s.name, &s.payload)
+            );
+            assert_eq!(p.payload.hash(), s.payload.hash());
+            // A mapped section is not parked again.
+            assert!(spool.park(p.clone()).unwrap().payload.is_mapped());
+        }
+        for p in parked {
+            out.push_mapped(p).unwrap();
+        }
+        out.finish().unwrap();
+        drop(spool);
+        assert_eq!(std::fs::read(&path).unwrap(), w.to_bytes().unwrap());
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("p.bake")]);
     }
 
     #[test]
