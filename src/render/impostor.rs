@@ -280,7 +280,9 @@ pub(super) fn upload(
 /// normal's alpha) most of those texels have (the lowest of the tied; every material from
 /// [`IMPOSTOR_MATERIALS`] on counted as one, written 255), its depth code their least (the
 /// surface nearest the tile's eye: a mean would put the surface inside the model, in its own
-/// shadow); a block without coverage is zero.
+/// shadow); a block without coverage is zero but for its depth code, 255 as an empty level-0
+/// texel's (`bake_impostor`): the shader's ray march (`shaders/impostor.wgsl` `march`) reads
+/// code 255 as no surface at every level.
 pub struct AtlasChains {
     pub levels: Vec<[u32; 4]>,
     pub color: Vec<[u8; 4]>,
@@ -359,7 +361,7 @@ pub fn atlas_chains(d: &ImpostorData, side: u32, tile: u32) -> AtlasChains {
                 if b.n == 0 {
                     out.color.push([0; 4]);
                     out.normal.push([0; 4]);
-                    out.depth.push(0);
+                    out.depth.push(u8::MAX);
                     continue;
                 }
                 let n = f64::from(b.n);
@@ -538,7 +540,7 @@ mod tests {
                     if block.is_empty() {
                         assert_eq!(
                             (c.color[at], c.normal[at], c.depth[at]),
-                            ([0; 4], [0; 4], 0)
+                            ([0; 4], [0; 4], 255)
                         );
                         continue;
                     }
