@@ -1,7 +1,8 @@
 // Impostors (src/render/impostor.rs): one quad per instance (6 vertices, no vertex arrays; the
 // InstanceRecord in slot 0): the image plane of the hemi-octahedral view of the model's atlas
 // nearest the eye, turned to face the eye, textured with that view (src/lod/octa.rs; `nearest_tile` in impostor.rs is the CPU twin of `tile_of`
-// below: keep the two in step). Alpha test at 0.5 like mesh.wgsl, the atlas normal rotated to the
+// below: keep the two in step) through its depth atlas: the texel the eye's ray meets there
+// (parallax, `march`). Alpha test at 0.5 like mesh.wgsl, the atlas normal rotated to the
 // world lit by the sun (Lambert on the atlas albedo) with the shadow-map lookup of direct.wgsl at
 // the surface point the depth atlas gives, and the ambient of the instance's environment maps
 // (group 3: the model's first ambient group; the sky's where the model has no PRT).
@@ -313,16 +314,18 @@ fn atlas_delta_at(in: ImpostorOut, px: vec2<i32>, level: i32) -> f32 {
     return (textureLoad(atlas_depth, px, level).r * 2.0 - 1.0) * in.radius;
 }
 
-// The shadow pass: the sun's ray through the fragment marched through the tile's level-0 depth
-// atlas (`march`; a texel holds a surface where its alpha passes ½, as the camera pass's solid
-// test), the depth of the surface point it meets.
+// The shadow pass: the sun tile's picture (no parallax: each texel at its own point of the
+// tile's frame, so the map's surface lies within r·sin e_sun of the model's along the sun, the
+// tolerance of the camera pass's lookup), alpha-tested at level 0, the depth of the surface
+// point the depth atlas gives. Marching the sun's ray through the sun tile's depth atlas as the
+// camera pass marches the eye's was measured and not kept (docs/VALIDATION.md, twelfth session).
 @fragment
 fn fs_shadow(in: ImpostorOut) -> @builtin(frag_depth) f32 {
-    let hit = march(in, tile_ray(in, in.st, sun_light().xyz, false), 0, impostor.grid_tile.w != 0u);
-    if (!hit.hit) {
+    let px = atlas_texel_at(in, in.st);
+    if (textureLoad(atlas_color, px, 0).a < 0.5) {
         discard;
     }
-    let p = globals.view_proj * vec4<f32>(hit_surface(in, hit), 1.0);
+    let p = globals.view_proj * vec4<f32>(in.world - in.view_dir * atlas_delta_at(in, px, 0), 1.0);
     return clamp(p.z / p.w, 0.0, 1.0);
 }
 
@@ -337,10 +340,9 @@ struct TileRay {
     hi: f32,
 };
 
-// The ray through the drawn quad's point of tile coordinates `st`: the quad turned towards unit
-// direction `toward` (`impostor_vertex`), the ray from the eye through that point where
-// `perspective` (the camera pass), else along −toward (the sun's parallel rays).
-fn tile_ray(in: ImpostorOut, st: vec2<f32>, toward: vec3<f32>, perspective: bool) -> TileRay {
+// The eye's ray through the drawn quad's point of tile coordinates `st`, the quad turned towards
+// unit direction `toward` (`impostor_vertex`).
+fn tile_ray(in: ImpostorOut, st: vec2<f32>, toward: vec3<f32>) -> TileRay {
     let axes = tile_axes(in.tile, in.rot);
     let right = axes[0];
     let up = axes[1];
@@ -348,11 +350,9 @@ fn tile_ray(in: ImpostorOut, st: vec2<f32>, toward: vec3<f32>, perspective: bool
     // The drawn point relative to the centre: the tile plane's point turned to face `toward`.
     let q = turn_towards(w, toward, (right * st.x + up * st.y) * in.radius);
     var d = -toward;
-    if (perspective) {
-        let e = in.centre + q - globals.eye.xyz;
-        if (dot(e, e) > 1e-20) {
-            d = normalize(e);
-        }
+    let e = in.centre + q - globals.eye.xyz;
+    if (dot(e, e) > 1e-20) {
+        d = normalize(e);
     }
     // Depth grows along the ray at g = −d·w per unit length (the eye's tile is within about
     // 15° of the eye's direction; below the horizon the clamped tile may lie farther off).
@@ -400,32 +400,31 @@ fn in_column(t: f32, h: f32, shell: f32) -> bool {
     return t >= h && t <= h + shell;
 }
 
+// How deep behind its surface a texel's column reaches, in texels of the ray's sideways travel
+// (`march`): a model with alpha-tested materials (a crown: the atlas knows its nearest leaves,
+// not what lies behind them) and a solid one.
+const LEAF_SHELL: f32 = 1.0;
+const SOLID_SHELL: f32 = 4.0;
+
 // Parallax through the tile's depth atlas at level `level`: the first point of the ray in a
-// texel's column, the texel's surface offset and what lies behind it, within the box for a
-// solid model; for a model with alpha-tested materials (`thin`) only a shell one texel of the
-// ray's sideways travel deep (at least two depth codes), since the atlas knows a crown's
-// nearest leaves and not what lies behind them: full columns closed the holes between leaves
-// for every ray that passed behind one (the generated scene's impostor shadows, its over view's
-// terrain direct 1.014 → 0.926, docs/VALIDATION.md). Steps of at most one texel of that level
-// along the ray's way across the tile (half a texel for a thin model; at most 64), then 6
-// halvings of the step that met a column; the point is the ray's at the texel's own depth where
-// that lies in the last step (else the step's end: the ray met the column's side). Seen along
-// the tile's own direction (k = 0) it is the texel under `st` at its depth: the picture of the
-// tile, as drawn before parallax.
-fn march(in: ImpostorOut, ray: TileRay, level: i32, thin: bool) -> TileHit {
+// texel's column, the texel's surface and what lies behind it, `shell_texels` of the ray's
+// sideways travel deep (at least two depth codes). Columns through the whole box closed the
+// holes between a crown's leaves for every ray that passed behind one and drew a bench's slats
+// and legs as long as the box is deep (docs/VALIDATION.md, twelfth session). Steps of at most half
+// a texel of that level along the ray's way across the tile (at most 64), then 6 halvings of the
+// step that met a column; the point is the ray's at the texel's own depth where that lies in the
+// last step (else the step's end: the ray met the column's side). Seen along the tile's own
+// direction (k = 0) it is the texel under `st` at its depth: the tile's picture, as drawn before
+// parallax.
+fn march(in: ImpostorOut, ray: TileRay, level: i32, shell_texels: f32) -> TileHit {
     var out = TileHit(ray.st0, 0.0, false);
     if (ray.lo > ray.hi) {
         return out;
     }
     let texels = f32(impostor.grid_tile.y >> u32(level));
     let travel = length(ray.k) * (ray.hi - ray.lo) * 0.5 * texels;
-    var shell = 1e30;
-    var per_texel = 1.0;
-    if (thin) {
-        shell = max(2.0 / (texels * max(length(ray.k), 1e-12)), 4.0 * in.radius / 255.0);
-        per_texel = 2.0;
-    }
-    let n = u32(clamp(ceil(travel * per_texel), 1.0, 64.0));
+    let shell = max(shell_texels * 2.0 / (texels * max(length(ray.k), 1e-12)), 4.0 * in.radius / 255.0);
+    let n = u32(clamp(ceil(2.0 * travel), 1.0, 64.0));
     var a = ray.lo;
     var b = ray.lo;
     var found = false;
@@ -640,12 +639,12 @@ fn shade(in: ImpostorOut) -> ImpostorShaded {
         // tests/render_lod.rs `a_small_far_impostor_covers_the_pixels_its_mesh_covers`.
         let at = screen_point(in.clip);
         let o = sample_offset(in.position.xy, at, 4u);
-        hit = march(in, tile_ray(in, in.st + dsx * o.x + dsy * o.y, toward, true), 0, false);
+        hit = march(in, tile_ray(in, in.st + dsx * o.x + dsy * o.y, toward), 0, SOLID_SHELL);
         var c = vec4<f32>(0.0);
         if (SAMPLE_MASK) {
             for (var k = 0u; k < 4u; k++) {
                 let ok = sample_offset(in.position.xy, at, k);
-                let h = march(in, tile_ray(in, in.st + dsx * ok.x + dsy * ok.y, toward, true), 0, false);
+                let h = march(in, tile_ray(in, in.st + dsx * ok.x + dsy * ok.y, toward), 0, SOLID_SHELL);
                 if (h.hit) {
                     c[k] = 1.0;
                     if (!hit.hit) {
@@ -660,7 +659,7 @@ fn shade(in: ImpostorOut) -> ImpostorShaded {
         }
         level = 0;
     } else {
-        hit = march(in, tile_ray(in, in.st, toward, true), level, true);
+        hit = march(in, tile_ray(in, in.st, toward), level, LEAF_SHELL);
         if (!hit.hit) {
             discard;
         }
