@@ -1109,6 +1109,24 @@ fn a_far_plant_drawn_as_impostor_shadows_itself_like_full_detail() {
     );
 }
 
+/// A pack's only instance rendered with its region image as impostor (τ large) and at full
+/// detail (τ = 0), `opts` otherwise.
+fn impostor_and_full_detail(
+    pack: &Pack,
+    opts: RenderOptions,
+) -> (bake::render::RenderOutput, bake::render::RenderOutput) {
+    let with = |tau: f32| RenderOptions {
+        regions: true,
+        lod_tau: tau,
+        ..opts.clone()
+    };
+    let far = render_pack(pack, &with(1e6)).unwrap();
+    let full = render_pack(pack, &with(0.0)).unwrap();
+    assert_eq!(far.stats.impostor_instances, 1, "{:?}", far.stats);
+    assert_eq!(full.stats.impostor_instances, 0);
+    (far, full)
+}
+
 /// A small far impostor of a model without alpha-tested materials covers the pixels its mesh
 /// covers, as MSAA covers the mesh's triangles: each sample tests the level-0 atlas texel under
 /// it. The fixture's 3DS bench (slats and legs a few centimetres wide), drawn about 10 px wide
@@ -1151,15 +1169,13 @@ fn a_small_far_impostor_covers_the_pixels_its_mesh_covers() {
         let az = (a as f32 * 45.0 + 10.0).to_radians();
         let el = 35f32.to_radians();
         let dirv = Vec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
-        let opts = |tau: f32| RenderOptions {
-            regions: true,
-            linear: true,
-            ..square_view(c + dirv * d, c, w, tau)
-        };
-        let far = render_pack(&pack, &opts(1e6)).unwrap();
-        let full = render_pack(&pack, &opts(0.0)).unwrap();
-        assert_eq!(far.stats.impostor_instances, 1, "{:?}", far.stats);
-        assert_eq!(full.stats.impostor_instances, 0);
+        let (far, full) = impostor_and_full_detail(
+            &pack,
+            RenderOptions {
+                linear: true,
+                ..square_view(c + dirv * d, c, w, 0.0)
+            },
+        );
         let (fr, mr) = (
             far.regions.as_ref().unwrap(),
             full.regions.as_ref().unwrap(),
@@ -1244,14 +1260,7 @@ fn an_impostor_seen_between_tiles_puts_its_leaves_where_full_detail_has_them() {
             let (ti, tj) = bake::render::impostor::nearest_tile(wv, imp.grid);
             let wt = bake::lod::octa::tile_direction(ti, tj, imp.grid);
             gaps.push(wv.dot(wt).clamp(-1.0, 1.0).acos().to_degrees());
-            let opts = |tau: f32| RenderOptions {
-                regions: true,
-                ..square_view(c + dirv * d, c, w, tau)
-            };
-            let far = render_pack(&pack, &opts(1e6)).unwrap();
-            let full = render_pack(&pack, &opts(0.0)).unwrap();
-            assert_eq!(far.stats.impostor_instances, 1, "{:?}", far.stats);
-            assert_eq!(full.stats.impostor_instances, 0);
+            let (far, full) = impostor_and_full_detail(&pack, square_view(c + dirv * d, c, w, 0.0));
             let (fr, mr) = (
                 far.regions.as_ref().unwrap(),
                 full.regions.as_ref().unwrap(),
