@@ -21,6 +21,13 @@
 //!   direction has the largest dot product with it is drawn ([`nearest_tile`]: the cell that
 //!   holds its octahedral coordinates and its 8 neighbours, checked against brute force over all
 //!   tiles by tests/render_lod.rs). Nearest texel within the tile (no filtering across tiles).
+//! - **Parallax:** each fragment shows the texel the eye's ray meets in the tile's depth atlas,
+//!   not the one under the quad's point (`shaders/impostor.wgsl` `march`): in the tile's frame
+//!   the ray crosses the image plane at `st₀ + k·δ` at depth offset δ, each texel is a column
+//!   from its surface one texel of the ray's sideways travel deep (4 for a solid model), stepped
+//!   at half a texel, then refined by halving (docs/CONVENTIONS.md "Impostors"). A picture from
+//!   one tile put a surface δ in front of or behind the tile's plane δ·sin e off, e the angle
+//!   between the eye and the tile (up to about 15°); along the tile's own direction the two agree.
 //! - **Alpha:** the atlas alpha (0 or 255) tested at 0.5, the mesh shader's cutoff.
 //! - **Light:** the atlas normal (model space) rotated to the world and turned towards the eye;
 //!   the texel's material (the normal's alpha names it; the model's first [`IMPOSTOR_MATERIALS`])
@@ -43,7 +50,7 @@
 //!   one hook): a quad facing the sun with the view nearest the sun's direction in the model
 //!   frame, alpha-tested, each fragment at the depth of the surface point its depth texel gives
 //!   (so the plant shadows itself roughly as its mesh would).
-//! - **Depth:** each fragment writes the depth of the surface point its depth texel gives (the
+//! - **Depth:** each fragment writes the depth of the point where its ray met the depth atlas (the
 //!   tile-plane point moved by the depth along `w`), not the quad's plane through the centre,
 //!   under which a model's front and base lay below the ground beside it; instance scale is
 //!   taken by its size (a mirroring negative scale is not mirrored).
@@ -280,7 +287,9 @@ pub(super) fn upload(
 /// normal's alpha) most of those texels have (the lowest of the tied; every material from
 /// [`IMPOSTOR_MATERIALS`] on counted as one, written 255), its depth code their least (the
 /// surface nearest the tile's eye: a mean would put the surface inside the model, in its own
-/// shadow); a block without coverage is zero.
+/// shadow); a block without coverage is zero but for its depth code, 255 as an empty level-0
+/// texel's (`bake_impostor`): the shader's ray march (`shaders/impostor.wgsl` `march`) reads
+/// code 255 as no surface at every level.
 pub struct AtlasChains {
     pub levels: Vec<[u32; 4]>,
     pub color: Vec<[u8; 4]>,
@@ -359,7 +368,7 @@ pub fn atlas_chains(d: &ImpostorData, side: u32, tile: u32) -> AtlasChains {
                 if b.n == 0 {
                     out.color.push([0; 4]);
                     out.normal.push([0; 4]);
-                    out.depth.push(0);
+                    out.depth.push(u8::MAX);
                     continue;
                 }
                 let n = f64::from(b.n);
@@ -538,7 +547,7 @@ mod tests {
                     if block.is_empty() {
                         assert_eq!(
                             (c.color[at], c.normal[at], c.depth[at]),
-                            ([0; 4], [0; 4], 0)
+                            ([0; 4], [0; 4], 255)
                         );
                         continue;
                     }

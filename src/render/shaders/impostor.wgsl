@@ -1,7 +1,8 @@
 // Impostors (src/render/impostor.rs): one quad per instance (6 vertices, no vertex arrays; the
 // InstanceRecord in slot 0): the image plane of the hemi-octahedral view of the model's atlas
 // nearest the eye, turned to face the eye, textured with that view (src/lod/octa.rs; `nearest_tile` in impostor.rs is the CPU twin of `tile_of`
-// below: keep the two in step). Alpha test at 0.5 like mesh.wgsl, the atlas normal rotated to the
+// below: keep the two in step) through its depth atlas: the texel the eye's ray meets there
+// (parallax, `march`). Alpha test at 0.5 like mesh.wgsl, the atlas normal rotated to the
 // world lit by the sun (Lambert on the atlas albedo) with the shadow-map lookup of direct.wgsl at
 // the surface point the depth atlas gives, and the ambient of the instance's environment maps
 // (group 3: the model's first ambient group; the sky's where the model has no PRT).
@@ -289,13 +290,8 @@ fn turn_towards(a: vec3<f32>, b: vec3<f32>, x: vec3<f32>) -> vec3<f32> {
     return x * c + cross(k, x) + k * (dot(k, x) / (1.0 + c));
 }
 
-// The atlas texel of a quad fragment: texel (c, r) of its tile, as lod/impostor.rs
-// `texel_ray` (s = 2(c + ½)/tile − 1, t = 1 − 2(r + ½)/tile), nearest.
-fn atlas_texel(in: ImpostorOut) -> vec2<i32> {
-    return atlas_texel_at(in, in.st);
-}
-
-// The atlas texel of the quad's point `st` in the fragment's tile.
+// The atlas texel of the quad's point `st` in the fragment's tile: texel (c, r) of the tile, as
+// lod/impostor.rs `texel_ray` (s = 2(c + ½)/tile − 1, t = 1 − 2(r + ½)/tile), nearest.
 fn atlas_texel_at(in: ImpostorOut, st: vec2<f32>) -> vec2<i32> {
     let tile = impostor.grid_tile.y;
     let fc = clamp(floor((st.x * 0.5 + 0.5) * f32(tile)), 0.0, f32(tile - 1u));
@@ -313,25 +309,167 @@ fn atlas_level(dx: vec2<f32>, dy: vec2<f32>) -> i32 {
     return i32(clamp(round(log2(max(rho, 1e-8))), 0.0, top));
 }
 
-// The depth atlas' offset δ = (centre − x)·w of the surface behind a fragment.
-fn atlas_delta(in: ImpostorOut, px: vec2<i32>) -> f32 {
-    return atlas_delta_at(in, px, 0);
-}
-
-// `atlas_delta` of texel `px` of level `level`.
+// The depth atlas' offset δ = (centre − x)·w of texel `px` of level `level`.
 fn atlas_delta_at(in: ImpostorOut, px: vec2<i32>, level: i32) -> f32 {
     return (textureLoad(atlas_depth, px, level).r * 2.0 - 1.0) * in.radius;
 }
 
-// The shadow pass: the same alpha test, the depth of the surface point the depth atlas gives.
+// The shadow pass: the sun tile's picture (no parallax: each texel at its own point of the
+// tile's frame, so the map's surface lies within r·sin e_sun of the model's along the sun, the
+// tolerance of the camera pass's lookup), alpha-tested at level 0, the depth of the surface
+// point the depth atlas gives. Marching the sun's ray through the sun tile's depth atlas as the
+// camera pass marches the eye's was measured and not kept (docs/VALIDATION.md, twelfth session).
 @fragment
 fn fs_shadow(in: ImpostorOut) -> @builtin(frag_depth) f32 {
-    let px = atlas_texel(in);
+    let px = atlas_texel_at(in, in.st);
     if (textureLoad(atlas_color, px, 0).a < 0.5) {
         discard;
     }
-    let p = globals.view_proj * vec4<f32>(in.world - in.view_dir * atlas_delta(in, px), 1.0);
+    let p = globals.view_proj * vec4<f32>(in.world - in.view_dir * atlas_delta_at(in, px, 0), 1.0);
     return clamp(p.z / p.w, 0.0, 1.0);
+}
+
+// The viewer's ray through a fragment in the frame of the fragment's tile: at the depth offset
+// δ = (centre − x)·w of the depth atlas it crosses the tile's image plane's coordinates
+// st0 + k·δ, and it lies in the tile's box (|s|, |t| ≤ 1, |δ| ≤ radius) for δ in [lo, hi]
+// (none where lo > hi).
+struct TileRay {
+    st0: vec2<f32>,
+    k: vec2<f32>,
+    lo: f32,
+    hi: f32,
+};
+
+// The eye's ray through the drawn quad's point of tile coordinates `st`, the quad turned towards
+// unit direction `toward` (`impostor_vertex`).
+fn tile_ray(in: ImpostorOut, st: vec2<f32>, toward: vec3<f32>) -> TileRay {
+    let axes = tile_axes(in.tile, in.rot);
+    let right = axes[0];
+    let up = axes[1];
+    let w = axes[2];
+    // The drawn point relative to the centre: the tile plane's point turned to face `toward`.
+    let q = turn_towards(w, toward, (right * st.x + up * st.y) * in.radius);
+    var d = -toward;
+    let e = in.centre + q - globals.eye.xyz;
+    if (dot(e, e) > 1e-20) {
+        d = normalize(e);
+    }
+    // Depth grows along the ray at g = −d·w per unit length (the eye's tile is within about
+    // 15° of the eye's direction; below the horizon the clamped tile may lie farther off).
+    let g = max(-dot(d, w), 1e-3);
+    let k = vec2<f32>(dot(d, right), dot(d, up)) / (in.radius * g);
+    let st0 = vec2<f32>(dot(q, right), dot(q, up)) / in.radius + k * dot(q, w);
+    var lo = -in.radius;
+    var hi = in.radius;
+    for (var c = 0; c < 2; c++) {
+        if (abs(k[c]) > 1e-12) {
+            let a = (-1.0 - st0[c]) / k[c];
+            let b = (1.0 - st0[c]) / k[c];
+            lo = max(lo, min(a, b));
+            hi = min(hi, max(a, b));
+        } else if (abs(st0[c]) > 1.0) {
+            hi = lo - 1.0;
+        }
+    }
+    return TileRay(st0, k, lo, hi);
+}
+
+// The surface offset δ of the tile's texel under `st` at atlas level `level` (the block's
+// nearest, `atlas_chains`), or 3·radius where the texel holds no surface (depth code 255, the
+// empty texels' code at every level).
+fn atlas_height(in: ImpostorOut, st: vec2<f32>, level: i32) -> f32 {
+    let px = atlas_texel_at(in, st) >> vec2<u32>(u32(level));
+    let code = textureLoad(atlas_depth, px, level).r;
+    if (code > 254.5 / 255.0) {
+        return 3.0 * in.radius;
+    }
+    return (code * 2.0 - 1.0) * in.radius;
+}
+
+// Where a ray meets the tile's depth atlas: its tile coordinates, its depth offset δ and
+// whether it met a surface.
+struct TileHit {
+    st: vec2<f32>,
+    delta: f32,
+    hit: bool,
+};
+
+// Whether a ray point at depth offset `t` lies in the texel column of surface offset `h`: at or
+// behind the surface, and no deeper than `shell` behind it.
+fn in_column(t: f32, h: f32, shell: f32) -> bool {
+    return t >= h && t <= h + shell;
+}
+
+// How deep behind its surface a texel's column reaches, in texels of the ray's sideways travel
+// (`march`): a model with alpha-tested materials (a crown: the atlas knows its nearest leaves,
+// not what lies behind them) and a solid one.
+const LEAF_SHELL: f32 = 1.0;
+const SOLID_SHELL: f32 = 4.0;
+
+// Parallax through the tile's depth atlas at level `level`: the first point of the ray in a
+// texel's column, the texel's surface and what lies behind it, `shell_texels` of the ray's
+// sideways travel deep (at least two depth codes). Columns through the whole box closed the
+// holes between a crown's leaves for every ray that passed behind one and drew a bench's slats
+// and legs as long as the box is deep (docs/VALIDATION.md, twelfth session). Steps of at most half
+// a texel of that level along the ray's way across the tile (at most 64), then 6 halvings of the
+// step that met a column; the point is the ray's at the texel's own depth where that lies in the
+// last step (else the step's end: the ray met the column's side). Seen along the tile's own
+// direction (k = 0) it is the texel under `st` at its depth: the tile's picture, as drawn before
+// parallax.
+fn march(in: ImpostorOut, ray: TileRay, level: i32, shell_texels: f32) -> TileHit {
+    var out = TileHit(ray.st0, 0.0, false);
+    if (ray.lo > ray.hi) {
+        return out;
+    }
+    let texels = f32(impostor.grid_tile.y >> u32(level));
+    let travel = length(ray.k) * (ray.hi - ray.lo) * 0.5 * texels;
+    let shell = max(shell_texels * 2.0 / (texels * max(length(ray.k), 1e-12)), 4.0 * in.radius / 255.0);
+    let n = u32(clamp(ceil(2.0 * travel), 1.0, 64.0));
+    var a = ray.lo;
+    var b = ray.lo;
+    var found = false;
+    for (var i = 0u; i <= n; i++) {
+        let t = mix(ray.lo, ray.hi, f32(i) / f32(n));
+        if (in_column(t, atlas_height(in, ray.st0 + ray.k * t, level), shell)) {
+            b = t;
+            found = true;
+            break;
+        }
+        a = t;
+    }
+    if (!found) {
+        return out;
+    }
+    if (b > a) {
+        for (var j = 0; j < 6; j++) {
+            let m = 0.5 * (a + b);
+            if (in_column(m, atlas_height(in, ray.st0 + ray.k * m, level), shell)) {
+                b = m;
+            } else {
+                a = m;
+            }
+        }
+    }
+    out.st = ray.st0 + ray.k * b;
+    out.delta = clamp(atlas_height(in, out.st, level), a, b);
+    out.hit = true;
+    return out;
+}
+
+// The world point of a hit: the tile plane's point at its (s, t) moved by −δ along the tile's
+// direction.
+fn hit_surface(in: ImpostorOut, hit: TileHit) -> vec3<f32> {
+    let axes = tile_axes(in.tile, in.rot);
+    return in.centre + (axes[0] * hit.st.x + axes[1] * hit.st.y) * in.radius - axes[2] * hit.delta;
+}
+
+// The unit direction from the impostor's centre towards the eye (`vs_main`'s).
+fn towards_eye(in: ImpostorOut) -> vec3<f32> {
+    let e = globals.eye.xyz - in.centre;
+    if (dot(e, e) < 1e-20) {
+        return vec3<f32>(0.0, 0.0, 1.0);
+    }
+    return normalize(e);
 }
 
 // The image axes (right, up) and the direction w of tile `tile` in the world, for an instance
@@ -476,66 +614,72 @@ fn shade(in: ImpostorOut) -> ImpostorShaded {
     // A model with alpha-tested materials: the atlas at the footprint's level, its texel's
     // coverage against the samples' thresholds (as far leaf cards: the view's coverage over the
     // pixel rather than the one texel at its centre), its mean colour, normal and depth for
-    // the light. A solid model: each sample's own level-0 texel (below).
+    // the light. A solid model: each sample's own level-0 texel (below). Either way the texel
+    // is the one the eye's ray meets in the depth atlas (parallax, `march`), not the one under
+    // the quad's point: a picture from one tile put each texel where the tile's plane through
+    // the centre has it, δ·sin e off for a surface δ in front of or behind that plane, e the
+    // angle between the eye and the tile (up to about 15°).
     let dsx = dpdx(in.st);
     let dsy = dpdy(in.st);
     var level = atlas_level(dsx, dsy);
-    var px = atlas_texel(in) >> vec2<u32>(u32(level));
-    var texel = textureLoad(atlas_color, px, level);
+    let toward = towards_eye(in);
     let d = layer_dither(in.position.xy, in.world);
     var mask = 0xffffffffu;
+    var hit: TileHit;
     if (impostor.grid_tile.w == 0u) {
         // A model without alpha-tested materials (a solid silhouette) is drawn as MSAA draws its
-        // mesh: each sample keeps the model where the level-0 texel under it holds a surface,
-        // and the pixel is shaded once, with the level-0 texel under its centre (or under its
-        // first kept sample where the centre misses, as centroid sampling would). The block's
-        // coverage at the footprint's level against the samples' thresholds spread a thin
-        // post's or a wall's edge over samples wherever it lay in the pixel and let the ground
-        // through the pixels the model covers (spec0's far houses and posts: 0.857 of the path
-        // tracer's ambient term; docs/VALIDATION.md). Shading with the block instead of the
-        // texel: tests/render_lod.rs `a_small_far_impostor_covers_the_pixels_its_mesh_covers`.
+        // mesh: each sample keeps the model where its ray meets a surface in the level-0 depth
+        // atlas, and the pixel is shaded once, with the level-0 texel the ray through its centre
+        // meets (or the one its first kept sample's meets where the centre's misses, as
+        // centroid sampling would). The block's coverage at the footprint's level against the
+        // samples' thresholds spread a thin post's or a wall's edge over samples wherever it
+        // lay in the pixel and let the ground through the pixels the model covers (spec0's far
+        // houses and posts: 0.857 of the path tracer's ambient term; docs/VALIDATION.md).
+        // Shading with the block instead of the texel:
+        // tests/render_lod.rs `a_small_far_impostor_covers_the_pixels_its_mesh_covers`.
         let at = screen_point(in.clip);
-        let centre = atlas_texel_at(in, in.st + dsx * (floor(in.position.x) + 0.5 - at.x) + dsy * (floor(in.position.y) + 0.5 - at.y));
-        let centre_texel = textureLoad(atlas_color, centre, 0);
-        var shade_at = centre;
-        var hit = centre_texel.a >= 0.5;
+        let o = sample_offset(in.position.xy, at, 4u);
+        hit = march(in, tile_ray(in, in.st + dsx * o.x + dsy * o.y, toward), 0, SOLID_SHELL);
         var c = vec4<f32>(0.0);
         if (SAMPLE_MASK) {
             for (var k = 0u; k < 4u; k++) {
-                let o = sample_offset(in.position.xy, at, k);
-                let sk = in.st + dsx * o.x + dsy * o.y;
-                if (abs(sk.x) <= 1.0 && abs(sk.y) <= 1.0) {
-                    let t = atlas_texel_at(in, sk);
-                    if (textureLoad(atlas_color, t, 0).a >= 0.5) {
-                        c[k] = 1.0;
-                        if (!hit) {
-                            hit = true;
-                            shade_at = t;
-                        }
+                let ok = sample_offset(in.position.xy, at, k);
+                let h = march(in, tile_ray(in, in.st + dsx * ok.x + dsy * ok.y, toward), 0, SOLID_SHELL);
+                if (h.hit) {
+                    c[k] = 1.0;
+                    if (!hit.hit) {
+                        hit = h;
                     }
                 }
             }
             mask = sample_mask_of(c, d);
         }
-        if (!hit) {
+        if (!hit.hit) {
             discard;
         }
         level = 0;
-        px = shade_at;
-        texel = textureLoad(atlas_color, px, 0);
-    } else if (SAMPLE_MASK) {
-        mask = sample_mask_of(vec4<f32>(texel.a), d);
-        if (mask == 0u || texel.a <= 0.0) {
+    } else {
+        hit = march(in, tile_ray(in, in.st, toward), level, LEAF_SHELL);
+        if (!hit.hit) {
             discard;
         }
-    } else if (texel.a < d || texel.a <= 0.0) {
-        discard;
+    }
+    let px = atlas_texel_at(in, hit.st) >> vec2<u32>(u32(level));
+    let texel = textureLoad(atlas_color, px, level);
+    if (impostor.grid_tile.w != 0u) {
+        if (SAMPLE_MASK) {
+            mask = sample_mask_of(vec4<f32>(texel.a), d);
+            if (mask == 0u || texel.a <= 0.0) {
+                discard;
+            }
+        } else if (texel.a < d || texel.a <= 0.0) {
+            discard;
+        }
     }
     let nt = textureLoad(atlas_normal, px, level);
     let k = u32(round(nt.a * 255.0));
-    // The surface point: depth code d = 255 (δ + r)/(2r), δ = (centre − x)·w.
-    let delta = atlas_delta_at(in, px, level);
-    let surface = in.world - in.view_dir * delta;
+    // The surface point: where the ray met the depth atlas.
+    let surface = hit_surface(in, hit);
     let depth = impostor_depth(surface);
     if (region_pass()) {
         // The texel's material names its region (a trunk is opaque, its crown leaves), as the
