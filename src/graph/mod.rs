@@ -14,8 +14,9 @@
 //! share one in-memory view of the sections produced so far ([`crate::pack::Pack::from_sections`],
 //! no encoding), the scene's trace structures are built once per bake and only if a lighting
 //! unit misses, and finished sections stream to the output's temporary file
-//! ([`crate::pack::StreamWriter`]) and are read back through its memory map, so the bake never
-//! holds the pack in memory. The output also records a `build` section (the build key and every
+//! ([`crate::pack::StreamWriter`]) and are read back through its memory map; the per-model
+//! units' sections, which go before the scene's and so wait for them, wait on disk
+//! ([`crate::pack::Spool`]): the bake never holds the pack in memory. The output also records a `build` section (the build key and every
 //! file read with its hash): a run whose inputs and options hash the same leaves the output
 //! alone without reading anything else.
 //!
