@@ -1,6 +1,6 @@
 //! Light maps and environment maps against analytic answers.
 
-use bake::envmap::bake::{EnvmapOptions, EnvmapScene, bake_envmaps, trace_envmaps_range};
+use bake::envmap::bake::{EnvmapOptions, EnvmapScene, SunLight, bake_envmaps, trace_envmaps_range};
 use bake::lightmap::{BakeLight, LightmapMode, LightmapOptions, SUN_RADIUS, texel_irradiance};
 use bake::model::{Material, Mesh, Terrain};
 use bake::sh::ShRadiance;
@@ -705,6 +705,27 @@ fn wall_irradiance(sc: &EnvmapScene, bvh: &SceneBvh, x: Vec3A, n: Vec3A, n_rays:
     (PI as f64 * sum / (side * side) as f64) as f32
 }
 
+/// `model` alone on a flat ground (400 m across), both placed at the origin.
+fn on_flat_ground(model: Mesh) -> SceneBvh {
+    scene(
+        vec![model, flat_terrain(400.0)],
+        vec![at(0, [0.0; 3]), at(1, [0.0; 3])],
+    )
+}
+
+/// The probe `height` above the model of [`on_flat_ground`]: albedo 0.5 (the model) and 0.4
+/// (the ground), a linear sky and `sun`.
+fn lone_probe(bvh: &SceneBvh, height: f32, sun: Option<SunLight>) -> EnvmapScene<'_> {
+    EnvmapScene {
+        bvh,
+        count: 1,
+        probe_height: vec![height],
+        albedo: vec![[0.5; 3], [0.4; 3]],
+        sky: linear_sky(1.0, 0.5),
+        sun,
+    }
+}
+
 #[test]
 fn a_house_probe_lights_its_walls_like_the_ground_in_front_of_them() {
     // A closed house on a flat ground under the sun: its probe (1.25 m up) lies inside it. The
@@ -715,19 +736,8 @@ fn a_house_probe_lights_its_walls_like_the_ground_in_front_of_them() {
     // were absent (docs/CONVENTIONS.md, "Environment-map probes"). Measured (4,096 rays,
     // 2026-12-07): the walls' mean irradiance from the maps 0.828 of the oracle's with the
     // footprint in the house's shadow (per wall 0.81–0.85), 0.992 lit (0.96–1.04).
-    let hut = closed_box([-1.5, -1.0, 0.0], [1.5, 1.0, 2.5]);
-    let bvh = scene(
-        vec![hut, flat_terrain(400.0)],
-        vec![at(0, [0.0; 3]), at(1, [0.0; 3])],
-    );
-    let sc = EnvmapScene {
-        bvh: &bvh,
-        count: 1,
-        probe_height: vec![1.25],
-        albedo: vec![[0.5; 3], [0.4; 3]],
-        sky: linear_sky(1.0, 0.5),
-        sun: sun(),
-    };
+    let bvh = on_flat_ground(closed_box([-1.5, -1.0, 0.0], [1.5, 1.0, 2.5]));
+    let sc = lone_probe(&bvh, 1.25, sun());
     assert!(bvh.instance_encloses(0, Vec3A::new(0.0, 0.0, 1.25)));
     let e_map = probe_irradiance(&sc, 5);
     let walls = [
@@ -774,22 +784,13 @@ fn a_parasol_probe_keeps_the_shadow_under_its_roof() {
         p[2] += 3.0;
     }
     parasol.append(roof);
-    let bvh = scene(
-        vec![parasol, flat_terrain(400.0)],
-        vec![at(0, [0.0; 3]), at(1, [0.0; 3])],
-    );
-    let sc = EnvmapScene {
-        bvh: &bvh,
-        count: 1,
-        probe_height: vec![1.5],
-        albedo: vec![[0.5; 3], [0.4; 3]],
-        // The sun high, so the roof's shadow lies around the post.
-        sky: linear_sky(1.0, 0.5),
-        sun: Some(bake::envmap::bake::SunLight {
-            direction: Vec3A::new(0.1, 0.05, 1.0).normalize().to_array(),
-            irradiance: [50.0; 3],
-        }),
+    let bvh = on_flat_ground(parasol);
+    // The sun high, so the roof's shadow lies around the post.
+    let high_sun = SunLight {
+        direction: Vec3A::new(0.1, 0.05, 1.0).normalize().to_array(),
+        irradiance: [50.0; 3],
     };
+    let sc = lone_probe(&bvh, 1.5, Some(high_sun));
     assert!(
         bvh.instance_encloses(0, Vec3A::new(0.0, 0.0, 1.5)),
         "the probe is in the post"
