@@ -821,8 +821,8 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     let summary = bake::lightmap::section::summary(&v).unwrap();
     assert_eq!(summary["trace_step"], 2, "{summary}");
     assert!(summary.get("filter_range").is_none(), "{summary}");
-    // The ray estimator traces every texel whatever the step says; steps other than 1 and 2
-    // are refused.
+    // The ray estimator traces every texel whatever the step says; steps outside 1..=8 are
+    // refused.
     let rays = |trace_step| LightmapOptions {
         visibility: LightmapVisibility::Rays,
         samples: 4,
@@ -830,11 +830,86 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
         ..plain
     };
     assert!(terrain_map(&scene, &light, &rays(2)) == terrain_map(&scene, &light, &rays(1)));
-    for step in [0, 3] {
+    for step in [0, 9] {
         let o = LightmapOptions {
             trace_step: step,
             ..plain
         };
         assert!(o.check().is_err(), "{o:?}");
     }
+}
+
+#[test]
+fn the_light_map_traced_at_every_fourth_texel_interpolates_bilinearly_and_shards() {
+    // `lightmap.trace_step = 4`: the hemisphere rays at every fourth texel of every fourth row
+    // (and the last row and column), a texel between taking the bilinear blend of the traced
+    // texels around it unless they disagree beyond their noise. Oracle: the same 1,024-ray
+    // reference as the step-2 test. Bounds: the mean within 1 % of the reference's, the
+    // per-texel RMS below the every-texel map's at the same number of hemisphere rays (a
+    // sixteenth of them: 1 ray per texel); the traced texels carry the every-texel map's own
+    // estimate; 1 and 2 threads and row shards whose ends fall between traced rows give the
+    // same bits.
+    use bake::lightmap::LightmapOptions;
+    let (_dir, scene, light, (rm, rd)) = fixture_with_reference();
+    let plain = LightmapOptions {
+        samples: 16,
+        sun_samples: 4,
+        trace_step: 1,
+        ..Default::default()
+    };
+    let stepped = LightmapOptions {
+        trace_step: 4,
+        ..plain
+    };
+    assert!(stepped.check().is_ok());
+    let (pm, pd) = terrain_map(&scene, &light, &plain);
+    let run = |threads| on_threads(threads, || terrain_map(&scene, &light, &stepped));
+    let ((sm, sd), two) = (run(1), run(2));
+    assert!(sm == two.0 && sd == two.1, "1 and 2 threads differ");
+    assert!(sd == pd, "the direct sun is per texel in both");
+    let mut texels = Vec::new();
+    for rows in [0..3, 3..9, 9..10, 10..37, 37..64, 64..65] {
+        let (t, _) = bake::lightmap::bake_terrain_lightmap_rows(&scene, &light, &stepped, rows)
+            .unwrap()
+            .unwrap();
+        texels.extend(t);
+    }
+    assert!(texels == sm, "row shards differ from the whole map");
+    for j in (0..65).step_by(4) {
+        for i in (0..65).step_by(4) {
+            let k = j * 65 + i;
+            for c in 0..3 {
+                let (a, b) = (sm[k][c], pm[k][c]);
+                assert!(
+                    (a - b).abs() <= 1e-5 * b.abs().max(1.0),
+                    "texel ({i}, {j}): {a} vs {b}"
+                );
+            }
+        }
+    }
+    let (qm, qd) = terrain_map(
+        &scene,
+        &light,
+        &LightmapOptions {
+            samples: 1,
+            ..plain
+        },
+    );
+    let r_ind = indirect(&rm, &rd);
+    let (q_rms, _) = rms_and_bias(&qm, &rm);
+    let (s_rms, s_bias) = rms_and_bias(&sm, &rm);
+    let (qi_rms, _) = rms_and_bias(&indirect(&qm, &qd), &r_ind);
+    let (si_rms, si_bias) = rms_and_bias(&indirect(&sm, &sd), &r_ind);
+    eprintln!(
+        "every texel 1 ray: rms {q_rms:.4}, indirect {qi_rms:.4}; \
+         every fourth texel 16 rays: rms {s_rms:.4} bias {s_bias:.4}, indirect {si_rms:.4} bias {si_bias:.4}"
+    );
+    assert!(
+        s_bias.abs() <= 0.01 && si_bias.abs() <= 0.01,
+        "bias {s_bias} {si_bias}"
+    );
+    assert!(
+        s_rms < q_rms && si_rms < qi_rms,
+        "stepped {s_rms} / {si_rms} vs every texel at a sixteenth of the rays {q_rms} / {qi_rms}"
+    );
 }

@@ -123,7 +123,7 @@ pub(crate) struct LightmapBenchArgs {
     /// Estimators to compare: VISIBILITY:SAMPLES:SUN_SAMPLES[:LATTICE[:RES[:STEP]]],
     /// comma-separated (VISIBILITY horizons or rays; RES the map's texels per side, sampled
     /// bilinearly at the reference's texels, empty or absent: the reference's; STEP
-    /// `lightmap.trace_step`, 1 or 2).
+    /// `lightmap.trace_step`, 1 to 8).
     #[arg(
         long,
         default_value = "rays:64:16,horizons:64:16,horizons:32:8,horizons:16:4,horizons:16:4:2"

@@ -88,9 +88,10 @@ pub struct LightmapOptions {
     /// Radius in texels of that filter (a (2r+1)² window).
     pub filter_radius: u32,
     /// The terrain map's hemisphere rays (the horizon estimator's traced correction: the
-    /// instances and the bounce) at every texel (1, the final preset) or at every second texel
-    /// of every second row (2, the default), a texel between taking the mean of the traced
-    /// texels around it unless they disagree beyond their noise, where it is traced itself; the
+    /// instances and the bounce) at every texel (1, the final preset) or at every S-th texel of
+    /// every S-th row (S from 2 to 8; 2 the default), a texel between taking the bilinear blend
+    /// of the traced texels around it (their mean at step 2) unless they disagree beyond their
+    /// noise, where it is traced itself; the
     /// direct sun and the sky above the horizons stay per texel (issue 37; docs/PERFORMANCE.md).
     /// The ray estimator (`visibility = "rays"`, `thesis` mode) traces every texel whatever
     /// this says. In the unit's key only when not 1 (keys of maps traced at every texel are
@@ -124,9 +125,9 @@ impl LightmapOptions {
                 self.filter_range, self.filter_radius
             ));
         }
-        if !(1..=2).contains(&self.trace_step) {
+        if !(1..=8).contains(&self.trace_step) {
             return Err(format!(
-                "lightmap.trace_step = {} (1: hemisphere rays at every texel; 2: at every second texel of every second row)",
+                "lightmap.trace_step = {} (1: hemisphere rays at every texel; S from 2 to 8: at every S-th texel of every S-th row)",
                 self.trace_step
             ));
         }
@@ -401,7 +402,11 @@ fn horizon_rows_into(
     } else {
         None
     };
-    let coarse = (opts.trace_step > 1).then_some(TraceLattice { w, h });
+    let coarse = (opts.trace_step > 1).then_some(TraceLattice {
+        w,
+        h,
+        step: opts.trace_step,
+    });
     // The rows whose horizons are swept: `rows`, and with a trace step the traced rows next to
     // an odd first or last row.
     let swept = match &coarse {
@@ -413,7 +418,7 @@ fn horizon_rows_into(
     let bands = bands_of(
         swept,
         band_rows(w, dirs.len()),
-        coarse.is_some().then_some(h),
+        coarse.as_ref().map(|c| (h, c.step)),
     );
     let sun = light.sun.map(|s| s.0);
     // More than one band: each southward line walked once, kept from one band to the next.
@@ -468,7 +473,7 @@ fn horizon_rows_into(
         };
         // The correction of the traced texels of the band's traced rows.
         let columns = lattice.columns();
-        for j in (start..end).filter(|&j| TraceLattice::is_traced(j, h)) {
+        for j in (start..end).filter(|&j| TraceLattice::is_traced(j, h, lattice.step)) {
             let row = columns
                 .par_iter()
                 .map(|&i| {
@@ -501,16 +506,21 @@ fn horizon_rows_into(
                     texel_horizon_exact(bvh, light, &env, origin, n, texel, opts);
                 let (r0, r1) = lattice.rows_around(j);
                 let (c0, c1) = lattice.columns_around(i);
-                let (ia, ib) = (TraceLattice::index(c0), TraceLattice::index(c1));
+                let (ia, ib) = (lattice.index(c0), lattice.index(c1));
                 let (a, b) = (row_of(r0), row_of(r1));
-                let mut corners = vec![a[ia]];
+                let (u, t) = (
+                    TraceLattice::weight(i, (c0, c1)),
+                    TraceLattice::weight(j, (r0, r1)),
+                );
+                let at = |((c, v), wt): (TracedTexel, f32)| (c, v, wt);
+                let mut corners = vec![at((a[ia], (1.0 - t) * (1.0 - u)))];
                 if ib != ia {
-                    corners.push(a[ib]);
+                    corners.push(at((a[ib], (1.0 - t) * u)));
                 }
                 if r1 != r0 {
-                    corners.push(b[ia]);
+                    corners.push(at((b[ia], t * (1.0 - u))));
                     if ib != ia {
-                        corners.push(b[ib]);
+                        corners.push(at((b[ib], t * u)));
                     }
                 }
                 let var = match TraceLattice::blend(&corners, e) {
@@ -530,23 +540,26 @@ fn horizon_rows_into(
 }
 
 /// The bands of at most `band` rows that tile `rows`. With a trace step (`traced_of`: the
-/// map's height) every band but the last ends on a traced row (one row shorter where it would
-/// not), so every row of a band finds the traced rows around it in the band or in the last
-/// traced row of the band before (the last band ends on the range's end, a traced row).
+/// map's height and the step S) every band but the last ends on a traced row (up to S − 1 rows
+/// shorter where it would not; a band has at least S + 1 rows), so every row of a band finds
+/// the traced rows around it in the band or in the last traced row of the band before (the
+/// last band ends on the range's end, a traced row).
 fn bands_of(
     rows: std::ops::Range<u32>,
     band: u32,
-    traced_of: Option<u32>,
+    traced_of: Option<(u32, u32)>,
 ) -> Vec<std::ops::Range<u32>> {
     let mut bands = Vec::new();
     let mut s = rows.start;
+    let least = traced_of.map_or(2, |(_, step)| step + 1);
     while s < rows.end {
-        let mut e = (s + band.max(2)).min(rows.end);
-        if let Some(h) = traced_of
+        let mut e = (s + band.max(least)).min(rows.end);
+        if let Some((h, step)) = traced_of
             && e < rows.end
-            && !TraceLattice::is_traced(e - 1, h)
         {
-            e -= 1;
+            while e - 1 > s && !TraceLattice::is_traced(e - 1, h, step) {
+                e -= 1;
+            }
         }
         bands.push(s..e);
         s = e;
@@ -557,70 +570,84 @@ fn bands_of(
 /// A traced texel's correction (RGB) and the variance of its rays' mean.
 type TracedTexel = ([f32; 3], f32);
 
-/// The traced texels of a map with `lightmap.trace_step` = 2: even rows and columns and the
-/// last row and column.
+/// The traced texels of a map with `lightmap.trace_step` = S > 1: every S-th row and column
+/// (from 0) and the last row and column.
 struct TraceLattice {
     w: u32,
     h: u32,
+    step: u32,
 }
 
 impl TraceLattice {
-    /// Whether row (or column) `j` of `n` is traced.
-    fn is_traced(j: u32, n: u32) -> bool {
-        j.is_multiple_of(2) || j + 1 == n
+    /// Whether row (or column) `j` of `n` is traced at step `step`.
+    fn is_traced(j: u32, n: u32, step: u32) -> bool {
+        j.is_multiple_of(step) || j + 1 == n
     }
 
-    /// The traced rows whose mean texel row `j` takes: itself, or its two neighbours.
+    /// The traced rows around row `j`: itself twice, or the traced rows before and after it.
     fn rows_around(&self, j: u32) -> (u32, u32) {
-        Self::around(j, self.h)
+        Self::around(j, self.h, self.step)
     }
 
-    /// The traced columns whose mean texel column `i` takes.
+    /// The traced columns around column `i`.
     fn columns_around(&self, i: u32) -> (u32, u32) {
-        Self::around(i, self.w)
+        Self::around(i, self.w, self.step)
     }
 
-    fn around(j: u32, n: u32) -> (u32, u32) {
-        if Self::is_traced(j, n) {
+    fn around(j: u32, n: u32, step: u32) -> (u32, u32) {
+        if Self::is_traced(j, n, step) {
             (j, j)
         } else {
-            (j - 1, j + 1)
+            let a = j / step * step;
+            (a, (a + step).min(n - 1))
+        }
+    }
+
+    /// The weight of the second of the traced rows (or columns) `(a, b)` around `j`: 0 at `a`,
+    /// 1 at `b` (bilinear; ½ half-way, exactly).
+    fn weight(j: u32, (a, b): (u32, u32)) -> f32 {
+        if b == a {
+            0.0
+        } else {
+            (j - a) as f32 / (b - a) as f32
         }
     }
 
     /// The traced columns, in order.
     fn columns(&self) -> Vec<u32> {
         (0..self.w)
-            .filter(|&i| Self::is_traced(i, self.w))
+            .filter(|&i| Self::is_traced(i, self.w, self.step))
             .collect()
     }
 
     /// A traced column's place in [`Self::columns`].
-    fn index(i: u32) -> usize {
-        (i as usize).div_ceil(2)
+    fn index(&self, i: u32) -> usize {
+        (i as usize).div_ceil(self.step as usize)
     }
 
     /// The correction of a texel from the 1, 2 or 4 distinct traced texels around it
-    /// (`corners`: correction and variance) and the variance of that mean; `None` where they
-    /// disagree: some corner lies further from their mean than 3 standard deviations of its own
-    /// noise plus 5 % of the texel's exact part `exact` (RGB means), so the texel is traced
-    /// itself.
-    fn blend(uniq: &[([f32; 3], f32)], exact: [f64; 3]) -> Option<([f32; 3], f32)> {
+    /// (`corners`: correction, variance and bilinear weight, the weights summing to 1) and the
+    /// variance of that interpolation; `None` where they disagree: some corner lies further
+    /// from the corners' plain mean than 3 standard deviations of its own noise plus 5 % of
+    /// the texel's exact part `exact` (RGB means), so the texel is traced itself.
+    fn blend(uniq: &[([f32; 3], f32, f32)], exact: [f64; 3]) -> Option<([f32; 3], f32)> {
         let m = uniq.len() as f32;
         let mut mean = [0.0f32; 3];
+        let mut blended = [0.0f32; 3];
         let mut var = 0.0f32;
-        for (c, v) in uniq {
+        for (c, v, wt) in uniq {
             for ch in 0..3 {
                 mean[ch] += c[ch] / m;
+                blended[ch] += c[ch] * wt;
             }
-            var += v / (m * m);
+            var += v * (wt * wt);
         }
         let grey = |c: [f32; 3]| (c[0] + c[1] + c[2]) / 3.0;
         let tolerance = 0.05 * ((exact[0] + exact[1] + exact[2]) / 3.0) as f32;
         let agree = uniq
             .iter()
-            .all(|(c, v)| (grey(*c) - grey(mean)).abs() <= 3.0 * v.sqrt() + tolerance);
-        agree.then_some((mean, var))
+            .all(|(c, v, _)| (grey(*c) - grey(mean)).abs() <= 3.0 * v.sqrt() + tolerance);
+        agree.then_some((blended, var))
     }
 }
 
@@ -1323,7 +1350,7 @@ mod stepped_tests {
             (1..64, 17, 64),
             (0..65, 512, 65),
         ] {
-            for traced in [None, Some(h)] {
+            for traced in [None, Some((h, 2)), Some((h, 4)), Some((h, 8))] {
                 let bands = super::bands_of(rows.clone(), band, traced);
                 assert_eq!(bands.first().unwrap().start, rows.start);
                 assert_eq!(bands.last().unwrap().end, rows.end);
@@ -1332,9 +1359,9 @@ mod stepped_tests {
                 }
                 for b in &bands[..bands.len() - 1] {
                     assert!(!b.is_empty() && b.len() as u32 <= band, "{b:?}");
-                    if traced.is_some() {
+                    if let Some((h, step)) = traced {
                         assert!(
-                            super::TraceLattice::is_traced(b.end - 1, h),
+                            super::TraceLattice::is_traced(b.end - 1, h, step),
                             "{b:?} of {rows:?}"
                         );
                     }

@@ -45,8 +45,8 @@ pub struct TerrainLightmapMetaFiltered {
     pub filter_range: f32,
 }
 
-/// The terrain light map's metadata when its hemisphere rays were traced at every second texel
-/// of every second row (`lightmap.trace_step` = 2): [`TerrainLightmapMetaFiltered`]'s fields
+/// The terrain light map's metadata when its hemisphere rays were traced at every S-th texel of
+/// every S-th row (`lightmap.trace_step` = S > 1): [`TerrainLightmapMetaFiltered`]'s fields
 /// (radius and range 0 when unfiltered), then the step. Read as a prefix, it is a
 /// [`TerrainLightmapMetaFiltered`] and a [`TerrainLightmapMeta`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
