@@ -546,6 +546,7 @@ fn horizon_light_map_matches_the_ray_reference() {
         sun_samples,
         visibility,
         trace_step: 1,
+        trace_spacing: 0.0,
         ..Default::default()
     };
     let (rm, rd) = terrain_map(&scene, &light, &opts(1024, 64, LightmapVisibility::Rays));
@@ -671,6 +672,7 @@ fn the_filtered_light_map_is_closer_to_the_reference_and_states_its_filter() {
         samples: 16,
         sun_samples: 4,
         trace_step: 1,
+        trace_spacing: 0.0,
         ..Default::default()
     };
     let filtered = LightmapOptions {
@@ -750,6 +752,7 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
         samples: 16,
         sun_samples: 4,
         trace_step: 1,
+        trace_spacing: 0.0,
         ..Default::default()
     };
     let stepped = LightmapOptions {
@@ -855,6 +858,7 @@ fn the_light_map_traced_at_every_fourth_texel_interpolates_bilinearly_and_shards
         samples: 16,
         sun_samples: 4,
         trace_step: 1,
+        trace_spacing: 0.0,
         ..Default::default()
     };
     let stepped = LightmapOptions {

@@ -287,6 +287,8 @@ pub fn bench_lightmap_error(
             horizon_lattice: lattice,
             max_resolution: resolution,
             trace_step,
+            // STEP is the step (no bound in metres widens it).
+            trace_spacing: 0.0,
             ..Default::default()
         };
         opts.check().map_err(crate::error::Error::usage)?;

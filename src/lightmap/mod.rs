@@ -95,8 +95,17 @@ pub struct LightmapOptions {
     /// direct sun and the sky above the horizons stay per texel (issue 37; docs/PERFORMANCE.md).
     /// The ray estimator (`visibility = "rays"`, `thesis` mode) traces every texel whatever
     /// this says. In the unit's key only when not 1 (keys of maps traced at every texel are
-    /// those from before the option).
+    /// those from before the option). The step a map is traced at is this or, where
+    /// `trace_spacing` asks for more, that ([`LightmapOptions::trace_step_for`]).
     pub trace_step: u32,
+    /// The traced texels at least this many metres apart (0: no bound): on a map of texels
+    /// `s` metres wide the step is widened to ⌊trace_spacing / s⌋ texels where that exceeds
+    /// `trace_step`, at most 8. The correction the lattice interpolates is the instances'
+    /// occlusion and the bounce, which vary over the size of the objects on the terrain, not
+    /// of its texels: the default 3.5 m keeps a 1.54 m-texel map at step 2 and traces a
+    /// 1 m-texel map at step 3 (issue 37; docs/PERFORMANCE.md). In the unit's key only when
+    /// not 0.
+    pub trace_spacing: f32,
 }
 
 impl LightmapOptions {
@@ -115,6 +124,7 @@ impl LightmapOptions {
         filter_range: 0.0,
         filter_radius: 2,
         trace_step: 2,
+        trace_spacing: 3.5,
     };
 
     /// Options this binary cannot run (a tracer it was built without).
@@ -123,6 +133,12 @@ impl LightmapOptions {
             return Err(format!(
                 "lightmap.filter_range = {}, lightmap.filter_radius = {} (a range ≥ 0, 0 for no filter; a radius of at most 8 texels)",
                 self.filter_range, self.filter_radius
+            ));
+        }
+        if !(self.trace_spacing.is_finite() && (0.0..=1000.0).contains(&self.trace_spacing)) {
+            return Err(format!(
+                "lightmap.trace_spacing = {} (metres between traced texels, 0 to 1000; 0: no bound)",
+                self.trace_spacing
             ));
         }
         if !(1..=8).contains(&self.trace_step) {
@@ -138,6 +154,32 @@ impl LightmapOptions {
             ));
         }
         self.tracer.available_as("lightmap.tracer")
+    }
+}
+
+impl LightmapOptions {
+    /// The step of the traced lattice on a map whose texels are `texel` metres wide (their
+    /// larger side): `trace_step`, widened to ⌊trace_spacing / texel⌋ where that is larger,
+    /// at most 8.
+    pub fn trace_step_for(&self, texel: f32) -> u32 {
+        let by_metres = if self.trace_spacing > 0.0 && texel > 0.0 {
+            (self.trace_spacing / texel).floor().min(8.0) as u32
+        } else {
+            0
+        };
+        self.trace_step.max(by_metres).clamp(1, 8)
+    }
+}
+
+/// The step the terrain's map is traced at ([`LightmapOptions::trace_step_for`] of its
+/// texels' larger side); 1 without a terrain.
+pub fn terrain_trace_step(scene: &TraceScene, opts: &LightmapOptions) -> u32 {
+    match (scene.terrain.as_ref(), terrain_lightmap_size(scene, opts)) {
+        (Some(t), Some((w, h))) => {
+            let texel = (t.extent[0] / w as f32).max(t.extent[1] / h as f32);
+            opts.trace_step_for(texel)
+        }
+        _ => 1,
     }
 }
 
@@ -402,11 +444,8 @@ fn horizon_rows_into(
     } else {
         None
     };
-    let coarse = (opts.trace_step > 1).then_some(TraceLattice {
-        w,
-        h,
-        step: opts.trace_step,
-    });
+    let step = terrain_trace_step(scene, opts);
+    let coarse = (step > 1).then_some(TraceLattice { w, h, step });
     // The rows whose horizons are swept: `rows`, and with a trace step the traced rows next to
     // an odd first or last row.
     let swept = match &coarse {
@@ -1116,7 +1155,8 @@ pub fn terrain_sections(
         && !filters(opts);
     if streamed && let Some((w, h)) = terrain_lightmap_size(scene, opts) {
         let bvh = scene.tracer(opts.tracer)?;
-        let section = terrain_section_filled(w, h, opts, |irradiance, indirect| {
+        let step = terrain_trace_step(scene, opts);
+        let section = terrain_section_filled(w, h, opts, step, |irradiance, indirect| {
             let mut at = 0;
             horizon_rows_into(scene, bvh, light, opts, 0..h, true, &mut |band| {
                 let len = band.len();
@@ -1132,7 +1172,8 @@ pub fn terrain_sections(
     let Some((map, direct)) = bake_terrain_lightmap_parts(scene, light, opts)? else {
         return Ok(Vec::new());
     };
-    Ok(terrain_sections_of(&map, &direct, opts))
+    let step = terrain_trace_step(scene, opts);
+    Ok(terrain_sections_of(&map, &direct, opts, step))
 }
 
 /// Whether the options filter the map's part without the direct sun.
@@ -1140,11 +1181,13 @@ fn filters(opts: &LightmapOptions) -> bool {
     opts.filter_range > 0.0 && opts.filter_radius > 0
 }
 
-/// The terrain light map's section from its texels and their direct-sun part.
+/// The terrain light map's section from its texels and their direct-sun part, traced at step
+/// `step` ([`terrain_trace_step`]).
 pub(crate) fn terrain_sections_of(
     map: &Lightmap,
     direct: &[[f32; 3]],
     opts: &LightmapOptions,
+    step: u32,
 ) -> Vec<crate::pack::Section> {
     let map = match filters(opts) {
         true => std::borrow::Cow::Owned(Lightmap {
@@ -1165,6 +1208,7 @@ pub(crate) fn terrain_sections_of(
         map.width,
         map.height,
         opts,
+        step,
         |irradiance, indirect| {
             for (k, (&e, &d)) in map.texels.iter().zip(direct).enumerate() {
                 irradiance[k] = section::rgba(e);
@@ -1174,12 +1218,13 @@ pub(crate) fn terrain_sections_of(
     )]
 }
 
-/// The terrain light map's section of `w × h` texels, its metadata from `opts`, whose
-/// `irradiance` and `indirect` arrays (RGBA, A = 1) `fill` writes in place.
+/// The terrain light map's section of `w × h` texels traced at step `step`, its metadata from
+/// `opts`, whose `irradiance` and `indirect` arrays (RGBA, A = 1) `fill` writes in place.
 fn terrain_section_filled(
     w: u32,
     h: u32,
     opts: &LightmapOptions,
+    step: u32,
     fill: impl FnOnce(&mut [[f32; 4]], &mut [[f32; 4]]),
 ) -> crate::pack::Section {
     let meta = section::TerrainLightmapMeta {
@@ -1201,14 +1246,14 @@ fn terrain_section_filled(
         filter_range: range,
     };
     let name = "lightmap:terrain";
-    if opts.trace_step > 1 {
+    if step > 1 {
         let (radius, range) = match filtered {
             true => (opts.filter_radius, opts.filter_range),
             false => (0, 0.0),
         };
         let meta = section::TerrainLightmapMetaStepped {
             filtered: with_filter(radius, range),
-            trace_step: opts.trace_step,
+            trace_step: step,
         };
         section::to_section_filled(name, &meta, n, fill)
     } else if filtered {
@@ -1341,6 +1386,31 @@ pub fn object_sections(
 
 #[cfg(test)]
 mod stepped_tests {
+    #[test]
+    fn the_trace_spacing_widens_the_step_by_whole_texels_up_to_eight() {
+        let o = |trace_step, trace_spacing| super::LightmapOptions {
+            trace_step,
+            trace_spacing,
+            ..Default::default()
+        };
+        let d = super::LightmapOptions::DEFAULT;
+        // The default: 3.5 m. The fixture's 65² map of 100 m (1.54 m texels) stays at step 2,
+        // the theses' scale's 1 m texels (1024 m in 1025 texels) take step 3, the preview's
+        // 1025² map of a 4096 m terrain (4 m texels) step 2.
+        assert_eq!(d.trace_step_for(100.0 / 65.0), 2);
+        assert_eq!(d.trace_step_for(1024.0 / 1025.0), 3);
+        assert_eq!(d.trace_step_for(4096.0 / 1025.0), 2);
+        assert_eq!(d.trace_step_for(0.01), 8, "at most 8");
+        // No bound in metres: the step as given; a step of 1 widened only by a spacing.
+        assert_eq!(o(2, 0.0).trace_step_for(0.01), 2);
+        assert_eq!(o(1, 0.0).trace_step_for(0.5), 1);
+        assert_eq!(o(1, 2.0).trace_step_for(0.5), 4);
+        assert_eq!(o(5, 2.0).trace_step_for(0.5), 5);
+        for bad in [-1.0, f32::NAN, f32::INFINITY, 1001.0] {
+            assert!(o(2, bad).check().is_err(), "{bad}");
+        }
+    }
+
     #[test]
     fn stepped_bands_tile_the_rows_and_end_on_traced_rows() {
         for (rows, band, h) in [

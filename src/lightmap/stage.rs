@@ -91,6 +91,7 @@ impl Stage for Lightmap {
                 samples: 256,
                 sun_samples: 32,
                 trace_step: 1,
+                trace_spacing: 0.0,
                 ..d
             },
         }
@@ -123,6 +124,9 @@ impl Stage for Lightmap {
         }
         if lm.trace_step > 1 {
             o["trace_step"] = lm.trace_step.into();
+        }
+        if lm.trace_spacing > 0.0 {
+            o["trace_spacing"] = lm.trace_spacing.into();
         }
         crate::trace::keyed_tracer(&mut o, lm.tracer);
         k.options(&o).inputs();

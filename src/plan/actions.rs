@@ -291,6 +291,9 @@ struct RowsMeta {
     height: u32,
     start: u32,
     end: u32,
+    /// The step the map is traced at (`lightmap::terrain_trace_step`), stated in the joined
+    /// section's metadata.
+    trace_step: u32,
 }
 
 /// Rows `shard.0` of `shard.1` of the terrain light map ([`shard_range`] over the rows), over
@@ -316,6 +319,7 @@ pub(crate) fn lightmap_rows(
             height: h,
             start: rows.start,
             end: rows.end,
+            trace_step: crate::lightmap::terrain_trace_step(&ts, lm),
         });
         b.array("texels", crate::pack::ArrayFormat::F32, 3, &texels);
         b.array("direct", crate::pack::ArrayFormat::F32, 3, &direct);
@@ -330,6 +334,7 @@ pub fn lightmap_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<Un
     let mut texels: Vec<[f32; 3]> = Vec::new();
     let mut direct: Vec<[f32; 3]> = Vec::new();
     let mut size = None;
+    let mut step = None;
     let mut next = 0u32;
     for p in shards {
         let pack = Pack::open(p)?;
@@ -339,13 +344,18 @@ pub fn lightmap_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<Un
         let bad = |m: String| Error::invalid_at(p, "lightmap-rows section", m);
         let v = pack.view(e)?;
         let m: RowsMeta = v.meta().map_err(|e| bad(e.to_string()))?;
-        if size.is_some_and(|s| s != (m.width, m.height)) || m.start != next || m.end < m.start {
+        if size.is_some_and(|s| s != (m.width, m.height))
+            || step.is_some_and(|s| s != m.trace_step)
+            || m.start != next
+            || m.end < m.start
+        {
             return Err(bad(format!(
                 "rows {}..{} of a {}×{} map do not continue the shards before it (row {next})",
                 m.start, m.end, m.width, m.height
             )));
         }
         size = Some((m.width, m.height));
+        step = Some(m.trace_step);
         next = m.end;
         let t: &[[f32; 3]] = v.array("texels").map_err(|e| bad(e.to_string()))?;
         let d: &[[f32; 3]] = v.array("direct").map_err(|e| bad(e.to_string()))?;
@@ -368,7 +378,12 @@ pub fn lightmap_join(s: &SceneArgs, shards: &[PathBuf], out: &Path) -> Result<Un
             height,
             texels,
         };
-        outs = crate::lightmap::terrain_sections_of(&map, &direct, &s.pipeline.lightmap);
+        outs = crate::lightmap::terrain_sections_of(
+            &map,
+            &direct,
+            &s.pipeline.lightmap,
+            step.unwrap_or(1),
+        );
     }
     finish("lightmap", out, outs, Vec::new())
 }
