@@ -735,18 +735,22 @@ fn the_filtered_light_map_is_closer_to_the_reference_and_states_its_filter() {
     }
 }
 
-#[test]
-fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
-    // `lightmap.trace_step = 2`: the hemisphere rays only at the texels of even row and column
-    // (a quarter of them), the others taking the mean of the traced texels around them; the
-    // direct sun and the sky above the horizons per texel. Oracle: the 1,024-ray reference of
-    // the fixture's whole map (ray visibility). Bounds: the stepped map's mean within 1 % of
-    // the reference's (total and without the direct sun) and its per-texel RMS no worse than
-    // 1.1× the every-texel map's at the same ray count (four times the rays); the traced
-    // texels carry the every-texel map's own rays (equal to f32 rounding); row shards with odd
-    // ends and 1 or 2 threads give the same bits; the section states the step; other
-    // estimators refuse it.
-    use bake::lightmap::{LightmapOptions, LightmapVisibility};
+/// The fixture's map traced at `step` (16 + 4 rays; no bound in metres), checked as every
+/// stepped map is: 1 and 2 threads and the row shards `shards` give the same bits, the direct
+/// sun is the every-texel map's, every traced texel (row and column multiples of `step`, the
+/// last ones too) carries the every-texel map's own estimate (equal to f32 rounding); and,
+/// against the 1,024-ray reference (ray visibility), its mean within 1 % (total and without the
+/// direct sun) and its per-texel RMS below the every-texel map's at the same number of
+/// hemisphere rays (16 / step² per texel). Returns the options and the stepped map.
+fn stepped_map_checked(
+    step: u32,
+    shards: &[std::ops::Range<u32>],
+) -> (
+    bake::lightmap::LightmapOptions,
+    bake::lightmap::LightmapOptions,
+    Vec<[f32; 3]>,
+) {
+    use bake::lightmap::LightmapOptions;
     let (_dir, scene, light, (rm, rd)) = fixture_with_reference();
     let plain = LightmapOptions {
         samples: 16,
@@ -756,7 +760,7 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
         ..Default::default()
     };
     let stepped = LightmapOptions {
-        trace_step: 2,
+        trace_step: step,
         ..plain
     };
     assert!(stepped.check().is_ok());
@@ -765,18 +769,18 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     let ((sm, sd), two) = (run(1), run(2));
     assert!(sm == two.0 && sd == two.1, "1 and 2 threads differ");
     assert!(sd == pd, "the direct sun is per texel in both");
-    // Row shards, odd and even ends.
     let mut texels = Vec::new();
-    for rows in [0..7, 7..40, 40..41, 41..65] {
-        let (t, _) = bake::lightmap::bake_terrain_lightmap_rows(&scene, &light, &stepped, rows)
-            .unwrap()
-            .unwrap();
+    for rows in shards {
+        let (t, _) =
+            bake::lightmap::bake_terrain_lightmap_rows(&scene, &light, &stepped, rows.clone())
+                .unwrap()
+                .unwrap();
         texels.extend(t);
     }
     assert!(texels == sm, "row shards differ from the whole map");
-    // The traced texels: the every-texel map's estimate at the same texel.
-    for j in (0..65).step_by(2) {
-        for i in (0..65).step_by(2) {
+    let traced = |k: usize| k % step as usize == 0 || k == 64;
+    for j in (0..65).filter(|&j| traced(j)) {
+        for i in (0..65).filter(|&i| traced(i)) {
             let k = j * 65 + i;
             for c in 0..3 {
                 let (a, b) = (sm[k][c], pm[k][c]);
@@ -787,25 +791,22 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
             }
         }
     }
-    // The every-texel map at a quarter of the rays: the same number of hemisphere rays.
     let (qm, qd) = terrain_map(
         &scene,
         &light,
         &LightmapOptions {
-            samples: 4,
+            samples: 16 / (step * step).min(16),
             ..plain
         },
     );
     let r_ind = indirect(&rm, &rd);
-    let (p_rms, _) = rms_and_bias(&pm, &rm);
     let (q_rms, _) = rms_and_bias(&qm, &rm);
     let (s_rms, s_bias) = rms_and_bias(&sm, &rm);
-    let (pi_rms, _) = rms_and_bias(&indirect(&pm, &pd), &r_ind);
     let (qi_rms, _) = rms_and_bias(&indirect(&qm, &qd), &r_ind);
     let (si_rms, si_bias) = rms_and_bias(&indirect(&sm, &sd), &r_ind);
     eprintln!(
-        "every texel 16 rays: rms {p_rms:.4}, indirect {pi_rms:.4}; 4 rays: {q_rms:.4}, {qi_rms:.4}; \
-         every second texel 16 rays: rms {s_rms:.4} bias {s_bias:.4}, indirect {si_rms:.4} bias {si_bias:.4}"
+        "step {step}: every texel at the same rays: rms {q_rms:.4}, indirect {qi_rms:.4}; \
+         stepped: rms {s_rms:.4} bias {s_bias:.4}, indirect {si_rms:.4} bias {si_bias:.4}"
     );
     assert!(
         s_bias.abs() <= 0.01 && si_bias.abs() <= 0.01,
@@ -813,9 +814,21 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     );
     assert!(
         s_rms < q_rms && si_rms < qi_rms,
-        "stepped {s_rms} / {si_rms} vs every texel at a quarter of the rays {q_rms} / {qi_rms}"
+        "stepped {s_rms} / {si_rms} vs every texel at the same rays {q_rms} / {qi_rms}"
     );
-    // The section states the step after the prefix every reader reads.
+    (plain, stepped, sm)
+}
+
+#[test]
+fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
+    // `lightmap.trace_step = 2`: the hemisphere rays only at the texels of even row and column
+    // (a quarter of them), the others taking the mean of the traced texels around them; the
+    // direct sun and the sky above the horizons per texel. The checks of
+    // `stepped_map_checked` (row shards with odd and even ends); the section states the step;
+    // other estimators ignore it; steps outside 1..=8 are refused.
+    use bake::lightmap::{LightmapOptions, LightmapVisibility};
+    let (plain, stepped, sm) = stepped_map_checked(2, &[0..7, 7..40, 40..41, 41..65]);
+    let (_dir, scene, light, _) = fixture_with_reference();
     let p = terrain_section_pack(&scene, &light, &stepped);
     let v = p.view_named("lightmap:terrain").unwrap();
     let (meta, m) = bake::lightmap::section::from_section(&v).unwrap();
@@ -824,8 +837,6 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
     let summary = bake::lightmap::section::summary(&v).unwrap();
     assert_eq!(summary["trace_step"], 2, "{summary}");
     assert!(summary.get("filter_range").is_none(), "{summary}");
-    // The ray estimator traces every texel whatever the step says; steps outside 1..=8 are
-    // refused.
     let rays = |trace_step| LightmapOptions {
         visibility: LightmapVisibility::Rays,
         samples: 4,
@@ -846,74 +857,7 @@ fn the_light_map_traced_at_every_second_texel_keeps_the_reference_and_shards() {
 fn the_light_map_traced_at_every_fourth_texel_interpolates_bilinearly_and_shards() {
     // `lightmap.trace_step = 4`: the hemisphere rays at every fourth texel of every fourth row
     // (and the last row and column), a texel between taking the bilinear blend of the traced
-    // texels around it unless they disagree beyond their noise. Oracle: the same 1,024-ray
-    // reference as the step-2 test. Bounds: the mean within 1 % of the reference's, the
-    // per-texel RMS below the every-texel map's at the same number of hemisphere rays (a
-    // sixteenth of them: 1 ray per texel); the traced texels carry the every-texel map's own
-    // estimate; 1 and 2 threads and row shards whose ends fall between traced rows give the
-    // same bits.
-    use bake::lightmap::LightmapOptions;
-    let (_dir, scene, light, (rm, rd)) = fixture_with_reference();
-    let plain = LightmapOptions {
-        samples: 16,
-        sun_samples: 4,
-        trace_step: 1,
-        trace_spacing: 0.0,
-        ..Default::default()
-    };
-    let stepped = LightmapOptions {
-        trace_step: 4,
-        ..plain
-    };
-    assert!(stepped.check().is_ok());
-    let (pm, pd) = terrain_map(&scene, &light, &plain);
-    let run = |threads| on_threads(threads, || terrain_map(&scene, &light, &stepped));
-    let ((sm, sd), two) = (run(1), run(2));
-    assert!(sm == two.0 && sd == two.1, "1 and 2 threads differ");
-    assert!(sd == pd, "the direct sun is per texel in both");
-    let mut texels = Vec::new();
-    for rows in [0..3, 3..9, 9..10, 10..37, 37..64, 64..65] {
-        let (t, _) = bake::lightmap::bake_terrain_lightmap_rows(&scene, &light, &stepped, rows)
-            .unwrap()
-            .unwrap();
-        texels.extend(t);
-    }
-    assert!(texels == sm, "row shards differ from the whole map");
-    for j in (0..65).step_by(4) {
-        for i in (0..65).step_by(4) {
-            let k = j * 65 + i;
-            for c in 0..3 {
-                let (a, b) = (sm[k][c], pm[k][c]);
-                assert!(
-                    (a - b).abs() <= 1e-5 * b.abs().max(1.0),
-                    "texel ({i}, {j}): {a} vs {b}"
-                );
-            }
-        }
-    }
-    let (qm, qd) = terrain_map(
-        &scene,
-        &light,
-        &LightmapOptions {
-            samples: 1,
-            ..plain
-        },
-    );
-    let r_ind = indirect(&rm, &rd);
-    let (q_rms, _) = rms_and_bias(&qm, &rm);
-    let (s_rms, s_bias) = rms_and_bias(&sm, &rm);
-    let (qi_rms, _) = rms_and_bias(&indirect(&qm, &qd), &r_ind);
-    let (si_rms, si_bias) = rms_and_bias(&indirect(&sm, &sd), &r_ind);
-    eprintln!(
-        "every texel 1 ray: rms {q_rms:.4}, indirect {qi_rms:.4}; \
-         every fourth texel 16 rays: rms {s_rms:.4} bias {s_bias:.4}, indirect {si_rms:.4} bias {si_bias:.4}"
-    );
-    assert!(
-        s_bias.abs() <= 0.01 && si_bias.abs() <= 0.01,
-        "bias {s_bias} {si_bias}"
-    );
-    assert!(
-        s_rms < q_rms && si_rms < qi_rms,
-        "stepped {s_rms} / {si_rms} vs every texel at a sixteenth of the rays {q_rms} / {qi_rms}"
-    );
+    // texels around it unless they disagree beyond their noise. The checks of
+    // `stepped_map_checked`, with row shards whose ends fall between traced rows.
+    stepped_map_checked(4, &[0..3, 3..9, 9..10, 10..37, 37..64, 64..65]);
 }
