@@ -778,7 +778,7 @@ fn stepped_map_checked(
         texels.extend(t);
     }
     assert!(texels == sm, "row shards differ from the whole map");
-    let traced = |k: usize| k % step as usize == 0 || k == 64;
+    let traced = |k: usize| k.is_multiple_of(step as usize) || k == 64;
     for j in (0..65).filter(|&j| traced(j)) {
         for i in (0..65).filter(|&i| traced(i)) {
             let k = j * 65 + i;
