@@ -524,23 +524,36 @@ pub fn compression_warning(
 /// thread count or the shards).
 pub fn envmaps_section(traced: &bake::Traced, opts: &bake::EnvmapOptions) -> crate::pack::Section {
     let maps = &traced.maps;
-    let sky: Vec<[[f32; 3]; 16]> = maps.iter().map(|m| m.0).collect();
-    let sun: Vec<[[f32; 3]; 16]> = maps.iter().map(|m| m.1).collect();
     let noise = (!maps.is_empty() && traced.diffs.len() == maps.len())
         .then(|| section::noise_from_differences(&traced.diffs));
-    let meta = section::EnvmapsMeta {
-        instances: maps.len() as u64,
+    section::envmaps_to_section_filled(
+        "envmaps",
+        &envmaps_meta(maps.len(), noise.is_some(), opts),
+        maps.len(),
+        |out| out.iter_mut().zip(maps).for_each(|(o, m)| *o = m.0),
+        |out| out.iter_mut().zip(maps).for_each(|(o, m)| *o = m.1),
+        noise.as_ref(),
+    )
+}
+
+/// The `envmaps` section's metadata for `n` maps, with a noise estimate or without.
+pub(crate) fn envmaps_meta(
+    n: usize,
+    noise: bool,
+    opts: &bake::EnvmapOptions,
+) -> section::EnvmapsMeta {
+    section::EnvmapsMeta {
+        instances: n as u64,
         order: 4,
         samples: opts.samples,
-        estimator: if noise.is_some() {
+        estimator: if noise {
             "spherical Fibonacci rays from a probe at half the model height, two independently rotated halves; one diffuse bounce"
         } else {
             "spherical Fibonacci rays from a probe at half the model height; one diffuse bounce"
         }
         .into(),
-        noise_pairs: noise.as_ref().map_or(0, |_| maps.len() as u64),
-    };
-    section::envmaps_to_section("envmaps", &meta, &sky, &sun, noise.as_ref())
+        noise_pairs: if noise { n as u64 } else { 0 },
+    }
 }
 
 /// The clustering stage on a pack with `instances` and `envmaps`: the `clusters` section, whose

@@ -81,13 +81,20 @@ const NOISE_BLOCK: usize = 1024;
 
 /// The noise estimate from the instances' half differences (world frame, `DIM` each).
 pub fn noise_from_differences(diffs: &[[f32; DIM]]) -> EnvmapNoise {
+    noise_from(diffs.len(), |i| &diffs[i])
+}
+
+/// [`noise_from_differences`] of the `n` differences `diff(0)`, …, `diff(n − 1)`, wherever they
+/// lie (the env-map shards' sections, joined without a copy): the same blocks, the same bits.
+pub fn noise_from<'a>(n: usize, diff: impl Fn(usize) -> &'a [f32; DIM] + Sync) -> EnvmapNoise {
     use rayon::prelude::*;
-    let n = diffs.len();
-    let partial: Vec<Vec<f64>> = diffs
-        .par_chunks(NOISE_BLOCK)
-        .map(|blk| {
+    let blocks = n.div_ceil(NOISE_BLOCK);
+    let partial: Vec<Vec<f64>> = (0..blocks)
+        .into_par_iter()
+        .map(|b| {
             let mut m = vec![0.0f64; DIM * DIM];
-            for d in blk {
+            for i in b * NOISE_BLOCK..((b + 1) * NOISE_BLOCK).min(n) {
+                let d = diff(i);
                 for a in 0..DIM {
                     let da = d[a] as f64;
                     if da == 0.0 {
@@ -115,9 +122,9 @@ pub fn noise_from_differences(diffs: &[[f32; DIM]]) -> EnvmapNoise {
             m[b * DIM + a] = m[a * DIM + b];
         }
     }
-    let variance = diffs
-        .par_iter()
-        .map(|d| (d.iter().map(|&x| x as f64 * x as f64).sum::<f64>() / 4.0) as f32)
+    let variance = (0..n)
+        .into_par_iter()
+        .map(|i| (diff(i).iter().map(|&x| x as f64 * x as f64).sum::<f64>() / 4.0) as f32)
         .collect();
     EnvmapNoise {
         covariance: m,
@@ -132,10 +139,32 @@ pub fn envmaps_to_section(
     sun: &[[[f32; 3]; COEFFS]],
     noise: Option<&EnvmapNoise>,
 ) -> Section {
+    assert_eq!(sky.len(), sun.len(), "as many sun maps as sky maps");
+    envmaps_to_section_filled(
+        name,
+        meta,
+        sky.len(),
+        |out| out.copy_from_slice(sky),
+        |out| out.copy_from_slice(sun),
+        noise,
+    )
+}
+
+/// [`envmaps_to_section`] of `n` instances whose `sky` and `sun` arrays `fill_sky` and
+/// `fill_sun` write in place (the join of the env-map shards: no copy of the maps beside the
+/// section's own).
+pub fn envmaps_to_section_filled(
+    name: &str,
+    meta: &EnvmapsMeta,
+    n: usize,
+    fill_sky: impl FnOnce(&mut [[[f32; 3]; COEFFS]]),
+    fill_sun: impl FnOnce(&mut [[[f32; 3]; COEFFS]]),
+    noise: Option<&EnvmapNoise>,
+) -> Section {
     let mut b = SectionBuilder::new(ENVMAPS_KIND, name);
     b.meta(meta)
-        .array("sky", ArrayFormat::F32, 48, sky)
-        .array("sun", ArrayFormat::F32, 48, sun);
+        .array_fill("sky", ArrayFormat::F32, 48, n, fill_sky)
+        .array_fill("sun", ArrayFormat::F32, 48, n, fill_sun);
     if let Some(nz) = noise {
         let cov: Vec<[f32; DIM]> = nz
             .covariance
