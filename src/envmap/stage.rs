@@ -185,7 +185,7 @@ pub fn join_envmaps(
 }
 
 /// A shard's maps (32 RGB coefficients per instance: C_H then C_S) and half differences, as
-/// views into its `envmaps-shard` section, checked as [`shard_maps`] checks them.
+/// views into its `envmaps-shard` section, checked (the entry's kind, the counts).
 fn shard_view(sections: &[Section], n: usize) -> Result<ShardView<'_>> {
     let bad = || Error::runtime("environment-map shard: unexpected cache entry contents");
     let s = sections
@@ -197,8 +197,9 @@ fn shard_view(sections: &[Section], n: usize) -> Result<ShardView<'_>> {
     if maps.len() != n * 32 {
         return Err(bad());
     }
+    // An empty `noise` array is none (as the shards' writer leaves it out).
     let diffs: Option<&[[f32; 96]]> = match v.info("noise") {
-        Some(_) => Some(v.array("noise").map_err(|_| bad())?),
+        Some(_) => Some(v.array("noise").map_err(|_| bad())?).filter(|d| !d.is_empty()),
         None => None,
     };
     if diffs.is_some_and(|d| d.len() != n) {
@@ -283,16 +284,7 @@ pub(crate) fn shard_section(t: &super::bake::Traced) -> Section {
 }
 
 pub(crate) fn shard_maps(sections: &[Section], n: usize) -> Result<super::bake::Traced> {
-    let bad = || Error::runtime("environment-map shard: unexpected cache entry contents");
-    let s = sections
-        .first()
-        .filter(|s| s.kind == SHARD_KIND)
-        .ok_or_else(bad)?;
-    let v = crate::pack::section::SectionView::parse(&s.payload, 0).map_err(|_| bad())?;
-    let flat: &[[f32; 3]] = v.array("maps").map_err(|_| bad())?;
-    if flat.len() != n * 32 {
-        return Err(bad());
-    }
+    let (flat, diffs) = shard_view(sections, n)?;
     let maps = flat
         .chunks_exact(32)
         .map(|c| {
@@ -302,14 +294,10 @@ pub(crate) fn shard_maps(sections: &[Section], n: usize) -> Result<super::bake::
             )
         })
         .collect();
-    let diffs: Vec<[f32; 96]> = match v.info("noise") {
-        Some(_) => v.array_vec("noise").map_err(|_| bad())?,
-        None => Vec::new(),
-    };
-    if !diffs.is_empty() && diffs.len() != n {
-        return Err(bad());
-    }
-    Ok(crate::envmap::bake::Traced { maps, diffs })
+    Ok(crate::envmap::bake::Traced {
+        maps,
+        diffs: diffs.map_or_else(Vec::new, <[_]>::to_vec),
+    })
 }
 
 /// The section kinds the `envmaps` stage defines (docs/FORMAT.md): what `bake dump` and `bake
