@@ -115,7 +115,7 @@ impl TexelGrid {
     }
 
     /// Texel size (x, y).
-    fn step(&self) -> [f32; 2] {
+    pub(crate) fn step(&self) -> [f32; 2] {
         [
             self.extent[0] / self.width as f32,
             self.extent[1] / self.height as f32,

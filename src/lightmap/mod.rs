@@ -127,6 +127,18 @@ impl LightmapOptions {
         trace_spacing: 3.5,
     };
 
+    /// The step of the traced lattice on a map whose texels are `texel` metres wide (their
+    /// larger side): `trace_step`, widened to ⌊trace_spacing / texel⌋ where that is larger,
+    /// at most 8.
+    pub fn trace_step_for(&self, texel: f32) -> u32 {
+        let by_metres = if self.trace_spacing > 0.0 && texel > 0.0 {
+            (self.trace_spacing / texel).floor() as u32
+        } else {
+            0
+        };
+        self.trace_step.max(by_metres).clamp(1, 8)
+    }
+
     /// Options this binary cannot run (a tracer it was built without).
     pub fn check(&self) -> std::result::Result<(), String> {
         if !(self.filter_range.is_finite() && self.filter_range >= 0.0) || self.filter_radius > 8 {
@@ -157,27 +169,13 @@ impl LightmapOptions {
     }
 }
 
-impl LightmapOptions {
-    /// The step of the traced lattice on a map whose texels are `texel` metres wide (their
-    /// larger side): `trace_step`, widened to ⌊trace_spacing / texel⌋ where that is larger,
-    /// at most 8.
-    pub fn trace_step_for(&self, texel: f32) -> u32 {
-        let by_metres = if self.trace_spacing > 0.0 && texel > 0.0 {
-            (self.trace_spacing / texel).floor().min(8.0) as u32
-        } else {
-            0
-        };
-        self.trace_step.max(by_metres).clamp(1, 8)
-    }
-}
-
 /// The step the terrain's map is traced at ([`LightmapOptions::trace_step_for`] of its
 /// texels' larger side); 1 without a terrain.
 pub fn terrain_trace_step(scene: &TraceScene, opts: &LightmapOptions) -> u32 {
     match (scene.terrain.as_ref(), terrain_lightmap_size(scene, opts)) {
         (Some(t), Some((w, h))) => {
-            let texel = (t.extent[0] / w as f32).max(t.extent[1] / h as f32);
-            opts.trace_step_for(texel)
+            let [sx, sy] = horizon::TexelGrid::new(t, w, h).step();
+            opts.trace_step_for(sx.max(sy))
         }
         _ => 1,
     }
@@ -1153,9 +1151,9 @@ pub fn terrain_sections(
     let streamed = opts.mode == LightmapMode::Physical
         && opts.visibility == LightmapVisibility::Horizons
         && !filters(opts);
+    let step = terrain_trace_step(scene, opts);
     if streamed && let Some((w, h)) = terrain_lightmap_size(scene, opts) {
         let bvh = scene.tracer(opts.tracer)?;
-        let step = terrain_trace_step(scene, opts);
         let section = terrain_section_filled(w, h, opts, step, |irradiance, indirect| {
             let mut at = 0;
             horizon_rows_into(scene, bvh, light, opts, 0..h, true, &mut |band| {
@@ -1172,7 +1170,6 @@ pub fn terrain_sections(
     let Some((map, direct)) = bake_terrain_lightmap_parts(scene, light, opts)? else {
         return Ok(Vec::new());
     };
-    let step = terrain_trace_step(scene, opts);
     Ok(terrain_sections_of(&map, &direct, opts, step))
 }
 
